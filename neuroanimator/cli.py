@@ -1,0 +1,300 @@
+"""The ``neuro`` command: train, evaluate and benchmark emulators; list models.
+
+Every command that reads artifacts takes ``--artifacts DIR`` (default ``artifacts/``); ``eval`` and
+``bench`` print a table, and with ``--json`` one JSON object as the last line of output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from neuroanimator import artifacts, physics
+from neuroanimator.physics.mjcf import load_mjcf
+from neuroanimator.physics.model import ModelError, PhysicalModel
+from neuroanimator.training import TrainConfig, TrainingDiverged
+
+log = logging.getLogger("neuroanimator")
+
+
+def _table(rows: list[dict[str, Any]], columns: list[tuple[str, str, str]]) -> str:
+    """Render rows as an aligned text table; columns are (key, header, format)."""
+    cells = [[h for _, h, _ in columns]]
+    for r in rows:
+        cells.append([("-" if r.get(k) is None else format(r[k], f)) for k, _, f in columns])
+    widths = [max(len(c[i]) for c in cells) for i in range(len(columns))]
+    lines = ["  ".join(c[i].rjust(widths[i]) for i in range(len(columns))) for c in cells]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def _out(text: str) -> None:
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
+
+
+# ---------------------------------------------------------------------------- train
+def cmd_train(args: argparse.Namespace) -> int:
+    if (args.model is None) == (args.mjcf is None):
+        raise ModelError("give either a catalog model name or --mjcf PATH (not both)")
+    model: PhysicalModel = (
+        load_mjcf(args.mjcf, substeps=args.substeps) if args.mjcf else physics.get(args.model)
+    )
+    cfg = TrainConfig(
+        substeps=args.substeps if args.substeps is not None else model.spec.substeps,
+        preset=args.preset,
+        optimizer=args.optimizer,
+        seed=args.seed,
+        progress=not args.quiet,
+        thesis_hidden=model.spec.thesis_hidden or max(20, 2 * model.state_size),
+    )
+    if args.hidden is not None:
+        cfg.hidden = tuple(int(h) for h in args.hidden.split(","))
+    if args.activation is not None:
+        cfg.activation = args.activation
+    if args.examples is not None:
+        cfg.examples = args.examples
+    if args.lr is not None:
+        cfg.lr = args.lr
+    if args.max_seconds is not None:
+        cfg.max_seconds = args.max_seconds
+    if args.epochs is not None:
+        cfg.max_epochs = args.epochs
+    from neuroanimator.training import train  # torch loads only for commands that need it
+
+    result = train(model, cfg)
+    path = artifacts.save(Path(args.out), model, result)
+    m = result.metrics
+    _out(
+        f"{model.name} n={cfg.substeps}: one-step relative error {m['one_step_rel_error']:.5f} "
+        f"(linear baseline {m['linear_baseline_rel_error']:.4f}), {m['weights']} weights, "
+        f"{m['examples']} examples, {m['total_seconds']:.0f} s\nwrote {path}"
+    )
+    if args.json:
+        _out(json.dumps({"model": model.name, "substeps": cfg.substeps, "artifact": str(path), **m}))
+    return 0
+
+
+# ---------------------------------------------------------------------------- eval
+def cmd_eval(args: argparse.Namespace) -> int:
+    from neuroanimator import evaluation
+
+    root = Path(args.artifacts)
+    ns = [args.substeps] if args.substeps else artifacts.available_substeps(root, args.model)
+    if not ns:
+        raise artifacts.ArtifactError(f"no artifacts for model {args.model!r} in {str(root)!r}")
+    results, curves = [], {}
+    for n in ns:
+        path = artifacts.resolve(root, args.model, substeps=n)
+        manifest = artifacts.load_manifest(path)
+        model = artifacts.load_physical_model(path)
+        errs = evaluation.one_step_errors(path, model, manifest)
+        curve = evaluation.rollout_curve(path, model, n, trials=args.trials, steps=args.steps)
+        curves[n] = curve
+        results.append(
+            {
+                "model": args.model,
+                "substeps": n,
+                "version": manifest["version"],
+                **errs,
+                "baseline_ratio": errs["linear_baseline_rel_error"] / max(errs["one_step_rel_error"], 1e-12),
+                "rollout_error_curve": {"t": curve.t, "error": curve.error},
+                "rollout_error_at_20s": curve.at(20.0),
+                "rollout_error_final": curve.error[-1],
+                "architecture": {k: manifest["architecture"][k] for k in ("hidden", "activation", "weights")},
+                "train_seconds": manifest["metrics"].get("total_seconds"),
+            }
+        )
+    plot = Path(args.plot) if args.plot else root / args.model / "rollout_error.png"
+    evaluation.plot_curves(curves, f"{args.model}: rollout error vs MuJoCo ({args.trials} trials)", plot)
+    _out(
+        _table(
+            results,
+            [
+                ("substeps", "n", "d"),
+                ("one_step_rel_error", "one-step rel err", ".5f"),
+                ("linear_baseline_rel_error", "linear baseline", ".4f"),
+                ("baseline_ratio", "ratio", ".0f"),
+                ("rollout_error_at_20s", "rollout err @20s", ".4f"),
+                ("rollout_error_final", f"@{args.steps * physics_dt(results, root, args.model):.0f}s", ".4f"),
+            ],
+        )
+    )
+    primary = next((r for r in results if r["substeps"] == (args.substeps or 50)), results[-1])
+    spec_hidden = (
+        artifacts.load_manifest(artifacts.resolve(root, args.model)).get("spec", {}).get("thesis_hidden")
+    )
+    summary: dict[str, Any] = {
+        **primary,
+        "thesis_preset": {"hidden": [spec_hidden] if spec_hidden else None, "activation": "sigmoid"},
+        "by_substeps": [{k: v for k, v in r.items() if k != "model"} for r in results],
+        "plot": str(plot),
+    }
+    if 25 in curves and 100 in curves:
+        # thesis 6.1.2: predicting further means fewer iterations, so the error does not grow with n
+        ratios = n100_vs_n25(curves[25], curves[100])
+        summary.update(ratios)
+        _out(
+            f"N^100 / N^25 rollout error: {ratios['n100_vs_n25_at_20s']:.2f} at 20 s, "
+            f"at most {ratios['n100_vs_n25_max']:.2f} over matching times from 5 s on"
+        )
+    _out(f"plot: {plot}")
+    if args.json:
+        _out(json.dumps(summary))
+    return 0
+
+
+def n100_vs_n25(c25: Any, c100: Any) -> dict[str, float]:
+    """Ratio of N^100's to N^25's rollout error at the times both reach (every 4th N^25 step)."""
+    common = [t for t in c100.t if t >= 5.0 and t <= c25.t[-1]]
+    ratios = [c100.at(t) / max(c25.at(t), 1e-12) for t in common]
+    return {
+        "n100_vs_n25_at_20s": c100.at(20.0) / max(c25.at(20.0), 1e-12),
+        "n100_vs_n25_max": max(ratios) if ratios else float("nan"),
+        "n100_vs_n25_mean": float(sum(ratios) / len(ratios)) if ratios else float("nan"),
+    }
+
+
+def physics_dt(results: list[dict[str, Any]], root: Path, name: str) -> float:
+    return float(artifacts.load_manifest(artifacts.resolve(root, name))["timestep"])
+
+
+# ---------------------------------------------------------------------------- bench
+def cmd_bench(args: argparse.Namespace) -> int:
+    from neuroanimator import bench
+
+    batches = tuple(int(b) for b in args.batches.split(",")) if args.batches else bench.BATCHES
+    res = bench.run(Path(args.artifacts), args.model, batches, repeats=args.repeats)
+    _out(f"{args.model}: single client, {bench.SINGLE_STEPS} physical steps (thesis Table 6.2)")
+    _out(
+        _table(
+            res["single"],
+            [
+                ("substeps", "n", "d"),
+                ("physics_s", "MuJoCo s", ".4f"),
+                ("emulator_s", "emulator s", ".4f"),
+                ("ratio", "speed-up", ".1f"),
+            ],
+        )
+    )
+    _out(
+        f"\n{args.model}: batched, {bench.BATCH_SECONDS:.0f} s simulated per client, n={res['batched_substeps']}"
+    )
+    _out(
+        _table(
+            res["batched"],
+            [
+                ("batch", "B", "d"),
+                ("physics_steps_per_s", "mujoco.rollout steps/s", ".3g"),
+                ("emulator_steps_per_s", "emulator steps/s", ".3g"),
+                ("ratio", "speed-up", ".0f"),
+            ],
+        )
+    )
+    if args.json:
+        _out(json.dumps(res))
+    return 0
+
+
+# ---------------------------------------------------------------------------- models
+def cmd_models(args: argparse.Namespace) -> int:
+    root = Path(args.artifacts)
+    rows = []
+    for name in physics.CATALOG:
+        rows.append(
+            {"model": name, "trained": ",".join(map(str, artifacts.available_substeps(root, name))) or None}
+        )
+    for name in artifacts.list_models(root):
+        if name not in physics.CATALOG:
+            rows.append(
+                {"model": name, "trained": ",".join(map(str, artifacts.available_substeps(root, name)))}
+            )
+    _out(_table(rows, [("model", "model", "s"), ("trained", "trained n", "s")]))
+    if args.json:
+        _out(json.dumps(rows))
+    return 0
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {value}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="neuro", description="NeuroAnimator: neural emulators of MuJoCo models")
+    p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    t = sub.add_parser("train", help="simulate data, train an emulator, export it to the artifact registry")
+    t.add_argument("model", nargs="?", help=f"catalog model: {', '.join(physics.CATALOG)}")
+    t.add_argument("--mjcf", help="train on your own MJCF file instead of a catalog model")
+    t.add_argument("--substeps", type=_positive_int, help="super timestep n (default: the model's, 50)")
+    t.add_argument("--out", default="artifacts", help="artifact registry to write to (default: artifacts/)")
+    t.add_argument("--preset", choices=["default", "thesis"], default="default")
+    t.add_argument("--optimizer", choices=["adam", "sgd"], default="adam")
+    t.add_argument("--hidden", help="hidden layer widths, e.g. 64,64")
+    t.add_argument("--activation", choices=["sigmoid", "tanh", "silu", "gelu", "relu"])
+    t.add_argument("--examples", type=_positive_int, help="training examples (default: 10 × weights)")
+    t.add_argument("--epochs", type=_positive_int, help="maximum epochs")
+    t.add_argument("--lr", type=_positive_float, help="learning rate")
+    t.add_argument("--max-seconds", type=_positive_float, help="cap on optimisation time")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--quiet", action="store_true", help="no progress bars")
+    t.add_argument("--json", action="store_true")
+    t.set_defaults(func=cmd_train)
+
+    e = sub.add_parser("eval", help="one-step and rollout error against MuJoCo (thesis Fig. 6.6)")
+    e.add_argument("model")
+    e.add_argument("--substeps", type=_positive_int, help="only this n (default: every trained n)")
+    e.add_argument("--artifacts", default="artifacts")
+    e.add_argument("--trials", type=_positive_int, default=30)
+    e.add_argument("--steps", type=_positive_int, default=6000, help="physical steps per trial")
+    e.add_argument("--plot", help="PNG path (default: <artifacts>/<model>/rollout_error.png)")
+    e.add_argument("--json", action="store_true")
+    e.set_defaults(func=cmd_eval)
+
+    b = sub.add_parser("bench", help="speed against MuJoCo on the same cores (thesis Table 6.2)")
+    b.add_argument("model")
+    b.add_argument("--artifacts", default="artifacts")
+    b.add_argument("--batches", help="comma-separated batch sizes (default 1,64,1024,4096)")
+    b.add_argument("--repeats", type=_positive_int, default=3)
+    b.add_argument("--json", action="store_true")
+    b.set_defaults(func=cmd_bench)
+
+    ls = sub.add_parser("models", help="the catalog and what is trained")
+    ls.add_argument("--artifacts", default="artifacts")
+    ls.add_argument("--json", action="store_true")
+    ls.set_defaults(func=cmd_models)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        return int(args.func(args))
+    except (ModelError, artifacts.ArtifactError, TrainingDiverged, ValueError) as exc:
+        log.error("%s", exc)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

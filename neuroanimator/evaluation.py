@@ -1,0 +1,118 @@
+"""Evaluation of an artifact against MuJoCo: one-step error on held-out data and rollout error
+curves (thesis Fig. 6.6), all from the artifact alone (its ONNX graph, weights and MJCF).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from neuroanimator import artifacts, sampling
+from neuroanimator.export import OnnxEmulator
+from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.training import apply_linear, held_out_seed, relative_error, to_tensors
+
+log = logging.getLogger(__name__)
+EVAL_SEED = 20_000  # rollout trials use the same initial states and control functions for every n
+
+
+@dataclass
+class RolloutCurve:
+    t: list[float]
+    error: list[float]
+
+    def at(self, seconds: float) -> float:
+        return float(np.interp(seconds, self.t, self.error))
+
+
+def one_step_errors(
+    path: Path, model: PhysicalModel, manifest: dict[str, Any], count: int | None = None
+) -> dict[str, float]:
+    """Relative one-step error of the emulator and of the linear baseline on fresh held-out data."""
+    cfg = manifest["train_config"]
+    n = int(manifest["substeps"])
+    test = sampling.generate(
+        model, n, count or int(cfg["test_examples"]), held_out_seed(int(cfg["seed"])), progress=False
+    )
+    emu = artifacts.load_torch(path)
+    linear = np.load(path / "linear_baseline.npy")
+    s, u, f, nxt = to_tensors(test)
+    with torch.no_grad():
+        x = emu.network_inputs(s, u, f)
+        y = emu.network_targets(s, nxt)
+        return {
+            "one_step_rel_error": relative_error(emu.core(x), y),
+            "linear_baseline_rel_error": relative_error(apply_linear(linear, x), y),
+        }
+
+
+def held_controls(
+    model: PhysicalModel, rng: np.random.Generator, trials: int, steps: int, substeps: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Typical control and force functions sampled at super-step starts: (trials, M, U), (trials, M, F).
+
+    The functions depend only on the generator and the duration, so every n sees the same ones.
+    """
+    times = np.arange(steps, dtype=np.float64) * model.dt
+    u = model.typical_controls(rng, trials, times)
+    f = model.typical_forces(rng, trials, times)
+    starts = np.arange(0, steps, substeps)
+    return u[:, starts], f[:, starts]
+
+
+def rollout_curve(
+    path: Path,
+    model: PhysicalModel,
+    substeps: int,
+    trials: int = 30,
+    steps: int = 6000,
+    seed: int = EVAL_SEED,
+) -> RolloutCurve:
+    """Mean absolute error between emulator and MuJoCo rollouts from the same initial states under the
+    same held controls, over trials and state variables, each normalised by its standard deviation."""
+    rng = np.random.default_rng(seed)
+    s0 = model.initial_states(rng, trials)
+    u, f = held_controls(model, rng, trials, steps, substeps)
+    m = u.shape[1]
+    # physics: every held value repeated for its n physical steps
+    phys = model.simulate(
+        s0,
+        np.repeat(u, substeps, axis=1),
+        np.repeat(f, substeps, axis=1) if model.num_forces else None,
+    )[:, substeps - 1 :: substeps]  # (trials, M, S) at the super-step boundaries
+    emu = OnnxEmulator(path / "emulator.onnx", threads=2)
+    pred = emu.rollout(s0, u if model.num_controls else None, f if model.num_forces else None, steps=m)[:, 1:]
+    std = np.concatenate([s0[:, None], phys], axis=1).reshape(-1, model.state_size).std(axis=0)
+    std = np.where(std > 1e-9, std, 1.0)
+    err = np.abs(pred.astype(np.float64) - phys) / std
+    err = np.where(np.isfinite(err), err, 1e6)  # a diverged emulator shows as a huge error, not NaN
+    curve = np.concatenate([[0.0], err.mean(axis=(0, 2))])
+    t = np.arange(m + 1) * substeps * model.dt
+    return RolloutCurve(t=[round(float(x), 6) for x in t], error=[float(e) for e in curve])
+
+
+def plot_curves(curves: dict[int, RolloutCurve], title: str, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4), dpi=110)
+    styles = {25: "-", 50: "--", 100: "-."}
+    for n, c in sorted(curves.items()):
+        ax.plot(c.t, c.error, styles.get(n, ":"), label=f"N^{n}")
+    ax.set_xlabel("simulated time (s)")
+    ax.set_ylabel("mean |emulator − MuJoCo| / std")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out)
+    plt.close(fig)

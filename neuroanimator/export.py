@@ -1,0 +1,197 @@
+"""ONNX export of the *whole* structured step, and the ONNX Runtime session that serves it.
+
+The graph's inputs are ``state`` (B, S) and, where the model has them, ``controls`` (B, U) and
+``forces`` (B, F); its output is ``next_state`` (B, S). The batch axis is dynamic. Every transform
+(local frame, normalisation, state change, quaternion renormalisation) is inside the graph.
+
+PyTorch is imported only inside ``to_onnx``: a serving process that needs just ``OnnxEmulator``
+and ``session_options`` (the emulator service) never loads it.
+"""
+
+from __future__ import annotations
+
+import copy
+import io
+import warnings
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import onnxruntime as ort
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from neuroanimator.structured import StructuredEmulator
+
+OPSET = 17
+
+
+def fold_normalization(emu: StructuredEmulator) -> Any:
+    """A copy of the core (nn.Sequential) with T^σ_x folded into its first layer and T^σ_y into its last.
+
+    (x - μ)/σ followed by W x + b is W' x + b' with W' = W / σ and b' = b - W' μ; likewise the
+    output scaling. The input placement x = ext @ P folds in too (W'' = W' Pᵀ), so the first layer
+    reads the unplaced local columns. The map is the same; the graph has five fewer nodes per call.
+    """
+    import torch
+    from torch import nn
+
+    core = copy.deepcopy(emu.core)
+    first, last = core[0], core[-1]
+    assert isinstance(first, nn.Linear) and isinstance(last, nn.Linear)
+    with torch.no_grad():
+        w = first.weight / emu.x_std  # (H, D) / (D,)
+        first.bias.copy_(first.bias - w @ emu.x_mean)
+        placed = w @ emu.input_placement.T  # (H, E)
+        first.weight = nn.Parameter(placed)
+        first.in_features = placed.shape[1]
+        last.weight.copy_(last.weight * emu.y_std[:, None])
+        last.bias.copy_(last.bias * emu.y_std + emu.y_mean)
+    return core
+
+
+def _step_module(emu: StructuredEmulator) -> Any:
+    """The exported step as an ``nn.Module``: the emulator's transforms around the folded core,
+    with the call signature fixed to the inputs the model really has."""
+    from torch import Tensor, nn
+
+    class Step(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.emu = emu
+            self.core = fold_normalization(emu)
+
+        def forward(self, state: Tensor, *rest: Tensor) -> Tensor:
+            it = iter(rest)
+            u = next(it) if emu.num_controls else None
+            f = next(it) if emu.num_forces else None
+            frame = emu.heading(state)  # computed once, used by T'_x and T'_y
+            cols = emu.local_inputs(state, u, f, frame, place=False)
+            return emu.apply_delta(state, self.core(cols), frame)
+
+    return Step()
+
+
+def input_names(emu: StructuredEmulator) -> list[str]:
+    names = ["state"]
+    if emu.num_controls:
+        names.append("controls")
+    if emu.num_forces:
+        names.append("forces")
+    return names
+
+
+def to_onnx(emu: StructuredEmulator) -> bytes:
+    """Serialise the emulator's full step as an ONNX model (bytes)."""
+    import torch
+    from torch import Tensor
+
+    emu = emu.eval()
+    b = 2
+    args: list[Tensor] = [torch.zeros(b, emu.layout.size)]
+    for sl in emu.quaternion_slices:
+        args[0][:, sl.start] = 1.0  # identity quaternions for the trace
+    if emu.num_controls:
+        args.append(torch.zeros(b, emu.num_controls))
+    if emu.num_forces:
+        args.append(torch.zeros(b, emu.num_forces))
+    names = input_names(emu)
+    buf = io.BytesIO()
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            _step_module(emu),
+            tuple(args),
+            buf,  # type: ignore[arg-type]  # a file-like object is accepted
+            input_names=names,
+            output_names=["next_state"],
+            dynamic_axes={n: {0: "batch"} for n in [*names, "next_state"]},
+            opset_version=OPSET,
+            dynamo=False,
+        )
+    return buf.getvalue()
+
+
+def session_options(threads: int = 1) -> ort.SessionOptions:
+    """ORT settings for a small model on CPU: few threads, no busy-waiting between calls."""
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = threads
+    so.inter_op_num_threads = 1
+    so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    so.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    so.log_severity_level = 3
+    return so
+
+
+class OnnxEmulator:
+    """An emulator served by ONNX Runtime: ``step(state (B,S), controls (B,U), forces (B,F)) -> (B,S)``."""
+
+    def __init__(self, model: bytes | str | Path, threads: int = 1) -> None:
+        src = str(model) if isinstance(model, Path) else model
+        self.session = ort.InferenceSession(src, session_options(threads), providers=["CPUExecutionProvider"])
+        ins = {i.name: i for i in self.session.get_inputs()}
+        self.input_names = list(ins)
+        self.state_size = int(ins["state"].shape[1])
+        self.num_controls = int(ins["controls"].shape[1]) if "controls" in ins else 0
+        self.num_forces = int(ins["forces"].shape[1]) if "forces" in ins else 0
+
+    def step(
+        self,
+        state: NDArray[np.floating],
+        controls: NDArray[np.floating] | None = None,
+        forces: NDArray[np.floating] | None = None,
+        *,
+        validate: bool = True,
+    ) -> NDArray[np.float32]:
+        """One super-step for a batch. ``validate=False`` skips the checks on a hot path whose
+        inputs were validated at its entry."""
+        feed = {"state": np.ascontiguousarray(state, dtype=np.float32)}
+        if self.num_controls:
+            if controls is None:
+                raise ValueError(f"controls are required: this emulator takes {self.num_controls} controls")
+            feed["controls"] = np.ascontiguousarray(controls, dtype=np.float32)
+        elif controls is not None and np.size(controls):
+            raise ValueError(f"this emulator takes no controls, got {np.shape(controls)}")
+        if self.num_forces:
+            if forces is None:
+                raise ValueError(f"forces are required: this emulator takes {self.num_forces} forces")
+            feed["forces"] = np.ascontiguousarray(forces, dtype=np.float32)
+        elif forces is not None and np.size(forces):
+            raise ValueError(f"this emulator takes no forces, got {np.shape(forces)}")
+        if validate:
+            self._validate(feed)
+        out: NDArray[np.float32] = self.session.run(None, feed)[0]
+        return out
+
+    def _validate(self, feed: dict[str, NDArray[np.float32]]) -> None:
+        widths = {"state": self.state_size, "controls": self.num_controls, "forces": self.num_forces}
+        batch = feed["state"].shape[0] if feed["state"].ndim == 2 else None
+        for name, arr in feed.items():
+            if arr.ndim != 2 or arr.shape[1] != widths[name]:
+                raise ValueError(f"{name} must have shape (batch, {widths[name]}), got {arr.shape}")
+            if arr.shape[0] != batch:
+                raise ValueError(f"{name} has {arr.shape[0]} rows but state has {batch}")
+            if not np.isfinite(arr).all():
+                raise ValueError(f"{name} must be finite; got NaN or Inf")
+
+    def rollout(
+        self,
+        state: NDArray[np.floating],
+        controls: NDArray[np.floating] | None = None,
+        forces: NDArray[np.floating] | None = None,
+        steps: int | None = None,
+    ) -> NDArray[np.float32]:
+        """Iterate the step: state (B,S), controls (B,M,U), forces (B,M,F) -> states (B, M+1, S)."""
+        m = steps if steps is not None else (controls.shape[1] if controls is not None else 0)
+        if forces is not None and steps is None:
+            m = forces.shape[1]
+        s = np.asarray(state, dtype=np.float32)
+        out = np.empty((s.shape[0], m + 1, s.shape[1]), dtype=np.float32)
+        out[:, 0] = s
+        for k in range(m):
+            u = controls[:, k] if controls is not None else None
+            f = forces[:, k] if forces is not None else None
+            s = self.step(s, u, f, validate=k == 0)  # later steps reuse checked shapes
+            out[:, k + 1] = s
+        return out

@@ -1,0 +1,465 @@
+"""``PhysicalModel``: one MuJoCo system behind the contract every other part reads.
+
+It gives the MJCF, the physical timestep δt, the state layout, the control and external-force
+inputs with their ranges, samplers of typical initial states and controls, and batched simulation
+through ``mujoco.rollout`` (C threads, no Python in the inner step). Forces that depend on the state
+(friction, drag) are expressed in the MJCF itself: joint damping, or affine-bias actuators placed in
+the spec's *passive* actuator group, which are not controls.
+
+Shapes: B = batch, T = time steps, S = state size, U = controls, F = external forces.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import threading
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from functools import cached_property
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+from numpy.typing import NDArray
+
+from neuroanimator import controls as ctl
+from neuroanimator import quaternion as quat
+from neuroanimator.physics.spec import ModelSpec
+from neuroanimator.state import StateGroup, StateLayout
+
+FloatArray = NDArray[np.float64]
+_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
+_CONTROL_SPEC = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
+
+
+class ModelError(ValueError):
+    """A model that cannot be built or used as asked; the message names the problem."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """Which symmetries the emulator may use: translation of the root position, rotation about z."""
+
+    translate: tuple[bool, ...]  # one flag per dimension of the root position group
+    rotate: bool
+
+    def to_dict(self) -> dict[str, object]:
+        return {"translate": list(self.translate), "rotate": self.rotate}
+
+
+def derive_layout(m: mujoco.MjModel) -> StateLayout:
+    """State groups from the joints: free → position, quaternion, velocity, angular velocity;
+    ball → local quaternion and angular velocity; hinge → angle and rate; slide → scalars.
+
+    The first free joint is the root (its position and orientation define the local frame);
+    further free joints are treated as plain numbers, without symmetry.
+    """
+    pos_groups: list[StateGroup] = []
+    vel_groups: list[StateGroup] = []
+    root_taken = False
+    for j in range(m.njnt):
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}"
+        qa, va = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+        jt = m.jnt_type[j]
+        if jt == mujoco.mjtJoint.mjJNT_FREE:
+            root = not root_taken
+            root_taken = True
+            xyz = ("x", "y", "z")
+            pos_groups.append(StateGroup(f"{name}.pos", "position" if root else "scalar", 3, "qpos", qa, xyz))
+            pos_groups.append(
+                StateGroup(
+                    f"{name}.quat",
+                    "quaternion" if root else "local_quaternion",
+                    4,
+                    "qpos",
+                    qa + 3,
+                    ("w", "x", "y", "z"),
+                )
+            )
+            vel_groups.append(
+                StateGroup(f"{name}.vel", "world_vector" if root else "scalar", 3, "qvel", va, xyz)
+            )
+            vel_groups.append(StateGroup(f"{name}.angvel", "local_vector", 3, "qvel", va + 3, xyz))
+        elif jt == mujoco.mjtJoint.mjJNT_BALL:
+            pos_groups.append(
+                StateGroup(f"{name}.quat", "local_quaternion", 4, "qpos", qa, ("w", "x", "y", "z"))
+            )
+            vel_groups.append(StateGroup(f"{name}.angvel", "local_vector", 3, "qvel", va, ("x", "y", "z")))
+        elif jt == mujoco.mjtJoint.mjJNT_HINGE:
+            pos_groups.append(StateGroup(f"{name}.angle", "angle", 1, "qpos", qa))
+            vel_groups.append(StateGroup(f"{name}.rate", "scalar", 1, "qvel", va))
+        else:  # slide
+            pos_groups.append(StateGroup(f"{name}.pos", "scalar", 1, "qpos", qa))
+            vel_groups.append(StateGroup(f"{name}.vel", "scalar", 1, "qvel", va))
+    if not pos_groups:
+        raise ModelError("the MJCF has no joints: there is no state to emulate")
+    return StateLayout(tuple(pos_groups + vel_groups))
+
+
+class PhysicalModel:
+    """A MuJoCo model plus its ``ModelSpec``; see the module docstring for the contract."""
+
+    def __init__(self, xml: str, spec: ModelSpec) -> None:
+        self.xml = xml
+        self.spec = spec
+        self.name = spec.name
+        try:
+            self.mj_model = mujoco.MjModel.from_xml_string(xml)
+        except Exception as exc:  # MuJoCo raises ValueError with the parser's message
+            raise ModelError(f"malformed MJCF for model {spec.name!r}: {exc}") from exc
+        m = self.mj_model
+        try:
+            self.layout = StateLayout.from_dict(spec.layout) if spec.layout is not None else derive_layout(m)
+        except (ValueError, KeyError) as exc:
+            raise ModelError(f"model {spec.name}: bad state layout: {exc}") from exc
+        self._check_layout()
+        self.dt = float(m.opt.timestep)
+        self._passive = np.array(
+            [m.actuator_group[i] == spec.passive_actuator_group for i in range(m.nu)], bool
+        )
+        self._control_ids = np.flatnonzero(~self._passive)
+        self.control_names = [
+            mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, int(i)) or f"actuator{i}"
+            for i in self._control_ids
+        ]
+        self.force_names = [f.name for f in spec.forces]
+        self._force_index = self._resolve_forces()
+        self._threads = max(1, min(2, os.cpu_count() or 1))
+        self._local = threading.local()
+        self._probe_state_offsets()
+
+    # ------------------------------------------------------------------ description
+    @property
+    def state_size(self) -> int:
+        return self.layout.size
+
+    @property
+    def num_controls(self) -> int:
+        return len(self.control_names)
+
+    @property
+    def num_forces(self) -> int:
+        return len(self.spec.forces)
+
+    @cached_property
+    def control_limits(self) -> FloatArray:
+        """(U, 2) hard limits from the actuators' ctrlrange (±inf where unlimited)."""
+        m = self.mj_model
+        out = np.full((self.num_controls, 2), [-np.inf, np.inf])
+        for k, i in enumerate(self._control_ids):
+            if m.actuator_ctrllimited[i]:
+                out[k] = m.actuator_ctrlrange[i]
+        return out
+
+    @cached_property
+    def control_range(self) -> FloatArray:
+        """(U, 2) useful range that typical controls are drawn from (spec, else ctrlrange, else ±1)."""
+        if self.spec.control_low is not None and self.spec.control_high is not None:
+            rng = np.stack([self.spec.control_low, self.spec.control_high], axis=1).astype(np.float64)
+            if rng.shape != (self.num_controls, 2):
+                raise ModelError(
+                    f"model {self.name}: control_low/high must have {self.num_controls} values, got {rng.shape[0]}"
+                )
+            return rng
+        lim = self.control_limits.copy()
+        lim[~np.isfinite(lim[:, 0]), 0] = -1.0
+        lim[~np.isfinite(lim[:, 1]), 1] = 1.0
+        return lim
+
+    @cached_property
+    def force_range(self) -> FloatArray:
+        return np.array([[f.low, f.high] for f in self.spec.forces], dtype=np.float64).reshape(-1, 2)
+
+    @cached_property
+    def frame(self) -> Frame:
+        """The symmetries that are true for this model (thesis 4.3.3, corrected for gravity).
+
+        Translation: every root-position axis, except the vertical one when the world has colliding
+        geoms (a floor). Rotation: about z only, and only when gravity is along z (or zero).
+        """
+        m = self.mj_model
+        root = self.layout.find("position")
+        translate: tuple[bool, ...] = ()
+        if root is not None and self.spec.translation_invariant:
+            world_collides = any(
+                m.geom_bodyid[g] == 0 and (m.geom_contype[g] or m.geom_conaffinity[g]) for g in range(m.ngeom)
+            )
+            translate = tuple(not (world_collides and axis == 2) for axis in range(root.size))
+        g = np.asarray(m.opt.gravity)
+        gravity_vertical = bool(np.allclose(g[:2], 0.0))
+        has_orientation = self.layout.find("quaternion", "heading") is not None
+        rotate = bool(self.spec.rotation_invariant and gravity_vertical and has_orientation)
+        return Frame(translate=translate, rotate=rotate)
+
+    def mjcf_sha256(self) -> str:
+        return hashlib.sha256(self.xml.encode()).hexdigest()
+
+    def describe(self) -> dict[str, object]:
+        """Plain data for manifests and listings."""
+        return {
+            "name": self.name,
+            "description": self.spec.description,
+            "timestep": self.dt,
+            "state_size": self.state_size,
+            "layout": self.layout.to_dict(),
+            "state_labels": self.layout.labels(),
+            "controls": [
+                {
+                    "name": n,
+                    "low": float(lo),
+                    "high": float(hi),
+                    "limit_low": float(a),
+                    "limit_high": float(b),
+                }
+                for n, (lo, hi), (a, b) in zip(
+                    self.control_names, self.control_range, self.control_limits, strict=True
+                )
+            ],
+            "forces": [f.model_dump() for f in self.spec.forces],
+            "frame": self.frame.to_dict(),
+        }
+
+    # ------------------------------------------------------------------ checks
+    def _check_layout(self) -> None:
+        m = self.mj_model
+        for g in self.layout:
+            limit = m.nq if g.source == "qpos" else m.nv
+            if g.address + g.size > limit:
+                raise ModelError(
+                    f"model {self.name}: state group {g.name!r} reads {g.source}[{g.address}:{g.address + g.size}]"
+                    f" but the model has {limit} {g.source} values"
+                )
+
+    def _resolve_forces(self) -> NDArray[np.int64]:
+        m = self.mj_model
+        idx = []
+        for f in self.spec.forces:
+            body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f.body)
+            if body < 0:
+                raise ModelError(
+                    f"model {self.name}: force {f.name!r} names body {f.body!r}, which is not in the MJCF"
+                )
+            idx.append(body * 6 + f.component)
+        return np.asarray(idx, dtype=np.int64)
+
+    def check_batch(
+        self, name: str, values: NDArray[np.floating], width: int, batch: int | None = None
+    ) -> FloatArray:
+        """Validate a (B, width) input: shape and finiteness; returns it as float64."""
+        arr = np.asarray(values, dtype=np.float64)
+        if arr.ndim == 1:
+            arr = arr[None, :]
+        if arr.ndim != 2 or arr.shape[1] != width:
+            raise ModelError(
+                f"{name} must have {width} values per row for model {self.name}, got shape {arr.shape}"
+            )
+        if batch is not None and arr.shape[0] not in (1, batch):
+            raise ModelError(f"{name} must have {batch} rows (or 1) to match the states, got {arr.shape[0]}")
+        if not np.all(np.isfinite(arr)):
+            raise ModelError(f"{name} must be finite for model {self.name}; got NaN or Inf")
+        return arr
+
+    # ------------------------------------------------------------------ state <-> MuJoCo
+    def _probe_state_offsets(self) -> None:
+        """Find where qpos/qvel, ctrl and xfrc_applied sit in MuJoCo's state vectors (no guessing)."""
+        m = self.mj_model
+        d = mujoco.MjData(m)
+        d.qpos[:] = np.arange(m.nq) + 1000.0
+        d.qvel[:] = np.arange(m.nv) + 2000.0
+        full = np.empty(mujoco.mj_stateSize(m, _PHYSICS))
+        mujoco.mj_getState(m, d, full, _PHYSICS)
+        self._nfull = full.size
+        self._qpos_at = int(np.flatnonzero(full == 1000.0)[0]) if m.nq else 0
+        self._qvel_at = int(np.flatnonzero(full == 2000.0)[0]) if m.nv else 0
+        self._template = np.zeros(self._nfull)
+        mujoco.mj_resetData(m, d)
+        mujoco.mj_getState(m, d, self._template, _PHYSICS)
+        d.ctrl[:] = np.arange(m.nu) + 3000.0
+        d.xfrc_applied[:] = (np.arange(m.nbody * 6) + 4000.0).reshape(m.nbody, 6)
+        cvec = np.empty(mujoco.mj_stateSize(m, _CONTROL_SPEC))
+        mujoco.mj_getState(m, d, cvec, _CONTROL_SPEC)
+        self._ncontrol_vec = cvec.size
+        self._ctrl_at = int(np.flatnonzero(cvec == 3000.0)[0]) if m.nu else 0
+        self._xfrc_at = int(np.flatnonzero(cvec == 4000.0)[0])
+        # state index -> index in the full-physics vector
+        index: list[int] = []
+        for g in self.layout:
+            base = self._qpos_at if g.source == "qpos" else self._qvel_at
+            index.extend(range(base + g.address, base + g.address + g.size))
+        self._state_index = np.asarray(index, dtype=np.int64)
+        self._rest = self._template[self._state_index].copy()
+
+    def rest_state(self) -> FloatArray:
+        """(S,) the state at MuJoCo's qpos0 with zero velocity."""
+        return self._rest.copy()
+
+    def to_physics(self, states: FloatArray) -> FloatArray:
+        """(B, S) emulator states -> (B, nfull) MuJoCo full-physics states."""
+        full = np.repeat(self._template[None, :], states.shape[0], axis=0)
+        full[:, self._state_index] = states
+        return full
+
+    def from_physics(self, full: FloatArray) -> FloatArray:
+        """(..., nfull) MuJoCo full-physics states -> (..., S) emulator states."""
+        return full[..., self._state_index]
+
+    def control_vector(self, controls: FloatArray, forces: FloatArray | None) -> FloatArray:
+        """(B, T, U) controls and (B, T, F) forces -> (B, T, nctrl) MuJoCo control vectors.
+
+        Passive actuators get 0; external forces go to their body's ``xfrc_applied`` component.
+        Controls are clipped to the actuators' hard limits, as MuJoCo itself would.
+        """
+        b, t = controls.shape[:2]
+        out = np.zeros((b, t, self._ncontrol_vec))
+        if self.num_controls:
+            out[..., self._ctrl_at + self._control_ids] = controls
+        if self.num_forces and forces is not None:
+            out[..., self._xfrc_at + self._force_index] = forces
+        return out
+
+    # ------------------------------------------------------------------ simulation
+    def _datas(self) -> list[mujoco.MjData]:
+        datas = getattr(self._local, "datas", None)
+        if datas is None:
+            datas = [mujoco.MjData(self.mj_model) for _ in range(self._threads)]
+            self._local.datas = datas
+        return datas
+
+    def simulate(
+        self,
+        states: FloatArray,
+        controls: FloatArray | None = None,
+        forces: FloatArray | None = None,
+        *,
+        nstep: int | None = None,
+        threads: int | None = None,
+    ) -> FloatArray:
+        """Roll the physics out from states (B, S) under controls (B|1, T|1, U) and forces (B|1, T|1, F).
+
+        Returns the states after every physical step, (B, T, S). A control or force with T = 1 is
+        held for all ``nstep`` steps (the emulator's super-step contract).
+        """
+        states = np.asarray(states, dtype=np.float64)
+        if states.ndim != 2 or states.shape[1] != self.state_size:
+            raise ModelError(
+                f"states must have shape (batch, {self.state_size}) for model {self.name}, got {states.shape}"
+            )
+        b = states.shape[0]
+        u = (
+            np.zeros((1, 1, self.num_controls))
+            if controls is None
+            else np.asarray(controls, dtype=np.float64)
+        )
+        f = None if forces is None else np.asarray(forces, dtype=np.float64)
+        self._check_inputs("controls", u, self.num_controls, b)
+        if f is not None:
+            self._check_inputs("forces", f, self.num_forces, b)
+        elif self.num_forces:
+            f = np.zeros((1, 1, self.num_forces))
+        steps = nstep if nstep is not None else max(u.shape[1], 1 if f is None else f.shape[1])
+        t = max(u.shape[1], 1 if f is None else f.shape[1])
+        if u.shape[1] != t:
+            u = np.broadcast_to(u, (u.shape[0], t, u.shape[2]))
+        if f is not None and f.shape[1] != t:
+            f = np.broadcast_to(f, (f.shape[0], t, f.shape[2]))
+        if f is not None and f.shape[0] != u.shape[0]:
+            bb = max(f.shape[0], u.shape[0])
+            u = np.broadcast_to(u, (bb, *u.shape[1:]))
+            f = np.broadcast_to(f, (bb, *f.shape[1:]))
+        cvec = self.control_vector(u, f)
+        datas = self._datas()
+        if threads is not None:
+            datas = datas[: max(1, threads)]
+        out, _ = rollout.rollout(
+            self.mj_model,
+            datas,
+            self.to_physics(states),
+            cvec,
+            control_spec=int(_CONTROL_SPEC),
+            nstep=steps,
+        )
+        return self.from_physics(out).reshape(b, steps, self.state_size)
+
+    def _check_inputs(self, name: str, values: FloatArray, width: int, batch: int) -> None:
+        if values.ndim != 3 or values.shape[2] != width:
+            if width == 0 and values.size:
+                raise ModelError(
+                    f"model {self.name} takes no {name} (it has none besides passive ones), "
+                    f"got {name} of shape {values.shape}"
+                )
+            raise ModelError(
+                f"{name} must have shape (batch, steps, {width}) for model {self.name}, got {values.shape}"
+            )
+        if values.shape[0] not in (1, batch):
+            raise ModelError(
+                f"{name} must have {batch} rows (or 1) to match the states, got {values.shape[0]}"
+            )
+        if not np.all(np.isfinite(values)):
+            raise ModelError(f"{name} must be finite for model {self.name}; got NaN or Inf")
+
+    def step_held(
+        self, states: FloatArray, controls: FloatArray | None, forces: FloatArray | None, substeps: int
+    ) -> FloatArray:
+        """One super-step of the physics: hold controls (B, U) and forces (B, F) for ``substeps`` steps."""
+        u = None if controls is None else np.asarray(controls, dtype=np.float64)[:, None, :]
+        f = None if forces is None else np.asarray(forces, dtype=np.float64)[:, None, :]
+        return self.simulate(states, u, f, nstep=substeps)[:, -1]
+
+    # ------------------------------------------------------------------ typical inputs
+    def initial_states(self, rng: np.random.Generator, batch: int) -> FloatArray:
+        """(batch, S) typical initial states (spec.initial), deterministic for the generator."""
+        init = self.spec.initial
+        states = np.repeat(self.rest_state()[None, :], batch, axis=0)
+        if init.low:
+            lo, hi = np.asarray(init.low), np.asarray(init.high)
+            if lo.size != self.state_size or hi.size != self.state_size:
+                raise ModelError(f"model {self.name}: initial low/high must have {self.state_size} values")
+            states += lo + (hi - lo) * rng.random((batch, self.state_size))
+        qg = self.layout.find("quaternion")
+        if qg is not None and (init.random_yaw or init.max_tilt > 0):
+            sl = self.layout.slice_of(qg.name)
+            yaw = rng.uniform(-np.pi, np.pi, batch) if init.random_yaw else np.zeros(batch)
+            tilt = init.max_tilt * np.sqrt(rng.random(batch))  # uniform over the spherical cap
+            axis_angle = rng.uniform(-np.pi, np.pi, batch)
+            axis = np.stack([np.cos(axis_angle), np.sin(axis_angle), np.zeros(batch)], axis=1)
+            q_yaw = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), yaw)
+            q_tilt = quat.from_axis_angle(axis, tilt)
+            q = quat.multiply(q_yaw, quat.multiply(q_tilt, states[:, sl]))
+            states[:, sl] = q / np.linalg.norm(q, axis=1, keepdims=True)
+        return states
+
+    def typical_controls(self, rng: np.random.Generator, batch: int, times: FloatArray) -> FloatArray:
+        """(batch, T, U) smooth Catmull-Rom controls over the useful range, at the given times."""
+        return self._smooth(rng, batch, times, self.control_range, self.spec.control_spacing_s)
+
+    def typical_forces(self, rng: np.random.Generator, batch: int, times: FloatArray) -> FloatArray:
+        """(batch, T, F) smooth external forces over their ranges."""
+        return self._smooth(rng, batch, times, self.force_range, self.spec.force_spacing_s)
+
+    @staticmethod
+    def _smooth(
+        rng: np.random.Generator, batch: int, times: FloatArray, rng_lohi: FloatArray, spacing: float
+    ) -> FloatArray:
+        width = rng_lohi.shape[0]
+        times = np.asarray(times, dtype=np.float64)
+        if width == 0:
+            return np.zeros((batch, times.size, 0))
+        t0 = float(times.min())
+        npts = int(np.ceil((float(times.max()) - t0) / spacing)) + 2
+        points = ctl.random_points(rng, (batch, npts), rng_lohi[:, 0], rng_lohi[:, 1])
+        # Catmull-Rom overshoots a little between points: keep it inside the range
+        values = ctl.evaluate(points, times - t0, spacing)
+        return np.clip(values, rng_lohi[:, 0], rng_lohi[:, 1])
+
+
+def read_model_name(xml: str, fallback: str) -> str:
+    """The MJCF's ``model`` attribute, else the fallback (the file name)."""
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError as exc:
+        raise ModelError(f"malformed MJCF ({fallback}): {exc}") from exc
+    if root.tag != "mujoco":
+        raise ModelError(f"malformed MJCF ({fallback}): the root element must be <mujoco>, got <{root.tag}>")
+    name = root.get("model")
+    return name.strip() if name and name.strip() else fallback

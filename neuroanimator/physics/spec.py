@@ -1,0 +1,72 @@
+"""``ModelSpec``: everything about a physical system that its MJCF does not say.
+
+A catalog model and a user's model are both an MJCF file plus a ``ModelSpec``; the spec is plain
+data (saved in every artifact's manifest), so a model can be rebuilt from its artifact alone.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class ForceInput(BaseModel):
+    """An external-force input of the emulator: one component of ``xfrc_applied`` on one body.
+
+    ``component`` 0-2 are the world force axes x, y, z; 3-5 the world torque axes.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str
+    body: str
+    component: int = Field(ge=0, le=5)
+    low: float
+    high: float
+
+
+class InitialStates(BaseModel):
+    """Typical initial states: uniform perturbations of the model's rest state.
+
+    ``low``/``high`` (S values each, or empty for none) are added to the state built from MuJoCo's
+    ``qpos0`` and zero velocity. For a model with a free root, ``random_yaw`` turns it about the
+    vertical axis uniformly and ``max_tilt`` tilts it about a random horizontal axis (radians).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    low: list[float] = Field(default_factory=list)
+    high: list[float] = Field(default_factory=list)
+    random_yaw: bool = False
+    max_tilt: float = 0.0
+
+
+class ModelSpec(BaseModel):
+    """What the trainer needs beyond the MJCF to build an emulator of a model."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str
+    description: str = ""
+    substeps: int = Field(50, ge=1, description="default super timestep n (Δt = n·δt)")
+    layout: list[dict[str, Any]] | None = Field(
+        None, description="explicit state groups; None derives them from the MJCF's joints"
+    )
+    control_low: list[float] | None = Field(
+        None, description="useful control range; None: actuator ctrlrange"
+    )
+    control_high: list[float] | None = None
+    control_spacing_s: float = Field(
+        1.0, gt=0, description="seconds between control points of typical controls"
+    )
+    forces: list[ForceInput] = Field(default_factory=list)
+    force_spacing_s: float = Field(1.0, gt=0)
+    initial: InitialStates = Field(default_factory=InitialStates)
+    episode_s: float = Field(60.0, gt=0, description="training runs restart from a typical state this often")
+    passive_actuator_group: int = Field(
+        3, description="actuators in this MJCF group model passive forces (friction, drag), not controls"
+    )
+    rotation_invariant: bool = Field(True, description="use the rotation about gravity as a symmetry")
+    translation_invariant: bool = Field(True, description="use translations of the root as a symmetry")
+    thesis_hidden: int | None = Field(None, description="hidden units of the thesis' network (Table 6.1)")

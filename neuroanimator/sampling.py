@@ -1,0 +1,128 @@
+"""Training data from MuJoCo, as in thesis 4.5.
+
+Many long runs are simulated side by side under typical smooth controls (Catmull-Rom over random
+control points in the useful range). Examples are taken at well-separated times: the lag between
+two samples of a run is drawn uniformly in [Δt, 5Δt] (a run's first sample anywhere in its first
+5Δt, so the start states and their transients are seen too). For each sample the physics is then stepped
+n more times with the controls (and forces) *held* at their sampled values, which is exactly what
+the emulator is asked to predict: its inputs determine the physics over the whole super-step.
+Runs restart from a fresh typical state every ``spec.episode_s`` seconds. Deterministic for a seed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from tqdm import tqdm
+
+from neuroanimator.physics.model import PhysicalModel
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class Examples:
+    """N transitions: states (N,S), controls (N,U), forces (N,F) -> next_states (N,S)."""
+
+    states: FloatArray
+    controls: FloatArray
+    forces: FloatArray
+    next_states: FloatArray
+
+    def __len__(self) -> int:
+        return int(self.states.shape[0])
+
+    def subset(self, index: NDArray[np.int64] | slice) -> Examples:
+        return Examples(self.states[index], self.controls[index], self.forces[index], self.next_states[index])
+
+    def sha256(self) -> str:
+        h = hashlib.sha256()
+        for a in (self.states, self.controls, self.forces, self.next_states):
+            h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
+        return h.hexdigest()
+
+    def check_finite(self, what: str = "training data") -> None:
+        for name in ("states", "controls", "forces", "next_states"):
+            arr = getattr(self, name)
+            bad = ~np.isfinite(arr).all(axis=1)
+            if bad.any():
+                raise ValueError(f"{what}: {int(bad.sum())} rows of {name} contain NaN or Inf")
+
+
+def sample_lags(rng: np.random.Generator, substeps: int, size: int) -> NDArray[np.int64]:
+    """Physical steps between successive samples of a run: uniform integers in [n, 5n]."""
+    return rng.integers(substeps, 5 * substeps + 1, size=size)
+
+
+def generate(
+    model: PhysicalModel,
+    substeps: int,
+    count: int,
+    seed: int,
+    *,
+    runs: int = 256,
+    progress: bool = True,
+) -> Examples:
+    """``count`` shuffled examples of super-steps of ``substeps`` physical steps."""
+    if count < 1:
+        raise ValueError(f"count must be positive, got {count}")
+    if substeps < 1:
+        raise ValueError(f"substeps must be positive, got {substeps}")
+    rng = np.random.default_rng(seed)
+    runs = max(1, min(runs, count))
+    dt = model.dt
+    episode = max(round(model.spec.episode_s / dt), 6 * substeps)  # steps per episode
+    max_lag = 5 * substeps
+    times = np.arange(episode + max_lag + 1, dtype=np.float64) * dt
+
+    state = model.initial_states(rng, runs)
+    step_at = np.zeros(runs, dtype=np.int64)  # time index within each run's episode
+    u_traj = model.typical_controls(rng, runs, times)  # (R, E, U)
+    f_traj = model.typical_forces(rng, runs, times)  # (R, E, F)
+
+    S, U, F = model.state_size, model.num_controls, model.num_forces
+    out_s, out_u, out_f, out_n = (np.empty((count, k)) for k in (S, U, F, S))
+    filled = 0
+    bar = tqdm(
+        total=count, desc=f"sampling {model.name} n={substeps}", unit="ex", disable=not progress, leave=False
+    )
+    rows = np.arange(runs)
+    while filled < count:
+        # restart runs whose episode is over (fresh state and fresh control functions)
+        done = step_at + max_lag >= episode
+        if done.any():
+            k = int(done.sum())
+            state[done] = model.initial_states(rng, k)
+            u_traj[done] = model.typical_controls(rng, k, times)
+            f_traj[done] = model.typical_forces(rng, k, times)
+            step_at[done] = 0
+        lags = sample_lags(rng, substeps, runs)
+        # A run's first sample may come right after its start: the start states are typical too
+        # (a client's session begins at one), including their transients (a truck's side-slip
+        # dies out within a super-step). Later samples keep the [Δt, 5Δt] spacing.
+        fresh = step_at == 0
+        lags[fresh] = rng.integers(1, 5 * substeps + 1, size=int(fresh.sum()))
+        span = int(lags.max())
+        idx = np.minimum(step_at[:, None] + np.arange(span)[None, :], times.size - 1)  # (R, span)
+        traj = model.simulate(state, u_traj[rows[:, None], idx], f_traj[rows[:, None], idx] if F else None)
+        state = traj[rows, lags - 1]  # each run continues from its own sample time
+        step_at = step_at + lags
+        u_now = u_traj[rows, step_at]
+        f_now = f_traj[rows, step_at]
+        # the example: the same state stepped n times with u and f held at their sampled values
+        nxt = model.step_held(state, u_now if U else None, f_now if F else None, substeps)
+        take = min(runs, count - filled)
+        sel = slice(filled, filled + take)
+        out_s[sel], out_u[sel], out_f[sel], out_n[sel] = state[:take], u_now[:take], f_now[:take], nxt[:take]
+        filled += take
+        bar.update(take)
+    bar.close()
+    perm = rng.permutation(count)  # shuffle: successive examples of a run are not neighbours
+    ex = Examples(out_s[perm], out_u[perm], out_f[perm], out_n[perm])
+    ex.check_finite(f"simulated data of {model.name}")
+    return ex

@@ -1,0 +1,259 @@
+"""The emulator service's wire contract: pydantic v2 models shared by the server and its clients.
+
+Shapes use the artifact's manifest: S = state size, U = controls, F = external forces. Every vector
+travels as a JSON list of numbers; a number must be a finite JSON number (strings, booleans, NaN and
+Infinity are rejected with 422 naming the field). Lengths are checked against the model by the
+service, which answers 422 with the field, the expected and the got length.
+
+Controls and forces outside the manifest's range (``low``..``high`` of each control and force: the
+range the emulator was trained over) are clipped to it; a step's response lists the clipped indices
+in ``clipped_controls`` / ``clipped_forces`` and sets ``clipped: true``.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+Number = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+"""A finite JSON number (int or float; no strings, booleans, NaN or Infinity)."""
+Vector = list[Number]
+
+
+class _Wire(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+# ---------------------------------------------------------------- catalog
+class ControlInfo(BaseModel):
+    """One control input: ``low``..``high`` is the trained range (inputs are clipped to it)."""
+
+    name: str
+    low: float
+    high: float
+    limit_low: float | None = None
+    limit_high: float | None = None
+
+
+class ForceInfo(BaseModel):
+    """One external-force input (a body's force or torque component) and its trained range."""
+
+    model_config = ConfigDict(extra="allow")
+    name: str
+    low: float
+    high: float
+
+
+class LayoutGroup(BaseModel):
+    """A group of the state vector: ``state[offset:offset+size]``; quaternions are ``[w, x, y, z]``."""
+
+    model_config = ConfigDict(extra="allow")
+    name: str
+    kind: str
+    size: int
+    offset: int
+    labels: list[str] = []
+
+
+class ModelSummary(BaseModel):
+    """A loaded emulator: its current (latest) version and the versions loaded beside it."""
+
+    model: str
+    version: str
+    substeps: int
+    timestep: float
+    super_timestep: float
+    state_size: int
+    num_controls: int
+    num_forces: int
+    versions: list[str]
+
+
+class ModelDetail(ModelSummary):
+    """The manifest's description of the latest (or the named) version."""
+
+    description: str = ""
+    layout: list[LayoutGroup]
+    state_labels: list[str]
+    controls: list[ControlInfo]
+    forces: list[ForceInfo]
+    metrics: dict[str, Any] = {}
+
+
+class ModelList(BaseModel):
+    models: list[ModelSummary]
+
+
+# ---------------------------------------------------------------- sessions
+class SessionCreate(_Wire):
+    """``state`` (S values) starts the session there; otherwise a random typical start drawn from
+    ``seed`` (a fresh seed when absent, returned in the response)."""
+
+    model: str
+    version: str | None = None
+    state: Vector | None = None
+    seed: Annotated[int, Field(ge=0, strict=True)] | None = None
+
+
+class SessionInfo(BaseModel):
+    """A session: its id names the replica that owns it (``<replica>-<token>``)."""
+
+    id: str
+    model: str
+    version: str
+    state: list[float]
+    t: float = Field(description="simulated time in seconds (super-steps × Δt)")
+    steps: int
+    diverged: bool
+    seed: int | None = None
+    ttl_s: float
+
+
+class StepRequest(_Wire):
+    """Hold ``controls`` (U) and ``forces`` (F) for ``steps`` super-steps."""
+
+    controls: Vector = []
+    forces: Vector = []
+    steps: Annotated[int, Field(ge=1, strict=True)] = 1
+    frames_per_step: Annotated[int, Field(ge=1, strict=True)] | None = None
+
+
+class StepResponse(BaseModel):
+    """``states`` (steps, S) after each super-step, ``state`` the last of them. ``frames`` (when
+    asked): steps·frames_per_step + 1 frames from the old state to the new one, evenly spaced in
+    time (linear, slerp for quaternion groups)."""
+
+    id: str
+    state: list[float]
+    states: list[list[float]]
+    frames: list[list[float]] | None = None
+    t: float
+    steps: int
+    clipped: bool
+    clipped_controls: list[int] = []
+    clipped_forces: list[int] = []
+
+
+class BatchStepItem(_Wire):
+    session: str
+    controls: Vector = []
+    forces: Vector = []
+
+
+class BatchStepRequest(_Wire):
+    """One super-step of many sessions (any models) in one request; at most MAX_BATCH items."""
+
+    items: list[BatchStepItem]
+
+
+class ErrorBody(BaseModel):
+    """Every error: a machine-readable ``error`` code and a readable ``message``; for bad input,
+    the ``field`` (e.g. ``controls`` or ``items[2].forces``) and what was ``expected`` and ``got``."""
+
+    error: str
+    message: str
+    field: str | None = None
+    expected: Any = None
+    got: Any = None
+
+
+class BatchStepResult(BaseModel):
+    """One item's outcome: the new state, or the session's error (others are unaffected)."""
+
+    session: str
+    state: list[float] | None = None
+    t: float | None = None
+    clipped: bool = False
+    clipped_controls: list[int] = []
+    clipped_forces: list[int] = []
+    error: ErrorBody | None = None
+
+
+class BatchStepResponse(BaseModel):
+    results: list[BatchStepResult]
+
+
+# ---------------------------------------------------------------- websockets
+class WsStep(_Wire):
+    """Client → server, lock-step mode: one super-step under these inputs."""
+
+    type: Literal["step"]
+    controls: Vector = []
+    forces: Vector = []
+    seq: int | None = None
+
+
+class WsPing(_Wire):
+    type: Literal["ping"]
+    seq: int | None = None
+
+
+class WsStart(_Wire):
+    """Client → server: switch the connection's mode and/or the format of its state frames.
+
+    ``realtime``: the server advances the session every Δt of wall time with the latest inputs (set by
+    ``controls`` messages or binary frames) and pushes each new state (a slow reader gets the newest
+    ones; older ones are dropped). ``lockstep`` (the default): one state per ``step``. ``format``
+    ``binary`` sends states as binary frames (proto/frames.md); errors stay JSON. Also available as
+    query parameters: ``/ws/sessions/{id}?mode=realtime&format=binary``."""
+
+    type: Literal["start"]
+    mode: Literal["lockstep", "realtime"] = "lockstep"
+    format: Literal["json", "binary"] | None = None
+    seq: int | None = None
+
+
+class WsControls(_Wire):
+    """Client → server: the inputs held from now on; real-time mode steps with the latest of them
+    (its state messages echo the ``seq`` of the controls they used)."""
+
+    type: Literal["controls"]
+    controls: Vector = []
+    forces: Vector = []
+    seq: int | None = None
+
+
+ClientMessage = Annotated[WsStep | WsPing | WsStart | WsControls, Field(discriminator="type")]
+
+
+class WsState(BaseModel):
+    """Server → client: the session's new state (``seq`` echoes the request's)."""
+
+    type: Literal["state"] = "state"
+    seq: int | None = None
+    state: list[float]
+    t: float
+    steps: int
+    clipped: bool = False
+    clipped_controls: list[int] = []
+    clipped_forces: list[int] = []
+
+
+class WsPong(BaseModel):
+    type: Literal["pong"] = "pong"
+    seq: int | None = None
+
+
+class WsError(ErrorBody):
+    """Server → client: this message could not be served; the connection stays open."""
+
+    type: Literal["error"] = "error"
+    seq: int | None = None
+
+
+class WsStarted(BaseModel):
+    """Server → client: the mode and format now in force; real-time states come every ``period_s``."""
+
+    type: Literal["started"] = "started"
+    seq: int | None = None
+    mode: Literal["lockstep", "realtime"]
+    format: Literal["json", "binary"]
+    super_timestep: float
+    period_s: float
+    state_size: int
+    num_controls: int
+    num_forces: int
+
+
+ServerMessage = Annotated[WsState | WsPong | WsError | WsStarted, Field(discriminator="type")]

@@ -1,0 +1,443 @@
+"""The structured emulator of thesis 4.3 (eq. 4.14), in PyTorch:
+
+    s_{t+Δt} = T^Δ_y T'_y T^σ_y  N^σ  T^σ_x T'_x [s_t, u_t, f_t]
+
+- ``T'_x`` (local frame): subtract the root position, rotate world vectors and the root quaternion
+  into the model's frame. Which rotation is a true symmetry depends on gravity: with gravity along
+  z only the heading (rotation about z) is removed, so tilt stays an input and the emulator is exact
+  under every symmetry of the physics (the thesis' full body-frame rotation is not, under gravity).
+  Inputs that are constant after the transform (the root position, the heading) are dropped (App. F.1).
+  Hinge angles enter as sin and cos, so a joint that turned a full circle looks the same.
+- ``T^σ_x`` / ``T^σ_y``: per-group normalisation to zero mean, unit variance (eqs. 4.9-4.12).
+- ``N^σ``: the core MLP (configurable width, depth, activation; the thesis used one sigmoid layer).
+- ``T'_y``: state changes back to world axes; ``T^Δ_y``: next state = state + change, with the
+  quaternions renormalised.
+
+Everything is traced into one ONNX graph by ``neuroanimator.export``. Shapes: B batch, S state,
+U controls, F forces, D network inputs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from neuroanimator.state import StateLayout
+
+ACTIVATIONS: dict[str, type[nn.Module]] = {
+    "sigmoid": nn.Sigmoid,
+    "tanh": nn.Tanh,
+    "silu": nn.SiLU,
+    "gelu": nn.GELU,
+    "relu": nn.ReLU,
+}
+
+
+def make_core(inputs: int, outputs: int, hidden: Sequence[int], activation: str) -> nn.Sequential:
+    """The core network N^σ: Linear → act → … → Linear; (B, inputs) -> (B, outputs)."""
+    if activation not in ACTIVATIONS:
+        raise ValueError(f"activation must be one of {sorted(ACTIVATIONS)}, got {activation!r}")
+    layers: list[nn.Module] = []
+    width = inputs
+    for h in hidden:
+        layers += [nn.Linear(width, h), ACTIVATIONS[activation]()]
+        width = h
+    layers.append(nn.Linear(width, outputs))
+    return nn.Sequential(*layers)
+
+
+@dataclass(frozen=True)
+class FrameConfig:
+    """Symmetries used: translation of root-position axes, rotation about z; see PhysicalModel.frame."""
+
+    translate: tuple[bool, ...] = ()
+    rotate: bool = False
+    force_pairs: tuple[tuple[int, int], ...] = ()  # (x, y) indices of horizontal force inputs to rotate
+
+
+@dataclass(frozen=True)
+class _PairPlan:
+    """Columns rotated together. Every transform of T' is a set of 2-D rotations about z: world
+    vectors turn by the heading ψ, and a quaternion's (w, z) and (x, y) pairs turn by ψ/2 (that is
+    h* ⊗ q for the heading quaternion h). They are all done at once by ``_Rotation``.
+    """
+
+    x: tuple[int, ...] = ()  # column of each pair's first component
+    y: tuple[int, ...] = ()  # column of each pair's second component
+    half: tuple[int, ...] = ()  # 0: turn by ψ, 1: turn by ψ/2
+
+
+Frame = Tensor  # (B, 4): cos ψ, sin ψ, cos ψ/2, sin ψ/2 of each state's heading ψ
+
+
+def _select(rows: int, cols: Sequence[int]) -> Tensor:
+    """The 0/1 matrix M (rows, len(cols)) with ``(v @ M)[:, j] == v[:, cols[j]]``.
+
+    Column picks are written as products with constant matrices rather than gathers: ONNX Runtime
+    runs a small MatMul over a large batch many times faster than a column Gather.
+    """
+    m = torch.zeros(rows, len(cols))
+    for j, c in enumerate(cols):
+        m[c, j] = 1.0
+    return m
+
+
+class _Rotation(nn.Module):
+    """Turn the planned pairs of a (B, K) tensor by -ψ (``inverse=False``) or +ψ: returns
+    (B, 2P) = [x'_1..x'_P, y'_1..y'_P] with x' = C x ± S y, y' = C y ∓ S x.
+
+    C and S per pair come from the frame table (B, 4) through constant matrices, so the whole
+    rotation is four matrix products, two multiplications and an addition, whatever the model.
+    """
+
+    xy: Tensor  # (K, 2P) selects [x..., y...]
+    yx: Tensor  # (K, 2P) selects [y..., x...]
+    cos: Tensor  # (4, 2P)
+    sin: Tensor  # (4, 2P)
+
+    def __init__(self, width: int, plan: _PairPlan) -> None:
+        super().__init__()
+        p = len(plan.x)
+        self.register_buffer("xy", _select(width, plan.x + plan.y), persistent=False)  # (K, 2P)
+        self.register_buffer("yx", _select(width, plan.y + plan.x), persistent=False)
+        cos = torch.zeros(4, 2 * p)  # picks cos ψ or cos ψ/2 for each output column
+        sin = torch.zeros(4, 2 * p)  # picks ±sin ψ or ±sin ψ/2 (sign of the local transform)
+        for k, h in enumerate(plan.half):
+            cos[2 * h, k] = cos[2 * h, p + k] = 1.0
+            sin[2 * h + 1, k], sin[2 * h + 1, p + k] = 1.0, -1.0
+        self.register_buffer("cos", cos, persistent=False)
+        self.register_buffer("sin", sin, persistent=False)
+
+    def forward(self, frame: Tensor, values: Tensor, inverse: bool) -> Tensor:
+        c = frame @ self.cos  # (B, 2P)
+        s = frame @ self.sin
+        if inverse:
+            s = -s
+        return c * (values @ self.xy) + s * (values @ self.yx)
+
+
+class StructuredEmulator(nn.Module):
+    """One super-step of a model: ``forward(state (B,S), controls (B,U), forces (B,F)) -> (B,S)``."""
+
+    x_mean: Tensor  # (D,) T^σ_x statistics
+    x_std: Tensor
+    y_mean: Tensor  # (S,) T^σ_y statistics
+    y_std: Tensor
+    # Constant selection matrices (buffers, not saved): see _plan for their shapes.
+    _angle_sel: Tensor
+    _in_place: Tensor
+    _out_place: Tensor
+    _quat_sel: Tensor
+    _keep: Tensor
+    _quat_place: Tensor
+    _frame_sel: Tensor
+    _half_to_table: Tensor
+    _swap: Tensor
+
+    def __init__(
+        self,
+        layout: StateLayout,
+        num_controls: int,
+        num_forces: int,
+        frame: FrameConfig,
+        hidden: Sequence[int] = (64, 64),
+        activation: str = "tanh",
+    ) -> None:
+        super().__init__()
+        self.layout = layout
+        self.num_controls = num_controls
+        self.num_forces = num_forces
+        self.frame = frame
+        self.hidden = tuple(hidden)
+        self.activation = activation
+        self._plan()
+        self.core = make_core(self.input_size, layout.size, hidden, activation)
+        # normalisation statistics (T^σ), set from training data by ``set_normalization``
+        self.register_buffer("x_mean", torch.zeros(self.input_size))
+        self.register_buffer("x_std", torch.ones(self.input_size))
+        self.register_buffer("y_mean", torch.zeros(layout.size))
+        self.register_buffer("y_std", torch.ones(layout.size))
+
+    # ------------------------------------------------------------------ static plan
+    def _plan(self) -> None:
+        """Decide, once, which columns go where, as constant 0/1 matrices (tracing sees constants).
+
+        Network inputs are picked from ``[state, controls, forces, rotated pairs, sin(angles),
+        cos(angles)]`` and world state changes from ``[delta, rotated pairs]``, so each transform is a
+        handful of graph nodes whatever the model (a small graph is what makes one ONNX call cheap).
+        """
+        lay, fr = self.layout, self.frame
+        S, U, F = lay.size, self.num_controls, self.num_forces
+        self._quat: tuple[int, int] | None = None  # columns of the root quaternion's w and z
+        self._heading: int | None = None
+        for g, sl in lay.group_slices():
+            if g.kind == "quaternion":
+                self._quat = (sl.start, sl.start + 3)
+            elif g.kind == "heading":
+                self._heading = sl.start
+        self._rotate = fr.rotate and (self._quat is not None or self._heading is not None)
+        rot = self._rotate
+        translate = fr.translate
+
+        # ---- inputs: columns of base = [state (S), controls (U), forces (F)]
+        in_pairs: list[tuple[int, int, int]] = []
+        angles: list[int] = []
+        for g, sl in lay.group_slices():
+            if g.kind == "angle":
+                angles.extend(range(sl.start, sl.stop))
+        replaced: dict[int, int] = {}  # base column -> index in the rotated block
+        if rot:
+            for g, sl in lay.group_slices():
+                a = sl.start
+                # a root position is rotated only when it is not translated away (translation off)
+                untranslated_root = g.kind == "position" and g.size >= 2 and not any(translate[:2])
+                if untranslated_root or g.kind == "world_vector":
+                    in_pairs.append((a, a + 1, 0))
+                elif g.kind == "quaternion":
+                    in_pairs += [(a, a + 3, 1), (a + 1, a + 2, 1)]  # (w, z) and (x, y)
+            for ix, iy in fr.force_pairs:
+                in_pairs.append((S + U + ix, S + U + iy, 0))
+        p = len(in_pairs)
+        for k, (ix, iy, _h) in enumerate(in_pairs):
+            replaced[ix] = k
+            replaced[iy] = p + k
+        rot_at = S + U + F  # rotated columns follow the base: first all x', then all y'
+        sin_at = rot_at + 2 * p
+        cos_at = sin_at + len(angles)
+
+        def col(c: int) -> int:
+            return rot_at + replaced[c] if c in replaced else c
+
+        gather: list[int] = []
+        groups: list[tuple[str, int]] = []  # network input groups (name, width) for normalisation
+        for g, sl in lay.group_slices():
+            cols: list[int] = []
+            if g.kind == "position":
+                kept = [i for i in range(g.size) if not (translate and translate[i])]
+                cols = [col(sl.start + i) for i in kept]  # translated axes are 0: dropped (App. F.1)
+            elif g.kind == "heading":
+                cols = [] if rot else [sl.start]  # the heading defines the frame: 0, dropped
+            elif g.kind == "quaternion" and rot:
+                cols = [col(sl.start), col(sl.start + 1), col(sl.start + 2)]  # z' is exactly 0: dropped
+            elif g.kind == "angle":
+                idx = [angles.index(c) for c in range(sl.start, sl.stop)]
+                cols = [sin_at + i for i in idx] + [cos_at + i for i in idx]
+            else:
+                cols = [col(c) for c in range(sl.start, sl.stop)]
+            if cols:
+                gather += cols
+                groups.append((g.name, len(cols)))
+        if U:
+            gather += list(range(S, S + U))
+            groups.append(("controls", U))
+        if F:
+            gather += [col(c) for c in range(S + U, S + U + F)]
+            groups.append(("forces", F))
+        in_plan = _PairPlan(*map(tuple, zip(*in_pairs, strict=True))) if in_pairs else _PairPlan()
+        self._rot_in = _Rotation(S + U + F, in_plan) if in_pairs else None
+        self._angles = tuple(angles)
+        self.register_buffer("_angle_sel", _select(S, angles), persistent=False)  # (S, A)
+        self.register_buffer("_in_place", _select(sin_at + 2 * len(angles), gather), persistent=False)
+        self.input_groups = groups
+        self.input_size = len(gather)
+
+        # ---- outputs: state changes, rotated back to world axes
+        out_pairs: list[tuple[int, int, int]] = []
+        if rot:
+            for g, sl in lay.group_slices():
+                a = sl.start
+                if g.kind in ("position", "world_vector") and g.size >= 2:
+                    out_pairs.append((a, a + 1, 0))
+                elif g.kind == "quaternion":
+                    out_pairs += [(a, a + 3, 1), (a + 1, a + 2, 1)]
+        q = len(out_pairs)
+        out_gather = list(range(S))
+        for k, (ix, iy, _h) in enumerate(out_pairs):
+            out_gather[ix] = S + k
+            out_gather[iy] = S + q + k
+        out_plan = _PairPlan(*map(tuple, zip(*out_pairs, strict=True))) if out_pairs else _PairPlan()
+        self._rot_out = _Rotation(S, out_plan) if out_pairs else None
+        self.register_buffer("_out_place", _select(S + 2 * q, out_gather), persistent=False)  # (S+2Q, S)
+
+        # ---- quaternion renormalisation: next = nxt @ keep + normalised(nxt @ quat) @ place
+        quats = [sl for g, sl in lay.group_slices() if g.kind in ("quaternion", "local_quaternion")]
+        self.quaternion_slices = quats
+        qcols = [c for sl in quats for c in range(sl.start, sl.stop)]
+        self._num_quats = len(quats)
+        self.register_buffer("_quat_sel", _select(S, qcols), persistent=False)  # (S, 4k)
+        keep = torch.eye(S)
+        for c in qcols:
+            keep[c, c] = 0.0
+        self.register_buffer("_keep", keep, persistent=False)  # (S, S): every column but the quaternions
+        self.register_buffer("_quat_place", _select(S, qcols).T.contiguous(), persistent=False)  # (4k, S)
+
+        # ---- the frame: the root quaternion's (w, z), or the heading angle
+        if self._quat is not None:
+            self.register_buffer("_frame_sel", _select(S, self._quat), persistent=False)  # (S, 2)
+        elif self._heading is not None:
+            self.register_buffer("_frame_sel", _select(S, [self._heading]), persistent=False)  # (S, 1)
+        # [h², h·swap(h), h] (B, 6) -> [cos ψ, sin ψ, cos ψ/2, sin ψ/2] (B, 4) for h = (cos ψ/2, sin ψ/2)
+        table = torch.zeros(6, 4)
+        table[0, 0], table[1, 0] = 1.0, -1.0  # cos ψ = ch² - sh²
+        table[2, 1] = table[3, 1] = 1.0  # sin ψ = 2 ch sh
+        table[4, 2] = table[5, 3] = 1.0
+        self.register_buffer("_half_to_table", table, persistent=False)
+        self.register_buffer("_swap", torch.tensor([[0.0, 1.0], [1.0, 0.0]]), persistent=False)
+
+    def output_groups(self) -> list[tuple[str, int]]:
+        return [(g.name, g.size) for g in self.layout]
+
+    # ------------------------------------------------------------------ frame helpers
+    def frame_of(self, state: Tensor) -> Frame:
+        """The heading table (B, 4): cos ψ, sin ψ, cos ψ/2, sin ψ/2 of each state's heading ψ."""
+        if self._quat is not None:
+            wz = state @ self._frame_sel  # (B, 2)
+            h = wz / torch.sqrt((wz * wz).sum(dim=1, keepdim=True) + 1e-12)  # twist of q about z
+            return torch.cat([h * h, h * (h @ self._swap), h], dim=1) @ self._half_to_table
+        psi = state @ self._frame_sel  # (B, 1)
+        return torch.cat([torch.cos(psi), torch.sin(psi), torch.cos(0.5 * psi), torch.sin(0.5 * psi)], dim=1)
+
+    def heading(self, state: Tensor) -> Frame | None:
+        """The heading of each state if this emulator rotates, else None; compute once per step."""
+        return self.frame_of(state) if self._rotate else None
+
+    # ------------------------------------------------------------------ T'_x and T'_y
+    def local_inputs(
+        self,
+        state: Tensor,
+        controls: Tensor | None,
+        forces: Tensor | None,
+        frame: Frame | None = None,
+        *,
+        place: bool = True,
+    ) -> Tensor:
+        """T'_x: (B,S), (B,U), (B,F) -> network inputs in the local frame, (B, D), before T^σ_x.
+
+        ``place=False`` returns the unplaced columns (B, E) with ``x = ext @ input_placement``, for an
+        export that folds the placement into the first layer.
+        """
+        parts = [state]
+        if self.num_controls:
+            assert controls is not None
+            parts.append(controls)
+        if self.num_forces:
+            assert forces is not None
+            parts.append(forces)
+        base = torch.cat(parts, dim=1) if len(parts) > 1 else state
+        ext = [base]
+        if self._rot_in is not None:
+            ext.append(self._rot_in(self.frame_of(state) if frame is None else frame, base, inverse=False))
+        if self._angles:
+            a = state @ self._angle_sel
+            ext += [torch.sin(a), torch.cos(a)]
+        cols = torch.cat(ext, dim=1) if len(ext) > 1 else base
+        return cols @ self._in_place if place else cols
+
+    @property
+    def input_placement(self) -> Tensor:
+        """(E, D) 0/1 matrix from the unplaced input columns to the network inputs."""
+        return self._in_place
+
+    def delta_to_local(self, state: Tensor, delta: Tensor) -> Tensor:
+        """(T'_y)^-1: world state changes (B,S) -> local changes (B,S), for building training targets."""
+        return self._map_delta(state, delta, inverse=False)
+
+    def delta_to_world(self, state: Tensor, delta_local: Tensor) -> Tensor:
+        """T'_y: local state changes (B,S) -> world changes (B,S); translations are not applied to changes."""
+        return self._map_delta(state, delta_local, inverse=True)
+
+    def _map_delta(self, state: Tensor, delta: Tensor, inverse: bool, frame: Frame | None = None) -> Tensor:
+        if self._rot_out is None:
+            return delta
+        rotated = self._rot_out(self.frame_of(state) if frame is None else frame, delta, inverse)
+        return torch.cat([delta, rotated], dim=1) @ self._out_place
+
+    # ------------------------------------------------------------------ T^σ
+    def normalize_inputs(self, x: Tensor) -> Tensor:
+        return (x - self.x_mean) / self.x_std
+
+    def denormalize_outputs(self, y: Tensor) -> Tensor:
+        return y * self.y_std + self.y_mean
+
+    def set_normalization(self, x_local: Tensor, y_local: Tensor, mode: str = "group") -> None:
+        """Fit T^σ from training data: inputs (N, D) and local state changes (N, S), eqs. 4.10-4.11.
+
+        ``mode="group"`` shares one mean and deviation per group, as in the thesis; ``"variable"``
+        normalises every variable on its own.
+        """
+        xm, xs = _group_stats(x_local, self.input_groups, mode)
+        ym, ys = _group_stats(y_local, self.output_groups(), mode)
+        self.x_mean.copy_(xm)
+        self.x_std.copy_(xs)
+        self.y_mean.copy_(ym)
+        self.y_std.copy_(ys)
+
+    # ------------------------------------------------------------------ the step
+    def network_targets(self, state: Tensor, next_state: Tensor) -> Tensor:
+        """(T^σ_y)^-1 (T'_y)^-1 (T^Δ_y)^-1: what N^σ must output for this transition, (B, S)."""
+        return (self.delta_to_local(state, next_state - state) - self.y_mean) / self.y_std
+
+    def network_inputs(
+        self, state: Tensor, controls: Tensor | None = None, forces: Tensor | None = None
+    ) -> Tensor:
+        """T^σ_x T'_x: (B, D) normalised local inputs."""
+        return self.normalize_inputs(self.local_inputs(state, controls, forces))
+
+    def finish(self, state: Tensor, y: Tensor) -> Tensor:
+        """T^Δ_y T'_y T^σ_y: network output (B,S) -> next state (B,S), quaternions renormalised."""
+        return self.apply_delta(state, self.denormalize_outputs(y))
+
+    def apply_delta(self, state: Tensor, delta_local: Tensor, frame: Frame | None = None) -> Tensor:
+        """T^Δ_y T'_y: local state change (B,S) -> next state (B,S), quaternions renormalised."""
+        nxt = state + self._map_delta(state, delta_local, inverse=True, frame=frame)
+        if not self._num_quats:
+            return nxt
+        q = (nxt @ self._quat_sel).reshape(-1, self._num_quats, 4)
+        q = q / torch.sqrt((q * q).sum(dim=2, keepdim=True))
+        return nxt @ self._keep + q.reshape(-1, 4 * self._num_quats) @ self._quat_place
+
+    def forward(self, state: Tensor, controls: Tensor | None = None, forces: Tensor | None = None) -> Tensor:
+        frame = self.heading(state)
+        x = self.normalize_inputs(self.local_inputs(state, controls, forces, frame))
+        return self.apply_delta(state, self.denormalize_outputs(self.core(x)), frame)
+
+    def architecture(self) -> dict[str, object]:
+        return {
+            "hidden": list(self.hidden),
+            "activation": self.activation,
+            "input_size": self.input_size,
+            "input_groups": [list(g) for g in self.input_groups],
+            "output_size": self.layout.size,
+            "weights": sum(p.numel() for p in self.core.parameters()),
+            "frame": {
+                "translate": list(self.frame.translate),
+                "rotate": self.frame.rotate,
+                "force_pairs": [list(p) for p in self.frame.force_pairs],
+            },
+        }
+
+
+def _group_stats(data: Tensor, groups: Sequence[tuple[str, int]], mode: str) -> tuple[Tensor, Tensor]:
+    if mode not in ("group", "variable"):
+        raise ValueError(f"normalization must be 'group' or 'variable', got {mode!r}")
+    means, stds = [], []
+    at = 0
+    for _name, width in groups:
+        block = data[:, at : at + width].double()
+        at += width
+        if mode == "group":
+            m = block.mean()
+            s = block.std() if block.numel() > 1 else torch.tensor(0.0, dtype=torch.float64)
+            means.append(m.expand(width))
+            stds.append(s.expand(width))
+        else:
+            means.append(block.mean(dim=0))
+            stds.append(block.std(dim=0) if block.shape[0] > 1 else torch.zeros(width, dtype=torch.float64))
+    mean = torch.cat(means).float()
+    std = torch.cat(stds).float()
+    # a constant variable carries no information: leave it unscaled rather than divide by ~0
+    std = torch.where(std > 1e-8, std, torch.ones_like(std))
+    return mean, std

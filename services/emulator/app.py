@@ -1,0 +1,87 @@
+"""``create_app(settings)``: the emulator service as a FastAPI app, plus health and metrics."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import AsyncIterator
+
+from fastapi import FastAPI, Response
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from prometheus_client import CONTENT_TYPE_LATEST
+
+from services.emulator import ws
+from services.emulator.auth import ApiKeyMiddleware, ApiKeys
+from services.emulator.deps import EngineDep
+from services.emulator.engine import Engine
+from services.emulator.errors import ApiError, api_error_handler, validation_error_handler
+from services.emulator.persistence import Persistence
+from services.emulator.routes import models, sessions, step
+from services.emulator.settings import Settings
+
+log = logging.getLogger(__name__)
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The app for these settings; artifacts are loaded now, so it is ready when this returns."""
+    settings = settings or Settings()
+    engine = Engine(settings)
+    keys = ApiKeys(settings.api_keys)
+    persistence = Persistence(engine)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        await persistence.start()  # restores this replica's sessions; Redis down: starts degraded
+        sweeper = asyncio.create_task(engine.sweep_forever(), name="session-sweeper")
+        checkpointer = None
+        if persistence.enabled:
+            checkpointer = asyncio.create_task(persistence.run_forever(), name="session-checkpoints")
+        log.info(
+            "emulator service up",
+            extra={
+                "models": engine.registry.models(),
+                "api_keys": len(keys),
+                "persistence": persistence.status,
+            },
+        )
+        try:
+            yield
+        finally:
+            for task in (sweeper, checkpointer):
+                if task is not None:
+                    task.cancel()
+                    with contextlib.suppress(asyncio.CancelledError):
+                        await task
+            await persistence.close()
+            await engine.close()
+
+    app = FastAPI(title="NeuroAnimator emulator service", version="0.1.0", lifespan=lifespan)
+    app.state.engine = engine
+    app.state.persistence = persistence
+    if keys.enabled:
+        app.add_middleware(ApiKeyMiddleware, keys=keys)
+    app.add_exception_handler(ApiError, api_error_handler)
+    app.add_exception_handler(RequestValidationError, validation_error_handler)
+    for r in (models.router, sessions.router, step.router, ws.router):
+        app.include_router(r)
+
+    @app.get("/healthz", tags=["ops"])
+    def healthz() -> dict[str, str]:
+        return {"status": "ok"}
+
+    @app.get("/readyz", tags=["ops"])
+    def readyz(engine: EngineDep) -> Response:
+        names = engine.registry.models()
+        p = persistence.status  # "off", "ok" or "degraded" (Redis unreachable: serving, not persisting)
+        if not names:
+            return JSONResponse({"status": "no models loaded", "persistence": p}, status_code=503)
+        return JSONResponse({"status": "ready", "persistence": p})
+
+    @app.get("/metrics", tags=["ops"])
+    def metrics(engine: EngineDep) -> Response:
+        engine.update_gauges()
+        return Response(engine.metrics.render(), media_type=CONTENT_TYPE_LATEST)
+
+    return app

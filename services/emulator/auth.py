@@ -1,0 +1,116 @@
+"""API keys: when ``API_KEYS`` is set, every call but ``/healthz``, ``/readyz`` and ``/metrics`` needs one.
+
+A key is sent as ``Authorization: Bearer <key>`` or ``X-API-Key: <key>`` (websockets may also use the
+``?api_key=<key>`` query parameter, since browsers cannot set headers on them). A missing or wrong key
+gets 401 (a websocket handshake is denied with 401, or closed with code 4401 where the server cannot
+send a denial response).
+
+The caller is known for the rest of the request through the ``CALLER`` context variable, set by
+``ApiKeyMiddleware`` (a pure ASGI middleware, so the value reaches the endpoint and every task it
+starts). It holds the key's *id* (``k-`` + 16 hex digits of its SHA-256), never the key: that id
+owns the sessions the key creates, and is what a checkpoint stores in Redis. ``SessionStore.get``
+answers 404 for a session that another key owns, as if it did not exist.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from contextvars import ContextVar
+
+from starlette.requests import HTTPConnection
+from starlette.responses import JSONResponse
+from starlette.types import ASGIApp, Receive, Scope, Send
+from starlette.websockets import WebSocket
+
+from neuroanimator.schemas import ErrorBody
+
+log = logging.getLogger(__name__)
+
+OPEN_PATHS = frozenset({"/healthz", "/readyz", "/metrics"})
+CALLER: ContextVar[str | None] = ContextVar("emulator_caller", default=None)
+"""The key id of the current request's caller; None when auth is off (or outside a request)."""
+
+
+def key_id(key: str) -> str:
+    """The id of a key: what owns its sessions and is stored in checkpoints (never the key itself)."""
+    return "k-" + hashlib.sha256(key.encode()).hexdigest()[:16]
+
+
+class ApiKeys:
+    """The configured keys, from the comma-separated ``API_KEYS`` (blanks around keys are ignored)."""
+
+    def __init__(self, spec: str) -> None:
+        keys = {k.strip() for k in spec.split(",") if k.strip()}
+        self._ids = {hashlib.sha256(k.encode()).digest(): key_id(k) for k in keys}
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self._ids)
+
+    def __len__(self) -> int:
+        return len(self._ids)
+
+    def owner(self, key: str | None) -> str | None:
+        """The key id of a configured key, else None (looked up by digest, not by comparing keys)."""
+        if not key:
+            return None
+        return self._ids.get(hashlib.sha256(key.encode()).digest())
+
+
+def presented_key(conn: HTTPConnection) -> str | None:
+    """The key a request carries: Authorization Bearer, X-API-Key, or (websockets) ``?api_key=``."""
+    auth = conn.headers.get("authorization", "")
+    scheme, _, value = auth.partition(" ")
+    if scheme.lower() == "bearer" and value.strip():
+        return value.strip()
+    if conn.headers.get("x-api-key"):
+        return conn.headers["x-api-key"].strip()
+    if conn.scope["type"] == "websocket":
+        return conn.query_params.get("api_key") or None
+    return None
+
+
+class ApiKeyMiddleware:
+    """Rejects calls without a valid key (401) and sets ``CALLER`` for the ones with one."""
+
+    def __init__(self, app: ASGIApp, keys: ApiKeys) -> None:
+        self.app = app
+        self.keys = keys
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] not in ("http", "websocket") or scope["path"] in OPEN_PATHS:
+            await self.app(scope, receive, send)
+            return
+        conn = HTTPConnection(scope)
+        key = presented_key(conn)
+        owner = self.keys.owner(key)
+        if owner is None:
+            await self._deny(scope, receive, send, missing=key is None)
+            return
+        token = CALLER.set(owner)
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            CALLER.reset(token)
+
+    async def _deny(self, scope: Scope, receive: Receive, send: Send, missing: bool) -> None:
+        how = "'Authorization: Bearer <key>' or 'X-API-Key: <key>'"
+        if scope["type"] == "websocket":
+            how += " (or the query parameter ?api_key=<key>)"
+        if missing:
+            body = ErrorBody(error="unauthorized", message=f"this service needs an API key: send {how}")
+        else:
+            body = ErrorBody(
+                error="invalid_api_key", message=f"the API key is not valid; send a key with {how}"
+            )
+        log.info("call denied", extra={"path": scope["path"], "reason": body.error})
+        response = JSONResponse(body.model_dump(), status_code=401, headers={"WWW-Authenticate": "Bearer"})
+        if scope["type"] == "http":
+            await response(scope, receive, send)
+            return
+        ws = WebSocket(scope, receive, send)
+        if "websocket.http.response" in scope.get("extensions", {}):
+            await ws.send_denial_response(response)
+        else:
+            await ws.close(code=4401, reason=body.message[:120])

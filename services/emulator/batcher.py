@@ -1,0 +1,222 @@
+"""Dynamic batching: every step request of one (model, version) that arrives within ``max_wait``
+(or until ``max_batch`` rows are waiting) is answered by ONE ONNX Runtime call.
+
+A request is (session, controls (U,), forces (F,)); the batch gathers the sessions' rows of the
+contiguous state pool into (B, S), stacks the inputs into (B, U) and (B, F), runs
+``OnnxEmulator.step`` in a worker thread (the event loop keeps serving), and scatters the finite
+rows of the (B, S) result back. A row with NaN or Inf marks only its session diverged.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from services.emulator.errors import ApiError
+from services.emulator.metrics import Metrics
+from services.emulator.registry import Loaded
+from services.emulator.sessions import Session
+
+log = logging.getLogger(__name__)
+
+
+class DivergedError(ApiError):
+    def __init__(self, session: Session) -> None:
+        super().__init__(
+            409,
+            "diverged",
+            f"session {session.id!r} diverged: its step {session.steps + 1} produced a non-finite state; "
+            "its last finite state is kept, create a new session to continue",
+        )
+
+
+@dataclass
+class _Request:
+    session: Session
+    controls: NDArray[np.float32]
+    forces: NDArray[np.float32]
+    future: asyncio.Future[NDArray[np.float32]]
+
+    @property
+    def rows(self) -> int:
+        return 1
+
+
+@dataclass
+class _Bulk:
+    """Many sessions in one queue entry (binary ``POST /step``): (K,) sessions, (K, U), (K, F)."""
+
+    sessions: list[Session]
+    controls: NDArray[np.float32]
+    forces: NDArray[np.float32]
+    future: asyncio.Future[tuple[NDArray[np.float32], NDArray[np.uint8]]]
+
+    @property
+    def rows(self) -> int:
+        return len(self.sessions)
+
+
+# Row outcomes of ``Batcher.step_many`` (the binary format's status bytes, see services/emulator/binary.py).
+ROW_OK, ROW_DIVERGED, ROW_GONE = 0, 2, 3
+
+
+class Batcher:
+    """The batching queue of one (model, version); its worker task lives on the running loop."""
+
+    def __init__(self, emu: Loaded, max_batch: int, max_wait_s: float, metrics: Metrics) -> None:
+        self.emu = emu
+        self.max_batch = max_batch
+        self.max_wait_s = max_wait_s
+        self.metrics = metrics
+        self.ort_calls = 0
+        self.rows = 0
+        self._pending: list[_Request | _Bulk] = []
+        self._ready = asyncio.Event()
+        self._full = asyncio.Event()
+        self._task: asyncio.Task[None] | None = None
+
+    async def step(
+        self, session: Session, controls: NDArray[np.float32], forces: NDArray[np.float32]
+    ) -> NDArray[np.float32]:
+        """One super-step of one session, batched with whatever else arrives now: returns (S,)."""
+        if session.diverged:
+            raise DivergedError(session)
+        fut: asyncio.Future[NDArray[np.float32]] = asyncio.get_running_loop().create_future()
+        self._enqueue(_Request(session, controls, forces, fut))
+        return await fut
+
+    async def step_many(
+        self, sessions: list[Session], controls: NDArray[np.float32], forces: NDArray[np.float32]
+    ) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
+        """One super-step of K sessions given as arrays (K, U), (K, F), in one queue entry (the caller
+        holds their locks): returns (K, S) new states and (K,) row outcomes ``ROW_*``. A diverged
+        session keeps (and returns) its last finite state; a session gone meanwhile returns NaN."""
+        fut: asyncio.Future[tuple[NDArray[np.float32], NDArray[np.uint8]]] = (
+            asyncio.get_running_loop().create_future()
+        )
+        self._enqueue(_Bulk(sessions, controls, forces, fut))
+        return await fut
+
+    def _enqueue(self, req: _Request | _Bulk) -> None:
+        if self._task is None or self._task.done():
+            self._task = asyncio.get_running_loop().create_task(
+                self._worker(), name=f"batcher-{self.emu.model}"
+            )
+        self._pending.append(req)
+        self._ready.set()
+        if sum(r.rows for r in self._pending) >= self.max_batch:
+            self._full.set()
+
+    async def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+        for req in self._pending:
+            if not req.future.done():
+                req.future.cancel()
+
+    async def _worker(self) -> None:
+        while True:
+            await self._ready.wait()
+            if sum(r.rows for r in self._pending) < self.max_batch and self.max_wait_s > 0:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._full.wait(), self.max_wait_s)
+            take, rows = 0, 0  # whole entries up to max_batch rows (a bulk entry is never split)
+            while take < len(self._pending) and (
+                take == 0 or rows + self._pending[take].rows <= self.max_batch
+            ):
+                rows += self._pending[take].rows
+                take += 1
+            batch, self._pending = self._pending[:take], self._pending[take:]
+            if sum(r.rows for r in self._pending) < self.max_batch:
+                self._full.clear()
+            if not self._pending:
+                self._ready.clear()
+            try:
+                await self._run(batch)
+            except Exception as exc:  # ORT failed: every request of this batch gets the error
+                log.exception("ORT call failed for %s/%s", self.emu.model, self.emu.version)
+                err = ApiError(500, "step_failed", f"the emulator step failed: {exc}")
+                for req in batch:
+                    if not req.future.done():
+                        req.future.set_exception(err)
+
+    async def _run(self, batch: list[_Request | _Bulk]) -> None:
+        single: list[_Request] = []
+        bulks: list[_Bulk] = []
+        for r in batch:
+            if r.future.done():
+                continue
+            if isinstance(r, _Bulk):
+                bulks.append(r)
+            elif r.session.alive:
+                single.append(r)
+            else:  # deleted or expired while queued
+                r.future.set_exception(
+                    ApiError(404, "unknown_session", f"session {r.session.id!r} was deleted while stepping")
+                )
+        sessions = [r.session for r in single]
+        for b in bulks:
+            sessions.extend(b.sessions)
+        if not sessions:
+            return
+        pool = sessions[0].pool
+        slots = np.fromiter((s.slot for s in sessions), dtype=np.intp, count=len(sessions))
+        x = pool.states[slots]  # (B, S) copy
+        u = f = None
+        if self.emu.num_controls:
+            u = np.concatenate([r.controls[None] for r in single] + [b.controls for b in bulks])
+        if self.emu.num_forces:
+            f = np.concatenate([r.forces[None] for r in single] + [b.forces for b in bulks])
+        t0 = time.perf_counter()
+        out = await asyncio.to_thread(self.emu.emulator.step, x, u, f, validate=False)
+        self.ort_calls += 1
+        self.rows += len(sessions)
+        self.metrics.observe_batch(self.emu.model, len(sessions), time.perf_counter() - t0)
+        finite = np.isfinite(out).all(axis=1)
+        for i, req in enumerate(single):
+            sess = req.session
+            if req.future.done():
+                continue
+            if not finite[i]:
+                self._diverge(sess)
+                req.future.set_exception(DivergedError(sess))
+                continue
+            if sess.alive:  # deleted while in flight: its slot may belong to another session now
+                sess.pool.states[sess.slot] = out[i]
+            sess.steps += 1
+            req.future.set_result(out[i])
+        start = len(single)
+        for b in bulks:
+            k = len(b.sessions)
+            rows, ok = out[start : start + k], finite[start : start + k]
+            start += k
+            status = np.zeros(k, np.uint8)
+            alive = np.fromiter((s.alive for s in b.sessions), dtype=bool, count=k)
+            good = ok & alive
+            pool.states[slots[start - k : start][good]] = rows[good]
+            for j in np.flatnonzero(~good).tolist():
+                sess = b.sessions[j]
+                if not alive[j]:
+                    status[j] = ROW_GONE
+                    rows[j] = np.nan
+                else:
+                    self._diverge(sess)
+                    status[j] = ROW_DIVERGED
+                    rows[j] = pool.states[sess.slot]
+            for j in np.flatnonzero(good).tolist():
+                b.sessions[j].steps += 1
+            if not b.future.done():
+                b.future.set_result((rows, status))
+
+    def _diverge(self, sess: Session) -> None:
+        sess.diverged = True
+        self.metrics.diverged.labels(self.emu.model).inc()
+        log.warning("session diverged", extra={"session": sess.id, "model": self.emu.model})

@@ -1,0 +1,254 @@
+"""Binary wire formats (little-endian float32), documented in ``proto/frames.md``.
+
+* ``POST /step`` with ``Content-Type: application/octet-stream``: a 16-byte request header (magic
+  ``NAST``, version, flags, count N, id width W), N session-id slots of W bytes (ASCII, NUL-padded),
+  then N rows of U controls and F forces as float32. Every session of one binary request is of one
+  (model, version), so rows have a fixed width. The response: a 16-byte header (magic ``NASR``,
+  version, flags, N, S), N status bytes padded to a multiple of 4, then N rows of S float32.
+* Websocket frames: a client frame is magic ``NAWC``, u32 seq, then U + F float32; a state frame is
+  magic ``NAWS``, u32 seq, u32 steps, u8 status, 3 zero bytes, then S float32.
+
+Parsing raises ``ApiError`` (422, or 413 for a batch over MAX_BATCH) naming the problem.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from services.emulator.errors import ApiError
+
+VERSION = 1
+REQUEST_MAGIC = b"NAST"
+RESPONSE_MAGIC = b"NASR"
+WS_CLIENT_MAGIC = b"NAWC"
+WS_STATE_MAGIC = b"NAWS"
+MAX_ID_WIDTH = 256
+NO_SEQ = 0xFFFFFFFF
+"""``seq`` of a frame that answers no numbered message."""
+
+REQUEST_HEADER = struct.Struct("<4sHHIHH")  # magic, version, flags, count, id width, reserved
+RESPONSE_HEADER = struct.Struct("<4sHHII")  # magic, version, flags, count, state size
+WS_CLIENT_HEADER = struct.Struct("<4sI")  # magic, seq
+WS_STATE_HEADER = struct.Struct("<4sIIB3x")  # magic, seq, steps, status
+
+# Status byte of each session in a binary response (and of a websocket state frame).
+OK = 0
+CLIPPED = 1  # stepped; some control or force was outside the trained range and was clipped
+DIVERGED = 2  # not stepped: the session diverged (now or earlier); its row is its last finite state
+UNKNOWN = 3  # not stepped: no such session (never created, deleted, expired or another key's); NaN row
+STATUS_NAMES = {OK: "ok", CLIPPED: "clipped", DIVERGED: "diverged", UNKNOWN: "unknown_session"}
+
+
+def _bad(
+    error: str, message: str, *, field: str | None = None, expected: Any = None, got: Any = None
+) -> ApiError:
+    return ApiError(422, error, message, field=field, expected=expected, got=got)
+
+
+@dataclass
+class BatchRequest:
+    """A parsed binary batch request: ids and the raw (N, U+F) float32 input rows (unchecked width)."""
+
+    ids: list[str]
+    body: memoryview
+    offset: int  # where the float32 rows start
+
+    def rows(self, width: int, what: str) -> NDArray[np.float32]:
+        """(N, width) float32 rows; 422 when the body's length does not fit ``width`` per session."""
+        n = len(self.ids)
+        want = self.offset + 4 * n * width
+        if len(self.body) != want:
+            raise _bad(
+                "wrong_length",
+                f"binary body is {len(self.body)} bytes; the header says {n} sessions of {what} "
+                f"({width} float32 per session), so it must be {want} bytes",
+                field="body",
+                expected=want,
+                got=len(self.body),
+            )
+        return np.frombuffer(self.body, dtype="<f4", count=n * width, offset=self.offset).reshape(n, width)
+
+    def row_width(self) -> int | None:
+        """The per-session width the body's length implies, or None if it fits no whole width."""
+        n = len(self.ids)
+        rest = len(self.body) - self.offset
+        if n == 0 or rest < 0 or rest % (4 * n):
+            return None
+        return rest // (4 * n)
+
+
+def parse_batch_request(body: bytes, max_batch: int) -> BatchRequest:
+    """The header and session ids of a binary ``POST /step`` body."""
+    if len(body) < REQUEST_HEADER.size:
+        raise _bad(
+            "malformed_binary",
+            f"binary body is {len(body)} bytes, shorter than the {REQUEST_HEADER.size}-byte header "
+            "(see proto/frames.md)",
+            field="body",
+            expected=f">= {REQUEST_HEADER.size} bytes",
+            got=len(body),
+        )
+    magic, version, _flags, count, width, _ = REQUEST_HEADER.unpack_from(body)
+    if magic != REQUEST_MAGIC:
+        raise _bad(
+            "bad_magic",
+            f"binary body starts with {magic!r}, expected the magic {REQUEST_MAGIC!r} (see proto/frames.md)",
+            field="magic",
+            expected=REQUEST_MAGIC.decode(),
+            got=repr(magic),
+        )
+    if version != VERSION:
+        raise _bad(
+            "unsupported_version",
+            f"binary format version {version} is not supported; this server speaks version {VERSION}",
+            field="version",
+            expected=VERSION,
+            got=version,
+        )
+    if count > max_batch:
+        raise ApiError(
+            413,
+            "batch_too_large",
+            f"a batch may hold at most {max_batch} items (MAX_BATCH), got {count}",
+            field="count",
+            expected=f"<= {max_batch}",
+            got=count,
+        )
+    if not 1 <= width <= MAX_ID_WIDTH:
+        raise _bad(
+            "bad_id_width",
+            f"the session-id width must be 1..{MAX_ID_WIDTH} bytes, got {width}",
+            field="id_width",
+            expected=f"1..{MAX_ID_WIDTH}",
+            got=width,
+        )
+    end = REQUEST_HEADER.size + count * width
+    if len(body) < end:
+        raise _bad(
+            "wrong_length",
+            f"binary body is {len(body)} bytes, too short for the {count} session ids of {width} bytes "
+            f"the header announces (at least {end} bytes)",
+            field="count",
+            expected=f">= {end} bytes",
+            got=len(body),
+        )
+    ids: list[str] = []
+    for i in range(count):
+        raw = body[REQUEST_HEADER.size + i * width : REQUEST_HEADER.size + (i + 1) * width]
+        try:
+            ids.append(raw.rstrip(b"\0").decode("ascii"))
+        except UnicodeDecodeError as exc:
+            raise _bad(
+                "bad_session_id",
+                f"session id slot {i} is not ASCII: {raw!r}",
+                field=f"ids[{i}]",
+                expected="ASCII, NUL-padded",
+                got=repr(raw),
+            ) from exc
+    return BatchRequest(ids, memoryview(body), end)
+
+
+def encode_batch_request(
+    ids: list[str], controls: NDArray[np.floating], forces: NDArray[np.floating] | None = None
+) -> bytes:
+    """Client side: the binary body for sessions ``ids`` with controls (N, U) and forces (N, F)."""
+    n = len(ids)
+    raw = [s.encode("ascii") for s in ids]
+    width = max((len(r) for r in raw), default=1)
+    width = (width + 3) // 4 * 4  # keeps the float32 rows 4-byte aligned
+    u = np.asarray(controls, dtype="<f4").reshape(n, -1)
+    rows = u if forces is None else np.concatenate([u, np.asarray(forces, "<f4").reshape(n, -1)], axis=1)
+    head = REQUEST_HEADER.pack(REQUEST_MAGIC, VERSION, 0, n, width, 0)
+    return head + b"".join(r.ljust(width, b"\0") for r in raw) + np.ascontiguousarray(rows, "<f4").tobytes()
+
+
+def encode_batch_response(status: NDArray[np.uint8], states: NDArray[np.float32]) -> bytes:
+    n = len(status)
+    s = states.shape[1] if states.ndim == 2 else 0
+    pad = (-n) % 4
+    return (
+        RESPONSE_HEADER.pack(RESPONSE_MAGIC, VERSION, 0, n, s)
+        + status.astype(np.uint8).tobytes()
+        + b"\0" * pad
+        + np.ascontiguousarray(states, "<f4").tobytes()
+    )
+
+
+def decode_batch_response(body: bytes) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    """Client side: (N,) status bytes and (N, S) states of a binary ``POST /step`` response."""
+    magic, version, _flags, n, s = RESPONSE_HEADER.unpack_from(body)
+    if magic != RESPONSE_MAGIC or version != VERSION:
+        raise ValueError(f"not a version-{VERSION} binary step response: {body[:8]!r}")
+    off = RESPONSE_HEADER.size
+    status = np.frombuffer(body, np.uint8, count=n, offset=off)
+    off += n + (-n) % 4
+    states = np.frombuffer(body, "<f4", count=n * s, offset=off).reshape(n, s)
+    return status, states
+
+
+def check_rows(rows: NDArray[np.float32], num_controls: int, ids: list[str]) -> None:
+    """422 naming the first NaN or Inf among the input rows (controls then forces per session)."""
+    bad = ~np.isfinite(rows)
+    if bad.any():
+        i, j = (int(v) for v in np.argwhere(bad)[0])
+        name = f"controls[{j}]" if j < num_controls else f"forces[{j - num_controls}]"
+        raise _bad(
+            "not_finite",
+            f"items[{i}].{name} of session {ids[i]!r} is {float(rows[i, j])!r}; inputs must be finite float32",
+            field=f"items[{i}].{name}",
+            expected="a finite float32",
+            got=float(rows[i, j]),
+        )
+
+
+# ---------------------------------------------------------------- websocket frames
+def parse_ws_frame(data: bytes, width: int, what: str) -> tuple[int | None, NDArray[np.float32]]:
+    """A client binary frame -> (seq or None, (width,) float32 controls then forces)."""
+    want = WS_CLIENT_HEADER.size + 4 * width
+    if len(data) < WS_CLIENT_HEADER.size or data[:4] != WS_CLIENT_MAGIC:
+        raise _bad(
+            "bad_magic",
+            f"a binary frame must start with {WS_CLIENT_MAGIC!r} and a u32 seq (see proto/frames.md), "
+            f"got {bytes(data[:8])!r}",
+            field="magic",
+            expected=WS_CLIENT_MAGIC.decode(),
+            got=repr(bytes(data[:4])),
+        )
+    _, seq = WS_CLIENT_HEADER.unpack_from(data)
+    if len(data) != want:
+        raise _bad(
+            "wrong_length",
+            f"a binary frame for {what} is {want} bytes (8-byte header + {width} float32), got {len(data)}",
+            field="frame",
+            expected=want,
+            got=len(data),
+        )
+    values = np.frombuffer(data, "<f4", count=width, offset=WS_CLIENT_HEADER.size)
+    return (None if seq == NO_SEQ else int(seq)), values
+
+
+def encode_ws_frame(seq: int | None, values: NDArray[np.floating]) -> bytes:
+    """Client side: a binary frame with controls then forces."""
+    s = NO_SEQ if seq is None else seq
+    return WS_CLIENT_HEADER.pack(WS_CLIENT_MAGIC, s) + np.ascontiguousarray(values, "<f4").tobytes()
+
+
+def encode_ws_state(seq: int | None, steps: int, status: int, state: NDArray[np.floating]) -> bytes:
+    s = NO_SEQ if seq is None else seq
+    return (
+        WS_STATE_HEADER.pack(WS_STATE_MAGIC, s, steps, status) + np.ascontiguousarray(state, "<f4").tobytes()
+    )
+
+
+def decode_ws_state(data: bytes) -> tuple[int | None, int, int, NDArray[np.float32]]:
+    """Client side: (seq or None, steps, status, (S,) state) of a binary state frame."""
+    magic, seq, steps, status = WS_STATE_HEADER.unpack_from(data)
+    if magic != WS_STATE_MAGIC:
+        raise ValueError(f"not a state frame: {bytes(data[:8])!r}")
+    state = np.frombuffer(data, "<f4", offset=WS_STATE_HEADER.size)
+    return (None if seq == NO_SEQ else int(seq)), int(steps), int(status), state

@@ -1,0 +1,88 @@
+"""``ApiError``: every error the service answers, as an HTTP status plus an ``ErrorBody``."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from fastapi import Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from neuroanimator.schemas import ErrorBody
+
+
+class ApiError(Exception):
+    """An error with its HTTP status and body; raised anywhere, answered by ``api_error_handler``."""
+
+    def __init__(
+        self,
+        status: int,
+        error: str,
+        message: str,
+        *,
+        field: str | None = None,
+        expected: Any = None,
+        got: Any = None,
+    ) -> None:
+        super().__init__(message)
+        self.status = status
+        self.body = ErrorBody(
+            error=error, message=message, field=field, expected=jsonable(expected), got=jsonable(got)
+        )
+
+
+def jsonable(value: Any) -> Any:
+    """Values JSON can carry: non-finite floats become strings ("nan", "inf"), long inputs are cut."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, (list, tuple)):
+        items = [jsonable(v) for v in value[:16]]
+        return [*items, "..."] if len(value) > 16 else items
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in list(value.items())[:16]}
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return repr(value)[:200]
+
+
+def field_name(loc: tuple[Any, ...]) -> str:
+    """('body', 'items', 2, 'controls', 0) -> 'items[2].controls[0]'."""
+    out = ""
+    for part in loc:
+        if part == "body" and not out:
+            continue
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += f".{part}" if out else str(part)
+    return out or "body"
+
+
+def from_validation(errors: list[dict[str, Any]]) -> ApiError:
+    """The first pydantic error as a 422 naming the field, what was expected and what was got."""
+    if not errors:
+        return ApiError(422, "invalid_request", "the request is invalid")
+    err = errors[0]
+    name = field_name(tuple(err.get("loc", ())))
+    msg = str(err.get("msg", "invalid value"))
+    more = f" (and {len(errors) - 1} more problems)" if len(errors) > 1 else ""
+    return ApiError(
+        422,
+        "invalid_request",
+        f"{name}: {msg}; got {jsonable(err.get('input'))!r}{more}",
+        field=name,
+        expected=msg.removeprefix("Input should be ").removeprefix("Field "),
+        got=err.get("input"),
+    )
+
+
+async def api_error_handler(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, ApiError)
+    return JSONResponse(exc.body.model_dump(), status_code=exc.status)
+
+
+async def validation_error_handler(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, RequestValidationError)
+    err = from_validation(list(exc.errors()))
+    return JSONResponse(err.body.model_dump(), status_code=err.status)

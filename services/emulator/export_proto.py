@@ -1,0 +1,114 @@
+"""Write the wire contract into ``proto/``: JSON Schemas of the models in ``neuroanimator.schemas``
+(``proto/schemas/<Name>.json``) and the emulator service's OpenAPI document
+(``proto/emulator.openapi.json``). ``proto/frames.md`` (the binary layouts) is written by hand.
+
+    python -m services.emulator.export_proto            # (re)write proto/
+    python -m services.emulator.export_proto --check    # exit 1 and list the files that drifted
+
+The OpenAPI document comes from ``create_app(...)`` over an empty artifact folder, so no artifacts,
+Redis or API keys are needed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+import logging
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, TypeAdapter
+
+from neuroanimator import schemas
+
+log = logging.getLogger(__name__)
+ROOT = Path(__file__).resolve().parents[2] / "proto"
+COMMAND = "python -m services.emulator.export_proto  (or: make proto)"
+UNIONS = ("ClientMessage", "ServerMessage")
+
+
+def _dump(obj: Any) -> str:
+    return json.dumps(obj, indent=2, ensure_ascii=False) + "\n"
+
+
+def wire_schemas() -> dict[str, dict[str, Any]]:
+    """Every pydantic model defined in ``neuroanimator.schemas`` plus the websocket message unions."""
+    out: dict[str, dict[str, Any]] = {}
+    for name, obj in vars(schemas).items():
+        ours = inspect.isclass(obj) and obj.__module__ == schemas.__name__ and not name.startswith("_")
+        if ours and issubclass(obj, BaseModel):
+            out[name] = obj.model_json_schema()
+    for name in UNIONS:
+        schema = TypeAdapter(getattr(schemas, name)).json_schema()
+        schema.setdefault("title", name)
+        out[name] = schema
+    return dict(sorted(out.items()))
+
+
+def openapi() -> dict[str, Any]:
+    from services.emulator.app import create_app
+    from services.emulator.settings import Settings
+
+    with tempfile.TemporaryDirectory() as empty:
+        kw: dict[str, Any] = {"artifacts_dir": Path(empty), "api_keys": ""}
+        if "redis_url" in Settings.model_fields:
+            kw["redis_url"] = ""
+        doc: dict[str, Any] = create_app(Settings(**kw)).openapi()
+    return doc
+
+
+def render() -> dict[str, str]:
+    """The generated files of ``proto/``, by path relative to it."""
+    files = {f"schemas/{name}.json": _dump(s) for name, s in wire_schemas().items()}
+    files["emulator.openapi.json"] = _dump(openapi())
+    return files
+
+
+def drift(root: Path = ROOT) -> list[str]:
+    """Generated files that differ from (or are missing in) ``root``, and stale schema files."""
+    want = render()
+    bad = [p for p, text in want.items() if not (root / p).is_file() or (root / p).read_text() != text]
+    stale = sorted(
+        f"schemas/{p.name}" for p in (root / "schemas").glob("*.json") if f"schemas/{p.name}" not in want
+    )
+    return sorted(bad) + stale
+
+
+def write(root: Path = ROOT) -> list[str]:
+    """(Re)write every generated file; returns the paths that changed."""
+    changed = drift(root)
+    files = render()
+    (root / "schemas").mkdir(parents=True, exist_ok=True)
+    for p in (root / "schemas").glob("*.json"):
+        if f"schemas/{p.name}" not in files:
+            p.unlink()
+    for path, text in files.items():
+        target = root / path
+        if not target.is_file() or target.read_text() != text:
+            target.write_text(text)
+    return changed
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", type=Path, default=ROOT, help="the proto folder (default: the repository's)")
+    p.add_argument("--check", action="store_true", help="write nothing; exit 1 if proto/ drifted")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    if args.check:
+        bad = drift(args.out)
+        for path in bad:
+            log.error("drifted: %s", path)
+        if bad:
+            log.error("proto/ drifted from the code; run %s", COMMAND)
+        return 1 if bad else 0
+    changed = write(args.out)
+    log.info("proto/: %d files updated%s", len(changed), "".join(f"\n  {c}" for c in changed))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

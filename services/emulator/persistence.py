@@ -1,0 +1,255 @@
+"""Session checkpoints in Redis: a restarted replica restores its sessions, losing at most one interval.
+
+Layout: one Redis hash per replica, ``<REDIS_PREFIX>:sessions:<REPLICA_ID>``; its fields are session
+ids (which start with the replica id), its values compact records (``encode``): a JSON header
+(model, version, steps, diverged flag, seed, owner key id, last-used wall-clock time) then a NUL byte
+then the state, S little-endian float32 (4·S bytes).
+
+Every ``CHECKPOINT_INTERVAL_S`` a background task writes, in one pipeline, the sessions that changed
+since the last successful checkpoint (a new step count or diverged flag; reading a session is not a
+change) and removes the sessions that are gone (deleted or expired). A failed checkpoint changes
+nothing on this side, so the next one writes everything it missed. On startup a replica with the same
+REPLICA_ID reads its hash back and recreates the sessions with their ids, versions, states and owners.
+If Redis is unreachable the service still starts (status ``degraded``, on ``/readyz``) and the restore
+is retried before each checkpoint until it succeeds. Without REDIS_URL nothing is persisted (``off``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import time
+from dataclasses import dataclass
+from typing import Any, Literal, cast
+
+import numpy as np
+import redis.asyncio as aioredis
+from numpy.typing import NDArray
+from prometheus_client import Counter, Gauge, Histogram
+from redis.asyncio.retry import Retry
+from redis.backoff import ExponentialBackoff
+from redis.exceptions import RedisError
+
+from services.emulator.engine import Engine
+from services.emulator.errors import ApiError
+from services.emulator.sessions import Session
+
+log = logging.getLogger(__name__)
+Status = Literal["off", "ok", "degraded"]
+_CHUNK = 1000  # fields per HSET / HDEL command inside the pipeline
+
+
+@dataclass
+class Record:
+    """One checkpointed session; ``state`` is (S,) float32, ``last_used`` wall-clock seconds."""
+
+    model: str
+    version: str
+    state: NDArray[np.float32]
+    steps: int
+    diverged: bool
+    seed: int | None
+    owner: str | None
+    last_used: float
+
+
+def encode(sess: Session, last_used_wall: float) -> bytes:
+    """The record of a live session: JSON header, NUL, (S,) little-endian float32 state."""
+    head = {
+        "m": sess.emu.model,
+        "v": sess.emu.version,
+        "n": sess.steps,
+        "d": sess.diverged,
+        "s": sess.seed,
+        "o": sess.owner,
+        "u": round(last_used_wall, 3),
+    }
+    state = sess.pool.states[sess.slot].astype("<f4")
+    return json.dumps(head, separators=(",", ":")).encode() + b"\0" + state.tobytes()
+
+
+def decode(raw: bytes) -> Record:
+    """Inverse of ``encode``; ValueError (or KeyError) on a malformed record."""
+    head_bytes, sep, state = raw.partition(b"\0")
+    if not sep or len(state) % 4:
+        raise ValueError("not a session record")
+    head: dict[str, Any] = json.loads(head_bytes)
+    return Record(
+        model=str(head["m"]),
+        version=str(head["v"]),
+        state=np.frombuffer(state, dtype="<f4").astype(np.float32),
+        steps=int(head["n"]),
+        diverged=bool(head["d"]),
+        seed=None if head["s"] is None else int(head["s"]),
+        owner=None if head["o"] is None else str(head["o"]),
+        last_used=float(head["u"]),
+    )
+
+
+class Persistence:
+    """Checkpoints ``engine.store`` to Redis (when REDIS_URL is set) and restores it at startup."""
+
+    def __init__(self, engine: Engine) -> None:
+        s = engine.settings
+        self.engine = engine
+        self.interval_s = s.checkpoint_interval_s
+        self.key = f"{s.redis_prefix}:sessions:{s.replica_id}"
+        self.client: aioredis.Redis | None = None
+        if s.redis_url:
+            # Fail fast when Redis is down (one quick retry): the service must start without it.
+            self.client = aioredis.Redis.from_url(
+                s.redis_url,
+                socket_connect_timeout=1.0,
+                socket_timeout=5.0,
+                retry=Retry(ExponentialBackoff(cap=0.2, base=0.05), retries=1),
+            )
+        self.status: Status = "degraded" if self.client else "off"
+        self.restored = self.client is None
+        self.last_error: str | None = None
+        self._saved: dict[str, tuple[int, bool]] = {}  # session id -> (steps, diverged) in Redis
+        self._lock = asyncio.Lock()  # one checkpoint at a time (the timer, a forced one, the last one)
+        r = engine.metrics.registry
+        self._seconds = Histogram(
+            "emulator_checkpoint_seconds", "duration of one checkpoint to Redis", registry=r
+        )
+        self._written = Counter(
+            "emulator_checkpoint_records", "session records written to or removed from Redis", registry=r
+        )
+        self._up = Gauge("emulator_persistence_up", "1 when the last Redis operation succeeded", registry=r)
+
+    @property
+    def enabled(self) -> bool:
+        return self.client is not None
+
+    def _failed(self, what: str, exc: Exception) -> None:
+        if self.status != "degraded" or self.last_error is None:
+            log.warning(
+                "persistence degraded: %s failed (%s); sessions are kept in memory and retried every %.1f s",
+                what,
+                exc,
+                self.interval_s,
+            )
+        self.status = "degraded"
+        self.last_error = f"{what}: {exc}"
+        self._up.set(0)
+
+    def _ok(self) -> None:
+        if self.status == "degraded" and self.last_error is not None:
+            log.info("persistence recovered: Redis answers again")
+        self.status = "ok"
+        self.last_error = None
+        self._up.set(1)
+
+    async def start(self) -> None:
+        """Restore this replica's sessions; never raises (Redis down: status ``degraded``)."""
+        if self.client is None:
+            log.info("REDIS_URL is not set: sessions are not persisted (a restart loses them)")
+            return
+        try:
+            n = await self.restore()
+        except (RedisError, OSError) as exc:
+            self._failed("restoring sessions from Redis", exc)
+            return
+        self._ok()
+        log.info("persistence on", extra={"key": self.key, "restored": n, "interval_s": self.interval_s})
+
+    async def restore(self) -> int:
+        """Recreate the sessions of this replica's hash that are not here yet; returns how many."""
+        assert self.client is not None
+        raw = cast(dict[bytes, bytes], await self.client.hgetall(self.key))  # decode_responses is off
+        store = self.engine.store
+        now_wall, now_mono = time.time(), time.monotonic()
+        n = 0
+        for field, value in raw.items():
+            sid = field.decode()
+            if sid in store.sessions or sid in self._saved:
+                continue
+            try:
+                rec = decode(value)
+            except (ValueError, KeyError, TypeError) as exc:
+                log.warning("skipping a malformed session record %r: %s", sid, exc)
+                continue
+            idle = max(0.0, now_wall - rec.last_used)
+            if idle > store.ttl_s:
+                self._saved[sid] = (-1, False)  # expired while down: the next checkpoint removes it
+                continue
+            try:
+                emu = self.engine.registry.get(rec.model, rec.version)
+                if rec.state.shape != (emu.state_size,):
+                    raise ValueError(f"state of {rec.state.size} values, the model has {emu.state_size}")
+                sess = store.create(emu, rec.state, rec.seed, owner=rec.owner, sid=sid)
+            except (ApiError, ValueError) as exc:
+                log.warning("cannot restore session %s (%s/%s): %s", sid, rec.model, rec.version, exc)
+                continue
+            sess.steps, sess.diverged = rec.steps, rec.diverged
+            sess.last_used = now_mono - idle
+            self._saved[sid] = (rec.steps, rec.diverged)
+            n += 1
+        self.restored = True
+        if n:
+            self.engine.update_gauges()
+            log.info("restored %d sessions from Redis", n, extra={"key": self.key})
+        return n
+
+    async def checkpoint(self) -> int:
+        """Write changed sessions and remove gone ones in one pipeline; returns the records touched.
+        Raises ``RedisError`` / ``OSError`` when Redis fails (nothing is marked saved then)."""
+        if self.client is None:
+            return 0
+        async with self._lock:
+            return await self._checkpoint(self.client)
+
+    async def _checkpoint(self, client: aioredis.Redis) -> int:
+        if not self.restored:
+            await self.restore()
+        t0 = time.perf_counter()
+        sessions = self.engine.store.sessions
+        now_wall, now_mono = time.time(), time.monotonic()
+        records: dict[str, bytes] = {}
+        marks: dict[str, tuple[int, bool]] = {}
+        for sid, sess in sessions.items():  # a synchronous snapshot: no step lands in between
+            mark = (sess.steps, sess.diverged)
+            if self._saved.get(sid) != mark and sess.alive:
+                records[sid] = encode(sess, now_wall - (now_mono - sess.last_used))
+                marks[sid] = mark
+        gone = [sid for sid in self._saved if sid not in sessions]
+        if not records and not gone:
+            if self.status != "ok":
+                await client.ping()
+            return 0
+        pipe = client.pipeline(transaction=False)
+        items = list(records.items())
+        for i in range(0, len(items), _CHUNK):
+            pipe.hset(self.key, mapping=dict(items[i : i + _CHUNK]))
+        for i in range(0, len(gone), _CHUNK):
+            pipe.hdel(self.key, *gone[i : i + _CHUNK])
+        await pipe.execute()
+        self._saved.update(marks)
+        for sid in gone:
+            self._saved.pop(sid, None)
+        self._written.inc(len(records) + len(gone))
+        self._seconds.observe(time.perf_counter() - t0)
+        return len(records) + len(gone)
+
+    async def run_forever(self) -> None:
+        """Checkpoint every interval until cancelled; Redis errors are logged, not raised."""
+        while True:
+            await asyncio.sleep(self.interval_s)
+            try:
+                await self.checkpoint()
+            except (RedisError, OSError) as exc:
+                self._failed("checkpoint to Redis", exc)
+            else:
+                self._ok()
+
+    async def close(self) -> None:
+        """A last checkpoint (a clean shutdown loses nothing), then the connection is closed."""
+        if self.client is None:
+            return
+        try:
+            n = await self.checkpoint()
+            log.info("final checkpoint: %d session records written or removed", n)
+        except (RedisError, OSError) as exc:
+            log.warning("final checkpoint failed: %s", exc)
+        await self.client.aclose()

@@ -1,0 +1,204 @@
+"""``POST /step``: one super-step of many sessions (game servers), as JSON or binary.
+
+``Content-Type: application/json`` (the default): a ``BatchStepRequest``; sessions of any models.
+``Content-Type: application/octet-stream``: the binary layout of ``proto/frames.md`` (little-endian
+float32, every session of one (model, version)); the answer is binary too. Errors are JSON in both.
+
+The endpoint reads the body itself (FastAPI would parse every body as JSON), so both forms go through
+the same middleware and dependencies.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import Any
+
+import numpy as np
+from fastapi import APIRouter, Request, Response
+from pydantic import ValidationError
+
+from neuroanimator.schemas import BatchStepRequest, BatchStepResponse, ErrorBody
+from services.emulator import binary
+from services.emulator.batcher import ROW_DIVERGED, ROW_GONE
+from services.emulator.deps import EngineDep
+from services.emulator.engine import Engine
+from services.emulator.errors import ApiError, from_validation
+from services.emulator.sessions import Session
+
+router = APIRouter(tags=["step"])
+OCTET = "application/octet-stream"
+
+
+def _inline(schema: dict[str, Any]) -> dict[str, Any]:
+    """A pydantic JSON Schema with its ``$defs`` substituted in place (for ``openapi_extra``)."""
+    defs = schema.pop("$defs", {})
+
+    def sub(node: Any) -> Any:
+        if isinstance(node, dict):
+            ref = node.get("$ref")
+            if isinstance(ref, str) and ref.startswith("#/$defs/"):
+                return sub(defs[ref.removeprefix("#/$defs/")])
+            return {k: sub(v) for k, v in node.items()}
+        if isinstance(node, list):
+            return [sub(v) for v in node]
+        return node
+
+    result: dict[str, Any] = sub(schema)
+    return result
+
+
+_BINARY_DOC = "little-endian float32 layout of proto/frames.md (all sessions of one model/version)"
+_OPENAPI: dict[str, Any] = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "application/json": {"schema": _inline(BatchStepRequest.model_json_schema())},
+            OCTET: {"schema": {"type": "string", "format": "binary", "description": _BINARY_DOC}},
+        },
+    },
+    "responses": {
+        "200": {
+            "content": {OCTET: {"schema": {"type": "string", "format": "binary", "description": _BINARY_DOC}}}
+        }
+    },
+}
+
+
+@router.post(
+    "/step",
+    response_model=BatchStepResponse,
+    responses={413: {"model": ErrorBody}, 415: {"model": ErrorBody}, 422: {"model": ErrorBody}},
+    openapi_extra=_OPENAPI,
+)
+async def batch_step(request: Request, engine: EngineDep) -> Response:
+    body = await request.body()
+    ctype = request.headers.get("content-type", "application/json").split(";")[0].strip().lower()
+    if ctype == OCTET:
+        return Response(await binary_step(engine, body), media_type=OCTET)
+    if ctype != "application/json" and not ctype.endswith("+json"):
+        raise ApiError(
+            415,
+            "unsupported_media_type",
+            f"POST /step takes application/json or {OCTET}, got {ctype!r}",
+            field="content-type",
+            expected=["application/json", OCTET],
+            got=ctype,
+        )
+    try:
+        raw = json.loads(body)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ApiError(422, "malformed_json", f"the body is not JSON: {exc}", field="body") from exc
+    try:
+        req = BatchStepRequest.model_validate(raw)
+    except ValidationError as exc:
+        raise from_validation([dict(e) for e in exc.errors()]) from exc
+    out = await engine.batch_step(req)
+    return Response(out.model_dump_json(), media_type="application/json")
+
+
+async def binary_step(engine: Engine, body: bytes) -> bytes:
+    """Parse, validate (the whole request fails on a problem and steps nothing), step every known
+    session in ONE batcher entry, and encode the answer."""
+    parsed = binary.parse_batch_request(body, engine.settings.max_batch)
+    ids = parsed.ids
+    n = len(ids)
+    sessions: list[Session | None] = []
+    emu = None
+    first = -1
+    for i, sid in enumerate(ids):
+        try:
+            sess = engine.store.get(sid)
+        except ApiError:
+            sessions.append(None)
+            continue
+        if emu is None:
+            emu, first = sess.emu, i
+        elif sess.emu is not emu:
+            raise ApiError(
+                422,
+                "mixed_models",
+                f"session {i} ({sid!r}) is of {sess.emu.model}/{sess.emu.version} but session {first} is of "
+                f"{emu.model}/{emu.version}; one binary request steps sessions of one model version",
+                field=f"ids[{i}]",
+                expected=f"{emu.model}/{emu.version}",
+                got=f"{sess.emu.model}/{sess.emu.version}",
+            )
+        sessions.append(sess)
+    if len(set(ids)) != n:
+        seen: set[str] = set()
+        for i, sid in enumerate(ids):
+            if sid in seen:
+                raise ApiError(
+                    422,
+                    "duplicate_session",
+                    f"ids[{i}]: session {sid!r} appears more than once in the batch",
+                    field=f"ids[{i}]",
+                    expected="each session at most once",
+                    got=sid,
+                )
+            seen.add(sid)
+    if emu is None:  # no known session: nothing to step, every status says so
+        if parsed.row_width() is None and n:
+            raise ApiError(
+                422,
+                "wrong_length",
+                f"binary body is {len(body)} bytes, which fits no whole number of float32 per session "
+                f"for the {n} sessions the header announces",
+                field="body",
+                got=len(body),
+            )
+        return binary.encode_batch_response(
+            np.full(n, binary.UNKNOWN, np.uint8), np.zeros((n, 0), np.float32)
+        )
+    nu, nf = emu.num_controls, emu.num_forces
+    rows = parsed.rows(nu + nf, f"model {emu.model!r} ({nu} controls, {nf} forces)")
+    binary.check_rows(rows, nu, ids)
+    rng = np.concatenate([emu.control_range, emu.force_range])  # (U+F, 2)
+    clipped = ((rows < rng[:, 0]) | (rows > rng[:, 1])).any(axis=1)
+    inputs = np.clip(rows, rng[:, 0], rng[:, 1]).astype(np.float32) if clipped.any() else rows
+    status = np.where(clipped, binary.CLIPPED, binary.OK).astype(np.uint8)
+    states = np.full((n, emu.state_size), np.nan, np.float32)
+
+    # Sessions whose lock is free are locked now (no await yields here) and stepped as one entry;
+    # a session another request is stepping is stepped after it, one by one, holding only its lock.
+    free: list[int] = []
+    busy: list[int] = []
+    for i, maybe in enumerate(sessions):
+        if maybe is None:
+            status[i] = binary.UNKNOWN
+        elif maybe.diverged:
+            status[i] = binary.DIVERGED
+            states[i] = maybe.state
+        elif maybe.lock.locked():
+            busy.append(i)
+        else:
+            free.append(i)
+    batcher = engine.batcher(emu)
+    t0 = time.perf_counter()
+    if free:
+        locked = [sessions[i] for i in free]
+        held: list[Session] = [s for s in locked if s is not None]
+        for s in held:
+            await s.lock.acquire()
+        try:
+            idx = np.asarray(free, np.intp)
+            new, rowst = await batcher.step_many(held, inputs[idx, :nu], inputs[idx, nu:])
+        finally:
+            for s in held:
+                s.lock.release()
+        states[idx] = new
+        status[idx[rowst == ROW_DIVERGED]] = binary.DIVERGED
+        status[idx[rowst == ROW_GONE]] = binary.UNKNOWN
+    for i in busy:
+        one = sessions[i]
+        assert one is not None
+        try:
+            async with one.lock:
+                states[i] = await batcher.step(one, inputs[i, :nu], inputs[i, nu:])
+        except ApiError as exc:
+            status[i] = binary.DIVERGED if exc.body.error == "diverged" else binary.UNKNOWN
+            if one.alive:
+                states[i] = one.state
+    engine.metrics.step_latency.labels(emu.model, "rest-binary").observe(time.perf_counter() - t0)
+    return binary.encode_batch_response(status, states)

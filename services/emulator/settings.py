@@ -1,0 +1,48 @@
+"""Service settings, read from the environment (``ARTIFACTS_DIR=... MAX_BATCH=...``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Every knob of the emulator service; environment variables have the upper-case names."""
+
+    model_config = SettingsConfigDict(env_prefix="", case_sensitive=False, extra="ignore")
+
+    artifacts_dir: Path = Path("artifacts")
+    max_batch: int = Field(4096, ge=1, description="most rows in one ORT call, and items in one POST /step")
+    max_wait_ms: float = Field(1.0, ge=0.0, le=50.0, description="batching window after the first request")
+    session_ttl_s: float = Field(600.0, gt=0.0, description="idle sessions expire after this")
+    max_sessions: int = Field(100_000, ge=1, description="sessions alive in this replica (429 beyond)")
+    max_steps_per_request: int = Field(1000, ge=1)
+    max_frames_per_request: int = Field(10_000, ge=1, description="steps × frames_per_step cap")
+    replica_id: str = Field("r0", pattern=r"^[A-Za-z0-9_]+$", description="prefix of every session id")
+    ort_threads: int = Field(1, ge=1, description="ORT intra-op threads per emulator")
+    registry_poll_s: float = Field(2.0, ge=0.0, description="how often pointer files are re-read")
+    sweep_interval_s: float = Field(5.0, gt=0.0, description="how often expired sessions are removed")
+    api_keys: str = Field(
+        "", description="comma-separated API keys; empty: no auth (every endpoint but ops then needs one)"
+    )
+    max_sessions_per_key: int = Field(1000, ge=1, description="sessions one API key may hold (429 beyond)")
+    redis_url: str = Field("", description="e.g. redis://redis:6379/0; empty: no persistence")
+    redis_prefix: str = Field("neuroanimator:emulator", min_length=1, description="prefix of Redis keys")
+    checkpoint_interval_s: float = Field(1.0, gt=0.0, description="sessions are written to Redis this often")
+    ws_realtime_scale: float = Field(
+        1.0,
+        gt=0.0,
+        le=100.0,
+        description="real-time websocket period = the model's Δt × this (tests shorten it)",
+    )
+    ws_queue_size: int = Field(
+        1, ge=1, le=2, description="state frames queued per real-time client (latest wins)"
+    )
+    ws_send_timeout_s: float = Field(
+        5.0, gt=0.0, description="a websocket send that takes longer closes the connection (client gone)"
+    )
+    host: str = "127.0.0.1"
+    port: int = 8000
+    log_level: str = "info"

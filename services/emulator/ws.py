@@ -1,0 +1,366 @@
+"""``/ws/sessions/{id}``: lock-step and real-time modes, JSON and binary frames.
+
+Lock-step (the default): ``{"type": "step", "controls": [...], "forces": [...], "seq": n}`` (or a
+binary frame, proto/frames.md) → the next state. Real-time (``{"type": "start", "mode": "realtime"}``
+or ``?mode=realtime``): the server advances the session every Δt of wall time (the model's super
+timestep × ``WS_REALTIME_SCALE``) with the latest inputs the client sent (``{"type": "controls", ...}``
+or binary frames) and pushes each new state. ``format=binary`` (in ``start`` or the query) sends
+states as binary frames; errors are always JSON text. ``{"type": "ping"}`` → ``pong``.
+
+A client's outgoing states go through its own latest-state-wins queue of ``WS_QUEUE_SIZE`` (1–2)
+frames, drained by its own task, so a slow reader only loses intermediate states: the ticker, the
+batcher and every other client keep going. Every send has a timeout (``WS_SEND_TIMEOUT_S``); a send
+that times out ends the connection, as does the server's websocket ping going unanswered (uvicorn's
+``--ws-ping-interval`` / ``--ws-ping-timeout``, 20 s each by default), so a client that vanishes
+without closing is noticed. The session itself is kept until its TTL.
+
+A malformed message gets ``{"type": "error", ...}`` (the connection stays open); an unknown session
+gets an error and close code 4404; a bad ``mode``/``format`` query gets an error and close code 4422.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Generic, TypeVar
+
+import numpy as np
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from numpy.typing import NDArray
+from pydantic import TypeAdapter, ValidationError
+
+from neuroanimator.schemas import (
+    ClientMessage,
+    WsControls,
+    WsError,
+    WsPing,
+    WsPong,
+    WsStart,
+    WsStarted,
+    WsState,
+)
+from services.emulator import binary
+from services.emulator.engine import Engine
+from services.emulator.errors import ApiError, from_validation
+from services.emulator.sessions import Session
+
+log = logging.getLogger(__name__)
+router = APIRouter()
+_CLIENT: TypeAdapter[ClientMessage] = TypeAdapter(ClientMessage)
+T = TypeVar("T")
+Frame = str | bytes
+
+
+def _error(exc: ApiError, seq: int | None = None) -> str:
+    return WsError(**exc.body.model_dump(), seq=seq).model_dump_json()
+
+
+class LatestQueue(Generic[T]):
+    """A bounded queue whose ``put`` never waits: when full, the oldest item is dropped."""
+
+    def __init__(self, size: int = 1) -> None:
+        self._items: deque[T] = deque(maxlen=size)
+        self._event = asyncio.Event()
+        self.dropped = 0
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def put(self, item: T) -> None:
+        if len(self._items) == self._items.maxlen:
+            self.dropped += 1
+        self._items.append(item)
+        self._event.set()
+
+    async def get(self) -> T:
+        while not self._items:
+            self._event.clear()
+            await self._event.wait()
+        return self._items.popleft()
+
+    def clear(self) -> None:
+        self._items.clear()
+
+
+class ClientGone(Exception):
+    """A send timed out: the client stopped reading or vanished."""
+
+
+@dataclass
+class Held:
+    """The inputs real-time mode steps with: validated, clipped, and the ``seq`` they came with."""
+
+    controls: NDArray[np.float32]
+    forces: NDArray[np.float32]
+    seq: int | None = None
+    clipped_controls: list[int] = field(default_factory=list)
+    clipped_forces: list[int] = field(default_factory=list)
+
+
+class Connection:
+    """One websocket client of one session."""
+
+    def __init__(self, websocket: WebSocket, engine: Engine, sess: Session) -> None:
+        s = engine.settings
+        self.ws = websocket
+        self.engine = engine
+        self.sid = sess.id
+        self.emu = sess.emu
+        self.mode = "lockstep"
+        self.format = "json"
+        self.period = self.emu.super_timestep * s.ws_realtime_scale
+        self.timeout = s.ws_send_timeout_s
+        u, cu, f, cf = engine.inputs(sess, [0.0] * self.emu.num_controls, [0.0] * self.emu.num_forces)
+        self.held = Held(u, f, None, cu, cf)
+        self.queue: LatestQueue[Frame] = LatestQueue(s.ws_queue_size)
+        self.pushed = 0
+        self._send_lock = asyncio.Lock()
+        self._ticker: asyncio.Task[None] | None = None
+        self._pusher: asyncio.Task[None] | None = None
+        self._main: asyncio.Task[object] | None = None
+        self.gone = False
+
+    # ------------------------------------------------------------------ sending
+    async def send(self, frame: Frame) -> None:
+        async with self._send_lock:
+            try:
+                if isinstance(frame, bytes):
+                    await asyncio.wait_for(self.ws.send_bytes(frame), self.timeout)
+                else:
+                    await asyncio.wait_for(self.ws.send_text(frame), self.timeout)
+            except TimeoutError as exc:
+                raise ClientGone(f"a send took longer than {self.timeout} s") from exc
+
+    async def _push(self) -> None:
+        """Drains the latest-state-wins queue; a send timeout ends the whole connection."""
+        try:
+            while True:
+                frame = await self.queue.get()
+                await self.send(frame)
+                self.pushed += 1
+        except ClientGone:
+            log.info("websocket client gone (send timeout)", extra={"session": self.sid})
+        except (WebSocketDisconnect, RuntimeError, OSError):
+            log.info("websocket closed while pushing", extra={"session": self.sid})
+        self.gone = True
+        if self._main is not None:
+            self._main.cancel()
+
+    # ------------------------------------------------------------------ stepping
+    async def _step(
+        self, sess: Session, u: NDArray[np.float32], f: NDArray[np.float32], transport: str
+    ) -> NDArray[np.float32]:
+        t0 = time.perf_counter()
+        async with sess.lock:
+            out = await self.engine.batcher(sess.emu).step(sess, u, f)
+        self.engine.metrics.step_latency.labels(sess.emu.model, transport).observe(time.perf_counter() - t0)
+        return out
+
+    def _state(
+        self, sess: Session, state: NDArray[np.float32], seq: int | None, cu: list[int], cf: list[int]
+    ) -> Frame:
+        clipped = bool(cu or cf)
+        if self.format == "binary":
+            return binary.encode_ws_state(seq, sess.steps, binary.CLIPPED if clipped else binary.OK, state)
+        return WsState(
+            seq=seq,
+            state=state.tolist(),
+            t=sess.t,
+            steps=sess.steps,
+            clipped=clipped,
+            clipped_controls=cu,
+            clipped_forces=cf,
+        ).model_dump_json()
+
+    async def _tick(self) -> None:
+        """Real-time mode: one super-step every ``period`` of wall time with the latest inputs. A tick
+        that falls more than a period behind is skipped (never a burst of catch-up steps)."""
+        loop = asyncio.get_running_loop()
+        nxt = loop.time() + self.period
+        while True:
+            delay = nxt - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            nxt += self.period
+            now = loop.time()
+            if now - nxt > self.period:
+                nxt = now + self.period
+            held = self.held
+            try:
+                sess = self.engine.store.get(self.sid)
+                out = await self._step(sess, held.controls, held.forces, "ws-realtime")
+            except ApiError as exc:  # diverged, expired or deleted: say so and stop ticking
+                self.queue.put(_error(exc, held.seq))
+                self.mode = "lockstep"
+                return
+            self.queue.put(self._state(sess, out, held.seq, held.clipped_controls, held.clipped_forces))
+
+    def _inputs(self, controls: Sequence[float], forces: Sequence[float], seq: int | None) -> Held:
+        sess = self.engine.store.get(self.sid)
+        u, cu, f, cf = self.engine.inputs(sess, controls, forces)
+        return Held(u, f, seq, cu, cf)
+
+    # ------------------------------------------------------------------ modes
+    async def start(self, mode: str, fmt: str | None, seq: int | None = None) -> str:
+        if fmt is not None:
+            self.format = fmt
+        if mode == "realtime" and self._ticker is None:
+            self._pusher = asyncio.create_task(self._push(), name=f"ws-push-{self.sid}")
+            self._ticker = asyncio.create_task(self._tick(), name=f"ws-tick-{self.sid}")
+        elif mode == "lockstep":
+            await self._stop_realtime()
+        self.mode = mode
+        e = self.emu
+        return WsStarted(
+            seq=seq,
+            mode="realtime" if mode == "realtime" else "lockstep",
+            format="binary" if self.format == "binary" else "json",
+            super_timestep=e.super_timestep,
+            period_s=self.period,
+            state_size=e.state_size,
+            num_controls=e.num_controls,
+            num_forces=e.num_forces,
+        ).model_dump_json()
+
+    async def _stop_realtime(self) -> None:
+        for task in (self._ticker, self._pusher):
+            if task is not None and task is not asyncio.current_task():
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+        self._ticker = self._pusher = None
+        self.queue.clear()
+
+    # ------------------------------------------------------------------ messages
+    async def on_text(self, text: str) -> Frame | None:
+        seq = None
+        try:
+            try:
+                raw = json.loads(text)
+            except json.JSONDecodeError as exc:
+                raise ApiError(
+                    422, "malformed_json", f"the message is not JSON: {exc}", got=text[:200]
+                ) from exc
+            if isinstance(raw, dict) and isinstance(raw.get("seq"), int):
+                seq = raw["seq"]
+            try:
+                msg = _CLIENT.validate_python(raw)
+            except ValidationError as exc:
+                raise from_validation([dict(e) for e in exc.errors()]) from exc
+            if isinstance(msg, WsPing):
+                return WsPong(seq=msg.seq).model_dump_json()
+            if isinstance(msg, WsStart):
+                return await self.start(msg.mode, msg.format, msg.seq)
+            if isinstance(msg, WsControls):
+                self.held = self._inputs(msg.controls, msg.forces, msg.seq)
+                return None
+            if self.mode == "realtime":
+                raise ApiError(
+                    409,
+                    "wrong_mode",
+                    "step messages are for lock-step mode; in real-time mode send controls messages "
+                    '(or {"type": "start", "mode": "lockstep"} first)',
+                    field="type",
+                    expected="controls",
+                    got="step",
+                )
+            return await self.lockstep(msg.controls, msg.forces, msg.seq)
+        except ApiError as exc:
+            return _error(exc, seq)
+
+    async def on_binary(self, data: bytes) -> Frame | None:
+        e = self.emu
+        seq = None
+        try:
+            seq, values = binary.parse_ws_frame(
+                data,
+                e.num_controls + e.num_forces,
+                f"model {e.model!r} ({e.num_controls} controls, {e.num_forces} forces)",
+            )
+            bad = np.flatnonzero(~np.isfinite(values))
+            if bad.size:
+                j = int(bad[0])
+                name = f"controls[{j}]" if j < e.num_controls else f"forces[{j - e.num_controls}]"
+                raise ApiError(
+                    422,
+                    "not_finite",
+                    f"{name} is {float(values[j])!r}; inputs must be finite float32",
+                    field=name,
+                    expected="a finite float32",
+                    got=float(values[j]),
+                )
+            controls, forces = values[: e.num_controls].tolist(), values[e.num_controls :].tolist()
+            if self.mode == "realtime":
+                self.held = self._inputs(controls, forces, seq)
+                return None
+            return await self.lockstep(controls, forces, seq)
+        except ApiError as exc:
+            return _error(exc, seq)
+
+    async def lockstep(self, controls: Sequence[float], forces: Sequence[float], seq: int | None) -> Frame:
+        held = self._inputs(controls, forces, seq)
+        sess = self.engine.store.get(self.sid)
+        out = await self._step(sess, held.controls, held.forces, "ws")
+        return self._state(sess, out, seq, held.clipped_controls, held.clipped_forces)
+
+    # ------------------------------------------------------------------ the connection
+    async def run(self) -> None:
+        self._main = asyncio.current_task()
+        try:
+            while True:
+                msg = await self.ws.receive()
+                if msg["type"] == "websocket.disconnect":
+                    break
+                data = msg.get("bytes")
+                reply = await (
+                    self.on_binary(data) if data is not None else self.on_text(msg.get("text") or "")
+                )
+                if reply is not None:
+                    await self.send(reply)
+        except (WebSocketDisconnect, ClientGone):
+            pass
+        except asyncio.CancelledError:
+            if not self.gone:
+                raise
+        finally:
+            self._main = None
+            await self._stop_realtime()
+
+
+@router.websocket("/ws/sessions/{sid}")
+async def session_socket(websocket: WebSocket, sid: str) -> None:
+    engine: Engine = websocket.app.state.engine
+    await websocket.accept()
+    try:
+        sess = engine.store.get(sid)
+    except ApiError as exc:
+        await websocket.send_text(_error(exc))
+        await websocket.close(code=4404)
+        return
+    conn = Connection(websocket, engine, sess)
+    q = websocket.query_params
+    if "mode" in q or "format" in q:
+        try:
+            start = WsStart.model_validate(
+                {"type": "start", "mode": q.get("mode", "lockstep"), "format": q.get("format")}
+            )
+        except ValidationError as exc:
+            await websocket.send_text(_error(from_validation([dict(e) for e in exc.errors()])))
+            await websocket.close(code=4422)
+            return
+        await conn.send(await conn.start(start.mode, start.format))
+    conns: set[Connection] | None = getattr(websocket.app.state, "ws_connections", None)
+    if conns is None:
+        conns = websocket.app.state.ws_connections = set()
+    conns.add(conn)
+    try:
+        await conn.run()
+    finally:
+        conns.discard(conn)
+        log.info("websocket closed", extra={"session": sid, "dropped_states": conn.queue.dropped})

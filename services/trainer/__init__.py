@@ -1,0 +1,1 @@
+"""Trainer service: turns MuJoCo models into exported emulators (see ``neuroanimator.cli``)."""

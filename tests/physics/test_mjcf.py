@@ -1,0 +1,169 @@
+"""A user's own MJCF file -> PhysicalModel."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from neuroanimator.physics.mjcf import load_mjcf
+from neuroanimator.physics.model import ModelError
+
+FREE_BODY = """<mujoco>
+  <option gravity="0 0 -9.81"/>
+  <worldbody>
+    <body name="puck" pos="0 0 1">
+      <joint name="root" type="free"/>
+      <geom name="puck_geom" type="sphere" size="0.1" mass="1"/>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor name="lift" joint="root" gear="0 0 1 0 0 0"/>
+  </actuator>
+</mujoco>
+"""
+
+
+def test_name_comes_from_model_attribute(arm_path: Path) -> None:
+    assert load_mjcf(arm_path).name == "myarm"
+
+
+def test_name_falls_back_to_file_stem(tmp_path: Path) -> None:
+    path = tmp_path / "floating_puck.xml"
+    path.write_text(FREE_BODY)
+    assert load_mjcf(path).name == "floating_puck"
+
+
+def test_hinge_joints_give_angle_and_rate_groups(arm_path: Path) -> None:
+    model = load_mjcf(arm_path)
+    kinds = [(g.name, g.kind, g.size, g.source) for g in model.layout]
+    assert kinds == [
+        ("shoulder.angle", "angle", 1, "qpos"),
+        ("elbow.angle", "angle", 1, "qpos"),
+        ("shoulder.rate", "scalar", 1, "qvel"),
+        ("elbow.rate", "scalar", 1, "qvel"),
+    ]
+    assert model.state_size == 4
+
+
+def test_controls_and_ranges_come_from_actuators(arm_path: Path) -> None:
+    model = load_mjcf(arm_path)
+    assert model.control_names == ["shoulder_motor", "elbow_motor"]
+    np.testing.assert_allclose(model.control_range, [[-3.0, 3.0], [-1.5, 2.0]])
+    np.testing.assert_allclose(model.control_limits, [[-3.0, 3.0], [-1.5, 2.0]])
+    assert model.num_forces == 0
+
+
+def test_substeps_and_timestep_are_taken_over(arm_path: Path) -> None:
+    model = load_mjcf(arm_path, substeps=12)
+    assert model.spec.substeps == 12
+    assert model.dt == pytest.approx(0.005)
+
+
+def test_user_model_simulates_and_samples(arm_path: Path) -> None:
+    model = load_mjcf(arm_path)
+    rng = np.random.default_rng(0)
+    s0 = model.initial_states(rng, 3)
+    assert s0.shape == (3, 4)
+    assert not np.allclose(s0, 0.0)
+    u = model.typical_controls(rng, 3, np.arange(200) * model.dt)
+    assert np.all(np.isfinite(model.simulate(s0, u)))
+
+
+def test_free_joint_gives_root_groups(tmp_path: Path) -> None:
+    path = tmp_path / "puck.xml"
+    path.write_text(FREE_BODY)
+    model = load_mjcf(path)
+    assert [(g.name, g.kind, g.size) for g in model.layout] == [
+        ("root.pos", "position", 3),
+        ("root.quat", "quaternion", 4),
+        ("root.vel", "world_vector", 3),
+        ("root.angvel", "local_vector", 3),
+    ]
+    assert model.frame.rotate  # gravity along z: rotation about z is a symmetry
+    assert model.frame.translate == (True, True, True)  # nothing collides with the world
+    q = model.initial_states(np.random.default_rng(1), 5)[:, model.layout.slice_of("root.quat")]
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
+
+
+def test_floor_breaks_vertical_translation(tmp_path: Path) -> None:
+    path = tmp_path / "puck_floor.xml"
+    path.write_text(
+        FREE_BODY.replace("<worldbody>", '<worldbody>\n    <geom name="floor" type="plane" size="5 5 0.1"/>')
+    )
+    assert load_mjcf(path).frame.translate == (True, True, False)
+
+
+def test_tilted_gravity_breaks_rotation(tmp_path: Path) -> None:
+    path = tmp_path / "puck_tilted.xml"
+    path.write_text(FREE_BODY.replace('gravity="0 0 -9.81"', 'gravity="1 0 -9.81"'))
+    assert not load_mjcf(path).frame.rotate
+
+
+def test_malformed_xml_raises_model_error(tmp_path: Path) -> None:
+    path = tmp_path / "broken.xml"
+    path.write_text('<mujoco model="broken"><worldbody><body name="b">')
+    with pytest.raises(ModelError, match="malformed MJCF"):
+        load_mjcf(path)
+
+
+def test_invalid_mujoco_content_raises_model_error(tmp_path: Path) -> None:
+    path = tmp_path / "bad_element.xml"
+    path.write_text('<mujoco model="bad"><worldbody><bogus/></worldbody></mujoco>')
+    with pytest.raises(ModelError, match="malformed MJCF"):
+        load_mjcf(path)
+
+
+def test_wrong_root_element_raises_model_error(tmp_path: Path) -> None:
+    path = tmp_path / "notmujoco.xml"
+    path.write_text("<robot><link/></robot>")
+    with pytest.raises(ModelError, match="<mujoco>"):
+        load_mjcf(path)
+
+
+def test_missing_file_raises_model_error(tmp_path: Path) -> None:
+    with pytest.raises(ModelError, match="does not exist"):
+        load_mjcf(tmp_path / "nowhere.xml")
+
+
+def test_model_without_joints_raises_model_error(tmp_path: Path) -> None:
+    path = tmp_path / "static.xml"
+    path.write_text('<mujoco><worldbody><geom type="sphere" size="1"/></worldbody></mujoco>')
+    with pytest.raises(ModelError, match="no joints"):
+        load_mjcf(path)
+
+
+def test_external_file_references_are_refused(tmp_path: Path) -> None:
+    path = tmp_path / "mesh.xml"
+    path.write_text('<mujoco><asset><mesh name="m" file="m.stl"/></asset><worldbody/></mujoco>')
+    with pytest.raises(ModelError, match="self-contained"):
+        load_mjcf(path)
+
+
+def test_ball_and_slide_joints_give_their_groups(tmp_path: Path) -> None:
+    path = tmp_path / "joints.xml"
+    path.write_text(
+        """<mujoco model="joints">
+  <worldbody>
+    <body name="cart">
+      <joint name="rail" type="slide" axis="1 0 0"/>
+      <geom name="cart_geom" type="box" size="0.2 0.1 0.1" mass="1"/>
+      <body name="bob" pos="0 0 -0.5">
+        <joint name="socket" type="ball"/>
+        <geom name="bob_geom" type="sphere" size="0.1" mass="1"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+    )
+    model = load_mjcf(path)
+    assert [(g.name, g.kind, g.size, g.source, g.address) for g in model.layout] == [
+        ("rail.pos", "scalar", 1, "qpos", 0),
+        ("socket.quat", "local_quaternion", 4, "qpos", 1),
+        ("rail.vel", "scalar", 1, "qvel", 0),
+        ("socket.angvel", "local_vector", 3, "qvel", 1),
+    ]
+    assert model.num_controls == 0
+    assert not model.frame.rotate and model.frame.translate == ()

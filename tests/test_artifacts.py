@@ -1,0 +1,210 @@
+"""The artifact registry: what a version folder holds, how it is found, and that writes are atomic."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from conftest import Trained
+
+from neuroanimator import artifacts, physics, training
+from neuroanimator.export import OnnxEmulator
+from neuroanimator.training import TrainConfig, TrainResult
+
+FILES = {"emulator.onnx", "weights.pt", "linear_baseline.npy", "model.xml", "manifest.json"}
+KEYS = {
+    "model",
+    "version",
+    "substeps",
+    "timestep",
+    "layout",
+    "controls",
+    "forces",
+    "normalization",
+    "metrics",
+    "hashes",
+    "train_config",
+    "spec",
+}
+
+
+def _untrained_result(model: physics.PhysicalModel, substeps: int) -> TrainResult:
+    """A TrainResult without training (random weights): enough to exercise the registry."""
+    cfg = TrainConfig(substeps=substeps, hidden=(8,), progress=False)
+    emu = training.build_emulator(model, cfg)
+    linear = np.zeros((emu.input_size + 1, model.state_size))
+    return TrainResult(emu, cfg, {"one_step_rel_error": 0.5}, linear, "0" * 64)
+
+
+def test_version_folder_holds_the_documented_files(trained_pendulum: Trained) -> None:
+    assert {p.name for p in trained_pendulum.path.iterdir()} == FILES
+
+
+@pytest.mark.parametrize("which", ["trained_pendulum", "trained_lander"])
+def test_manifest_has_the_documented_keys(which: str, request: pytest.FixtureRequest) -> None:
+    t: Trained = request.getfixturevalue(which)
+    manifest = artifacts.load_manifest(t.path)
+    assert manifest.keys() >= KEYS
+    assert manifest["model"] == t.model.name
+    assert manifest["version"] == t.path.name
+    assert manifest["substeps"] == 10
+    assert manifest["timestep"] == pytest.approx(t.model.dt)
+    assert manifest["layout"] == json.loads(json.dumps(t.model.layout.to_dict()))
+    assert [c["name"] for c in manifest["controls"]] == t.model.control_names
+    assert manifest["forces"] == []
+    assert manifest["metrics"] == json.loads(json.dumps(t.result.metrics))
+    assert manifest["train_config"]["hidden"] == [16]
+    assert manifest["spec"]["name"] == t.model.name
+    norm = manifest["normalization"]
+    np.testing.assert_allclose(norm["x_mean"], t.result.emulator.x_mean.numpy(), rtol=1e-6)
+    np.testing.assert_allclose(norm["y_std"], t.result.emulator.y_std.numpy(), rtol=1e-6)
+
+
+def test_manifest_hashes_match_the_files(trained_pendulum: Trained) -> None:
+    path = trained_pendulum.path
+    hashes = artifacts.load_manifest(path)["hashes"]
+    assert hashes["mjcf_sha256"] == hashlib.sha256((path / "model.xml").read_bytes()).hexdigest()
+    assert hashes["mjcf_sha256"] == trained_pendulum.model.mjcf_sha256()
+    assert hashes["training_data_sha256"] == trained_pendulum.result.data_sha256
+    assert hashes["onnx_sha256"] == hashlib.sha256((path / "emulator.onnx").read_bytes()).hexdigest()
+
+
+def test_saved_linear_baseline_and_weights(trained_pendulum: Trained) -> None:
+    path, result = trained_pendulum.path, trained_pendulum.result
+    np.testing.assert_array_equal(np.load(path / "linear_baseline.npy"), result.linear)
+    saved = torch.load(path / "weights.pt", weights_only=True)
+    for key, value in result.emulator.state_dict().items():
+        torch.testing.assert_close(saved[key], value)
+
+
+def test_resolve_latest_and_by_substeps(trained_pendulum: Trained) -> None:
+    root = trained_pendulum.root
+    assert artifacts.resolve(root, "pendulum-active") == trained_pendulum.path
+    assert artifacts.resolve(root, "pendulum-active", substeps=10) == trained_pendulum.path
+    assert (
+        artifacts.resolve(root, "pendulum-active", version=trained_pendulum.path.name)
+        == trained_pendulum.path
+    )
+    assert 10 in artifacts.available_substeps(root, "pendulum-active")
+    assert "pendulum-active" in artifacts.list_models(root)
+
+
+def test_resolve_unknown_model_names_it(trained_pendulum: Trained) -> None:
+    with pytest.raises(artifacts.ArtifactError, match="no-such-model"):
+        artifacts.resolve(trained_pendulum.root, "no-such-model")
+
+
+def test_resolve_missing_substeps_or_version(trained_pendulum: Trained) -> None:
+    with pytest.raises(artifacts.ArtifactError, match="substeps=77"):
+        artifacts.resolve(trained_pendulum.root, "pendulum-active", substeps=77)
+    with pytest.raises(artifacts.ArtifactError, match="n1-nope"):
+        artifacts.resolve(trained_pendulum.root, "pendulum-active", version="n1-nope")
+
+
+def test_load_physical_model_rebuilds_the_same_model(trained_lander: Trained) -> None:
+    rebuilt = artifacts.load_physical_model(trained_lander.path)
+    original = trained_lander.model
+    assert rebuilt.name == original.name
+    assert rebuilt.xml == original.xml
+    assert rebuilt.spec == original.spec
+    assert rebuilt.layout == original.layout
+    assert rebuilt.control_names == original.control_names
+    assert rebuilt.frame == original.frame
+    rng = np.random.default_rng(3)
+    s = original.initial_states(rng, 4)
+    u = original.typical_controls(rng, 4, np.zeros(1))[:, 0]
+    np.testing.assert_array_equal(rebuilt.step_held(s, u, None, 10), original.step_held(s, u, None, 10))
+
+
+@pytest.mark.parametrize("which", ["trained_pendulum", "trained_lander"])
+def test_load_torch_gives_the_same_outputs(which: str, request: pytest.FixtureRequest) -> None:
+    t: Trained = request.getfixturevalue(which)
+    loaded = artifacts.load_torch(t.path)
+    rng = np.random.default_rng(4)
+    s = torch.from_numpy(t.model.initial_states(rng, 16)).float()
+    u = torch.from_numpy(t.model.typical_controls(rng, 16, np.zeros(1))[:, 0]).float()
+    with torch.no_grad():
+        torch.testing.assert_close(loaded(s, u), t.result.emulator.eval()(s, u), rtol=0, atol=0)
+    assert loaded.architecture() == t.result.emulator.architecture()
+
+
+def test_saved_onnx_matches_saved_weights(trained_lander: Trained) -> None:
+    rng = np.random.default_rng(6)
+    s = trained_lander.model.initial_states(rng, 32)
+    u = trained_lander.model.typical_controls(rng, 32, np.zeros(1))[:, 0]
+    onnx_out = OnnxEmulator(trained_lander.path / "emulator.onnx").step(s, u)
+    with torch.no_grad():
+        torch_out = artifacts.load_torch(trained_lander.path)(
+            torch.from_numpy(s).float(), torch.from_numpy(u).float()
+        )
+    np.testing.assert_allclose(onnx_out, torch_out.numpy(), atol=1e-4 * max(1.0, float(np.abs(s).max())))
+
+
+def test_latest_stays_on_first_version_and_per_n_pointers_move(tmp_path: Path) -> None:
+    model = physics.get("truck")  # default substeps 50
+    first = artifacts.save(tmp_path, model, _untrained_result(model, 10))
+    second = artifacts.save(tmp_path, model, _untrained_result(model, 20))
+    assert first != second
+    assert artifacts.resolve(tmp_path, "truck") == first  # the first trained, since neither is n = 50
+    assert artifacts.resolve(tmp_path, "truck", substeps=20) == second
+    third = artifacts.save(tmp_path, model, _untrained_result(model, 50))
+    assert artifacts.resolve(tmp_path, "truck") == third  # the model's default n takes over `latest`
+    again = artifacts.save(tmp_path, model, _untrained_result(model, 10))
+    assert artifacts.resolve(tmp_path, "truck", substeps=10) == again
+    assert artifacts.available_substeps(tmp_path, "truck") == [10, 20, 50]
+
+
+def test_failed_write_leaves_nothing_behind(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    model = physics.get("truck")
+    result = _untrained_result(model, 10)
+
+    def boom(*args: object, **kwargs: object) -> None:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(np, "save", boom)
+    with pytest.raises(OSError, match="disk full"):
+        artifacts.save(tmp_path, model, result)
+    model_dir = tmp_path / "truck"
+    leftovers = sorted(p.name for p in model_dir.iterdir()) if model_dir.exists() else []
+    assert leftovers == []  # no version folder, no `latest` pointers, no .tmp- folder
+    assert artifacts.list_models(tmp_path) == []
+    with pytest.raises(artifacts.ArtifactError):
+        artifacts.resolve(tmp_path, "truck")
+
+
+def test_failed_write_keeps_the_previous_latest(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    model = physics.get("truck")
+    good = artifacts.save(tmp_path, model, _untrained_result(model, 10))
+
+    def boom(*args: object, **kwargs: object) -> None:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(np, "save", boom)
+    with pytest.raises(OSError):
+        artifacts.save(tmp_path, model, _untrained_result(model, 10))
+    assert artifacts.resolve(tmp_path, "truck") == good
+    assert artifacts.resolve(tmp_path, "truck", substeps=10) == good
+    assert sorted(p.name for p in (tmp_path / "truck").iterdir()) == sorted(
+        [good.name, "latest", "latest-n10"]
+    )
+
+
+def test_model_name_that_cannot_be_a_folder_is_refused(tmp_path: Path) -> None:
+    model = physics.get("truck")
+    bad = physics.PhysicalModel(model.xml, model.spec.model_copy(update={"name": "../escape"}))
+    with pytest.raises(physics.ModelError, match="folder"):
+        artifacts.save(tmp_path, bad, _untrained_result(bad, 10))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_unreadable_manifest_raises_artifact_error(tmp_path: Path) -> None:
+    (tmp_path / "manifest.json").write_text("{not json")
+    with pytest.raises(artifacts.ArtifactError, match="manifest"):
+        artifacts.load_manifest(tmp_path)
+    (tmp_path / "manifest.json").write_text(json.dumps({"format": 999}))
+    with pytest.raises(artifacts.ArtifactError, match="format"):
+        artifacts.load_manifest(tmp_path)

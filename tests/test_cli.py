@@ -1,0 +1,292 @@
+"""The ``neuro`` command line: train, eval, bench, models, and how it reports bad input."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from conftest import ARM_XML, Trained
+
+from neuroanimator import artifacts
+from neuroanimator.cli import main
+
+
+@dataclass
+class CliRun:
+    rc: int
+    stdout: str
+    root: Path
+
+
+def _run(argv: list[str]) -> tuple[int, str]:
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        rc = main(argv)
+    return rc, buf.getvalue()
+
+
+def _last_json(text: str) -> dict:
+    return json.loads(text.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def user_train(tmp_path_factory: pytest.TempPathFactory) -> CliRun:
+    """`neuro train --mjcf` on a user's two-hinge arm, once for the module."""
+    base = tmp_path_factory.mktemp("cli")
+    mjcf = base / "arm_file.xml"
+    mjcf.write_text(ARM_XML)
+    root = base / "registry"
+    rc, out = _run(
+        [
+            "train",
+            "--mjcf",
+            str(mjcf),
+            "--substeps",
+            "10",
+            "--out",
+            str(root),
+            "--examples",
+            "400",
+            "--epochs",
+            "5",
+            "--hidden",
+            "16",
+            "--quiet",
+            "--json",
+        ]
+    )
+    return CliRun(rc, out, root)
+
+
+def test_train_with_user_mjcf_writes_latest(user_train: CliRun) -> None:
+    assert user_train.rc == 0
+    assert (user_train.root / "myarm" / "latest").is_file()  # the name comes from the MJCF
+    assert (user_train.root / "myarm" / "latest-n10").is_file()
+    path = artifacts.resolve(user_train.root, "myarm")
+    manifest = artifacts.load_manifest(path)
+    assert manifest["model"] == "myarm"
+    assert manifest["substeps"] == 10
+    assert manifest["metrics"]["examples"] == 400
+    assert manifest["train_config"]["hidden"] == [16]
+    assert manifest["train_config"]["max_epochs"] == 5
+
+
+def test_train_json_line_describes_the_artifact(user_train: CliRun) -> None:
+    summary = _last_json(user_train.stdout)
+    assert summary["model"] == "myarm"
+    assert summary["substeps"] == 10
+    assert Path(summary["artifact"]) == artifacts.resolve(user_train.root, "myarm")
+    assert summary["examples"] == 400
+    assert "one_step_rel_error" in summary and "linear_baseline_rel_error" in summary
+
+
+def test_eval_prints_json_and_writes_plot(user_train: CliRun, capsys: pytest.CaptureFixture[str]) -> None:
+    rc = main(
+        [
+            "eval",
+            "myarm",
+            "--artifacts",
+            str(user_train.root),
+            "--substeps",
+            "10",
+            "--trials",
+            "3",
+            "--steps",
+            "200",
+            "--json",
+        ]
+    )
+    assert rc == 0
+    summary = _last_json(capsys.readouterr().out)
+    for key in (
+        "model",
+        "substeps",
+        "one_step_rel_error",
+        "linear_baseline_rel_error",
+        "rollout_error_curve",
+        "rollout_error_at_20s",
+    ):
+        assert key in summary, key
+    assert summary["model"] == "myarm"
+    assert summary["substeps"] == 10
+    curve = summary["rollout_error_curve"]
+    assert len(curve["t"]) == len(curve["error"]) == 200 // 10 + 1
+    assert curve["t"][0] == 0.0 and curve["error"][0] == 0.0
+    assert curve["t"][1] == pytest.approx(10 * 0.005)  # one super-step of the arm (timestep 0.005)
+    assert all(e >= 0.0 for e in curve["error"])
+    assert summary["one_step_rel_error"] >= 0.0
+    plot = Path(summary["plot"])
+    assert plot == user_train.root / "myarm" / "rollout_error.png"
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_eval_plot_path_option(
+    user_train: CliRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plot = tmp_path / "sub" / "curve.png"
+    rc = main(
+        [
+            "eval",
+            "myarm",
+            "--artifacts",
+            str(user_train.root),
+            "--trials",
+            "2",
+            "--steps",
+            "100",
+            "--plot",
+            str(plot),
+        ]
+    )
+    assert rc == 0
+    assert plot.is_file()
+    out = capsys.readouterr().out
+    assert "one-step rel err" in out  # the table, without --json
+
+
+def test_bench_reports_single_and_batched(
+    trained_pendulum: Trained, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rc = main(
+        [
+            "bench",
+            "pendulum-active",
+            "--artifacts",
+            str(trained_pendulum.root),
+            "--batches",
+            "1,8",
+            "--repeats",
+            "1",
+            "--json",
+        ]
+    )
+    assert rc == 0
+    res = _last_json(capsys.readouterr().out)
+    assert res["model"] == "pendulum-active"
+    assert [row["substeps"] for row in res["single"]] == artifacts.available_substeps(
+        trained_pendulum.root, "pendulum-active"
+    )
+    for row in res["single"]:
+        assert row.keys() >= {"substeps", "physics_s", "emulator_s", "ratio"}
+        assert row["physics_s"] > 0 and row["emulator_s"] > 0
+        assert row["ratio"] == pytest.approx(row["physics_s"] / row["emulator_s"])
+    assert [row["batch"] for row in res["batched"]] == [1, 8]
+    for row in res["batched"]:
+        assert row.keys() >= {"batch", "physics_steps_per_s", "emulator_steps_per_s", "ratio"}
+        assert row["physics_steps_per_s"] > 0 and row["emulator_steps_per_s"] > 0
+
+
+def test_models_lists_catalog_and_user_models(user_train: CliRun, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["models", "--artifacts", str(user_train.root), "--json"]) == 0
+    rows = {r["model"]: r["trained"] for r in _last_json(capsys.readouterr().out)}
+    assert {"pendulum-passive", "pendulum-active", "pendulum-force", "lander", "truck"} <= rows.keys()
+    assert rows["myarm"] == "10"
+    assert rows["lander"] is None
+
+
+# ---------------------------------------------------------------------------- bad input
+def test_train_unknown_model_exits_2_naming_it(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.ERROR):
+        rc = main(["train", "no-such-model", "--out", str(tmp_path), "--quiet"])
+    assert rc == 2
+    assert "no-such-model" in caplog.text
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_eval_unknown_model_exits_2_naming_it(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.ERROR):
+        rc = main(["eval", "ghost-model", "--artifacts", str(tmp_path)])
+    assert rc == 2
+    assert "ghost-model" in caplog.text
+
+
+def test_bench_unknown_model_exits_2_naming_it(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.ERROR):
+        rc = main(["bench", "ghost-model", "--artifacts", str(tmp_path)])
+    assert rc == 2
+    assert "ghost-model" in caplog.text
+
+
+def test_train_malformed_mjcf_exits_2(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<mujoco><worldbody><body>")
+    with caplog.at_level(logging.ERROR):
+        rc = main(["train", "--mjcf", str(bad), "--out", str(tmp_path / "out"), "--quiet"])
+    assert rc == 2
+    assert "malformed" in caplog.text
+    assert not (tmp_path / "out").exists()
+
+
+def test_train_missing_mjcf_exits_2(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.ERROR):
+        rc = main(
+            ["train", "--mjcf", str(tmp_path / "absent.xml"), "--out", str(tmp_path / "out"), "--quiet"]
+        )
+    assert rc == 2
+    assert "absent.xml" in caplog.text
+
+
+def test_train_model_and_mjcf_together_exit_2(
+    arm_path: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    with caplog.at_level(logging.ERROR):
+        rc = main(["train", "lander", "--mjcf", str(arm_path), "--out", str(tmp_path / "out"), "--quiet"])
+    assert rc == 2
+    assert "--mjcf" in caplog.text
+    assert not (tmp_path / "out").exists()
+
+
+def test_train_without_model_or_mjcf_exits_2(tmp_path: Path) -> None:
+    assert main(["train", "--out", str(tmp_path / "out"), "--quiet"]) == 2
+
+
+def test_diverging_training_exits_2_and_writes_nothing(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    out = tmp_path / "out"
+    with caplog.at_level(logging.ERROR):
+        rc = main(
+            [
+                "train",
+                "pendulum-active",
+                "--substeps",
+                "10",
+                "--examples",
+                "300",
+                "--epochs",
+                "5",
+                "--hidden",
+                "16",
+                "--optimizer",
+                "sgd",
+                "--lr",
+                "1e6",
+                "--out",
+                str(out),
+                "--quiet",
+            ]
+        )
+    assert rc == 2
+    assert "diverged" in caplog.text
+    assert not out.exists()
+
+
+def test_unknown_command_is_a_usage_error() -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["fly"])
+    assert exc.value.code == 2
+
+
+def test_train_zero_substeps_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:  # argparse rejects it before anything runs
+        main(["train", "pendulum-active", "--substeps", "0", "--examples", "300", "--epochs", "1",
+              "--hidden", "8", "--out", str(out), "--quiet"])  # fmt: skip
+    assert exc.value.code == 2
+    assert "--substeps" in capsys.readouterr().err
+    assert not out.exists()

@@ -1,0 +1,151 @@
+"""The deployment files: docker-compose.yml (replicas behind a proxy with session affinity, Redis, the
+trainer), the Dockerfile targets it names, the nginx config it mounts, and scripts/redis.sh."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+import redis
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def compose() -> dict[str, Any]:
+    data: dict[str, Any] = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
+    return data
+
+
+def _emulators(compose: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    return {
+        name: svc
+        for name, svc in compose["services"].items()
+        if svc.get("build", {}).get("target") == "emulator"
+    }
+
+
+def _stages(dockerfile: Path) -> dict[str, str]:
+    """Stage name -> its text, from ``FROM ... AS name`` lines."""
+    text = dockerfile.read_text()
+    parts = re.split(r"(?im)^FROM\s+\S+\s+AS\s+(\S+)\s*$", text)
+    return {parts[i].lower(): parts[i + 1] for i in range(1, len(parts), 2)}
+
+
+def test_services(compose: dict[str, Any]) -> None:
+    services = compose["services"]
+    assert {"redis", "proxy", "trainer"} <= set(services)
+    assert len(_emulators(compose)) >= 2
+    assert services["trainer"]["profiles"] == ["train"]  # one-shot, not started by `up`
+    assert services["trainer"]["command"][0] == "train"
+    assert not any("controller" in name or name == "web" for name in services)  # added with those services
+
+
+def test_replicas_have_distinct_ids_and_use_redis(compose: dict[str, Any]) -> None:
+    ids = []
+    for name, svc in _emulators(compose).items():
+        env = svc["environment"]
+        ids.append(env["REPLICA_ID"])
+        assert re.fullmatch(r"[A-Za-z0-9_]+", env["REPLICA_ID"]), name
+        assert env["REDIS_URL"].startswith("redis://redis:"), name
+        assert "redis" in svc["depends_on"], name
+        assert env["ARTIFACTS_DIR"] == "/artifacts"
+        assert any(v.split(":")[1] == "/artifacts" for v in svc["volumes"])
+    assert len(set(ids)) == len(ids)
+
+
+def test_dockerfile_targets(compose: dict[str, Any]) -> None:
+    for svc in compose["services"].values():
+        build = svc.get("build")
+        if build is None:
+            continue
+        dockerfile = ROOT / build.get("context", ".") / build.get("dockerfile", "Dockerfile")
+        assert dockerfile.is_file()
+        assert build["target"] in _stages(dockerfile)
+    stages = _stages(ROOT / "Dockerfile")
+    assert "python:3.11-slim" in (ROOT / "Dockerfile").read_text()
+    emulator = stages["emulator"]
+    assert "torch==" not in emulator and "install torch" not in emulator  # the emulator image has no PyTorch
+    # the emulator's requirements, as its RUN line derives them from pyproject.toml
+    code = re.search(r'python -c "(.*?)"\s*\\?\s*> /tmp/requirements.txt', emulator.replace("\\\n", ""), re.S)
+    assert code is not None
+    reqs = subprocess.run(
+        [sys.executable, "-c", code.group(1)], cwd=ROOT, capture_output=True, text=True, check=True
+    ).stdout.split()
+    names = {r.split("==")[0].split("[")[0] for r in reqs}
+    assert {"onnxruntime", "fastapi", "redis", "mujoco", "numpy"} <= names and "torch" not in names
+    assert all("==" in r for r in reqs)  # pinned
+    assert "torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu" in stages["trainer"]
+
+
+def test_proxy_routes_by_replica_prefix(compose: dict[str, Any]) -> None:
+    proxy = compose["services"]["proxy"]
+    mounts = [v.split(":") for v in proxy["volumes"]]
+    conf_paths = [ROOT / host for host, target, *_ in mounts if target.startswith("/etc/nginx/")]
+    assert len(conf_paths) == 1 and conf_paths[0].is_file()
+    conf = conf_paths[0].read_text()
+    upstreams = {
+        name: re.findall(r"server\s+([^;\s]+);", body)
+        for name, body in re.findall(r"upstream\s+(\S+)\s*\{([^}]*)\}", conf)
+    }
+    routes = dict(re.findall(r"~\^/\(\?:ws/\)\?sessions/([A-Za-z0-9_]+)-\s+(\S+);", conf))
+    emulators = _emulators(compose)
+    for name, svc in emulators.items():
+        rid = svc["environment"]["REPLICA_ID"]
+        assert routes[rid] in upstreams, rid  # /sessions/<rid>-... and /ws/sessions/<rid>-...
+        assert upstreams[routes[rid]] == [f"{name}:8000"], rid  # ... reach that replica only
+        assert set(proxy["depends_on"]) >= {name}
+    assert "proxy_pass http://$emulator_upstream;" in conf
+    assert "Upgrade $http_upgrade" in conf  # websockets pass through
+    any_upstream = re.search(r"default\s+(\S+);", conf.split("map $http_upgrade")[0])
+    assert any_upstream and set(upstreams[any_upstream.group(1)]) == {f"{n}:8000" for n in emulators}
+
+
+def _has_compose() -> bool:
+    if shutil.which("docker") is None:
+        return False
+    r = subprocess.run(["docker", "compose", "version"], capture_output=True, timeout=20, check=False)
+    return r.returncode == 0
+
+
+def test_docker_compose_config() -> None:
+    if not _has_compose():
+        pytest.skip("no docker CLI with the compose plugin here; the YAML checks above still ran")
+    subprocess.run(["docker", "compose", "-f", str(ROOT / "docker-compose.yml"), "config", "-q"], check=True)
+
+
+def test_redis_script_starts_a_server(tmp_path: Path) -> None:
+    if shutil.which("redis-server") is None:
+        pytest.skip("no redis-server binary to start")
+    pidfile = tmp_path / "redis.pid"
+    env = {k: v for k, v in os.environ.items() if k != "REDIS_URL"}
+    env["REDIS_PROBE"] = "127.0.0.1:1"  # nothing there: the script must start its own
+    r = subprocess.run(
+        [str(ROOT / "scripts" / "redis.sh"), "--pidfile", str(pidfile)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=30,
+        check=True,
+    )
+    url = r.stdout.strip()
+    assert re.fullmatch(r"redis://127\.0\.0\.1:\d+/0", url), r.stdout
+    try:
+        client = redis.Redis.from_url(url)
+        assert client.ping()
+        client.close()
+    finally:
+        os.kill(int(pidfile.read_text()), signal.SIGTERM)
+    env["REDIS_URL"] = "redis://example:6379/3"
+    r = subprocess.run(
+        [str(ROOT / "scripts" / "redis.sh")], capture_output=True, text=True, env=env, check=True
+    )
+    assert r.stdout.strip() == "redis://example:6379/3"

@@ -1,0 +1,61 @@
+"""Evaluation against MuJoCo from the artifact alone: one-step errors and rollout curves."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import Trained
+
+from neuroanimator import artifacts, evaluation, physics
+
+
+def test_one_step_errors_reproduce_the_training_metrics(trained_pendulum: Trained) -> None:
+    """Evaluation regenerates the same held-out set from the manifest: the same errors come out."""
+    path = trained_pendulum.path
+    errs = evaluation.one_step_errors(
+        path, artifacts.load_physical_model(path), artifacts.load_manifest(path)
+    )
+    metrics = trained_pendulum.result.metrics
+    assert errs["one_step_rel_error"] == pytest.approx(metrics["one_step_rel_error"], rel=1e-4)
+    assert errs["linear_baseline_rel_error"] == pytest.approx(metrics["linear_baseline_rel_error"], rel=1e-4)
+
+
+def test_held_controls_are_the_same_functions_for_every_n() -> None:
+    model = physics.get("truck")
+    u25, _ = evaluation.held_controls(model, np.random.default_rng(1), 3, 400, 25)
+    u50, _ = evaluation.held_controls(model, np.random.default_rng(1), 3, 400, 50)
+    assert u25.shape == (3, 16, 2) and u50.shape == (3, 8, 2)
+    np.testing.assert_array_equal(u50, u25[:, ::2])
+
+
+def test_rollout_curve_shape_and_start(trained_lander: Trained) -> None:
+    curve = evaluation.rollout_curve(trained_lander.path, trained_lander.model, 10, trials=2, steps=300)
+    assert len(curve.t) == len(curve.error) == 300 // 10 + 1
+    np.testing.assert_allclose(np.diff(curve.t), 10 * trained_lander.model.dt)
+    assert curve.error[0] == 0.0
+    assert all(np.isfinite(curve.error)) and min(curve.error[1:]) > 0.0
+
+
+def test_rollout_curve_is_deterministic(trained_pendulum: Trained) -> None:
+    a = evaluation.rollout_curve(trained_pendulum.path, trained_pendulum.model, 10, trials=2, steps=100)
+    b = evaluation.rollout_curve(trained_pendulum.path, trained_pendulum.model, 10, trials=2, steps=100)
+    assert a == b
+
+
+def test_curve_at_interpolates() -> None:
+    curve = evaluation.RolloutCurve(t=[0.0, 1.0, 2.0], error=[0.0, 0.4, 1.0])
+    assert curve.at(0.5) == pytest.approx(0.2)
+    assert curve.at(1.5) == pytest.approx(0.7)
+    assert curve.at(5.0) == pytest.approx(1.0)  # past the end: the last value
+
+
+def test_plot_curves_writes_a_png(tmp_path: Path) -> None:
+    out = tmp_path / "deep" / "plot.png"
+    curves = {
+        10: evaluation.RolloutCurve([0.0, 1.0], [0.0, 0.1]),
+        50: evaluation.RolloutCurve([0.0, 1.0], [0.0, 0.3]),
+    }
+    evaluation.plot_curves(curves, "test", out)
+    assert out.read_bytes()[:4] == b"\x89PNG"

@@ -1,0 +1,189 @@
+"""Training: the whole recipe end to end, presets, optimisers and divergence."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from neuroanimator import artifacts, physics, training
+from neuroanimator.training import TrainConfig, TrainingDiverged
+
+
+@pytest.fixture(scope="module")
+def pendulum_result() -> training.TrainResult:
+    cfg = TrainConfig(
+        substeps=50,
+        examples=3000,
+        test_examples=500,
+        hidden=(32,),
+        max_epochs=40,
+        lr=1e-2,
+        threads=1,
+        progress=False,
+    )
+    return training.train(physics.get("pendulum-active"), cfg)
+
+
+def test_trained_emulator_beats_the_linear_baseline(pendulum_result: training.TrainResult) -> None:
+    m = pendulum_result.metrics
+    assert math.isfinite(m["one_step_rel_error"])
+    assert m["one_step_rel_error"] < m["linear_baseline_rel_error"]
+    assert m["one_step_rel_error"] < 0.1  # explains most of the variance of the state change
+
+
+def test_metrics_describe_the_run(pendulum_result: training.TrainResult) -> None:
+    m = pendulum_result.metrics
+    assert m["examples"] == 3000
+    assert m["test_examples"] == 500
+    assert m["weights"] == sum(p.numel() for p in pendulum_result.emulator.core.parameters())
+    assert len(pendulum_result.data_sha256) == 64
+    assert pendulum_result.linear.shape == (pendulum_result.emulator.input_size + 1, 6)
+
+
+def test_trained_emulator_predicts_fresh_physics(pendulum_result: training.TrainResult) -> None:
+    """One super-step from new states: the emulator is closer to MuJoCo than 'nothing moves' is."""
+    model = physics.get("pendulum-active")
+    rng = np.random.default_rng(77)
+    s = model.initial_states(rng, 200)
+    u = model.typical_controls(rng, 200, np.zeros(1))[:, 0]
+    truth = model.step_held(s, u, None, 50)
+    with torch.no_grad():
+        pred = (
+            pendulum_result.emulator(torch.from_numpy(s).float(), torch.from_numpy(u).float())
+            .double()
+            .numpy()
+        )
+    assert np.mean((pred - truth) ** 2) < 0.2 * np.mean((s - truth) ** 2)
+
+
+def test_thesis_preset_is_one_sigmoid_layer_of_thesis_width() -> None:
+    cfg = TrainConfig(preset="thesis", thesis_hidden=20, hidden=(64, 64), activation="tanh").resolved()
+    assert cfg.hidden == (20,)
+    assert cfg.activation == "sigmoid"
+    emu = training.build_emulator(physics.get("pendulum-active"), cfg)
+    layers = [type(m).__name__ for m in emu.core]
+    assert layers == ["Linear", "Sigmoid", "Linear"]
+    assert emu.core[0].out_features == 20
+
+
+def test_thesis_preset_without_width_uses_a_default() -> None:
+    cfg = TrainConfig(preset="thesis").resolved()
+    assert len(cfg.hidden) == 1 and cfg.hidden[0] > 0
+    assert cfg.activation == "sigmoid"
+
+
+def test_default_preset_is_left_alone() -> None:
+    cfg = TrainConfig(hidden=(7, 5), activation="relu")
+    assert cfg.resolved() == cfg
+
+
+def test_unknown_preset_raises() -> None:
+    with pytest.raises(ValueError, match="preset"):
+        TrainConfig(preset="huge").resolved()
+
+
+def test_to_dict_is_plain_data() -> None:
+    d = TrainConfig(hidden=(3, 4)).to_dict()
+    assert d["hidden"] == [3, 4]
+    assert d["optimizer"] == "adam"
+
+
+def _regression_problem(seed: int = 0) -> tuple[torch.Tensor, ...]:
+    """A smooth map from 5 inputs to 6 outputs: the truck emulator's core shape."""
+    gen = torch.Generator().manual_seed(seed)
+    w = torch.randn(5, 6, generator=gen)
+    x = torch.randn(400, 5, generator=gen)
+    y = torch.tanh(x @ w)
+    return x[80:], y[80:], x[:80], y[:80]
+
+
+def _emulator() -> training.StructuredEmulator:
+    torch.manual_seed(0)
+    emu = training.build_emulator(physics.get("truck"), TrainConfig(hidden=(16,)))
+    assert emu.input_size == 5 and emu.layout.size == 6
+    return emu
+
+
+@pytest.mark.parametrize("optimizer", ["sgd", "adam"])
+def test_optimizers_reduce_the_validation_loss(optimizer: str) -> None:
+    x, y, xv, yv = _regression_problem()
+    emu = _emulator()
+    with torch.no_grad():
+        before = float(torch.mean((emu.core(xv) - yv) ** 2))
+    cfg = TrainConfig(
+        optimizer=optimizer,
+        lr=0.05 if optimizer == "sgd" else 1e-2,
+        batch_size=64,
+        max_epochs=20,
+        threads=1,
+        progress=False,
+    )
+    training.train_core(emu, x, y, xv, yv, cfg)
+    with torch.no_grad():
+        after = float(torch.mean((emu.core(xv) - yv) ** 2))
+    assert after < 0.5 * before
+
+
+def test_bad_optimizer_name_raises() -> None:
+    x, y, xv, yv = _regression_problem()
+    emu = _emulator()
+    with pytest.raises(ValueError, match="optimizer"):
+        training.train_core(emu, x, y, xv, yv, TrainConfig(optimizer="lbfgs", progress=False))
+
+
+def test_huge_learning_rate_raises_training_diverged() -> None:
+    x, y, xv, yv = _regression_problem()
+    emu = _emulator()
+    with pytest.raises(TrainingDiverged, match="learning rate"):
+        training.train_core(
+            emu, x, y, xv, yv, TrainConfig(optimizer="sgd", lr=1e6, max_epochs=20, progress=False)
+        )
+
+
+def test_diverged_training_writes_no_artifact(tmp_path: Path) -> None:
+    model = physics.get("pendulum-active")
+    cfg = TrainConfig(
+        substeps=10,
+        examples=300,
+        test_examples=100,
+        hidden=(16,),
+        max_epochs=20,
+        optimizer="sgd",
+        lr=1e6,
+        threads=1,
+        progress=False,
+    )
+    root = tmp_path / "registry"
+    with pytest.raises(TrainingDiverged):
+        artifacts.save(root, model, training.train(model, cfg))
+    assert not root.exists()
+
+
+def test_relative_error_of_mean_prediction_is_one() -> None:
+    y = torch.randn(50, 3)
+    assert training.relative_error(y.mean(dim=0).expand_as(y), y) == pytest.approx(1.0, rel=1e-5)
+    assert training.relative_error(y, y) == 0.0
+
+
+def test_linear_baseline_recovers_an_affine_map() -> None:
+    gen = torch.Generator().manual_seed(1)
+    x = torch.randn(200, 4, generator=gen)
+    w, b = torch.randn(4, 2, generator=gen), torch.randn(2, generator=gen)
+    y = x @ w + b
+    fit = training.fit_linear(x, y)
+    np.testing.assert_allclose(fit[:4], w.numpy(), atol=1e-5)
+    np.testing.assert_allclose(fit[4], b.numpy(), atol=1e-5)
+    torch.testing.assert_close(training.apply_linear(fit, x), y, atol=1e-4, rtol=1e-4)
+
+
+def test_frame_config_of_catalog_models() -> None:
+    lander = training.frame_config(physics.get("lander"))
+    assert lander.rotate and lander.translate == (True, True, True)
+    truck = training.frame_config(physics.get("truck"))
+    assert truck.rotate and truck.translate == (True, True)
+    pend = training.frame_config(physics.get("pendulum-force"))
+    assert not pend.rotate and pend.force_pairs == ()
