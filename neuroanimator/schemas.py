@@ -85,6 +85,62 @@ class ModelList(BaseModel):
     models: list[ModelSummary]
 
 
+# ---------------------------------------------------------------- scene (what a client draws)
+class GeomInfo(BaseModel):
+    """One MuJoCo geom, in its body's frame. ``type``: MuJoCo's geom type (``box``, ``sphere``,
+    ``capsule``, ``cylinder``, ``ellipsoid``, ``plane``, ``mesh``...); ``size``: MuJoCo's three size
+    numbers (box: half-extents; sphere: radius; capsule and cylinder: radius, half-length along the
+    geom's z; ellipsoid: radii; plane: half-extents, 0 meaning infinite; mesh: half-extents of its
+    bounding box). ``quat`` is ``[w, x, y, z]``; ``rgba`` in 0..1; ``group``: MuJoCo's visibility group
+    (0–2 are drawn by default)."""
+
+    name: str
+    type: str
+    size: list[float]
+    pos: list[float]
+    quat: list[float]
+    rgba: list[float]
+    group: int = 0
+
+
+class BodyInfo(BaseModel):
+    """A moving body: ``parent`` is the index of its parent in ``bodies`` (-1: the world)."""
+
+    name: str
+    parent: int
+    geoms: list[GeomInfo]
+
+
+class ModelGeometry(BaseModel):
+    """What a client draws for a model, from the artifact's MJCF: its bodies and their geoms, the geoms
+    fixed to the world, and every body's world pose ``[x, y, z, qw, qx, qy, qz]`` at the rest state.
+    ``center`` and ``extent`` are MuJoCo's estimate of the model's middle and size (for a camera)."""
+
+    model: str
+    version: str
+    bodies: list[BodyInfo]
+    world: list[GeomInfo]
+    rest_poses: list[list[float]]
+    center: list[float]
+    extent: float
+
+
+class PosesRequest(_Wire):
+    """States (K, S) of one model version (the latest unless ``version`` is given) to pose."""
+
+    states: Annotated[list[Vector], Field(min_length=1)]
+    version: str | None = None
+
+
+class PosesResponse(BaseModel):
+    """``poses`` (K, bodies, 7): each body's world pose ``[x, y, z, qw, qx, qy, qz]`` in each state."""
+
+    model: str
+    version: str
+    bodies: list[str]
+    poses: list[list[list[float]]]
+
+
 # ---------------------------------------------------------------- sessions
 class SessionCreate(_Wire):
     """``state`` (S values) starts the session there; otherwise a random typical start drawn from
@@ -196,11 +252,19 @@ class WsStart(_Wire):
     ``controls`` messages or binary frames) and pushes each new state (a slow reader gets the newest
     ones; older ones are dropped). ``lockstep`` (the default): one state per ``step``. ``format``
     ``binary`` sends states as binary frames (proto/frames.md); errors stay JSON. Also available as
-    query parameters: ``/ws/sessions/{id}?mode=realtime&format=binary``."""
+    query parameters: ``/ws/sessions/{id}?mode=realtime&format=binary``.
+
+    ``poses: true`` adds each body's world pose (``GET /models/{model}/geometry`` lists the bodies) to
+    every state message. ``shadow: true`` (re)starts a MuJoCo twin of the session from its current
+    state: the service steps it with the same held inputs and sends its state (and poses, when asked)
+    along in each state message as ``shadow``; ``shadow: false`` stops it. Both need the JSON format.
+    Omitted (``null``) leaves the setting as it was."""
 
     type: Literal["start"]
     mode: Literal["lockstep", "realtime"] = "lockstep"
     format: Literal["json", "binary"] | None = None
+    poses: bool | None = None
+    shadow: bool | None = None
     seq: int | None = None
 
 
@@ -217,8 +281,20 @@ class WsControls(_Wire):
 ClientMessage = Annotated[WsStep | WsPing | WsStart | WsControls, Field(discriminator="type")]
 
 
+class ShadowState(BaseModel):
+    """The MuJoCo twin of a session (``shadow: true``): the physics stepped with the same held inputs
+    from the state the twin started at. ``diverged``: its state stopped being finite; it is no longer
+    stepped."""
+
+    state: list[float]
+    poses: list[list[float]] | None = None
+    diverged: bool = False
+
+
 class WsState(BaseModel):
-    """Server → client: the session's new state (``seq`` echoes the request's)."""
+    """Server → client: the session's new state (``seq`` echoes the request's). ``poses`` (with
+    ``poses: true``): per body, ``[x, y, z, qw, qx, qy, qz]`` in the world frame; ``shadow`` (with
+    ``shadow: true``): the MuJoCo twin's state. Both are left out when not asked for."""
 
     type: Literal["state"] = "state"
     seq: int | None = None
@@ -228,6 +304,8 @@ class WsState(BaseModel):
     clipped: bool = False
     clipped_controls: list[int] = []
     clipped_forces: list[int] = []
+    poses: list[list[float]] | None = None
+    shadow: ShadowState | None = None
 
 
 class WsPong(BaseModel):
@@ -254,6 +332,8 @@ class WsStarted(BaseModel):
     state_size: int
     num_controls: int
     num_forces: int
+    poses: bool = False
+    shadow: bool = False
 
 
 ServerMessage = Annotated[WsState | WsPong | WsError | WsStarted, Field(discriminator="type")]

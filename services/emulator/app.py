@@ -9,6 +9,7 @@ from collections.abc import AsyncIterator
 
 from fastapi import FastAPI, Response
 from fastapi.exceptions import RequestValidationError
+from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
 
@@ -62,6 +63,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.persistence = persistence
     if keys.enabled:
         app.add_middleware(ApiKeyMiddleware, keys=keys)
+    origins = [o.strip() for o in settings.cors_origins.split(",") if o.strip()]
+    if origins:  # added last, so outermost: preflight requests are answered before the key check
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=origins,
+            allow_methods=["*"],
+            allow_headers=["*"],
+            max_age=600,
+        )
     app.add_exception_handler(ApiError, api_error_handler)
     app.add_exception_handler(RequestValidationError, validation_error_handler)
     for r in (models.router, sessions.router, step.router, ws.router):

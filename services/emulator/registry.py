@@ -25,6 +25,7 @@ from neuroanimator.export import OnnxEmulator
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.physics.spec import ModelSpec
 from services.emulator.errors import ApiError
+from services.emulator.scene import Kinematics
 
 log = logging.getLogger(__name__)
 FORMAT = 1
@@ -80,6 +81,15 @@ class Loaded:
     def physical(self) -> PhysicalModel:
         """The MuJoCo model the artifact was trained on (for typical initial states)."""
         return PhysicalModel((self.path / "model.xml").read_text(), ModelSpec(**self.manifest["spec"]))
+
+    @cached_property
+    def kinematics(self) -> Kinematics:
+        """Body poses for states of this model (for ``/geometry``, ``/poses`` and ``poses: true``)."""
+        return Kinematics(self.physical)
+
+    @property
+    def substeps(self) -> int:
+        return int(self.manifest["substeps"])
 
     def initial_state(self, seed: int) -> NDArray[np.float32]:
         """(S,) a random typical start, deterministic for the seed."""

@@ -43,6 +43,11 @@ class Settings(BaseSettings):
     ws_send_timeout_s: float = Field(
         5.0, gt=0.0, description="a websocket send that takes longer closes the connection (client gone)"
     )
+    cors_origins: str = Field(
+        "",
+        description="comma-separated origins a browser may call from (e.g. the dashboard's "
+        "http://127.0.0.1:8080), or * for any; empty: no CORS headers",
+    )
     host: str = "127.0.0.1"
     port: int = 8000
     log_level: str = "info"

@@ -7,6 +7,10 @@ timestep × ``WS_REALTIME_SCALE``) with the latest inputs the client sent (``{"t
 or binary frames) and pushes each new state. ``format=binary`` (in ``start`` or the query) sends
 states as binary frames; errors are always JSON text. ``{"type": "ping"}`` → ``pong``.
 
+For drawing (JSON format only): ``poses: true`` (in ``start`` or the query) adds every body's world
+pose to each state; ``shadow: true`` runs a MuJoCo twin of the session, stepped with the same held
+inputs, whose state (and poses) come along in each state message (``scene.Twin``).
+
 A client's outgoing states go through its own latest-state-wins queue of ``WS_QUEUE_SIZE`` (1–2)
 frames, drained by its own task, so a slow reader only loses intermediate states: the ticker, the
 batcher and every other client keep going. Every send has a timeout (``WS_SEND_TIMEOUT_S``); a send
@@ -37,6 +41,7 @@ from pydantic import TypeAdapter, ValidationError
 
 from neuroanimator.schemas import (
     ClientMessage,
+    ShadowState,
     WsControls,
     WsError,
     WsPing,
@@ -48,6 +53,7 @@ from neuroanimator.schemas import (
 from services.emulator import binary
 from services.emulator.engine import Engine
 from services.emulator.errors import ApiError, from_validation
+from services.emulator.scene import Twin
 from services.emulator.sessions import Session
 
 log = logging.getLogger(__name__)
@@ -114,6 +120,8 @@ class Connection:
         self.emu = sess.emu
         self.mode = "lockstep"
         self.format = "json"
+        self.poses = False
+        self.twin: Twin | None = None
         self.period = self.emu.super_timestep * s.ws_realtime_scale
         self.timeout = s.ws_send_timeout_s
         u, cu, f, cf = engine.inputs(sess, [0.0] * self.emu.num_controls, [0.0] * self.emu.num_forces)
@@ -168,7 +176,16 @@ class Connection:
         clipped = bool(cu or cf)
         if self.format == "binary":
             return binary.encode_ws_state(seq, sess.steps, binary.CLIPPED if clipped else binary.OK, state)
-        return WsState(
+        kin = self.emu.kinematics if self.poses else None
+        shadow = None
+        if self.twin is not None:
+            twin = self.twin.state
+            shadow = ShadowState(
+                state=twin.tolist(),
+                poses=None if kin is None else kin.poses(twin[None])[0].tolist(),
+                diverged=self.twin.diverged,
+            )
+        msg = WsState(
             seq=seq,
             state=state.tolist(),
             t=sess.t,
@@ -176,7 +193,10 @@ class Connection:
             clipped=clipped,
             clipped_controls=cu,
             clipped_forces=cf,
-        ).model_dump_json()
+            poses=None if kin is None else kin.poses(state[None])[0].tolist(),
+            shadow=shadow,
+        )
+        return msg.model_dump_json(exclude={k for k in ("poses", "shadow") if getattr(msg, k) is None})
 
     async def _tick(self) -> None:
         """Real-time mode: one super-step every ``period`` of wall time with the latest inputs. A tick
@@ -195,6 +215,8 @@ class Connection:
             try:
                 sess = self.engine.store.get(self.sid)
                 out = await self._step(sess, held.controls, held.forces, "ws-realtime")
+                if self.twin is not None:
+                    self.twin.step(held.controls, held.forces)
             except ApiError as exc:  # diverged, expired or deleted: say so and stop ticking
                 self.queue.put(_error(exc, held.seq))
                 self.mode = "lockstep"
@@ -207,9 +229,34 @@ class Connection:
         return Held(u, f, seq, cu, cf)
 
     # ------------------------------------------------------------------ modes
-    async def start(self, mode: str, fmt: str | None, seq: int | None = None) -> str:
+    async def start(
+        self,
+        mode: str,
+        fmt: str | None,
+        seq: int | None = None,
+        poses: bool | None = None,
+        shadow: bool | None = None,
+    ) -> str:
+        want_poses = self.poses if poses is None else poses
+        want_shadow = (self.twin is not None) if shadow is None else shadow
+        if (fmt or self.format) == "binary" and (want_poses or want_shadow):
+            raise ApiError(
+                422,
+                "needs_json",
+                "poses and shadow come in JSON state messages only; ask for format json "
+                "(or leave poses and shadow off for binary frames)",
+                field="format",
+                expected="json",
+                got="binary",
+            )
         if fmt is not None:
             self.format = fmt
+        self.poses = want_poses
+        if shadow is True:  # (re)start the twin from the session's current state
+            sess = self.engine.store.get(self.sid)
+            self.twin = Twin(sess.emu.physical, sess.emu.substeps, sess.state)
+        elif shadow is False:
+            self.twin = None
         if mode == "realtime" and self._ticker is None:
             self._pusher = asyncio.create_task(self._push(), name=f"ws-push-{self.sid}")
             self._ticker = asyncio.create_task(self._tick(), name=f"ws-tick-{self.sid}")
@@ -226,6 +273,8 @@ class Connection:
             state_size=e.state_size,
             num_controls=e.num_controls,
             num_forces=e.num_forces,
+            poses=self.poses,
+            shadow=self.twin is not None,
         ).model_dump_json()
 
     async def _stop_realtime(self) -> None:
@@ -256,7 +305,7 @@ class Connection:
             if isinstance(msg, WsPing):
                 return WsPong(seq=msg.seq).model_dump_json()
             if isinstance(msg, WsStart):
-                return await self.start(msg.mode, msg.format, msg.seq)
+                return await self.start(msg.mode, msg.format, msg.seq, msg.poses, msg.shadow)
             if isinstance(msg, WsControls):
                 self.held = self._inputs(msg.controls, msg.forces, msg.seq)
                 return None
@@ -307,6 +356,8 @@ class Connection:
         held = self._inputs(controls, forces, seq)
         sess = self.engine.store.get(self.sid)
         out = await self._step(sess, held.controls, held.forces, "ws")
+        if self.twin is not None:
+            self.twin.step(held.controls, held.forces)
         return self._state(sess, out, seq, held.clipped_controls, held.clipped_forces)
 
     # ------------------------------------------------------------------ the connection
@@ -345,16 +396,27 @@ async def session_socket(websocket: WebSocket, sid: str) -> None:
         return
     conn = Connection(websocket, engine, sess)
     q = websocket.query_params
-    if "mode" in q or "format" in q:
+    if {"mode", "format", "poses", "shadow"} & set(q):
         try:
             start = WsStart.model_validate(
-                {"type": "start", "mode": q.get("mode", "lockstep"), "format": q.get("format")}
+                {
+                    "type": "start",
+                    "mode": q.get("mode", "lockstep"),
+                    "format": q.get("format"),
+                    "poses": q.get("poses"),
+                    "shadow": q.get("shadow"),
+                }
             )
+            started = await conn.start(start.mode, start.format, None, start.poses, start.shadow)
         except ValidationError as exc:
             await websocket.send_text(_error(from_validation([dict(e) for e in exc.errors()])))
             await websocket.close(code=4422)
             return
-        await conn.send(await conn.start(start.mode, start.format))
+        except ApiError as exc:
+            await websocket.send_text(_error(exc))
+            await websocket.close(code=4422)
+            return
+        await conn.send(started)
     conns: set[Connection] | None = getattr(websocket.app.state, "ws_connections", None)
     if conns is None:
         conns = websocket.app.state.ws_connections = set()

@@ -1,12 +1,22 @@
-"""``GET /models`` and ``GET /models/{model}``: the loaded emulators and their manifests."""
+"""``GET /models``, ``GET /models/{model}``: the loaded emulators and their manifests; ``/geometry`` and
+``/poses``: what a client needs to draw a model (bodies, geoms, world poses of states)."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter
 
-from neuroanimator.schemas import ErrorBody, ModelDetail, ModelList, ModelSummary
+from neuroanimator.schemas import (
+    ErrorBody,
+    ModelDetail,
+    ModelGeometry,
+    ModelList,
+    ModelSummary,
+    PosesRequest,
+    PosesResponse,
+)
 from services.emulator.deps import EngineDep
 from services.emulator.registry import Loaded
+from services.emulator.scene import check_states, geometry
 
 router = APIRouter(tags=["models"])
 
@@ -45,4 +55,31 @@ def get_model(model: str, engine: EngineDep, version: str | None = None) -> Mode
         controls=m["controls"],
         forces=m["forces"],
         metrics=m.get("metrics", {}),
+    )
+
+
+@router.get("/models/{model}/geometry", response_model=ModelGeometry, responses={404: {"model": ErrorBody}})
+def get_geometry(model: str, engine: EngineDep, version: str | None = None) -> ModelGeometry:
+    """The model's bodies and geoms (from its MJCF) and their rest poses, for drawing it."""
+    emu = engine.registry.get(model, version)
+    return geometry(emu.model, emu.version, emu.kinematics)
+
+
+@router.post(
+    "/models/{model}/poses",
+    response_model=PosesResponse,
+    responses={404: {"model": ErrorBody}, 422: {"model": ErrorBody}},
+)
+def post_poses(model: str, req: PosesRequest, engine: EngineDep) -> PosesResponse:
+    """Every body's world pose in each of the given states (forward kinematics in MuJoCo)."""
+    emu = engine.registry.get(model, req.version)
+    states = check_states(
+        req.states, emu.state_size, f"model {emu.model!r}", engine.settings.max_frames_per_request
+    )
+    kin = emu.kinematics
+    return PosesResponse(
+        model=emu.model,
+        version=emu.version,
+        bodies=kin.body_names,
+        poses=kin.poses(states).round(6).tolist(),
     )

@@ -1,0 +1,173 @@
+"""What a client needs to draw a model without kinematics of its own, from the artifact's MJCF.
+
+``geometry(emu)``: the bodies (with parents) and their geoms, as ``GET /models/{model}/geometry``
+answers. ``Kinematics.poses(states)``: every body's world pose for states (K, S), by MuJoCo's forward
+kinematics (``mj_kinematics``). ``Twin``: a MuJoCo copy of one session stepped with the same held
+inputs, for the websocket's ``shadow`` option. Torch-free, like the rest of the service.
+
+A pose is ``[x, y, z, qw, qx, qy, qz]`` in the world frame; bodies are MuJoCo's bodies 1..nbody-1
+(the world body 0 is left out: its geoms are ``ModelGeometry.world``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from functools import cached_property
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.schemas import BodyInfo, GeomInfo, ModelGeometry
+from services.emulator.errors import ApiError
+
+_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+def _geom_type(m: mujoco.MjModel, g: int) -> str:
+    return mujoco.mjtGeom(int(m.geom_type[g])).name.removeprefix("mjGEOM_").lower()
+
+
+def _floats(values: NDArray[np.float64]) -> list[float]:
+    return [round(float(v), 6) for v in values]
+
+
+def _geom(m: mujoco.MjModel, g: int) -> GeomInfo:
+    size = m.geom_size[g]
+    if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
+        size = m.geom_aabb[g][3:]  # half-extents of the mesh's box; centred at the geom's frame
+    return GeomInfo(
+        name=mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}",
+        type=_geom_type(m, g),
+        size=_floats(size),
+        pos=_floats(m.geom_pos[g]),
+        quat=_floats(m.geom_quat[g]),
+        rgba=_floats(m.geom_rgba[g]),
+        group=int(m.geom_group[g]),
+    )
+
+
+class Kinematics:
+    """World poses of a model's bodies for emulator states, through one reusable ``MjData``."""
+
+    def __init__(self, physical: PhysicalModel) -> None:
+        self.physical = physical
+        self.m = physical.mj_model
+        self.d = mujoco.MjData(self.m)
+        self.quaternion_slices = [
+            physical.layout.slice_of(g.name)
+            for g in physical.layout
+            if g.kind in ("quaternion", "local_quaternion")
+        ]
+
+    @cached_property
+    def body_names(self) -> list[str]:
+        m = self.m
+        return [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or f"body{b}" for b in range(1, m.nbody)]
+
+    def poses(self, states: NDArray[np.floating]) -> NDArray[np.float64]:
+        """(K, S) states -> (K, nbody-1, 7) world poses. Quaternion groups are normalised first (a
+        zero one is taken as the identity); the states must be finite (the caller checks)."""
+        states64: NDArray[np.float64] = np.array(states, dtype=np.float64, ndmin=2)
+        states = states64
+        for sl in self.quaternion_slices:
+            q = states[:, sl]
+            norm = np.linalg.norm(q, axis=1, keepdims=True)
+            ident = np.zeros_like(q)
+            ident[:, 0] = 1.0
+            states[:, sl] = np.where(norm > 1e-9, q / np.maximum(norm, 1e-12), ident)
+        full = self.physical.to_physics(states64)
+        m, d = self.m, self.d
+        out = np.empty((states.shape[0], m.nbody - 1, 7))
+        for k in range(states.shape[0]):
+            mujoco.mj_setState(m, d, full[k], _PHYSICS)
+            mujoco.mj_kinematics(m, d)
+            out[k, :, :3] = d.xpos[1:]
+            out[k, :, 3:] = d.xquat[1:]
+        return out
+
+    def rest_poses(self) -> NDArray[np.float64]:
+        return self.poses(self.physical.rest_state()[None])[0]
+
+
+def geometry(model: str, version: str, kin: Kinematics) -> ModelGeometry:
+    """The model's bodies, their geoms, the world's geoms and the rest poses."""
+    m = kin.m
+    by_body: dict[int, list[GeomInfo]] = {b: [] for b in range(m.nbody)}
+    for g in range(m.ngeom):
+        by_body[int(m.geom_bodyid[g])].append(_geom(m, g))
+    bodies = [
+        BodyInfo(name=name, parent=int(m.body_parentid[b]) - 1, geoms=by_body[b])
+        for b, name in zip(range(1, m.nbody), kin.body_names, strict=True)
+    ]
+    return ModelGeometry(
+        model=model,
+        version=version,
+        bodies=bodies,
+        world=by_body[0],
+        rest_poses=[_floats(p) for p in kin.rest_poses()],
+        center=_floats(m.stat.center),
+        extent=float(m.stat.extent),
+    )
+
+
+def check_states(states: Sequence[Sequence[float]], width: int, what: str, limit: int) -> NDArray[np.float64]:
+    """(K, S) finite float64 states from JSON lists; 422 naming the first bad row or value."""
+    if len(states) > limit:
+        raise ApiError(
+            422,
+            "too_many_states",
+            f"states may hold at most {limit} states (MAX_FRAMES_PER_REQUEST), got {len(states)}",
+            field="states",
+            expected=f"<= {limit}",
+            got=len(states),
+        )
+    for i, row in enumerate(states):
+        if len(row) != width:
+            raise ApiError(
+                422,
+                "wrong_length",
+                f"states[{i}] must have {width} values for {what}, got {len(row)}",
+                field=f"states[{i}]",
+                expected=width,
+                got=len(row),
+            )
+    arr = np.asarray(states, dtype=np.float64).reshape(len(states), width)
+    bad = np.argwhere(~np.isfinite(arr))
+    if bad.size:
+        i, j = (int(v) for v in bad[0])
+        raise ApiError(
+            422,
+            "not_finite",
+            f"states[{i}][{j}] is not a finite number",
+            field=f"states[{i}][{j}]",
+            expected="a finite number",
+            got=str(arr[i, j]),
+        )
+    return arr
+
+
+class Twin:
+    """A MuJoCo copy of a session: started from a state, stepped one super-step (``substeps`` physical
+    steps under held inputs, the emulator's contract) at a time. Stops when its state stops being
+    finite."""
+
+    def __init__(self, physical: PhysicalModel, substeps: int, state: NDArray[np.floating]) -> None:
+        self.physical = physical
+        self.substeps = substeps
+        self.state = np.asarray(state, dtype=np.float64).copy()
+        self.diverged = False
+
+    def step(self, controls: NDArray[np.float32], forces: NDArray[np.float32]) -> NDArray[np.float64]:
+        if self.diverged:
+            return self.state
+        p = self.physical
+        u = controls[None].astype(np.float64) if p.num_controls else None
+        f = forces[None].astype(np.float64) if p.num_forces else None
+        new = p.step_held(self.state[None], u, f, self.substeps)[0]
+        if np.all(np.isfinite(new)):
+            self.state = new
+        else:
+            self.diverged = True
+        return self.state

@@ -1,0 +1,127 @@
+"""What a client draws: geometry from the MJCF, body poses of states (REST and websocket), the MuJoCo
+twin (``shadow``) stepped with the same inputs, and CORS for the dashboard."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from neuroanimator.physics import get as physics_get
+
+
+def test_geometry_lists_bodies_and_geoms(client: TestClient) -> None:
+    r = client.get("/models/pendulum-active/geometry")
+    assert r.status_code == 200, r.text
+    g = r.json()
+    assert [b["name"] for b in g["bodies"]] == ["link0", "link1", "link2"]
+    assert [b["parent"] for b in g["bodies"]] == [-1, 0, 1]
+    geom = g["bodies"][1]["geoms"][0]
+    assert geom["type"] == "capsule"
+    assert geom["size"][0] == pytest.approx(0.04) and geom["size"][1] == pytest.approx(0.25)
+    assert geom["pos"] == pytest.approx([0, 0, -0.25]) and len(geom["rgba"]) == 4
+    assert len(g["rest_poses"]) == 3 and g["rest_poses"][2][:3] == pytest.approx([0, 0, -1.0])
+    assert g["extent"] > 0 and len(g["center"]) == 3
+    lander = client.get("/models/lander/geometry").json()
+    assert lander["bodies"][0]["geoms"][0]["type"] == "box"
+    assert client.get("/models/nope/geometry").status_code == 404
+
+
+def test_poses_match_forward_kinematics(client: TestClient) -> None:
+    # lander: the body's pose is the state's position and quaternion
+    q = np.array([0.9, 0.1, -0.2, 0.3]) / np.linalg.norm([0.9, 0.1, -0.2, 0.3])
+    state = [1.0, 2.0, 3.0, *q.tolist(), 0, 0, 0, 0, 0, 0]
+    r = client.post("/models/lander/poses", json={"states": [state, state]})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["bodies"] == ["ship"] and np.shape(body["poses"]) == (2, 1, 7)
+    assert body["poses"][0][0] == pytest.approx([1, 2, 3, *q.tolist()], abs=1e-6)
+    # pendulum: the first joint at 90° swings link1's origin from (0,0,-0.5) to about the x axis
+    r = client.post("/models/pendulum-active/poses", json={"states": [[np.pi / 2, 0, 0, 0, 0, 0]]})
+    p1 = r.json()["poses"][0][1][:3]
+    assert abs(p1[2]) < 1e-6 and abs(abs(p1[0]) - 0.5) < 1e-6
+
+
+@pytest.mark.parametrize(
+    ("body", "code", "field"),
+    [
+        ({"states": [[0.0] * 5]}, "wrong_length", "states[0]"),
+        ({"states": []}, "invalid_request", "states"),
+        ({"states": [[0, 0, 0, 0, 0, 0]], "extra": 1}, "invalid_request", "extra"),
+    ],
+)
+def test_poses_bad_input_names_the_field(
+    client: TestClient, body: dict[str, Any], code: str, field: str
+) -> None:
+    r = client.post("/models/pendulum-active/poses", json=body)
+    assert r.status_code == 422, r.text
+    assert r.json()["error"] == code and r.json()["field"] == field
+
+
+def test_websocket_poses_and_shadow(client: TestClient) -> None:
+    sid = client.post("/sessions", json={"model": "pendulum-active", "seed": 1}).json()["id"]
+    start = client.get(f"/sessions/{sid}").json()["state"]
+    with client.websocket_connect(f"/ws/sessions/{sid}?poses=true&shadow=true") as ws:
+        started = ws.receive_json()
+        assert started["type"] == "started" and started["poses"] and started["shadow"]
+        u = [1.0, -0.5, 0.25]
+        states = []
+        for i in range(3):
+            ws.send_json({"type": "step", "controls": u, "seq": i})
+            states.append(ws.receive_json())
+        ws.send_json({"type": "start", "shadow": False})
+        assert ws.receive_json()["shadow"] is False
+        ws.send_json({"type": "step", "controls": u})
+        plain = ws.receive_json()
+    last = states[-1]
+    assert len(last["poses"]) == 3 and len(last["poses"][0]) == 7
+    assert len(last["shadow"]["poses"]) == 3 and last["shadow"]["diverged"] is False
+    # the twin is MuJoCo from the same start under the same held controls
+    model = physics_get("pendulum-active")
+    s = np.array([start])
+    for _ in range(3):
+        s = model.step_held(s, np.array([u]), None, 10)
+    assert last["shadow"]["state"] == pytest.approx(s[0].tolist(), abs=1e-6)
+    # the emulator's poses are the poses of its state
+    r = client.post("/models/pendulum-active/poses", json={"states": [last["state"]]}).json()
+    assert np.allclose(last["poses"], r["poses"][0], atol=1e-5)
+    assert "shadow" not in plain and "poses" in plain
+
+
+def test_websocket_realtime_shadow(make_client: Callable[..., TestClient]) -> None:
+    client = make_client(ws_realtime_scale=0.1)
+    sid = client.post("/sessions", json={"model": "lander", "seed": 2}).json()["id"]
+    with client.websocket_connect(f"/ws/sessions/{sid}") as ws:
+        ws.send_json({"type": "start", "mode": "realtime", "shadow": True, "poses": True})
+        assert ws.receive_json()["type"] == "started"
+        msgs = [ws.receive_json() for _ in range(4)]
+    assert all(m["type"] == "state" and "shadow" in m and len(m["poses"]) == 1 for m in msgs)
+
+
+def test_binary_format_refuses_poses(client: TestClient) -> None:
+    sid = client.post("/sessions", json={"model": "pendulum-active", "seed": 1}).json()["id"]
+    with client.websocket_connect(f"/ws/sessions/{sid}") as ws:
+        ws.send_json({"type": "start", "format": "binary", "poses": True, "seq": 4})
+        err = ws.receive_json()
+        assert err["type"] == "error" and err["error"] == "needs_json" and err["seq"] == 4
+        ws.send_json({"type": "ping", "seq": 5})
+        assert ws.receive_json() == {"type": "pong", "seq": 5}  # still open
+
+
+def test_cors_for_the_dashboard(make_client: Callable[..., TestClient]) -> None:
+    client = make_client(cors_origins="http://127.0.0.1:8080")
+    pre = client.options(
+        "/sessions",
+        headers={"Origin": "http://127.0.0.1:8080", "Access-Control-Request-Method": "POST"},
+    )
+    assert pre.status_code == 200
+    assert pre.headers["access-control-allow-origin"] == "http://127.0.0.1:8080"
+    r = client.get("/models", headers={"Origin": "http://127.0.0.1:8080"})
+    assert r.headers["access-control-allow-origin"] == "http://127.0.0.1:8080"
+    other = client.get("/models", headers={"Origin": "http://evil.example"})
+    assert "access-control-allow-origin" not in other.headers
+    plain = make_client().get("/models", headers={"Origin": "http://127.0.0.1:8080"})
+    assert "access-control-allow-origin" not in plain.headers
