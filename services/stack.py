@@ -1,0 +1,389 @@
+"""``python -m services.stack``: the whole system on one machine, without Docker (what ``make up`` runs).
+
+It finds or starts Redis (``REDIS_URL``, else a Redis answering on 127.0.0.1:6379, else a
+``redis-server`` of its own, stopped again on exit; all by ``scripts/redis.sh``), trains any default
+emulator missing from the artifacts, then starts the emulator service, the controller API, one
+controller worker and the dashboard's static server, waits until each answers, and prints the
+dashboard's URL. Ctrl-C (or SIGTERM) stops everything it started, in reverse order.
+
+Ports and paths come from the environment or the command line (``--help``): ``EMULATOR_PORT`` (8000),
+``CONTROLLER_PORT`` (8001), ``WEB_PORT`` (8080), ``STACK_HOST`` (127.0.0.1), ``ARTIFACTS_DIR``
+(artifacts), ``STACK_LOG_DIR`` (each service's log file; default a new temp dir).
+
+``Stack`` is the same thing as a context manager, for tests: ``with Stack(StackConfig(...)) as s:``
+starts it on the given ports, ``s.stop_service("worker")`` stops one part, ``s.urls`` says where
+everything is. The controller is optional: without ``services/controller`` the rest still starts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib.util
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import urllib.error
+import urllib.request
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+
+log = logging.getLogger("stack")
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_MODELS = ("pendulum-passive", "pendulum-active", "pendulum-force", "lander", "truck")
+
+
+class StackError(RuntimeError):
+    """The stack could not start (the message says which part and why)."""
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+def port_in_use(host: str, port: int) -> bool:
+    with socket.socket() as s:
+        s.settimeout(0.5)
+        return s.connect_ex((host, port)) == 0
+
+
+@dataclass
+class StackConfig:
+    host: str = "127.0.0.1"
+    emulator_port: int = 8000
+    controller_port: int = 8001
+    web_port: int = 8080
+    artifacts_dir: Path = ROOT / "artifacts"
+    log_dir: Path | None = None
+    redis_url: str | None = None  # None: REDIS_URL, else found or started by scripts/redis.sh
+    controller: bool = True  # False: no controller API and worker even when the package exists
+    train_missing: bool = True
+    python: str = sys.executable
+    ready_timeout_s: float = 120.0
+    env: dict[str, str] = field(default_factory=dict)  # extra variables for every service
+
+    @classmethod
+    def from_env(cls) -> StackConfig:
+        e = os.environ
+        return cls(
+            host=e.get("STACK_HOST", "127.0.0.1"),
+            emulator_port=int(e.get("EMULATOR_PORT", "8000")),
+            controller_port=int(e.get("CONTROLLER_PORT", "8001")),
+            web_port=int(e.get("WEB_PORT", "8080")),
+            artifacts_dir=Path(e.get("ARTIFACTS_DIR", str(ROOT / "artifacts"))),
+            log_dir=Path(e["STACK_LOG_DIR"]) if e.get("STACK_LOG_DIR") else None,
+            redis_url=e.get("REDIS_URL") or None,
+        )
+
+
+@dataclass
+class Service:
+    name: str
+    args: list[str]
+    env: dict[str, str]
+    ready_url: str | None  # polled until it answers 200
+    log_path: Path
+    proc: subprocess.Popen[bytes] | None = None
+
+    def tail(self, lines: int = 20) -> str:
+        try:
+            text = self.log_path.read_text(errors="replace").splitlines()
+        except OSError:
+            return ""
+        return "\n".join(text[-lines:])
+
+
+def controller_available() -> bool:
+    """True when the controller service (API and worker modules) is in this checkout."""
+    try:
+        return all(
+            importlib.util.find_spec(m) is not None
+            for m in ("services.controller.__main__", "services.controller.worker")
+        )
+    except ModuleNotFoundError:
+        return False
+
+
+class Stack:
+    """Redis (found or started), emulator, controller API and worker, dashboard; see the module doc."""
+
+    def __init__(self, config: StackConfig | None = None) -> None:
+        self.config = config or StackConfig()
+        c = self.config
+        self.log_dir = c.log_dir or Path(tempfile.mkdtemp(prefix="neuro-stack-"))
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.services: dict[str, Service] = {}
+        self.redis_url = ""
+        self._redis_pid: int | None = None
+        self.has_controller = c.controller and controller_available()
+
+    # ------------------------------------------------------------------ where things are
+    @property
+    def urls(self) -> dict[str, str]:
+        c = self.config
+        return {
+            "web": f"http://{c.host}:{c.web_port}",
+            "emulator": f"http://{c.host}:{c.emulator_port}",
+            "controller": f"http://{c.host}:{c.controller_port}",
+        }
+
+    # ------------------------------------------------------------------ starting
+    def _find_redis(self) -> None:
+        c = self.config
+        if c.redis_url:
+            self.redis_url = c.redis_url
+            return
+        pidfile = self.log_dir / "redis.pid"
+        env = {k: v for k, v in os.environ.items() if k != "REDIS_URL"}
+        r = subprocess.run(
+            [str(ROOT / "scripts" / "redis.sh"), "--pidfile", str(pidfile)],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=60,
+            check=False,
+        )
+        if r.returncode != 0:
+            raise StackError(f"no Redis: {r.stderr.strip()} (set REDIS_URL, or install redis-server)")
+        self.redis_url = r.stdout.strip()
+        if pidfile.is_file() and pidfile.read_text().strip():
+            self._redis_pid = int(pidfile.read_text())
+            log.info("started redis-server (pid %d) at %s", self._redis_pid, self.redis_url)
+        else:
+            log.info("using the Redis at %s", self.redis_url)
+
+    def _train_missing(self) -> None:
+        root = self.config.artifacts_dir
+        missing = [m for m in DEFAULT_MODELS if not (root / m / "latest").is_file()]
+        for model in missing:
+            log.info("no emulator for %s in %s: training one (a few minutes)", model, root)
+            neuro = [self.config.python, "-m", "neuroanimator.cli", "train", model, "--substeps", "50"]
+            r = subprocess.run([*neuro, "--artifacts", str(root), "--quiet"], cwd=ROOT, check=False)
+            if r.returncode != 0:
+                raise StackError(f"training the default emulator {model} failed (exit {r.returncode})")
+
+    def _service(self, name: str, module: str, env: dict[str, str], ready: str | None) -> Service:
+        c = self.config
+        full = {**os.environ, **c.env, **env, "PYTHONUNBUFFERED": "1"}
+        return Service(name, [c.python, "-m", module], full, ready, self.log_dir / f"{name}.log")
+
+    def _plan(self) -> list[Service]:
+        c = self.config
+        u = self.urls
+        origins = f"{u['web']},http://localhost:{c.web_port}"
+        common = {"HOST": c.host, "REDIS_URL": self.redis_url, "ARTIFACTS_DIR": str(c.artifacts_dir)}
+        plan = [
+            self._service(
+                "emulator",
+                "services.emulator",
+                {**common, "PORT": str(c.emulator_port), "CORS_ORIGINS": origins},
+                f"{u['emulator']}/readyz",
+            )
+        ]
+        if self.has_controller:
+            plan.append(
+                self._service(
+                    "controller",
+                    "services.controller",
+                    {**common, "PORT": str(c.controller_port), "CORS_ORIGINS": origins},
+                    f"{u['controller']}/readyz",
+                )
+            )
+            plan.append(self._service("worker", "services.controller.worker", common, None))
+        plan.append(
+            self._service(
+                "web",
+                "services.web",
+                {
+                    "HOST": c.host,
+                    "PORT": str(c.web_port),
+                    "EMULATOR_URL": u["emulator"],
+                    "CONTROLLER_URL": u["controller"],
+                },
+                f"{u['web']}/healthz",
+            )
+        )
+        return plan
+
+    def _launch(self, svc: Service) -> None:
+        out = svc.log_path.open("ab")
+        try:
+            svc.proc = subprocess.Popen(
+                svc.args, cwd=ROOT, env=svc.env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True
+            )
+        finally:
+            out.close()
+        self.services[svc.name] = svc
+        log.info("started %s (pid %d), log: %s", svc.name, svc.proc.pid, svc.log_path)
+
+    def _wait_ready(self, svc: Service, deadline: float) -> None:
+        assert svc.proc is not None
+        while svc.ready_url is not None:
+            if svc.proc.poll() is not None:
+                raise StackError(
+                    f"{svc.name} exited with status {svc.proc.returncode} while starting; "
+                    f"the end of {svc.log_path}:\n{svc.tail()}"
+                )
+            try:
+                with urllib.request.urlopen(svc.ready_url, timeout=2) as r:
+                    if r.status == 200:
+                        return
+            except (urllib.error.URLError, OSError):
+                pass
+            if time.monotonic() > deadline:
+                raise StackError(f"{svc.name} did not answer {svc.ready_url} in time; see {svc.log_path}")
+            time.sleep(0.2)
+
+    def start(self) -> Stack:
+        c = self.config
+        t0 = time.monotonic()
+        try:
+            busy = [
+                f"{name} port {port}"
+                for name, port in (
+                    ("emulator", c.emulator_port),
+                    ("controller", c.controller_port),
+                    ("web", c.web_port),
+                )
+                if port_in_use(c.host, port)
+            ]
+            if busy:
+                raise StackError(
+                    f"already in use on {c.host}: {', '.join(busy)} (is a stack already running? "
+                    "choose other ports with EMULATOR_PORT, CONTROLLER_PORT, WEB_PORT)"
+                )
+            self._find_redis()
+            if c.train_missing:
+                self._train_missing()
+            if not self.has_controller:
+                log.warning(
+                    "no controller service in this checkout: the dashboard's Controllers page says so"
+                )
+            plan = self._plan()
+            for svc in plan:  # start all, then wait: they load in parallel
+                self._launch(svc)
+            deadline = time.monotonic() + c.ready_timeout_s
+            for svc in plan:
+                self._wait_ready(svc, deadline)
+        except BaseException:
+            self.stop()
+            raise
+        self.startup_s = time.monotonic() - t0
+        return self
+
+    # ------------------------------------------------------------------ running and stopping
+    def check(self) -> None:
+        """Raise ``StackError`` when a service has exited on its own."""
+        for svc in self.services.values():
+            if svc.proc is not None and svc.proc.poll() is not None:
+                raise StackError(
+                    f"{svc.name} exited with status {svc.proc.returncode}; the end of {svc.log_path}:\n"
+                    f"{svc.tail()}"
+                )
+
+    def stop_service(self, name: str, timeout: float = 15.0) -> None:
+        """Stop one part (SIGTERM, then SIGKILL after ``timeout``) and forget it."""
+        svc = self.services.pop(name, None)
+        if svc is None or svc.proc is None or svc.proc.poll() is not None:
+            return
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(svc.proc.pid, signal.SIGTERM)
+        try:
+            svc.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            log.warning("%s did not stop in %.0f s: killing it", name, timeout)
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(svc.proc.pid, signal.SIGKILL)
+            svc.proc.wait(5)
+        log.info("stopped %s", name)
+
+    def stop(self) -> None:
+        for name in reversed(list(self.services)):
+            self.stop_service(name)
+        if self._redis_pid is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self._redis_pid, signal.SIGTERM)
+            log.info("stopped the redis-server it had started (pid %d)", self._redis_pid)
+            self._redis_pid = None
+
+    def __enter__(self) -> Stack:
+        return self.start()
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.stop()
+
+
+def main(argv: list[str] | None = None) -> int:
+    env = StackConfig.from_env()
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--host", default=env.host)
+    p.add_argument("--emulator-port", type=int, default=env.emulator_port)
+    p.add_argument("--controller-port", type=int, default=env.controller_port)
+    p.add_argument("--web-port", type=int, default=env.web_port)
+    p.add_argument("--artifacts", type=Path, default=env.artifacts_dir)
+    p.add_argument("--log-dir", type=Path, default=env.log_dir)
+    p.add_argument("--no-controller", action="store_true", help="start without the controller API and worker")
+    p.add_argument("--no-train", action="store_true", help="do not train missing default emulators")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="stack: %(message)s", stream=sys.stderr)
+    cfg = StackConfig(
+        host=args.host,
+        emulator_port=args.emulator_port,
+        controller_port=args.controller_port,
+        web_port=args.web_port,
+        artifacts_dir=args.artifacts.resolve(),
+        log_dir=args.log_dir,
+        redis_url=env.redis_url,
+        controller=not args.no_controller,
+        train_missing=not args.no_train,
+    )
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    stack = Stack(cfg)
+    try:
+        stack.start()
+    except StackError as exc:
+        log.error("%s", exc)
+        return 1
+    u = stack.urls
+    log.info(
+        "ready in %.1f s: dashboard %s  (emulator %s, controller %s%s; logs in %s). Ctrl-C stops it all.",
+        stack.startup_s,
+        u["web"],
+        u["emulator"],
+        u["controller"],
+        "" if stack.has_controller else " not started",
+        stack.log_dir,
+    )
+    code = 0
+    try:
+        while not stop.wait(1.0):
+            stack.check()
+    except StackError as exc:
+        log.error("%s", exc)
+        code = 1
+    finally:
+        log.info("stopping")
+        stack.stop()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

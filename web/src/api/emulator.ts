@@ -1,0 +1,55 @@
+// The emulator service's REST calls and websocket URL (types generated from proto/ in emulator.gen.ts).
+import { wsUrl } from '../config';
+import type {
+  ModelDetail,
+  ModelGeometry,
+  ModelList,
+  PosesResponse,
+  SessionCreate,
+  SessionInfo,
+} from './emulator.gen';
+import { requestJson } from './http';
+
+export class EmulatorApi {
+  constructor(readonly base: string) {}
+
+  private get<T>(path: string): Promise<T> {
+    return requestJson<T>('emulator', this.base, path);
+  }
+
+  private post<T>(path: string, body: unknown): Promise<T> {
+    return requestJson<T>('emulator', this.base, path, { method: 'POST', body: JSON.stringify(body) });
+  }
+
+  ready(): Promise<{ status: string }> {
+    return this.get('/readyz');
+  }
+
+  models(): Promise<ModelList> {
+    return this.get('/models');
+  }
+
+  model(name: string): Promise<ModelDetail> {
+    return this.get(`/models/${encodeURIComponent(name)}`);
+  }
+
+  geometry(name: string): Promise<ModelGeometry> {
+    return this.get(`/models/${encodeURIComponent(name)}/geometry`);
+  }
+
+  poses(name: string, states: number[][], version?: string): Promise<PosesResponse> {
+    return this.post(`/models/${encodeURIComponent(name)}/poses`, version ? { states, version } : { states });
+  }
+
+  createSession(req: SessionCreate): Promise<SessionInfo> {
+    return this.post('/sessions', req);
+  }
+
+  async deleteSession(id: string): Promise<void> {
+    await requestJson('emulator', this.base, `/sessions/${encodeURIComponent(id)}`, { method: 'DELETE' });
+  }
+
+  socketUrl(id: string, query: string): string {
+    return wsUrl(this.base, `/ws/sessions/${encodeURIComponent(id)}?${query}`, location.href);
+  }
+}

@@ -1,0 +1,404 @@
+// Controllers: pick a task, set its goal by dragging the translucent target on the ground (or typing
+// it), submit the job, watch the objective fall iteration by iteration (server-sent events), then
+// replay the controller on the emulator and on MuJoCo side by side.
+import * as THREE from 'three';
+import { FINAL_STATES, type JobStatus, type ProgressEvent, type TaskInfo } from '../api/controller';
+import type { ModelDetail, ModelGeometry } from '../api/emulator.gen';
+import { errorText } from '../api/http';
+import { ModelView } from '../scene/model';
+import { makeViewer, staging } from '../scene/setup';
+import type { Viewer } from '../scene/viewer';
+import { headingOf, targetHandles, withHeading, withXY, type TargetHandles } from '../session/target';
+import { fmt, h } from '../ui/dom';
+import { clearNotice, notify } from '../ui/notices';
+import { LinePlot } from '../ui/plot';
+import type { Page } from './context';
+import { Replay } from './replay';
+
+const QUEUED_WARN_S = 8;
+const POLL_MS = 1500;
+
+interface Scene {
+  task: TaskInfo;
+  detail: ModelDetail;
+  geometry: ModelGeometry;
+  handles: TargetHandles;
+  target: number[];
+  model: ModelView;
+  goal: ModelView;
+}
+
+export const controllersPage: Page = (root, ctx) => {
+  const taskSelect = h('select', { id: 'ct-task', 'aria-label': 'task' });
+  const desc = h('p', { class: 'desc', id: 'ct-desc' }, 'Loading the tasks…');
+  const editor = h('div', { class: 'target-editor', id: 'ct-target' });
+  const heading = h('input', { type: 'range', min: -180, max: 180, step: 1, value: 0, id: 'ct-heading', 'aria-label': 'goal heading' });
+  const headingRow = h('label', { class: 'heading-row', hidden: true }, 'Goal heading ', heading);
+  const submitBtn = h('button', { id: 'ct-submit', class: 'primary', disabled: true }, 'Synthesise controller');
+  const cancelBtn = h('button', { id: 'ct-cancel', disabled: true }, 'Cancel job');
+  const jobStatus = h('div', { class: 'status', id: 'job-status' }, 'No job yet.');
+  const plot = new LinePlot({ logY: true, xLabel: 'iteration', yLabel: 'objective', height: 220 });
+  plot.svg.id = 'objective-plot';
+  const viewHost = h('div', { class: 'view', id: 'ct-view' });
+  const replayHost = h('div', { id: 'replay-host' });
+  root.append(
+    h('h1', {}, 'Controllers'),
+    h(
+      'div',
+      { class: 'split' },
+      h(
+        'aside',
+        { class: 'panel' },
+        h('label', {}, 'Task ', taskSelect),
+        desc,
+        h('p', { class: 'hint' }, 'Drag the green goal in the view (or type its values), then synthesise.'),
+        headingRow,
+        editor,
+        h('div', { class: 'buttons' }, submitBtn, cancelBtn),
+        jobStatus,
+        h('figure', { class: 'objective' }, plot.svg, h('figcaption', {}, 'Objective vs iteration (live)')),
+      ),
+      viewHost,
+    ),
+    replayHost,
+  );
+
+  const viewer = makeViewer(viewHost);
+  let tasks: TaskInfo[] = [];
+  let scene: Scene | null = null;
+  let alive = true;
+  let job: { id: string; events: EventSource | null; poll: number; queuedSince: number; points: ProgressEvent[] } | null = null;
+  let replay: Replay | null = null;
+
+  // ---------------------------------------------------------------- the goal
+  const poseGoal = async (): Promise<void> => {
+    const s = scene;
+    if (!s) return;
+    try {
+      const r = await ctx.emulator.poses(s.detail.model, [s.target], s.detail.version);
+      if (scene !== s) return;
+      s.goal.group.position.set(0, 0, 0);
+      s.goal.setPoses(r.poses[0] ?? []);
+    } catch (e) {
+      notify(`Cannot place the goal. ${errorText(e)}`, 'error', 'goal');
+    }
+  };
+
+  const drawEditor = (): void => {
+    const s = scene;
+    editor.textContent = '';
+    if (!s) return;
+    const labels = s.detail.state_labels;
+    for (const i of s.handles.editable) {
+      const input = h('input', { type: 'number', step: 0.1, value: (s.target[i] ?? 0).toFixed(3), 'data-index': i });
+      input.addEventListener('change', () => {
+        const v = Number(input.value);
+        if (!Number.isFinite(v)) return;
+        s.target[i] = v;
+        void poseGoal();
+      });
+      editor.append(h('label', { class: 'num' }, h('span', {}, labels[i] ?? `s[${i}]`), input));
+    }
+    headingRow.hidden = !s.handles.heading;
+    heading.value = String(Math.round((headingOf(s.target, s.handles) * 180) / Math.PI));
+  };
+
+  heading.addEventListener('input', () => {
+    if (!scene) return;
+    scene.target = withHeading(scene.target, scene.handles, (Number(heading.value) * Math.PI) / 180);
+    drawEditor();
+    void poseGoal();
+  });
+
+  const selectTask = async (name: string): Promise<void> => {
+    const task = tasks.find((t) => t.name === name);
+    if (!task) return;
+    scene?.model.dispose();
+    scene?.goal.dispose();
+    scene = null;
+    submitBtn.disabled = true;
+    desc.textContent = task.description ?? '';
+    if (!task.model) {
+      desc.textContent = `Task ${task.name} names no model.`;
+      return;
+    }
+    try {
+      const [detail, geometry] = await Promise.all([ctx.emulator.model(task.model), ctx.emulator.geometry(task.model)]);
+      const init = task.initial_state ?? null;
+      const target = [...(task.target_state ?? init ?? [])];
+      const s: Scene = {
+        task,
+        detail,
+        geometry,
+        handles: targetHandles(detail.layout),
+        target,
+        model: new ModelView(geometry),
+        goal: new ModelView(geometry, { ghost: true, color: 0x66ff99, opacity: 0.35 }),
+      };
+      if (!alive || taskSelect.value !== name) return;
+      scene = s;
+      const states = [init, target].filter((x): x is number[] => Array.isArray(x) && x.length === detail.state_size);
+      const poses = states.length ? (await ctx.emulator.poses(detail.model, states, detail.version)).poses : [];
+      if (init && poses[0]) s.model.setPoses(poses[0]);
+      if (poses[poses.length - 1] && target.length) s.goal.setPoses(poses[poses.length - 1]!);
+      if (viewer) {
+        viewer.world.add(s.model.group, s.goal.group);
+        const all = poses.flat();
+        const st = staging(geometry, poses[0] ?? geometry.rest_poses);
+        const xs = all.map((p) => p[0] ?? 0);
+        const ys = all.map((p) => p[1] ?? 0);
+        const zs = all.map((p) => p[2] ?? 0);
+        const mid = all.length ? [(Math.min(...xs) + Math.max(...xs)) / 2, (Math.min(...ys) + Math.max(...ys)) / 2, (Math.min(...zs) + Math.max(...zs)) / 2] : st.center;
+        const span = all.length ? Math.max(Math.max(...xs) - Math.min(...xs), Math.max(...ys) - Math.min(...ys)) : 0;
+        viewer.setGroundHeight(st.ground);
+        viewer.frame(mid, Math.max(st.radius, span * 0.6));
+      }
+      drawEditor();
+      submitBtn.disabled = target.length !== detail.state_size;
+      clearNotice('goal');
+    } catch (e) {
+      notify(`Cannot show task ${name}. ${errorText(e)}`, 'error', 'goal');
+    }
+  };
+  taskSelect.addEventListener('change', () => void selectTask(taskSelect.value));
+
+  // ---------------------------------------------------------------- dragging the goal on the ground
+  const drag = viewer ? dragGoal(viewer, () => scene, (x, y) => {
+    if (!scene) return;
+    scene.target = withXY(scene.target, scene.handles, x, y);
+    drawEditor();
+    void poseGoal();
+  }) : () => undefined;
+
+  // ---------------------------------------------------------------- the job
+  const stopJob = (): void => {
+    if (!job) return;
+    job.events?.close();
+    window.clearInterval(job.poll);
+    cancelBtn.disabled = true;
+    clearNotice('job-queued');
+  };
+
+  const showProgress = (): void => {
+    if (!job) return;
+    const pts = job.points;
+    plot.set([
+      { name: 'objective', xs: pts.map((p) => p.iteration), ys: pts.map((p) => p.objective ?? NaN), color: '#4fc3f7' },
+      { name: 'best', xs: pts.map((p) => p.iteration), ys: pts.map((p) => p.best_objective ?? NaN), color: '#aed581' },
+    ]);
+    plot.svg.dataset.points = String(pts.length);
+  };
+
+  const finish = async (status: JobStatus): Promise<void> => {
+    stopJob();
+    jobStatus.dataset.status = status.status;
+    if (status.status === 'failed') {
+      jobStatus.textContent = `Job ${status.id} failed.`;
+      notify(`The controller job failed: ${status.error ?? 'no reason was given'}.`, 'error', 'job');
+      return;
+    }
+    if (status.status === 'cancelled') {
+      jobStatus.textContent = `Job ${status.id} was cancelled.`;
+      return;
+    }
+    jobStatus.textContent = `Job ${status.id} succeeded after ${status.iteration} iterations (best objective ${fmt(status.best_objective)}). Loading the replay…`;
+    try {
+      const result = await ctx.controller.result(status.id);
+      const s = scene;
+      if (!alive || !s) return;
+      replay?.dispose();
+      replay = new Replay(ctx.emulator, s.geometry, result, s.detail.super_timestep);
+      replayHost.append(replay.el);
+      await replay.start();
+      jobStatus.textContent = `Job ${status.id} succeeded after ${status.iteration} iterations (best objective ${fmt(status.best_objective)}).`;
+    } catch (e) {
+      notify(`The job succeeded but its result could not be shown. ${errorText(e)}`, 'error', 'job');
+    }
+  };
+
+  const poll = async (): Promise<void> => {
+    const j = job;
+    if (!j) return;
+    let st: JobStatus;
+    try {
+      st = await ctx.controller.job(j.id);
+      clearNotice('job-lost');
+    } catch (e) {
+      notify(`Lost contact with the controller service while following job ${j.id}. ${errorText(e)}`, 'error', 'job-lost');
+      return;
+    }
+    if (job !== j) return;
+    jobStatus.dataset.status = st.status;
+    if (st.status === 'queued') {
+      const waited = (performance.now() - j.queuedSince) / 1000;
+      jobStatus.textContent = `Job ${j.id} is queued (${waited.toFixed(0)} s).`;
+      if (waited > QUEUED_WARN_S)
+        notify(
+          `Job ${j.id} has waited ${waited.toFixed(0)} s and no controller worker has started it. Is a worker running? ` +
+            '(make up starts one; by hand: python -m services.controller.worker)',
+          'warning',
+          'job-queued',
+        );
+    } else {
+      j.queuedSince = performance.now();
+      clearNotice('job-queued');
+    }
+    if (st.status === 'running') {
+      jobStatus.textContent = `Job ${j.id} is running: iteration ${st.iteration}${st.max_iterations ? ` of at most ${st.max_iterations}` : ''}, best objective ${fmt(st.best_objective)}.`;
+      if (st.objective_history.length > j.points.length) {
+        j.points = st.objective_history.map((o, i) => ({ iteration: i + 1, objective: o, best_objective: null }));
+        let best = Infinity;
+        for (const p of j.points) {
+          if (p.objective !== null && p.objective !== undefined && p.objective < best) best = p.objective;
+          p.best_objective = Number.isFinite(best) ? best : null;
+        }
+        showProgress();
+      }
+    }
+    if (FINAL_STATES.includes(st.status)) await finish(st);
+  };
+
+  const submit = async (): Promise<void> => {
+    const s = scene;
+    if (!s) return;
+    stopJob();
+    replay?.dispose();
+    replay = null;
+    clearNotice('job');
+    submitBtn.disabled = true;
+    jobStatus.textContent = 'Submitting…';
+    try {
+      const accepted = await ctx.controller.submit({
+        task: s.task.name,
+        target_state: s.target,
+        idempotency_key: `dash-${Date.now().toString(36)}-${Math.random().toString(36).slice(2, 10)}`,
+      });
+      const j = { id: accepted.id, events: null as EventSource | null, poll: 0, queuedSince: performance.now(), points: [] as ProgressEvent[] };
+      job = j;
+      jobStatus.textContent = `Job ${j.id} is ${accepted.status}.`;
+      jobStatus.dataset.status = accepted.status;
+      jobStatus.dataset.job = j.id;
+      cancelBtn.disabled = false;
+      showProgress();
+      const es = ctx.controller.events(j.id);
+      j.events = es;
+      es.addEventListener('progress', (ev) => {
+        if (job !== j) return;
+        const p = JSON.parse((ev as MessageEvent<string>).data) as ProgressEvent;
+        if (j.points.some((q) => q.iteration === p.iteration)) return;
+        j.points.push(p);
+        j.points.sort((a, b) => a.iteration - b.iteration);
+        showProgress();
+      });
+      es.addEventListener('end', () => {
+        es.close();
+        void poll();
+      });
+      es.onerror = () => {
+        if (es.readyState === EventSource.CLOSED) j.events = null;
+      };
+      j.poll = window.setInterval(() => void poll(), POLL_MS);
+    } catch (e) {
+      jobStatus.textContent = 'The job was not submitted.';
+      notify(`Could not submit the job. ${errorText(e)}`, 'error', 'job');
+    } finally {
+      submitBtn.disabled = false;
+    }
+  };
+  submitBtn.addEventListener('click', () => void submit());
+  cancelBtn.addEventListener('click', () => {
+    if (!job) return;
+    ctx.controller.cancel(job.id).catch((e: unknown) => notify(`Could not cancel the job. ${errorText(e)}`, 'error', 'job'));
+  });
+
+  void (async () => {
+    try {
+      tasks = await ctx.controller.tasks();
+      if (!alive) return;
+      taskSelect.append(...tasks.map((t) => h('option', { value: t.name }, `${t.name}${t.model ? ` (${t.model})` : ''}`)));
+      const want = new URLSearchParams(location.hash.split('?')[1] ?? '').get('task');
+      const pick = tasks.find((t) => t.name === want) ?? tasks.find((t) => t.model === 'truck') ?? tasks[0];
+      if (pick) {
+        taskSelect.value = pick.name;
+        await selectTask(pick.name);
+      } else desc.textContent = 'The controller service offers no tasks.';
+    } catch (e) {
+      desc.textContent = 'No tasks: the controller service did not answer.';
+      notify(`Cannot list the controller tasks. ${errorText(e)}`, 'error', 'controller');
+    }
+  })();
+
+  return () => {
+    alive = false;
+    stopJob();
+    drag();
+    replay?.dispose();
+    scene?.model.dispose();
+    scene?.goal.dispose();
+    viewer?.dispose();
+  };
+};
+
+/** Pointer drag of the goal on the horizontal plane through it; calls `moved(x, y)` on release. */
+function dragGoal(viewer: Viewer, current: () => Scene | null, moved: (x: number, y: number) => void): () => void {
+  const canvas = viewer.renderer.domElement;
+  const ray = new THREE.Raycaster();
+  let active: { start: THREE.Vector3; x0: number; y0: number; plane: THREE.Plane } | null = null;
+
+  const rayAt = (ev: PointerEvent): THREE.Ray => {
+    const r = canvas.getBoundingClientRect();
+    const ndc = new THREE.Vector2(((ev.clientX - r.left) / r.width) * 2 - 1, -((ev.clientY - r.top) / r.height) * 2 + 1);
+    ray.setFromCamera(ndc, viewer.camera);
+    // into MuJoCo's frame (the `world` group), where the ground is z = const
+    const inv = viewer.world.matrixWorld.clone().invert();
+    return ray.ray.clone().applyMatrix4(inv);
+  };
+
+  const down = (ev: PointerEvent): void => {
+    const s = current();
+    if (!s || !s.handles.xy || ev.button !== 0) return;
+    const r = canvas.getBoundingClientRect();
+    ray.setFromCamera(new THREE.Vector2(((ev.clientX - r.left) / r.width) * 2 - 1, -((ev.clientY - r.top) / r.height) * 2 + 1), viewer.camera);
+    if (!ray.intersectObject(s.goal.group, true).length) return;
+    const root = s.goal.bodies[0];
+    const z = root ? root.position.z : 0;
+    const plane = new THREE.Plane(new THREE.Vector3(0, 0, 1), -z);
+    const start = rayAt(ev).intersectPlane(plane, new THREE.Vector3());
+    if (!start) return;
+    const [ix, iy] = s.handles.xy;
+    active = { start, x0: s.target[ix] ?? 0, y0: s.target[iy] ?? 0, plane };
+    viewer.controls.enabled = false;
+    canvas.setPointerCapture(ev.pointerId);
+    canvas.classList.add('dragging');
+    ev.preventDefault();
+  };
+  const move = (ev: PointerEvent): void => {
+    const s = current();
+    if (!active || !s) return;
+    const p = rayAt(ev).intersectPlane(active.plane, new THREE.Vector3());
+    if (!p) return;
+    s.goal.group.position.set(p.x - active.start.x, p.y - active.start.y, 0);
+  };
+  const up = (ev: PointerEvent): void => {
+    const s = current();
+    if (!active) return;
+    const a = active;
+    active = null;
+    viewer.controls.enabled = true;
+    canvas.classList.remove('dragging');
+    if (canvas.hasPointerCapture(ev.pointerId)) canvas.releasePointerCapture(ev.pointerId);
+    if (!s) return;
+    const off = s.goal.group.position;
+    moved(a.x0 + off.x, a.y0 + off.y); // the offset is dropped when the new poses arrive
+  };
+  canvas.addEventListener('pointerdown', down);
+  canvas.addEventListener('pointermove', move);
+  canvas.addEventListener('pointerup', up);
+  canvas.addEventListener('pointercancel', up);
+  return () => {
+    canvas.removeEventListener('pointerdown', down);
+    canvas.removeEventListener('pointermove', move);
+    canvas.removeEventListener('pointerup', up);
+    canvas.removeEventListener('pointercancel', up);
+  };
+}

@@ -1,0 +1,137 @@
+// Models: every loaded emulator with its manifest (layout, controls, δt and n), training metrics, the
+// rollout error over time (thesis Fig. 6.6) and the speed table (thesis Table 6.2) when measured.
+import type { ModelDetail } from '../api/emulator.gen';
+import { errorText } from '../api/http';
+import { curvesOf, loadBench, loadEval, type BenchResult, type EvalResult } from '../api/measurements';
+import { fmt, h } from '../ui/dom';
+import { notify } from '../ui/notices';
+import { LinePlot } from '../ui/plot';
+import type { Page } from './context';
+
+const COLORS = ['#4fc3f7', '#ffb74d', '#aed581', '#f06292', '#ba68c8'];
+const METRICS: [string, string][] = [
+  ['one_step_rel_error', 'one-step relative error'],
+  ['validation_rel_error', 'validation relative error'],
+  ['linear_baseline_rel_error', 'linear baseline error'],
+  ['weights', 'weights'],
+  ['examples', 'training examples'],
+  ['total_seconds', 'training time (s)'],
+];
+
+function facts(m: ModelDetail): HTMLElement {
+  const rows: [string, string][] = [
+    ['version', m.version],
+    ['state size', String(m.state_size)],
+    ['physics δt', `${fmt(m.timestep)} s`],
+    ['super-step Δt = n·δt', `${fmt(m.super_timestep)} s (n = ${m.substeps})`],
+    ['versions loaded', m.versions.join(', ')],
+  ];
+  return h('table', { class: 'facts' }, ...rows.map(([k, v]) => h('tr', {}, h('th', {}, k), h('td', {}, v))));
+}
+
+function inputs(m: ModelDetail): HTMLElement {
+  const rows = [
+    ...m.controls.map((c) => ['control', c.name, `${fmt(c.low)} … ${fmt(c.high)}`]),
+    ...m.forces.map((f) => ['force', f.name, `${fmt(f.low)} … ${fmt(f.high)}`]),
+  ];
+  if (!rows.length) return h('p', { class: 'muted' }, 'No inputs: a passive model.');
+  return h(
+    'table',
+    { class: 'grid' },
+    h('tr', {}, h('th', {}, 'input'), h('th', {}, 'name'), h('th', {}, 'trained range')),
+    ...rows.map((r) => h('tr', {}, ...r.map((v) => h('td', {}, v)))),
+  );
+}
+
+function layout(m: ModelDetail): HTMLElement {
+  return h(
+    'table',
+    { class: 'grid' },
+    h('tr', {}, h('th', {}, 'state group'), h('th', {}, 'kind'), h('th', {}, 'values')),
+    ...m.layout.map((g) =>
+      h('tr', {}, h('td', {}, g.name), h('td', {}, g.kind), h('td', {}, `[${g.offset}:${g.offset + g.size}] ${(g.labels ?? []).join(' ')}`)),
+    ),
+  );
+}
+
+function metrics(m: ModelDetail): HTMLElement {
+  const got = METRICS.filter(([k]) => typeof m.metrics?.[k] === 'number');
+  if (!got.length) return h('p', { class: 'muted' }, 'No training metrics in the manifest.');
+  return h('table', { class: 'facts' }, ...got.map(([k, label]) => h('tr', {}, h('th', {}, label), h('td', {}, fmt(m.metrics?.[k] as number)))));
+}
+
+function rolloutPlot(model: string, e: EvalResult | null): HTMLElement {
+  const curves = curvesOf(e);
+  if (!curves.length)
+    return h('p', { class: 'muted not-measured' }, 'Rollout error: not measured. ', h('code', {}, `neuro eval ${model} --json`), ' measures it.');
+  const plot = new LinePlot({ logY: true, xLabel: 'time (s)', yLabel: 'error vs MuJoCo' });
+  plot.set(curves.map((c, i) => ({ name: `N^${c.substeps}`, xs: c.curve.t, ys: c.curve.error, color: COLORS[i % COLORS.length]! })));
+  return h('figure', { class: 'rollout' }, plot.svg, h('figcaption', {}, 'Rollout error over time, by super-step n (thesis Fig. 6.6)'));
+}
+
+function speedTable(model: string, b: BenchResult | null): HTMLElement {
+  if (!b || (!b.single?.length && !b.batched?.length))
+    return h('p', { class: 'muted not-measured' }, 'Speed: not measured. ', h('code', {}, `neuro bench ${model} --json`), ' measures it.');
+  const out = h('div', { class: 'speed' });
+  if (b.single?.length)
+    out.append(
+      h(
+        'table',
+        { class: 'grid' },
+        h('caption', {}, 'One client, 20,000 physical steps (thesis Table 6.2)'),
+        h('tr', {}, h('th', {}, 'n'), h('th', {}, 'MuJoCo (s)'), h('th', {}, 'emulator (s)'), h('th', {}, 'speed-up')),
+        ...b.single.map((r) => h('tr', {}, h('td', {}, `N^${r.substeps}`), h('td', {}, fmt(r.physics_s)), h('td', {}, fmt(r.emulator_s)), h('td', {}, `${fmt(r.ratio)}×`))),
+      ),
+    );
+  if (b.batched?.length)
+    out.append(
+      h(
+        'table',
+        { class: 'grid' },
+        h('caption', {}, `Batched clients (n = ${b.batched_substeps ?? '?'})`),
+        h('tr', {}, h('th', {}, 'clients'), h('th', {}, 'MuJoCo steps/s'), h('th', {}, 'emulator steps/s'), h('th', {}, 'speed-up')),
+        ...b.batched.map((r) => h('tr', {}, h('td', {}, String(r.batch)), h('td', {}, fmt(r.physics_steps_per_s)), h('td', {}, fmt(r.emulator_steps_per_s)), h('td', {}, `${fmt(r.ratio)}×`))),
+      ),
+    );
+  return out;
+}
+
+export const modelsPage: Page = (root, ctx) => {
+  let alive = true;
+  const list = h('div', { class: 'models' }, h('p', { class: 'muted' }, 'Loading the emulators…'));
+  root.append(h('h1', {}, 'Models'), list);
+  void (async () => {
+    try {
+      const { models } = await ctx.emulator.models();
+      if (!alive) return;
+      list.textContent = '';
+      if (!models.length) {
+        list.append(h('p', { class: 'muted' }, 'The emulator service has no models loaded. Train one with make train MODEL=…'));
+        return;
+      }
+      for (const s of models) {
+        const card = h('section', { class: 'card model-card', 'data-model': s.model }, h('h2', {}, s.model));
+        list.append(card);
+        const [m, ev, bench] = await Promise.all([ctx.emulator.model(s.model), loadEval(s.model), loadBench(s.model)]);
+        if (!alive) return;
+        card.append(
+          h('p', { class: 'desc' }, m.description || ''),
+          h(
+            'div',
+            { class: 'cols' },
+            h('div', {}, facts(m), h('h3', {}, 'Inputs'), inputs(m), h('h3', {}, 'State layout'), layout(m)),
+            h('div', {}, h('h3', {}, 'Training'), metrics(m), h('h3', {}, 'Accuracy'), rolloutPlot(s.model, ev), h('h3', {}, 'Speed'), speedTable(s.model, bench)),
+          ),
+        );
+      }
+    } catch (e) {
+      if (!alive) return;
+      list.textContent = '';
+      list.append(h('p', { class: 'error-text' }, errorText(e)));
+      notify(errorText(e));
+    }
+  })();
+  return () => {
+    alive = false;
+  };
+};

@@ -1,0 +1,55 @@
+import { describe, expect, it } from 'vitest';
+import { absolute, wsUrl } from '../src/config';
+import { describeFailure, unreachable } from '../src/api/http';
+import { curvesOf } from '../src/api/measurements';
+import { finiteRows } from '../src/pages/replay';
+import { extent, niceTicks } from '../src/ui/plot';
+
+describe('config', () => {
+  it('resolves service URLs against the page', () => {
+    expect(absolute('/api/emulator', 'http://host:8080/index.html')).toBe('http://host:8080/api/emulator');
+    expect(absolute('http://127.0.0.1:8000/', 'http://x/')).toBe('http://127.0.0.1:8000');
+    expect(wsUrl('https://h/api/emulator', '/ws/sessions/a?mode=realtime', 'https://h/')).toBe('wss://h/api/emulator/ws/sessions/a?mode=realtime');
+    expect(wsUrl('http://127.0.0.1:8000', '/ws/sessions/a', 'http://x/')).toBe('ws://127.0.0.1:8000/ws/sessions/a');
+  });
+});
+
+describe('errors in plain words', () => {
+  it("uses the service's message", () => {
+    const e = describeFailure('emulator', 422, 'Unprocessable', { error: 'wrong_length', message: 'controls must have 4 values' });
+    expect(e.message).toBe('The emulator service refused the request: controls must have 4 values');
+    expect(e.code).toBe('wrong_length');
+  });
+
+  it('says when there is no message, and when the service is down', () => {
+    expect(describeFailure('controller', 502, 'Bad Gateway', null).message).toBe('The controller service answered 502 Bad Gateway.');
+    expect(unreachable('controller', 'http://127.0.0.1:8001').message).toMatch(/not reachable at http:\/\/127\.0\.0\.1:8001/);
+  });
+});
+
+describe('measurements', () => {
+  it('reads curves per n, or the one top-level curve, or nothing', () => {
+    const curve = { t: [0, 1], error: [0.1, 0.2] };
+    expect(curvesOf(null)).toEqual([]);
+    expect(curvesOf({ substeps: 50, rollout_error_curve: curve })).toEqual([{ substeps: 50, curve }]);
+    const e = { by_substeps: [{ substeps: 100, rollout_error_curve: curve }, { substeps: 25, rollout_error_curve: curve }] };
+    expect(curvesOf(e).map((c) => c.substeps)).toEqual([25, 100]);
+  });
+});
+
+describe('replay', () => {
+  it('replaces non-finite rows by the last finite one', () => {
+    expect(finiteRows([[1, 2], [null, 3], [4, 5]])).toEqual([[1, 2], [1, 2], [4, 5]]);
+    expect(finiteRows([[null, 1]])).toEqual([]);
+  });
+});
+
+describe('plot helpers', () => {
+  it('makes round ticks and finite extents', () => {
+    expect(niceTicks(0, 1, 5)).toEqual([0, 0.2, 0.4, 0.6, 0.8, 1]);
+    expect(niceTicks(3, 3)).toEqual([3]);
+    expect(extent([3, NaN, -1, Infinity])).toEqual([-1, 3]);
+    expect(extent([0, -2, 5], true)).toEqual([5, 5]);
+    expect(extent([])).toBeNull();
+  });
+});
