@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 MODELS := pendulum-passive pendulum-active pendulum-force lander truck
 
-.PHONY: install test lint up train train-all eval bench clean
+.PHONY: install install-web web chromium test lint up train train-all eval bench clean
 
 $(BIN)/neuro: pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -13,9 +13,26 @@ $(BIN)/neuro: pyproject.toml
 
 install: $(BIN)/neuro
 
-test: install
+# The dashboard (web/): Node packages exactly as package-lock.json pins them, then the Vite build.
+WEB_SRC := $(shell find web/src web/index.html web/vite.config.ts web/tsconfig.json -type f 2>/dev/null)
+web/node_modules/.package-lock.json: web/package.json web/package-lock.json
+	cd web && npm ci --no-audit --no-fund
+	touch $@
+install-web: web/node_modules/.package-lock.json
+web/dist/index.html: web/node_modules/.package-lock.json $(WEB_SRC)
+	cd web && npm run build
+web: web/dist/index.html
+
+# Debian's Chromium for the end-to-end tests (never a browser download of a tool's own).
+SUDO := $(shell [ "$$(id -u)" -ne 0 ] && command -v sudo)
+chromium:
+	@if [ ! -x /usr/bin/chromium ]; then $(SUDO) apt-get update && $(SUDO) apt-get install -y chromium; fi
+
+# Lint and type checks, the web checks (API types current, tsc, vitest), then pytest (e2e included).
+test: install web chromium
 	$(BIN)/ruff check .
 	$(BIN)/mypy
+	cd web && npm run check:api && npx tsc --noEmit && npx vitest run
 	$(BIN)/pytest -q
 
 lint: install
@@ -23,9 +40,10 @@ lint: install
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-# The emulator service on 127.0.0.1:8000 over artifacts/, with Redis found or started by scripts/redis.sh.
-up: install
-	PYTHON=$(BIN)/python scripts/up.sh
+# The whole stack (services/stack.py): Redis found or started, emulator :8000, controller API :8001 and a
+# worker, dashboard :8080. Ctrl-C stops everything it started.
+up: install web
+	$(BIN)/python -m services.stack
 
 # Train one model: make train MODEL=pendulum-active SUBSTEPS=50
 MODEL ?= pendulum-passive
@@ -44,7 +62,7 @@ bench: install
 	$(BIN)/neuro bench $(MODEL)
 
 clean:
-	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache web/node_modules web/dist
 
 # Regenerate proto/ (JSON Schemas of the wire models, the emulator's OpenAPI document) from the code.
 .PHONY: proto

@@ -71,6 +71,9 @@ class StackConfig:
     python: str = sys.executable
     ready_timeout_s: float = 120.0
     env: dict[str, str] = field(default_factory=dict)  # extra variables for every service
+    # A name that keeps this stack's Redis keys and job queue apart from other stacks sharing the Redis
+    # (tests): REDIS_PREFIX=<namespace>:emulator / :controller, QUEUE_NAME=<namespace>-controller.
+    namespace: str | None = None
 
     @classmethod
     def from_env(cls) -> StackConfig:
@@ -182,11 +185,19 @@ class Stack:
         u = self.urls
         origins = f"{u['web']},http://localhost:{c.web_port}"
         common = {"HOST": c.host, "REDIS_URL": self.redis_url, "ARTIFACTS_DIR": str(c.artifacts_dir)}
+        emulator_ns: dict[str, str] = {}
+        controller_ns: dict[str, str] = {}
+        if c.namespace:
+            emulator_ns = {"REDIS_PREFIX": f"{c.namespace}:emulator"}
+            controller_ns = {
+                "REDIS_PREFIX": f"{c.namespace}:controller",
+                "QUEUE_NAME": f"{c.namespace}-controller",
+            }
         plan = [
             self._service(
                 "emulator",
                 "services.emulator",
-                {**common, "PORT": str(c.emulator_port), "CORS_ORIGINS": origins},
+                {**common, **emulator_ns, "PORT": str(c.emulator_port), "CORS_ORIGINS": origins},
                 f"{u['emulator']}/readyz",
             )
         ]
@@ -195,11 +206,13 @@ class Stack:
                 self._service(
                     "controller",
                     "services.controller",
-                    {**common, "PORT": str(c.controller_port), "CORS_ORIGINS": origins},
+                    {**common, **controller_ns, "PORT": str(c.controller_port), "CORS_ORIGINS": origins},
                     f"{u['controller']}/readyz",
                 )
             )
-            plan.append(self._service("worker", "services.controller.worker", common, None))
+            plan.append(
+                self._service("worker", "services.controller.worker", {**common, **controller_ns}, None)
+            )
         plan.append(
             self._service(
                 "web",

@@ -133,7 +133,7 @@ export const controllersPage: Page = (root, ctx) => {
         handles: targetHandles(detail.layout),
         target,
         model: new ModelView(geometry),
-        goal: new ModelView(geometry, { ghost: true, color: 0x66ff99, opacity: 0.35 }),
+        goal: new ModelView(geometry, { ghost: true, color: 0x7dffb0, opacity: 0.5 }),
       };
       if (!alive || taskSelect.value !== name) return;
       scene = s;
@@ -170,6 +170,19 @@ export const controllersPage: Page = (root, ctx) => {
     void poseGoal();
   }) : () => undefined;
 
+  // where the goal is on screen (for people's tests and automated ones alike): data-goal="x,y" in pixels
+  let lastMark = 0;
+  const stopMark = viewer
+    ? viewer.onBeforeRender((now) => {
+        const root = scene?.goal.bodies[0];
+        if (!root || now - lastMark < 250) return;
+        lastMark = now;
+        const p = root.getWorldPosition(new THREE.Vector3()).project(viewer.camera);
+        const r = viewer.renderer.domElement.getBoundingClientRect();
+        viewHost.dataset.goal = `${(((p.x + 1) / 2) * r.width).toFixed(0)},${(((1 - p.y) / 2) * r.height).toFixed(0)}`;
+      })
+    : () => undefined;
+
   // ---------------------------------------------------------------- the job
   const stopJob = (): void => {
     if (!job) return;
@@ -187,6 +200,7 @@ export const controllersPage: Page = (root, ctx) => {
       { name: 'best', xs: pts.map((p) => p.iteration), ys: pts.map((p) => p.best_objective ?? NaN), color: '#aed581' },
     ]);
     plot.svg.dataset.points = String(pts.length);
+    plot.svg.dataset.objectives = JSON.stringify(pts.map((p) => p.objective ?? null));
   };
 
   const finish = async (status: JobStatus): Promise<void> => {
@@ -332,6 +346,7 @@ export const controllersPage: Page = (root, ctx) => {
     alive = false;
     stopJob();
     drag();
+    stopMark();
     replay?.dispose();
     scene?.model.dispose();
     scene?.goal.dispose();

@@ -108,7 +108,7 @@ export class Replay {
       const view = new ModelView(this.geometry);
       viewer.world.add(view.group);
       if (pt) {
-        const goal = new ModelView(this.geometry, { ghost: true, color: 0x66ff99, opacity: 0.3 });
+        const goal = new ModelView(this.geometry, { ghost: true, color: 0x7dffb0, opacity: 0.5 });
         goal.setPoses(pt.poses[0] ?? []);
         viewer.world.add(goal.group);
       }

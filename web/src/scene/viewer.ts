@@ -42,7 +42,7 @@ export class Viewer {
     const sun = new THREE.DirectionalLight(0xffffff, 1.8);
     sun.position.set(5, 12, 7);
     this.scene.add(sun);
-    this.grid = new THREE.GridHelper(200, 200, 0x4a5866, 0x27303a);
+    this.grid = new THREE.GridHelper(2000, 1000, 0x4a5866, 0x27303a);
     this.grid.rotation.x = Math.PI / 2; // into MuJoCo's xy plane
     this.world.add(this.grid);
     this.controls = new OrbitControls(this.camera, renderer.domElement);
@@ -65,7 +65,8 @@ export class Viewer {
     const c = this.toScene(center[0] ?? 0, center[1] ?? 0, center[2] ?? 0);
     const r = Math.max(radius, 0.5);
     this.controls.target.copy(c);
-    this.camera.position.copy(c).add(new THREE.Vector3(1.1, 0.75, 1.5).normalize().multiplyScalar(r * 3.2));
+    this.camera.position.copy(c).add(new THREE.Vector3(1.0, 1.2, 1.6).normalize().multiplyScalar(r * 3.2));
+    this.scene.fog = new THREE.Fog(0x11161d, r * 6, r * 40); // the ground fades out instead of ending
     this.camera.near = r / 100;
     this.camera.far = r * 400;
     this.camera.updateProjectionMatrix();

@@ -30,6 +30,7 @@ export function append(el: Element, ...children: Child[]): void {
 export function fmt(v: number | null | undefined, digits = 3): string {
   if (v === null || v === undefined || !Number.isFinite(v)) return '–';
   const a = Math.abs(v);
+  if (Number.isInteger(v) && a < 1e6) return String(v);
   if (a !== 0 && (a < 1e-3 || a >= 1e6)) return v.toExponential(digits - 1);
   return Number(v.toPrecision(digits)).toString();
 }
