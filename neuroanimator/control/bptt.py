@@ -1,0 +1,130 @@
+"""Backpropagation through time (thesis 5.3-5.4): the objective and its gradient with respect to
+the control points, by autograd through the unrolled torch emulator.
+
+The emulator is the artifact's own weights in the form of its ONNX graph: the structured
+emulator's transforms around the core with the normalisation folded into the first and last
+layers (``export.fold_normalization``), which is the exported step and about twice as fast as the
+unfolded module on a batch of one. Its weights are frozen: only the controls get gradients.
+
+Controls are optimised in *normalised* units: ``u = c + h·z`` with ``c`` and ``h`` the centre and
+half-width of each control's useful range, so one learning rate suits a 0..32 N main jet and a
+±1 attitude jet alike, and ``z = 0`` is the middle of the range. Limits are enforced by projection:
+after every update the points are clipped to the actuators' hard limits (``ctrlrange``), and the
+held values, which a Catmull-Rom curve can overshoot between points, are clamped to them too,
+exactly as MuJoCo clamps a limited actuator's control.
+
+Shapes: B batch of controllers, M points per control, U controls, K super-steps, S state.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from torch import Tensor, nn
+
+from neuroanimator.control.objectives import Objective, control_scale
+from neuroanimator.control.splines import ControlSpline
+from neuroanimator.control.tasks import num_points
+from neuroanimator.export import fold_normalization
+from neuroanimator.structured import StructuredEmulator
+
+FloatArray = NDArray[np.float64]
+
+
+class FastStep(nn.Module):
+    """One emulator super-step, ``(state (B,S), controls (B,U)) -> (B,S)``: the exported graph's form."""
+
+    def __init__(self, emu: StructuredEmulator) -> None:
+        super().__init__()
+        self.emu = emu
+        self.core = fold_normalization(emu)
+        self.requires_grad_(False)
+        self.num_forces = emu.num_forces
+
+    def forward(self, state: Tensor, controls: Tensor) -> Tensor:
+        emu = self.emu
+        forces = torch.zeros(state.shape[0], self.num_forces, dtype=state.dtype) if self.num_forces else None
+        frame = emu.heading(state)  # once per step, shared by T'_x and T'_y
+        cols = emu.local_inputs(state, controls, forces, frame, place=False)
+        return emu.apply_delta(state, self.core(cols), frame)
+
+
+class ControlProblem:
+    """A job's objective as a function of its normalised control points ``z`` (M, U).
+
+    ``value_and_grad(z)`` runs the emulator forward over the horizon and back, returning J, ∇_z J and
+    the trajectory; ``evaluate(z)`` scores a batch (B, M, U) without gradients.
+    """
+
+    def __init__(self, emu: StructuredEmulator, spec: dict[str, Any], manifest: dict[str, Any]) -> None:
+        self.spec = spec
+        self.step = FastStep(emu)
+        self.horizon = int(spec["horizon"])
+        self.super_dt = float(manifest["super_timestep"])
+        self.num_controls = len(manifest["controls"])
+        self.num_points = num_points(self.horizon, float(spec["points_per_step"]))
+        self.spline = ControlSpline(self.horizon, self.num_points, self.super_dt)
+        useful = np.array([[c["low"], c["high"]] for c in manifest["controls"]], dtype=np.float64)  # (U, 2)
+        limits = np.array([[c["limit_low"], c["limit_high"]] for c in manifest["controls"]], dtype=np.float64)
+        self.centre = 0.5 * (useful[:, 0] + useful[:, 1])
+        self.half = np.maximum(0.5 * (useful[:, 1] - useful[:, 0]), 1e-9)
+        self.limits = limits
+        self.z_low = (limits[:, 0] - self.centre) / self.half  # (U,) ±inf where unlimited
+        self.z_high = (limits[:, 1] - self.centre) / self.half
+        self._centre = torch.tensor(self.centre, dtype=torch.float32)
+        self._half = torch.tensor(self.half, dtype=torch.float32)
+        self._low = torch.tensor(limits[:, 0], dtype=torch.float32)
+        self._high = torch.tensor(limits[:, 1], dtype=torch.float32)
+        self.objective = Objective(spec, manifest["layout"], control_scale(useful))
+        self.s0 = torch.tensor(spec["initial_state"], dtype=torch.float32)
+
+    # ------------------------------------------------------------------ parametrisation
+    def initial_points(self) -> FloatArray:
+        """(M, U) normalised points of the job's constant initial controls."""
+        u0 = np.asarray(self.spec["initial_controls"], dtype=np.float64)
+        z = np.repeat(((u0 - self.centre) / self.half)[None, :], self.num_points, axis=0)
+        return self.project(z)
+
+    def project(self, z: FloatArray) -> FloatArray:
+        """Clip normalised points (..., M, U) to the hard control limits."""
+        return np.clip(z, self.z_low, self.z_high)
+
+    def to_physical(self, z: FloatArray) -> FloatArray:
+        """Control points in the controls' own units, (..., M, U)."""
+        return self.centre + self.half * np.asarray(z, dtype=np.float64)
+
+    def held(self, z: Tensor) -> Tensor:
+        """Held physical controls (B, K, U) of normalised points (B, M, U), clamped to the limits."""
+        u = self._centre + self._half * self.spline.held(z)
+        return torch.maximum(torch.minimum(u, self._high), self._low)
+
+    # ------------------------------------------------------------------ rollout and objective
+    def rollout(self, z: Tensor) -> tuple[Tensor, Tensor]:
+        """Normalised points (B, M, U) -> states (B, K+1, S) from the initial state, held controls (B, K, U)."""
+        u = self.held(z)
+        s = self.s0.expand(z.shape[0], -1)
+        states = [s]
+        for k in range(self.horizon):
+            s = self.step(s, u[:, k])
+            states.append(s)
+        return torch.stack(states, dim=1), u
+
+    def value_and_grad(self, z: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
+        """J, ∇_z J (M, U), states (K+1, S) and held controls (K, U) of one controller ``z`` (M, U)."""
+        zt = torch.tensor(np.asarray(z)[None], dtype=torch.float32, requires_grad=True)
+        states, u = self.rollout(zt)
+        j = self.objective(states.double(), u.double())[0]
+        j.backward()
+        assert zt.grad is not None
+        grad = zt.grad[0].double().numpy()
+        return float(j.detach()), grad, states[0].detach().double().numpy(), u[0].detach().double().numpy()
+
+    @torch.no_grad()
+    def evaluate(self, z: FloatArray) -> FloatArray:
+        """J of a batch of controllers (B, M, U) on the emulator, (B,)."""
+        zt = torch.as_tensor(np.asarray(z), dtype=torch.float32)
+        states, u = self.rollout(zt)
+        return self.objective(states.double(), u.double()).numpy()

@@ -1,0 +1,301 @@
+"""Job specs: ``validate_job`` checks one and fills in its defaults, without importing torch.
+
+An API process calls it on every submission, so it reads only numpy and the artifact manifests
+(``<root>/<model>/<version>/manifest.json``, found through the ``latest``/``latest-n<N>`` pointer
+files exactly as ``neuroanimator.artifacts.resolve`` does; that module imports torch). The
+normalised spec it returns is itself a valid spec, so validating twice changes nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from neuroanimator.control import criteria
+from neuroanimator.control.errors import JobSpecError
+from neuroanimator.control.tasks import TASKS, Task
+from neuroanimator.control.terms import normalize_terms, vector
+
+MAX_HORIZON = 1000
+MAX_ITERATIONS = 10_000
+MAX_LEARNING_RATE = 100.0
+SPEC_KEYS = frozenset(
+    {
+        "task",
+        "model",
+        "version",
+        "substeps",
+        "initial_state",
+        "target_state",
+        "state_weights",
+        "horizon",
+        "points_per_step",
+        "mu_u",
+        "mu_s",
+        "terms",
+        "optimizer",
+        "initial_controls",
+        "success",
+    }
+)
+OPTIMIZER_KEYS = frozenset(
+    {
+        "learning_rate",
+        "momentum",
+        "max_iterations",
+        "tolerance",
+        "stop_on_success",
+        "line_search",
+        "polish_iterations",
+    }
+)
+# Defaults of a job that names a model but no task.
+DEFAULT_OPTIMIZER: dict[str, Any] = {
+    "learning_rate": 1.0,
+    "momentum": 0.5,
+    "max_iterations": 100,
+    "tolerance": 1e-6,
+    "stop_on_success": True,
+    "line_search": True,
+    "polish_iterations": 5,
+}
+DEFAULT_HORIZON = 40
+DEFAULT_POINTS_PER_STEP = 1.0
+DEFAULT_MU_U = 1e-4
+DEFAULT_MU_S = 1.0
+
+
+def _artifact_names(root: Path) -> list[str]:
+    if not root.is_dir():
+        return []
+    return sorted(p.name for p in root.iterdir() if p.is_dir() and (p / "latest").is_file())
+
+
+def find_artifact(
+    root: Path, model: str, version: str | None, substeps: int | None
+) -> tuple[Path, dict[str, Any]]:
+    """The version folder and manifest of a model (torch-free ``artifacts.resolve`` + ``load_manifest``)."""
+    model_dir = root / model
+    if not isinstance(model, str) or not model or "/" in model or not model_dir.is_dir():
+        raise JobSpecError("model", f"unknown model {model!r}; trained models are {_artifact_names(root)}")
+    if version is None:
+        pointer = model_dir / ("latest" if substeps is None else f"latest-n{substeps}")
+        if not pointer.is_file():
+            have = sorted(int(p.name[8:]) for p in model_dir.glob("latest-n*") if p.name[8:].isdigit())
+            raise JobSpecError(
+                "substeps", f"model {model!r} has no emulator for substeps={substeps}; it has {have}"
+            )
+        version = pointer.read_text().strip()
+    path = model_dir / version
+    if "/" in version or not (path / "manifest.json").is_file():
+        versions = sorted(p.parent.name for p in model_dir.glob("*/manifest.json"))
+        raise JobSpecError("version", f"model {model!r} has no version {version!r}; it has {versions}")
+    try:
+        manifest: dict[str, Any] = json.loads((path / "manifest.json").read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise JobSpecError("version", f"cannot read the manifest of {model}/{version}: {exc}") from exc
+    if substeps is not None and int(manifest["substeps"]) != substeps:
+        raise JobSpecError(
+            "substeps",
+            f"version {version!r} of {model!r} has substeps={manifest['substeps']}, got {substeps}",
+        )
+    return path, manifest
+
+
+def _int(field: str, value: Any, low: int, high: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | float) or value != int(value):
+        raise JobSpecError(field, f"expected an integer in [{low}, {high}], got {value!r}")
+    if not low <= int(value) <= high:
+        raise JobSpecError(field, f"expected an integer in [{low}, {high}], got {value!r}")
+    return int(value)
+
+
+def _float(
+    field: str, value: Any, *, low: float, high: float, low_open: bool = False, high_open: bool = False
+) -> float:
+    lo_s = "(" if low_open else "["
+    hi_s = ")" if high_open else "]"
+    expected = f"a number in {lo_s}{low:g}, {high:g}{hi_s}"
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise JobSpecError(field, f"expected {expected}, got {value!r}")
+    v = float(value)
+    if v < low or v > high or (low_open and v == low) or (high_open and v == high):
+        raise JobSpecError(field, f"expected {expected}, got {value!r}")
+    return v
+
+
+def _state(field: str, value: Any, layout: list[dict[str, Any]], size: int, model: str) -> list[float]:
+    """A state of the model's size, finite, with every quaternion group normalised."""
+    out = vector(field, value, size, f"state values for model {model}")
+    for g in layout:
+        if g["kind"] in ("quaternion", "local_quaternion"):
+            a = int(g["offset"])
+            q = np.asarray(out[a : a + 4])
+            n = float(np.linalg.norm(q))
+            if n < 1e-6:
+                raise JobSpecError(
+                    field, f"quaternion {g['name']} (values {a}..{a + 3}) must be non-zero, got {q.tolist()}"
+                )
+            out[a : a + 4] = (q / n).tolist()
+    return out
+
+
+def default_state(layout: list[dict[str, Any]], size: int) -> list[float]:
+    """Zeros with identity quaternions: the state a job without a task starts from by default."""
+    s = [0.0] * size
+    for g in layout:
+        if g["kind"] in ("quaternion", "local_quaternion"):
+            s[int(g["offset"])] = 1.0
+    return s
+
+
+def validate_job(spec: dict[str, Any], artifacts_root: Path) -> dict[str, Any]:
+    """Check a job spec and return it normalised, every default filled in (task defaults first).
+
+    Raises ``JobSpecError(field, message)`` naming the field, the expected and the got, for an
+    unknown task, model, version or term, a state of the wrong length or not finite, a horizon
+    outside [1, 1000], max_iterations outside [1, 10000], learning_rate outside (0, 100], momentum
+    outside [0, 1), and the like. Imports neither torch nor MuJoCo.
+    """
+    if not isinstance(spec, dict):
+        raise JobSpecError("spec", f"expected an object, got {type(spec).__name__}")
+    unknown = sorted(set(spec) - SPEC_KEYS)
+    if unknown:
+        raise JobSpecError(unknown[0], f"unknown key; a job takes {sorted(SPEC_KEYS)}, got {unknown}")
+    task: Task | None = None
+    if spec.get("task") is not None:
+        name = spec["task"]
+        if not isinstance(name, str) or name not in TASKS:
+            raise JobSpecError("task", f"unknown task {name!r}; known tasks are {sorted(TASKS)}")
+        task = TASKS[name]
+    model = spec.get("model")
+    if model is None:
+        if task is None:
+            raise JobSpecError("task", "expected a task or a model, got neither")
+        model = task.model
+    if not isinstance(model, str):
+        raise JobSpecError("model", f"expected a model name, got {model!r}")
+    if task is not None and model != task.model:
+        raise JobSpecError("model", f"task {task.name!r} runs on model {task.model!r}, got {model!r}")
+    version = spec.get("version")
+    if version is not None and not isinstance(version, str):
+        raise JobSpecError("version", f"expected a version name, got {version!r}")
+    substeps = spec.get("substeps", task.substeps if task and version is None else None)
+    if substeps is not None:
+        substeps = _int("substeps", substeps, 1, 100_000)
+    _, manifest = find_artifact(Path(artifacts_root), model, version, substeps)
+    layout: list[dict[str, Any]] = manifest["layout"]
+    labels: list[str] = manifest["state_labels"]
+    size = len(labels)
+    super_dt = float(manifest["super_timestep"])
+    controls = manifest["controls"]
+    if not controls:
+        raise JobSpecError("model", f"model {model!r} has no controls: there is nothing to synthesise")
+
+    initial = _state(
+        "initial_state",
+        spec.get("initial_state", list(task.initial_state) if task else default_state(layout, size)),
+        layout,
+        size,
+        model,
+    )
+    target = _state(
+        "target_state",
+        spec.get("target_state", list(task.target_state) if task else initial),
+        layout,
+        size,
+        model,
+    )
+    weights = vector(
+        "state_weights", spec.get("state_weights", list(task.state_weights) if task else [1.0] * size), size
+    )
+    if any(w < 0 for w in weights):
+        raise JobSpecError("state_weights", f"expected {size} weights >= 0, got {weights}")
+    horizon = _int("horizon", spec.get("horizon", task.horizon if task else DEFAULT_HORIZON), 1, MAX_HORIZON)
+    pps = _float(
+        "points_per_step",
+        spec.get("points_per_step", task.points_per_step if task else DEFAULT_POINTS_PER_STEP),
+        low=0.0,
+        high=1.0,
+        low_open=True,
+    )
+    mu_u = _float("mu_u", spec.get("mu_u", task.mu_u if task else DEFAULT_MU_U), low=0.0, high=1e12)
+    mu_s = _float("mu_s", spec.get("mu_s", task.mu_s if task else DEFAULT_MU_S), low=0.0, high=1e12)
+    terms = normalize_terms(
+        spec.get("terms", [dict(t) for t in task.terms] if task else []),
+        labels=labels,
+        layout=layout,
+        target=target,
+        weights=weights,
+        horizon=horizon,
+        super_dt=super_dt,
+    )
+    if mu_u == 0 and mu_s == 0 and not terms:
+        raise JobSpecError("terms", "the objective is empty: mu_u = mu_s = 0 and no terms")
+
+    lim = np.array([[c["limit_low"], c["limit_high"]] for c in controls], dtype=np.float64)
+    u0 = vector(
+        "initial_controls",
+        spec.get(
+            "initial_controls",
+            list(task.initial_controls) if task else np.clip(0.0, lim[:, 0], lim[:, 1]).tolist(),
+        ),
+        len(controls),
+        f"control values for model {model}",
+    )
+    for i, (v, (lo, hi)) in enumerate(zip(u0, lim, strict=True)):
+        if not lo <= v <= hi:
+            raise JobSpecError(
+                "initial_controls",
+                f"control {controls[i]['name']} must lie in its limits [{lo:g}, {hi:g}], got {v:g}",
+            )
+
+    success = spec.get("success", [dict(c) for c in task.success] if task else [])
+    problems = criteria.validate_checks(success, labels)
+    if problems:
+        raise JobSpecError("success", problems[0])
+
+    opt_in = spec.get("optimizer", {})
+    if not isinstance(opt_in, dict):
+        raise JobSpecError("optimizer", f"expected an object, got {type(opt_in).__name__}")
+    bad = sorted(set(opt_in) - OPTIMIZER_KEYS)
+    if bad:
+        raise JobSpecError(
+            f"optimizer.{bad[0]}", f"unknown key; the optimizer takes {sorted(OPTIMIZER_KEYS)}"
+        )
+    opt = {**DEFAULT_OPTIMIZER, **(task.optimizer if task else {}), **opt_in}
+    for flag in ("stop_on_success", "line_search"):
+        if not isinstance(opt[flag], bool):
+            raise JobSpecError(f"optimizer.{flag}", f"expected true or false, got {opt[flag]!r}")
+    optimizer = {
+        "learning_rate": _float(
+            "optimizer.learning_rate", opt["learning_rate"], low=0.0, high=MAX_LEARNING_RATE, low_open=True
+        ),
+        "momentum": _float("optimizer.momentum", opt["momentum"], low=0.0, high=1.0, high_open=True),
+        "max_iterations": _int("optimizer.max_iterations", opt["max_iterations"], 1, MAX_ITERATIONS),
+        "tolerance": _float("optimizer.tolerance", opt["tolerance"], low=0.0, high=1.0),
+        "stop_on_success": opt["stop_on_success"],
+        "line_search": opt["line_search"],
+        "polish_iterations": _int("optimizer.polish_iterations", opt["polish_iterations"], 0, MAX_ITERATIONS),
+    }
+    return {
+        "task": task.name if task else None,
+        "model": model,
+        "version": manifest["version"],
+        "substeps": int(manifest["substeps"]),
+        "initial_state": initial,
+        "target_state": target,
+        "state_weights": weights,
+        "horizon": horizon,
+        "points_per_step": pps,
+        "mu_u": mu_u,
+        "mu_s": mu_s,
+        "terms": terms,
+        "initial_controls": u0,
+        "success": success,
+        "optimizer": optimizer,
+    }

@@ -1,0 +1,150 @@
+"""The control objective (thesis eqs. 5.2-5.3) and its library of trajectory terms, in torch.
+
+    J = μ_u/2 Σ_k Σ_i (u_ki / r_i)²  +  μ_s/2 ‖W (s_K − s_d)‖²  +  Σ_terms weight · term
+
+over held controls u (B, K, U) and the trajectory s (B, K+1, S) (s_0 is the initial state).
+``r_i`` is the largest magnitude of control i's useful range, so each control counts in units of
+its own range (a lander's 16 N·10 main jet and its ±1 attitude jets alike).
+
+The state distance ‖W (s − s_d)‖² respects what each variable is (from the layout):
+
+- hinge angles and a planar heading use 2(1 − cos Δ) (≈ Δ² near the goal), so a goal and the same
+  goal a full turn away are equally good and the error has no jump at ±π;
+- quaternions use 1 − ⟨q̂, q̂_d⟩² (≈ θ²/4 for a rotation θ, like the component difference near the
+  goal), which is the same for q and −q, the same orientation;
+- everything else the plain difference.
+
+Terms are named in a job (``terms.py`` has the catalogue and the validation); every function is
+batched over B so one call scores a whole population (the gradient-free baselines) and all of it
+is differentiable for backpropagation through time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+
+class StateDistance:
+    """``‖W (s − s_d)‖²`` for states (..., S), respecting angles and quaternions (see module doc)."""
+
+    def __init__(self, layout: Sequence[dict[str, Any]], size: int) -> None:
+        plain: list[int] = []
+        angles: list[int] = []
+        quats: list[int] = []
+        for g in layout:
+            a, n = int(g["offset"]), int(g["size"])
+            if g["kind"] in ("angle", "heading"):
+                angles.extend(range(a, a + n))
+            elif g["kind"] in ("quaternion", "local_quaternion"):
+                quats.append(a)
+            else:
+                plain.extend(range(a, a + n))
+        self.size = size
+        self.plain = torch.tensor(plain, dtype=torch.long)
+        self.angles = torch.tensor(angles, dtype=torch.long)
+        self.quats = torch.tensor([[a + i for i in range(4)] for a in quats], dtype=torch.long).reshape(-1, 4)
+
+    def __call__(self, states: Tensor, target: Tensor, weights: Tensor) -> Tensor:
+        """states (..., S), target (S,), weights (S,) -> (...,) squared weighted distance."""
+        w2 = weights.to(states.dtype) ** 2
+        tgt = target.to(states.dtype)
+        total = torch.zeros(states.shape[:-1], dtype=states.dtype)
+        if self.plain.numel():
+            d = states[..., self.plain] - tgt[self.plain]
+            total = total + (w2[self.plain] * d * d).sum(-1)
+        if self.angles.numel():
+            d = states[..., self.angles] - tgt[self.angles]
+            total = total + (w2[self.angles] * 2.0 * (1.0 - torch.cos(d))).sum(-1)
+        if self.quats.numel():
+            q = states[..., self.quats]  # (..., G, 4)
+            qd = tgt[self.quats]  # (G, 4)
+            qd = qd / qd.norm(dim=-1, keepdim=True)
+            dot = (q * qd).sum(-1) / torch.sqrt((q * q).sum(-1) + 1e-12)
+            wq = w2[self.quats].mean(-1)  # (G,): one weight per orientation
+            total = total + (wq * (1.0 - dot * dot)).sum(-1)
+        return total
+
+
+class Objective:
+    """J of a normalised job spec; ``objective(states (B,K+1,S), controls (B,K,U)) -> (B,)``."""
+
+    def __init__(
+        self,
+        spec: dict[str, Any],
+        layout: Sequence[dict[str, Any]],
+        control_scale: Sequence[float] | np.ndarray,
+    ) -> None:
+        size = len(spec["target_state"])
+        self.distance = StateDistance(layout, size)
+        self.mu_u = float(spec["mu_u"])
+        self.mu_s = float(spec["mu_s"])
+        self.target = torch.tensor(spec["target_state"], dtype=torch.float64)
+        self.weights = torch.tensor(spec["state_weights"], dtype=torch.float64)
+        scale = np.asarray(control_scale, dtype=np.float64)
+        self.inv_scale = torch.from_numpy(1.0 / np.where(scale > 0, scale, 1.0))  # (U,)
+        self.terms = [dict(t) for t in spec["terms"]]
+        for t in self.terms:  # tensors once, not per call
+            for key in ("target", "weights", "direction"):
+                if key in t:
+                    t[key] = torch.tensor(t[key], dtype=torch.float64)
+            for wp in t.get("waypoints", []):
+                wp["target"] = torch.tensor(wp["target"], dtype=torch.float64)
+
+    def parts(self, states: Tensor, controls: Tensor) -> dict[str, Tensor]:
+        """Each weighted part of J, (B,) each: ``effort``, ``final`` and ``<i>:<term>`` per extra term."""
+        dt = states.dtype
+        u = controls * self.inv_scale.to(dt)
+        out: dict[str, Tensor] = {}
+        out["effort"] = 0.5 * self.mu_u * (u * u).sum(dim=(-1, -2))
+        out["final"] = 0.5 * self.mu_s * self.distance(states[..., -1, :], self.target, self.weights)
+        for i, t in enumerate(self.terms):
+            out[f"{i}:{t['term']}"] = float(t["weight"]) * self._term(t, states, u)
+        return out
+
+    def __call__(self, states: Tensor, controls: Tensor) -> Tensor:
+        parts = self.parts(states, controls)
+        return torch.stack(list(parts.values()), dim=0).sum(dim=0)
+
+    def _term(self, t: dict[str, Any], states: Tensor, u: Tensor) -> Tensor:
+        """One unweighted term, (B,); ``u`` is already in units of each control's range."""
+        name = t["term"]
+        dt = states.dtype
+        if name == "final_state":
+            return 0.5 * self.distance(states[..., -1, :], t["target"], t["weights"])
+        if name == "control_effort":
+            return 0.5 * (u * u).sum(dim=(-1, -2))
+        if name == "control_smoothness":
+            du = u[..., 1:, :] - u[..., :-1, :]
+            return 0.5 * (du * du).sum(dim=(-1, -2))
+        if name == "final_velocity":
+            v = states[..., -1, t["variables"]]
+            return 0.5 * (v * v).sum(-1)
+        if name == "forward_distance":
+            idx = t["variables"]
+            moved = states[..., -1, idx] - states[..., 0, idx]
+            return -(moved * t["direction"].to(dt)).sum(-1)
+        if name == "stay_within_bounds":
+            x = states[..., 1:, t["variable"]]  # s_0 is given: only the controlled states count
+            pen = torch.zeros_like(x)
+            if t["low"] is not None:
+                pen = pen + torch.clamp(t["low"] - x, min=0.0) ** 2
+            if t["high"] is not None:
+                pen = pen + torch.clamp(x - t["high"], min=0.0) ** 2
+            return 0.5 * pen.sum(-1)
+        if name == "path_target":
+            total = torch.zeros(states.shape[:-2], dtype=dt)
+            for wp in t["waypoints"]:
+                total = total + self.distance(states[..., wp["step"], :], wp["target"], t["weights"])
+            return 0.5 * total
+        raise ValueError(f"unknown term {name!r}")  # validated before: a programming error
+
+
+def control_scale(limits_or_range: np.ndarray) -> np.ndarray:
+    """(U,) the largest magnitude of each control's (U, 2) range: the unit its effort is counted in."""
+    r = np.abs(np.asarray(limits_or_range, dtype=np.float64)).max(axis=1)
+    return np.where(np.isfinite(r) & (r > 0), r, 1.0)

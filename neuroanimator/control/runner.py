@@ -1,0 +1,182 @@
+"""``run_job``: one control-synthesis job from spec to replayed result (what a job worker calls).
+
+validate the spec → load the artifact's torch emulator and its MJCF → optimise the controller on
+the emulator (``synthesis.optimize``) → replay it on MuJoCo → a JSON-able result. PyTorch is
+imported here, never by ``validate_job``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from neuroanimator import artifacts
+from neuroanimator.control import criteria
+from neuroanimator.control.bptt import ControlProblem
+from neuroanimator.control.jobs import validate_job
+from neuroanimator.control.replay import Replay, final_error, simulate_held
+from neuroanimator.control.synthesis import Settings, clean, elapsed, optimize
+
+log = logging.getLogger(__name__)
+
+STATUS = {
+    "success": "succeeded",
+    "converged": "succeeded",
+    "stalled": "succeeded",
+    "max_iterations": "succeeded",
+    "diverged": "failed",
+    "cancelled": "cancelled",
+}
+
+
+def load_problem(spec: dict[str, Any], artifacts_root: Path) -> tuple[ControlProblem, dict[str, Any], Path]:
+    """The emulator objective of a *normalised* spec, the artifact's manifest and its folder."""
+    path = artifacts.resolve(Path(artifacts_root), spec["model"], spec["version"])
+    manifest = artifacts.load_manifest(path)
+    return ControlProblem(artifacts.load_torch(path), spec, manifest), manifest, path
+
+
+def run_job(
+    spec: dict[str, Any],
+    artifacts_root: Path,
+    on_progress: Callable[[dict[str, Any]], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+    threads: int = 1,
+) -> dict[str, Any]:
+    """Synthesise a controller for a job spec and replay it on MuJoCo; returns a JSON-able result.
+
+    ``spec`` is validated first (``JobSpecError`` for a bad one). ``on_progress`` receives
+    ``{"iteration", "objective", "best_objective", "success_emulator", "elapsed_s"}`` for the
+    initial controller (iteration 0) and after every update; ``should_stop()`` returning True
+    cancels the run at the next iteration. ``threads`` is PyTorch's intra-op thread count for the
+    duration of the job.
+
+    ``status`` is ``"succeeded"`` when the optimisation ended normally (criterion met, converged,
+    or the iteration cap; ``success_emulator`` says whether the criterion was met), ``"failed"``
+    when it diverged (``reason`` says where; the best finite controller is returned) and
+    ``"cancelled"``. See the README of the package (``neuroanimator/control/__init__.py``) for keys.
+    """
+    t0 = time.perf_counter()
+    spec = validate_job(spec, Path(artifacts_root))
+    previous_threads = torch.get_num_threads()
+    torch.set_num_threads(max(1, int(threads)))
+    try:
+        return _run(spec, Path(artifacts_root), on_progress, should_stop, t0)
+    finally:
+        torch.set_num_threads(previous_threads)
+
+
+def _run(
+    spec: dict[str, Any],
+    root: Path,
+    on_progress: Callable[[dict[str, Any]], None] | None,
+    should_stop: Callable[[], bool] | None,
+    t0: float,
+) -> dict[str, Any]:
+    problem, manifest, path = load_problem(spec, root)
+    physical = artifacts.load_physical_model(path)
+    labels: list[str] = manifest["state_labels"]
+    layout = manifest["layout"]
+    target = np.asarray(spec["target_state"], dtype=np.float64)
+
+    def is_success(extra: tuple[np.ndarray, np.ndarray]) -> bool:
+        states = extra[0]
+        return bool(spec["success"]) and criteria.evaluate(spec["success"], states[-1], target, labels)[0]
+
+    def value_and_grad(z: np.ndarray) -> tuple[float, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        j, g, states, held = problem.value_and_grad(z)
+        return j, g, (states, held)
+
+    def report(iteration: int, j: float, best: float, ok: bool) -> None:
+        log.debug("iteration %d: J=%.6g best=%.6g success=%s", iteration, j, best, ok)
+        if on_progress is not None:
+            on_progress(
+                {
+                    "iteration": iteration,
+                    "objective": clean(j),
+                    "best_objective": clean(best),
+                    "success_emulator": ok,
+                    "elapsed_s": elapsed(t0),
+                }
+            )
+
+    settings = Settings.from_spec(spec["optimizer"])
+    outcome = optimize(
+        value_and_grad,
+        problem.initial_points(),
+        settings,
+        project=problem.project,
+        evaluate=problem.evaluate,
+        is_success=is_success,
+        on_iteration=report,
+        should_stop=should_stop,
+    )
+    emulated, held = outcome.extra
+    s0 = np.asarray(spec["initial_state"], dtype=np.float64)
+    phys_states = simulate_held(physical, s0[None], held[None], int(spec["substeps"]))[0]
+    emu = Replay.of(emulated, spec, layout, labels)
+    phys = Replay.of(phys_states, spec, layout, labels)
+    # how far the physics ends from where the emulator said it would, in the goal's own metric
+    transfer, _ = final_error(phys_states[-1], emulated[-1].tolist(), spec["state_weights"], layout)
+    with torch.no_grad():
+        j_phys = float(
+            problem.objective(torch.from_numpy(phys_states[None]), torch.from_numpy(held[None]))[0]
+        )
+    status = STATUS[outcome.stop]
+    result = {
+        "status": status,
+        "reason": outcome.reason,
+        "stop": outcome.stop,
+        "task": spec["task"],
+        "model": spec["model"],
+        "version": spec["version"],
+        "substeps": spec["substeps"],
+        "iterations": outcome.iterations,
+        "iterations_to_success": outcome.iterations_to_success,
+        "emulator_rollouts": outcome.rollouts,
+        "objective": outcome.objective,
+        "objective_physics": j_phys,
+        "objective_history": outcome.history,
+        "control_names": [c["name"] for c in manifest["controls"]],
+        "control_points": problem.to_physical(outcome.z),
+        "control_spacing_s": problem.spline.spacing,
+        "super_timestep": problem.super_dt,
+        "times": problem.spline.times(),
+        "controls": held,
+        "emulated": {"states": emulated},
+        "physical": {"states": phys_states},
+        "final_error_emulator": emu.final_error,
+        "final_error_physics": phys.final_error,
+        "final_errors_emulator": emu.final_errors,
+        "final_errors_physics": phys.final_errors,
+        "transfer_error": transfer,
+        "success_criterion": criteria.describe(spec["success"], spec["target_state"], labels),
+        "success_emulator": emu.success,
+        "success_physics": phys.success,
+        "checks_emulator": emu.checks,
+        "checks_physics": phys.checks,
+        "target_state": spec["target_state"],
+        "initial_state": spec["initial_state"],
+        "state_labels": labels,
+        "spec": spec,
+        "wall_s": elapsed(t0),
+    }
+    log.info(
+        "control job %s/%s: %s after %d iterations (J=%.4g), success emulator=%s physics=%s, %.2fs",
+        spec["task"] or "-",
+        spec["model"],
+        outcome.stop,
+        outcome.iterations,
+        outcome.objective,
+        emu.success,
+        phys.success,
+        result["wall_s"],
+    )
+    out: dict[str, Any] = clean(result)
+    return out
