@@ -46,7 +46,29 @@ def test_services(compose: dict[str, Any]) -> None:
     assert len(_emulators(compose)) >= 2
     assert services["trainer"]["profiles"] == ["train"]  # one-shot, not started by `up`
     assert services["trainer"]["command"][0] == "train"
-    assert not any("controller" in name or name == "web" for name in services)  # added with those services
+    assert "web" in services and "web" in services["proxy"]["depends_on"]
+
+
+def test_web_service_matches_its_settings(compose: dict[str, Any]) -> None:
+    from services.web.settings import Settings
+
+    web = compose["services"]["web"]
+    env = web["environment"]
+    known = {name.upper() for name in Settings.model_fields}
+    assert set(env) <= known, set(env) - known  # every variable is a setting of services.web
+    assert env["PORT"] == "8080" and env["HOST"] == "0.0.0.0"
+    assert env["EMULATOR_URL"] == "/api/emulator" and env["CONTROLLER_URL"] == "/api/controller"
+    assert any(v.split(":")[1] == env["ARTIFACTS_DIR"] for v in web["volumes"])
+    assert any(p.split(":")[-1] == "8080" for p in compose["services"]["proxy"]["ports"])
+
+
+def test_proxy_serves_the_dashboard_and_the_apis(compose: dict[str, Any]) -> None:
+    conf = (ROOT / "deploy" / "nginx" / "emulator.conf").read_text()
+    block = conf.split("listen 8080;")[1]
+    assert "proxy_pass http://web:8080;" in block
+    assert "location /api/emulator/" in block and "proxy_pass http://$emulator_upstream;" in block
+    assert "rewrite ^/api/emulator(/.*)$ $1 break;" in block  # the map then sees the emulator's own path
+    assert "location /api/controller/" in block and "proxy_buffering off;" in block  # server-sent events
 
 
 def test_replicas_have_distinct_ids_and_use_redis(compose: dict[str, Any]) -> None:
