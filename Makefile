@@ -68,3 +68,5 @@ clean:
 .PHONY: proto
 proto: install
 	$(BIN)/python -m services.emulator.export_proto
+	@if [ -d web/node_modules ]; then cd web && npm run --silent gen:api; \
+	else echo "web/node_modules missing: run make install-web, then make proto, to regenerate web/src/api"; fi

@@ -1,73 +1,27 @@
-// The controller service's REST calls and job events (its wire models: neuroanimator/controller_schemas.py).
+// The controller service's REST calls and job events (types generated from proto/schemas/controller).
 import { requestJson } from './http';
 
-export type JobState = 'queued' | 'running' | 'succeeded' | 'failed' | 'cancelled';
+import type {
+  JobAccepted,
+  JobCreate,
+  JobResult,
+  JobStatus,
+  ProgressEvent,
+  TaskInfo as TaskInfoWire,
+  TaskList,
+} from './controller.gen';
+
+export type { JobAccepted, JobCreate, JobResult, JobStatus, ProgressEvent };
+export type JobState = JobStatus['status'];
 export const FINAL_STATES: readonly JobState[] = ['succeeded', 'failed', 'cancelled'];
 
-export interface TaskInfo {
-  name: string;
+/** A built-in task: the wire model names only `name` (a task defines the rest); these are read here. */
+export interface TaskInfo extends TaskInfoWire {
   model?: string;
   description?: string;
   horizon?: number;
   initial_state?: number[];
   target_state?: number[];
-  [key: string]: unknown;
-}
-
-export interface JobCreate {
-  task: string;
-  target_state?: number[];
-  initial_state?: number[];
-  idempotency_key?: string;
-}
-
-export interface JobAccepted {
-  id: string;
-  status: JobState;
-}
-
-export interface JobStatus {
-  id: string;
-  status: JobState;
-  task?: string | null;
-  model?: string | null;
-  iteration: number;
-  max_iterations?: number | null;
-  objective_history: (number | null)[];
-  best_objective?: number | null;
-  error?: string | null;
-}
-
-export interface ProgressEvent {
-  iteration: number;
-  objective?: number | null;
-  best_objective?: number | null;
-  success_emulator?: boolean | null;
-  elapsed_s?: number | null;
-}
-
-export interface Trajectory {
-  states: (number | null)[][];
-}
-
-export interface JobResult {
-  id: string;
-  status: 'succeeded' | 'failed' | 'cancelled';
-  reason?: string | null;
-  model?: string | null;
-  version?: string | null;
-  times?: number[] | null;
-  controls?: unknown[] | null;
-  emulated?: Trajectory | null;
-  physical?: Trajectory | null;
-  final_error_emulator?: number | null;
-  final_error_physics?: number | null;
-  success_emulator?: boolean | null;
-  success_physics?: boolean | null;
-  target_state?: (number | null)[] | null;
-  initial_state?: (number | null)[] | null;
-  state_labels?: string[] | null;
-  iterations?: number | null;
 }
 
 export class ControllerApi {
@@ -78,8 +32,8 @@ export class ControllerApi {
   }
 
   async tasks(): Promise<TaskInfo[]> {
-    const r = await requestJson<{ tasks: TaskInfo[] } | TaskInfo[]>('controller', this.base, '/tasks');
-    return Array.isArray(r) ? r : r.tasks;
+    const r = await requestJson<TaskList>('controller', this.base, '/tasks');
+    return r.tasks as TaskInfo[];
   }
 
   submit(job: JobCreate): Promise<JobAccepted> {

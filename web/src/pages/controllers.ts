@@ -259,8 +259,9 @@ export const controllersPage: Page = (root, ctx) => {
     }
     if (st.status === 'running') {
       jobStatus.textContent = `Job ${j.id} is running: iteration ${st.iteration}${st.max_iterations ? ` of at most ${st.max_iterations}` : ''}, best objective ${fmt(st.best_objective)}.`;
-      if (st.objective_history.length > j.points.length) {
-        j.points = st.objective_history.map((o, i) => ({ iteration: i + 1, objective: o, best_objective: null }));
+      const history = st.objective_history ?? [];
+      if (history.length > j.points.length) {
+        j.points = history.map((o, i) => ({ iteration: i + 1, objective: o, best_objective: null }));
         let best = Infinity;
         for (const p of j.points) {
           if (p.objective !== null && p.objective !== undefined && p.objective < best) best = p.objective;

@@ -42,7 +42,7 @@ export class Viewer {
     const sun = new THREE.DirectionalLight(0xffffff, 1.8);
     sun.position.set(5, 12, 7);
     this.scene.add(sun);
-    this.grid = new THREE.GridHelper(2000, 1000, 0x4a5866, 0x27303a);
+    this.grid = new THREE.GridHelper(400, 200, 0x6b7c8f, 0x3b4755);
     this.grid.rotation.x = Math.PI / 2; // into MuJoCo's xy plane
     this.world.add(this.grid);
     this.controls = new OrbitControls(this.camera, renderer.domElement);
