@@ -64,7 +64,7 @@ bench: install
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache web/node_modules web/dist
 
-# Regenerate proto/ (JSON Schemas of the wire models, the emulator's OpenAPI document) from the code.
+# Regenerate proto/ (JSON Schemas of the wire models, the emulator's and the controller's OpenAPI documents).
 .PHONY: proto
 proto: install
 	$(BIN)/python -m services.emulator.export_proto

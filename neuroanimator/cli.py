@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -220,6 +221,19 @@ def cmd_models(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------- worker
+def cmd_worker(args: argparse.Namespace) -> int:
+    # This process has imported torch (through neuroanimator.artifacts), and a worker must not fork
+    # after torch started its thread pools: replace it with a fresh interpreter running the worker.
+    argv = [sys.executable, "-m", "services.controller.worker"]
+    argv += ["--burst"] if args.burst else []
+    argv += ["--name", args.name] if args.name else []
+    argv += ["--threads", str(args.threads)] if args.threads else []
+    argv += ["--max-jobs", str(args.max_jobs)] if args.max_jobs else []
+    os.execv(sys.executable, argv)
+    return 0  # not reached
+
+
 def _positive_int(text: str) -> int:
     value = int(text)
     if value < 1:
@@ -274,6 +288,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--repeats", type=_positive_int, default=3)
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
+
+    w = sub.add_parser("worker", help="run controller-synthesis jobs from the Redis queue (settings from env)")
+    w.add_argument("--burst", action="store_true", help="run the queued jobs, then exit")
+    w.add_argument("--name", help="the worker's name (default: host.pid.random)")
+    w.add_argument("--threads", type=_positive_int, help="torch threads per job (default: WORKER_THREADS, 1)")
+    w.add_argument("--max-jobs", type=_positive_int, help="exit after this many jobs")
+    w.set_defaults(func=cmd_worker)
 
     ls = sub.add_parser("models", help="the catalog and what is trained")
     ls.add_argument("--artifacts", default="artifacts")

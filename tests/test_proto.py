@@ -23,3 +23,23 @@ def test_proto_lists_every_wire_model() -> None:
     paths = export_proto.openapi()["paths"]
     body = paths["/step"]["post"]["requestBody"]["content"]
     assert {"application/json", "application/octet-stream"} <= set(body)
+
+
+def test_proto_has_the_controller_contract() -> None:
+    names = set(export_proto.controller_wire_schemas())
+    assert {
+        "JobCreate",
+        "JobAccepted",
+        "JobStatus",
+        "JobResult",
+        "TaskInfo",
+        "ProgressEvent",
+        "EndEvent",
+    } <= names
+    files = export_proto.render()
+    assert "schemas/controller/JobCreate.json" in files and "controller.openapi.json" in files
+    paths = export_proto.controller_openapi()["paths"]
+    assert {"/jobs", "/jobs/{job_id}", "/jobs/{job_id}/result", "/jobs/{job_id}/events", "/tasks"} <= set(
+        paths
+    )
+    assert "text/event-stream" in paths["/jobs/{job_id}/events"]["get"]["responses"]["200"]["content"]

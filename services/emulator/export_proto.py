@@ -1,6 +1,8 @@
 """Write the wire contract into ``proto/``: JSON Schemas of the models in ``neuroanimator.schemas``
 (``proto/schemas/<Name>.json``) and the emulator service's OpenAPI document
-(``proto/emulator.openapi.json``). ``proto/frames.md`` (the binary layouts) is written by hand.
+(``proto/emulator.openapi.json``); the controller service's models (``neuroanimator.controller_schemas``,
+``proto/schemas/controller/<Name>.json``) and OpenAPI document (``proto/controller.openapi.json``).
+``proto/frames.md`` (the binary layouts) is written by hand.
 
     python -m services.emulator.export_proto            # (re)write proto/
     python -m services.emulator.export_proto --check    # exit 1 and list the files that drifted
@@ -22,12 +24,13 @@ from typing import Any
 
 from pydantic import BaseModel, TypeAdapter
 
-from neuroanimator import schemas
+from neuroanimator import controller_schemas, schemas
 
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[2] / "proto"
 COMMAND = "python -m services.emulator.export_proto  (or: make proto)"
 UNIONS = ("ClientMessage", "ServerMessage")
+CONTROLLER = "schemas/controller"  # the controller's schemas, beside (not among) the emulator's
 
 
 def _dump(obj: Any) -> str:
@@ -48,6 +51,32 @@ def wire_schemas() -> dict[str, dict[str, Any]]:
     return dict(sorted(out.items()))
 
 
+def controller_wire_schemas() -> dict[str, dict[str, Any]]:
+    """Every pydantic model defined in ``neuroanimator.controller_schemas``."""
+    mod = controller_schemas
+    return {
+        name: obj.model_json_schema()
+        for name, obj in sorted(vars(mod).items())
+        if inspect.isclass(obj)
+        and obj.__module__ == mod.__name__
+        and not name.startswith("_")
+        and issubclass(obj, BaseModel)
+    }
+
+
+def controller_openapi() -> dict[str, Any]:
+    """The controller API's document (its Redis is not contacted: connections are lazy)."""
+    from services.controller.app import create_app
+    from services.controller.settings import Settings
+
+    with tempfile.TemporaryDirectory() as empty:
+        settings = Settings(
+            artifacts_dir=Path(empty), api_keys="", cors_origins="", redis_url="redis://127.0.0.1:1/0"
+        )
+        doc: dict[str, Any] = create_app(settings).openapi()
+    return doc
+
+
 def openapi() -> dict[str, Any]:
     from services.emulator.app import create_app
     from services.emulator.settings import Settings
@@ -64,16 +93,21 @@ def render() -> dict[str, str]:
     """The generated files of ``proto/``, by path relative to it."""
     files = {f"schemas/{name}.json": _dump(s) for name, s in wire_schemas().items()}
     files["emulator.openapi.json"] = _dump(openapi())
+    files |= {f"{CONTROLLER}/{name}.json": _dump(s) for name, s in controller_wire_schemas().items()}
+    files["controller.openapi.json"] = _dump(controller_openapi())
     return files
+
+
+def _schema_files(root: Path) -> list[str]:
+    """The schema files now in ``root`` (both folders), relative to it."""
+    return [f"{d}/{p.name}" for d in ("schemas", CONTROLLER) for p in sorted((root / d).glob("*.json"))]
 
 
 def drift(root: Path = ROOT) -> list[str]:
     """Generated files that differ from (or are missing in) ``root``, and stale schema files."""
     want = render()
     bad = [p for p, text in want.items() if not (root / p).is_file() or (root / p).read_text() != text]
-    stale = sorted(
-        f"schemas/{p.name}" for p in (root / "schemas").glob("*.json") if f"schemas/{p.name}" not in want
-    )
+    stale = sorted(p for p in _schema_files(root) if p not in want)
     return sorted(bad) + stale
 
 
@@ -81,10 +115,10 @@ def write(root: Path = ROOT) -> list[str]:
     """(Re)write every generated file; returns the paths that changed."""
     changed = drift(root)
     files = render()
-    (root / "schemas").mkdir(parents=True, exist_ok=True)
-    for p in (root / "schemas").glob("*.json"):
-        if f"schemas/{p.name}" not in files:
-            p.unlink()
+    (root / CONTROLLER).mkdir(parents=True, exist_ok=True)
+    for p in _schema_files(root):
+        if p not in files:
+            (root / p).unlink()
     for path, text in files.items():
         target = root / path
         if not target.is_file() or target.read_text() != text:

@@ -1,0 +1,163 @@
+"""``create_app(settings)``: the controller API as a FastAPI app, plus health, readiness and metrics.
+
+The API validates and queues jobs and reads their progress from Redis; it runs none itself (see
+``worker.py``). It never imports PyTorch. When Redis is down it still starts: calls that need Redis
+answer 503 with a message, and ``/readyz`` says why it is not ready.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import AsyncIterator
+from pathlib import Path
+from urllib.parse import parse_qs, urlsplit, urlunsplit
+
+import redis
+import redis.asyncio as aioredis
+from fastapi import FastAPI, Request, Response
+from fastapi.exceptions import RequestValidationError
+from fastapi.middleware.cors import CORSMiddleware
+from fastapi.responses import JSONResponse
+from prometheus_client import CONTENT_TYPE_LATEST
+from rq import Worker
+from starlette.types import ASGIApp, Receive, Scope, Send
+
+from neuroanimator.schemas import ErrorBody
+from services.controller.metrics import Metrics
+from services.controller.routes import events, jobs, tasks
+from services.controller.settings import Settings
+from services.controller.store import JobStore
+from services.emulator.auth import ApiKeyMiddleware, ApiKeys
+from services.emulator.errors import ApiError, api_error_handler, validation_error_handler
+
+log = logging.getLogger(__name__)
+
+
+def redacted(url: str) -> str:
+    """A Redis URL without its password, for messages."""
+    parts = urlsplit(url)
+    if parts.password:
+        host = parts.hostname or ""
+        netloc = f"{parts.username or ''}:***@{host}" + (f":{parts.port}" if parts.port else "")
+        return urlunsplit(parts._replace(netloc=netloc))
+    return url
+
+
+def artifact_models(root: Path) -> list[str]:
+    """Models with a ``latest`` pointer in the registry (what a job can use)."""
+    if not root.is_dir():
+        return []
+    return sorted(p.name for p in root.iterdir() if p.is_dir() and (p / "latest").is_file())
+
+
+class QueryKeyMiddleware:
+    """Copies ``?api_key=`` into the ``X-API-Key`` header for the event streams: a browser's
+    ``EventSource`` cannot set headers (websockets already take the query parameter)."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if (
+            scope["type"] == "http"
+            and scope["path"].endswith("/events")
+            and b"api_key=" in scope["query_string"]
+        ):
+            key = parse_qs(scope["query_string"].decode()).get("api_key", [""])[0]
+            headers = [(k, v) for k, v in scope["headers"] if k != b"x-api-key"]
+            scope = {**scope, "headers": [*headers, (b"x-api-key", key.encode())]}
+        await self.app(scope, receive, send)
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The app for these settings. Connecting to Redis is lazy, so this works while Redis is down."""
+    settings = settings or Settings()
+    conn = redis.Redis.from_url(
+        settings.redis_url,
+        socket_connect_timeout=settings.redis_timeout_s,
+        socket_timeout=settings.redis_timeout_s,
+    )
+    store = JobStore(conn, settings)
+    keys = ApiKeys(settings.api_keys)
+    metrics = Metrics(store)
+    where = redacted(settings.redis_url)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        # Blocking XREADs wait up to SSE_KEEPALIVE_S: the socket timeout must be longer.
+        app.state.aredis = aioredis.Redis.from_url(
+            settings.redis_url,
+            socket_connect_timeout=settings.redis_timeout_s,
+            socket_timeout=settings.sse_keepalive_s + 10.0,
+        )
+        log.info(
+            "controller API up",
+            extra={"redis": where, "queue": settings.queue_name, "api_keys": len(keys)},
+        )
+        try:
+            yield
+        finally:
+            await app.state.aredis.aclose()
+            conn.close()
+
+    app = FastAPI(title="NeuroAnimator controller service", version="0.1.0", lifespan=lifespan)
+    app.state.settings = settings
+    app.state.store = store
+    app.state.metrics = metrics
+    if keys.enabled:
+        app.add_middleware(ApiKeyMiddleware, keys=keys)
+        app.add_middleware(QueryKeyMiddleware)
+    origins = settings.cors_list()
+    if origins:  # outermost, so that preflight requests are answered before the API-key check
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=origins,
+            allow_methods=["GET", "POST", "DELETE", "OPTIONS"],
+            allow_headers=["Authorization", "X-API-Key", "Content-Type", "Last-Event-ID"],
+            expose_headers=["Location"],
+        )
+    app.add_exception_handler(ApiError, api_error_handler)
+    app.add_exception_handler(RequestValidationError, validation_error_handler)
+
+    async def redis_down(request: Request, exc: Exception) -> JSONResponse:
+        if request.url.path == "/jobs" and request.method == "POST":
+            metrics.rejected.labels("redis_unavailable").inc()
+        log.warning("Redis unreachable", extra={"path": request.url.path, "error": str(exc)})
+        body = ErrorBody(
+            error="redis_unavailable",
+            message=f"the job queue is unavailable: Redis at {where} does not answer ({exc}); try again later",
+        )
+        return JSONResponse(body.model_dump(), status_code=503, headers={"Retry-After": "5"})
+
+    app.add_exception_handler(redis.ConnectionError, redis_down)
+    app.add_exception_handler(redis.TimeoutError, redis_down)
+
+    for r in (jobs.router, events.router, tasks.router):
+        app.include_router(r)
+
+    @app.get("/healthz", tags=["ops"])
+    def healthz() -> dict[str, str]:
+        return {"status": "ok"}
+
+    @app.get("/readyz", tags=["ops"])
+    def readyz() -> Response:
+        """Ready when Redis answers and the artifact registry has a model (503 with the reason if not)."""
+        models = artifact_models(settings.artifacts_dir)
+        try:
+            conn.ping()
+            workers = Worker.count(queue=store.queue)
+            depth = store.queue_depth()
+        except redis.RedisError as exc:
+            msg = f"Redis at {where} does not answer: {exc}"
+            return JSONResponse({"status": "redis unavailable", "message": msg}, status_code=503)
+        if not models:
+            msg = f"no trained models in {str(settings.artifacts_dir)!r} (train one: neuro train pendulum-active)"
+            return JSONResponse({"status": "no artifacts", "message": msg}, status_code=503)
+        return JSONResponse({"status": "ready", "models": models, "workers": workers, "queue_depth": depth})
+
+    @app.get("/metrics", tags=["ops"])
+    def metrics_endpoint() -> Response:
+        return Response(metrics.render(), media_type=CONTENT_TYPE_LATEST)
+
+    return app

@@ -1,0 +1,1 @@
+"""The controller API's routers: ``jobs`` (REST), ``events`` (SSE and websocket), ``tasks``."""

@@ -1,0 +1,109 @@
+"""A job's events, live: ``GET /jobs/{id}/events`` (server-sent events) and ``/ws/jobs/{id}`` (websocket).
+
+Both replay the job's event stream from Redis from the start (or, for SSE, after ``Last-Event-ID``)
+and then follow it: ``status`` (queued, running, re-queued with why), ``progress`` (one per
+iteration: the ``on_progress`` dict of ``run_job`` and the attempt) and one last ``end`` (the final
+status), after which the stream closes. Browsers' ``EventSource`` cannot send headers, so with API
+keys on these two take ``?api_key=<key>`` as well.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import AsyncIterator
+from typing import Annotated, Any
+
+import redis.asyncio as aioredis
+from fastapi import APIRouter, Header, Request, WebSocket
+from fastapi.responses import StreamingResponse
+from starlette.concurrency import run_in_threadpool
+from starlette.websockets import WebSocketDisconnect
+
+from neuroanimator.schemas import ErrorBody
+from services.controller.deps import OwnerDep, StoreDep, get_owner
+from services.controller.routes.jobs import owned
+from services.controller.store import JobStore
+
+router = APIRouter(tags=["events"])
+_STREAM_ID = re.compile(r"^\d+-\d+$")
+
+
+async def follow(
+    aredis: aioredis.Redis, store: JobStore, job_id: str, after: str, keepalive_s: float
+) -> AsyncIterator[tuple[str, str, str]]:
+    """(event, stream id, JSON data) from ``after`` on, until ``end``; ("", "", "") after each idle
+    ``keepalive_s``. A job whose records expired ends with ``expired``."""
+    key, last = store.keys.events(job_id), after
+    while True:
+        resp: Any = await aredis.xread({key: last}, count=200, block=max(1, int(keepalive_s * 1000)))
+        if not resp:
+            if not await aredis.exists(store.keys.job(job_id)):
+                yield "end", "", json.dumps({"status": "expired", "reason": "the job's records expired"})
+                return
+            yield "", "", ""
+            continue
+        for _key, entries in resp:
+            for eid, fields in entries:
+                last = eid.decode()
+                event = fields[b"event"].decode()
+                yield event, last, fields[b"data"].decode()
+                if event == "end":
+                    return
+
+
+@router.get(
+    "/jobs/{job_id}/events",
+    response_class=StreamingResponse,
+    responses={
+        200: {"content": {"text/event-stream": {}}, "description": "status, progress and end events"},
+        404: {"model": ErrorBody},
+    },
+)
+async def job_events(
+    job_id: str,
+    request: Request,
+    store: StoreDep,
+    owner: OwnerDep,
+    last_event_id: Annotated[str | None, Header(description="resume after this event id")] = None,
+) -> StreamingResponse:
+    """Server-sent events of a job: ``status``, ``progress`` per iteration, then one ``end``."""
+    await run_in_threadpool(owned, store, job_id, owner)
+    after = last_event_id if last_event_id and _STREAM_ID.match(last_event_id) else "0"
+    aredis: aioredis.Redis = request.app.state.aredis
+    keepalive = request.app.state.settings.sse_keepalive_s
+
+    async def body() -> AsyncIterator[str]:
+        yield "retry: 2000\n\n"
+        async for event, eid, data in follow(aredis, store, job_id, after, keepalive):
+            if not event:
+                yield ": keep-alive\n\n"
+                continue
+            head = f"id: {eid}\n" if eid else ""
+            yield f"{head}event: {event}\ndata: {data}\n\n"
+
+    return StreamingResponse(
+        body(),
+        media_type="text/event-stream",
+        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},  # no proxy buffering
+    )
+
+
+@router.websocket("/ws/jobs/{job_id}")
+async def job_events_ws(websocket: WebSocket, job_id: str) -> None:
+    """The same events as JSON messages ``{"event": ..., "data": {...}}``; closes after ``end``."""
+    store: JobStore = websocket.app.state.store
+    rec = await run_in_threadpool(store.record, job_id, get_owner())
+    if rec is None:
+        await websocket.close(code=4404, reason=f"no job {job_id!r}")
+        return
+    await websocket.accept()
+    aredis: aioredis.Redis = websocket.app.state.aredis
+    keepalive = websocket.app.state.settings.sse_keepalive_s
+    try:
+        async for event, _eid, data in follow(aredis, store, job_id, "0", keepalive):
+            if event:
+                await websocket.send_json({"event": event, "data": json.loads(data)})
+        await websocket.close(code=1000)
+    except WebSocketDisconnect:
+        pass

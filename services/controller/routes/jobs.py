@@ -1,0 +1,206 @@
+"""Jobs: ``POST /jobs``, ``GET /jobs``, ``GET /jobs/{id}``, ``GET /jobs/{id}/result``, ``DELETE /jobs/{id}``.
+
+A job belongs to the API key that made it: any other key gets 404 for it, as if it did not exist.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query, Request, Response
+
+from neuroanimator.control import JobSpecError, validate_job
+from neuroanimator.controller_schemas import (
+    FINAL_STATES,
+    BestSoFar,
+    JobAccepted,
+    JobCreate,
+    JobList,
+    JobResult,
+    JobStatus,
+    JobSummary,
+)
+from neuroanimator.schemas import ErrorBody
+from services.controller.deps import OwnerDep, SettingsDep, StoreDep
+from services.controller.metrics import Metrics
+from services.controller.store import IdempotencyConflict, JobStore, QueueFull
+from services.emulator.errors import ApiError
+
+router = APIRouter(tags=["jobs"])
+_ERRORS: dict[int | str, dict[str, Any]] = {
+    404: {"model": ErrorBody},
+    409: {"model": ErrorBody},
+    422: {"model": ErrorBody},
+    503: {"model": ErrorBody},
+}
+# progress keys that are not part of "the best controller so far"
+_PROGRESS_KEYS = {
+    "iteration",
+    "objective",
+    "best_objective",
+    "best_iteration",
+    "success_emulator",
+    "elapsed_s",
+    "attempt",
+}
+
+
+def _lookup(spec: dict[str, Any], field: str) -> Any:
+    """The value at a dotted field path (``optimizer.learning_rate``, ``terms[1].variable``), or None."""
+    value: Any = spec
+    for name, index in re.findall(r"([^.\[\]]+)|\[(\d+)\]", field):
+        try:
+            value = value[int(index)] if index else value[name]
+        except (KeyError, IndexError, TypeError):
+            return None
+    return value
+
+
+def _float(value: Any) -> float | None:
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+
+
+def job_status(rec: dict[str, Any]) -> JobStatus:
+    """The wire view of a record from ``JobStore.record``."""
+    spec = json.loads(rec["spec"])
+    prog: dict[str, Any] = rec["progress"]
+    extra = {k: v for k, v in prog.items() if k not in _PROGRESS_KEYS}
+    best = None
+    if prog.get("best_objective") is not None or extra:
+        best = BestSoFar(
+            iteration=prog.get("best_iteration"), objective=_float(prog.get("best_objective")), **extra
+        )
+    status = rec["status"]
+    return JobStatus(
+        id=rec["id"],
+        status=status,
+        task=spec.get("task"),
+        model=spec.get("model"),
+        version=spec.get("version"),
+        created_at=float(rec["created_at"]),
+        started_at=float(rec["started_at"]) if rec.get("started_at") else None,
+        ended_at=float(rec["ended_at"]) if rec.get("ended_at") else None,
+        attempt=int(rec.get("attempt") or 0),
+        failures=int(rec.get("failures") or 0),
+        worker=rec.get("worker") or None,
+        iteration=int(prog.get("iteration") or 0),
+        max_iterations=(spec.get("optimizer") or {}).get("max_iterations"),
+        objective=_float(prog.get("objective")),
+        best_objective=_float(prog.get("best_objective")),
+        success_emulator=prog.get("success_emulator"),
+        elapsed_s=_float(prog.get("elapsed_s")),
+        objective_history=[_float(v) for v in rec["history"]],
+        best=best,
+        error=rec.get("error") or None,
+        result=f"/jobs/{rec['id']}/result" if status in FINAL_STATES else None,
+    )
+
+
+def _summary(rec: dict[str, Any]) -> JobSummary:
+    s = job_status(rec)
+    return JobSummary(
+        id=s.id,
+        status=s.status,
+        task=s.task,
+        model=s.model,
+        created_at=s.created_at,
+        ended_at=s.ended_at,
+        iteration=s.iteration,
+        best_objective=s.best_objective,
+    )
+
+
+def owned(store: JobStore, job_id: str, owner: str) -> dict[str, Any]:
+    """The caller's job, else 404 (also for another key's job)."""
+    rec = store.record(job_id, owner)
+    if rec is None:
+        raise ApiError(404, "not_found", f"no job {job_id!r} (it may have expired)", field="id", got=job_id)
+    return rec
+
+
+@router.post("/jobs", response_model=JobAccepted, status_code=202, responses=_ERRORS)
+def create_job(
+    req: JobCreate,
+    request: Request,
+    response: Response,
+    store: StoreDep,
+    owner: OwnerDep,
+    settings: SettingsDep,
+) -> JobAccepted:
+    """Queue a controller-synthesis job; the same ``idempotency_key`` returns the same job."""
+    metrics: Metrics = request.app.state.metrics
+    raw = req.spec()
+    try:
+        spec = validate_job(raw, settings.artifacts_dir)
+    except JobSpecError as exc:
+        metrics.rejected.labels("invalid").inc()
+        raise ApiError(
+            422, "invalid_job", str(exc), field=exc.field, expected=exc.message, got=_lookup(raw, exc.field)
+        ) from exc
+    try:
+        job_id, status, created = store.submit(spec, owner, req.idempotency_key)
+    except QueueFull as exc:
+        metrics.rejected.labels("queue_full").inc()
+        raise ApiError(503, "queue_full", str(exc)) from exc
+    except IdempotencyConflict as exc:
+        metrics.rejected.labels("conflict").inc()
+        raise ApiError(409, "idempotency_conflict", str(exc), field="idempotency_key") from exc
+    if created:
+        metrics.submitted.inc()
+    response.headers["Location"] = f"/jobs/{job_id}"
+    return JobAccepted(id=job_id, status=status, created=created)
+
+
+@router.get("/jobs", response_model=JobList, responses=_ERRORS)
+def list_jobs(
+    store: StoreDep,
+    owner: OwnerDep,
+    settings: SettingsDep,
+    limit: Annotated[int, Query(ge=1, le=1000, description="most jobs to list")] = 50,
+) -> JobList:
+    """The caller's recent jobs, newest first."""
+    return JobList(jobs=[_summary(r) for r in store.jobs_of(owner, min(limit, settings.max_list))])
+
+
+@router.get("/jobs/{job_id}", response_model=JobStatus, responses=_ERRORS)
+def get_job(job_id: str, store: StoreDep, owner: OwnerDep) -> JobStatus:
+    """A job's status, progress (objective history, best controller so far) and error."""
+    return job_status(owned(store, job_id, owner))
+
+
+@router.get("/jobs/{job_id}/result", response_model=JobResult, responses=_ERRORS)
+def get_result(job_id: str, store: StoreDep, owner: OwnerDep) -> JobResult:
+    """The finished job's result: the controller, its trajectories and errors (409 until it ends)."""
+    rec = owned(store, job_id, owner)
+    if rec["status"] not in FINAL_STATES:
+        raise ApiError(
+            409,
+            "not_finished",
+            f"job {job_id} is {rec['status']}; its result is here once it ends (watch /jobs/{job_id}/events)",
+            field="status",
+            expected=list(FINAL_STATES),
+            got=rec["status"],
+        )
+    result = store.result(job_id)
+    if result is None:
+        raise ApiError(404, "not_found", f"the result of job {job_id!r} has expired", field="id", got=job_id)
+    return JobResult(**result)
+
+
+@router.delete("/jobs/{job_id}", response_model=JobStatus, status_code=202, responses=_ERRORS)
+def cancel_job(job_id: str, store: StoreDep, owner: OwnerDep) -> JobStatus:
+    """Cancel a queued job (it ends now) or a running one (it stops at its next iteration)."""
+    rec = owned(store, job_id, owner)
+    if rec["status"] in FINAL_STATES:
+        raise ApiError(
+            409,
+            "already_ended",
+            f"job {job_id} already ended: {rec['status']}",
+            field="status",
+            expected=["queued", "running"],
+            got=rec["status"],
+        )
+    store.cancel(job_id)
+    return job_status(owned(store, job_id, owner))

@@ -1,0 +1,69 @@
+"""Controller settings, read from the environment (``REDIS_URL=... MAX_QUEUE=...``); the API and the
+workers read the same variables, so one environment file configures both."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Every knob of the controller API and its workers; environment variables have the upper-case names."""
+
+    model_config = SettingsConfigDict(env_prefix="", case_sensitive=False, extra="ignore")
+
+    redis_url: str = Field("redis://127.0.0.1:6379/0", description="the Redis that holds the queue and jobs")
+    redis_prefix: str = Field(
+        "neuroanimator:controller", min_length=1, description="prefix of the service's own Redis keys"
+    )
+    queue_name: str = Field(
+        "neuroanimator-controller",
+        pattern=r"^[A-Za-z0-9_.:-]+$",
+        description="the RQ queue (RQ's keys are rq:queue:<name>, rq:wip:<name>, ...)",
+    )
+    redis_timeout_s: float = Field(2.0, gt=0.0, description="connect and command timeout of the API's Redis")
+    artifacts_dir: Path = Path("artifacts")
+    api_keys: str = Field(
+        "", description="comma-separated API keys; empty: no auth (every endpoint but ops then needs one)"
+    )
+    max_queue: int = Field(100, ge=1, description="queued (not yet running) jobs; beyond, POST /jobs is 503")
+    job_timeout_s: float = Field(
+        600.0,
+        gt=0.0,
+        description="time limit of one job: it then stops and ends failed, best controller kept",
+    )
+    job_timeout_grace_s: float = Field(
+        30.0, gt=0.0, description="past the limit by this much, the job's process is killed (hard limit)"
+    )
+    job_retries: int = Field(
+        2, ge=0, le=20, description="re-runs of a job whose process crashed, raised or was abandoned"
+    )
+    result_ttl_s: int = Field(
+        86_400, ge=1, description="a finished job (status, result, events) is kept this long"
+    )
+    queued_ttl_s: int = Field(7 * 86_400, ge=1, description="an unfinished job's records expire after this")
+    max_list: int = Field(200, ge=1, description="most jobs listed by GET /jobs")
+    cors_origins: str = Field(
+        "", description="comma-separated origins allowed to call the API from a browser ('*': any)"
+    )
+    sse_keepalive_s: float = Field(15.0, gt=0.0, description="an SSE comment is sent when idle this long")
+    # workers
+    worker_threads: int = Field(1, ge=1, le=64, description="torch threads of one job")
+    lease_ttl_s: float = Field(
+        15.0,
+        gt=0.0,
+        description="a running job renews its lease this often ×3; an expired lease means a dead worker",
+    )
+    reap_interval_s: float = Field(
+        5.0,
+        gt=0.0,
+        description="how often an idle worker looks for jobs whose lease expired and re-queues them",
+    )
+    host: str = "127.0.0.1"
+    port: int = 8001
+    log_level: str = "info"
+
+    def cors_list(self) -> list[str]:
+        return [o.strip() for o in self.cors_origins.split(",") if o.strip()]

@@ -1,0 +1,146 @@
+"""A real built-in task through the API, Redis and a real worker process: submit → progress → result,
+the SSE and websocket streams, the job list, and no PyTorch in the worker's parent process."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from ctl import ARTIFACTS, QUICK, Controller, ctl_fixture, ended, job, maps_torch, wait_for  # noqa: F401
+
+from services.controller.settings import Settings
+
+
+def _sse(text: str) -> list[tuple[str, dict[str, Any]]]:
+    """(event, data) of a text/event-stream body."""
+    out = []
+    for block in text.split("\n\n"):
+        fields = dict(line.split(": ", 1) for line in block.splitlines() if ": " in line and line[0] != ":")
+        if "event" in fields:
+            out.append((fields["event"], json.loads(fields["data"])))
+    return out
+
+
+def test_submit_progress_result_through_a_worker(ctl: Controller) -> None:
+    api = ctl.client()
+    assert api.get("/readyz").json()["status"] == "ready"
+    tasks = {t["name"]: t for t in api.get("/tasks").json()["tasks"]}
+    assert {"pendulum-swing", "truck-parking", "lander-landing"} <= set(tasks)
+    assert tasks["pendulum-swing"]["model"] == "pendulum-active"
+
+    r = api.post("/jobs", json={**QUICK, "optimizer": {"max_iterations": 4, "stop_on_success": False}})
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    assert r.json()["status"] == "queued" and r.headers["location"] == f"/jobs/{job_id}"
+    queued = job(api, job_id)
+    assert (queued["status"], queued["attempt"], queued["task"], queued["model"]) == (
+        "queued",
+        0,
+        "pendulum-swing",
+        "pendulum-active",
+    )
+    assert api.get(f"/jobs/{job_id}/result").status_code == 409
+
+    worker = ctl.worker("--burst", "--name", "w-e2e")
+    # while the job runs: the job's process has torch, the worker's parent process does not
+    running = wait_for("the job to run", lambda: (j := job(api, job_id))["status"] != "queued" and j)
+    if running["status"] == "running":
+        pid = int(ctl.r.hget(f"{ctl.env['REDIS_PREFIX']}:job:{job_id}", "pid") or 0)
+        try:
+            assert not maps_torch(worker.pid), "the worker's parent process imported torch"
+            wait_for("torch in the job process", lambda: maps_torch(pid), timeout=30)
+        except FileNotFoundError:
+            pass  # it ended meanwhile
+    done = ended(api, job_id)
+    assert worker.wait(timeout=60) == 0, ctl.logs()
+    assert done["status"] == "succeeded", done
+    assert (done["attempt"], done["failures"], done["worker"]) == (1, 0, "w-e2e")
+    assert done["iteration"] == 4 and len(done["objective_history"]) == 5  # the initial controller, 4 updates
+    assert done["best_objective"] == min(v for v in done["objective_history"] if v is not None)
+    assert done["best"]["objective"] == done["best_objective"]
+    assert done["result"] == f"/jobs/{job_id}/result"
+
+    res = api.get(f"/jobs/{job_id}/result").json()
+    assert res["id"] == job_id and res["status"] == "succeeded" and res["task"] == "pendulum-swing"
+    assert res["iterations"] == 4 and res["objective_history"] == done["objective_history"]
+    assert len(res["times"]) == len(res["controls"]) and len(res["controls"][0]) == 3
+    states = res["emulated"]["states"]
+    assert len(states[0]) == 6 and len(res["physical"]["states"][0]) == 6
+    assert res["final_error_emulator"] is not None and res["final_error_physics"] is not None
+
+    # the event stream replays everything: queued, running, five progress events, end
+    body = api.get(f"/jobs/{job_id}/events")
+    assert body.headers["content-type"].startswith("text/event-stream")
+    events = _sse(body.text)
+    names = [e for e, _ in events]
+    assert names[:2] == ["status", "status"] and names[-1] == "end" and names.count("progress") == 5, names
+    progress = [d for e, d in events if e == "progress"]
+    assert [p["iteration"] for p in progress] == [0, 1, 2, 3, 4]
+    assert {"objective", "best_objective", "success_emulator", "elapsed_s"} <= set(progress[0])
+    assert events[-1][1]["status"] == "succeeded" and events[-1][1]["iterations"] == 4
+    # ... and resumes after Last-Event-ID
+    ids = [line[4:] for line in body.text.splitlines() if line.startswith("id: ")]
+    tail = _sse(api.get(f"/jobs/{job_id}/events", headers={"Last-Event-ID": ids[-2]}).text)
+    assert [e for e, _ in tail] == ["end"]
+
+    with api.websocket_connect(f"/ws/jobs/{job_id}") as ws:
+        msgs = []
+        while not msgs or msgs[-1]["event"] != "end":
+            msgs.append(ws.receive_json())
+    assert [m["event"] for m in msgs] == names
+
+    listed = api.get("/jobs").json()["jobs"]
+    assert [j["id"] for j in listed] == [job_id] and listed[0]["status"] == "succeeded"
+
+
+def test_a_diverging_job_fails_with_the_reason_and_keeps_a_controller(ctl: Controller) -> None:
+    api = ctl.client()
+    # an absurd (finite) start rate overflows the emulator: the objective is not finite
+    body = {"task": "pendulum-swing", "initial_state": [0, 0, 0, 1e200, 0, 0], "optimizer": {"max_iterations": 3}}
+    job_id = api.post("/jobs", json=body).json()["id"]
+    ctl.worker("--burst")
+    done = ended(api, job_id)
+    assert done["status"] == "failed" and "diverged" in done["error"], done
+    assert done["failures"] == 0  # a result, not a crash: not retried
+    res = api.get(f"/jobs/{job_id}/result").json()
+    assert res["status"] == "failed" and res["reason"] == done["error"]
+    assert res["controls"] and all(v is not None for row in res["controls"] for v in row)  # the finite controller
+    assert api.get(f"/jobs/{job_id}/events").text.rstrip().endswith('"best_objective":null}')
+
+
+def test_sse_follows_a_running_job_live(ctl: Controller) -> None:
+    api = ctl.client()
+    job_id = api.post(
+        "/jobs", json={**QUICK, "optimizer": {"max_iterations": 3, "stop_on_success": False}}
+    ).json()["id"]
+    ctl.worker("--burst")
+    seen = []
+    with api.stream("GET", f"/jobs/{job_id}/events") as s:
+        for line in s.iter_lines():
+            if line.startswith("event: "):
+                seen.append(line[7:])
+    assert seen[-1] == "end" and seen.count("progress") == 4 and "status" in seen
+
+
+def test_worker_and_api_processes_do_not_import_torch() -> None:
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from services.controller.app import create_app\n"
+        "from services.controller.settings import Settings\n"
+        "import services.controller.worker, services.controller.__main__\n"
+        f"create_app(Settings(artifacts_dir={str(ARTIFACTS)!r}))\n"
+        "assert 'torch' not in sys.modules, 'torch was imported'\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+def test_settings_from_environment(monkeypatch: Any) -> None:
+    monkeypatch.setenv("MAX_QUEUE", "7")
+    monkeypatch.setenv("JOB_TIMEOUT_S", "12.5")
+    monkeypatch.setenv("CORS_ORIGINS", "http://localhost:5173, http://x")
+    s = Settings()
+    assert (s.max_queue, s.job_timeout_s, s.port) == (7, 12.5, 8001)
+    assert s.cors_list() == ["http://localhost:5173", "http://x"]
