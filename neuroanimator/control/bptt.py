@@ -26,9 +26,11 @@ from numpy.typing import NDArray
 from torch import Tensor, nn
 
 from neuroanimator.control.objectives import Objective, control_scale
+from neuroanimator.control.replay import simulate_held
 from neuroanimator.control.splines import ControlSpline
 from neuroanimator.control.tasks import num_points
 from neuroanimator.export import fold_normalization
+from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.structured import StructuredEmulator
 
 FloatArray = NDArray[np.float64]
@@ -59,14 +61,21 @@ class ControlProblem:
     the trajectory; ``evaluate(z)`` scores a batch (B, M, U) without gradients.
     """
 
-    def __init__(self, emu: StructuredEmulator, spec: dict[str, Any], manifest: dict[str, Any]) -> None:
+    def __init__(
+        self,
+        emu: StructuredEmulator,
+        spec: dict[str, Any],
+        manifest: dict[str, Any],
+        dtype: torch.dtype = torch.float32,
+    ) -> None:
         self.spec = spec
+        self.dtype = dtype  # float64 (with a float64 emulator) for finite-difference checks
         self.step = FastStep(emu)
         self.horizon = int(spec["horizon"])
         self.super_dt = float(manifest["super_timestep"])
         self.num_controls = len(manifest["controls"])
         self.num_points = num_points(self.horizon, float(spec["points_per_step"]))
-        self.spline = ControlSpline(self.horizon, self.num_points, self.super_dt)
+        self.spline = ControlSpline(self.horizon, self.num_points, self.super_dt, dtype)
         useful = np.array([[c["low"], c["high"]] for c in manifest["controls"]], dtype=np.float64)  # (U, 2)
         limits = np.array([[c["limit_low"], c["limit_high"]] for c in manifest["controls"]], dtype=np.float64)
         self.centre = 0.5 * (useful[:, 0] + useful[:, 1])
@@ -74,12 +83,14 @@ class ControlProblem:
         self.limits = limits
         self.z_low = (limits[:, 0] - self.centre) / self.half  # (U,) ±inf where unlimited
         self.z_high = (limits[:, 1] - self.centre) / self.half
-        self._centre = torch.tensor(self.centre, dtype=torch.float32)
-        self._half = torch.tensor(self.half, dtype=torch.float32)
-        self._low = torch.tensor(limits[:, 0], dtype=torch.float32)
-        self._high = torch.tensor(limits[:, 1], dtype=torch.float32)
+        self._centre = torch.tensor(self.centre, dtype=dtype)
+        self._half = torch.tensor(self.half, dtype=dtype)
+        self._low = torch.tensor(limits[:, 0], dtype=dtype)
+        self._high = torch.tensor(limits[:, 1], dtype=dtype)
         self.objective = Objective(spec, manifest["layout"], control_scale(useful))
-        self.s0 = torch.tensor(spec["initial_state"], dtype=torch.float32)
+        self.s0 = torch.tensor(spec["initial_state"], dtype=dtype)
+        # per-step additive correction (K, S) learned from a MuJoCo replay (``set_correction``)
+        self.correction: Tensor | None = None
 
     # ------------------------------------------------------------------ parametrisation
     def initial_points(self) -> FloatArray:
@@ -107,14 +118,18 @@ class ControlProblem:
         u = self.held(z)
         s = self.s0.expand(z.shape[0], -1)
         states = [s]
-        for k in range(self.horizon):
-            s = self.step(s, u[:, k])
+        # unbind, not u[:, k]: one backward node for all steps instead of a zero-filled (B, K, U)
+        # gradient buffer per step
+        for k, u_k in enumerate(u.unbind(dim=1)):
+            s = self.step(s, u_k)
+            if self.correction is not None:
+                s = s + self.correction[k]
             states.append(s)
         return torch.stack(states, dim=1), u
 
     def value_and_grad(self, z: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
         """J, ∇_z J (M, U), states (K+1, S) and held controls (K, U) of one controller ``z`` (M, U)."""
-        zt = torch.tensor(np.asarray(z)[None], dtype=torch.float32, requires_grad=True)
+        zt = torch.tensor(np.asarray(z)[None], dtype=self.dtype, requires_grad=True)
         states, u = self.rollout(zt)
         j = self.objective(states.double(), u.double())[0]
         j.backward()
@@ -123,8 +138,44 @@ class ControlProblem:
         return float(j.detach()), grad, states[0].detach().double().numpy(), u[0].detach().double().numpy()
 
     @torch.no_grad()
+    def trajectory(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """States (K+1, S) and held controls (K, U) of one controller (M, U), without gradients."""
+        states, u = self.rollout(torch.as_tensor(np.asarray(z)[None], dtype=self.dtype))
+        return states[0].double().numpy(), u[0].double().numpy()
+
+    @torch.no_grad()
+    def score(self, states: FloatArray, held: FloatArray) -> float:
+        """J of one trajectory (K+1, S) under held controls (K, U), e.g. a MuJoCo replay."""
+        return float(self.objective(torch.from_numpy(states[None]), torch.from_numpy(held[None]))[0])
+
+    @torch.no_grad()
+    def set_correction(self, physical_states: FloatArray | None, held: FloatArray | None = None) -> None:
+        """Correct the emulator along a physical trajectory (K+1, S) driven by held controls (K, U).
+
+        Each step gets the additive term ``c_k = s_phys[k+1] − N(s_phys[k], u_k)``, so the corrected
+        emulator, driven by the same controls, reproduces the physical trajectory exactly and its
+        gradients are the emulator's along it (time-indexed bias correction, as in Abbeel, Quigley and
+        Ng 2006, "Using inaccurate models in reinforcement learning"). ``None`` removes it.
+        """
+        if physical_states is None or held is None:
+            self.correction = None
+            return
+        phys = torch.as_tensor(np.asarray(physical_states), dtype=self.dtype)
+        u = torch.as_tensor(np.asarray(held), dtype=self.dtype)
+        self.correction = phys[1:] - self.step(phys[:-1], u)
+
+    @torch.no_grad()
+    def evaluate_physics(self, physical: PhysicalModel, z: FloatArray, threads: int = 1) -> FloatArray:
+        """J of a batch of controllers (B, M, U) on MuJoCo: the same held controls, each held for its
+        n physical steps from the same initial state, scored by the same objective, (B,)."""
+        held = self.held(torch.as_tensor(np.asarray(z), dtype=self.dtype)).double().numpy()
+        s0 = np.asarray(self.spec["initial_state"], dtype=np.float64)[None]
+        states = simulate_held(physical, s0, held, int(self.spec["substeps"]), threads=threads)
+        return self.objective(torch.from_numpy(states), torch.from_numpy(held)).numpy()
+
+    @torch.no_grad()
     def evaluate(self, z: FloatArray) -> FloatArray:
         """J of a batch of controllers (B, M, U) on the emulator, (B,)."""
-        zt = torch.as_tensor(np.asarray(z), dtype=torch.float32)
+        zt = torch.as_tensor(np.asarray(z), dtype=self.dtype)
         states, u = self.rollout(zt)
         return self.objective(states.double(), u.double()).numpy()

@@ -51,6 +51,7 @@ OPTIMIZER_KEYS = frozenset(
         "stop_on_success",
         "line_search",
         "polish_iterations",
+        "physics_rounds",
     }
 )
 # Defaults of a job that names a model but no task.
@@ -61,8 +62,10 @@ DEFAULT_OPTIMIZER: dict[str, Any] = {
     "tolerance": 1e-6,
     "stop_on_success": True,
     "line_search": True,
-    "polish_iterations": 5,
+    "polish_iterations": 3,
+    "physics_rounds": 3,
 }
+MAX_PHYSICS_ROUNDS = 20
 DEFAULT_HORIZON = 40
 DEFAULT_POINTS_PER_STEP = 1.0
 DEFAULT_MU_U = 1e-4
@@ -281,6 +284,7 @@ def validate_job(spec: dict[str, Any], artifacts_root: Path) -> dict[str, Any]:
         "stop_on_success": opt["stop_on_success"],
         "line_search": opt["line_search"],
         "polish_iterations": _int("optimizer.polish_iterations", opt["polish_iterations"], 0, MAX_ITERATIONS),
+        "physics_rounds": _int("optimizer.physics_rounds", opt["physics_rounds"], 0, MAX_PHYSICS_ROUNDS),
     }
     return {
         "task": task.name if task else None,

@@ -21,14 +21,16 @@ from neuroanimator.physics.model import PhysicalModel
 FloatArray = NDArray[np.float64]
 
 
-def simulate_held(model: PhysicalModel, initial: FloatArray, held: FloatArray, substeps: int) -> FloatArray:
+def simulate_held(
+    model: PhysicalModel, initial: FloatArray, held: FloatArray, substeps: int, threads: int = 1
+) -> FloatArray:
     """MuJoCo states at every super-step boundary, (B, K+1, S), from initial states (B, S) under held
     controls (B, K, U), each held for ``substeps`` physical steps."""
     s0 = np.asarray(initial, dtype=np.float64)
     u = np.asarray(held, dtype=np.float64)
     b, k = u.shape[0], u.shape[1]
     s0 = np.broadcast_to(s0, (b, s0.shape[-1])).copy()
-    fine = model.simulate(s0, np.repeat(u, substeps, axis=1), threads=1)  # (B, K·n, S)
+    fine = model.simulate(s0, np.repeat(u, substeps, axis=1), threads=threads)  # (B, K·n, S)
     return np.concatenate([s0[:, None], fine[:, substeps - 1 :: substeps]], axis=1)[:, : k + 1]
 
 

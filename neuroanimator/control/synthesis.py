@@ -48,7 +48,7 @@ class Settings:
     tolerance: float = 1e-6
     stop_on_success: bool = True
     line_search: bool = True
-    polish_iterations: int = 5
+    polish_iterations: int = 3
 
     @classmethod
     def from_spec(cls, opt: dict[str, Any]) -> Settings:
@@ -59,7 +59,7 @@ class Settings:
             tolerance=float(opt["tolerance"]),
             stop_on_success=bool(opt.get("stop_on_success", True)),
             line_search=bool(opt.get("line_search", True)),
-            polish_iterations=int(opt.get("polish_iterations", 5)),
+            polish_iterations=int(opt.get("polish_iterations", 3)),
         )
 
     def candidates(self, first: bool) -> list[tuple[float, float]]:

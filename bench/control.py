@@ -1,0 +1,274 @@
+"""Control synthesis through the emulator against gradient-free search on MuJoCo (thesis 6.2, 6.3).
+
+    python bench/control.py [--tasks a,b] [--gf-evals 3000] [--curve-iterations 60] [--repeats 3]
+                            [--out bench/results] [--artifacts artifacts] [--quick] [--json]
+
+For each thesis task (pendulum-swing, lander-landing, truck-parking):
+
+- ``run_job`` with the task's defaults: iterations until the success criterion holds on the
+  emulator, the controller's total iterations, wall time per job (median of ``--repeats``, one
+  thread), and the replay on MuJoCo: success there too, the final errors, the transfer error;
+- Nelder-Mead and CMA-ES (``neuroanimator.control.gradient_free``) on the *same* objective of the
+  same control points evaluated on MuJoCo directly, from the same initial controller: objective
+  evaluations (= physical simulations, 2,000 steps each) and wall time until they reach the
+  objective value the gradient method's controller scores on MuJoCo, capped at ``--gf-evals``
+  ("not reached" otherwise, and the ratios are then lower bounds);
+- gradient descent with and without momentum at fixed (η, α) (thesis 6.3.1, Figs. 6.13-6.15),
+  each at its best learning rate of a small sweep, beside the default per-iteration (η, α) search:
+  objective-vs-iteration curves written as ``control_<task>.png`` to ``--out``.
+
+Prints a table; with ``--json`` the last line is one JSON object:
+``{"tasks": [{"task", "iterations_to_success", "iterations", "wall_s", "success_emulator",
+"success_physics", "final_error_emulator", "final_error_physics", "transfer_error",
+"gradient_free_iterations", "gradient_free_method", "gradient_free_reached", "iteration_ratio",
+"wall_ratio", ...}], "settings": {...}}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from neuroanimator import artifacts
+from neuroanimator.control import TASKS, run_job, validate_job
+from neuroanimator.control.gradient_free import Trace, cma_es, nelder_mead
+from neuroanimator.control.runner import load_problem
+from neuroanimator.control.synthesis import Settings, optimize
+
+log = logging.getLogger("bench.control")
+SWEEP_RATES = (0.4, 0.2, 0.1, 0.05, 0.025)
+
+
+def fixed_rate_curves(
+    spec: dict[str, Any], root: Path, iterations: int, rates: tuple[float, ...]
+) -> dict[str, Any]:
+    """Objective histories of the thesis' fixed-coefficient updates: momentum (α = the task's) and plain
+    gradient descent (α = 0), each at the rate of ``rates`` that ends lowest; plus the default search."""
+    problem, _, _ = load_problem(spec, root)
+    alpha = float(spec["optimizer"]["momentum"])
+    out: dict[str, Any] = {}
+    for label, a in (("momentum", alpha), ("gradient descent", 0.0)):
+        best: tuple[float, float, list[float]] | None = None
+        for eta in rates:
+            run = optimize(
+                lambda z: problem.value_and_grad(z)[:3],
+                problem.initial_points(),
+                Settings(eta, a, iterations, tolerance=0.0, stop_on_success=False, line_search=False),
+                project=problem.project,
+            )
+            final = min(run.history) if run.history else float("inf")
+            if best is None or final < best[0]:
+                best = (final, eta, run.history)
+        assert best is not None
+        out[label] = {"learning_rate": best[1], "momentum": a, "history": best[2]}
+    search = optimize(
+        lambda z: problem.value_and_grad(z)[:3],
+        problem.initial_points(),
+        Settings.from_spec(
+            {**spec["optimizer"], "max_iterations": iterations, "stop_on_success": False, "tolerance": 0.0}
+        ),
+        project=problem.project,
+        evaluate=problem.evaluate,
+    )
+    out["momentum + (η, α) search (default)"] = {
+        "learning_rate": spec["optimizer"]["learning_rate"],
+        "momentum": alpha,
+        "history": search.history,
+    }
+    return out
+
+
+def plot(
+    task: str, curves: dict[str, Any], traces: list[Trace], target: float, grad_iters: int, out: Path
+) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4.2), dpi=110)
+    for label, c in curves.items():
+        a1.semilogy(
+            range(len(c["history"])),
+            c["history"],
+            label=f"{label} (η={c['learning_rate']:g}, α={c['momentum']:g})",
+        )
+    a1.set_xlabel("iteration")
+    a1.set_ylabel("objective J (emulator)")
+    a1.set_title(f"{task}: gradient descent with and without momentum")
+    a1.grid(alpha=0.3, which="both")
+    a1.legend(fontsize=8)
+    for t in traces:
+        if t.evaluations:
+            a2.semilogy(t.evaluations, t.best, label=f"{t.method} (MuJoCo)")
+    a2.axhline(
+        target, color="k", ls="--", lw=1, label=f"gradient method's J on MuJoCo ({grad_iters} iterations)"
+    )
+    a2.set_xlabel("objective evaluations (physical simulations)")
+    a2.set_ylabel("best objective J (MuJoCo)")
+    a2.set_title(f"{task}: gradient-free search on the physics")
+    a2.grid(alpha=0.3, which="both")
+    a2.legend(fontsize=8)
+    fig.tight_layout()
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"control_{task}.png"
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
+    root = Path(args.artifacts)
+    spec = validate_job({"task": name}, root)
+    results = [run_job(spec, root, threads=1) for _ in range(args.repeats)]
+    res = results[-1]
+    wall = statistics.median(r["wall_s"] for r in results)
+    iterations = int(res["iterations"])
+    target = float(res["objective_physics"])
+
+    problem, _, path = load_problem(spec, root)
+    physical = artifacts.load_physical_model(path)
+    shape = problem.initial_points().shape
+    low = np.broadcast_to(problem.z_low, shape).ravel()
+    high = np.broadcast_to(problem.z_high, shape).ravel()
+    x0 = problem.initial_points().ravel()
+
+    def on_physics(xs: np.ndarray) -> np.ndarray:
+        return problem.evaluate_physics(physical, xs.reshape(-1, *shape))
+
+    traces = [
+        nelder_mead(on_physics, x0, low=low, high=high, target=target, budget=args.gf_evals),
+        cma_es(on_physics, x0, low=low, high=high, target=target, budget=args.gf_evals, seed=0),
+    ]
+    reached = [t for t in traces if t.evaluations_to_target is not None]
+    if reached:
+        gf = min(reached, key=lambda t: t.evaluations_to_target or 0)
+        gf_iters: int | None = gf.evaluations_to_target
+        gf_wall = float(gf.wall_to_target_s or 0.0)
+        ratio_iters = (gf_iters or 0) / max(iterations, 1)
+    else:
+        gf = min(traces, key=lambda t: t.best[-1] if t.best else np.inf)
+        gf_iters, gf_wall = None, min(t.wall_s for t in traces)
+        ratio_iters = args.gf_evals / max(iterations, 1)  # a lower bound: neither got there
+    curves = fixed_rate_curves(spec, root, args.curve_iterations, args.rates)
+    png = plot(name, curves, traces, target, iterations, Path(args.out))
+    fixed = {
+        label: {
+            "learning_rate": c["learning_rate"],
+            "momentum": c["momentum"],
+            "final_objective": c["history"][-1] if c["history"] else None,
+            "iterations_to_target": next(
+                (i for i, v in enumerate(c["history"]) if v <= res["objective"]), None
+            ),
+        }
+        for label, c in curves.items()
+    }
+    return {
+        "task": name,
+        "model": res["model"],
+        "control_variables": int(np.prod(shape)),
+        "iterations_to_success": res["iterations_to_success"],
+        "iterations": iterations,
+        "emulator_rollouts": res["emulator_rollouts"],
+        "wall_s": wall,
+        "success_emulator": res["success_emulator"],
+        "success_physics": res["success_physics"],
+        "final_error_emulator": res["final_error_emulator"],
+        "final_error_physics": res["final_error_physics"],
+        "transfer_error": res["transfer_error"],
+        "objective_emulator": res["objective"],
+        "objective_physics": target,
+        "gradient_free_iterations": gf_iters,
+        "gradient_free_method": gf.method,
+        "gradient_free_reached": gf_iters is not None,
+        "gradient_free_budget": args.gf_evals,
+        "gradient_free_wall_s": gf_wall,
+        "gradient_free": [t.to_dict() for t in traces],
+        "iteration_ratio": ratio_iters,
+        "wall_ratio": gf_wall / wall if wall > 0 else None,
+        "fixed_rate": fixed,
+        "plot": str(png),
+    }
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    def f(x: Any, fmt: str = ".3g") -> str:
+        return "–" if x is None else format(x, fmt)
+
+    lines = [
+        "| task | vars | iterations to success (total) | wall s | success emulator / MuJoCo | final error emulator / MuJoCo"
+        " | transfer error | gradient-free evals to the same J | iteration ratio | wall ratio |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        reached = r["gradient_free_reached"]
+        gf = (
+            f"{r['gradient_free_iterations']} ({r['gradient_free_method']})"
+            if reached
+            else f"not reached in {r['gradient_free_budget']}"
+        )
+        bound = "" if reached else "> "
+        lines.append(
+            f"| {r['task']} | {r['control_variables']} | {f(r['iterations_to_success'], 'd')} ({r['iterations']}) | {r['wall_s']:.2f}"
+            f" | {'yes' if r['success_emulator'] else 'no'} / {'yes' if r['success_physics'] else 'no'}"
+            f" | {f(r['final_error_emulator'])} / {f(r['final_error_physics'])} | {f(r['transfer_error'])}"
+            f" | {gf} | {bound}{r['iteration_ratio']:.0f}× | {bound}{f(r['wall_ratio'], '.1f')}× |"
+        )
+    lines.append("")
+    lines.append(
+        "| task | update | η | α | final J after the curve's iterations | iterations to the default's J |"
+    )
+    lines.append("|---|---|---|---|---|---|")
+    for r in rows:
+        for label, c in r["fixed_rate"].items():
+            lines.append(
+                f"| {r['task']} | {label} | {c['learning_rate']:g} | {c['momentum']:g} | {f(c['final_objective'], '.4g')}"
+                f" | {f(c['iterations_to_target'], 'd')} |"
+            )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--tasks", default=",".join(TASKS))
+    p.add_argument("--artifacts", default="artifacts")
+    p.add_argument(
+        "--gf-evals", type=int, default=3000, help="evaluation budget of each gradient-free method"
+    )
+    p.add_argument("--curve-iterations", type=int, default=60, help="iterations of the fixed-rate curves")
+    p.add_argument("--repeats", type=int, default=3, help="run_job repeats for the wall time (median)")
+    p.add_argument("--out", default="bench/results", help="folder for the PNG curves")
+    p.add_argument("--quick", action="store_true", help="tiny settings for a smoke test")
+    p.add_argument("--json", action="store_true")
+    args = p.parse_args(argv)
+    args.rates = SWEEP_RATES
+    if args.quick:
+        args.gf_evals, args.curve_iterations, args.repeats, args.rates = 40, 3, 1, (0.1,)
+    logging.basicConfig(level=logging.WARNING)
+    torch.set_num_threads(1)
+    t0 = time.perf_counter()
+    rows = []
+    for name in args.tasks.split(","):
+        if name not in TASKS:
+            p.error(f"unknown task {name!r}; tasks are {sorted(TASKS)}")
+        rows.append(bench_task(name, args))
+        print(f"{name}: done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+    print(table(rows))
+    if args.json:
+        settings = {k: getattr(args, k) for k in ("gf_evals", "curve_iterations", "repeats", "quick")}
+        settings["rates"] = list(args.rates)
+        print(json.dumps({"tasks": rows, "settings": settings}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

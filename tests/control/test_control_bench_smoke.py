@@ -1,0 +1,53 @@
+"""bench/control.py runs end to end with tiny settings and prints one JSON object last."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_bench_control_quick(tmp_path: Path) -> None:
+    out = subprocess.run(
+        [
+            sys.executable,
+            "bench/control.py",
+            "--quick",
+            "--tasks",
+            "pendulum-swing",
+            "--out",
+            str(tmp_path),
+            "--json",
+        ],
+        cwd=ROOT,
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    ).stdout
+    lines = out.strip().splitlines()
+    assert lines[0].startswith("| task |")
+    result = json.loads(lines[-1])
+    (row,) = result["tasks"]
+    for key in (
+        "task",
+        "iterations_to_success",
+        "wall_s",
+        "success_emulator",
+        "success_physics",
+        "final_error_emulator",
+        "final_error_physics",
+        "gradient_free_iterations",
+        "iteration_ratio",
+        "wall_ratio",
+    ):
+        assert key in row
+    assert row["task"] == "pendulum-swing" and row["control_variables"] == 60
+    assert row["gradient_free_budget"] == 40 and {g["method"] for g in row["gradient_free"]} == {
+        "nelder_mead",
+        "cma_es",
+    }
+    assert (tmp_path / "control_pendulum-swing.png").stat().st_size > 10_000

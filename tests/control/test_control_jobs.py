@@ -1,0 +1,247 @@
+"""Job specs: ``validate_job`` fills defaults, names the bad field with the expected and the got,
+and never imports torch; the thesis tasks are plain data."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from neuroanimator.control import TASKS, JobSpecError, validate_job
+
+ROOT = Path(__file__).resolve().parents[2]
+ARTIFACTS = ROOT / "artifacts"
+
+
+def error_of(spec: dict[str, Any]) -> JobSpecError:
+    with pytest.raises(JobSpecError) as info:
+        validate_job(spec, ARTIFACTS)
+    assert isinstance(info.value, ValueError)
+    return info.value
+
+
+def test_task_defaults_are_filled_in_and_validation_is_idempotent() -> None:
+    spec = validate_job({"task": "pendulum-swing"}, ARTIFACTS)
+    task = TASKS["pendulum-swing"]
+    assert spec["model"] == "pendulum-active"
+    assert spec["substeps"] == 50 and spec["horizon"] == 40 and spec["points_per_step"] == 0.5
+    assert spec["version"] == (ARTIFACTS / "pendulum-active" / "latest-n50").read_text().strip()
+    assert spec["initial_state"] == list(task.initial_state)
+    assert spec["optimizer"]["learning_rate"] == 2.0 and spec["optimizer"]["momentum"] == 0.5
+    assert validate_job(spec, ARTIFACTS) == spec
+    json.dumps(spec)
+
+
+def test_overrides_and_a_model_only_job() -> None:
+    spec = validate_job(
+        {"task": "truck-parking", "target_state": [5, 5, 0, 0, 0, 0], "optimizer": {"max_iterations": 7}},
+        ARTIFACTS,
+    )
+    assert spec["target_state"] == [5.0, 5.0, 0.0, 0.0, 0.0, 0.0]
+    assert spec["optimizer"]["max_iterations"] == 7 and spec["optimizer"]["learning_rate"] == 1.5
+    custom = validate_job({"model": "lander", "terms": [{"term": "forward_distance"}], "mu_s": 0}, ARTIFACTS)
+    assert custom["task"] is None and custom["horizon"] == 40 and custom["points_per_step"] == 1.0
+    assert custom["initial_state"][3] == 1.0  # identity quaternion by default
+    assert custom["terms"] == [
+        {"term": "forward_distance", "weight": 1.0, "direction": [1.0, 0.0, 0.0], "variables": [0, 1, 2]}
+    ]
+    assert custom["success"] == []
+
+
+def test_quaternions_are_normalised() -> None:
+    s = [0.0] * 3 + [2.0, 0.0, 0.0, 0.0] + [0.0] * 6
+    assert validate_job({"model": "lander", "initial_state": s}, ARTIFACTS)["initial_state"][3] == 1.0
+    assert "quaternion orientation" in str(error_of({"model": "lander", "initial_state": [0.0] * 13}))
+
+
+@pytest.mark.parametrize(
+    ("spec", "field", "text"),
+    [
+        ({"task": "fly-to-mars"}, "task", "unknown task 'fly-to-mars'; known tasks are ['lander-landing', "),
+        ({}, "task", "expected a task or a model, got neither"),
+        ({"model": "submarine"}, "model", "unknown model 'submarine'; trained models are ['lander', "),
+        (
+            {"task": "pendulum-swing", "model": "truck"},
+            "model",
+            "task 'pendulum-swing' runs on model 'pendulum-active', got 'truck'",
+        ),
+        (
+            {"task": "truck-parking", "version": "n0-nope"},
+            "version",
+            "model 'truck' has no version 'n0-nope'",
+        ),
+        (
+            {"task": "truck-parking", "substeps": 7},
+            "substeps",
+            "model 'truck' has no emulator for substeps=7; it has [25, 50, 100]",
+        ),
+        (
+            {"task": "truck-parking", "target_state": [1, 2, 3]},
+            "target_state",
+            "expected 6 state values for model truck, got 3",
+        ),
+        (
+            {"task": "truck-parking", "initial_state": [0, 0, math.nan, 0, 0, 0]},
+            "initial_state",
+            "expected 6 finite state values for model truck, got nan at index 2",
+        ),
+        (
+            {"task": "truck-parking", "initial_state": [0, 0, math.inf, 0, 0, 0]},
+            "initial_state",
+            "got inf at index 2",
+        ),
+        (
+            {"task": "truck-parking", "target_state": "home"},
+            "target_state",
+            "expected a list of 6 state values for model truck, got str",
+        ),
+        (
+            {"task": "truck-parking", "state_weights": [1, 1, 1, 1, 1, -1]},
+            "state_weights",
+            "expected 6 weights >= 0",
+        ),
+        ({"task": "truck-parking", "horizon": 0}, "horizon", "expected an integer in [1, 1000], got 0"),
+        ({"task": "truck-parking", "horizon": 1001}, "horizon", "expected an integer in [1, 1000], got 1001"),
+        ({"task": "truck-parking", "horizon": 2.5}, "horizon", "expected an integer in [1, 1000], got 2.5"),
+        (
+            {"task": "truck-parking", "optimizer": {"max_iterations": 0}},
+            "optimizer.max_iterations",
+            "expected an integer in [1, 10000], got 0",
+        ),
+        (
+            {"task": "truck-parking", "optimizer": {"max_iterations": 10001}},
+            "optimizer.max_iterations",
+            "expected an integer in [1, 10000], got 10001",
+        ),
+        (
+            {"task": "truck-parking", "optimizer": {"learning_rate": 0}},
+            "optimizer.learning_rate",
+            "expected a number in (0, 100], got 0",
+        ),
+        (
+            {"task": "truck-parking", "optimizer": {"learning_rate": 101}},
+            "optimizer.learning_rate",
+            "expected a number in (0, 100], got 101",
+        ),
+        (
+            {"task": "truck-parking", "optimizer": {"momentum": 1.0}},
+            "optimizer.momentum",
+            "expected a number in [0, 1), got 1.0",
+        ),
+        (
+            {"task": "truck-parking", "optimizer": {"momentum": -0.1}},
+            "optimizer.momentum",
+            "expected a number in [0, 1), got -0.1",
+        ),
+        (
+            {"task": "truck-parking", "optimizer": {"speed": 3}},
+            "optimizer.speed",
+            "unknown key; the optimizer takes",
+        ),
+        (
+            {"task": "truck-parking", "terms": [{"term": "fly"}]},
+            "terms[0].term",
+            "unknown term 'fly'; known terms are ['control_effort', ",
+        ),
+        (
+            {"task": "truck-parking", "terms": [{"term": "final_velocity", "variables": ["speed"]}]},
+            "terms[0].variables",
+            "expected a state label (one of ['position.x', ",
+        ),
+        (
+            {"task": "truck-parking", "terms": [{"term": "stay_within_bounds", "variable": "heading"}]},
+            "terms[0]",
+            "expected low and/or high bounds, got neither",
+        ),
+        (
+            {"task": "truck-parking", "terms": [{"term": "final_state", "colour": 1}]},
+            "terms[0]",
+            "unknown parameters ['colour'] for term 'final_state'",
+        ),
+        (
+            {"task": "truck-parking", "terms": [{"term": "control_effort", "weight": -1}]},
+            "terms[0].weight",
+            "expected a number >= 0.0, got -1",
+        ),
+        (
+            {"task": "pendulum-swing", "terms": [{"term": "forward_distance"}]},
+            "terms[0]",
+            "needs a model with a root position group",
+        ),
+        (
+            {
+                "task": "truck-parking",
+                "terms": [{"term": "path_target", "waypoints": [{"step": 41, "target": [0] * 6}]}],
+            },
+            "terms[0].waypoints[0].step",
+            "expected an integer in [0, 40], got 41",
+        ),
+        (
+            {"task": "truck-parking", "initial_controls": [0, 9]},
+            "initial_controls",
+            "control gas must lie in its limits [-2, 5], got 9",
+        ),
+        (
+            {"task": "truck-parking", "success": [{"check": "near", "variables": ["heading"]}]},
+            "success",
+            "[0].check must be one of",
+        ),
+        ({"task": "truck-parking", "mu_u": 0, "mu_s": 0}, "terms", "the objective is empty"),
+        ({"task": "truck-parking", "colour": "red"}, "colour", "unknown key; a job takes"),
+        ({"model": "pendulum-passive"}, "model", "has no controls"),
+    ],
+)
+def test_bad_specs_name_the_field_the_expected_and_the_got(
+    spec: dict[str, Any], field: str, text: str
+) -> None:
+    err = error_of(spec)
+    assert err.field == field
+    assert text in str(err), str(err)
+    assert str(err).startswith(f"{field}: ")
+
+
+def test_validate_job_imports_neither_torch_nor_mujoco() -> None:
+    code = (
+        "import sys; from pathlib import Path; import neuroanimator.control as c; "
+        f"c.validate_job({{'task': 'lander-landing'}}, Path({str(ARTIFACTS)!r})); "
+        "[c.TASKS[t].to_dict() for t in c.TASKS]; "
+        "bad = [m for m in ('torch', 'mujoco', 'onnxruntime') if m in sys.modules]; "
+        "assert not bad, bad"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT, timeout=60)
+
+
+@pytest.mark.parametrize("name", sorted(TASKS))
+def test_tasks_are_plain_data_with_their_criterion_in_the_description(name: str) -> None:
+    task = TASKS[name]
+    data = task.to_dict()
+    json.dumps(data)
+    assert data["horizon"] == 40 and data["substeps"] == 50
+    assert data["success_criterion"] in data["description"]
+    assert data["success_criterion"].startswith("at the end: ")
+    for key in (
+        "name",
+        "model",
+        "initial_state",
+        "target_state",
+        "state_weights",
+        "mu_u",
+        "mu_s",
+        "terms",
+        "optimizer",
+    ):
+        assert key in data
+    validate_job({"task": name}, ARTIFACTS)
+
+
+def test_thesis_control_variable_counts() -> None:
+    """Pendulum 60 (20 per joint), lander 80, truck 40 (thesis 6.2)."""
+    assert TASKS["pendulum-swing"].control_variables(3) == 60
+    assert TASKS["lander-landing"].control_variables(4) == 80
+    assert TASKS["truck-parking"].control_variables(2) == 40
+    assert {t.optimizer["learning_rate"] for t in TASKS.values()} == {2.0, 1.5}
