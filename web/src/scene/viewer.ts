@@ -10,6 +10,26 @@ export class WebGLUnavailable extends Error {
   }
 }
 
+/** A tiled grid texture: one cell per repeat, lines a shade lighter than the ground. */
+function gridTexture(repeat: number): THREE.Texture {
+  const c = document.createElement('canvas');
+  c.width = c.height = 128;
+  const g = c.getContext('2d');
+  if (g) {
+    g.fillStyle = '#1b232c';
+    g.fillRect(0, 0, 128, 128);
+    g.strokeStyle = '#3d4a58';
+    g.lineWidth = 3;
+    g.strokeRect(0, 0, 128, 128);
+  }
+  const t = new THREE.CanvasTexture(c);
+  t.wrapS = t.wrapT = THREE.RepeatWrapping;
+  t.repeat.set(repeat, repeat);
+  t.anisotropy = 4;
+  t.colorSpace = THREE.SRGBColorSpace;
+  return t;
+}
+
 export class Viewer {
   readonly renderer: THREE.WebGLRenderer;
   readonly scene = new THREE.Scene();
@@ -17,9 +37,10 @@ export class Viewer {
   readonly controls: OrbitControls;
   /** MuJoCo's frame (z up); add models here. */
   readonly world = new THREE.Group();
-  readonly grid: THREE.GridHelper;
+  private readonly ground: THREE.Mesh;
   private readonly followed = new THREE.Vector3();
   private following: THREE.Vector3 | null = null;
+  private lastRender = 0;
   private readonly beforeRender = new Set<(now: number) => void>();
   private readonly stopLoop: () => void;
   private readonly resize: ResizeObserver;
@@ -42,9 +63,12 @@ export class Viewer {
     const sun = new THREE.DirectionalLight(0xffffff, 1.8);
     sun.position.set(5, 12, 7);
     this.scene.add(sun);
-    this.grid = new THREE.GridHelper(400, 200, 0x6b7c8f, 0x3b4755);
-    this.grid.rotation.x = Math.PI / 2; // into MuJoCo's xy plane
-    this.world.add(this.grid);
+    // the ground: a plane in MuJoCo's xy plane with a 2 m grid drawn into its texture
+    this.ground = new THREE.Mesh(
+      new THREE.PlaneGeometry(400, 400),
+      new THREE.MeshStandardMaterial({ map: gridTexture(200), roughness: 1, metalness: 0 }),
+    );
+    this.world.add(this.ground);
     this.controls = new OrbitControls(this.camera, renderer.domElement);
     this.controls.enableDamping = true;
     this.camera.position.set(4, 3, 6);
@@ -92,7 +116,7 @@ export class Viewer {
   }
 
   setGroundHeight(z: number): void {
-    this.grid.position.z = z;
+    this.ground.position.z = z;
   }
 
   onBeforeRender(f: (now: number) => void): () => void {
@@ -110,8 +134,11 @@ export class Viewer {
 
   private render(now: number): void {
     for (const f of this.beforeRender) f(now);
+    const dt = this.lastRender ? Math.min(1, (now - this.lastRender) / 1000) : 0;
+    this.lastRender = now;
     if (this.following) {
-      const delta = this.following.clone().sub(this.followed).multiplyScalar(0.15);
+      // glide after the point at the same pace whatever the frame rate (15 % per 60 Hz frame)
+      const delta = this.following.clone().sub(this.followed).multiplyScalar(1 - Math.pow(0.85, dt * 60));
       this.followed.add(delta);
       this.controls.target.add(delta);
       this.camera.position.add(delta);
