@@ -399,6 +399,8 @@ class JobStore:
             pipe.delete(k.progress(job_id), k.history(job_id))  # a new attempt starts from scratch
             pipe.zadd(k.running, {job_id: now})
             pipe.set(k.lease(job_id), worker, px=int(s.lease_ttl_s * 1000))
+            for key in (k.job(job_id), k.events(job_id)):  # a run may start late: keep the records
+                pipe.expire(key, s.queued_ttl_s)
             self._event(pipe, job_id, "status", {"status": "running", "attempt": attempt})
             return {**rec, "attempt": str(attempt)}, "started"
 
@@ -426,6 +428,9 @@ class JobStore:
             pipe.hset(k.progress(job_id), mapping=fields)
             pipe.rpush(k.history(job_id), json.dumps(data.get("objective")))
             self._event(pipe, job_id, "progress", data)
+            # so that a job nobody ever ends (every worker gone for good) leaves nothing forever
+            for key in (k.progress(job_id), k.history(job_id)):
+                pipe.expire(key, self.settings.queued_ttl_s)
             pipe.execute()
 
     def set_yield(self, job_id: str) -> None:

@@ -44,6 +44,7 @@ _PROGRESS_KEYS = {
     "success_emulator",
     "elapsed_s",
     "attempt",
+    "phase",
 }
 
 

@@ -26,7 +26,8 @@ def test_sigkilled_worker_job_completes_on_another_worker(ctl: Controller) -> No
     survivor = "w-b" if victim == "w-a" else "w-a"
     assert done["status"] == "succeeded", (done, ctl.logs())
     assert (done["attempt"], done["failures"], done["worker"]) == (2, 1, survivor)
-    assert done["iteration"] == 150 and len(done["objective_history"]) == 151
+    assert api.get(f"/jobs/{job_id}/result").json()["iterations"] == 150
+    assert len(done["objective_history"]) == done["iteration"] + 1  # this attempt's, from iteration 0
     events = api.get(f"/jobs/{job_id}/events").text
     assert f"abandoned: worker {victim} stopped renewing the job's lease" in events
     assert "controller_jobs_requeued_total 1.0" in api.get("/metrics").text
