@@ -101,7 +101,13 @@ def run(url: str, env: dict[str, str], workers: int, bodies: list[dict[str, Any]
     """Start the workers, submit the jobs, wait for all to end; the row of the table."""
     procs = [
         subprocess.Popen(
-            [sys.executable, "-m", "services.controller.worker", "--name", f"bench-{workers}-{i}"],
+            [
+                sys.executable,
+                "-m",
+                "services.controller.worker",
+                "--name",
+                f"{env['QUEUE_NAME']}-w{workers}-{i}",
+            ],
             env=env,
             cwd=tempfile.gettempdir(),  # MuJoCo writes MUJOCO_LOG.TXT into the working directory on warnings
         )
@@ -141,6 +147,20 @@ def run(url: str, env: dict[str, str], workers: int, bodies: list[dict[str, Any]
     }
 
 
+def cleanup(url: str, prefix: str, queue: str) -> None:
+    """Remove this run's keys: its prefix, its queue's RQ registries and its jobs' RQ records."""
+    import redis
+
+    r = redis.Redis.from_url(url)
+    keys = list(r.scan_iter(match=f"{prefix}:*"))
+    for job_id in {k.decode().rsplit(":", 1)[1] for k in keys if b":job:" in k}:
+        keys += list(r.scan_iter(match=f"rq:*{job_id}-*"))
+    keys += list(r.scan_iter(match=f"rq:*{queue}"))
+    if keys:
+        r.delete(*keys)
+    r.close()
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--jobs", type=int, default=12)
@@ -177,12 +197,17 @@ def main() -> int:
             "WORKER_THREADS": str(args.threads),
             "LOG_LEVEL": "warning",
         }
-        with api(env) as url:
-            for w in counts:
-                rows.append(run(url, env, w, bodies))
+        try:
+            with api(env) as url:
+                for w in counts:
+                    rows.append(run(url, env, w, bodies))
+        finally:
+            cleanup(redis, env["REDIS_PREFIX"], env["QUEUE_NAME"])
     cols = ["workers", "jobs", "succeeded", "wall_s", "jobs_per_min", "run_s", "turnaround_s", "iterations"]
     widths = [max(len(c), *(len(str(r[c])) for r in rows)) for c in cols]
-    print(f"controller throughput: {args.jobs} jobs ({', '.join(tasks)}), {args.threads} torch thread(s) per job")
+    print(
+        f"controller throughput: {args.jobs} jobs ({', '.join(tasks)}), {args.threads} torch thread(s) per job"
+    )
     print("  ".join(c.rjust(w) for c, w in zip(cols, widths, strict=True)))
     print("  ".join("-" * w for w in widths))
     for r in rows:

@@ -62,6 +62,7 @@ class Controller:
 
     def __init__(self, redis_url: str, tmp: Path) -> None:
         tag = uuid.uuid4().hex[:10]
+        self.tag = tag
         self.redis_url = redis_url
         self.tmp = tmp
         self.env: dict[str, str] = {
@@ -91,6 +92,11 @@ class Controller:
         c.__enter__()
         self.clients.append(c)
         return c
+
+    def name(self, short: str) -> str:
+        """A worker name unique to this test: RQ refuses a name whose earlier holder died by SIGKILL
+        until its registration expires."""
+        return f"{short}-{self.tag}"
 
     def worker(self, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
         """A worker process (``python -m services.controller.worker``); its log goes to a file."""
@@ -125,10 +131,8 @@ class Controller:
         keys = list(self.r.scan_iter(match=f"{prefix}:*"))
         job_ids = {k.decode().rsplit(":", 1)[1] for k in keys if b":job:" in k}
         for job_id in job_ids:
-            keys += list(self.r.scan_iter(match=f"rq:job:{job_id}-*"))
-            keys += list(self.r.scan_iter(match=f"rq:results:{job_id}-*"))
-            keys += list(self.r.scan_iter(match=f"rq:execution*{job_id}-*"))
-        keys += list(self.r.scan_iter(match=f"rq:*:{queue}"))
+            keys += list(self.r.scan_iter(match=f"rq:*{job_id}-*"))
+        keys += list(self.r.scan_iter(match=f"rq:*{queue}"))
         if keys:
             self.r.delete(*keys)
         self.r.close()

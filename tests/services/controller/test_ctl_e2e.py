@@ -41,7 +41,7 @@ def test_submit_progress_result_through_a_worker(ctl: Controller) -> None:
     )
     assert api.get(f"/jobs/{job_id}/result").status_code == 409
 
-    worker = ctl.worker("--burst", "--name", "w-e2e")
+    worker = ctl.worker("--burst", "--name", ctl.name("w-e2e"))
     # while the job runs: the job's process has torch, the worker's parent process does not
     running = wait_for("the job to run", lambda: (j := job(api, job_id))["status"] != "queued" and j)
     if running["status"] == "running":
@@ -54,7 +54,7 @@ def test_submit_progress_result_through_a_worker(ctl: Controller) -> None:
     done = ended(api, job_id)
     assert worker.wait(timeout=60) == 0, ctl.logs()
     assert done["status"] == "succeeded", done
-    assert (done["attempt"], done["failures"], done["worker"]) == (1, 0, "w-e2e")
+    assert (done["attempt"], done["failures"], done["worker"]) == (1, 0, ctl.name("w-e2e"))
     # one objective per progress event: the initial controller, 4 updates (and any later phase's)
     assert done["iteration"] >= 4 and len(done["objective_history"]) == done["iteration"] + 1
     assert done["best_objective"] is not None and done["best_objective"] <= done["objective_history"][0]
@@ -163,7 +163,7 @@ def test_neuro_worker_command_runs_jobs(ctl: Controller) -> None:
     job_id = api.post("/jobs", json=QUICK).json()["id"]
     # `neuro worker` execs `python -m services.controller.worker` (the CLI process has imported torch)
     subprocess.run(
-        [sys.executable, "-m", "neuroanimator.cli", "worker", "--burst", "--name", "w-cli"],
+        [sys.executable, "-m", "neuroanimator.cli", "worker", "--burst", "--name", ctl.name("w-cli")],
         env={**os.environ, **ctl.env},
         cwd=ctl.tmp,
         check=True,
@@ -171,4 +171,4 @@ def test_neuro_worker_command_runs_jobs(ctl: Controller) -> None:
         capture_output=True,
     )
     done = job(api, job_id)
-    assert (done["status"], done["worker"]) == ("succeeded", "w-cli"), done
+    assert (done["status"], done["worker"]) == ("succeeded", ctl.name("w-cli")), done

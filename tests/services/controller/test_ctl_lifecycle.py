@@ -30,7 +30,7 @@ def test_cancel_a_queued_job(ctl: Controller) -> None:
 def test_cancel_a_running_job_keeps_the_best_controller(ctl: Controller) -> None:
     api = ctl.client()
     job_id = api.post("/jobs", json=long_job()).json()["id"]
-    ctl.worker("--name", "w-cancel")
+    ctl.worker("--name", ctl.name("w-cancel"))
     wait_for("a few iterations", lambda: job(api, job_id)["iteration"] >= 3, timeout=90)
     r = api.delete(f"/jobs/{job_id}")
     assert r.status_code == 202 and r.json()["status"] in ("running", "cancelled")
@@ -95,14 +95,14 @@ def test_a_job_whose_runs_crash_is_retried_then_failed(ctl: Controller, tmp_path
 def test_sigterm_puts_the_running_job_back_on_the_queue(ctl: Controller) -> None:
     api = ctl.client()
     job_id = api.post("/jobs", json=long_job(150)).json()["id"]
-    w = ctl.worker("--name", "w-leaving")
+    w = ctl.worker("--name", ctl.name("w-leaving"))
     wait_for("the job to iterate", lambda: job(api, job_id)["iteration"] >= 1, timeout=90)
     w.send_signal(signal.SIGTERM)
     assert w.wait(timeout=30) == 0, ctl.logs()  # it stopped promptly, without finishing the job
     back = job(api, job_id)
     assert back["status"] == "queued" and back["failures"] == 0, back
-    assert "worker w-leaving shut down" in back["error"]
-    ctl.worker("--burst", "--name", "w-next")
+    assert f"worker {ctl.name('w-leaving')} shut down" in back["error"]
+    ctl.worker("--burst", "--name", ctl.name("w-next"))
     done = ended(api, job_id, timeout=120)
-    assert (done["status"], done["attempt"], done["worker"]) == ("succeeded", 2, "w-next")
+    assert (done["status"], done["attempt"], done["worker"]) == ("succeeded", 2, ctl.name("w-next"))
     assert api.get(f"/jobs/{job_id}/result").json()["iterations"] == 150

@@ -8,9 +8,9 @@ from ctl import Controller, ctl_fixture, ended, job, kill, long_job, wait_for  #
 
 def test_sigkilled_worker_job_completes_on_another_worker(ctl: Controller) -> None:
     api = ctl.client()
-    a = ctl.worker("--name", "w-a")
-    b = ctl.worker("--name", "w-b")
-    workers = {"w-a": a, "w-b": b}
+    a = ctl.worker("--name", ctl.name("w-a"))
+    b = ctl.worker("--name", ctl.name("w-b"))
+    workers = {ctl.name("w-a"): a, ctl.name("w-b"): b}
     job_id = api.post("/jobs", json=long_job(150)).json()["id"]
     running = wait_for(
         "the job to iterate", lambda: (j := job(api, job_id))["iteration"] >= 1 and j, timeout=90
@@ -23,7 +23,7 @@ def test_sigkilled_worker_job_completes_on_another_worker(ctl: Controller) -> No
     assert workers[victim].wait(timeout=10) == -9
 
     done = ended(api, job_id, timeout=150)
-    survivor = "w-b" if victim == "w-a" else "w-a"
+    survivor = ctl.name("w-b") if victim == ctl.name("w-a") else ctl.name("w-a")
     assert done["status"] == "succeeded", (done, ctl.logs())
     assert (done["attempt"], done["failures"], done["worker"]) == (2, 1, survivor)
     assert api.get(f"/jobs/{job_id}/result").json()["iterations"] == 150
