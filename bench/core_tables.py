@@ -1,8 +1,10 @@
 """Run ``neuro eval`` and ``neuro bench`` for every catalog model and print the BENCHMARKS.md tables.
 
-    python bench/core_tables.py [--artifacts DIR] [--models a,b] [--json]
+    python bench/core_tables.py [--artifacts DIR] [--models a,b] [--no-save] [--json]
 
-With ``--json`` the last line is one JSON object: {"eval": {model: ...}, "bench": {model: ...}}.
+Each model's results are also saved as ``<artifacts>/<model>/eval.json`` and ``bench.json`` (the
+dashboard's error plot and speed table read them). With ``--json`` the last line is one JSON object:
+{"eval": {model: ...}, "bench": {model: ...}}.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import argparse
 import json
 import subprocess
 import sys
+from pathlib import Path
 from typing import Any
 
 from neuroanimator import physics
@@ -31,11 +34,17 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--artifacts", default="artifacts")
     p.add_argument("--models", default=",".join(physics.CATALOG))
+    p.add_argument("--no-save", action="store_true", help="do not write eval.json / bench.json")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     models = args.models.split(",")
     evals = {m: _neuro("eval", m, "--artifacts", args.artifacts) for m in models}
     benches = {m: _neuro("bench", m, "--artifacts", args.artifacts) for m in models}
+    if not args.no_save:
+        for m in models:
+            folder = Path(args.artifacts) / m
+            (folder / "eval.json").write_text(json.dumps(evals[m], indent=1) + "\n")
+            (folder / "bench.json").write_text(json.dumps(benches[m], indent=1) + "\n")
 
     print("| model | n | one-step rel. error | linear baseline | ratio | rollout error @20 s |")
     print("|---|---|---|---|---|---|")

@@ -26,10 +26,11 @@ def compose() -> dict[str, Any]:
 
 
 def _emulators(compose: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The emulator replicas: the emulator image run with its own command (the controller API shares the image)."""
     return {
         name: svc
         for name, svc in compose["services"].items()
-        if svc.get("build", {}).get("target") == "emulator"
+        if svc.get("build", {}).get("target") == "emulator" and "command" not in svc
     }
 
 
@@ -69,6 +70,27 @@ def test_proxy_serves_the_dashboard_and_the_apis(compose: dict[str, Any]) -> Non
     assert "location /api/emulator/" in block and "proxy_pass http://$emulator_upstream;" in block
     assert "rewrite ^/api/emulator(/.*)$ $1 break;" in block  # the map then sees the emulator's own path
     assert "location /api/controller/" in block and "proxy_buffering off;" in block  # server-sent events
+
+
+def test_controller_services_match_their_settings(compose: dict[str, Any]) -> None:
+    from services.controller.settings import Settings
+
+    known = {name.upper() for name in Settings.model_fields}
+    services = compose["services"]
+    api, worker = services["controller-api"], services["controller-worker"]
+    for name, svc in (("controller-api", api), ("controller-worker", worker)):
+        env = svc["environment"]
+        assert set(env) <= known, (name, set(env) - known)  # every variable is a controller setting
+        assert env["REDIS_URL"].startswith("redis://redis:"), name
+        assert "redis" in svc["depends_on"], name
+        assert any(v.split(":")[1] == env["ARTIFACTS_DIR"] for v in svc["volumes"]), name
+    assert api["build"]["target"] == "emulator"  # the API needs no PyTorch
+    assert api["command"] == ["python", "-m", "services.controller"]
+    assert api["environment"]["PORT"] == str(Settings.model_fields["port"].default)
+    assert "8001" in api["healthcheck"]["test"][-1]
+    assert worker["build"]["target"] == "trainer" and worker["command"] == ["worker"]  # `neuro worker`
+    conf = (ROOT / "deploy" / "nginx" / "emulator.conf").read_text()
+    assert f"controller-api:{api['environment']['PORT']}" in conf  # the proxy reaches the API
 
 
 def test_replicas_have_distinct_ids_and_use_redis(compose: dict[str, Any]) -> None:
