@@ -6,8 +6,10 @@
 For each thesis task (pendulum-swing, lander-landing, truck-parking):
 
 - ``run_job`` with the task's defaults: iterations until the success criterion holds on the
-  emulator, the controller's total iterations, wall time per job (median of ``--repeats``, one
-  thread), and the replay on MuJoCo: success there too, the final errors, the transfer error;
+  emulator, the total gradient iterations (emulator phase, polishing and physics-refinement
+  rounds), wall time per job (median of ``--repeats``, one thread), and the replay on MuJoCo of
+  the emulator-only controller and of the one returned: success there, the final errors, the
+  transfer error;
 - Nelder-Mead and CMA-ES (``neuroanimator.control.gradient_free``) on the *same* objective of the
   same control points evaluated on MuJoCo directly, from the same initial controller: objective
   evaluations (= physical simulations, 2,000 steps each) and wall time until they reach the
@@ -45,14 +47,16 @@ from neuroanimator.control.runner import load_problem
 from neuroanimator.control.synthesis import Settings, optimize
 
 log = logging.getLogger("bench.control")
-SWEEP_RATES = (0.4, 0.2, 0.1, 0.05, 0.025)
+# learning rates tried for the fixed-coefficient curves (raw gradients, so J's scale sets the rate)
+SWEEP_RATES = (1.0, 0.3, 0.1, 0.03, 0.01, 3e-3, 1e-3, 3e-4, 1e-4, 3e-5, 1e-5)
 
 
 def fixed_rate_curves(
     spec: dict[str, Any], root: Path, iterations: int, rates: tuple[float, ...]
 ) -> dict[str, Any]:
-    """Objective histories of the thesis' fixed-coefficient updates: momentum (α = the task's) and plain
-    gradient descent (α = 0), each at the rate of ``rates`` that ends lowest; plus the default search."""
+    """Objective histories of the thesis' fixed-coefficient updates on the raw gradient (eqs. 6.2, 6.3):
+    momentum (α = the task's) and plain gradient descent (α = 0), each at the rate of ``rates`` that
+    ends lowest (the thesis took the largest rate that converged); plus the default search."""
     problem, _, _ = load_problem(spec, root)
     alpha = float(spec["optimizer"]["momentum"])
     out: dict[str, Any] = {}
@@ -62,10 +66,18 @@ def fixed_rate_curves(
             run = optimize(
                 lambda z: problem.value_and_grad(z)[:3],
                 problem.initial_points(),
-                Settings(eta, a, iterations, tolerance=0.0, stop_on_success=False, line_search=False),
+                Settings(
+                    eta,
+                    a,
+                    iterations,
+                    tolerance=0.0,
+                    stop_on_success=False,
+                    line_search=False,
+                    normalize_gradient=False,
+                ),
                 project=problem.project,
             )
-            final = min(run.history) if run.history else float("inf")
+            final = run.history[-1] if run.history and run.stop != "diverged" else float("inf")
             if best is None or final < best[0]:
                 best = (final, eta, run.history)
         assert best is not None
@@ -132,7 +144,8 @@ def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
     results = [run_job(spec, root, threads=1) for _ in range(args.repeats)]
     res = results[-1]
     wall = statistics.median(r["wall_s"] for r in results)
-    iterations = int(res["iterations"])
+    # every gradient iteration counts: the emulator phase's and the physics-refinement rounds'
+    iterations = int(res["iterations"]) + int(res["refinement"]["iterations"])
     target = float(res["objective_physics"])
 
     problem, _, path = load_problem(spec, root)
@@ -178,6 +191,11 @@ def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
         "control_variables": int(np.prod(shape)),
         "iterations_to_success": res["iterations_to_success"],
         "iterations": iterations,
+        "emulator_phase_iterations": res["iterations"],
+        "refinement_iterations": res["refinement"]["iterations"],
+        "physics_replays": res["refinement"]["physics_replays"],
+        "success_physics_emulator_phase": res["emulator_phase"]["success_physics"],
+        "final_error_physics_emulator_phase": res["emulator_phase"]["final_error_physics"],
         "emulator_rollouts": res["emulator_rollouts"],
         "wall_s": wall,
         "success_emulator": res["success_emulator"],
@@ -205,9 +223,10 @@ def table(rows: list[dict[str, Any]]) -> str:
         return "–" if x is None else format(x, fmt)
 
     lines = [
-        "| task | vars | iterations to success (total) | wall s | success emulator / MuJoCo | final error emulator / MuJoCo"
-        " | transfer error | gradient-free evals to the same J | iteration ratio | wall ratio |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| task | vars | iterations to success (total) | wall s | MuJoCo success / error, emulator-only controller"
+        " | success emulator / MuJoCo | final error emulator / MuJoCo | transfer error"
+        " | gradient-free evals to the same J | iteration ratio | wall ratio |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         reached = r["gradient_free_reached"]
@@ -219,6 +238,7 @@ def table(rows: list[dict[str, Any]]) -> str:
         bound = "" if reached else "> "
         lines.append(
             f"| {r['task']} | {r['control_variables']} | {f(r['iterations_to_success'], 'd')} ({r['iterations']}) | {r['wall_s']:.2f}"
+            f" | {'yes' if r['success_physics_emulator_phase'] else 'no'} / {f(r['final_error_physics_emulator_phase'])}"
             f" | {'yes' if r['success_emulator'] else 'no'} / {'yes' if r['success_physics'] else 'no'}"
             f" | {f(r['final_error_emulator'])} / {f(r['final_error_physics'])} | {f(r['transfer_error'])}"
             f" | {gf} | {bound}{r['iteration_ratio']:.0f}× | {bound}{f(r['wall_ratio'], '.1f')}× |"
@@ -252,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     args.rates = SWEEP_RATES
     if args.quick:
-        args.gf_evals, args.curve_iterations, args.repeats, args.rates = 40, 3, 1, (0.1,)
+        args.gf_evals, args.curve_iterations, args.repeats, args.rates = 40, 3, 1, (0.01,)
     logging.basicConfig(level=logging.WARNING)
     torch.set_num_threads(1)
     t0 = time.perf_counter()

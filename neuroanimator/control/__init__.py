@@ -3,7 +3,8 @@
 A *job* asks for a controller: a task (``TASKS``) or a model with a goal, an objective, and the
 optimiser's settings. ``validate_job`` checks and normalises a spec without importing PyTorch (an
 API process calls it on submission); ``run_job`` optimises the controller by backpropagation
-through time in the artifact's torch emulator, with momentum, and replays it on MuJoCo.
+through time in the artifact's torch emulator, with momentum, replays it on MuJoCo and, if it misses
+there, refines it on an emulator corrected along the replay (``runner``).
 
 Modules: ``tasks`` (the thesis' tasks, plain data), ``terms`` (the objective-term catalogue,
 torch-free), ``criteria`` (success checks, numpy), ``jobs`` (``validate_job``), ``splines``
@@ -17,8 +18,9 @@ result holds ``status`` ("succeeded" | "failed" | "cancelled"), ``reason``, ``ta
 ``control_points`` (M×U), ``control_spacing_s``, ``times`` (K super-step starts), ``controls``
 (K×U held values), ``emulated``/``physical`` ``{"states": (K+1)×S}``, ``final_error_emulator``,
 ``final_error_physics``, ``success_emulator``, ``success_physics``, ``target_state``,
-``initial_state``, ``wall_s``, ``state_labels``, and more detail (``transfer_error``,
-``checks_emulator``, ``success_criterion``, ``spec``...).
+``initial_state``, ``wall_s``, ``state_labels``, and more detail (``stop``, ``transfer_error``,
+``checks_emulator``/``checks_physics``, ``success_criterion``, ``emulator_phase``, ``refinement``,
+``objective_physics``, ``control_names``, ``spec``...).
 """
 
 from __future__ import annotations

@@ -3,6 +3,16 @@
 validate the spec → load the artifact's torch emulator and its MJCF → optimise the controller on
 the emulator (``synthesis.optimize``) → replay it on MuJoCo → a JSON-able result. PyTorch is
 imported here, never by ``validate_job``.
+
+Physics refinement (``optimizer.physics_rounds``, default 3): an emulator's small systematic
+errors add up over 40 super-steps (the lander's drifts ~4 m in 20 s at hover), so a controller that
+meets the criterion on the emulator can miss on MuJoCo. When the replay misses, the emulator is
+corrected along the replayed trajectory (``ControlProblem.set_correction``: a per-step additive
+term that makes it reproduce the replay exactly) and the controller is optimised again for a few
+iterations, then replayed; the controller that does best on MuJoCo is returned. The result keeps
+the emulator-only controller's outcome (``emulator_phase``) beside the returned one's, and
+``emulated`` is always the plain emulator's prediction, so a refined controller can show
+``success_emulator`` false and ``success_physics`` true: the emulator's own error, made visible.
 """
 
 from __future__ import annotations

@@ -49,6 +49,8 @@ class Settings:
     stop_on_success: bool = True
     line_search: bool = True
     polish_iterations: int = 3
+    # False: the thesis' raw gradient (eqs. 5.5, 6.2-6.3), whose η then depends on the scale of J
+    normalize_gradient: bool = True
 
     @classmethod
     def from_spec(cls, opt: dict[str, Any]) -> Settings:
@@ -156,7 +158,7 @@ def optimize(
         if scale == 0.0:
             stop, reason = "converged", "the gradient is zero"
             break
-        g_hat = g / scale
+        g_hat = g / scale if settings.normalize_gradient else g
         if settings.line_search:
             assert evaluate is not None
             cands = settings.candidates(first=done == 0)
@@ -198,6 +200,8 @@ def optimize(
             stop, reason = "converged", f"relative change of the objective below {settings.tolerance:g}"
             break
         j = j_new
+    if stop == "max_iterations" and to_success is not None and settings.stop_on_success:
+        stop = "success"  # the cap fell inside the polishing iterations
     chosen = best_ok if best_ok is not None else best
     chosen.stop, chosen.reason = stop, reason
     chosen.iterations = done
