@@ -10,11 +10,12 @@ For each thesis task (pendulum-swing, lander-landing, truck-parking):
   rounds), wall time per job (median of ``--repeats``, one thread), and the replay on MuJoCo of
   the emulator-only controller and of the one returned: success there, the final errors, the
   transfer error;
-- Nelder-Mead and CMA-ES (``neuroanimator.control.gradient_free``) on the *same* objective of the
-  same control points evaluated on MuJoCo directly, from the same initial controller: objective
-  evaluations (= physical simulations, 2,000 steps each) and wall time until they reach the
-  objective value the gradient method's controller scores on MuJoCo, capped at ``--gf-evals``
-  ("not reached" otherwise, and the ratios are then lower bounds);
+- Nelder-Mead and CMA-ES (``neuroanimator.control.gradient_free``), each with a large and a small
+  initial step (``--gf-steps``), on the *same* objective of the same control points evaluated on
+  MuJoCo directly, from the same initial controller: objective evaluations (= physical
+  simulations, 2,000 steps each) and wall time until they reach the objective value the gradient
+  method's controller scores on MuJoCo, capped at ``--gf-evals`` per run ("not reached"
+  otherwise, and the ratios are then lower bounds); the best of the runs is compared;
 - gradient descent with and without momentum at fixed (η, α) (thesis 6.3.1, Figs. 6.13-6.15),
   each at its best learning rate of a small sweep, beside the default per-iteration (η, α) search:
   objective-vs-iteration curves written as ``control_<task>.png`` to ``--out``.
@@ -158,10 +159,18 @@ def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
     def on_physics(xs: np.ndarray) -> np.ndarray:
         return problem.evaluate_physics(physical, xs.reshape(-1, *shape))
 
-    traces = [
-        nelder_mead(on_physics, x0, low=low, high=high, target=target, budget=args.gf_evals),
-        cma_es(on_physics, x0, low=low, high=high, target=target, budget=args.gf_evals, seed=0),
-    ]
+    # each method with a large and a small initial step (in units of the controls' half-ranges): the
+    # lander needs small ones, the pendulum large ones; the best run is the one compared
+    traces = []
+    for step in args.gf_steps:
+        tr = nelder_mead(on_physics, x0, low=low, high=high, step=step, target=target, budget=args.gf_evals)
+        tr.method = f"nelder_mead(step={step:g})"
+        traces.append(tr)
+        tr = cma_es(
+            on_physics, x0, low=low, high=high, sigma=step, target=target, budget=args.gf_evals, seed=0
+        )
+        tr.method = f"cma_es(sigma={step:g})"
+        traces.append(tr)
     reached = [t for t in traces if t.evaluations_to_target is not None]
     if reached:
         gf = min(reached, key=lambda t: t.evaluations_to_target or 0)
@@ -173,15 +182,14 @@ def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
         gf_iters, gf_wall = None, min(t.wall_s for t in traces)
         ratio_iters = args.gf_evals / max(iterations, 1)  # a lower bound: neither got there
     curves = fixed_rate_curves(spec, root, args.curve_iterations, args.rates)
+    target_emu = float(res["emulator_phase"]["objective"])  # what the default reached on the emulator
     png = plot(name, curves, traces, target, iterations, Path(args.out))
     fixed = {
         label: {
             "learning_rate": c["learning_rate"],
             "momentum": c["momentum"],
             "final_objective": c["history"][-1] if c["history"] else None,
-            "iterations_to_target": next(
-                (i for i, v in enumerate(c["history"]) if v <= res["objective"]), None
-            ),
+            "iterations_to_target": next((i for i, v in enumerate(c["history"]) if v <= target_emu), None),
         }
         for label, c in curves.items()
     }
@@ -264,6 +272,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--gf-evals", type=int, default=3000, help="evaluation budget of each gradient-free method"
     )
+    p.add_argument(
+        "--gf-steps",
+        default="0.3,0.03",
+        help="initial steps (simplex edge, CMA-ES sigma) of the gradient-free runs",
+    )
     p.add_argument("--curve-iterations", type=int, default=60, help="iterations of the fixed-rate curves")
     p.add_argument("--repeats", type=int, default=3, help="run_job repeats for the wall time (median)")
     p.add_argument("--out", default="bench/results", help="folder for the PNG curves")
@@ -271,6 +284,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     args.rates = SWEEP_RATES
+    args.gf_steps = [float(x) for x in args.gf_steps.split(",")]
     if args.quick:
         args.gf_evals, args.curve_iterations, args.repeats, args.rates = 40, 3, 1, (0.01,)
     logging.basicConfig(level=logging.WARNING)
@@ -284,7 +298,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name}: done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     print(table(rows))
     if args.json:
-        settings = {k: getattr(args, k) for k in ("gf_evals", "curve_iterations", "repeats", "quick")}
+        settings = {
+            k: getattr(args, k) for k in ("gf_evals", "gf_steps", "curve_iterations", "repeats", "quick")
+        }
         settings["rates"] = list(args.rates)
         print(json.dumps({"tasks": rows, "settings": settings}))
     return 0
