@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,7 @@ from neuroanimator.control.errors import JobSpecError
 from neuroanimator.control.tasks import TASKS, Task
 from neuroanimator.control.terms import normalize_terms, vector
 
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")  # model and version names: never a path
 MAX_HORIZON = 1000
 MAX_ITERATIONS = 10_000
 MAX_LEARNING_RATE = 100.0
@@ -82,9 +84,9 @@ def find_artifact(
     root: Path, model: str, version: str | None, substeps: int | None
 ) -> tuple[Path, dict[str, Any]]:
     """The version folder and manifest of a model (torch-free ``artifacts.resolve`` + ``load_manifest``)."""
-    model_dir = root / model
-    if not isinstance(model, str) or not model or "/" in model or not model_dir.is_dir():
+    if not _NAME.match(model) or not (root / model).is_dir():
         raise JobSpecError("model", f"unknown model {model!r}; trained models are {_artifact_names(root)}")
+    model_dir = root / model
     if version is None:
         pointer = model_dir / ("latest" if substeps is None else f"latest-n{substeps}")
         if not pointer.is_file():
@@ -94,7 +96,7 @@ def find_artifact(
             )
         version = pointer.read_text().strip()
     path = model_dir / version
-    if "/" in version or not (path / "manifest.json").is_file():
+    if not _NAME.match(version) or not (path / "manifest.json").is_file():
         versions = sorted(p.parent.name for p in model_dir.glob("*/manifest.json"))
         raise JobSpecError("version", f"model {model!r} has no version {version!r}; it has {versions}")
     try:

@@ -194,6 +194,12 @@ def test_quaternions_are_normalised() -> None:
         ({"task": "truck-parking", "mu_u": 0, "mu_s": 0}, "terms", "the objective is empty"),
         ({"task": "truck-parking", "colour": "red"}, "colour", "unknown key; a job takes"),
         ({"model": "pendulum-passive"}, "model", "has no controls"),
+        ({"model": "../artifacts/lander"}, "model", "unknown model '../artifacts/lander'"),
+        (
+            {"task": "truck-parking", "version": "../lander/latest"},
+            "version",
+            "has no version '../lander/latest'",
+        ),
     ],
 )
 def test_bad_specs_name_the_field_the_expected_and_the_got(
