@@ -77,6 +77,7 @@ class Batcher:
         self.ort_calls = 0
         self.rows = 0
         self._pending: list[_Request | _Bulk] = []
+        self._pending_rows = 0  # rows waiting in _pending, kept so that enqueueing is O(1)
         self._ready = asyncio.Event()
         self._full = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
@@ -109,8 +110,9 @@ class Batcher:
                 self._worker(), name=f"batcher-{self.emu.model}"
             )
         self._pending.append(req)
+        self._pending_rows += req.rows
         self._ready.set()
-        if sum(r.rows for r in self._pending) >= self.max_batch:
+        if self._pending_rows >= self.max_batch:
             self._full.set()
 
     async def close(self) -> None:
@@ -125,7 +127,7 @@ class Batcher:
     async def _worker(self) -> None:
         while True:
             await self._ready.wait()
-            if sum(r.rows for r in self._pending) < self.max_batch and self.max_wait_s > 0:
+            if self._pending_rows < self.max_batch and self.max_wait_s > 0:
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self._full.wait(), self.max_wait_s)
             take, rows = 0, 0  # whole entries up to max_batch rows (a bulk entry is never split)
@@ -135,7 +137,8 @@ class Batcher:
                 rows += self._pending[take].rows
                 take += 1
             batch, self._pending = self._pending[:take], self._pending[take:]
-            if sum(r.rows for r in self._pending) < self.max_batch:
+            self._pending_rows -= rows
+            if self._pending_rows < self.max_batch:
                 self._full.clear()
             if not self._pending:
                 self._ready.clear()

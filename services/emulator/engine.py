@@ -34,6 +34,10 @@ from services.emulator.settings import Settings
 
 log = logging.getLogger(__name__)
 
+_F32_MAX = float(np.finfo(np.float32).max)
+_EMPTY = np.zeros(0, np.float32)
+_EMPTY.flags.writeable = False  # shared by every model without controls or forces
+
 
 def check_vector(
     field: str, values: Sequence[float], width: int, what: str, rng: NDArray[np.float64] | None = None
@@ -52,10 +56,11 @@ def check_vector(
             expected=width,
             got=len(values),
         )
+    if width == 0:
+        return _EMPTY, []
     arr = np.asarray(values, dtype=np.float64)
-    with np.errstate(over="ignore"):
-        out = arr.astype(np.float32)
-    bad = np.flatnonzero(~np.isfinite(out))
+    # beyond float32's range (JSON allows it) or NaN/Inf (binary frames can carry them): 422
+    bad = np.flatnonzero(~(np.abs(arr) <= _F32_MAX))
     if bad.size:
         i = int(bad[0])
         raise ApiError(
@@ -67,13 +72,25 @@ def check_vector(
             got=values[i],
         )
     clipped: list[int] = []
-    if rng is not None and width:
+    if rng is not None:
         lo, hi = rng[:, 0], rng[:, 1]
         mask = (arr < lo) | (arr > hi)
         if mask.any():
             clipped = [int(i) for i in np.flatnonzero(mask)]
-            out = np.clip(arr, lo, hi).astype(np.float32)
+            arr = np.clip(arr, lo, hi)
+    out = arr.astype(np.float32)
     return out, clipped
+
+
+def clip_to(values: NDArray[np.float32], rng: NDArray[np.float64]) -> tuple[NDArray[np.float32], list[int]]:
+    """Finite float32 ``values`` (W,) clipped to ``rng`` (W, 2): the vector and the clipped indices."""
+    if values.size == 0:
+        return _EMPTY, []
+    lo, hi = rng[:, 0], rng[:, 1]
+    mask = (values < lo) | (values > hi)
+    if not mask.any():
+        return values, []
+    return np.clip(values, lo, hi).astype(np.float32), np.flatnonzero(mask).tolist()
 
 
 class Engine:
@@ -178,6 +195,27 @@ class Engine:
         f, cf = check_vector(f"{prefix}forces", forces, emu.num_forces, what, emu.force_range)
         return u, cu, f, cf
 
+    def inputs_array(
+        self, sess: Session, values: NDArray[np.float32]
+    ) -> tuple[NDArray[np.float32], list[int], NDArray[np.float32], list[int]]:
+        """``inputs`` for (U+F,) float32 values of a binary frame (its length already checked)."""
+        emu = sess.emu
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            j = int(bad[0])
+            name = f"controls[{j}]" if j < emu.num_controls else f"forces[{j - emu.num_controls}]"
+            raise ApiError(
+                422,
+                "not_finite",
+                f"{name} is {float(values[j])!r}; inputs must be finite float32",
+                field=name,
+                expected="a finite float32",
+                got=float(values[j]),
+            )
+        u, cu = clip_to(values[: emu.num_controls], emu.control_range)
+        f, cf = clip_to(values[emu.num_controls :], emu.force_range)
+        return u, cu, f, cf
+
     # ------------------------------------------------------------------ stepping
     async def step(
         self,
@@ -214,7 +252,7 @@ class Engine:
         async with sess.lock:
             start = sess.state
             out = [await batcher.step(sess, u, f) for _ in range(steps)]
-        self.metrics.step_latency.labels(sess.emu.model, transport).observe(
+        self.metrics.latency(sess.emu.model, transport).observe(
             (time.perf_counter() - t0) / steps
         )
         states = np.stack(out)

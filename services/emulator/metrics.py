@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
 
 _LATENCY_BUCKETS = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
@@ -36,6 +38,14 @@ class Metrics:
         )
         self.diverged = Counter("emulator_diverged_sessions", "sessions that diverged", ["model"], registry=r)
         self.sessions = Gauge("emulator_sessions", "live sessions", ["model", "version"], registry=r)
+        self._latency: dict[tuple[str, str], Any] = {}
+
+    def latency(self, model: str, transport: str) -> Any:
+        """The step-latency histogram of (model, transport), looked up once (every step observes it)."""
+        child = self._latency.get((model, transport))
+        if child is None:
+            child = self._latency[(model, transport)] = self.step_latency.labels(model, transport)
+        return child
 
     def observe_batch(self, model: str, rows: int, seconds: float) -> None:
         self.batch_size.labels(model).observe(rows)
