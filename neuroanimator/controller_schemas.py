@@ -37,6 +37,15 @@ class OptimizerSpec(_Wire):
     max_iterations: int | None = Field(None, ge=1, description="iteration cap")
     tolerance: Number | None = Field(None, ge=0, description="stop when the objective changes less")
     stop_on_success: bool | None = Field(None, description="stop once the success criterion holds")
+    line_search: bool | None = Field(
+        None, description="pick η and α afresh each iteration from a batch of candidates (off: fixed η, α)"
+    )
+    polish_iterations: int | None = Field(
+        None, ge=0, le=10_000, description="updates after the success criterion first holds"
+    )
+    physics_rounds: int | None = Field(
+        None, ge=0, le=20, description="rounds of re-optimising on an emulator corrected by the MuJoCo replay"
+    )
 
 
 class ObjectiveTerm(BaseModel):

@@ -165,6 +165,18 @@ export interface OptimizerSpec {
    * stop once the success criterion holds
    */
   stop_on_success?: boolean | null;
+  /**
+   * pick η and α afresh each iteration from a batch of candidates (off: fixed η, α)
+   */
+  line_search?: boolean | null;
+  /**
+   * updates after the success criterion first holds
+   */
+  polish_iterations?: number | null;
+  /**
+   * rounds of re-optimising on an emulator corrected by the MuJoCo replay
+   */
+  physics_rounds?: number | null;
 }
 /**
  * The caller's jobs, newest first.
