@@ -10,6 +10,23 @@ export class WebGLUnavailable extends Error {
   }
 }
 
+/**
+ * Whether WebGL is drawn in software (SwiftShader, llvmpipe: no GPU, as in a headless browser or a
+ * remote desktop). There every fragment costs CPU, so the views drop multisampling and draw at one
+ * device pixel per CSS pixel to keep the display rate.
+ */
+let software: boolean | undefined;
+export function softwareRendering(): boolean {
+  if (software === undefined) {
+    const gl = document.createElement('canvas').getContext('webgl2') ?? document.createElement('canvas').getContext('webgl');
+    const info = gl?.getExtension('WEBGL_debug_renderer_info');
+    const name = gl && info ? String(gl.getParameter(info.UNMASKED_RENDERER_WEBGL)) : '';
+    software = /swiftshader|llvmpipe|software/i.test(name);
+    gl?.getExtension('WEBGL_lose_context')?.loseContext();
+  }
+  return software;
+}
+
 /** A tiled grid texture: one cell per repeat, lines a shade lighter than the ground. */
 function gridTexture(repeat: number): THREE.Texture {
   const c = document.createElement('canvas');
@@ -48,12 +65,12 @@ export class Viewer {
   constructor(readonly host: HTMLElement) {
     let renderer: THREE.WebGLRenderer;
     try {
-      renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+      renderer = new THREE.WebGLRenderer({ antialias: !softwareRendering(), preserveDrawingBuffer: true });
     } catch {
       throw new WebGLUnavailable();
     }
     this.renderer = renderer;
-    renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
+    renderer.setPixelRatio(softwareRendering() ? 1 : Math.min(window.devicePixelRatio || 1, 2));
     renderer.domElement.className = 'view-canvas';
     host.append(renderer.domElement);
     this.scene.background = new THREE.Color(0x11161d);
@@ -66,7 +83,8 @@ export class Viewer {
     // the ground: a plane in MuJoCo's xy plane with a 2 m grid drawn into its texture
     this.ground = new THREE.Mesh(
       new THREE.PlaneGeometry(400, 400),
-      new THREE.MeshStandardMaterial({ map: gridTexture(200), roughness: 1, metalness: 0 }),
+      // Lambert, not the physically based material: a matte ground looks the same and costs far less per pixel
+      new THREE.MeshLambertMaterial({ map: gridTexture(200) }),
     );
     this.world.add(this.ground);
     this.controls = new OrbitControls(this.camera, renderer.domElement);
