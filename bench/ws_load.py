@@ -2,10 +2,13 @@
 
     python bench/ws_load.py --clients 1000 [--duration 10] [--batching on|off] [--binary] [--json]
     python bench/ws_load.py --clients 1000 --rate 10 --binary     # each client ticks at 10 Hz
+    python bench/ws_load.py --clients 1000 --replicas 2 --binary  # two emulator processes, one per core
     python bench/ws_load.py --url http://127.0.0.1:8000 --clients 200
 
 Without ``--url`` it starts the service itself (uvicorn subprocess on 127.0.0.1, a free port,
-``ARTIFACTS_DIR=--artifacts``; ``--batching off`` sets ``MAX_BATCH=1`` there). Sessions are spread
+``ARTIFACTS_DIR=--artifacts``; ``--batching off`` sets ``MAX_BATCH=1`` there; ``--replicas N`` starts
+N of them, REPLICA_ID r1..rN, and each client talks to the replica that owns its session, as behind
+the compose file's proxy). Sessions are spread
 round-robin over the models with controls that ``GET /models`` lists (``--models`` to choose). Each
 client sends a step, waits for its state, and sends the next; with ``--rate R`` it steps at most R
 times a second instead (a game client ticking at R Hz: send, wait for the state, sleep until its next
@@ -27,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import os
 import struct
@@ -42,6 +46,7 @@ from _wsclient import WsClient
 from services.emulator import binary
 
 MAX_CLIENTS = 5000
+MAX_REPLICAS = 8
 MAX_DURATION_S = 300.0
 MAX_RATE_HZ = 1000.0
 RING = 64  # pre-encoded control vectors per client
@@ -136,14 +141,17 @@ def _cpu_s(pid: int) -> float:
 
 
 async def run(
-    url: str,
+    urls: list[str],
     clients: int,
     duration: float,
     models: list[str] | None,
     use_binary: bool,
     rate: float = 0.0,
-    server_pid: int | None = None,
+    server_pids: list[int] | None = None,
 ) -> dict[str, Any]:
+    """Client i's session lives on replica ``urls[i % len(urls)]``, which it then talks to directly
+    (what the proxy's session affinity does in a deployment)."""
+    url = urls[0]
     async with httpx.AsyncClient(base_url=url, timeout=60, limits=httpx.Limits(max_connections=64)) as http:
         listed = (await http.get("/models")).json()["models"]
         names = [m["model"] for m in listed if m["num_controls"] > 0 and m["num_forces"] == 0]
@@ -160,7 +168,8 @@ async def run(
 
         async def create(i: int) -> str:
             async with sem:
-                r = await http.post("/sessions", json={"model": names[i % len(names)], "seed": i})
+                owner = urls[i % len(urls)]
+                r = await http.post(f"{owner}/sessions", json={"model": names[i % len(names)], "seed": i})
                 r.raise_for_status()
                 sid: str = r.json()["id"]
                 return sid
@@ -170,12 +179,14 @@ async def run(
     ready, stop = asyncio.Event(), asyncio.Event()
     connected = [0]
     tasks = []
-    base = url.replace("http://", "ws://", 1) + "/ws/sessions/"
+    bases = [u.replace("http://", "ws://", 1) + "/ws/sessions/" for u in urls]
     query = "?format=binary" if use_binary else ""
     for i, sid in enumerate(sids):
         lo, hi = ranges[names[i % len(names)]]
         ring = control_ring(lo, hi, i, use_binary)
-        coro = _client(base + sid + query, ring, rate, i / clients, stats, ready, stop, connected)
+        coro = _client(
+            bases[i % len(urls)] + sid + query, ring, rate, i / clients, stats, ready, stop, connected
+        )
         tasks.append(asyncio.create_task(coro))
         if i % 50 == 49:
             await asyncio.sleep(0.01)  # connect gradually
@@ -186,12 +197,13 @@ async def run(
     await asyncio.sleep(min(1.0, duration / 5) + (1.0 / rate if rate > 0 else 0.0))  # warm-up
     stats.counting = True
     t0, cpu0 = time.perf_counter(), time.process_time()
-    srv0 = _cpu_s(server_pid) if server_pid else 0.0
+    pids = server_pids or []
+    srv0 = sum(_cpu_s(p) for p in pids)
     await asyncio.sleep(duration)
     stats.counting = False
     elapsed = time.perf_counter() - t0
     client_cpu = time.process_time() - cpu0
-    server_cpu = _cpu_s(server_pid) - srv0 if server_pid else None
+    server_cpu = sum(_cpu_s(p) for p in pids) - srv0 if pids else None
     stop.set()
     await asyncio.wait(tasks, timeout=30)
     lat = np.asarray(stats.latencies) * 1000.0
@@ -210,6 +222,7 @@ async def run(
         "mode": f"lock-step at {rate:g} Hz per client" if rate > 0 else "lock-step, as fast as possible",
         "rate_hz": rate,
         "target_steps_per_s": round(clients * rate, 1) if rate > 0 else None,
+        "replicas": len(urls),
         "client_cpu_pct": round(100.0 * client_cpu / elapsed, 1),
         "server_cpu_pct": round(100.0 * server_cpu / elapsed, 1) if server_cpu is not None else None,
     }
@@ -240,7 +253,13 @@ def main() -> int:
     p.add_argument(
         "--rate", type=float, default=0.0, help="steps per second per client; 0: as fast as possible"
     )
-    p.add_argument("--url", help="a running service; otherwise one is started")
+    p.add_argument("--url", help="a running service (comma-separated: replicas); otherwise started here")
+    p.add_argument(
+        "--replicas",
+        type=int,
+        default=1,
+        help="emulator processes started here (REPLICA_ID r1..rN); each client talks to its session's owner",
+    )
     p.add_argument("--artifacts", default="artifacts")
     p.add_argument("--models", help="comma-separated; default: every model with controls and no forces")
     p.add_argument("--batching", choices=["on", "off"], default="on", help="off: MAX_BATCH=1 (own server)")
@@ -254,23 +273,33 @@ def main() -> int:
         p.error(f"--rate must be in 0..{MAX_RATE_HZ}")
     models = args.models.split(",") if args.models else None
     loop_name, run_on_loop = _runner(args.loop)
+    if not 1 <= args.replicas <= MAX_REPLICAS:
+        p.error(f"--replicas must be 1..{MAX_REPLICAS}")
     if args.url:
-        result = run_on_loop(run(args.url, args.clients, args.duration, models, args.binary, args.rate))
+        urls = args.url.split(",")
+        result = run_on_loop(run(urls, args.clients, args.duration, models, args.binary, args.rate))
     else:
         env = {"MAX_BATCH": "1"} if args.batching == "off" else {}
-        with serve(args.artifacts, **env) as (url, pid):
-            result = run_on_loop(run(url, args.clients, args.duration, models, args.binary, args.rate, pid))
+        with contextlib.ExitStack() as stack:
+            servers = [
+                stack.enter_context(serve(args.artifacts, **env, REPLICA_ID=f"r{k + 1}"))
+                for k in range(args.replicas)
+            ]
+            urls, pids = [u for u, _ in servers], [pid for _, pid in servers]
+            result = run_on_loop(run(urls, args.clients, args.duration, models, args.binary, args.rate, pids))
     result["batching"] = args.batching if not args.url else "server's"
     result["loop"] = loop_name
     server_cpu = "" if result["server_cpu_pct"] is None else f" / {result['server_cpu_pct']:.0f}"
     target = result["target_steps_per_s"]
     print(f"mode: {result['mode']}" + (f" (target {target:,.0f} steps/s)" if target else ""))
     print(
-        "| clients | models | frames | batching | mode | steps/s | p50 ms | p99 ms | errors | CPU % client / server |"
+        "| clients | replicas | models | frames | batching | mode | steps/s | p50 ms | p99 ms | errors "
+        "| CPU % client / server |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     print(
-        f"| {result['clients']} | {', '.join(result['models'])} | {result['frames']} | {result['batching']} "
+        f"| {result['clients']} | {result['replicas']} | {', '.join(result['models'])} | {result['frames']} "
+        f"| {result['batching']} "
         f"| {result['mode']} | {result['steps_per_s']:,.0f} | {result['p50_ms']} | {result['p99_ms']} "
         f"| {result['errors']} | {result['client_cpu_pct']:.0f}{server_cpu} |"
     )
