@@ -57,14 +57,21 @@ def one_run(command: str, timeout: float) -> dict[str, Any]:
     with tempfile.TemporaryFile() as out:
         t0 = time.monotonic()
         proc = subprocess.Popen(
-            shlex.split(command), cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True
+            shlex.split(command),
+            cwd=ROOT,
+            env=env,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
         )
         ready_at: dict[str, float] = {}
         try:
             while len(ready_at) < len(urls):
                 if proc.poll() is not None:
                     out.seek(0)
-                    raise RuntimeError(f"{command!r} exited with {proc.returncode}:\n{out.read().decode()[-3000:]}")
+                    raise RuntimeError(
+                        f"{command!r} exited with {proc.returncode}:\n{out.read().decode()[-3000:]}"
+                    )
                 if time.monotonic() - t0 > timeout:
                     raise RuntimeError(f"not usable within {timeout} s; ready: {sorted(ready_at)}")
                 for name, url in urls.items():
@@ -98,7 +105,9 @@ def main() -> int:
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     runs = [one_run(args.command, args.timeout) for _ in range(args.runs)]
-    print(f"{'run':>3}  {'usable s':>8}  {'emulator':>8}  {'controller':>10}  {'dashboard':>9}  {'stop s':>6}")
+    print(
+        f"{'run':>3}  {'usable s':>8}  {'emulator':>8}  {'controller':>10}  {'dashboard':>9}  {'stop s':>6}"
+    )
     for i, r in enumerate(runs, 1):
         print(
             f"{i:>3}  {r['usable_s']:>8.2f}  {r.get('emulator_ready_s', 0):>8.2f}  "

@@ -289,7 +289,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
 
-    w = sub.add_parser("worker", help="run controller-synthesis jobs from the Redis queue (settings from env)")
+    w = sub.add_parser(
+        "worker", help="run controller-synthesis jobs from the Redis queue (settings from env)"
+    )
     w.add_argument("--burst", action="store_true", help="run the queued jobs, then exit")
     w.add_argument("--name", help="the worker's name (default: host.pid.random)")
     w.add_argument("--threads", type=_positive_int, help="torch threads per job (default: WORKER_THREADS, 1)")

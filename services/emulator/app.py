@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import logging
 from collections.abc import AsyncIterator
 
@@ -35,6 +36,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         await persistence.start()  # restores this replica's sessions; Redis down: starts degraded
+        # Everything loaded so far (libraries, emulators, restored sessions) lives as long as the process:
+        # move it out of the collector's view, and collect young objects less often, so that the
+        # collector's pauses (which land on whichever step is in flight) stay short under load.
+        gc.collect()
+        gc.freeze()
+        gc.set_threshold(*settings.gc_thresholds)
         sweeper = asyncio.create_task(engine.sweep_forever(), name="session-sweeper")
         checkpointer = None
         if persistence.enabled:

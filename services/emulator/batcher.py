@@ -3,8 +3,8 @@
 
 A request is (session, controls (U,), forces (F,)); the batch gathers the sessions' rows of the
 contiguous state pool into (B, S), stacks the inputs into (B, U) and (B, F), runs
-``OnnxEmulator.step`` in a worker thread (the event loop keeps serving), and scatters the finite
-rows of the (B, S) result back. A row with NaN or Inf marks only its session diverged.
+``OnnxEmulator.step`` (in a worker thread when the batch is large, so the event loop keeps serving),
+and scatters the finite rows of the (B, S) result back. A row with NaN or Inf marks only its session diverged.
 """
 
 from __future__ import annotations
@@ -61,6 +61,9 @@ class _Bulk:
     def rows(self) -> int:
         return len(self.sessions)
 
+
+# Batches of at most this many rows run ORT on the event loop itself (see Batcher._run).
+INLINE_ROWS = 256
 
 # Row outcomes of ``Batcher.step_many`` (the binary format's status bytes, see services/emulator/binary.py).
 ROW_OK, ROW_DIVERGED, ROW_GONE = 0, 2, 3
@@ -179,11 +182,15 @@ class Batcher:
         if self.emu.num_forces:
             f = np.concatenate([r.forces[None] for r in single] + [b.forces for b in bulks])
         t0 = time.perf_counter()
-        out = await asyncio.to_thread(self.emu.emulator.step, x, u, f, validate=False)
+        if len(sessions) <= INLINE_ROWS:
+            # a small batch takes tens of microseconds in ORT: less than handing it to a thread and back
+            out = self.emu.emulator.step(x, u, f, validate=False)
+        else:  # a large one runs in a worker thread so that the event loop keeps serving meanwhile
+            out = await asyncio.to_thread(self.emu.emulator.step, x, u, f, validate=False)
         self.ort_calls += 1
         self.rows += len(sessions)
         self.metrics.observe_batch(self.emu.model, len(sessions), time.perf_counter() - t0)
-        finite = np.isfinite(out).all(axis=1)
+        finite = np.asarray(np.isfinite(out).all(axis=1))  # (B,)
         for i, req in enumerate(single):
             sess = req.session
             if req.future.done():

@@ -252,9 +252,7 @@ class Engine:
         async with sess.lock:
             start = sess.state
             out = [await batcher.step(sess, u, f) for _ in range(steps)]
-        self.metrics.latency(sess.emu.model, transport).observe(
-            (time.perf_counter() - t0) / steps
-        )
+        self.metrics.latency(sess.emu.model, transport).observe((time.perf_counter() - t0) / steps)
         states = np.stack(out)
         fr = None
         if frames_per_step is not None:

@@ -48,6 +48,9 @@ class Settings(BaseSettings):
         description="comma-separated origins a browser may call from (e.g. the dashboard's "
         "http://127.0.0.1:8080), or * for any; empty: no CORS headers",
     )
+    gc_thresholds: tuple[int, int, int] = Field(
+        (20_000, 20, 20), description="gc.set_threshold after start-up (Python's default: 700, 10, 10)"
+    )
     host: str = "127.0.0.1"
     port: int = 8000
     log_level: str = "info"

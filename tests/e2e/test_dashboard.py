@@ -112,7 +112,9 @@ def test_playground_drives_a_lander(stack: Stack) -> None:
     print(f"dashboard fps with a live lander session (headless Chromium, software WebGL): {r['fps']}")
 
 
-needs_controller = pytest.mark.skipif(not controller_available(), reason="no services/controller in this checkout")
+needs_controller = pytest.mark.skipif(
+    not controller_available(), reason="no services/controller in this checkout"
+)
 
 
 @needs_controller
