@@ -131,8 +131,10 @@ class Batcher:
         while True:
             await self._ready.wait()
             if self._pending_rows < self.max_batch and self.max_wait_s > 0:
+                # asyncio.timeout, unlike wait_for, starts no task: this runs once per batch
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._full.wait(), self.max_wait_s)
+                    async with asyncio.timeout(self.max_wait_s):
+                        await self._full.wait()
             take, rows = 0, 0  # whole entries up to max_batch rows (a bulk entry is never split)
             while take < len(self._pending) and (
                 take == 0 or rows + self._pending[take].rows <= self.max_batch

@@ -39,6 +39,7 @@ class Metrics:
         self.diverged = Counter("emulator_diverged_sessions", "sessions that diverged", ["model"], registry=r)
         self.sessions = Gauge("emulator_sessions", "live sessions", ["model", "version"], registry=r)
         self._latency: dict[tuple[str, str], Any] = {}
+        self._per_batch: dict[str, tuple[Any, Any, Any]] = {}
 
     def latency(self, model: str, transport: str) -> Any:
         """The step-latency histogram of (model, transport), looked up once (every step observes it)."""
@@ -48,9 +49,17 @@ class Metrics:
         return child
 
     def observe_batch(self, model: str, rows: int, seconds: float) -> None:
-        self.batch_size.labels(model).observe(rows)
-        self.ort_seconds.labels(model).observe(seconds)
-        self.session_steps.labels(model).inc(rows)
+        children = self._per_batch.get(model)
+        if children is None:  # looked up once per model: this runs for every ORT call
+            children = self._per_batch[model] = (
+                self.batch_size.labels(model),
+                self.ort_seconds.labels(model),
+                self.session_steps.labels(model),
+            )
+        size, ort, steps = children
+        size.observe(rows)
+        ort.observe(seconds)
+        steps.inc(rows)
 
     def render(self) -> bytes:
         return generate_latest(self.registry)

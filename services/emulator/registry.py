@@ -45,11 +45,15 @@ class Loaded:
     control_range: NDArray[np.float64] = field(init=False)
     force_range: NDArray[np.float64] = field(init=False)
     quaternion_slices: list[slice] = field(init=False)
+    input_low: NDArray[np.float32] = field(init=False)  # (U+F,) controls then forces, as binary frames
+    input_high: NDArray[np.float32] = field(init=False)
 
     def __post_init__(self) -> None:
         m = self.manifest
         self.control_range = np.array([[c["low"], c["high"]] for c in m["controls"]], float).reshape(-1, 2)
         self.force_range = np.array([[f["low"], f["high"]] for f in m["forces"]], float).reshape(-1, 2)
+        both = np.concatenate([self.control_range, self.force_range])
+        self.input_low, self.input_high = both[:, 0].astype(np.float32), both[:, 1].astype(np.float32)
         self.quaternion_slices = [
             slice(g["offset"], g["offset"] + g["size"]) for g in m["layout"] if g["kind"] in QUATERNION_KINDS
         ]

@@ -135,6 +135,15 @@ class Connection:
         self.gone = False
 
     # ------------------------------------------------------------------ sending
+    async def reply(self, frame: Frame) -> None:
+        """A lock-step reply. No timeout here (a timer per message is measurable at 10,000 steps/s):
+        a client that stops reading blocks only its own connection, whose session then expires."""
+        async with self._send_lock:
+            if isinstance(frame, bytes):
+                await self.ws.send_bytes(frame)
+            else:
+                await self.ws.send_text(frame)
+
     async def send(self, frame: Frame) -> None:
         async with self._send_lock:
             try:
@@ -368,7 +377,7 @@ class Connection:
                     self.on_binary(data) if data is not None else self.on_text(msg.get("text") or "")
                 )
                 if reply is not None:
-                    await self.send(reply)
+                    await self.reply(reply)
         except (WebSocketDisconnect, ClientGone):
             pass
         except asyncio.CancelledError:
