@@ -43,6 +43,7 @@ async function canvasStats(page, selector) {
     small.width = w;
     small.height = h;
     const g = small.getContext('2d');
+    window.__neuroRedraw?.(c); // the view keeps no drawing buffer: draw it now and read it in this task
     g.drawImage(c, 0, 0, w, h);
     const d = g.getImageData(0, 0, w, h).data;
     const bg = [0x11, 0x16, 0x1d];
