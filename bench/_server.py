@@ -25,8 +25,9 @@ def free_port() -> int:
 
 
 @contextlib.contextmanager
-def serve(artifacts: str, **env: str) -> Iterator[tuple[str, int]]:
-    """(base URL, server pid) of a fresh ``python -m services.emulator`` with these extra env vars."""
+def serve(artifacts: str, module: str = "services.emulator", **env: str) -> Iterator[tuple[str, int]]:
+    """(base URL, server pid) of a fresh ``python -m <module>`` (a service answering ``/readyz``) with
+    these extra env vars."""
     port = free_port()
     full = {
         **os.environ,
@@ -38,18 +39,18 @@ def serve(artifacts: str, **env: str) -> Iterator[tuple[str, int]]:
         "REDIS_URL": "",
         **env,
     }
-    proc = subprocess.Popen([sys.executable, "-m", "services.emulator"], env=full, cwd=REPO)
+    proc = subprocess.Popen([sys.executable, "-m", module], env=full, cwd=REPO)
     url = f"http://127.0.0.1:{port}"
     try:
         deadline = time.monotonic() + 120
         while True:
             if proc.poll() is not None:
-                raise RuntimeError(f"the emulator service exited with code {proc.returncode}")
+                raise RuntimeError(f"{module} exited with code {proc.returncode}")
             with contextlib.suppress(httpx.HTTPError):
                 if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
                     break
             if time.monotonic() > deadline:
-                raise RuntimeError("the emulator service did not become ready in 120 s")
+                raise RuntimeError(f"{module} did not become ready in 120 s")
             time.sleep(0.1)
         yield url, proc.pid
     finally:

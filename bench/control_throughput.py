@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
-from _server import REPO, free_port
+from _server import REPO, serve
 
 MAX_JOBS = 200
 MAX_WORKERS = 16
@@ -70,31 +70,6 @@ def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()
-
-
-@contextlib.contextmanager
-def api(env: dict[str, str]) -> Iterator[str]:
-    port = free_port()
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "services.controller"],
-        env={**env, "HOST": "127.0.0.1", "PORT": str(port)},
-        cwd=REPO,
-    )
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 120
-        while True:
-            if proc.poll() is not None:
-                raise RuntimeError(f"the controller API exited with code {proc.returncode}")
-            with contextlib.suppress(httpx.HTTPError):
-                if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
-                    break
-            if time.monotonic() > deadline:
-                raise RuntimeError("the controller API did not become ready in 120 s")
-            time.sleep(0.1)
-        yield url
-    finally:
-        _stop([proc])
 
 
 def run(url: str, env: dict[str, str], workers: int, bodies: list[dict[str, Any]]) -> dict[str, Any]:
@@ -185,8 +160,7 @@ def main() -> int:
     rows = []
     with redis_url() as redis:
         tag = uuid.uuid4().hex[:8]
-        env = {
-            **os.environ,
+        settings = {  # the API's and the workers' (the rest of their environment is this process's)
             "REDIS_URL": redis,
             "REDIS_PREFIX": f"bench-controller:{tag}",
             "QUEUE_NAME": f"bench-controller-{tag}",
@@ -197,8 +171,9 @@ def main() -> int:
             "WORKER_THREADS": str(args.threads),
             "LOG_LEVEL": "warning",
         }
+        env = {**os.environ, **settings}
         try:
-            with api(env) as url:
+            with serve(settings["ARTIFACTS_DIR"], "services.controller", **settings) as (url, _pid):
                 for w in counts:
                     rows.append(run(url, env, w, bodies))
         finally:
