@@ -71,15 +71,8 @@ def check_vector(
             expected="a finite float32",
             got=values[i],
         )
-    clipped: list[int] = []
-    if rng is not None:
-        lo, hi = rng[:, 0], rng[:, 1]
-        mask = (arr < lo) | (arr > hi)
-        if mask.any():
-            clipped = [int(i) for i in np.flatnonzero(mask)]
-            arr = np.clip(arr, lo, hi)
     out = arr.astype(np.float32)
-    return out, clipped
+    return clip_to(out, rng) if rng is not None else (out, [])
 
 
 def clip_to(values: NDArray[np.float32], rng: NDArray[np.float64]) -> tuple[NDArray[np.float32], list[int]]:
