@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from services.emulator.errors import ApiError
 from services.emulator.metrics import Metrics
 from services.emulator.registry import Loaded
-from services.emulator.sessions import Session
+from services.emulator.sessions import Session, StatePool
 
 log = logging.getLogger(__name__)
 
@@ -50,16 +50,19 @@ class _Request:
 
 @dataclass
 class _Bulk:
-    """Many sessions in one queue entry (binary ``POST /step``): (K,) sessions, (K, U), (K, F)."""
+    """Many sessions in one queue entry (binary ``POST /step``): their (K,) slots of ``pool`` with
+    the (K,) ``gen`` of each slot when they were locked, and inputs (K, U), (K, F)."""
 
-    sessions: list[Session]
+    pool: StatePool
+    slots: NDArray[np.intp]
+    gens: NDArray[np.uint32]
     controls: NDArray[np.float32]
     forces: NDArray[np.float32]
     future: asyncio.Future[tuple[NDArray[np.float32], NDArray[np.uint8]]]
 
     @property
     def rows(self) -> int:
-        return len(self.sessions)
+        return len(self.slots)
 
 
 # Batches of at most this many rows run ORT on the event loop itself (see Batcher._run).
@@ -96,15 +99,21 @@ class Batcher:
         return await fut
 
     async def step_many(
-        self, sessions: list[Session], controls: NDArray[np.float32], forces: NDArray[np.float32]
+        self,
+        pool: StatePool,
+        slots: NDArray[np.intp],
+        gens: NDArray[np.uint32],
+        controls: NDArray[np.float32],
+        forces: NDArray[np.float32],
     ) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
-        """One super-step of K sessions given as arrays (K, U), (K, F), in one queue entry (the caller
-        holds their locks): returns (K, S) new states and (K,) row outcomes ``ROW_*``. A diverged
-        session keeps (and returns) its last finite state; a session gone meanwhile returns NaN."""
+        """One super-step of the K sessions in ``slots`` of ``pool`` (K,) (whose ``gen`` was ``gens``
+        (K,) when the caller locked them) under inputs (K, U), (K, F), in one queue entry: returns
+        (K, S) new states and (K,) row outcomes ``ROW_*``. A diverged session keeps (and returns) its
+        last finite state; a session deleted meanwhile returns NaN."""
         fut: asyncio.Future[tuple[NDArray[np.float32], NDArray[np.uint8]]] = (
             asyncio.get_running_loop().create_future()
         )
-        self._enqueue(_Bulk(sessions, controls, forces, fut))
+        self._enqueue(_Bulk(pool, slots, gens, controls, forces, fut))
         return await fut
 
     def _enqueue(self, req: _Request | _Bulk) -> None:
@@ -170,13 +179,12 @@ class Batcher:
                 r.future.set_exception(
                     ApiError(404, "unknown_session", f"session {r.session.id!r} was deleted while stepping")
                 )
-        sessions = [r.session for r in single]
-        for b in bulks:
-            sessions.extend(b.sessions)
-        if not sessions:
+        parts = [np.fromiter((r.session.slot for r in single), np.intp, len(single))]
+        parts += [b.slots for b in bulks]
+        slots = np.concatenate(parts)
+        if not slots.size:
             return
-        pool = sessions[0].pool
-        slots = np.fromiter((s.slot for s in sessions), dtype=np.intp, count=len(sessions))
+        pool = single[0].session.pool if single else bulks[0].pool
         x = pool.states[slots]  # (B, S) copy
         u = f = None
         if self.emu.num_controls:
@@ -184,14 +192,14 @@ class Batcher:
         if self.emu.num_forces:
             f = np.concatenate([r.forces[None] for r in single] + [b.forces for b in bulks])
         t0 = time.perf_counter()
-        if len(sessions) <= INLINE_ROWS:
+        if len(slots) <= INLINE_ROWS:
             # a small batch takes tens of microseconds in ORT: less than handing it to a thread and back
             out = self.emu.emulator.step(x, u, f, validate=False)
         else:  # a large one runs in a worker thread so that the event loop keeps serving meanwhile
             out = await asyncio.to_thread(self.emu.emulator.step, x, u, f, validate=False)
         self.ort_calls += 1
-        self.rows += len(sessions)
-        self.metrics.observe_batch(self.emu.model, len(sessions), time.perf_counter() - t0)
+        self.rows += len(slots)
+        self.metrics.observe_batch(self.emu.model, len(slots), time.perf_counter() - t0)
         finite = np.asarray(np.isfinite(out).all(axis=1))  # (B,)
         for i, req in enumerate(single):
             sess = req.session
@@ -202,29 +210,30 @@ class Batcher:
                 req.future.set_exception(DivergedError(sess))
                 continue
             if sess.alive:  # deleted while in flight: its slot may belong to another session now
-                sess.pool.states[sess.slot] = out[i]
-            sess.steps += 1
+                pool.states[sess.slot] = out[i]
+                pool.steps[sess.slot] += 1
             req.future.set_result(out[i])
         start = len(single)
         for b in bulks:
-            k = len(b.sessions)
+            k = len(b.slots)
             rows, ok = out[start : start + k], finite[start : start + k]
             start += k
-            status = np.zeros(k, np.uint8)
-            alive = np.fromiter((s.alive for s in b.sessions), dtype=bool, count=k)
+            alive = pool.gen[b.slots] == b.gens
             good = ok & alive
-            pool.states[slots[start - k : start][good]] = rows[good]
-            for j in np.flatnonzero(~good).tolist():
-                sess = b.sessions[j]
-                if not alive[j]:
-                    status[j] = ROW_GONE
-                    rows[j] = np.nan
-                else:
-                    self._diverge(sess)
-                    status[j] = ROW_DIVERGED
-                    rows[j] = pool.states[sess.slot]
-            for j in np.flatnonzero(good).tolist():
-                b.sessions[j].steps += 1
+            moved = b.slots[good]
+            pool.states[moved] = rows[good]
+            pool.steps[moved] += 1  # no slot twice in one entry: a request's ids are distinct
+            status = np.zeros(k, np.uint8)
+            if not good.all():  # rare: rows of diverged or deleted sessions, one by one
+                for j in np.flatnonzero(~good).tolist():
+                    owner = pool.owner[int(b.slots[j])]
+                    if not alive[j] or owner is None:
+                        status[j] = ROW_GONE
+                        rows[j] = np.nan
+                    else:
+                        self._diverge(owner)
+                        status[j] = ROW_DIVERGED
+                        rows[j] = pool.states[owner.slot]
             if not b.future.done():
                 b.future.set_result((rows, status))
 

@@ -52,15 +52,22 @@ def _bad(
 
 @dataclass
 class BatchRequest:
-    """A parsed binary batch request: ids and the raw (N, U+F) float32 input rows (unchecked width)."""
+    """A parsed binary batch request: N session-id slots of ``width`` bytes (``id_block``, undecoded:
+    the session store resolves them) and the raw (N, U+F) float32 input rows (unchecked width)."""
 
-    ids: list[str]
+    count: int
+    width: int
+    id_block: bytes
     body: memoryview
     offset: int  # where the float32 rows start
 
+    @property
+    def ids(self) -> list[str]:
+        return decode_ids(self.id_block, self.width)
+
     def rows(self, width: int, what: str) -> NDArray[np.float32]:
         """(N, width) float32 rows; 422 when the body's length does not fit ``width`` per session."""
-        n = len(self.ids)
+        n = self.count
         want = self.offset + 4 * n * width
         if len(self.body) != want:
             raise _bad(
@@ -75,7 +82,7 @@ class BatchRequest:
 
     def row_width(self) -> int | None:
         """The per-session width the body's length implies, or None if it fits no whole width."""
-        n = len(self.ids)
+        n = self.count
         rest = len(self.body) - self.offset
         if n == 0 or rest < 0 or rest % (4 * n):
             return None
@@ -83,7 +90,7 @@ class BatchRequest:
 
 
 def parse_batch_request(body: bytes, max_batch: int) -> BatchRequest:
-    """The header and session ids of a binary ``POST /step`` body."""
+    """The header of a binary ``POST /step`` body, and where its ids and rows lie."""
     if len(body) < REQUEST_HEADER.size:
         raise _bad(
             "malformed_binary",
@@ -137,20 +144,7 @@ def parse_batch_request(body: bytes, max_batch: int) -> BatchRequest:
             expected=f">= {end} bytes",
             got=len(body),
         )
-    ids: list[str] = []
-    for i in range(count):
-        raw = body[REQUEST_HEADER.size + i * width : REQUEST_HEADER.size + (i + 1) * width]
-        try:
-            ids.append(raw.rstrip(b"\0").decode("ascii"))
-        except UnicodeDecodeError as exc:
-            raise _bad(
-                "bad_session_id",
-                f"session id slot {i} is not ASCII: {raw!r}",
-                field=f"ids[{i}]",
-                expected="ASCII, NUL-padded",
-                got=repr(raw),
-            ) from exc
-    return BatchRequest(ids, memoryview(body), end)
+    return BatchRequest(count, width, body[REQUEST_HEADER.size : end], memoryview(body), end)
 
 
 def encode_batch_request(
@@ -191,7 +185,7 @@ def decode_batch_response(body: bytes) -> tuple[NDArray[np.uint8], NDArray[np.fl
     return status, states
 
 
-def check_rows(rows: NDArray[np.float32], num_controls: int, ids: list[str]) -> None:
+def check_rows(rows: NDArray[np.float32], num_controls: int, request: BatchRequest) -> None:
     """422 naming the first NaN or Inf among the input rows (controls then forces per session)."""
     bad = ~np.isfinite(rows)
     if bad.any():
@@ -199,7 +193,7 @@ def check_rows(rows: NDArray[np.float32], num_controls: int, ids: list[str]) -> 
         name = f"controls[{j}]" if j < num_controls else f"forces[{j - num_controls}]"
         raise _bad(
             "not_finite",
-            f"items[{i}].{name} of session {ids[i]!r} is {float(rows[i, j])!r}; inputs must be finite float32",
+            f"items[{i}].{name} of session {request.ids[i]!r} is {float(rows[i, j])!r}; inputs must be finite float32",
             field=f"items[{i}].{name}",
             expected="a finite float32",
             got=float(rows[i, j]),
@@ -252,3 +246,21 @@ def decode_ws_state(data: bytes) -> tuple[int | None, int, int, NDArray[np.float
         raise ValueError(f"not a state frame: {bytes(data[:8])!r}")
     state = np.frombuffer(data, "<f4", offset=WS_STATE_HEADER.size)
     return (None if seq == NO_SEQ else int(seq)), int(steps), int(status), state
+
+
+def decode_ids(block: bytes, width: int) -> list[str]:
+    """The ids of a block of NUL-padded ASCII slots of ``width`` bytes; 422 naming the first slot that
+    is not ASCII."""
+    raw = np.frombuffer(block, np.uint8)
+    if raw.size and raw.max() >= 0x80:
+        i = int(np.flatnonzero(raw >= 0x80)[0]) // width
+        slot = block[i * width : (i + 1) * width]
+        raise _bad(
+            "bad_session_id",
+            f"session id slot {i} is not ASCII: {slot!r}",
+            field=f"ids[{i}]",
+            expected="ASCII, NUL-padded",
+            got=repr(slot),
+        )
+    # numpy's fixed-width bytes drop the trailing NULs of each slot
+    return [b.decode("ascii") for b in np.frombuffer(block, f"S{width}").tolist()]

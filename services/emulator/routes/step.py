@@ -24,7 +24,6 @@ from services.emulator.batcher import ROW_DIVERGED, ROW_GONE
 from services.emulator.deps import EngineDep
 from services.emulator.engine import Engine
 from services.emulator.errors import ApiError, from_validation
-from services.emulator.sessions import Session
 
 router = APIRouter(tags=["step"])
 OCTET = "application/octet-stream"
@@ -99,46 +98,13 @@ async def batch_step(request: Request, engine: EngineDep) -> Response:
 
 async def binary_step(engine: Engine, body: bytes) -> bytes:
     """Parse, validate (the whole request fails on a problem and steps nothing), step every known
-    session in ONE batcher entry, and encode the answer."""
+    session in ONE batcher entry, and encode the answer. The sessions are resolved, checked, locked
+    and stepped as arrays (``SessionStore.resolve_block``, ``StatePool``): no per-session Python."""
     parsed = binary.parse_batch_request(body, engine.settings.max_batch)
-    ids = parsed.ids
-    n = len(ids)
-    sessions: list[Session | None] = []
-    emu = None
-    first = -1
-    for i, sid in enumerate(ids):
-        try:
-            sess = engine.store.get(sid)
-        except ApiError:
-            sessions.append(None)
-            continue
-        if emu is None:
-            emu, first = sess.emu, i
-        elif sess.emu is not emu:
-            raise ApiError(
-                422,
-                "mixed_models",
-                f"session {i} ({sid!r}) is of {sess.emu.model}/{sess.emu.version} but session {first} is of "
-                f"{emu.model}/{emu.version}; one binary request steps sessions of one model version",
-                field=f"ids[{i}]",
-                expected=f"{emu.model}/{emu.version}",
-                got=f"{sess.emu.model}/{sess.emu.version}",
-            )
-        sessions.append(sess)
-    if len(set(ids)) != n:
-        seen: set[str] = set()
-        for i, sid in enumerate(ids):
-            if sid in seen:
-                raise ApiError(
-                    422,
-                    "duplicate_session",
-                    f"ids[{i}]: session {sid!r} appears more than once in the batch",
-                    field=f"ids[{i}]",
-                    expected="each session at most once",
-                    got=sid,
-                )
-            seen.add(sid)
-    if emu is None:  # no known session: nothing to step, every status says so
+    n = parsed.count
+    res = engine.store.resolve_block(parsed.id_block, parsed.width)
+    emu, pool = res.emu, res.pool
+    if emu is None or pool is None:  # no known session: nothing to step, every status says so
         if parsed.row_width() is None and n:
             raise ApiError(
                 422,
@@ -153,46 +119,44 @@ async def binary_step(engine: Engine, body: bytes) -> bytes:
         )
     nu, nf = emu.num_controls, emu.num_forces
     rows = parsed.rows(nu + nf, f"model {emu.model!r} ({nu} controls, {nf} forces)")
-    binary.check_rows(rows, nu, ids)
-    rng = np.concatenate([emu.control_range, emu.force_range])  # (U+F, 2)
-    clipped = ((rows < rng[:, 0]) | (rows > rng[:, 1])).any(axis=1)
-    inputs = np.clip(rows, rng[:, 0], rng[:, 1]).astype(np.float32) if clipped.any() else rows
-    status = np.where(clipped, binary.CLIPPED, binary.OK).astype(np.uint8)
-    states = np.full((n, emu.state_size), np.nan, np.float32)
+    binary.check_rows(rows, nu, parsed)
+    # the common case in two comparisons: every input in range (NaN was rejected just above)
+    if (rows >= emu.input_low).all() and (rows <= emu.input_high).all():
+        inputs, status = rows, np.zeros(n, np.uint8)
+    else:
+        clipped = ((rows < emu.input_low) | (rows > emu.input_high)).any(axis=1)
+        inputs = np.clip(rows, emu.input_low, emu.input_high).astype(np.float32)
+        status = np.where(clipped, binary.CLIPPED, binary.OK).astype(np.uint8)
 
-    # Sessions whose lock is free are locked now (no await yields here) and stepped as one entry;
-    # a session another request is stepping is stepped after it, one by one, holding only its lock.
-    free: list[int] = []
-    busy: list[int] = []
-    for i, maybe in enumerate(sessions):
-        if maybe is None:
-            status[i] = binary.UNKNOWN
-        elif maybe.diverged:
-            status[i] = binary.DIVERGED
-            states[i] = maybe.state
-        elif maybe.lock.locked():
-            busy.append(i)
-        else:
-            free.append(i)
+    slots, known = res.slots, res.known
+    states = np.full((n, emu.state_size), np.nan, np.float32)
+    status[~known] = binary.UNKNOWN
+    safe = np.where(known, slots, 0)
+    diverged = known & pool.diverged[safe]
+    status[diverged] = binary.DIVERGED
+    states[diverged] = pool.states[slots[diverged]]
+    # Sessions no other request is stepping are locked now (no await in between) and stepped as one
+    # entry; one another request is stepping is stepped after it, one by one, holding only its lock.
+    runnable = known & ~diverged
+    busy = runnable & pool.busy[safe]
+    free = np.flatnonzero(runnable & ~busy)
     batcher = engine.batcher(emu)
     t0 = time.perf_counter()
-    if free:
-        locked = [sessions[i] for i in free]
-        held: list[Session] = [s for s in locked if s is not None]
-        for s in held:
-            await s.lock.acquire()
+    if free.size:
+        mine, gens = slots[free], pool.gen[slots[free]]
+        pool.lock_rows(mine)
         try:
-            idx = np.asarray(free, np.intp)
-            new, rowst = await batcher.step_many(held, inputs[idx, :nu], inputs[idx, nu:])
+            new, rowst = await batcher.step_many(pool, mine, gens, inputs[free, :nu], inputs[free, nu:])
         finally:
-            for s in held:
-                s.lock.release()
-        states[idx] = new
-        status[idx[rowst == ROW_DIVERGED]] = binary.DIVERGED
-        status[idx[rowst == ROW_GONE]] = binary.UNKNOWN
-    for i in busy:
-        one = sessions[i]
-        assert one is not None
+            pool.unlock_rows(mine, gens)
+        states[free] = new
+        status[free[rowst == ROW_DIVERGED]] = binary.DIVERGED
+        status[free[rowst == ROW_GONE]] = binary.UNKNOWN
+    for i in np.flatnonzero(busy).tolist():
+        one = pool.owner[int(slots[i])]
+        if one is None or pool.gen[slots[i]] != res.gens[i]:
+            status[i] = binary.UNKNOWN
+            continue
         try:
             async with one.lock:
                 states[i] = await batcher.step(one, inputs[i, :nu], inputs[i, nu:])
