@@ -5,7 +5,9 @@
 
 Rows of the table:
 * ``binary batch``: N ``--model`` sessions (default pendulum-active) stepped by one client, one binary
-  request (proto/frames.md) after another, for ``--duration`` s: session_steps_per_s.
+  request (proto/frames.md) after another, for ``--duration`` s: session_steps_per_s. The client is
+  the lean keep-alive one of ``bench/_httpclient.py`` (why: see there); the same load through
+  ``httpx`` follows for up to 3 s (httpx_session_steps_per_s).
 * ``mujoco.rollout``: the same N start states stepped by the MuJoCo model of the same artifact
   (``load_physical_model(...).simulate`` with held controls, ``--rollout-threads`` threads, in this
   process, on the same cores) over the same simulated time (capped at ``--rollout-max-s`` of wall
@@ -31,6 +33,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import _httpclient
 import httpx
 import numpy as np
 from _server import rss_bytes, serve
@@ -62,10 +65,13 @@ async def create_sessions(
     return [s["id"] for s in infos], np.asarray([s["state"] for s in infos], np.float64)
 
 
-def step_batched(url: str, ids: list[str], u: np.ndarray, duration: float) -> dict[str, Any]:
-    """One request after another, each stepping every session once."""
+def step_batched(
+    url: str, ids: list[str], u: np.ndarray, duration: float, client: str = "lean"
+) -> dict[str, Any]:
+    """One request after another, each stepping every session once, with the lean HTTP client of
+    ``bench/_httpclient.py`` or with ``httpx``."""
     body = binary.encode_batch_request(ids, u)
-    with httpx.Client(base_url=url, timeout=60) as c:
+    with _httpclient.Client(url) if client == "lean" else httpx.Client(base_url=url, timeout=60) as c:
         for _ in range(3):  # warm-up
             c.post("/step", content=body, headers=OCTET).raise_for_status()
         requests, bad, lat = 0, 0, []
@@ -192,6 +198,10 @@ def main() -> int:
         ids, states = asyncio.run(create_sessions(url, args.model, args.sessions))
         u = np.random.default_rng(0).uniform(lo, hi, (args.sessions, len(lo))).astype(np.float32)
         result.update(step_batched(url, ids, u, args.duration))
+        # the same load with a general-purpose client, whose own CPU time per request shows here
+        with_httpx = step_batched(url, ids, u, min(args.duration, 3.0), client="httpx")
+        result["httpx_session_steps_per_s"] = with_httpx["session_steps_per_s"]
+        result["super_steps"] += with_httpx["super_steps"]
         return ids, states, u
 
     if args.url:
@@ -227,6 +237,9 @@ def main() -> int:
     print("|---|---|---|---|")
     print(
         f"| binary batch, batching on | {args.sessions} | {result['session_steps_per_s']:,.0f} | {result['simulated_s_emulator']} |"
+    )
+    print(
+        f"| the same with an httpx client | {args.sessions} | {result['httpx_session_steps_per_s']:,.0f} | – |"
     )
     for label in ("on", "off"):
         key = f"single_requests_batching_{label}_session_steps_per_s"

@@ -14,17 +14,18 @@ PUBLIC = "public"
 """The owner of jobs made while API keys are off."""
 
 
-def get_store(request: Request) -> JobStore:
+# async: FastAPI runs a plain ``def`` dependency in a worker thread, a thread hop per request.
+async def get_store(request: Request) -> JobStore:
     store: JobStore = request.app.state.store
     return store
 
 
-def get_settings(request: Request) -> Settings:
+async def get_settings(request: Request) -> Settings:
     settings: Settings = request.app.state.settings
     return settings
 
 
-def get_owner() -> str:
+async def get_owner() -> str:
     """The caller's key id (set by the API-key middleware), or ``public`` when keys are off."""
     return CALLER.get() or PUBLIC
 

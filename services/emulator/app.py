@@ -85,11 +85,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.include_router(r)
 
     @app.get("/healthz", tags=["ops"])
-    def healthz() -> dict[str, str]:
+    async def healthz() -> dict[str, str]:
         return {"status": "ok"}
 
     @app.get("/readyz", tags=["ops"])
-    def readyz(engine: EngineDep) -> Response:
+    async def readyz(engine: EngineDep) -> Response:
         names = engine.registry.models()
         p = persistence.status  # "off", "ok" or "degraded" (Redis unreachable: serving, not persisting)
         if not names:
@@ -97,7 +97,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return JSONResponse({"status": "ready", "persistence": p})
 
     @app.get("/metrics", tags=["ops"])
-    def metrics(engine: EngineDep) -> Response:
+    async def metrics(engine: EngineDep) -> Response:
         engine.update_gauges()
         return Response(engine.metrics.render(), media_type=CONTENT_TYPE_LATEST)
 

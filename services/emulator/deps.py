@@ -9,7 +9,8 @@ from fastapi import Depends, Request
 from services.emulator.engine import Engine
 
 
-def get_engine(request: Request) -> Engine:
+async def get_engine(request: Request) -> Engine:
+    # async: FastAPI runs a plain ``def`` dependency in a worker thread, a thread hop per request
     engine: Engine = request.app.state.engine
     return engine
 

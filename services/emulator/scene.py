@@ -11,6 +11,7 @@ A pose is ``[x, y, z, qw, qx, qy, qz]`` in the world frame; bodies are MuJoCo's 
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 from functools import cached_property
 
@@ -49,12 +50,14 @@ def _geom(m: mujoco.MjModel, g: int) -> GeomInfo:
 
 
 class Kinematics:
-    """World poses of a model's bodies for emulator states, through one reusable ``MjData``."""
+    """World poses of a model's bodies for emulator states, through one reusable ``MjData`` (guarded
+    by a lock: ``POST /models/{m}/poses`` runs in worker threads, websocket poses on the event loop)."""
 
     def __init__(self, physical: PhysicalModel) -> None:
         self.physical = physical
         self.m = physical.mj_model
         self.d = mujoco.MjData(self.m)
+        self._lock = threading.Lock()
         self.quaternion_slices = [
             physical.layout.slice_of(g.name)
             for g in physical.layout
@@ -80,11 +83,12 @@ class Kinematics:
         full = self.physical.to_physics(states64)
         m, d = self.m, self.d
         out = np.empty((states.shape[0], m.nbody - 1, 7))
-        for k in range(states.shape[0]):
-            mujoco.mj_setState(m, d, full[k], _PHYSICS)
-            mujoco.mj_kinematics(m, d)
-            out[k, :, :3] = d.xpos[1:]
-            out[k, :, 3:] = d.xquat[1:]
+        with self._lock:
+            for k in range(states.shape[0]):
+                mujoco.mj_setState(m, d, full[k], _PHYSICS)
+                mujoco.mj_kinematics(m, d)
+                out[k, :, :3] = d.xpos[1:]
+                out[k, :, 3:] = d.xquat[1:]
         return out
 
     def rest_poses(self) -> NDArray[np.float64]:

@@ -93,7 +93,7 @@ async def job_events(
 async def job_events_ws(websocket: WebSocket, job_id: str) -> None:
     """The same events as JSON messages ``{"event": ..., "data": {...}}``; closes after ``end``."""
     store: JobStore = websocket.app.state.store
-    rec = await run_in_threadpool(store.record, job_id, get_owner())
+    rec = await run_in_threadpool(store.record, job_id, await get_owner())
     if rec is None:
         await websocket.close(code=4404, reason=f"no job {job_id!r}")
         return

@@ -37,13 +37,13 @@ def summary(emu: Loaded, versions: list[str]) -> ModelSummary:
 
 
 @router.get("/models", response_model=ModelList)
-def list_models(engine: EngineDep) -> ModelList:
+async def list_models(engine: EngineDep) -> ModelList:
     reg = engine.registry
     return ModelList(models=[summary(reg.get(name), reg.versions(name)) for name in reg.models()])
 
 
 @router.get("/models/{model}", response_model=ModelDetail, responses={404: {"model": ErrorBody}})
-def get_model(model: str, engine: EngineDep, version: str | None = None) -> ModelDetail:
+async def get_model(model: str, engine: EngineDep, version: str | None = None) -> ModelDetail:
     reg = engine.registry
     emu = reg.get(model, version)
     m = emu.manifest
@@ -59,7 +59,7 @@ def get_model(model: str, engine: EngineDep, version: str | None = None) -> Mode
 
 
 @router.get("/models/{model}/geometry", response_model=ModelGeometry, responses={404: {"model": ErrorBody}})
-def get_geometry(model: str, engine: EngineDep, version: str | None = None) -> ModelGeometry:
+async def get_geometry(model: str, engine: EngineDep, version: str | None = None) -> ModelGeometry:
     """The model's bodies and geoms (from its MJCF) and their rest poses, for drawing it."""
     emu = engine.registry.get(model, version)
     return geometry(emu.model, emu.version, emu.kinematics)

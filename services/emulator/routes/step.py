@@ -119,11 +119,11 @@ async def binary_step(engine: Engine, body: bytes) -> bytes:
         )
     nu, nf = emu.num_controls, emu.num_forces
     rows = parsed.rows(nu + nf, f"model {emu.model!r} ({nu} controls, {nf} forces)")
-    binary.check_rows(rows, nu, parsed)
-    # the common case in two comparisons: every input in range (NaN was rejected just above)
+    # the common case in two comparisons: every input in range (NaN fails them too, and is then named)
     if (rows >= emu.input_low).all() and (rows <= emu.input_high).all():
         inputs, status = rows, np.zeros(n, np.uint8)
     else:
+        binary.check_rows(rows, nu, parsed)
         clipped = ((rows < emu.input_low) | (rows > emu.input_high)).any(axis=1)
         inputs = np.clip(rows, emu.input_low, emu.input_high).astype(np.float32)
         status = np.where(clipped, binary.CLIPPED, binary.OK).astype(np.uint8)
@@ -143,13 +143,19 @@ async def binary_step(engine: Engine, body: bytes) -> bytes:
     batcher = engine.batcher(emu)
     t0 = time.perf_counter()
     if free.size:
-        mine, gens = slots[free], pool.gen[slots[free]]
+        everyone = free.size == n  # the usual request: every session known, none busy or diverged
+        mine = slots if everyone else slots[free]
+        gens = pool.gen[mine]
+        mine_in = inputs if everyone else inputs[free]
         pool.lock_rows(mine)
         try:
-            new, rowst = await batcher.step_many(pool, mine, gens, inputs[free, :nu], inputs[free, nu:])
+            new, rowst = await batcher.step_many(pool, mine, gens, mine_in[:, :nu], mine_in[:, nu:])
         finally:
             pool.unlock_rows(mine, gens)
-        states[free] = new
+        if everyone:
+            states = new
+        else:
+            states[free] = new
         status[free[rowst == ROW_DIVERGED]] = binary.DIVERGED
         status[free[rowst == ROW_GONE]] = binary.UNKNOWN
     for i in np.flatnonzero(busy).tolist():
@@ -164,5 +170,5 @@ async def binary_step(engine: Engine, body: bytes) -> bytes:
             status[i] = binary.DIVERGED if exc.body.error == "diverged" else binary.UNKNOWN
             if one.alive:
                 states[i] = one.state
-    engine.metrics.step_latency.labels(emu.model, "rest-binary").observe(time.perf_counter() - t0)
+    engine.metrics.latency(emu.model, "rest-binary").observe(time.perf_counter() - t0)
     return binary.encode_batch_response(status, states)
