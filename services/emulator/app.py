@@ -19,6 +19,7 @@ from services.emulator.auth import ApiKeyMiddleware, ApiKeys
 from services.emulator.deps import EngineDep
 from services.emulator.engine import Engine
 from services.emulator.errors import ApiError, api_error_handler, validation_error_handler
+from services.emulator.fastpath import BinaryStepRoute
 from services.emulator.persistence import Persistence
 from services.emulator.routes import models, sessions, step
 from services.emulator.settings import Settings
@@ -68,6 +69,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="NeuroAnimator emulator service", version="0.1.0", lifespan=lifespan)
     app.state.engine = engine
     app.state.persistence = persistence
+    # innermost first: the binary POST /step fast path sees the caller the key check has set
+    app.add_middleware(BinaryStepRoute, engine=engine)
     if keys.enabled:
         app.add_middleware(ApiKeyMiddleware, keys=keys)
     origins = [o.strip() for o in settings.cors_origins.split(",") if o.strip()]

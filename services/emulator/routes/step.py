@@ -4,8 +4,9 @@
 ``Content-Type: application/octet-stream``: the binary layout of ``proto/frames.md`` (little-endian
 float32, every session of one (model, version)); the answer is binary too. Errors are JSON in both.
 
-The endpoint reads the body itself (FastAPI would parse every body as JSON), so both forms go through
-the same middleware and dependencies.
+The endpoint reads the body itself (FastAPI would parse every body as JSON). Binary requests are
+normally answered before routing by ``services/emulator/fastpath.py`` (the same ``binary_step``,
+without FastAPI's per-request cost); the route documents both forms in the OpenAPI document.
 """
 
 from __future__ import annotations
@@ -73,7 +74,7 @@ _OPENAPI: dict[str, Any] = {
 async def batch_step(request: Request, engine: EngineDep) -> Response:
     body = await request.body()
     ctype = request.headers.get("content-type", "application/json").split(";")[0].strip().lower()
-    if ctype == OCTET:
+    if ctype == OCTET:  # normally answered before routing, by services/emulator/fastpath.py
         return Response(await binary_step(engine, body), media_type=OCTET)
     if ctype != "application/json" and not ctype.endswith("+json"):
         raise ApiError(

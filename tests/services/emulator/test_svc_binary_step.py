@@ -139,3 +139,16 @@ def test_unknown_sessions_only_and_other_content_types(client: TestClient) -> No
     assert r.status_code == 415 and r.json()["error"] == "unsupported_media_type"
     r = client.post("/step", content=b"{not json", headers={"content-type": "application/json"})
     assert r.status_code == 422 and r.json()["error"] == "malformed_json"
+
+
+def test_binary_body_over_the_cap_is_413_and_parameters_are_ignored(
+    make_client: Callable[..., TestClient],
+) -> None:
+    c = make_client(max_batch=2)
+    r = _post(c, b"NAST" + b"\0" * 5000)
+    assert r.status_code == 413 and r.json()["error"] == "body_too_large"
+    assert "MAX_BATCH=2" in r.json()["message"]
+    ids = _sessions(c, 2)
+    body = binary.encode_batch_request(ids, np.zeros((2, 3), np.float32))
+    r = c.post("/step", content=body, headers={"content-type": "Application/Octet-Stream; x=1"})
+    assert r.status_code == 200 and binary.decode_batch_response(r.content)[0].tolist() == [binary.OK] * 2
