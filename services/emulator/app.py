@@ -14,7 +14,6 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
 
-from services.emulator import ws
 from services.emulator.auth import ApiKeyMiddleware, ApiKeys
 from services.emulator.deps import EngineDep
 from services.emulator.engine import Engine
@@ -23,6 +22,7 @@ from services.emulator.fastpath import BinaryStepRoute
 from services.emulator.persistence import Persistence
 from services.emulator.routes import models, sessions, step
 from services.emulator.settings import Settings
+from services.emulator.ws import SessionSocketRoute
 
 log = logging.getLogger(__name__)
 
@@ -69,8 +69,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="NeuroAnimator emulator service", version="0.1.0", lifespan=lifespan)
     app.state.engine = engine
     app.state.persistence = persistence
-    # innermost first: the binary POST /step fast path sees the caller the key check has set
+    # innermost first: the binary POST /step and websocket fast paths see the caller the key check set
     app.add_middleware(BinaryStepRoute, engine=engine)
+    app.add_middleware(SessionSocketRoute, engine=engine)
     if keys.enabled:
         app.add_middleware(ApiKeyMiddleware, keys=keys)
     origins = [o.strip() for o in settings.cors_origins.split(",") if o.strip()]
@@ -84,7 +85,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
     app.add_exception_handler(ApiError, api_error_handler)
     app.add_exception_handler(RequestValidationError, validation_error_handler)
-    for r in (models.router, sessions.router, step.router, ws.router):
+    for r in (models.router, sessions.router, step.router):
         app.include_router(r)
 
     @app.get("/healthz", tags=["ops"])

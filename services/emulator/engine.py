@@ -11,6 +11,7 @@ import logging
 import secrets
 import time
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,6 +32,9 @@ from services.emulator.metrics import Metrics
 from services.emulator.registry import Loaded, Registry
 from services.emulator.sessions import Session, SessionStore
 from services.emulator.settings import Settings
+
+if TYPE_CHECKING:
+    from services.emulator.ws import Connection
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +101,7 @@ class Engine:
         )
         self.metrics = Metrics()
         self._batchers: dict[tuple[str, str], Batcher] = {}
+        self.connections: set[Connection] = set()  # open websocket connections (services/emulator/ws.py)
         self._loop: asyncio.AbstractEventLoop | None = None
         self.registry.refresh()
 

@@ -33,11 +33,12 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Generic, TypeVar
+from urllib.parse import parse_qsl
 
 import numpy as np
-from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from numpy.typing import NDArray
 from pydantic import TypeAdapter, ValidationError
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from neuroanimator.schemas import (
     ClientMessage,
@@ -57,7 +58,7 @@ from services.emulator.scene import Twin
 from services.emulator.sessions import Session
 
 log = logging.getLogger(__name__)
-router = APIRouter()
+PATH_PREFIX = "/ws/sessions/"
 _CLIENT: TypeAdapter[ClientMessage] = TypeAdapter(ClientMessage)
 T = TypeVar("T")
 Frame = str | bytes
@@ -98,6 +99,48 @@ class ClientGone(Exception):
     """A send timed out: the client stopped reading or vanished."""
 
 
+class Disconnected(Exception):
+    """The client closed (or dropped) the connection."""
+
+
+class AsgiSocket:
+    """The server side of one websocket, straight on the ASGI ``receive``/``send`` of the server.
+
+    Why not Starlette's ``WebSocket``: at thousands of messages a second, its per-message state checks
+    and the exception-handling wrappers every ``send`` passes through are a measurable share of the
+    CPU time of a step. A send after the client has gone raises ``Disconnected``."""
+
+    def __init__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        self.scope = scope
+        self._receive = receive
+        self._send = send
+        self.query: dict[str, str] = dict(parse_qsl(scope.get("query_string", b"").decode("latin-1")))
+
+    async def accept(self) -> None:
+        msg = await self._receive()
+        if msg["type"] != "websocket.connect":
+            raise Disconnected(f"expected websocket.connect, got {msg['type']}")
+        await self._send({"type": "websocket.accept"})
+
+    async def receive(self) -> Message:
+        return await self._receive()
+
+    async def send_text(self, text: str) -> None:
+        await self._raw({"type": "websocket.send", "text": text})
+
+    async def send_bytes(self, data: bytes) -> None:
+        await self._raw({"type": "websocket.send", "bytes": data})
+
+    async def close(self, code: int = 1000, reason: str = "") -> None:
+        await self._raw({"type": "websocket.close", "code": code, "reason": reason})
+
+    async def _raw(self, message: Message) -> None:
+        try:
+            await self._send(message)
+        except (OSError, RuntimeError) as exc:  # uvicorn: ClientDisconnected; others: a closed socket
+            raise Disconnected(str(exc)) from exc
+
+
 @dataclass
 class Held:
     """The inputs real-time mode steps with: validated, clipped, and the ``seq`` they came with."""
@@ -112,7 +155,7 @@ class Held:
 class Connection:
     """One websocket client of one session."""
 
-    def __init__(self, websocket: WebSocket, engine: Engine, sess: Session) -> None:
+    def __init__(self, websocket: AsgiSocket, engine: Engine, sess: Session) -> None:
         s = engine.settings
         self.ws = websocket
         self.engine = engine
@@ -165,7 +208,7 @@ class Connection:
                 self.pushed += 1
         except ClientGone:
             log.info("websocket client gone (send timeout)", extra={"session": self.sid})
-        except (WebSocketDisconnect, RuntimeError, OSError):
+        except Disconnected:
             log.info("websocket closed while pushing", extra={"session": self.sid})
         self.gone = True
         if self._main is not None:
@@ -378,7 +421,7 @@ class Connection:
                 )
                 if reply is not None:
                     await self.reply(reply)
-        except (WebSocketDisconnect, ClientGone):
+        except (Disconnected, ClientGone):
             pass
         except asyncio.CancelledError:
             if not self.gone:
@@ -388,18 +431,17 @@ class Connection:
             await self._stop_realtime()
 
 
-@router.websocket("/ws/sessions/{sid}")
-async def session_socket(websocket: WebSocket, sid: str) -> None:
-    engine: Engine = websocket.app.state.engine
-    await websocket.accept()
+async def session_socket(ws: AsgiSocket, engine: Engine, sid: str) -> None:
+    """One websocket client of session ``sid``, from the handshake to the close."""
+    await ws.accept()
     try:
         sess = engine.store.get(sid)
     except ApiError as exc:
-        await websocket.send_text(_error(exc))
-        await websocket.close(code=4404)
+        await ws.send_text(_error(exc))
+        await ws.close(code=4404)
         return
-    conn = Connection(websocket, engine, sess)
-    q = websocket.query_params
+    conn = Connection(ws, engine, sess)
+    q = ws.query
     if {"mode", "format", "poses", "shadow"} & set(q):
         try:
             start = WsStart.model_validate(
@@ -413,20 +455,42 @@ async def session_socket(websocket: WebSocket, sid: str) -> None:
             )
             started = await conn.start(start.mode, start.format, None, start.poses, start.shadow)
         except ValidationError as exc:
-            await websocket.send_text(_error(from_validation([dict(e) for e in exc.errors()])))
-            await websocket.close(code=4422)
+            await ws.send_text(_error(from_validation([dict(e) for e in exc.errors()])))
+            await ws.close(code=4422)
             return
         except ApiError as exc:
-            await websocket.send_text(_error(exc))
-            await websocket.close(code=4422)
+            await ws.send_text(_error(exc))
+            await ws.close(code=4422)
             return
         await conn.send(started)
-    conns: set[Connection] | None = getattr(websocket.app.state, "ws_connections", None)
-    if conns is None:
-        conns = websocket.app.state.ws_connections = set()
-    conns.add(conn)
+    engine.connections.add(conn)
     try:
         await conn.run()
     finally:
-        conns.discard(conn)
+        engine.connections.discard(conn)
         log.info("websocket closed", extra={"session": sid, "dropped_states": conn.queue.dropped})
+
+
+class SessionSocketRoute:
+    """Pure ASGI middleware serving ``/ws/sessions/{id}`` (inside the API-key and CORS middleware).
+
+    The connection runs in a task of its own: every message resumes the connection's coroutine, and
+    resuming it under the app's middleware stack would walk a dozen wrapper frames each time."""
+
+    def __init__(self, app: ASGIApp, engine: Engine) -> None:
+        self.app = app
+        self.engine = engine
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        path: str = scope.get("path", "")
+        sid = path[len(PATH_PREFIX) :]
+        if scope["type"] != "websocket" or not path.startswith(PATH_PREFIX) or not sid or "/" in sid:
+            await self.app(scope, receive, send)
+            return
+        ws = AsgiSocket(scope, receive, send)
+        # (cancelling this coroutine, as a server shutting down does, cancels the task it awaits)
+        await asyncio.get_running_loop().create_task(self._serve(ws, sid), name=f"ws-{sid}")
+
+    async def _serve(self, ws: AsgiSocket, sid: str) -> None:
+        with contextlib.suppress(Disconnected):
+            await session_socket(ws, self.engine, sid)

@@ -168,7 +168,7 @@ def test_slow_and_vanished_clients_block_nobody(live: tuple[FastAPI, int]) -> No
     raw = _raw_realtime_client(port, slow_id)  # pushed ~1000 states/s, reads none of them
     try:
         deadline = time.monotonic() + 5
-        while not any(c.sid == slow_id for c in getattr(app.state, "ws_connections", set())):
+        while not any(c.sid == slow_id for c in app.state.engine.connections):
             assert time.monotonic() < deadline, "the raw client's connection never started"
             time.sleep(0.01)
         with connect(f"ws://127.0.0.1:{port}/ws/sessions/{a['id']}") as ws:
@@ -183,7 +183,7 @@ def test_slow_and_vanished_clients_block_nobody(live: tuple[FastAPI, int]) -> No
             np.testing.assert_allclose(got["state"], rest["state"], rtol=0, atol=1e-6)
         # the raw client never answers pings (or reads): the server notices and ends its connection
         deadline = time.monotonic() + 10
-        while any(c.sid == slow_id for c in getattr(app.state, "ws_connections", set())):
+        while any(c.sid == slow_id for c in app.state.engine.connections):
             assert time.monotonic() < deadline, "the vanished client was not noticed"
             time.sleep(0.05)
     finally:
