@@ -36,11 +36,13 @@ class DivergedError(ApiError):
         )
 
 
-@dataclass
+@dataclass(slots=True)
 class _Request:
+    """One session's step: its (U+F,) inputs, controls then forces (an array, or a tuple of floats
+    as a binary websocket frame unpacks to)."""
+
     session: Session
-    controls: NDArray[np.float32]
-    forces: NDArray[np.float32]
+    inputs: NDArray[np.float32] | tuple[float, ...]
     future: asyncio.Future[NDArray[np.float32]]
 
     @property
@@ -94,10 +96,16 @@ class Batcher:
         self, session: Session, controls: NDArray[np.float32], forces: NDArray[np.float32]
     ) -> NDArray[np.float32]:
         """One super-step of one session, batched with whatever else arrives now: returns (S,)."""
+        return await self.step_row(session, np.concatenate([controls, forces]))
+
+    async def step_row(
+        self, session: Session, inputs: NDArray[np.float32] | tuple[float, ...]
+    ) -> NDArray[np.float32]:
+        """``step`` with the inputs as one (U+F,) row, controls then forces (validated and clipped)."""
         if session.diverged:
             raise DivergedError(session)
         fut: asyncio.Future[NDArray[np.float32]] = asyncio.get_running_loop().create_future()
-        self._enqueue(_Request(session, controls, forces, fut))
+        self._enqueue(_Request(session, inputs, fut))
         return await fut
 
     async def step_many(
@@ -181,18 +189,20 @@ class Batcher:
                 r.future.set_exception(
                     ApiError(404, "unknown_session", f"session {r.session.id!r} was deleted while stepping")
                 )
-        parts = [np.fromiter((r.session.slot for r in single), np.intp, len(single))]
+        ns = len(single)
+        parts = [np.fromiter((r.session.slot for r in single), np.intp, ns)]
         parts += [b.slots for b in bulks]
         slots = np.concatenate(parts)
         if not slots.size:
             return
         pool = single[0].session.pool if single else bulks[0].pool
         x = np.take(pool.states, slots, axis=0)  # (B, S) copy
-        u = f = None
-        if self.emu.num_controls:
-            u = np.concatenate([r.controls[None] for r in single] + [b.controls for b in bulks])
-        if self.emu.num_forces:
-            f = np.concatenate([r.forces[None] for r in single] + [b.forces for b in bulks])
+        nu = self.emu.num_controls
+        parts_in = [np.array([r.inputs for r in single], np.float32)] if ns else []
+        parts_in += [np.concatenate([b.controls, b.forces], axis=1) for b in bulks]
+        inputs = np.concatenate(parts_in) if len(parts_in) > 1 else parts_in[0]  # (B, U+F)
+        u = inputs[:, :nu] if nu else None
+        f = inputs[:, nu:] if self.emu.num_forces else None
         t0 = time.perf_counter()
         if len(slots) <= INLINE_ROWS:
             out = self.emu.emulator.step(x, u, f, validate=False)
@@ -207,19 +217,22 @@ class Batcher:
             if not np.isfinite(out).all()
             else np.ones(len(out), bool)
         )
-        for i, req in enumerate(single):
-            sess = req.session
-            if req.future.done():
-                continue
-            if not finite[i]:
-                self._diverge(sess)
-                req.future.set_exception(DivergedError(sess))
-                continue
-            if sess.alive:  # deleted while in flight: its slot may belong to another session now
-                pool.states[sess.slot] = out[i]
-                pool.steps[sess.slot] += 1
-            req.future.set_result(out[i])
-        start = len(single)
+        if ns:
+            # Single requests: write back the rows of sessions still alive (one deleted while in flight
+            # may have had its slot reused) in one scatter, then answer each.
+            alive = np.fromiter((r.session.alive for r in single), bool, ns)
+            keep = alive & finite[:ns]
+            pool.states[slots[:ns][keep]] = out[:ns][keep]
+            pool.steps[slots[:ns][keep]] += 1
+            for i, req in enumerate(single):
+                if req.future.done():
+                    continue
+                if not finite[i]:
+                    self._diverge(req.session)
+                    req.future.set_exception(DivergedError(req.session))
+                else:
+                    req.future.set_result(out[i])
+        start = ns
         for b in bulks:
             k = len(b.slots)
             rows, ok = out[start : start + k], finite[start : start + k]

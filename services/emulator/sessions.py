@@ -124,6 +124,8 @@ class SessionLock:
 
     async def acquire(self) -> None:
         s = self.session
+        if s.try_lock():
+            return
         while s.alive and s.pool.busy[s.slot]:
             fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
             s.pool.waiters.setdefault(s.slot, []).append(fut)
@@ -132,10 +134,7 @@ class SessionLock:
             s.pool.busy[s.slot] = True
 
     def release(self) -> None:
-        s = self.session
-        if s.alive:
-            s.pool.busy[s.slot] = False
-            s.pool.wake(np.asarray([s.slot]))
+        self.session.unlock()
 
     async def __aenter__(self) -> None:
         await self.acquire()
@@ -198,6 +197,23 @@ class Session:
     @property
     def lock(self) -> SessionLock:
         return SessionLock(self)
+
+    def try_lock(self) -> bool:
+        """Take the lock if it is free (without waiting); False if another step holds it."""
+        pool, slot = self.pool, self.slot
+        if slot < 0 or pool.owner[slot] is not self:
+            return True  # deleted: nothing to guard (its next step fails with 404)
+        if pool.busy[slot]:
+            return False
+        pool.busy[slot] = True
+        return True
+
+    def unlock(self) -> None:
+        pool, slot = self.pool, self.slot
+        if slot >= 0 and pool.owner[slot] is self:
+            pool.busy[slot] = False
+            if pool.waiters:
+                pool.wake(np.asarray([slot]))
 
     @property
     def t(self) -> float:

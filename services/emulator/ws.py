@@ -28,6 +28,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import struct
 import time
 from collections import deque
 from collections.abc import Sequence
@@ -113,6 +114,7 @@ class AsgiSocket:
     def __init__(self, scope: Scope, receive: Receive, send: Send) -> None:
         self.scope = scope
         self._receive = receive
+        self.receive = receive  # the server's own: one coroutine layer less per message
         self._send = send
         self.query: dict[str, str] = dict(parse_qsl(scope.get("query_string", b"").decode("latin-1")))
 
@@ -122,14 +124,17 @@ class AsgiSocket:
             raise Disconnected(f"expected websocket.connect, got {msg['type']}")
         await self._send({"type": "websocket.accept"})
 
-    async def receive(self) -> Message:
-        return await self._receive()
-
     async def send_text(self, text: str) -> None:
-        await self._raw({"type": "websocket.send", "text": text})
+        try:
+            await self._send({"type": "websocket.send", "text": text})
+        except (OSError, RuntimeError) as exc:
+            raise Disconnected(str(exc)) from exc
 
     async def send_bytes(self, data: bytes) -> None:
-        await self._raw({"type": "websocket.send", "bytes": data})
+        try:
+            await self._send({"type": "websocket.send", "bytes": data})
+        except (OSError, RuntimeError) as exc:
+            raise Disconnected(str(exc)) from exc
 
     async def close(self, code: int = 1000, reason: str = "") -> None:
         await self._raw({"type": "websocket.close", "code": code, "reason": reason})
@@ -176,11 +181,23 @@ class Connection:
         self._pusher: asyncio.Task[None] | None = None
         self._main: asyncio.Task[object] | None = None
         self.gone = False
+        # for binary lock-step frames, the hot path: their layout and the inputs' range as Python values
+        width = self.emu.num_controls + self.emu.num_forces
+        self._frame = struct.Struct(f"<4sI{width}f")
+        self._bounds = list(zip(self.emu.input_low.tolist(), self.emu.input_high.tolist(), strict=True))
+        self._batcher = engine.batcher(self.emu)
+        self._latency = engine.metrics.latency(self.emu.model, "ws")
 
     # ------------------------------------------------------------------ sending
     async def reply(self, frame: Frame) -> None:
         """A lock-step reply. No timeout here (a timer per message is measurable at 10,000 steps/s):
         a client that stops reading blocks only its own connection, whose session then expires."""
+        if self._pusher is None:  # no real-time pusher: this task is the only one sending
+            if isinstance(frame, bytes):
+                await self.ws.send_bytes(frame)
+            else:
+                await self.ws.send_text(frame)
+            return
         async with self._send_lock:
             if isinstance(frame, bytes):
                 await self.ws.send_bytes(frame)
@@ -378,6 +395,13 @@ class Connection:
             return _error(exc, seq)
 
     async def on_binary(self, data: bytes) -> Frame | None:
+        if len(data) == self._frame.size and self.mode == "lockstep" and self.twin is None:
+            magic, number, *given = self._frame.unpack(data)
+            # NaN fails both comparisons, so it takes the general path below and is named there
+            if magic == binary.WS_CLIENT_MAGIC and all(
+                lo <= v <= hi for (lo, hi), v in zip(self._bounds, given, strict=True)
+            ):
+                return await self._lockstep_fast(None if number == binary.NO_SEQ else number, tuple(given))
         e = self.emu
         seq = None
         try:
@@ -395,6 +419,25 @@ class Connection:
             return await self._lockstep(sess, held)
         except ApiError as exc:
             return _error(exc, seq)
+
+    async def _lockstep_fast(self, seq: int | None, values: tuple[float, ...]) -> Frame:
+        """A binary lock-step frame whose inputs are all in range: ``_lockstep`` in fewer operations
+        (no arrays for one session's inputs, the batcher and latency series looked up once)."""
+        try:
+            sess = self.engine.store.get(self.sid)
+            t0 = time.perf_counter()
+            if not sess.try_lock():
+                await sess.lock.acquire()
+            try:
+                out = await self._batcher.step_row(sess, values)
+            finally:
+                sess.unlock()
+            self._latency.observe(time.perf_counter() - t0)
+        except ApiError as exc:
+            return _error(exc, seq)
+        if self.format == "binary":
+            return binary.encode_ws_state(seq, sess.steps, binary.OK, out)
+        return self._state(sess, out, seq, [], [])
 
     async def lockstep(self, controls: Sequence[float], forces: Sequence[float], seq: int | None) -> Frame:
         sess = self.engine.store.get(self.sid)
