@@ -89,7 +89,6 @@ class Batcher:
         self._pending: list[_Request | _Bulk] = []
         self._pending_rows = 0  # rows waiting in _pending, kept so that enqueueing is O(1)
         self._ready = asyncio.Event()
-        self._full = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
 
     async def step(
@@ -134,8 +133,6 @@ class Batcher:
         self._pending.append(req)
         self._pending_rows += req.rows
         self._ready.set()
-        if self._pending_rows >= self.max_batch:
-            self._full.set()
 
     async def close(self) -> None:
         if self._task is not None:
@@ -149,11 +146,7 @@ class Batcher:
     async def _worker(self) -> None:
         while True:
             await self._ready.wait()
-            if self._pending_rows < self.max_batch and self.max_wait_s > 0:
-                # asyncio.timeout, unlike wait_for, starts no task: this runs once per batch
-                with contextlib.suppress(TimeoutError):
-                    async with asyncio.timeout(self.max_wait_s):
-                        await self._full.wait()
+            await self._gather()
             take, rows = 0, 0  # whole entries up to max_batch rows (a bulk entry is never split)
             while take < len(self._pending) and (
                 take == 0 or rows + self._pending[take].rows <= self.max_batch
@@ -162,8 +155,6 @@ class Batcher:
                 take += 1
             batch, self._pending = self._pending[:take], self._pending[take:]
             self._pending_rows -= rows
-            if self._pending_rows < self.max_batch:
-                self._full.clear()
             if not self._pending:
                 self._ready.clear()
             try:
@@ -174,6 +165,19 @@ class Batcher:
                 for req in batch:
                     if not req.future.done():
                         req.future.set_exception(err)
+
+    async def _gather(self) -> None:
+        """The batching window: one event-loop turn (every request whose bytes have arrived is read
+        and queued in it), then more turns while requests keep arriving, for at most ``max_wait``
+        and until ``max_batch`` rows wait. A lone request is thus stepped at once, and a busy server
+        still fills its batches; a fixed wait would delay the one and not fill the other any better."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.max_wait_s
+        while self._pending_rows < self.max_batch:
+            before = self._pending_rows
+            await asyncio.sleep(0)  # a loop turn: ready sockets are read and their requests queued
+            if self._pending_rows == before or loop.time() >= deadline:
+                return
 
     async def _run(self, batch: list[_Request | _Bulk]) -> None:
         single: list[_Request] = []

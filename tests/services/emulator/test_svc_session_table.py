@@ -6,8 +6,10 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
+import pytest
 from fastapi.testclient import TestClient
 
 from neuroanimator.schemas import SessionCreate
@@ -92,21 +94,29 @@ def test_bulk_and_single_steps_of_one_session_exclude_each_other(
     asyncio.run(run())
 
 
-def test_session_deleted_while_its_bulk_step_is_queued(make_settings: Callable[..., Settings]) -> None:
-    engine = Engine(make_settings(max_wait_ms=30.0))
+def test_session_deleted_while_its_bulk_step_is_in_flight(
+    make_settings: Callable[..., Settings], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    engine = Engine(make_settings())
+    loaded = engine.registry.get("pendulum-active")
+    real = loaded.emulator.step
+    newcomers = []
+
+    def deleting(*args: Any, **kw: Any) -> np.ndarray:  # the ORT call; the session goes meanwhile
+        assert engine.store.delete(ids[0])
+        newcomers.append(engine.create_session(SessionCreate(model="pendulum-active", seed=9)))
+        return real(*args, **kw)
 
     async def run() -> None:
-        ids = [engine.create_session(SessionCreate(model="pendulum-active", seed=i)).id for i in range(3)]
-        task = asyncio.create_task(
-            binary_step(engine, binary.encode_batch_request(ids, np.zeros((3, 3), np.float32)))
-        )
-        await asyncio.sleep(0.005)  # the bulk entry waits in the batching window
-        assert engine.store.delete(ids[0])
-        newcomer = engine.create_session(SessionCreate(model="pendulum-active", seed=9))
-        status, states = binary.decode_batch_response(await task)
+        monkeypatch.setattr(loaded.emulator, "step", deleting)
+        body = binary.encode_batch_request(ids, np.zeros((3, 3), np.float32))
+        status, states = binary.decode_batch_response(await binary_step(engine, body))
         assert status.tolist() == [binary.UNKNOWN, binary.OK, binary.OK]
         assert np.isnan(states[0]).all()
+        newcomer = newcomers[0]
+        assert newcomer.slot == 0  # the deleted session's slot, handed out again
         assert newcomer.steps == 0 and not newcomer.lock.locked()
         assert [engine.store.get(s).steps for s in ids[1:]] == [1, 1]
 
+    ids = [engine.create_session(SessionCreate(model="pendulum-active", seed=i)).id for i in range(3)]
     asyncio.run(run())
