@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -94,30 +95,33 @@ def step_batched(
     }
 
 
-async def step_unbatched(
+def step_unbatched(
     url: str, ids: list[str], u: np.ndarray, duration: float, concurrency: int
 ) -> dict[str, Any]:
-    """One-session binary requests, ``concurrency`` in flight, round-robin over the sessions."""
+    """One-session binary requests, ``concurrency`` in flight (one lean keep-alive client per
+    thread: the socket waits release the GIL), round-robin over the sessions."""
     bodies = [binary.encode_batch_request([sid], u[i : i + 1]) for i, sid in enumerate(ids)]
-    done = [0]
-    t_end = time.perf_counter() + duration
+    done = [0] * concurrency
+    stop = threading.Event()
 
-    async with httpx.AsyncClient(
-        base_url=url, timeout=60, limits=httpx.Limits(max_connections=concurrency)
-    ) as c:
-
-        async def worker(w: int) -> None:
+    def worker(w: int) -> None:
+        with _httpclient.Client(url) as c:
             i = w
-            while time.perf_counter() < t_end:
-                r = await c.post("/step", content=bodies[i % len(bodies)], headers=OCTET)
-                r.raise_for_status()
-                done[0] += 1
+            while not stop.is_set():
+                c.post("/step", content=bodies[i % len(bodies)], headers=OCTET).raise_for_status()
+                done[w] += 1
                 i += concurrency
 
-        t0 = time.perf_counter()
-        await asyncio.gather(*(worker(w) for w in range(concurrency)))
-        elapsed = time.perf_counter() - t0
-    return {"session_steps_per_s": round(done[0] / elapsed, 1), "requests": done[0]}
+    threads = [threading.Thread(target=worker, args=(w,), daemon=True) for w in range(concurrency)]
+    t0 = time.perf_counter()
+    for t in threads:
+        t.start()
+    time.sleep(duration)
+    stop.set()
+    for t in threads:
+        t.join(60)
+    elapsed = time.perf_counter() - t0
+    return {"session_steps_per_s": round(sum(done) / elapsed, 1), "requests": sum(done)}
 
 
 def rollout(
@@ -177,7 +181,7 @@ def main() -> int:
     p.add_argument(
         "--compare-off", action="store_true", help="add a row with MAX_BATCH=1, unbatched requests"
     )
-    p.add_argument("--concurrency", type=int, default=8, help="requests in flight for --compare-off")
+    p.add_argument("--concurrency", type=int, default=32, help="requests in flight for --compare-off")
     p.add_argument("--idle-sessions", type=int, default=0, help="measure RSS per 10,000 idle sessions")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
@@ -215,7 +219,7 @@ def main() -> int:
         for label, extra in (("on", {}), ("off", {"MAX_BATCH": "1"})):
             with serve(args.artifacts, MAX_SESSIONS=str(args.sessions + 10), **extra) as (url, _pid):
                 ids, _ = asyncio.run(create_sessions(url, args.model, args.sessions))
-                one = asyncio.run(step_unbatched(url, ids, u, args.duration, args.concurrency))
+                one = step_unbatched(url, ids, u, args.duration, args.concurrency)
             result[f"single_requests_batching_{label}_session_steps_per_s"] = one["session_steps_per_s"]
     result.update(
         rollout(
