@@ -36,6 +36,10 @@ class DivergedError(ApiError):
         )
 
 
+def _deleted(session: Session) -> ApiError:
+    return ApiError(404, "unknown_session", f"session {session.id!r} was deleted while stepping")
+
+
 @dataclass(slots=True)
 class _Request:
     """One session's step: its (U+F,) inputs, controls then forces (an array, or a tuple of floats
@@ -167,17 +171,19 @@ class Batcher:
                         req.future.set_exception(err)
 
     async def _gather(self) -> None:
-        """The batching window: one event-loop turn (every request whose bytes have arrived is read
-        and queued in it), then more turns while requests keep arriving, for at most ``max_wait``
-        and until ``max_batch`` rows wait. A lone request is thus stepped at once, and a busy server
+        """The batching window: event-loop turns (each reads the sockets that are ready and queues
+        the requests read the turn before) while requests keep arriving, ending after two quiet
+        turns, at ``max_wait`` or when ``max_batch`` rows wait. A lone request is thus stepped at once, and a busy server
         still fills its batches; a fixed wait would delay the one and not fill the other any better."""
         loop = asyncio.get_running_loop()
         deadline = loop.time() + self.max_wait_s
-        while self._pending_rows < self.max_batch:
+        quiet = 0  # turns in a row without a new request: bytes read in one turn are queued the next
+        while self._pending_rows < self.max_batch and quiet < 2:
             before = self._pending_rows
             await asyncio.sleep(0)  # a loop turn: ready sockets are read and their requests queued
-            if self._pending_rows == before or loop.time() >= deadline:
+            if loop.time() >= deadline:
                 return
+            quiet = quiet + 1 if self._pending_rows == before else 0
 
     async def _run(self, batch: list[_Request | _Bulk]) -> None:
         single: list[_Request] = []
@@ -190,9 +196,7 @@ class Batcher:
             elif r.session.alive:
                 single.append(r)
             else:  # deleted or expired while queued
-                r.future.set_exception(
-                    ApiError(404, "unknown_session", f"session {r.session.id!r} was deleted while stepping")
-                )
+                r.future.set_exception(_deleted(r.session))
         ns = len(single)
         parts = [np.fromiter((r.session.slot for r in single), np.intp, ns)]
         parts += [b.slots for b in bulks]
@@ -224,18 +228,21 @@ class Batcher:
         if ns:
             # Single requests: write back the rows of sessions still alive (one deleted while in flight
             # may have had its slot reused) in one scatter, then answer each.
-            alive = np.fromiter((r.session.alive for r in single), bool, ns)
+            # (a request cancelled meanwhile has let go of its lock: its session is not advanced)
+            alive = np.fromiter((r.session.alive and not r.future.done() for r in single), bool, ns)
             keep = alive & finite[:ns]
             pool.states[slots[:ns][keep]] = out[:ns][keep]
             pool.steps[slots[:ns][keep]] += 1
             for i, req in enumerate(single):
                 if req.future.done():
                     continue
-                if not finite[i]:
+                if finite[i]:
+                    req.future.set_result(out[i])
+                elif req.session.alive:
                     self._diverge(req.session)
                     req.future.set_exception(DivergedError(req.session))
                 else:
-                    req.future.set_result(out[i])
+                    req.future.set_exception(_deleted(req.session))
         start = ns
         for b in bulks:
             k = len(b.slots)

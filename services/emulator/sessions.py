@@ -163,7 +163,9 @@ class Session:
 
     @property
     def state(self) -> NDArray[np.float32]:
-        """(S,) a copy of the current state."""
+        """(S,) a copy of the current state (NaN once deleted: its row may be another session's)."""
+        if self.slot < 0:
+            return np.full(self.pool.states.shape[1], np.nan, np.float32)
         return self.pool.states[self.slot].copy()
 
     # A deleted session (slot -1) has no row: reads give what it had, writes are dropped.
@@ -326,7 +328,18 @@ class SessionStore:
         found = list(map(self.sessions.get, ids))
         emu: Loaded | None = None
         first = -1
+        caller = CALLER.get()
+        cutoff = time.monotonic() - self.ttl_s
         for i, sess in enumerate(found):
+            if sess is None:
+                continue
+            # expired and other keys' sessions are unknown before the model check, as with ``get``
+            # (another key's session must neither fail the request nor reveal its model)
+            if sess.pool.last_used[sess.slot] < cutoff:
+                self.delete(sess.id)
+                found[i] = sess = None
+            elif caller is not None and sess.owner != caller:
+                found[i] = sess = None
             if sess is None:
                 continue
             if emu is None:
@@ -355,9 +368,10 @@ class SessionStore:
         """``resolve`` for ids given as one block of NUL-padded ASCII slots of ``width`` bytes (the
         binary ``POST /step``). The same block seen again (a game server steps the same sessions
         every tick) is answered from a cache, checked in one comparison of the slots' ``gen``."""
-        hit = self._blocks.get(block)
+        key = width.to_bytes(2, "little") + block  # the same bytes cut at another width are other ids
+        hit = self._blocks.get(key)
         if hit is not None and hit.pool is not None and (hit.pool.gen[hit.slots] == hit.gens).all():
-            self._blocks.move_to_end(block)
+            self._blocks.move_to_end(key)
             res = Resolved(hit.emu, hit.pool, hit.slots.copy(), hit.gens)
             self.check_resolved(res)
             return res
@@ -377,7 +391,7 @@ class SessionStore:
                 seen.add(sid)
         found, res = self.resolve(ids)
         if res.pool is not None and all(s is not None for s in found):
-            self._blocks[block] = Resolved(res.emu, res.pool, res.slots.copy(), res.gens)
+            self._blocks[key] = Resolved(res.emu, res.pool, res.slots.copy(), res.gens)
             if len(self._blocks) > self.ID_BLOCK_CACHE:
                 self._blocks.popitem(last=False)
         return res

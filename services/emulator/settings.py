@@ -15,7 +15,12 @@ class Settings(BaseSettings):
 
     artifacts_dir: Path = Path("artifacts")
     max_batch: int = Field(4096, ge=1, description="most rows in one ORT call, and items in one POST /step")
-    max_wait_ms: float = Field(1.0, ge=0.0, le=50.0, description="batching window after the first request")
+    max_wait_ms: float = Field(
+        1.0,
+        ge=0.0,
+        le=50.0,
+        description="longest batching window: requests are gathered while they keep arriving, up to this long",
+    )
     session_ttl_s: float = Field(600.0, gt=0.0, description="idle sessions expire after this")
     max_sessions: int = Field(100_000, ge=1, description="sessions alive in this replica (429 beyond)")
     max_steps_per_request: int = Field(1000, ge=1)

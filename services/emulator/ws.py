@@ -485,6 +485,7 @@ async def session_socket(ws: AsgiSocket, engine: Engine, sid: str) -> None:
         return
     conn = Connection(ws, engine, sess)
     q = ws.query
+    started: str | None = None
     if {"mode", "format", "poses", "shadow"} & set(q):
         try:
             start = WsStart.model_validate(
@@ -505,11 +506,13 @@ async def session_socket(ws: AsgiSocket, engine: Engine, sid: str) -> None:
             await ws.send_text(_error(exc))
             await ws.close(code=4422)
             return
-        await conn.send(started)
     engine.connections.add(conn)
     try:
+        if started is not None:
+            await conn.send(started)
         await conn.run()
     finally:
+        await conn._stop_realtime()  # (a client gone before ``started`` leaves no ticker behind)
         engine.connections.discard(conn)
         log.info("websocket closed", extra={"session": sid, "dropped_states": conn.queue.dropped})
 
@@ -535,5 +538,5 @@ class SessionSocketRoute:
         await asyncio.get_running_loop().create_task(self._serve(ws, sid), name=f"ws-{sid}")
 
     async def _serve(self, ws: AsgiSocket, sid: str) -> None:
-        with contextlib.suppress(Disconnected):
+        with contextlib.suppress(Disconnected, ClientGone):
             await session_socket(ws, self.engine, sid)

@@ -3,6 +3,7 @@ controls; a slow or vanished client holds up nobody and is noticed; its session 
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import itertools
 import json
@@ -20,9 +21,12 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from websockets.sync.client import connect
 
+from neuroanimator.schemas import SessionCreate
 from services.emulator import binary
 from services.emulator.app import create_app
-from services.emulator.ws import LatestQueue
+from services.emulator.engine import Engine
+from services.emulator.settings import Settings
+from services.emulator.ws import LatestQueue, SessionSocketRoute
 
 
 def _drain_until_started(ws: Any) -> None:
@@ -190,3 +194,31 @@ def test_slow_and_vanished_clients_block_nobody(live: tuple[FastAPI, int]) -> No
         raw.close()
     info = httpx.get(f"{base}/sessions/{slow_id}").json()  # kept until its TTL
     assert info["steps"] > 0 and not info["diverged"]
+
+
+def test_a_client_gone_before_started_leaves_no_ticker(make_settings: Callable[..., Settings]) -> None:
+    engine = Engine(make_settings(ws_realtime_scale=0.1))  # a tick every 10 ms
+
+    async def main() -> None:
+        sess = engine.create_session(SessionCreate(model="pendulum-active", seed=0))
+        inbox: list[dict[str, Any]] = [{"type": "websocket.connect"}]
+
+        async def receive() -> dict[str, Any]:
+            if inbox:
+                return inbox.pop(0)
+            await asyncio.sleep(3600)
+            raise AssertionError("unreachable")
+
+        async def send(message: dict[str, Any]) -> None:
+            if message["type"] == "websocket.send":
+                raise OSError("the client closed right after the handshake")
+
+        scope = {"type": "websocket", "path": f"/ws/sessions/{sess.id}", "query_string": b"mode=realtime"}
+        await SessionSocketRoute(None, engine)(scope, receive, send)  # type: ignore[arg-type]
+        steps = sess.steps
+        await asyncio.sleep(0.3)  # more than a real-time period of the test settings
+        assert sess.steps == steps
+        assert not [t for t in asyncio.all_tasks() if t.get_name().startswith(("ws-tick", "ws-push"))]
+        assert not engine.connections
+
+    asyncio.run(main())
