@@ -125,19 +125,19 @@ def test_session_deleted_while_its_bulk_step_is_in_flight(
 def test_sessions_of_another_key_or_expired_are_unknown_before_the_model_check(
     make_client: Callable[..., TestClient],
 ) -> None:
-    c = make_client(api_keys="alpha,beta", session_ttl_s=0.4)
+    c = make_client(api_keys="alpha,beta", session_ttl_s=1.0)
     alpha, beta = {"x-api-key": "alpha"}, {"x-api-key": "beta"}
-    theirs = c.post("/sessions", json={"model": "lander", "seed": 0}, headers=alpha).json()["id"]
     old = c.post("/sessions", json={"model": "lander", "seed": 1}, headers=beta).json()["id"]
-    time.sleep(0.5)
+    time.sleep(1.2)
+    theirs = c.post("/sessions", json={"model": "lander", "seed": 0}, headers=alpha).json()["id"]
     mine = _new(c, 1, beta)[0]
     # alpha's lander and beta's expired lander neither fail the request (mixed_models) nor shape it
     assert _step(c, [theirs, old, mine], beta)[0] == [binary.UNKNOWN, binary.UNKNOWN, binary.OK]
-    assert _step(c, [theirs], alpha)[0] == [binary.UNKNOWN]  # expired meanwhile for alpha too
-    fresh = c.post("/sessions", json={"model": "lander", "seed": 1}, headers=alpha).json()["id"]
-    body = binary.encode_batch_request([fresh], np.zeros((1, 3), np.float32))  # 3 inputs: beta's guess
-    r = c.post("/step", content=body, headers={**OCTET, **beta})
+    body = binary.encode_batch_request([theirs], np.zeros((1, 3), np.float32))  # 3 inputs: beta's guess
+    r = c.post("/step", content=body, headers={**OCTET, **beta})  # alone: not a wrong_length for lander
     assert r.status_code == 200 and binary.decode_batch_response(r.content)[0].tolist() == [binary.UNKNOWN]
+    assert c.get(f"/sessions/{theirs}", headers=alpha).json()["steps"] == 0
+    assert c.get(f"/sessions/{old}", headers=beta).status_code == 404
 
 
 def test_a_cached_id_block_cut_at_another_width_is_other_ids(client: TestClient) -> None:
