@@ -73,6 +73,6 @@ clean:
 # Regenerate proto/ (JSON Schemas of the wire models, the emulator's and the controller's OpenAPI documents).
 .PHONY: proto
 proto: install
-	$(BIN)/python -m services.emulator.export_proto
+	$(BIN)/python -m services.export_proto
 	@if [ -d web/node_modules ]; then cd web && npm run --silent gen:api; \
 	else echo "web/node_modules missing: run make install-web, then make proto, to regenerate web/src/api"; fi

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from services.emulator import export_proto
+from services import export_proto
 
 
 def test_proto_is_up_to_date() -> None:
@@ -20,7 +20,7 @@ def test_proto_lists_every_wire_model() -> None:
         "WsStarted",
         "ErrorBody",
     } <= names
-    paths = export_proto.openapi()["paths"]
+    paths = export_proto.emulator_openapi()["paths"]
     body = paths["/step"]["post"]["requestBody"]["content"]
     assert {"application/json", "application/octet-stream"} <= set(body)
 

@@ -4,11 +4,12 @@
 ``proto/schemas/controller/<Name>.json``) and OpenAPI document (``proto/controller.openapi.json``).
 ``proto/frames.md`` (the binary layouts) is written by hand.
 
-    python -m services.emulator.export_proto            # (re)write proto/
-    python -m services.emulator.export_proto --check    # exit 1 and list the files that drifted
+    python -m services.export_proto            # (re)write proto/
+    python -m services.export_proto --check    # exit 1 and list the files that drifted
 
-The OpenAPI document comes from ``create_app(...)`` over an empty artifact folder, so no artifacts,
-Redis or API keys are needed.
+The OpenAPI documents come from each service's ``create_app(...)`` over an empty artifact folder, so
+no artifacts, Redis or API keys are needed. This module sits beside the services, not in one: it is
+the only place that imports both.
 """
 
 from __future__ import annotations
@@ -27,8 +28,8 @@ from pydantic import BaseModel, TypeAdapter
 from neuroanimator import controller_schemas, schemas
 
 log = logging.getLogger(__name__)
-ROOT = Path(__file__).resolve().parents[2] / "proto"
-COMMAND = "python -m services.emulator.export_proto  (or: make proto)"
+ROOT = Path(__file__).resolve().parents[1] / "proto"
+COMMAND = "python -m services.export_proto  (or: make proto)"
 UNIONS = ("ClientMessage", "ServerMessage")
 CONTROLLER = "schemas/controller"  # the controller's schemas, beside (not among) the emulator's
 
@@ -77,22 +78,21 @@ def controller_openapi() -> dict[str, Any]:
     return doc
 
 
-def openapi() -> dict[str, Any]:
+def emulator_openapi() -> dict[str, Any]:
+    """The emulator service's document (no Redis: persistence off)."""
     from services.emulator.app import create_app
     from services.emulator.settings import Settings
 
     with tempfile.TemporaryDirectory() as empty:
-        kw: dict[str, Any] = {"artifacts_dir": Path(empty), "api_keys": ""}
-        if "redis_url" in Settings.model_fields:
-            kw["redis_url"] = ""
-        doc: dict[str, Any] = create_app(Settings(**kw)).openapi()
+        settings = Settings(artifacts_dir=Path(empty), api_keys="", redis_url="")
+        doc: dict[str, Any] = create_app(settings).openapi()
     return doc
 
 
 def render() -> dict[str, str]:
     """The generated files of ``proto/``, by path relative to it."""
     files = {f"schemas/{name}.json": _dump(s) for name, s in wire_schemas().items()}
-    files["emulator.openapi.json"] = _dump(openapi())
+    files["emulator.openapi.json"] = _dump(emulator_openapi())
     files |= {f"{CONTROLLER}/{name}.json": _dump(s) for name, s in controller_wire_schemas().items()}
     files["controller.openapi.json"] = _dump(controller_openapi())
     return files
