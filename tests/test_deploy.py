@@ -130,6 +130,51 @@ def test_dockerfile_targets(compose: dict[str, Any]) -> None:
     assert "torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu" in stages["trainer"]
 
 
+# Installed in the full environment but not in the dashboard's image (it installs fastapi, uvicorn, pydantic
+# and pydantic-settings only).
+NOT_IN_WEB_IMAGE = (
+    "neuroanimator",
+    "numpy",
+    "torch",
+    "onnxruntime",
+    "mujoco",
+    "redis",
+    "rq",
+    "prometheus_client",
+)
+
+
+def test_web_image_holds_what_the_web_service_imports(tmp_path: Path) -> None:
+    """The dashboard's image copies a few folders of services/: the static server starts from them alone."""
+    stage = _stages(ROOT / "deploy" / "web" / "Dockerfile")["web"]
+    copied = re.findall(r"(?m)^COPY (services/\S*) \./\1$", stage)
+    assert "services/web" in copied, copied
+    app = tmp_path / "app"
+    for path in copied:
+        src, dst = ROOT / path, app / path
+        if src.is_dir():
+            shutil.copytree(src, dst, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(src, dst)
+    code = (
+        "import sys\n"
+        f"blocked = {NOT_IN_WEB_IMAGE!r}\n"
+        "class Block:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name.split('.')[0] in blocked:\n"
+        "            raise ImportError(f'{name} is not in the web image')\n"
+        "sys.meta_path.insert(0, Block())\n"
+        "import services.web.__main__\n"
+        "from services.web.app import create_app\n"
+        "from services.web.settings import Settings\n"
+        f"create_app(Settings(web_dist={str(tmp_path / 'dist')!r}))\n"
+        f"assert services.web.__file__.startswith({str(app)!r}), services.web.__file__\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(app)}
+    subprocess.run([sys.executable, "-c", code], cwd=app, env=env, check=True, timeout=60)
+
+
 def test_proxy_routes_by_replica_prefix(compose: dict[str, Any]) -> None:
     proxy = compose["services"]["proxy"]
     mounts = [v.split(":") for v in proxy["volumes"]]

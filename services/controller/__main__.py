@@ -2,23 +2,13 @@
 
 from __future__ import annotations
 
-import uvicorn
-
-from services.controller import logs
+from services.common.server import serve
 from services.controller.app import create_app
 from services.controller.settings import Settings
 
 
 def main() -> None:
-    settings = Settings()
-    logs.setup(settings.log_level)
-    uvicorn.run(
-        create_app(settings),
-        host=settings.host,
-        port=settings.port,
-        log_level=settings.log_level,
-        log_config=None,  # keep the JSON log handler set up above
-    )
+    serve(create_app, Settings())
 
 
 if __name__ == "__main__":

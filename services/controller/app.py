@@ -16,7 +16,6 @@ from urllib.parse import parse_qs, urlsplit, urlunsplit
 import redis
 import redis.asyncio as aioredis
 from fastapi import FastAPI, Request, Response
-from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
@@ -24,12 +23,12 @@ from rq import Worker
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from neuroanimator.schemas import ErrorBody
+from services.common.auth import ApiKeyMiddleware, ApiKeys
+from services.common.errors import add_error_handlers
 from services.controller.metrics import Metrics
 from services.controller.routes import events, jobs, tasks
 from services.controller.settings import Settings
 from services.controller.store import JobStore
-from services.emulator.auth import ApiKeyMiddleware, ApiKeys
-from services.emulator.errors import ApiError, api_error_handler, validation_error_handler
 
 log = logging.getLogger(__name__)
 
@@ -117,8 +116,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_headers=["Authorization", "X-API-Key", "Content-Type", "Last-Event-ID"],
             expose_headers=["Location"],
         )
-    app.add_exception_handler(ApiError, api_error_handler)
-    app.add_exception_handler(RequestValidationError, validation_error_handler)
+    add_error_handlers(app)
 
     async def redis_down(request: Request, exc: Exception) -> JSONResponse:
         if request.url.path == "/jobs" and request.method == "POST":

@@ -6,13 +6,13 @@ from __future__ import annotations
 from pathlib import Path
 
 from pydantic import Field
-from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from services.common.settings import ApiSettings, Port
 
 
-class Settings(BaseSettings):
-    """Every knob of the controller API and its workers; environment variables have the upper-case names."""
-
-    model_config = SettingsConfigDict(env_prefix="", case_sensitive=False, extra="ignore")
+class Settings(ApiSettings):
+    """Every knob of the controller API and its workers (beside host, port, log level, API keys and CORS
+    origins); environment variables have the upper-case names."""
 
     redis_url: str = Field("redis://127.0.0.1:6379/0", description="the Redis that holds the queue and jobs")
     redis_prefix: str = Field(
@@ -25,9 +25,6 @@ class Settings(BaseSettings):
     )
     redis_timeout_s: float = Field(2.0, gt=0.0, description="connect and command timeout of the API's Redis")
     artifacts_dir: Path = Path("artifacts")
-    api_keys: str = Field(
-        "", description="comma-separated API keys; empty: no auth (every endpoint but ops then needs one)"
-    )
     max_queue: int = Field(100, ge=1, description="queued (not yet running) jobs; beyond, POST /jobs is 503")
     job_timeout_s: float = Field(
         600.0,
@@ -45,9 +42,6 @@ class Settings(BaseSettings):
     )
     queued_ttl_s: int = Field(7 * 86_400, ge=1, description="an unfinished job's records expire after this")
     max_list: int = Field(200, ge=1, description="most jobs listed by GET /jobs")
-    cors_origins: str = Field(
-        "", description="comma-separated origins allowed to call the API from a browser ('*': any)"
-    )
     sse_keepalive_s: float = Field(15.0, gt=0.0, description="an SSE comment is sent when idle this long")
     # workers
     worker_threads: int = Field(1, ge=1, le=64, description="torch threads of one job")
@@ -61,9 +55,4 @@ class Settings(BaseSettings):
         gt=0.0,
         description="how often an idle worker looks for jobs whose lease expired and re-queues them",
     )
-    host: str = "127.0.0.1"
-    port: int = 8001
-    log_level: str = "info"
-
-    def cors_list(self) -> list[str]:
-        return [o.strip() for o in self.cors_origins.split(",") if o.strip()]
+    port: Port = 8001

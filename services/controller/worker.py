@@ -32,7 +32,8 @@ import redis
 from rq import Queue, Worker
 from rq.worker import BaseWorker
 
-from services.controller import jobs, logs
+from services.common import logs
+from services.controller import jobs
 from services.controller.settings import Settings
 from services.controller.store import JobStore
 

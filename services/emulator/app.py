@@ -9,15 +9,14 @@ import logging
 from collections.abc import AsyncIterator
 
 from fastapi import FastAPI, Response
-from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
 
-from services.emulator.auth import ApiKeyMiddleware, ApiKeys
+from services.common.auth import ApiKeyMiddleware, ApiKeys
+from services.common.errors import add_error_handlers
 from services.emulator.deps import EngineDep
 from services.emulator.engine import Engine
-from services.emulator.errors import ApiError, api_error_handler, validation_error_handler
 from services.emulator.fastpath import BinaryStepRoute
 from services.emulator.persistence import Persistence
 from services.emulator.routes import models, sessions, step
@@ -74,7 +73,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(SessionSocketRoute, engine=engine)
     if keys.enabled:
         app.add_middleware(ApiKeyMiddleware, keys=keys)
-    origins = [o.strip() for o in settings.cors_origins.split(",") if o.strip()]
+    origins = settings.cors_list()
     if origins:  # added last, so outermost: preflight requests are answered before the key check
         app.add_middleware(
             CORSMiddleware,
@@ -83,8 +82,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_headers=["*"],
             max_age=600,
         )
-    app.add_exception_handler(ApiError, api_error_handler)
-    app.add_exception_handler(RequestValidationError, validation_error_handler)
+    add_error_handlers(app)
     for r in (models.router, sessions.router, step.router):
         app.include_router(r)
 

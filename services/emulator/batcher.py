@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from services.emulator.errors import ApiError
+from services.common.errors import ApiError
 from services.emulator.metrics import Metrics
 from services.emulator.registry import Loaded
 from services.emulator.sessions import Session, StatePool

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from services.emulator.errors import ApiError
+from services.common.errors import ApiError
 
 VERSION = 1
 REQUEST_MAGIC = b"NAST"

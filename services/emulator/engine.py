@@ -24,9 +24,9 @@ from neuroanimator.schemas import (
     SessionInfo,
     StepResponse,
 )
-from services.emulator.auth import CALLER
+from services.common.auth import CALLER
+from services.common.errors import ApiError
 from services.emulator.batcher import Batcher
-from services.emulator.errors import ApiError
 from services.emulator.interpolation import frames
 from services.emulator.metrics import Metrics
 from services.emulator.registry import Loaded, Registry

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from services.common.errors import ApiError
 from services.emulator.binary import MAX_ID_WIDTH, REQUEST_HEADER
 from services.emulator.engine import Engine
-from services.emulator.errors import ApiError
 from services.emulator.routes.step import OCTET, binary_step
 
 MAX_ROW_FLOATS = 256

@@ -31,8 +31,8 @@ from redis.asyncio.retry import Retry
 from redis.backoff import ExponentialBackoff
 from redis.exceptions import RedisError
 
+from services.common.errors import ApiError
 from services.emulator.engine import Engine
-from services.emulator.errors import ApiError
 from services.emulator.sessions import Session
 
 log = logging.getLogger(__name__)

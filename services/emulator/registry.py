@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from neuroanimator.export import OnnxEmulator
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.physics.spec import ModelSpec
-from services.emulator.errors import ApiError
+from services.common.errors import ApiError
 from services.emulator.scene import Kinematics
 
 log = logging.getLogger(__name__)

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.schemas import BodyInfo, GeomInfo, ModelGeometry
-from services.emulator.errors import ApiError
+from services.common.errors import ApiError
 
 _PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 

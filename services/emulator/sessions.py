@@ -23,9 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from services.emulator.auth import CALLER
+from services.common.auth import CALLER
+from services.common.errors import ApiError
 from services.emulator.binary import decode_ids
-from services.emulator.errors import ApiError
 from services.emulator.registry import Loaded
 
 log = logging.getLogger(__name__)

@@ -5,13 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 
 from pydantic import Field
-from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from services.common.settings import ApiSettings, Port
 
 
-class Settings(BaseSettings):
-    """Every knob of the emulator service; environment variables have the upper-case names."""
-
-    model_config = SettingsConfigDict(env_prefix="", case_sensitive=False, extra="ignore")
+class Settings(ApiSettings):
+    """Every knob of the emulator service (beside host, port, log level, API keys and CORS origins);
+    environment variables have the upper-case names."""
 
     artifacts_dir: Path = Path("artifacts")
     max_batch: int = Field(4096, ge=1, description="most rows in one ORT call, and items in one POST /step")
@@ -29,9 +29,6 @@ class Settings(BaseSettings):
     ort_threads: int = Field(1, ge=1, description="ORT intra-op threads per emulator")
     registry_poll_s: float = Field(2.0, ge=0.0, description="how often pointer files are re-read")
     sweep_interval_s: float = Field(5.0, gt=0.0, description="how often expired sessions are removed")
-    api_keys: str = Field(
-        "", description="comma-separated API keys; empty: no auth (every endpoint but ops then needs one)"
-    )
     max_sessions_per_key: int = Field(1000, ge=1, description="sessions one API key may hold (429 beyond)")
     redis_url: str = Field("", description="e.g. redis://redis:6379/0; empty: no persistence")
     redis_prefix: str = Field("neuroanimator:emulator", min_length=1, description="prefix of Redis keys")
@@ -48,14 +45,7 @@ class Settings(BaseSettings):
     ws_send_timeout_s: float = Field(
         5.0, gt=0.0, description="a websocket send that takes longer closes the connection (client gone)"
     )
-    cors_origins: str = Field(
-        "",
-        description="comma-separated origins a browser may call from (e.g. the dashboard's "
-        "http://127.0.0.1:8080), or * for any; empty: no CORS headers",
-    )
     gc_thresholds: tuple[int, int, int] = Field(
         (20_000, 20, 20), description="gc.set_threshold after start-up (Python's default: 700, 10, 10)"
     )
-    host: str = "127.0.0.1"
-    port: int = 8000
-    log_level: str = "info"
+    port: Port = 8000

@@ -52,9 +52,9 @@ from neuroanimator.schemas import (
     WsStarted,
     WsState,
 )
+from services.common.errors import ApiError, from_validation
 from services.emulator import binary
 from services.emulator.engine import Engine
-from services.emulator.errors import ApiError, from_validation
 from services.emulator.scene import Twin
 from services.emulator.sessions import Session
 

@@ -21,7 +21,8 @@ from starlette.concurrency import run_in_threadpool
 from starlette.websockets import WebSocketDisconnect
 
 from neuroanimator.schemas import ErrorBody
-from services.controller.deps import OwnerDep, StoreDep, get_owner
+from services.common.auth import OwnerDep, get_owner
+from services.controller.deps import StoreDep
 from services.controller.routes.jobs import owned
 from services.controller.store import JobStore
 

@@ -23,10 +23,11 @@ from neuroanimator.controller_schemas import (
     JobSummary,
 )
 from neuroanimator.schemas import ErrorBody
-from services.controller.deps import OwnerDep, SettingsDep, StoreDep
+from services.common.auth import OwnerDep
+from services.common.errors import ApiError
+from services.controller.deps import SettingsDep, StoreDep
 from services.controller.metrics import Metrics
 from services.controller.store import IdempotencyConflict, JobStore, QueueFull
-from services.emulator.errors import ApiError
 
 router = APIRouter(tags=["jobs"])
 _ERRORS: dict[int | str, dict[str, Any]] = {

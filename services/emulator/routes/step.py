@@ -20,11 +20,11 @@ from fastapi import APIRouter, Request, Response
 from pydantic import ValidationError
 
 from neuroanimator.schemas import BatchStepRequest, BatchStepResponse, ErrorBody
+from services.common.errors import ApiError, from_validation
 from services.emulator import binary
 from services.emulator.batcher import ROW_DIVERGED, ROW_GONE
 from services.emulator.deps import EngineDep
 from services.emulator.engine import Engine
-from services.emulator.errors import ApiError, from_validation
 
 router = APIRouter(tags=["step"])
 OCTET = "application/octet-stream"

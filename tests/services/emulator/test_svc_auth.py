@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 from starlette.testclient import WebSocketDenialResponse
 from starlette.websockets import WebSocketDisconnect
 
-from services.emulator.auth import ApiKeys, key_id
+from services.common.auth import ApiKeys, key_id
 
 ALPHA = {"Authorization": "Bearer alpha"}
 BETA = {"X-API-Key": "beta"}

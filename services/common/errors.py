@@ -1,11 +1,16 @@
-"""``ApiError``: every error the service answers, as an HTTP status plus an ``ErrorBody``."""
+"""``ApiError``: every error a service answers, as an HTTP status plus an ``ErrorBody``.
+
+The JSON of an error is ``ErrorBody``'s: ``{"error", "message", "field", "expected", "got"}``, the last
+three set for bad input. ``add_error_handlers(app)`` answers ``ApiError`` and FastAPI's request
+validation errors in that form.
+"""
 
 from __future__ import annotations
 
 import math
 from typing import Any
 
-from fastapi import Request
+from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
@@ -78,11 +83,19 @@ def from_validation(errors: list[dict[str, Any]]) -> ApiError:
 
 
 async def api_error_handler(request: Request, exc: Exception) -> JSONResponse:
+    """An ``ApiError`` as its status and body."""
     assert isinstance(exc, ApiError)
     return JSONResponse(exc.body.model_dump(), status_code=exc.status)
 
 
 async def validation_error_handler(request: Request, exc: Exception) -> JSONResponse:
+    """A request FastAPI could not validate as a 422 naming the first bad field (``from_validation``)."""
     assert isinstance(exc, RequestValidationError)
     err = from_validation(list(exc.errors()))
     return JSONResponse(err.body.model_dump(), status_code=err.status)
+
+
+def add_error_handlers(app: FastAPI) -> None:
+    """Answer ``ApiError`` and request validation errors with ``ErrorBody`` JSON."""
+    app.add_exception_handler(ApiError, api_error_handler)
+    app.add_exception_handler(RequestValidationError, validation_error_handler)

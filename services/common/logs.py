@@ -1,4 +1,9 @@
-"""Structured logs: one JSON object per line, with the ``extra={...}`` fields of each call."""
+"""Structured logs: one JSON object per line, with the ``extra={...}`` fields of each call.
+
+``log.info("job queued", extra={"job": "j-1", "depth": 3})`` writes the line
+``{"time": "2025-01-01T12:00:00", "level": "INFO", "logger": "...", "message": "job queued", "job": "j-1",
+"depth": 3}``.
+"""
 
 from __future__ import annotations
 
@@ -12,6 +17,8 @@ _STANDARD = set(vars(logging.makeLogRecord({}))) | {"message", "asctime", "taskN
 
 
 class JsonFormatter(logging.Formatter):
+    """A record as one JSON line: time, level, logger, message, every ``extra`` field, the traceback."""
+
     def format(self, record: logging.LogRecord) -> str:
         out: dict[str, Any] = {
             "time": self.formatTime(record, "%Y-%m-%dT%H:%M:%S"),
@@ -27,10 +34,11 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(out, default=str)
 
 
-def setup(level: str) -> None:
-    """JSON lines on stderr for the root logger (and so for uvicorn's and RQ's loggers too)."""
+def setup(level: str, formatter: logging.Formatter | None = None) -> None:
+    """One handler on stderr for the root logger (and so for uvicorn's and RQ's loggers too), writing
+    JSON lines unless another ``formatter`` is given (a terminal's plain lines)."""
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(JsonFormatter())
+    handler.setFormatter(formatter or JsonFormatter())
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level.upper())

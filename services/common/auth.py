@@ -8,8 +8,8 @@ send a denial response).
 The caller is known for the rest of the request through the ``CALLER`` context variable, set by
 ``ApiKeyMiddleware`` (a pure ASGI middleware, so the value reaches the endpoint and every task it
 starts). It holds the key's *id* (``k-`` + 16 hex digits of its SHA-256), never the key: that id
-owns the sessions the key creates, and is what a checkpoint stores in Redis. ``SessionStore.get``
-answers 404 for a session that another key owns, as if it did not exist.
+owns what the key creates (the emulator's sessions, the controller's jobs), and is what is stored
+with them in Redis. ``OwnerDep`` is that owner as a FastAPI dependency, ``public`` while keys are off.
 """
 
 from __future__ import annotations
@@ -17,7 +17,9 @@ from __future__ import annotations
 import hashlib
 import logging
 from contextvars import ContextVar
+from typing import Annotated
 
+from fastapi import Depends
 from starlette.requests import HTTPConnection
 from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
@@ -28,12 +30,14 @@ from neuroanimator.schemas import ErrorBody
 log = logging.getLogger(__name__)
 
 OPEN_PATHS = frozenset({"/healthz", "/readyz", "/metrics"})
-CALLER: ContextVar[str | None] = ContextVar("emulator_caller", default=None)
+CALLER: ContextVar[str | None] = ContextVar("caller", default=None)
 """The key id of the current request's caller; None when auth is off (or outside a request)."""
+PUBLIC = "public"
+"""The owner of what is made while API keys are off (``OwnerDep``)."""
 
 
 def key_id(key: str) -> str:
-    """The id of a key: what owns its sessions and is stored in checkpoints (never the key itself)."""
+    """The id of a key: what owns what the key creates and is stored with it (never the key itself)."""
     return "k-" + hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
@@ -114,3 +118,12 @@ class ApiKeyMiddleware:
             await ws.send_denial_response(response)
         else:
             await ws.close(code=4401, reason=body.message[:120])
+
+
+# async: FastAPI runs a plain ``def`` dependency in a worker thread, a thread hop per request.
+async def get_owner() -> str:
+    """The caller's key id (set by ``ApiKeyMiddleware``), or ``public`` when keys are off."""
+    return CALLER.get() or PUBLIC
+
+
+OwnerDep = Annotated[str, Depends(get_owner)]

@@ -1,0 +1,41 @@
+"""The settings every service has, read from the environment (upper-case names: ``HOST=0.0.0.0``).
+
+A service's ``Settings`` subclasses ``ServiceSettings`` (a static server) or ``ApiSettings`` (an API
+with keys and CORS), adds its own knobs and gives its default port: ``port: Port = 8001``.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+Port = Annotated[int, Field(ge=1, le=65535, description="the TCP port to listen on")]
+
+
+class ServiceSettings(BaseSettings):
+    """Where a service listens and how much it logs; environment variables have the upper-case names."""
+
+    model_config = SettingsConfigDict(env_prefix="", case_sensitive=False, extra="ignore")
+
+    host: str = Field("127.0.0.1", description="the address to listen on (0.0.0.0: every interface)")
+    port: Port
+    log_level: str = Field("info", description="debug, info, warning or error")
+
+
+class ApiSettings(ServiceSettings):
+    """A service's settings plus who may call it: API keys, and the origins a browser may call from."""
+
+    api_keys: str = Field(
+        "", description="comma-separated API keys; empty: no auth (every endpoint but ops then needs one)"
+    )
+    cors_origins: str = Field(
+        "",
+        description="comma-separated origins a browser may call from (e.g. the dashboard's "
+        "http://127.0.0.1:8080), or * for any; empty: no CORS headers",
+    )
+
+    def cors_list(self) -> list[str]:
+        """``CORS_ORIGINS`` as a list, blanks dropped: ``"a, b,"`` -> ``["a", "b"]``."""
+        return [o.strip() for o in self.cors_origins.split(",") if o.strip()]
