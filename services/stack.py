@@ -12,14 +12,14 @@ Ports and paths come from the environment or the command line (``--help``): ``EM
 
 ``Stack`` is the same thing as a context manager, for tests: ``with Stack(StackConfig(...)) as s:``
 starts it on the given ports, ``s.stop_service("worker")`` stops one part, ``s.urls`` says where
-everything is. The controller is optional: without ``services/controller`` the rest still starts.
+everything is. ``--no-controller`` (``StackConfig(controller=False)``) starts the rest without the
+controller API and worker.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.util
 import logging
 import os
 import signal
@@ -34,6 +34,8 @@ import urllib.request
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
+
+from services.common import logs
 
 log = logging.getLogger("stack")
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,7 +68,7 @@ class StackConfig:
     artifacts_dir: Path = ROOT / "artifacts"
     log_dir: Path | None = None
     redis_url: str | None = None  # None: REDIS_URL, else found or started by scripts/redis.sh
-    controller: bool = True  # False: no controller API and worker even when the package exists
+    controller: bool = True  # False: no controller API and worker
     train_missing: bool = True
     python: str = sys.executable
     ready_timeout_s: float = 120.0
@@ -106,17 +108,6 @@ class Service:
         return "\n".join(text[-lines:])
 
 
-def controller_available() -> bool:
-    """True when the controller service (API and worker modules) is in this checkout."""
-    try:
-        return all(
-            importlib.util.find_spec(m) is not None
-            for m in ("services.controller.__main__", "services.controller.worker")
-        )
-    except ModuleNotFoundError:
-        return False
-
-
 class Stack:
     """Redis (found or started), emulator, controller API and worker, dashboard; see the module doc."""
 
@@ -128,7 +119,6 @@ class Stack:
         self.services: dict[str, Service] = {}
         self.redis_url = ""
         self._redis_pid: int | None = None
-        self.has_controller = c.controller and controller_available()
 
     # ------------------------------------------------------------------ where things are
     @property
@@ -201,7 +191,7 @@ class Stack:
                 f"{u['emulator']}/readyz",
             )
         ]
-        if self.has_controller:
+        if c.controller:
             plan.append(
                 self._service(
                     "controller",
@@ -278,10 +268,8 @@ class Stack:
             self._find_redis()
             if c.train_missing:
                 self._train_missing()
-            if not self.has_controller:
-                log.warning(
-                    "no controller service in this checkout: the dashboard's Controllers page says so"
-                )
+            if not c.controller:
+                log.warning("no controller API and worker: the dashboard's Controllers page says so")
             plan = self._plan()
             for svc in plan:  # start all, then wait: they load in parallel
                 self._launch(svc)
@@ -350,7 +338,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-controller", action="store_true", help="start without the controller API and worker")
     p.add_argument("--no-train", action="store_true", help="do not train missing default emulators")
     args = p.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="stack: %(message)s", stream=sys.stderr)
+    logs.setup("info", logging.Formatter("stack: %(message)s"))  # plain lines: a terminal reads them
     cfg = StackConfig(
         host=args.host,
         emulator_port=args.emulator_port,
@@ -382,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
         u["web"],
         u["emulator"],
         u["controller"],
-        "" if stack.has_controller else " not started",
+        "" if cfg.controller else " not started",
         stack.log_dir,
     )
     code = 0

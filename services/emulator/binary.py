@@ -41,7 +41,6 @@ OK = 0
 CLIPPED = 1  # stepped; some control or force was outside the trained range and was clipped
 DIVERGED = 2  # not stepped: the session diverged (now or earlier); its row is its last finite state
 UNKNOWN = 3  # not stepped: no such session (never created, deleted, expired or another key's); NaN row
-STATUS_NAMES = {OK: "ok", CLIPPED: "clipped", DIVERGED: "diverged", UNKNOWN: "unknown_session"}
 
 
 def _bad(

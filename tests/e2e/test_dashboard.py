@@ -23,7 +23,7 @@ from typing import Any
 
 import pytest
 
-from services.stack import Stack, StackConfig, StackError, controller_available, free_port
+from services.stack import Stack, StackConfig, StackError, free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "tests" / "e2e" / "dashboard.mjs"
@@ -112,12 +112,6 @@ def test_playground_drives_a_lander(stack: Stack) -> None:
     print(f"dashboard fps with a live lander session (headless Chromium, software WebGL): {r['fps']}")
 
 
-needs_controller = pytest.mark.skipif(
-    not controller_available(), reason="no services/controller in this checkout"
-)
-
-
-@needs_controller
 def test_controller_job_and_replay(stack: Stack) -> None:
     r = _phase(stack, "controllers", 420, TRUCK_TASK=_truck_task(stack))
     assert r["objective_last"] < r["objective_first"]
@@ -126,7 +120,6 @@ def test_controller_job_and_replay(stack: Stack) -> None:
         shutil.copyfile(SHOTS / "controllers.png", ROOT / "docs" / "dashboard.png")
 
 
-@needs_controller
 def test_stopped_worker_is_reported(stack: Stack) -> None:
     task = _truck_task(stack)
     stack.stop_service("worker")
