@@ -42,7 +42,7 @@ import numpy as np
 import torch
 
 from neuroanimator import artifacts
-from neuroanimator.control import TASKS, run_job, validate_job
+from neuroanimator.control import TASKS, JobSpec, run_job, validate_job
 from neuroanimator.control.gradient_free import Trace, cma_es, nelder_mead
 from neuroanimator.control.runner import load_problem
 from neuroanimator.control.synthesis import Settings, optimize
@@ -52,14 +52,12 @@ log = logging.getLogger("bench.control")
 SWEEP_RATES = (1.0, 0.3, 0.1, 0.03, 0.01, 3e-3, 1e-3, 3e-4, 1e-4, 3e-5, 1e-5)
 
 
-def fixed_rate_curves(
-    spec: dict[str, Any], root: Path, iterations: int, rates: tuple[float, ...]
-) -> dict[str, Any]:
+def fixed_rate_curves(spec: JobSpec, root: Path, iterations: int, rates: tuple[float, ...]) -> dict[str, Any]:
     """Objective histories of the thesis' fixed-coefficient updates on the raw gradient (eqs. 6.2, 6.3):
     momentum (α = the task's) and plain gradient descent (α = 0), each at the rate of ``rates`` that
     ends lowest (the thesis took the largest rate that converged); plus the default search."""
     problem, _, _ = load_problem(spec, root)
-    alpha = float(spec["optimizer"]["momentum"])
+    alpha = spec.optimizer.momentum
     out: dict[str, Any] = {}
     for label, a in (("momentum", alpha), ("gradient descent", 0.0)):
         best: tuple[float, float, list[float]] | None = None
@@ -87,13 +85,15 @@ def fixed_rate_curves(
         lambda z: problem.value_and_grad(z)[:3],
         problem.initial_points(),
         Settings.from_spec(
-            {**spec["optimizer"], "max_iterations": iterations, "stop_on_success": False, "tolerance": 0.0}
+            spec.optimizer.model_copy(
+                update={"max_iterations": iterations, "stop_on_success": False, "tolerance": 0.0}
+            )
         ),
         project=problem.project,
         evaluate=problem.evaluate,
     )
     out["momentum + (η, α) search (default)"] = {
-        "learning_rate": spec["optimizer"]["learning_rate"],
+        "learning_rate": spec.optimizer.learning_rate,
         "momentum": alpha,
         "history": search.history,
     }
@@ -144,10 +144,11 @@ def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
     spec = validate_job({"task": name}, root)
     results = [run_job(spec, root, threads=1) for _ in range(args.repeats)]
     res = results[-1]
-    wall = statistics.median(r["wall_s"] for r in results)
+    assert res.iterations is not None and res.refinement is not None and res.emulator_phase is not None
+    wall = statistics.median(r.wall_s or 0.0 for r in results)
     # every gradient iteration counts: the emulator phase's and the physics-refinement rounds'
-    iterations = int(res["iterations"]) + int(res["refinement"]["iterations"])
-    target = float(res["objective_physics"])
+    iterations = res.iterations + res.refinement.iterations
+    target = float(res.objective_physics if res.objective_physics is not None else np.inf)
 
     problem, _, path = load_problem(spec, root)
     physical = artifacts.load_physical_model(path)
@@ -182,7 +183,8 @@ def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
         gf_iters, gf_wall = None, min(t.wall_s for t in traces)
         ratio_iters = args.gf_evals / max(iterations, 1)  # a lower bound: neither got there
     curves = fixed_rate_curves(spec, root, args.curve_iterations, args.rates)
-    target_emu = float(res["emulator_phase"]["objective"])  # what the default reached on the emulator
+    # what the default reached on the emulator
+    target_emu = float(res.emulator_phase.objective if res.emulator_phase.objective is not None else np.inf)
     png = plot(name, curves, traces, target, iterations, Path(args.out))
     fixed = {
         label: {
@@ -195,23 +197,23 @@ def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
     }
     return {
         "task": name,
-        "model": res["model"],
+        "model": res.model,
         "control_variables": int(np.prod(shape)),
-        "iterations_to_success": res["iterations_to_success"],
+        "iterations_to_success": res.iterations_to_success,
         "iterations": iterations,
-        "emulator_phase_iterations": res["iterations"],
-        "refinement_iterations": res["refinement"]["iterations"],
-        "physics_replays": res["refinement"]["physics_replays"],
-        "success_physics_emulator_phase": res["emulator_phase"]["success_physics"],
-        "final_error_physics_emulator_phase": res["emulator_phase"]["final_error_physics"],
-        "emulator_rollouts": res["emulator_rollouts"],
+        "emulator_phase_iterations": res.iterations,
+        "refinement_iterations": res.refinement.iterations,
+        "physics_replays": res.refinement.physics_replays,
+        "success_physics_emulator_phase": res.emulator_phase.success_physics,
+        "final_error_physics_emulator_phase": res.emulator_phase.final_error_physics,
+        "emulator_rollouts": res.emulator_rollouts,
         "wall_s": wall,
-        "success_emulator": res["success_emulator"],
-        "success_physics": res["success_physics"],
-        "final_error_emulator": res["final_error_emulator"],
-        "final_error_physics": res["final_error_physics"],
-        "transfer_error": res["transfer_error"],
-        "objective_emulator": res["objective"],
+        "success_emulator": res.success_emulator,
+        "success_physics": res.success_physics,
+        "final_error_emulator": res.final_error_emulator,
+        "final_error_physics": res.final_error_physics,
+        "transfer_error": res.transfer_error,
+        "objective_emulator": res.objective,
         "objective_physics": target,
         "gradient_free_iterations": gf_iters,
         "gradient_free_method": gf.method,

@@ -5,6 +5,9 @@ optional overrides, or a custom objective over a ``model``. The service checks t
 here (finite JSON numbers, positive sizes) and the job against the model and task with
 ``neuroanimator.control.validate_job``; both answer 422 naming the field.
 
+    JobCreate --validate_job--> JobSpec (neuroanimator.control.spec) --run_job--> JobOutcome
+    --stored with the job's id--> JobResult
+
 Numbers that are not finite (an objective that diverged to NaN) travel as ``null``.
 """
 
@@ -14,6 +17,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from neuroanimator.control.spec import JobSpec
 from neuroanimator.schemas import Number, Vector
 
 JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
@@ -25,6 +29,10 @@ MaybeFloat = float | None
 
 class _Wire(BaseModel):
     model_config = ConfigDict(extra="forbid")
+
+
+def _absent(value: object) -> bool:
+    return value is None
 
 
 # ---------------------------------------------------------------- requests
@@ -85,7 +93,7 @@ class JobCreate(_Wire):
     )
 
     def spec(self) -> dict[str, Any]:
-        """The job's specification (what ``validate_job`` takes): the set fields, less the key."""
+        """The job's request as JSON (what ``validate_job`` checks): the set fields, less the key."""
         return self.model_dump(exclude_none=True, exclude={"idempotency_key"})
 
 
@@ -158,36 +166,101 @@ class Trajectory(BaseModel):
     states: list[list[MaybeFloat]] = []
 
 
-class JobResult(BaseModel):
-    """What ``run_job`` returned (a job that crashed has only ``status``, ``reason`` and what was known):
+class CheckOutcome(BaseModel):
+    """One success check on a final state: its text, whether it held, and the value measured."""
+
+    check: str
+    passed: bool
+    value: MaybeFloat = None
+
+
+class EmulatorPhase(BaseModel):
+    """The controller found on the emulator alone, before any physics refinement, and its replay."""
+
+    objective: MaybeFloat = None
+    success_emulator: bool | None = None
+    success_physics: bool | None = None
+    final_error_emulator: MaybeFloat = None
+    final_error_physics: MaybeFloat = None
+
+
+class RefinementRound(BaseModel):
+    """One round of re-optimising on the emulator corrected along the last MuJoCo replay."""
+
+    round: int
+    iterations: int
+    stop: str
+    # a diverged round has a reason; the others an objective and a success on MuJoCo
+    reason: str | None = Field(None, description="why the round ended early", exclude_if=_absent)
+    objective_physics: MaybeFloat = Field(None, exclude_if=_absent)
+    success_physics: bool | None = Field(None, exclude_if=_absent)
+
+
+class Refinement(BaseModel):
+    """The physics-refinement rounds of a run (none when the first replay met the criterion)."""
+
+    rounds: list[RefinementRound] = []
+    iterations: int = 0
+    physics_replays: int = Field(1, description="MuJoCo replays, the first one included")
+
+
+class JobOutcome(BaseModel):
+    """What ``run_job`` returns (a job that crashed has only ``status``, ``reason`` and what was known):
     the controller (control points and the sampled ``controls`` at ``times``), the trajectory it gives
-    on the emulator and on the physics (MuJoCo), and their errors against the target."""
+    on the emulator and on the physics (MuJoCo), and their errors against the target.
+
+    Shapes: M control points and K super-steps per controller, U controls, S state variables."""
 
     model_config = ConfigDict(extra="allow")
-    id: str
     status: Literal["succeeded", "failed", "cancelled"]
     reason: str | None = None
+    stop: str | None = Field(
+        None, description="success | converged | stalled | max_iterations | diverged | cancelled"
+    )
     task: str | None = None
     model: str | None = None
     version: str | None = None
     substeps: int | None = None
     iterations: int | None = None
     iterations_to_success: int | None = None
+    emulator_rollouts: int | None = None
+    objective: MaybeFloat = None
+    objective_physics: MaybeFloat = None
     objective_history: list[MaybeFloat] = []
-    control_points: list[Any] | None = None
+    best_objective: MaybeFloat = Field(None, description="of a job that ended before it returned")
+    control_names: list[str] | None = None
+    control_points: list[list[MaybeFloat]] | None = Field(None, description="M × U, in the controls' units")
     control_spacing_s: float | None = None
-    times: list[float] | None = None
-    controls: list[Any] | None = None
+    super_timestep: float | None = None
+    times: list[float] | None = Field(None, description="the K super-steps' start times")
+    controls: list[list[MaybeFloat]] | None = Field(None, description="K × U held values")
     emulated: Trajectory | None = None
     physical: Trajectory | None = None
     final_error_emulator: MaybeFloat = None
     final_error_physics: MaybeFloat = None
+    final_errors_emulator: dict[str, MaybeFloat] | None = Field(
+        None, description="|error| per weighted variable"
+    )
+    final_errors_physics: dict[str, MaybeFloat] | None = None
+    transfer_error: MaybeFloat = Field(None, description="how far MuJoCo ends from the emulator's end")
+    success_criterion: str | None = None
     success_emulator: bool | None = None
     success_physics: bool | None = None
+    checks_emulator: list[CheckOutcome] | None = None
+    checks_physics: list[CheckOutcome] | None = None
+    emulator_phase: EmulatorPhase | None = None
+    refinement: Refinement | None = None
     target_state: list[MaybeFloat] | None = None
     initial_state: list[MaybeFloat] | None = None
-    wall_s: float | None = None
     state_labels: list[str] | None = None
+    spec: JobSpec | None = Field(None, description="the validated job that ran")
+    wall_s: float | None = None
+
+
+class JobResult(JobOutcome):
+    """A job's result (``GET /jobs/{id}/result``): what its run returned, and the job's id."""
+
+    id: str
 
 
 class TaskInfo(BaseModel):

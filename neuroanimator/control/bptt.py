@@ -27,8 +27,8 @@ from torch import Tensor, nn
 
 from neuroanimator.control.objectives import Objective, control_scale
 from neuroanimator.control.replay import simulate_held
+from neuroanimator.control.spec import JobSpec, num_points
 from neuroanimator.control.splines import ControlSpline
-from neuroanimator.control.tasks import num_points
 from neuroanimator.export import fold_normalization
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.structured import StructuredEmulator
@@ -64,17 +64,17 @@ class ControlProblem:
     def __init__(
         self,
         emu: StructuredEmulator,
-        spec: dict[str, Any],
+        spec: JobSpec,
         manifest: dict[str, Any],
         dtype: torch.dtype = torch.float32,
     ) -> None:
         self.spec = spec
         self.dtype = dtype  # float64 (with a float64 emulator) for finite-difference checks
         self.step = FastStep(emu)
-        self.horizon = int(spec["horizon"])
+        self.horizon = spec.horizon
         self.super_dt = float(manifest["super_timestep"])
         self.num_controls = len(manifest["controls"])
-        self.num_points = num_points(self.horizon, float(spec["points_per_step"]))
+        self.num_points = num_points(self.horizon, spec.points_per_step)
         self.spline = ControlSpline(self.horizon, self.num_points, self.super_dt, dtype)
         useful = np.array([[c["low"], c["high"]] for c in manifest["controls"]], dtype=np.float64)  # (U, 2)
         limits = np.array([[c["limit_low"], c["limit_high"]] for c in manifest["controls"]], dtype=np.float64)
@@ -88,14 +88,14 @@ class ControlProblem:
         self._low = torch.tensor(limits[:, 0], dtype=dtype)
         self._high = torch.tensor(limits[:, 1], dtype=dtype)
         self.objective = Objective(spec, manifest["layout"], control_scale(useful))
-        self.s0 = torch.tensor(spec["initial_state"], dtype=dtype)
+        self.s0 = torch.tensor(spec.initial_state, dtype=dtype)
         # per-step additive correction (K, S) learned from a MuJoCo replay (``set_correction``)
         self.correction: Tensor | None = None
 
     # ------------------------------------------------------------------ parametrisation
     def initial_points(self) -> FloatArray:
         """(M, U) normalised points of the job's constant initial controls."""
-        u0 = np.asarray(self.spec["initial_controls"], dtype=np.float64)
+        u0 = np.asarray(self.spec.initial_controls, dtype=np.float64)
         z = np.repeat(((u0 - self.centre) / self.half)[None, :], self.num_points, axis=0)
         return self.project(z)
 
@@ -169,8 +169,8 @@ class ControlProblem:
         """J of a batch of controllers (B, M, U) on MuJoCo: the same held controls, each held for its
         n physical steps from the same initial state, scored by the same objective, (B,)."""
         held = self.held(torch.as_tensor(np.asarray(z), dtype=self.dtype)).double().numpy()
-        s0 = np.asarray(self.spec["initial_state"], dtype=np.float64)[None]
-        states = simulate_held(physical, s0, held, int(self.spec["substeps"]), threads=threads)
+        s0 = np.asarray(self.spec.initial_state, dtype=np.float64)[None]
+        states = simulate_held(physical, s0, held, self.spec.substeps, threads=threads)
         return self.objective(torch.from_numpy(states), torch.from_numpy(held)).numpy()
 
     @torch.no_grad()

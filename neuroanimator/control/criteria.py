@@ -1,6 +1,7 @@
-"""Success criteria: plain-data checks on a final state, evaluated with numpy (no torch).
+"""Success criteria: checks on a final state, evaluated with numpy (no torch).
 
-A criterion is a list of checks, each a JSON-able dict naming state variables by their labels
+A criterion is a list of checks (``SuccessCheck``, JSON like ``{"check": "norm", "variables":
+["velocity.x", "velocity.y"], "max": 0.5}``), each naming state variables by their labels
 (``StateLayout.labels()``, e.g. ``"angles.j0"``, ``"position.z"``). Targets default to the job's
 target state, so a criterion follows a job that moves the goal. Kinds:
 
@@ -19,12 +20,49 @@ test the code runs cannot drift apart.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-KINDS = ("angle", "abs", "distance", "norm", "orientation", "range")
+CheckKind = Literal["angle", "abs", "distance", "norm", "orientation", "range"]
+KINDS: tuple[str, ...] = get_args(CheckKind)
+
+
+def _absent(value: object) -> bool:
+    return value is None
+
+
+class SuccessCheck(BaseModel):
+    """One check of a success criterion, as a job states it and ``validate_checks`` accepted it.
+
+    ``variables`` are state labels; ``target`` (one value per variable) overrides the job's target
+    state; ``max`` bounds the measured value (for ``range`` also ``min``; either may be left out).
+    Bounds and targets that are not set are left out of the JSON, as a job writes them.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    check: CheckKind
+    variables: list[str] = Field(min_length=1)
+    max: float | None = Field(None, allow_inf_nan=False, exclude_if=_absent)
+    min: float | None = Field(None, allow_inf_nan=False, exclude_if=_absent)
+    target: list[float] | None = Field(None, exclude_if=_absent)
+
+    @model_validator(mode="after")
+    def _bounded(self) -> SuccessCheck:
+        if self.check == "range" and self.min is None and self.max is None:
+            raise ValueError("a range check needs min or max")
+        if self.check != "range" and self.max is None:
+            raise ValueError(f"max is required for a {self.check} check")
+        return self
+
+    @property
+    def bound(self) -> float:
+        """``max`` of a check of any kind but ``range`` (which requires it)."""
+        assert self.max is not None, "checked on construction"
+        return self.max
 
 
 def _values(state: NDArray[np.float64], labels: Sequence[str], names: Sequence[str]) -> NDArray[np.float64]:
@@ -32,7 +70,7 @@ def _values(state: NDArray[np.float64], labels: Sequence[str], names: Sequence[s
 
 
 def check_errors(
-    check: dict[str, Any], final: NDArray[np.floating], target: NDArray[np.floating], labels: Sequence[str]
+    check: SuccessCheck, final: NDArray[np.floating], target: NDArray[np.floating], labels: Sequence[str]
 ) -> tuple[bool, float]:
     """(passed, measured value) of one check on a final state (S,) against a target state (S,).
 
@@ -40,14 +78,14 @@ def check_errors(
     norm or the rotation angle (for ``range``, the value furthest outside the range, else inside).
     """
     s = np.asarray(final, dtype=np.float64)
-    names = list(check["variables"])
+    names = check.variables
     x = _values(s, labels, names)
     tgt = (
-        np.asarray(check["target"], dtype=np.float64)
-        if "target" in check
+        np.asarray(check.target, dtype=np.float64)
+        if check.target is not None
         else _values(np.asarray(target, dtype=np.float64), labels, names)
     )
-    kind = check["check"]
+    kind = check.check
     if not np.all(np.isfinite(x)):
         return False, float("inf")
     if kind == "angle":
@@ -64,19 +102,19 @@ def check_errors(
         qd = tgt / np.linalg.norm(tgt)
         value = float(2.0 * np.arccos(min(1.0, abs(float(q @ qd)))))
     elif kind == "range":
-        lo = check.get("min", -np.inf)
-        hi = check.get("max", np.inf)
+        lo = -np.inf if check.min is None else check.min
+        hi = np.inf if check.max is None else check.max
         ok = bool(np.all((x >= lo) & (x <= hi)))
         # report the worst value: the one furthest below min or above max
         value = float(x[np.argmax(np.maximum(lo - x, x - hi))])
         return ok, value
     else:  # validated before; an unknown kind is a programming error
         raise ValueError(f"check must be one of {KINDS}, got {kind!r}")
-    return value <= float(check["max"]), value
+    return value <= check.bound, value
 
 
 def evaluate(
-    checks: Sequence[dict[str, Any]],
+    checks: Sequence[SuccessCheck],
     final: NDArray[np.floating],
     target: NDArray[np.floating],
     labels: Sequence[str],
@@ -94,41 +132,40 @@ def _fmt(v: float) -> str:
 
 
 def describe_check(
-    check: dict[str, Any], target: Sequence[float] | NDArray[np.floating] | None, labels: Sequence[str]
+    check: SuccessCheck, target: Sequence[float] | NDArray[np.floating] | None, labels: Sequence[str]
 ) -> str:
     """One line of text that says what a check requires."""
-    names = list(check["variables"])
-    if "target" in check:
-        tgt = [float(v) for v in check["target"]]
+    names = check.variables
+    if check.target is not None:
+        tgt = [float(v) for v in check.target]
     elif target is not None:
         tgt = [float(target[labels.index(n)]) for n in names]
     else:
         tgt = []
-    kind = check["check"]
+    kind = check.check
     joined = ", ".join(names)
+    if kind == "range":
+        lo, hi = check.min, check.max
+        if lo is not None and hi is not None:
+            return f"{joined} in [{_fmt(lo)}, {_fmt(hi)}]"
+        return f"{joined} >= {_fmt(lo)}" if lo is not None else f"{joined} <= {_fmt(check.bound)}"
+    limit = _fmt(check.bound)
     if kind == "angle":
         pairs = ", ".join(f"{n} = {_fmt(t)}" for n, t in zip(names, tgt, strict=True))
-        return f"{pairs} within {_fmt(check['max'])} rad (angles wrapped)"
+        return f"{pairs} within {limit} rad (angles wrapped)"
     if kind == "abs":
         pairs = ", ".join(f"{n} = {_fmt(t)}" for n, t in zip(names, tgt, strict=True))
-        return f"{pairs} within {_fmt(check['max'])}"
+        return f"{pairs} within {limit}"
     if kind == "distance":
-        return f"({joined}) within {_fmt(check['max'])} of ({', '.join(_fmt(t) for t in tgt)})"
+        return f"({joined}) within {limit} of ({', '.join(_fmt(t) for t in tgt)})"
     if kind == "norm":
-        return f"|({joined})| <= {_fmt(check['max'])}"
-    if kind == "orientation":
-        deg = np.degrees(float(check["max"]))
-        return f"orientation ({joined}) within {_fmt(check['max'])} rad ({deg:.0f} deg) of the target"
-    lo, hi = check.get("min"), check.get("max")
-    if lo is not None and hi is not None:
-        return f"{joined} in [{_fmt(lo)}, {_fmt(hi)}]"
-    if lo is not None:
-        return f"{joined} >= {_fmt(lo)}"
-    return f"{joined} <= {_fmt(float(check['max']))}"
+        return f"|({joined})| <= {limit}"
+    deg = np.degrees(check.bound)
+    return f"orientation ({joined}) within {limit} rad ({deg:.0f} deg) of the target"
 
 
 def describe(
-    checks: Sequence[dict[str, Any]],
+    checks: Sequence[SuccessCheck],
     target: Sequence[float] | NDArray[np.floating] | None,
     labels: Sequence[str],
 ) -> str:
@@ -152,6 +189,11 @@ def validate_checks(checks: Any, labels: Sequence[str]) -> list[str]:
         if kind not in KINDS:
             problems.append(f"{where}.check must be one of {list(KINDS)}, got {kind!r}")
             continue
+        unknown_keys = sorted(set(c) - set(SuccessCheck.model_fields))
+        if unknown_keys:
+            problems.append(
+                f"{where}: unknown keys {unknown_keys}; a check takes {sorted(SuccessCheck.model_fields)}"
+            )
         names = c.get("variables")
         if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
             problems.append(f"{where}.variables must be a non-empty list of state labels, got {names!r}")
@@ -164,7 +206,7 @@ def validate_checks(checks: Any, labels: Sequence[str]) -> list[str]:
         if "target" in c and (
             not isinstance(c["target"], list)
             or len(c["target"]) != len(names)
-            or not np.all(np.isfinite(np.asarray(c["target"], dtype=float)))
+            or not all(_finite(v) for v in c["target"])
         ):
             problems.append(f"{where}.target must be {len(names)} finite numbers, got {c['target']!r}")
         bounds = [b for b in ("min", "max") if b in c]
@@ -173,7 +215,10 @@ def validate_checks(checks: Any, labels: Sequence[str]) -> list[str]:
         if kind == "range" and not bounds:
             problems.append(f"{where} needs min or max")
         for b in bounds:
-            v = c[b]
-            if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
-                problems.append(f"{where}.{b} must be a finite number, got {v!r}")
+            if not _finite(c[b]):
+                problems.append(f"{where}.{b} must be a finite number, got {c[b]!r}")
     return problems
+
+
+def _finite(value: Any) -> bool:
+    return not isinstance(value, bool) and isinstance(value, int | float) and bool(np.isfinite(value))

@@ -1,9 +1,10 @@
-"""Job specs: ``validate_job`` checks one and fills in its defaults, without importing torch.
+"""Job specs: ``validate_job`` turns a request into a ``JobSpec``, without importing torch or MuJoCo.
 
 An API process calls it on every submission, so it reads only numpy and the artifact manifests
 (``<root>/<model>/<version>/manifest.json``, found through the ``latest``/``latest-n<N>`` pointer
-files exactly as ``neuroanimator.artifacts.resolve`` does; that module imports torch). The
-normalised spec it returns is itself a valid spec, so validating twice changes nothing.
+files exactly as ``neuroanimator.artifacts.resolve`` does; that module imports torch). The spec it
+returns is itself a valid request, so validating twice changes nothing: a worker validates the
+queued spec again against its own artifacts.
 """
 
 from __future__ import annotations
@@ -11,67 +12,38 @@ from __future__ import annotations
 import json
 import math
 import re
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from neuroanimator.control import criteria
+from neuroanimator.control.criteria import SuccessCheck
 from neuroanimator.control.errors import JobSpecError
-from neuroanimator.control.tasks import TASKS, Task
-from neuroanimator.control.terms import normalize_terms, vector
+from neuroanimator.control.spec import (
+    DEFAULT_HORIZON,
+    DEFAULT_MU_S,
+    DEFAULT_MU_U,
+    DEFAULT_POINTS_PER_STEP,
+    MAX_HORIZON,
+    MAX_ITERATIONS,
+    MAX_LEARNING_RATE,
+    MAX_MU,
+    MAX_PHYSICS_ROUNDS,
+    MAX_SUBSTEPS,
+    JobSpec,
+    OptimizerSettings,
+    Task,
+)
+from neuroanimator.control.tasks import TASKS
+from neuroanimator.control.terms import normalize_terms, unit, vector
+from neuroanimator.controller_schemas import JobCreate
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")  # model and version names: never a path
-MAX_HORIZON = 1000
-MAX_ITERATIONS = 10_000
-MAX_LEARNING_RATE = 100.0
-SPEC_KEYS = frozenset(
-    {
-        "task",
-        "model",
-        "version",
-        "substeps",
-        "initial_state",
-        "target_state",
-        "state_weights",
-        "horizon",
-        "points_per_step",
-        "mu_u",
-        "mu_s",
-        "terms",
-        "optimizer",
-        "initial_controls",
-        "success",
-    }
-)
-OPTIMIZER_KEYS = frozenset(
-    {
-        "learning_rate",
-        "momentum",
-        "max_iterations",
-        "tolerance",
-        "stop_on_success",
-        "line_search",
-        "polish_iterations",
-        "physics_rounds",
-    }
-)
-# Defaults of a job that names a model but no task.
-DEFAULT_OPTIMIZER: dict[str, Any] = {
-    "learning_rate": 1.0,
-    "momentum": 0.5,
-    "max_iterations": 100,
-    "tolerance": 1e-6,
-    "stop_on_success": True,
-    "line_search": True,
-    "polish_iterations": 3,
-    "physics_rounds": 3,
-}
-MAX_PHYSICS_ROUNDS = 20
-DEFAULT_HORIZON = 40
-DEFAULT_POINTS_PER_STEP = 1.0
-DEFAULT_MU_U = 1e-4
-DEFAULT_MU_S = 1.0
+# what a request may set: the API body's fields, less what only the API uses
+JOB_FIELDS = frozenset(JobCreate.model_fields) - {"idempotency_key"}
+OPTIMIZER_FIELDS = frozenset(OptimizerSettings.model_fields)
 
 
 def _artifact_names(root: Path) -> list[str]:
@@ -134,18 +106,17 @@ def _float(
 
 
 def _state(field: str, value: Any, layout: list[dict[str, Any]], size: int, model: str) -> list[float]:
-    """A state of the model's size, finite, with every quaternion group normalised."""
+    """A state of the model's size, finite, with every quaternion group of unit length."""
     out = vector(field, value, size, f"state values for model {model}")
     for g in layout:
         if g["kind"] in ("quaternion", "local_quaternion"):
             a = int(g["offset"])
-            q = np.asarray(out[a : a + 4])
-            n = float(np.linalg.norm(q))
-            if n < 1e-6:
+            q = out[a : a + 4]
+            if math.sqrt(sum(v * v for v in q)) < 1e-6:
                 raise JobSpecError(
-                    field, f"quaternion {g['name']} (values {a}..{a + 3}) must be non-zero, got {q.tolist()}"
+                    field, f"quaternion {g['name']} (values {a}..{a + 3}) must be non-zero, got {q}"
                 )
-            out[a : a + 4] = (q / n).tolist()
+            out[a : a + 4] = unit(q)
     return out
 
 
@@ -158,19 +129,27 @@ def default_state(layout: list[dict[str, Any]], size: int) -> list[float]:
     return s
 
 
-def validate_job(spec: dict[str, Any], artifacts_root: Path) -> dict[str, Any]:
-    """Check a job spec and return it normalised, every default filled in (task defaults first).
+def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: Path) -> JobSpec:
+    """Check a job and return its ``JobSpec``, every default filled in (the task's first).
 
-    Raises ``JobSpecError(field, message)`` naming the field, the expected and the got, for an
-    unknown task, model, version or term, a state of the wrong length or not finite, a horizon
-    outside [1, 1000], max_iterations outside [1, 10000], learning_rate outside (0, 100], momentum
-    outside [0, 1), and the like. Imports neither torch nor MuJoCo.
+    ``job`` is an API body, a spec validated before (``validate_job(spec) == spec`` while the
+    artifacts are the same), or the JSON object of either. Raises ``JobSpecError(field, message)``
+    naming the field, the expected and the got, for an unknown task, model, version or term, a
+    state of the wrong length or not finite, a horizon outside [1, 1000], max_iterations outside
+    [1, 10000], learning_rate outside (0, 100], momentum outside [0, 1), and the like. Imports
+    neither torch nor MuJoCo.
     """
-    if not isinstance(spec, dict):
-        raise JobSpecError("spec", f"expected an object, got {type(spec).__name__}")
-    unknown = sorted(set(spec) - SPEC_KEYS)
+    if isinstance(job, JobCreate):
+        spec: Mapping[str, Any] = job.spec()
+    elif isinstance(job, JobSpec):
+        spec = job.model_dump()
+    elif isinstance(job, Mapping):
+        spec = job
+    else:
+        raise JobSpecError("spec", f"expected an object, got {type(job).__name__}")
+    unknown = sorted(set(spec) - JOB_FIELDS)
     if unknown:
-        raise JobSpecError(unknown[0], f"unknown key; a job takes {sorted(SPEC_KEYS)}, got {unknown}")
+        raise JobSpecError(unknown[0], f"unknown key; a job takes {sorted(JOB_FIELDS)}, got {unknown}")
     task: Task | None = None
     if spec.get("task") is not None:
         name = spec["task"]
@@ -191,7 +170,7 @@ def validate_job(spec: dict[str, Any], artifacts_root: Path) -> dict[str, Any]:
         raise JobSpecError("version", f"expected a version name, got {version!r}")
     substeps = spec.get("substeps", task.substeps if task and version is None else None)
     if substeps is not None:
-        substeps = _int("substeps", substeps, 1, 100_000)
+        substeps = _int("substeps", substeps, 1, MAX_SUBSTEPS)
     _, manifest = find_artifact(Path(artifacts_root), model, version, substeps)
     layout: list[dict[str, Any]] = manifest["layout"]
     labels: list[str] = manifest["state_labels"]
@@ -228,8 +207,8 @@ def validate_job(spec: dict[str, Any], artifacts_root: Path) -> dict[str, Any]:
         high=1.0,
         low_open=True,
     )
-    mu_u = _float("mu_u", spec.get("mu_u", task.mu_u if task else DEFAULT_MU_U), low=0.0, high=1e12)
-    mu_s = _float("mu_s", spec.get("mu_s", task.mu_s if task else DEFAULT_MU_S), low=0.0, high=1e12)
+    mu_u = _float("mu_u", spec.get("mu_u", task.mu_u if task else DEFAULT_MU_U), low=0.0, high=MAX_MU)
+    mu_s = _float("mu_s", spec.get("mu_s", task.mu_s if task else DEFAULT_MU_S), low=0.0, high=MAX_MU)
     terms = normalize_terms(
         spec.get("terms", [dict(t) for t in task.terms] if task else []),
         labels=labels,
@@ -259,49 +238,52 @@ def validate_job(spec: dict[str, Any], artifacts_root: Path) -> dict[str, Any]:
                 f"control {controls[i]['name']} must lie in its limits [{lo:g}, {hi:g}], got {v:g}",
             )
 
-    success = spec.get("success", [dict(c) for c in task.success] if task else [])
+    success = spec.get("success", [c.model_dump() for c in task.success] if task else [])
     problems = criteria.validate_checks(success, labels)
     if problems:
         raise JobSpecError("success", problems[0])
 
-    opt_in = spec.get("optimizer", {})
-    if not isinstance(opt_in, dict):
-        raise JobSpecError("optimizer", f"expected an object, got {type(opt_in).__name__}")
-    bad = sorted(set(opt_in) - OPTIMIZER_KEYS)
+    return JobSpec(
+        task=task.name if task else None,
+        model=model,
+        version=manifest["version"],
+        substeps=int(manifest["substeps"]),
+        initial_state=initial,
+        target_state=target,
+        state_weights=weights,
+        horizon=horizon,
+        points_per_step=pps,
+        mu_u=mu_u,
+        mu_s=mu_s,
+        terms=terms,
+        initial_controls=u0,
+        success=[SuccessCheck.model_validate(c) for c in success],
+        optimizer=_optimizer(spec.get("optimizer", {}), task),
+    )
+
+
+def _optimizer(given: Any, task: Task | None) -> OptimizerSettings:
+    """The request's optimizer settings over the task's over the defaults, each checked."""
+    if not isinstance(given, Mapping):
+        raise JobSpecError("optimizer", f"expected an object, got {type(given).__name__}")
+    bad = sorted(set(given) - OPTIMIZER_FIELDS)
     if bad:
         raise JobSpecError(
-            f"optimizer.{bad[0]}", f"unknown key; the optimizer takes {sorted(OPTIMIZER_KEYS)}"
+            f"optimizer.{bad[0]}", f"unknown key; the optimizer takes {sorted(OPTIMIZER_FIELDS)}"
         )
-    opt = {**DEFAULT_OPTIMIZER, **(task.optimizer if task else {}), **opt_in}
+    opt = {**OptimizerSettings().model_dump(), **(task.optimizer if task else {}), **given}
     for flag in ("stop_on_success", "line_search"):
         if not isinstance(opt[flag], bool):
             raise JobSpecError(f"optimizer.{flag}", f"expected true or false, got {opt[flag]!r}")
-    optimizer = {
-        "learning_rate": _float(
+    return OptimizerSettings(
+        learning_rate=_float(
             "optimizer.learning_rate", opt["learning_rate"], low=0.0, high=MAX_LEARNING_RATE, low_open=True
         ),
-        "momentum": _float("optimizer.momentum", opt["momentum"], low=0.0, high=1.0, high_open=True),
-        "max_iterations": _int("optimizer.max_iterations", opt["max_iterations"], 1, MAX_ITERATIONS),
-        "tolerance": _float("optimizer.tolerance", opt["tolerance"], low=0.0, high=1.0),
-        "stop_on_success": opt["stop_on_success"],
-        "line_search": opt["line_search"],
-        "polish_iterations": _int("optimizer.polish_iterations", opt["polish_iterations"], 0, MAX_ITERATIONS),
-        "physics_rounds": _int("optimizer.physics_rounds", opt["physics_rounds"], 0, MAX_PHYSICS_ROUNDS),
-    }
-    return {
-        "task": task.name if task else None,
-        "model": model,
-        "version": manifest["version"],
-        "substeps": int(manifest["substeps"]),
-        "initial_state": initial,
-        "target_state": target,
-        "state_weights": weights,
-        "horizon": horizon,
-        "points_per_step": pps,
-        "mu_u": mu_u,
-        "mu_s": mu_s,
-        "terms": terms,
-        "initial_controls": u0,
-        "success": success,
-        "optimizer": optimizer,
-    }
+        momentum=_float("optimizer.momentum", opt["momentum"], low=0.0, high=1.0, high_open=True),
+        max_iterations=_int("optimizer.max_iterations", opt["max_iterations"], 1, MAX_ITERATIONS),
+        tolerance=_float("optimizer.tolerance", opt["tolerance"], low=0.0, high=1.0),
+        stop_on_success=opt["stop_on_success"],
+        line_search=opt["line_search"],
+        polish_iterations=_int("optimizer.polish_iterations", opt["polish_iterations"], 0, MAX_ITERATIONS),
+        physics_rounds=_int("optimizer.physics_rounds", opt["physics_rounds"], 0, MAX_PHYSICS_ROUNDS),
+    )

@@ -28,6 +28,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from neuroanimator.control.spec import JobSpec
+from neuroanimator.control.terms import (
+    ControlEffortTerm,
+    ControlSmoothnessTerm,
+    FinalStateTerm,
+    FinalVelocityTerm,
+    ForwardDistanceTerm,
+    PathTargetTerm,
+    StayWithinBoundsTerm,
+    Term,
+)
+
 
 class StateDistance:
     """``‖W (s − s_d)‖²`` for states (..., S), respecting angles and quaternions (see module doc)."""
@@ -70,30 +82,40 @@ class StateDistance:
         return total
 
 
+def _tensor(values: list[float]) -> Tensor:
+    return torch.tensor(values, dtype=torch.float64)
+
+
 class Objective:
-    """J of a normalised job spec; ``objective(states (B,K+1,S), controls (B,K,U)) -> (B,)``."""
+    """J of a validated job spec; ``objective(states (B,K+1,S), controls (B,K,U)) -> (B,)``."""
 
     def __init__(
         self,
-        spec: dict[str, Any],
+        spec: JobSpec,
         layout: Sequence[dict[str, Any]],
         control_scale: Sequence[float] | np.ndarray,
     ) -> None:
-        size = len(spec["target_state"])
+        size = len(spec.target_state)
         self.distance = StateDistance(layout, size)
-        self.mu_u = float(spec["mu_u"])
-        self.mu_s = float(spec["mu_s"])
-        self.target = torch.tensor(spec["target_state"], dtype=torch.float64)
-        self.weights = torch.tensor(spec["state_weights"], dtype=torch.float64)
+        self.mu_u = spec.mu_u
+        self.mu_s = spec.mu_s
+        self.target = _tensor(spec.target_state)
+        self.weights = _tensor(spec.state_weights)
         scale = np.asarray(control_scale, dtype=np.float64)
         self.inv_scale = torch.from_numpy(1.0 / np.where(scale > 0, scale, 1.0))  # (U,)
-        self.terms = [dict(t) for t in spec["terms"]]
-        for t in self.terms:  # tensors once, not per call
-            for key in ("target", "weights", "direction"):
-                if key in t:
-                    t[key] = torch.tensor(t[key], dtype=torch.float64)
-            for wp in t.get("waypoints", []):
-                wp["target"] = torch.tensor(wp["target"], dtype=torch.float64)
+        self.terms = list(spec.terms)
+        # each term's vectors as tensors, once, not per call: target, weights, direction, waypoints'
+        self._tensors: list[dict[str, Tensor]] = []
+        for t in self.terms:
+            vectors: dict[str, Tensor] = {}
+            if isinstance(t, FinalStateTerm):
+                vectors = {"target": _tensor(t.target), "weights": _tensor(t.weights)}
+            elif isinstance(t, ForwardDistanceTerm):
+                vectors = {"direction": _tensor(t.direction)}
+            elif isinstance(t, PathTargetTerm):
+                vectors = {"weights": _tensor(t.weights)}
+                vectors |= {f"waypoint{k}": _tensor(wp.target) for k, wp in enumerate(t.waypoints)}
+            self._tensors.append(vectors)
 
     def parts(self, states: Tensor, controls: Tensor) -> dict[str, Tensor]:
         """Each weighted part of J, (B,) each: ``effort``, ``final`` and ``<i>:<term>`` per extra term."""
@@ -102,46 +124,45 @@ class Objective:
         out: dict[str, Tensor] = {}
         out["effort"] = 0.5 * self.mu_u * (u * u).sum(dim=(-1, -2))
         out["final"] = 0.5 * self.mu_s * self.distance(states[..., -1, :], self.target, self.weights)
-        for i, t in enumerate(self.terms):
-            out[f"{i}:{t['term']}"] = float(t["weight"]) * self._term(t, states, u)
+        for i, (t, vectors) in enumerate(zip(self.terms, self._tensors, strict=True)):
+            out[f"{i}:{t.term}"] = t.weight * self._term(t, vectors, states, u)
         return out
 
     def __call__(self, states: Tensor, controls: Tensor) -> Tensor:
         parts = self.parts(states, controls)
         return torch.stack(list(parts.values()), dim=0).sum(dim=0)
 
-    def _term(self, t: dict[str, Any], states: Tensor, u: Tensor) -> Tensor:
+    def _term(self, t: Term, vectors: dict[str, Tensor], states: Tensor, u: Tensor) -> Tensor:
         """One unweighted term, (B,); ``u`` is already in units of each control's range."""
-        name = t["term"]
         dt = states.dtype
-        if name == "final_state":
-            return 0.5 * self.distance(states[..., -1, :], t["target"], t["weights"])
-        if name == "control_effort":
+        if isinstance(t, FinalStateTerm):
+            return 0.5 * self.distance(states[..., -1, :], vectors["target"], vectors["weights"])
+        if isinstance(t, ControlEffortTerm):
             return 0.5 * (u * u).sum(dim=(-1, -2))
-        if name == "control_smoothness":
+        if isinstance(t, ControlSmoothnessTerm):
             du = u[..., 1:, :] - u[..., :-1, :]
             return 0.5 * (du * du).sum(dim=(-1, -2))
-        if name == "final_velocity":
-            v = states[..., -1, t["variables"]]
+        if isinstance(t, FinalVelocityTerm):
+            v = states[..., -1, t.variables]
             return 0.5 * (v * v).sum(-1)
-        if name == "forward_distance":
-            idx = t["variables"]
-            moved = states[..., -1, idx] - states[..., 0, idx]
-            return -(moved * t["direction"].to(dt)).sum(-1)
-        if name == "stay_within_bounds":
-            x = states[..., 1:, t["variable"]]  # s_0 is given: only the controlled states count
+        if isinstance(t, ForwardDistanceTerm):
+            moved = states[..., -1, t.variables] - states[..., 0, t.variables]
+            return -(moved * vectors["direction"].to(dt)).sum(-1)
+        if isinstance(t, StayWithinBoundsTerm):
+            x = states[..., 1:, t.variable]  # s_0 is given: only the controlled states count
             pen = torch.zeros_like(x)
-            if t["low"] is not None:
-                pen = pen + torch.clamp(t["low"] - x, min=0.0) ** 2
-            if t["high"] is not None:
-                pen = pen + torch.clamp(x - t["high"], min=0.0) ** 2
+            if t.low is not None:
+                pen = pen + torch.clamp(t.low - x, min=0.0) ** 2
+            if t.high is not None:
+                pen = pen + torch.clamp(x - t.high, min=0.0) ** 2
             return 0.5 * pen.sum(-1)
-        if name == "path_target":
-            total = torch.zeros(states.shape[:-2], dtype=dt)
-            for wp in t["waypoints"]:
-                total = total + self.distance(states[..., wp["step"], :], wp["target"], t["weights"])
-            return 0.5 * total
-        raise ValueError(f"unknown term {name!r}")  # validated before: a programming error
+        # a PathTargetTerm, the only kind left
+        total = torch.zeros(states.shape[:-2], dtype=dt)
+        for k, wp in enumerate(t.waypoints):
+            total = total + self.distance(
+                states[..., wp.step, :], vectors[f"waypoint{k}"], vectors["weights"]
+            )
+        return 0.5 * total
 
 
 def control_scale(limits_or_range: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neuroanimator.control import criteria
+from neuroanimator.control.spec import JobSpec
 from neuroanimator.physics.model import PhysicalModel
 
 FloatArray = NDArray[np.float64]
@@ -83,8 +84,8 @@ class Replay:
 
     @classmethod
     def of(
-        cls, states: FloatArray, spec: dict[str, Any], layout: Sequence[dict[str, Any]], labels: Sequence[str]
+        cls, states: FloatArray, spec: JobSpec, layout: Sequence[dict[str, Any]], labels: Sequence[str]
     ) -> Replay:
-        err, per = final_error(states[-1], spec["target_state"], spec["state_weights"], layout)
-        ok, checks = criteria.evaluate(spec["success"], states[-1], np.asarray(spec["target_state"]), labels)
+        err, per = final_error(states[-1], spec.target_state, spec.state_weights, layout)
+        ok, checks = criteria.evaluate(spec.success, states[-1], np.asarray(spec.target_state), labels)
         return cls(states, err, per, ok, checks)

@@ -33,6 +33,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from neuroanimator.control.spec import OptimizerSettings
+
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 STEP_HALVINGS = 12  # η·2^0 .. η·2^-11: from the full step down to ~1/2000 of it
@@ -53,15 +55,16 @@ class Settings:
     normalize_gradient: bool = True
 
     @classmethod
-    def from_spec(cls, opt: dict[str, Any]) -> Settings:
+    def from_spec(cls, opt: OptimizerSettings) -> Settings:
+        """The optimiser of a job's validated settings (its ``physics_rounds`` are the runner's)."""
         return cls(
-            learning_rate=float(opt["learning_rate"]),
-            momentum=float(opt["momentum"]),
-            max_iterations=int(opt["max_iterations"]),
-            tolerance=float(opt["tolerance"]),
-            stop_on_success=bool(opt.get("stop_on_success", True)),
-            line_search=bool(opt.get("line_search", True)),
-            polish_iterations=int(opt.get("polish_iterations", 3)),
+            learning_rate=opt.learning_rate,
+            momentum=opt.momentum,
+            max_iterations=opt.max_iterations,
+            tolerance=opt.tolerance,
+            stop_on_success=opt.stop_on_success,
+            line_search=opt.line_search,
+            polish_iterations=opt.polish_iterations,
         )
 
     def candidates(self, first: bool) -> list[tuple[float, float]]:

@@ -10,14 +10,9 @@ MuJoCo replay, and their text is part of the task's description.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Any
 
-from neuroanimator.control import criteria
-
-HORIZON = 40  # super-steps: 20 s of the n = 50 emulator
-SUBSTEPS = 50
-POINTS_PER_STEP = 0.5  # one control point every two super-steps: 20 points per control
+from neuroanimator.control.criteria import SuccessCheck
+from neuroanimator.control.spec import Task
 
 # Labels of the catalog models' states (StateLayout.labels()), written out so this module needs
 # neither MuJoCo nor a manifest to be imported.
@@ -40,70 +35,6 @@ LANDER_LABELS = (
 TRUCK_LABELS = ("position.x", "position.y", "heading", "velocity.x", "velocity.y", "yaw_rate")
 
 
-@dataclass(frozen=True)
-class Task:
-    """A control-synthesis problem: a model, where it starts, where it must end, and how to judge it.
-
-    States are in the model's layout order (``labels``). ``success`` holds the criterion's checks;
-    ``optimizer`` the defaults of the momentum update (eqs. 5.5-5.6).
-    """
-
-    name: str
-    model: str
-    summary: str
-    labels: tuple[str, ...]
-    initial_state: tuple[float, ...]
-    target_state: tuple[float, ...]
-    state_weights: tuple[float, ...]
-    success: tuple[dict[str, Any], ...]
-    initial_controls: tuple[float, ...]
-    mu_u: float
-    mu_s: float
-    terms: tuple[dict[str, Any], ...] = ()
-    optimizer: dict[str, Any] = field(default_factory=dict)
-    horizon: int = HORIZON
-    substeps: int = SUBSTEPS
-    points_per_step: float = POINTS_PER_STEP
-
-    @property
-    def success_text(self) -> str:
-        return criteria.describe(list(self.success), self.target_state, self.labels)
-
-    @property
-    def description(self) -> str:
-        return f"{self.summary} Success {self.success_text}."
-
-    def control_variables(self, num_controls: int) -> int:
-        return num_points(self.horizon, self.points_per_step) * num_controls
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able data, for ``GET /tasks``."""
-        return {
-            "name": self.name,
-            "model": self.model,
-            "description": self.description,
-            "success_criterion": self.success_text,
-            "success": [dict(c) for c in self.success],
-            "horizon": self.horizon,
-            "substeps": self.substeps,
-            "points_per_step": self.points_per_step,
-            "state_labels": list(self.labels),
-            "initial_state": list(self.initial_state),
-            "target_state": list(self.target_state),
-            "state_weights": list(self.state_weights),
-            "initial_controls": list(self.initial_controls),
-            "mu_u": self.mu_u,
-            "mu_s": self.mu_s,
-            "terms": [dict(t) for t in self.terms],
-            "optimizer": dict(self.optimizer),
-        }
-
-
-def num_points(horizon: int, points_per_step: float) -> int:
-    """Control points per control for a horizon of super-steps: round(horizon · points_per_step), >= 1."""
-    return max(1, round(horizon * points_per_step))
-
-
 # --------------------------------------------------------------------------- pendulum-swing
 # From hanging at rest, end 20 s later at a pose well to the side, at zero velocity. Holding the
 # pose would need a torque of about 9.8·(0.25 + 0.75 + 1.25)·sin(θ) ≈ 18 N·m at the base; the
@@ -122,8 +53,8 @@ PENDULUM_SWING = Task(
     target_state=(1.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     state_weights=(1.0, 1.0, 1.0, 1.0, 1.0, 1.0),
     success=(
-        {"check": "angle", "variables": list(PENDULUM_LABELS[:3]), "max": 0.1},
-        {"check": "abs", "variables": list(PENDULUM_LABELS[3:]), "max": 0.1},
+        SuccessCheck(check="angle", variables=list(PENDULUM_LABELS[:3]), max=0.1),
+        SuccessCheck(check="abs", variables=list(PENDULUM_LABELS[3:]), max=0.1),
     ),
     initial_controls=(0.0, 0.0, 0.0),
     mu_u=1e-4,
@@ -148,10 +79,10 @@ LANDER_LANDING = Task(
     target_state=(0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -0.5, 0.0, 0.0, 0.0),
     state_weights=(1.0, 1.0, 1.0, 10.0, 10.0, 10.0, 10.0, 2.0, 2.0, 2.0, 2.0, 2.0, 2.0),
     success=(
-        {"check": "distance", "variables": list(LANDER_LABELS[:3]), "max": 1.0},
-        {"check": "orientation", "variables": list(LANDER_LABELS[3:7]), "max": math.radians(10.0)},
-        {"check": "range", "variables": ["velocity.z"], "min": -1.0, "max": 0.0},
-        {"check": "norm", "variables": ["velocity.x", "velocity.y"], "max": 0.5},
+        SuccessCheck(check="distance", variables=list(LANDER_LABELS[:3]), max=1.0),
+        SuccessCheck(check="orientation", variables=list(LANDER_LABELS[3:7]), max=math.radians(10.0)),
+        SuccessCheck(check="range", variables=["velocity.z"], min=-1.0, max=0.0),
+        SuccessCheck(check="norm", variables=["velocity.x", "velocity.y"], max=0.5),
     ),
     initial_controls=(16.2, 0.0, 0.0, 0.0),  # hover thrust, no attitude jets
     mu_u=1e-4,
@@ -172,9 +103,9 @@ TRUCK_PARKING = Task(
     target_state=(20.0, 10.0, math.pi / 2, 0.0, 0.0, 0.0),
     state_weights=(1.0, 1.0, 10.0, 10.0, 10.0, 10.0),
     success=(
-        {"check": "distance", "variables": ["position.x", "position.y"], "max": 1.0},
-        {"check": "angle", "variables": ["heading"], "max": math.radians(10.0)},
-        {"check": "norm", "variables": ["velocity.x", "velocity.y"], "max": 0.3},
+        SuccessCheck(check="distance", variables=["position.x", "position.y"], max=1.0),
+        SuccessCheck(check="angle", variables=["heading"], max=math.radians(10.0)),
+        SuccessCheck(check="norm", variables=["velocity.x", "velocity.y"], max=0.3),
     ),
     initial_controls=(0.0, 0.0),
     mu_u=1e-4,

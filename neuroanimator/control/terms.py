@@ -1,4 +1,4 @@
-"""The objective-term catalogue as plain data: names, parameters, defaults and validation.
+"""The objective-term catalogue: names, parameters, defaults, validation and the validated types.
 
 Torch-free, so ``validate_job`` can check a job's ``terms`` without loading PyTorch; the
 differentiable implementations live in ``objectives.py`` under the same names. A term in a job is
@@ -9,13 +9,19 @@ a JSON object ``{"term": <name>, "weight": <w >= 0>, ...parameters}``; the objec
 (eq. 5.3 plus the extra terms; r_i is the largest magnitude of control i's useful range, so every
 control counts in units of its own range). State variables are named by their labels
 (``StateLayout.labels()``) or by index.
+
+``normalize_terms`` returns each term as its validated type (``Term``, one class per name, every
+default filled in, variables as indices); the JSON of a validated term is itself a valid term that
+validates to the same value.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
 
 from neuroanimator.control.errors import JobSpecError
 
@@ -26,13 +32,97 @@ TERMS: dict[str, str] = {
     "control_smoothness": "weight/2 Σ ((u_k − u_{k−1})/r)²: penalises jumps between super-steps",
     "final_velocity": "weight/2 ‖v_K‖² on the velocity variables at the end; params: variables "
     "(labels; default every qvel variable)",
-    "forward_distance": "−weight · direction·(p_K − p_0): maximises the root's displacement along "
-    "direction (default +x)",
+    "forward_distance": "−weight · direction·(p_K − p_0): maximises the displacement of variables "
+    "(default: the root position) along direction (default +x)",
     "stay_within_bounds": "weight/2 Σ_k (max(0, low − x_k)² + max(0, x_k − high)²): a soft box on one "
-    "state variable over the whole trajectory; params: variable, low and/or high",
+    "state variable over the whole trajectory; params: variable, low and/or high (null: no bound)",
     "path_target": "weight/2 Σ_waypoints ‖W (s_k − target)‖²; params: waypoints [{step | time, target}], "
     "weights (S; default the job's)",
 }
+UNIT_TOLERANCE = 1e-12  # a direction or quaternion this close to unit length is kept as it is
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class _Term(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    term: str = Field(description="the term's name, one of TERMS")
+    weight: Finite = Field(ge=0)
+
+
+class FinalStateTerm(_Term):
+    """weight/2 ‖W (s_K − target)‖²: target (S,) and weights (S,)."""
+
+    term: Literal["final_state"]
+    target: list[Finite]
+    weights: list[Finite]
+
+
+class ControlEffortTerm(_Term):
+    """weight/2 Σ (u/r)² over the held controls."""
+
+    term: Literal["control_effort"]
+
+
+class ControlSmoothnessTerm(_Term):
+    """weight/2 Σ ((u_k − u_{k−1})/r)²."""
+
+    term: Literal["control_smoothness"]
+
+
+class FinalVelocityTerm(_Term):
+    """weight/2 ‖s_K[variables]‖²: variables are state indices."""
+
+    term: Literal["final_velocity"]
+    variables: list[int] = Field(min_length=1)
+
+
+class ForwardDistanceTerm(_Term):
+    """−weight · direction·(s_K − s_0)[variables]: a unit direction, one value per variable index."""
+
+    term: Literal["forward_distance"]
+    direction: list[Finite] = Field(min_length=1)
+    variables: list[int] = Field(min_length=1)
+
+
+class StayWithinBoundsTerm(_Term):
+    """weight/2 Σ_k (max(0, low − x_k)² + max(0, x_k − high)²) of state index ``variable``; a bound
+    that is None is no bound (at least one is set)."""
+
+    term: Literal["stay_within_bounds"]
+    variable: int = Field(ge=0)
+    low: Finite | None
+    high: Finite | None
+
+
+class Waypoint(BaseModel):
+    """A target state (S,) at super-step ``step`` (0 is the initial state)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    step: int = Field(ge=0)
+    target: list[Finite]
+
+
+class PathTargetTerm(_Term):
+    """weight/2 Σ_waypoints ‖W (s_step − target)‖² with weights (S,)."""
+
+    term: Literal["path_target"]
+    weights: list[Finite]
+    waypoints: list[Waypoint] = Field(min_length=1)
+
+
+Term = Annotated[
+    FinalStateTerm
+    | ControlEffortTerm
+    | ControlSmoothnessTerm
+    | FinalVelocityTerm
+    | ForwardDistanceTerm
+    | StayWithinBoundsTerm
+    | PathTargetTerm,
+    Field(discriminator="term"),
+]
+"""A validated objective term; ``term`` names its kind (the keys of ``TERMS``)."""
 
 
 def _number(field: str, value: Any, *, low: float | None = None) -> float:
@@ -66,6 +156,25 @@ def variable_index(field: str, name: Any, labels: Sequence[str]) -> int:
     raise JobSpecError(field, f"expected a state label (one of {list(labels)}) or an index, got {name!r}")
 
 
+def unit(values: list[float]) -> list[float]:
+    """``values`` scaled to length 1, or as they are when already of unit length (so a validated
+    direction or quaternion validates to the same numbers, not to a last-bit rounding of them)."""
+    length = math.sqrt(sum(v * v for v in values))
+    if abs(length - 1.0) <= UNIT_TOLERANCE:
+        return values
+    return [v / length for v in values]
+
+
+def _indices(field: str, names: Any, labels: Sequence[str]) -> list[int]:
+    if not isinstance(names, list) or not names:
+        raise JobSpecError(field, f"expected a non-empty list of state labels, got {names!r}")
+    return [variable_index(field, n, labels) for n in names]
+
+
+def _bound(field: str, t: dict[str, Any], key: str) -> float | None:
+    return None if t.get(key) is None else _number(f"{field}.{key}", t[key])
+
+
 def normalize_terms(
     terms: Any,
     *,
@@ -75,18 +184,18 @@ def normalize_terms(
     weights: list[float],
     horizon: int,
     super_dt: float,
-) -> list[dict[str, Any]]:
-    """Validate a job's ``terms`` and return them with every default filled in.
+) -> list[Term]:
+    """Validate a job's ``terms`` and return them typed, with every default filled in.
 
     Variables become indices (``variables``/``variable``), waypoint times become super-step
-    indices, and unknown names or parameters raise ``JobSpecError``.
+    indices, directions unit vectors; unknown names or parameters raise ``JobSpecError``.
     """
     if terms is None:
         return []
     if not isinstance(terms, list):
         raise JobSpecError("terms", f"expected a list of term objects, got {type(terms).__name__}")
     size = len(labels)
-    out: list[dict[str, Any]] = []
+    out: list[Term] = []
     for i, t in enumerate(terms):
         at = f"terms[{i}]"
         if not isinstance(t, dict):
@@ -95,12 +204,20 @@ def normalize_terms(
         if name not in TERMS:
             raise JobSpecError(f"{at}.term", f"unknown term {name!r}; known terms are {sorted(TERMS)}")
         weight = _number(f"{at}.weight", t.get("weight", 1.0), low=0.0)
-        norm: dict[str, Any] = {"term": name, "weight": weight}
         allowed = {"term", "weight"}
+        term: Term
         if name == "final_state":
             allowed |= {"target", "weights"}
-            norm["target"] = vector(f"{at}.target", t.get("target", target), size)
-            norm["weights"] = vector(f"{at}.weights", t.get("weights", weights), size)
+            term = FinalStateTerm(
+                term="final_state",
+                weight=weight,
+                target=vector(f"{at}.target", t.get("target", target), size),
+                weights=vector(f"{at}.weights", t.get("weights", weights), size),
+            )
+        elif name == "control_effort":
+            term = ControlEffortTerm(term="control_effort", weight=weight)
+        elif name == "control_smoothness":
+            term = ControlSmoothnessTerm(term="control_smoothness", weight=weight)
         elif name == "final_velocity":
             allowed |= {"variables"}
             default = [
@@ -109,73 +226,79 @@ def normalize_terms(
                 if g["source"] == "qvel"
                 for i in range(int(g["offset"]), int(g["offset"]) + int(g["size"]))
             ]
-            names = t.get("variables", default)
-            if not isinstance(names, list) or not names:
-                raise JobSpecError(
-                    f"{at}.variables", f"expected a non-empty list of state labels, got {names!r}"
-                )
-            norm["variables"] = [variable_index(f"{at}.variables", n, labels) for n in names]
+            variables = _indices(f"{at}.variables", t.get("variables", default), labels)
+            term = FinalVelocityTerm(term="final_velocity", weight=weight, variables=variables)
         elif name == "forward_distance":
-            allowed |= {"direction"}
-            root = next((g for g in layout if g["kind"] == "position"), None)
-            if root is None:
-                raise JobSpecError(
-                    at, "forward_distance needs a model with a root position group; this one has none"
-                )
-            dim = int(root["size"])
+            allowed |= {"direction", "variables"}
+            if "variables" in t:
+                variables = _indices(f"{at}.variables", t["variables"], labels)
+            else:
+                root = next((g for g in layout if g["kind"] == "position"), None)
+                if root is None:
+                    raise JobSpecError(
+                        at,
+                        "forward_distance needs a model with a root position group (this one has "
+                        "none), or variables",
+                    )
+                variables = list(range(int(root["offset"]), int(root["offset"]) + int(root["size"])))
+            dim = len(variables)
             direction = vector(f"{at}.direction", t.get("direction", [1.0] + [0.0] * (dim - 1)), dim)
-            length = math.sqrt(sum(d * d for d in direction))
-            if length == 0.0:
+            if not any(direction):
                 raise JobSpecError(f"{at}.direction", "expected a non-zero direction, got all zeros")
-            norm["direction"] = [d / length for d in direction]
-            norm["variables"] = list(range(int(root["offset"]), int(root["offset"]) + dim))
+            term = ForwardDistanceTerm(
+                term="forward_distance", weight=weight, direction=unit(direction), variables=variables
+            )
         elif name == "stay_within_bounds":
             allowed |= {"variable", "low", "high"}
             if "variable" not in t:
                 raise JobSpecError(f"{at}.variable", "expected a state label, got nothing")
-            norm["variable"] = variable_index(f"{at}.variable", t["variable"], labels)
-            if "low" not in t and "high" not in t:
+            variable = variable_index(f"{at}.variable", t["variable"], labels)
+            lo, hi = _bound(at, t, "low"), _bound(at, t, "high")
+            if lo is None and hi is None:
                 raise JobSpecError(at, "expected low and/or high bounds, got neither")
-            lo = _number(f"{at}.low", t["low"]) if "low" in t else None
-            hi = _number(f"{at}.high", t["high"]) if "high" in t else None
             if lo is not None and hi is not None and lo > hi:
                 raise JobSpecError(f"{at}.low", f"expected low <= high, got low={lo} > high={hi}")
-            norm["low"], norm["high"] = lo, hi
-        elif name == "path_target":
+            term = StayWithinBoundsTerm(
+                term="stay_within_bounds", weight=weight, variable=variable, low=lo, high=hi
+            )
+        else:  # path_target
             allowed |= {"waypoints", "weights"}
-            norm["weights"] = vector(f"{at}.weights", t.get("weights", weights), size)
-            wps = t.get("waypoints")
-            if not isinstance(wps, list) or not wps:
-                raise JobSpecError(f"{at}.waypoints", f"expected a non-empty list of waypoints, got {wps!r}")
-            norm["waypoints"] = []
-            for j, wp in enumerate(wps):
-                wat = f"{at}.waypoints[{j}]"
-                if not isinstance(wp, dict):
-                    raise JobSpecError(wat, f"expected an object {{step|time, target}}, got {wp!r}")
-                if "step" in wp:
-                    step = wp["step"]
-                    if isinstance(step, bool) or not isinstance(step, int) or not 0 <= step <= horizon:
-                        raise JobSpecError(
-                            f"{wat}.step", f"expected an integer in [0, {horizon}], got {step!r}"
-                        )
-                elif "time" in wp:
-                    time = _number(f"{wat}.time", wp["time"], low=0.0)
-                    step = round(time / super_dt)
-                    if step > horizon:
-                        raise JobSpecError(
-                            f"{wat}.time", f"expected a time in [0, {horizon * super_dt:g}] s, got {time:g}"
-                        )
-                else:
-                    raise JobSpecError(
-                        wat, "expected a step (super-step index) or a time (seconds), got neither"
-                    )
-                norm["waypoints"].append(
-                    {"step": int(step), "target": vector(f"{wat}.target", wp.get("target"), size)}
-                )
+            term = PathTargetTerm(
+                term="path_target",
+                weight=weight,
+                weights=vector(f"{at}.weights", t.get("weights", weights), size),
+                waypoints=_waypoints(f"{at}.waypoints", t.get("waypoints"), size, horizon, super_dt),
+            )
         extra = sorted(set(t) - allowed)
         if extra:
             raise JobSpecError(
                 at, f"unknown parameters {extra} for term {name!r}; it takes {sorted(allowed)}"
             )
-        out.append(norm)
+        out.append(term)
+    return out
+
+
+def _waypoints(field: str, wps: Any, size: int, horizon: int, super_dt: float) -> list[Waypoint]:
+    """Waypoints ``[{step | time, target}]`` with every time turned into a super-step index."""
+    if not isinstance(wps, list) or not wps:
+        raise JobSpecError(field, f"expected a non-empty list of waypoints, got {wps!r}")
+    out = []
+    for j, wp in enumerate(wps):
+        wat = f"{field}[{j}]"
+        if not isinstance(wp, dict):
+            raise JobSpecError(wat, f"expected an object {{step|time, target}}, got {wp!r}")
+        if "step" in wp:
+            step = wp["step"]
+            if isinstance(step, bool) or not isinstance(step, int) or not 0 <= step <= horizon:
+                raise JobSpecError(f"{wat}.step", f"expected an integer in [0, {horizon}], got {step!r}")
+        elif "time" in wp:
+            time = _number(f"{wat}.time", wp["time"], low=0.0)
+            step = round(time / super_dt)
+            if step > horizon:
+                raise JobSpecError(
+                    f"{wat}.time", f"expected a time in [0, {horizon * super_dt:g}] s, got {time:g}"
+                )
+        else:
+            raise JobSpecError(wat, "expected a step (super-step index) or a time (seconds), got neither")
+        out.append(Waypoint(step=int(step), target=vector(f"{wat}.target", wp.get("target"), size)))
     return out

@@ -25,6 +25,7 @@ from typing import Any
 
 import redis
 
+from neuroanimator.controller_schemas import JobOutcome
 from services.controller.settings import Settings
 from services.controller.store import JobStore, rq_id
 
@@ -136,7 +137,7 @@ def perform(job_id: str, delivery: int) -> str:
         except (
             JobSpecError
         ) as exc:  # e.g. this worker's artifacts lack the model: a re-run fails the same way
-            store.finish(job_id, delivery, {"status": "failed", "reason": f"{exc.field}: {exc}"})
+            store.finish(job_id, delivery, JobOutcome(status="failed", reason=f"{exc.field}: {exc}"))
             return "failed"
     except Exception as exc:
         outcome = store.requeue_or_fail(job_id, delivery, f"{type(exc).__name__}: {exc}", count_failure=True)
@@ -145,20 +146,17 @@ def perform(job_id: str, delivery: int) -> str:
     finally:
         watch.stop()
 
-    status = result.get("status")
-    if status == "cancelled" and not watch.cancelled:
+    if result.status == "cancelled" and not watch.cancelled:
         if watch.superseded:  # another run of this job took over (this worker had seemed dead)
             return "superseded"
         if watch.yielding:
             store.requeue_or_fail(job_id, delivery, f"worker {worker} shut down", count_failure=False)
             return "requeued"
         if timed_out:
-            n = result.get("iterations")
-            result = {
-                **result,
-                "status": "failed",
-                "reason": f"time limit of {s.job_timeout_s:g} s (JOB_TIMEOUT_S) reached after {n} iterations; "
-                "the best controller so far is kept",
-            }
+            reason = (
+                f"time limit of {s.job_timeout_s:g} s (JOB_TIMEOUT_S) reached after {result.iterations} "
+                "iterations; the best controller so far is kept"
+            )
+            result = result.model_copy(update={"status": "failed", "reason": reason})
     store.finish(job_id, delivery, result)
-    return str(result.get("status"))
+    return result.status

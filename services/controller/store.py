@@ -40,7 +40,8 @@ from rq import Queue
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job
 
-from neuroanimator.controller_schemas import FINAL_STATES
+from neuroanimator.control.spec import JobSpec
+from neuroanimator.controller_schemas import FINAL_STATES, JobOutcome
 from services.controller.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -242,13 +243,11 @@ class JobStore:
     def queue_depth(self) -> int:
         return int(self.queue.count)
 
-    def submit(
-        self, spec: dict[str, Any], owner: str, idempotency_key: str | None = None
-    ) -> tuple[str, str, bool]:
-        """Queue a job (already validated); returns (id, status, created). A repeated idempotency key
-        returns its job; raises ``QueueFull`` or ``IdempotencyConflict``."""
+    def submit(self, spec: JobSpec, owner: str, idempotency_key: str | None = None) -> tuple[str, str, bool]:
+        """Queue a validated job; returns (id, status, created). A repeated idempotency key returns its
+        job; raises ``QueueFull`` or ``IdempotencyConflict``."""
         s, k = self.settings, self.keys
-        spec_json = json.dumps(spec, sort_keys=True, separators=(",", ":"))
+        spec_json = json.dumps(spec.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
         spec_hash = hashlib.sha256(spec_json.encode()).hexdigest()[:32]
         idem = k.idem(owner, idempotency_key) if idempotency_key else None
         if idem and (found := self._idempotent(idem, spec_hash)):
@@ -288,7 +287,7 @@ class JobStore:
             self._enqueue(pipe, job_id, 1)
             pipe.execute()
         self.r.zremrangebyrank(k.owner(owner), 0, -(MAX_OWNER_JOBS + 1))
-        log.info("job queued", extra={"job": job_id, "owner": owner, "task": spec.get("task")})
+        log.info("job queued", extra={"job": job_id, "owner": owner, "task": spec.task})
         return job_id, "queued", True
 
     def _idempotent(self, idem: str, spec_hash: str) -> tuple[str, str] | None:
@@ -436,19 +435,18 @@ class JobStore:
     def set_yield(self, job_id: str) -> None:
         self.r.set(self.keys.yield_(job_id), "1", ex=max(60, int(self.settings.job_timeout_s)))
 
-    def finish(self, job_id: str, delivery: int, result: dict[str, Any]) -> bool:
-        """End the job with ``run_job``'s result; False if it had already ended or was superseded."""
+    def finish(self, job_id: str, delivery: int, result: JobOutcome) -> bool:
+        """End the job with ``run_job``'s outcome; False if it had already ended or was superseded."""
 
         def change(pipe: Pipeline, rec: dict[str, str]) -> bool:
             if not rec or rec["status"] in FINAL or rec.get("rq_id") != rq_id(job_id, delivery):
                 return False
             pipe.multi()
-            status = str(result.get("status", "failed"))
-            self._final(pipe, job_id, rec, status, result.get("reason"), result)
+            self._final(pipe, job_id, rec, result.status, result.reason, result.model_dump())
             return True
 
         done = self._transition(job_id, change)
-        log.info("job ended", extra={"job": job_id, "status": result.get("status"), "recorded": done})
+        log.info("job ended", extra={"job": job_id, "status": result.status, "recorded": done})
         return done
 
     def requeue_or_fail(self, job_id: str, delivery: int, reason: str, count_failure: bool) -> str:

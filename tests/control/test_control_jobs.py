@@ -1,5 +1,6 @@
-"""Job specs: ``validate_job`` fills defaults, names the bad field with the expected and the got,
-and never imports torch; the thesis tasks are plain data."""
+"""Job specs: ``validate_job`` fills defaults into a ``JobSpec``, names the bad field with the
+expected and the got, validates its own output to the same spec, and never imports torch or MuJoCo;
+the thesis tasks are plain data defined beside their physical models."""
 
 from __future__ import annotations
 
@@ -12,7 +13,9 @@ from typing import Any
 
 import pytest
 
-from neuroanimator.control import TASKS, JobSpecError, validate_job
+from neuroanimator.control import TASKS, JobSpec, JobSpecError, run_job, validate_job
+from neuroanimator.control.terms import ForwardDistanceTerm, StayWithinBoundsTerm
+from neuroanimator.controller_schemas import JobCreate, OptimizerSpec
 
 ROOT = Path(__file__).resolve().parents[2]
 ARTIFACTS = ROOT / "artifacts"
@@ -25,16 +28,21 @@ def error_of(spec: dict[str, Any]) -> JobSpecError:
     return info.value
 
 
-def test_task_defaults_are_filled_in_and_validation_is_idempotent() -> None:
+def test_task_defaults_are_filled_in() -> None:
     spec = validate_job({"task": "pendulum-swing"}, ARTIFACTS)
     task = TASKS["pendulum-swing"]
-    assert spec["model"] == "pendulum-active"
-    assert spec["substeps"] == 50 and spec["horizon"] == 40 and spec["points_per_step"] == 0.5
-    assert spec["version"] == (ARTIFACTS / "pendulum-active" / "latest-n50").read_text().strip()
-    assert spec["initial_state"] == list(task.initial_state)
-    assert spec["optimizer"]["learning_rate"] == 2.0 and spec["optimizer"]["momentum"] == 0.5
-    assert validate_job(spec, ARTIFACTS) == spec
-    json.dumps(spec)
+    assert isinstance(spec, JobSpec)
+    assert spec.model == "pendulum-active"
+    assert spec.substeps == 50 and spec.horizon == 40 and spec.points_per_step == 0.5
+    assert spec.version == (ARTIFACTS / "pendulum-active" / "latest-n50").read_text().strip()
+    assert spec.initial_state == list(task.initial_state)
+    assert spec.optimizer.learning_rate == 2.0 and spec.optimizer.momentum == 0.5
+    assert spec.success == list(task.success)
+
+
+def test_the_api_body_validates_like_its_json() -> None:
+    body = JobCreate(task="truck-parking", horizon=12, optimizer=OptimizerSpec(max_iterations=5))
+    assert validate_job(body, ARTIFACTS) == validate_job(body.spec(), ARTIFACTS)
 
 
 def test_overrides_and_a_model_only_job() -> None:
@@ -42,20 +50,81 @@ def test_overrides_and_a_model_only_job() -> None:
         {"task": "truck-parking", "target_state": [5, 5, 0, 0, 0, 0], "optimizer": {"max_iterations": 7}},
         ARTIFACTS,
     )
-    assert spec["target_state"] == [5.0, 5.0, 0.0, 0.0, 0.0, 0.0]
-    assert spec["optimizer"]["max_iterations"] == 7 and spec["optimizer"]["learning_rate"] == 1.5
+    assert spec.target_state == [5.0, 5.0, 0.0, 0.0, 0.0, 0.0]
+    assert spec.optimizer.max_iterations == 7 and spec.optimizer.learning_rate == 1.5
     custom = validate_job({"model": "lander", "terms": [{"term": "forward_distance"}], "mu_s": 0}, ARTIFACTS)
-    assert custom["task"] is None and custom["horizon"] == 40 and custom["points_per_step"] == 1.0
-    assert custom["initial_state"][3] == 1.0  # identity quaternion by default
-    assert custom["terms"] == [
+    assert custom.task is None and custom.horizon == 40 and custom.points_per_step == 1.0
+    assert custom.initial_state[3] == 1.0  # identity quaternion by default
+    assert custom.terms == [
+        ForwardDistanceTerm(
+            term="forward_distance", weight=1.0, direction=[1.0, 0.0, 0.0], variables=[0, 1, 2]
+        )
+    ]
+    assert custom.model_dump()["terms"] == [
         {"term": "forward_distance", "weight": 1.0, "direction": [1.0, 0.0, 0.0], "variables": [0, 1, 2]}
     ]
-    assert custom["success"] == []
+    assert custom.success == []
+
+
+# Custom jobs whose spec must survive a second validation: a worker validates the queued JSON again.
+CUSTOM_JOBS: list[dict[str, Any]] = [
+    {"model": "lander", "terms": [{"term": "forward_distance"}], "mu_s": 0},
+    {"model": "lander", "terms": [{"term": "forward_distance", "direction": [1, 1, 0]}], "mu_s": 0},
+    {
+        "task": "truck-parking",
+        "terms": [{"term": "forward_distance", "variables": ["velocity.x", "velocity.y"]}],
+    },
+    {
+        "task": "lander-landing",
+        "terms": [{"term": "stay_within_bounds", "variable": "position.z", "low": 0.5}],
+    },
+    {"task": "lander-landing", "terms": [{"term": "stay_within_bounds", "variable": 2, "high": 30}]},
+    {"task": "lander-landing", "initial_state": [0.0] * 3 + [2.0, 1.0, 0.5, 0.25] + [0.0] * 6},
+    {
+        "task": "truck-parking",
+        "terms": [
+            {"term": "final_velocity", "variables": ["velocity.x"]},
+            {"term": "path_target", "waypoints": [{"time": 5.0, "target": [10, 0, 0, 0, 0, 0]}]},
+            {"term": "control_smoothness", "weight": 0.5},
+        ],
+        "success": [{"check": "range", "variables": ["position.x"], "min": 19}],
+    },
+    {"model": "pendulum-active", "target_state": [0.5, 0, 0, 0, 0, 0], "optimizer": {"line_search": False}},
+]
+
+
+@pytest.mark.parametrize("job", [{"task": name} for name in sorted(TASKS)] + CUSTOM_JOBS, ids=str)
+def test_validation_is_idempotent(job: dict[str, Any]) -> None:
+    """A validated spec, as an object or as the JSON a worker reads from the queue, validates to itself."""
+    spec = validate_job(job, ARTIFACTS)
+    assert validate_job(spec, ARTIFACTS) == spec
+    queued = json.loads(spec.model_dump_json())
+    assert validate_job(queued, ARTIFACTS) == spec
+    assert JobSpec.model_validate(queued) == spec
+
+
+def test_stay_within_bounds_with_one_bound_and_forward_distance_run_in_the_worker() -> None:
+    """Both were accepted on submission and then refused by the worker's second validation."""
+    job = {
+        "model": "lander",
+        "horizon": 2,
+        "terms": [
+            {"term": "forward_distance"},
+            {"term": "stay_within_bounds", "variable": "position.z", "low": 0.5},
+        ],
+        "optimizer": {"max_iterations": 1, "physics_rounds": 0},
+    }
+    spec = validate_job(job, ARTIFACTS)
+    bounds = spec.terms[1]
+    assert isinstance(bounds, StayWithinBoundsTerm) and bounds.low == 0.5 and bounds.high is None
+    result = run_job(json.loads(spec.model_dump_json()), ARTIFACTS)
+    assert result.status == "succeeded", result.reason
+    assert result.spec == spec
 
 
 def test_quaternions_are_normalised() -> None:
     s = [0.0] * 3 + [2.0, 0.0, 0.0, 0.0] + [0.0] * 6
-    assert validate_job({"model": "lander", "initial_state": s}, ARTIFACTS)["initial_state"][3] == 1.0
+    assert validate_job({"model": "lander", "initial_state": s}, ARTIFACTS).initial_state[3] == 1.0
     assert "quaternion orientation" in str(error_of({"model": "lander", "initial_state": [0.0] * 13}))
 
 
@@ -251,3 +320,11 @@ def test_thesis_control_variable_counts() -> None:
     assert TASKS["lander-landing"].control_variables(4) == 80
     assert TASKS["truck-parking"].control_variables(2) == 40
     assert {t.optimizer["learning_rate"] for t in TASKS.values()} == {2.0, 1.5}
+
+
+def test_task_info_keeps_its_json_form() -> None:
+    """GET /tasks shows checks as a job writes them: no null bounds or targets."""
+    data = TASKS["lander-landing"].to_dict()
+    assert data["success"][2] == {"check": "range", "variables": ["velocity.z"], "min": -1.0, "max": 0.0}
+    assert data["state_labels"][:3] == ["position.x", "position.y", "position.z"]
+    assert data["initial_controls"][0] == pytest.approx(16.2)

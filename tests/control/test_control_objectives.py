@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from neuroanimator.control import JobSpec
 from neuroanimator.control.jobs import validate_job
 from neuroanimator.control.objectives import Objective, StateDistance, control_scale
 from neuroanimator.control.tasks import LANDER_LABELS
@@ -40,7 +41,7 @@ ALL_TERMS = [
 
 
 @pytest.fixture
-def lander_spec() -> dict[str, Any]:
+def lander_spec() -> JobSpec:
     return validate_job({"task": "lander-landing", "horizon": 4, "terms": ALL_TERMS}, ARTIFACTS)
 
 
@@ -52,7 +53,7 @@ def random_trajectory(rng: np.random.Generator, batch: int = 2) -> tuple[torch.T
     return torch.from_numpy(states), torch.from_numpy(controls)
 
 
-def test_every_term_has_gradients_that_match_finite_differences(lander_spec: dict[str, Any]) -> None:
+def test_every_term_has_gradients_that_match_finite_differences(lander_spec: JobSpec) -> None:
     objective = Objective(lander_spec, lander_layout(), control_scale(np.array([[0, 32.4]] + [[-1, 1]] * 3)))
     states, controls = random_trajectory(np.random.default_rng(1), batch=1)
     s = states.clone().requires_grad_(True)
@@ -82,7 +83,7 @@ def test_every_term_has_gradients_that_match_finite_differences(lander_spec: dic
                 )
 
 
-def test_objective_is_the_sum_of_its_parts(lander_spec: dict[str, Any]) -> None:
+def test_objective_is_the_sum_of_its_parts(lander_spec: JobSpec) -> None:
     objective = Objective(lander_spec, lander_layout(), np.ones(4))
     states, controls = random_trajectory(np.random.default_rng(2))
     total = objective(states, controls)
@@ -121,20 +122,20 @@ def test_angle_error_wraps_a_full_turn() -> None:
     assert float(dist(near, target, w)) == pytest.approx(0.01, rel=1e-3)  # ≈ Δ² near the goal
 
 
-def test_eq_5_3_effort_and_final_state(lander_spec: dict[str, Any]) -> None:
-    spec = {**lander_spec, "terms": [], "mu_u": 2.0, "mu_s": 3.0}
+def test_eq_5_3_effort_and_final_state(lander_spec: JobSpec) -> None:
+    spec = lander_spec.model_copy(update={"terms": [], "mu_u": 2.0, "mu_s": 3.0})
     scale = np.array([32.4, 1.0, 1.0, 1.0])
     objective = Objective(spec, lander_layout(), scale)
     states, controls = random_trajectory(np.random.default_rng(3), batch=1)
     states[..., -1, 3:7] = torch.tensor([1.0, 0, 0, 0], dtype=torch.float64)  # on the target orientation
     u = controls[0].numpy() / scale
-    e = (states[0, -1].numpy() - np.asarray(spec["target_state"])) * np.asarray(spec["state_weights"])
+    e = (states[0, -1].numpy() - np.asarray(spec.target_state)) * np.asarray(spec.state_weights)
     e[3:7] = 0.0
     expected = 2.0 / 2 * (u**2).sum() + 3.0 / 2 * (e**2).sum()
     assert float(objective(states, controls)[0]) == pytest.approx(expected, rel=1e-10)
 
 
-def test_term_behaviour(lander_spec: dict[str, Any]) -> None:
+def test_term_behaviour(lander_spec: JobSpec) -> None:
     objective = Objective(lander_spec, lander_layout(), np.ones(4))
     states = torch.zeros(1, 5, 13, dtype=torch.float64)
     states[..., 3] = 1.0

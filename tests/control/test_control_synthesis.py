@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from neuroanimator import artifacts, physics
-from neuroanimator.control import run_job, validate_job
+from neuroanimator.control import JobSpec, run_job, validate_job
 from neuroanimator.control.bptt import ControlProblem, FastStep
 from neuroanimator.control.replay import simulate_held
 from neuroanimator.control.synthesis import Settings, optimize
@@ -22,12 +22,12 @@ from neuroanimator.structured import StructuredEmulator
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts"
 
 
-def short_spec(task: str = "pendulum-swing", **kw: Any) -> dict[str, Any]:
+def short_spec(task: str = "pendulum-swing", **kw: Any) -> JobSpec:
     return validate_job({"task": task, "horizon": 8, "points_per_step": 1.0, **kw}, ARTIFACTS)
 
 
-def problem_of(spec: dict[str, Any], dtype: torch.dtype = torch.float32) -> ControlProblem:
-    path = artifacts.resolve(ARTIFACTS, spec["model"], spec["version"])
+def problem_of(spec: JobSpec, dtype: torch.dtype = torch.float32) -> ControlProblem:
+    path = artifacts.resolve(ARTIFACTS, spec.model, spec.version)
     emu = artifacts.load_torch(path)
     if dtype == torch.float64:
         emu = emu.double()
@@ -77,7 +77,7 @@ def test_momentum_descent_on_a_tiny_emulator_lowers_the_objective(
     (fixed η and α, no line search) still go downhill."""
     spec = short_spec(optimizer={"learning_rate": 0.02, "momentum": 0.5, "line_search": False})
     emu = make_emulator(physics.get("pendulum-active"))
-    path = artifacts.resolve(ARTIFACTS, spec["model"], spec["version"])
+    path = artifacts.resolve(ARTIFACTS, spec.model, spec.version)
     problem = ControlProblem(emu, spec, artifacts.load_manifest(path))
     seen: list[tuple[int, float, float, bool]] = []
     out = optimize(
@@ -140,11 +140,13 @@ def test_run_job_reports_divergence_as_failed_with_the_best_finite_controller(
 
     monkeypatch.setattr(ControlProblem, "value_and_grad", flaky)
     result = run_job({"task": "truck-parking", "horizon": 6}, ARTIFACTS)
-    assert result["status"] == "failed"
-    assert "diverged at iteration 2: the gradient is not finite" in result["reason"]
-    assert result["iterations"] == 2 and len(result["objective_history"]) == 2
-    assert all(v is not None for row in result["controls"] for v in row)
-    assert len(result["physical"]["states"]) == 7
+    assert result.status == "failed"
+    assert (
+        result.reason is not None and "diverged at iteration 2: the gradient is not finite" in result.reason
+    )
+    assert result.iterations == 2 and len(result.objective_history) == 2
+    assert result.controls is not None and all(v is not None for row in result.controls for v in row)
+    assert result.physical is not None and len(result.physical.states) == 7
 
 
 def test_should_stop_cancels_and_progress_is_reported() -> None:
@@ -156,12 +158,13 @@ def test_should_stop_cancels_and_progress_is_reported() -> None:
         should_stop=lambda: len(events) >= 3,
         threads=1,
     )
-    assert result["status"] == "cancelled" and result["reason"] == "cancelled after 2 iterations"
+    assert result.status == "cancelled" and result.reason == "cancelled after 2 iterations"
     assert [e["iteration"] for e in events] == [0, 1, 2]
     assert {"iteration", "objective", "best_objective", "success_emulator", "elapsed_s"} <= set(events[0])
     assert events[0]["phase"] == "emulator"
     assert events[-1]["best_objective"] <= events[0]["objective"]
-    assert len(result["emulated"]["states"]) == 11  # the best controller so far is still replayed
+    assert result.emulated is not None
+    assert len(result.emulated.states) == 11  # the best controller so far is still replayed
     assert torch.get_num_threads() >= 1
 
 
@@ -180,30 +183,34 @@ def test_replay_holds_each_value_for_its_super_step() -> None:
 def test_result_contract() -> None:
     result = run_job({"task": "pendulum-swing", "horizon": 6, "optimizer": {"max_iterations": 3}}, ARTIFACTS)
     k, s, m, u = 6, 6, 3, 3  # horizon 6 at 0.5 points per step: 3 points
-    assert result["status"] == "succeeded" and result["stop"] in ("max_iterations", "success", "converged")
-    assert np.shape(result["control_points"]) == (m, u)
-    assert np.shape(result["controls"]) == (k, u)
-    assert result["times"] == [0.5 * i for i in range(k)]
-    assert np.shape(result["emulated"]["states"]) == (k + 1, s)
-    assert np.shape(result["physical"]["states"]) == (k + 1, s)
-    assert result["physical"]["states"][0] == result["initial_state"]
-    assert result["control_spacing_s"] == pytest.approx(2.5 / 2)
-    assert np.all(np.abs(result["controls"]) <= 2.0)  # the torque limit holds
-    for key in ("final_error_emulator", "final_error_physics", "wall_s"):
-        assert isinstance(result[key], float)
-    assert isinstance(result["success_emulator"], bool) and isinstance(result["success_physics"], bool)
-    assert result["state_labels"][0] == "angles.j0"
-    assert result["iterations"] == len(result["objective_history"]) - 1
+    assert result.status == "succeeded" and result.stop in ("max_iterations", "success", "converged")
+    assert result.emulated is not None and result.physical is not None
+    assert np.shape(result.control_points) == (m, u)
+    assert np.shape(result.controls) == (k, u)
+    assert result.times == [0.5 * i for i in range(k)]
+    assert np.shape(result.emulated.states) == (k + 1, s)
+    assert np.shape(result.physical.states) == (k + 1, s)
+    assert result.physical.states[0] == result.initial_state
+    assert result.control_spacing_s == pytest.approx(2.5 / 2)
+    assert np.all(np.abs(np.asarray(result.controls)) <= 2.0)  # the torque limit holds
+    for value in (result.final_error_emulator, result.final_error_physics, result.wall_s):
+        assert isinstance(value, float)
+    assert isinstance(result.success_emulator, bool) and isinstance(result.success_physics, bool)
+    assert result.state_labels is not None and result.state_labels[0] == "angles.j0"
+    assert result.iterations == len(result.objective_history) - 1
+    assert result.spec is not None and result.spec.task == "pendulum-swing"
+    # the outcome is JSON as stored: the same object read back
+    assert type(result).model_validate_json(result.model_dump_json()) == result
 
 
 def test_physics_correction_makes_the_emulator_replay_the_physical_trajectory() -> None:
     spec = short_spec("lander-landing")
     problem = problem_of(spec)
-    path = artifacts.resolve(ARTIFACTS, spec["model"], spec["version"])
+    path = artifacts.resolve(ARTIFACTS, spec.model, spec.version)
     physical = artifacts.load_physical_model(path)
     z = problem.project(problem.initial_points() + 0.2)
     _, held = problem.trajectory(z)
-    phys = simulate_held(physical, np.asarray(spec["initial_state"])[None], held[None], spec["substeps"])[0]
+    phys = simulate_held(physical, np.asarray(spec.initial_state)[None], held[None], spec.substeps)[0]
     plain, _ = problem.trajectory(z)
     assert np.abs(plain - phys).max() > 1e-3  # the emulator alone is not exact
     problem.set_correction(phys, held)

@@ -4,18 +4,18 @@ from __future__ import annotations
 
 from functools import cache
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 
 from neuroanimator.control import TASKS, run_job
+from neuroanimator.controller_schemas import JobOutcome
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts"
 
 
 @cache
-def solved(name: str) -> dict[str, Any]:
+def solved(name: str) -> JobOutcome:
     """The task's job with its defaults, run once per test session (about a second each)."""
     return run_job({"task": name}, ARTIFACTS)
 
@@ -23,29 +23,33 @@ def solved(name: str) -> dict[str, Any]:
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_task_meets_its_criterion_on_the_emulator(name: str) -> None:
     result = solved(name)
-    assert result["status"] == "succeeded" and result["stop"] == "success"
+    assert result.status == "succeeded" and result.stop == "success"
+    assert result.emulator_phase is not None and result.refinement is not None
     # the controller found on the emulator alone meets the criterion there
-    assert result["emulator_phase"]["success_emulator"] is True
-    if not result["refinement"]["rounds"]:  # not refined on MuJoCo: it is the controller returned
-        assert result["success_emulator"] is True
-        assert all(c["passed"] for c in result["checks_emulator"])
+    assert result.emulator_phase.success_emulator is True
+    if not result.refinement.rounds:  # not refined on MuJoCo: it is the controller returned
+        assert result.success_emulator is True
+        assert result.checks_emulator and all(c.passed for c in result.checks_emulator)
     # the thesis needed 20, 15 and 15 iterations; the target here is at most 20
-    assert result["iterations_to_success"] is not None and result["iterations_to_success"] <= 20
-    history = result["objective_history"]
-    assert result["emulator_phase"]["objective"] < 0.05 * history[0]
+    assert result.iterations_to_success is not None and result.iterations_to_success <= 20
+    first = result.objective_history[0]
+    assert result.emulator_phase.objective is not None and first is not None
+    assert result.emulator_phase.objective < 0.05 * first
     # the replay ran the same held controls on MuJoCo from the same start
-    phys = np.asarray(result["physical"]["states"])
-    assert phys.shape == (41, len(result["state_labels"]))
+    assert result.physical is not None and result.state_labels is not None
+    phys = np.asarray(result.physical.states, dtype=float)
+    assert phys.shape == (41, len(result.state_labels))
     assert np.all(np.isfinite(phys))
-    assert isinstance(result["success_physics"], bool)
+    assert isinstance(result.success_physics, bool)
 
 
 def test_pendulum_swings_back_and_forth() -> None:
     """The torque limit is too low to go straight to the goal: the base joint must swing both ways."""
     result = solved("pendulum-swing")
-    base = np.asarray(result["emulated"]["states"])[:, 0]
+    assert result.emulated is not None
+    base = np.asarray(result.emulated.states, dtype=float)[:, 0]
     assert base.min() < -0.2 and base.max() > 0.9
-    assert np.abs(result["controls"]).max() <= 2.0 + 1e-9
+    assert np.abs(np.asarray(result.controls, dtype=float)).max() <= 2.0 + 1e-9
 
 
 @pytest.mark.parametrize("name", sorted(TASKS))
@@ -53,11 +57,13 @@ def test_controller_drives_mujoco_after_physics_refinement(name: str) -> None:
     """The controller returned meets the criterion on MuJoCo; where the emulator-only controller did
     not (its drift), the refinement rounds say so and the first replay's outcome is kept."""
     result = solved(name)
-    assert result["success_physics"] is True
-    assert all(c["passed"] for c in result["checks_physics"])
-    phase = result["emulator_phase"]
-    if phase["success_physics"]:
-        assert result["refinement"]["rounds"] == []
+    assert result.success_physics is True
+    assert result.checks_physics and all(c.passed for c in result.checks_physics)
+    phase, refinement = result.emulator_phase, result.refinement
+    assert phase is not None and refinement is not None
+    if phase.success_physics:
+        assert refinement.rounds == []
     else:
-        assert result["refinement"]["rounds"][-1]["success_physics"] is True
-        assert result["final_error_physics"] < phase["final_error_physics"]
+        assert refinement.rounds[-1].success_physics is True
+        assert result.final_error_physics is not None and phase.final_error_physics is not None
+        assert result.final_error_physics < phase.final_error_physics

@@ -133,14 +133,12 @@ def create_job(
 ) -> JobAccepted:
     """Queue a controller-synthesis job; the same ``idempotency_key`` returns the same job."""
     metrics: Metrics = request.app.state.metrics
-    raw = req.spec()
     try:
-        spec = validate_job(raw, settings.artifacts_dir)
+        spec = validate_job(req, settings.artifacts_dir)
     except JobSpecError as exc:
         metrics.rejected.labels("invalid").inc()
-        raise ApiError(
-            422, "invalid_job", str(exc), field=exc.field, expected=exc.message, got=_lookup(raw, exc.field)
-        ) from exc
+        got = _lookup(req.spec(), exc.field)
+        raise ApiError(422, "invalid_job", str(exc), field=exc.field, expected=exc.message, got=got) from exc
     try:
         job_id, status, created = store.submit(spec, owner, req.idempotency_key)
     except QueueFull as exc:

@@ -3,20 +3,36 @@
 
 export interface ControllerWire {
   BestSoFar?: BestSoFar;
+  CheckOutcome?: CheckOutcome;
+  ControlEffortTerm?: ControlEffortTerm;
+  ControlSmoothnessTerm?: ControlSmoothnessTerm;
+  EmulatorPhase?: EmulatorPhase;
   EndEvent?: EndEvent;
+  FinalStateTerm?: FinalStateTerm;
+  FinalVelocityTerm?: FinalVelocityTerm;
+  ForwardDistanceTerm?: ForwardDistanceTerm;
   JobAccepted?: JobAccepted;
   JobCreate?: JobCreate;
   JobList?: JobList;
+  JobOutcome?: JobOutcome;
   JobResult?: JobResult;
+  JobSpec?: JobSpec;
   JobStatus?: JobStatus;
   JobSummary?: JobSummary;
   ObjectiveTerm?: ObjectiveTerm;
+  OptimizerSettings?: OptimizerSettings;
   OptimizerSpec?: OptimizerSpec;
+  PathTargetTerm?: PathTargetTerm;
   ProgressEvent?: ProgressEvent;
+  Refinement?: Refinement;
+  RefinementRound?: RefinementRound;
   StatusEvent?: StatusEvent;
+  StayWithinBoundsTerm?: StayWithinBoundsTerm;
+  SuccessCheck?: SuccessCheck;
   TaskInfo?: TaskInfo;
   TaskList?: TaskList;
   Trajectory?: Trajectory;
+  Waypoint?: Waypoint;
   WsEvent?: WsEvent;
 }
 /**
@@ -31,6 +47,50 @@ export interface BestSoFar {
   [k: string]: unknown;
 }
 /**
+ * One success check on a final state: its text, whether it held, and the value measured.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "CheckOutcome".
+ */
+export interface CheckOutcome {
+  check: string;
+  passed: boolean;
+  value?: number | null;
+}
+/**
+ * weight/2 Σ (u/r)² over the held controls.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "ControlEffortTerm".
+ */
+export interface ControlEffortTerm {
+  term: 'control_effort';
+  weight: number;
+}
+/**
+ * weight/2 Σ ((u_k − u_{k−1})/r)².
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "ControlSmoothnessTerm".
+ */
+export interface ControlSmoothnessTerm {
+  term: 'control_smoothness';
+  weight: number;
+}
+/**
+ * The controller found on the emulator alone, before any physics refinement, and its replay.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "EmulatorPhase".
+ */
+export interface EmulatorPhase {
+  objective?: number | null;
+  success_emulator?: boolean | null;
+  success_physics?: boolean | null;
+  final_error_emulator?: number | null;
+  final_error_physics?: number | null;
+}
+/**
  * ``event: end``: the last event of a job's stream.
  *
  * This interface was referenced by `ControllerWire`'s JSON-Schema
@@ -41,6 +101,50 @@ export interface EndEvent {
   reason?: string | null;
   iterations?: number | null;
   best_objective?: number | null;
+}
+/**
+ * weight/2 ‖W (s_K − target)‖²: target (S,) and weights (S,).
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "FinalStateTerm".
+ */
+export interface FinalStateTerm {
+  term: 'final_state';
+  weight: number;
+  target: number[];
+  weights: number[];
+}
+/**
+ * weight/2 ‖s_K[variables]‖²: variables are state indices.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "FinalVelocityTerm".
+ */
+export interface FinalVelocityTerm {
+  term: 'final_velocity';
+  weight: number;
+  /**
+   * @minItems 1
+   */
+  variables: [number, ...number[]];
+}
+/**
+ * −weight · direction·(s_K − s_0)[variables]: a unit direction, one value per variable index.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "ForwardDistanceTerm".
+ */
+export interface ForwardDistanceTerm {
+  term: 'forward_distance';
+  weight: number;
+  /**
+   * @minItems 1
+   */
+  direction: [number, ...number[]];
+  /**
+   * @minItems 1
+   */
+  variables: [number, ...number[]];
 }
 /**
  * A job on the queue (or, for a repeated idempotency key, the job it already made).
@@ -204,38 +308,83 @@ export interface JobSummary {
   best_objective?: number | null;
 }
 /**
- * What ``run_job`` returned (a job that crashed has only ``status``, ``reason`` and what was known):
+ * What ``run_job`` returns (a job that crashed has only ``status``, ``reason`` and what was known):
  * the controller (control points and the sampled ``controls`` at ``times``), the trajectory it gives
  * on the emulator and on the physics (MuJoCo), and their errors against the target.
  *
+ * Shapes: M control points and K super-steps per controller, U controls, S state variables.
+ *
  * This interface was referenced by `ControllerWire`'s JSON-Schema
- * via the `definition` "JobResult".
+ * via the `definition` "JobOutcome".
  */
-export interface JobResult {
-  id: string;
+export interface JobOutcome {
   status: 'succeeded' | 'failed' | 'cancelled';
   reason?: string | null;
+  /**
+   * success | converged | stalled | max_iterations | diverged | cancelled
+   */
+  stop?: string | null;
   task?: string | null;
   model?: string | null;
   version?: string | null;
   substeps?: number | null;
   iterations?: number | null;
   iterations_to_success?: number | null;
+  emulator_rollouts?: number | null;
+  objective?: number | null;
+  objective_physics?: number | null;
   objective_history?: (number | null)[];
-  control_points?: unknown[] | null;
+  /**
+   * of a job that ended before it returned
+   */
+  best_objective?: number | null;
+  control_names?: string[] | null;
+  /**
+   * M × U, in the controls' units
+   */
+  control_points?: (number | null)[][] | null;
   control_spacing_s?: number | null;
+  super_timestep?: number | null;
+  /**
+   * the K super-steps' start times
+   */
   times?: number[] | null;
-  controls?: unknown[] | null;
+  /**
+   * K × U held values
+   */
+  controls?: (number | null)[][] | null;
   emulated?: Trajectory | null;
   physical?: Trajectory | null;
   final_error_emulator?: number | null;
   final_error_physics?: number | null;
+  /**
+   * |error| per weighted variable
+   */
+  final_errors_emulator?: {
+    [k: string]: number | null;
+  } | null;
+  final_errors_physics?: {
+    [k: string]: number | null;
+  } | null;
+  /**
+   * how far MuJoCo ends from the emulator's end
+   */
+  transfer_error?: number | null;
+  success_criterion?: string | null;
   success_emulator?: boolean | null;
   success_physics?: boolean | null;
+  checks_emulator?: CheckOutcome[] | null;
+  checks_physics?: CheckOutcome[] | null;
+  emulator_phase?: EmulatorPhase | null;
+  refinement?: Refinement | null;
   target_state?: (number | null)[] | null;
   initial_state?: (number | null)[] | null;
-  wall_s?: number | null;
   state_labels?: string[] | null;
+  /**
+   * the validated job that ran
+   */
+  spec?: JobSpec | null;
+  wall_s?: number | null;
   [k: string]: unknown;
 }
 /**
@@ -246,6 +395,246 @@ export interface JobResult {
  */
 export interface Trajectory {
   states?: (number | null)[][];
+  [k: string]: unknown;
+}
+/**
+ * The physics-refinement rounds of a run (none when the first replay met the criterion).
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "Refinement".
+ */
+export interface Refinement {
+  rounds?: RefinementRound[];
+  iterations?: number;
+  /**
+   * MuJoCo replays, the first one included
+   */
+  physics_replays?: number;
+}
+/**
+ * One round of re-optimising on the emulator corrected along the last MuJoCo replay.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "RefinementRound".
+ */
+export interface RefinementRound {
+  round: number;
+  iterations: number;
+  stop: string;
+  /**
+   * why the round ended early
+   */
+  reason?: string | null;
+  objective_physics?: number | null;
+  success_physics?: boolean | null;
+}
+/**
+ * A validated job: everything a worker needs, nothing left to a default.
+ *
+ * S is the model's state size and U its number of controls. ``initial_state``, ``target_state``
+ * and ``state_weights`` have S values (quaternions of unit length), ``initial_controls`` U values
+ * within the controls' limits; ``terms`` name state variables by index, ``success`` by label.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "JobSpec".
+ */
+export interface JobSpec {
+  /**
+   * the built-in task whose defaults were taken, if any
+   */
+  task: string | null;
+  model: string;
+  /**
+   * the artifact version, pinned at submission
+   */
+  version: string;
+  /**
+   * the emulator's super timestep n
+   */
+  substeps: number;
+  initial_state: number[];
+  target_state: number[];
+  state_weights: number[];
+  /**
+   * super-steps
+   */
+  horizon: number;
+  /**
+   * control points per super-step
+   */
+  points_per_step: number;
+  mu_u: number;
+  mu_s: number;
+  terms: (
+    | FinalStateTerm
+    | ControlEffortTerm
+    | ControlSmoothnessTerm
+    | FinalVelocityTerm
+    | ForwardDistanceTerm
+    | StayWithinBoundsTerm
+    | PathTargetTerm
+  )[];
+  initial_controls: number[];
+  success: SuccessCheck[];
+  optimizer: OptimizerSettings;
+}
+/**
+ * weight/2 Σ_k (max(0, low − x_k)² + max(0, x_k − high)²) of state index ``variable``; a bound
+ * that is None is no bound (at least one is set).
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "StayWithinBoundsTerm".
+ */
+export interface StayWithinBoundsTerm {
+  term: 'stay_within_bounds';
+  weight: number;
+  variable: number;
+  low: number | null;
+  high: number | null;
+}
+/**
+ * weight/2 Σ_waypoints ‖W (s_step − target)‖² with weights (S,).
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PathTargetTerm".
+ */
+export interface PathTargetTerm {
+  term: 'path_target';
+  weight: number;
+  weights: number[];
+  /**
+   * @minItems 1
+   */
+  waypoints: [Waypoint, ...Waypoint[]];
+}
+/**
+ * A target state (S,) at super-step ``step`` (0 is the initial state).
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "Waypoint".
+ */
+export interface Waypoint {
+  step: number;
+  target: number[];
+}
+/**
+ * One check of a success criterion, as a job states it and ``validate_checks`` accepted it.
+ *
+ * ``variables`` are state labels; ``target`` (one value per variable) overrides the job's target
+ * state; ``max`` bounds the measured value (for ``range`` also ``min``; either may be left out).
+ * Bounds and targets that are not set are left out of the JSON, as a job writes them.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "SuccessCheck".
+ */
+export interface SuccessCheck {
+  check: 'angle' | 'abs' | 'distance' | 'norm' | 'orientation' | 'range';
+  /**
+   * @minItems 1
+   */
+  variables: [string, ...string[]];
+  max?: number | null;
+  min?: number | null;
+  target?: number[] | null;
+}
+/**
+ * Gradient descent with momentum (thesis eqs. 5.5-5.6), every setting given; the defaults are
+ * those of a job that names no task.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "OptimizerSettings".
+ */
+export interface OptimizerSettings {
+  /**
+   * η
+   */
+  learning_rate?: number;
+  /**
+   * α
+   */
+  momentum?: number;
+  max_iterations?: number;
+  tolerance?: number;
+  stop_on_success?: boolean;
+  line_search?: boolean;
+  polish_iterations?: number;
+  physics_rounds?: number;
+}
+/**
+ * A job's result (``GET /jobs/{id}/result``): what its run returned, and the job's id.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "JobResult".
+ */
+export interface JobResult {
+  status: 'succeeded' | 'failed' | 'cancelled';
+  reason?: string | null;
+  /**
+   * success | converged | stalled | max_iterations | diverged | cancelled
+   */
+  stop?: string | null;
+  task?: string | null;
+  model?: string | null;
+  version?: string | null;
+  substeps?: number | null;
+  iterations?: number | null;
+  iterations_to_success?: number | null;
+  emulator_rollouts?: number | null;
+  objective?: number | null;
+  objective_physics?: number | null;
+  objective_history?: (number | null)[];
+  /**
+   * of a job that ended before it returned
+   */
+  best_objective?: number | null;
+  control_names?: string[] | null;
+  /**
+   * M × U, in the controls' units
+   */
+  control_points?: (number | null)[][] | null;
+  control_spacing_s?: number | null;
+  super_timestep?: number | null;
+  /**
+   * the K super-steps' start times
+   */
+  times?: number[] | null;
+  /**
+   * K × U held values
+   */
+  controls?: (number | null)[][] | null;
+  emulated?: Trajectory | null;
+  physical?: Trajectory | null;
+  final_error_emulator?: number | null;
+  final_error_physics?: number | null;
+  /**
+   * |error| per weighted variable
+   */
+  final_errors_emulator?: {
+    [k: string]: number | null;
+  } | null;
+  final_errors_physics?: {
+    [k: string]: number | null;
+  } | null;
+  /**
+   * how far MuJoCo ends from the emulator's end
+   */
+  transfer_error?: number | null;
+  success_criterion?: string | null;
+  success_emulator?: boolean | null;
+  success_physics?: boolean | null;
+  checks_emulator?: CheckOutcome[] | null;
+  checks_physics?: CheckOutcome[] | null;
+  emulator_phase?: EmulatorPhase | null;
+  refinement?: Refinement | null;
+  target_state?: (number | null)[] | null;
+  initial_state?: (number | null)[] | null;
+  state_labels?: string[] | null;
+  /**
+   * the validated job that ran
+   */
+  spec?: JobSpec | null;
+  wall_s?: number | null;
+  id: string;
   [k: string]: unknown;
 }
 /**
