@@ -1,14 +1,25 @@
-"""The physics catalog: every built-in system, each defined like a user's MJCF (``ModelSpec`` + MJCF)."""
+"""The physics catalog: every built-in system, each defined like a user's MJCF (``ModelSpec`` + MJCF).
+
+One module per physical system (``SYSTEMS``), with its MJCF beside it: the catalog models built from
+it and the control tasks set on them (``TASKS``, collected by ``neuroanimator.control.tasks``).
+Importing the catalog loads no MuJoCo (a model's factory does, when called), so its names and tasks
+can be read by processes that never simulate: the controller API, ``make``, the stack launcher.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from functools import cache
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 from neuroanimator.physics import lander, pendulum, truck
-from neuroanimator.physics.model import Frame, ModelError, PhysicalModel
 from neuroanimator.physics.spec import ForceInput, InitialStates, ModelSpec
 
+if TYPE_CHECKING:
+    from neuroanimator.physics.model import Frame, ModelError, PhysicalModel
+
+SYSTEMS: tuple[ModuleType, ...] = (pendulum, lander, truck)
 CATALOG: dict[str, Callable[[], PhysicalModel]] = {
     "pendulum-passive": pendulum.passive,
     "pendulum-active": pendulum.active,
@@ -16,11 +27,22 @@ CATALOG: dict[str, Callable[[], PhysicalModel]] = {
     "lander": lander.lander,
     "truck": truck.truck,
 }
+_FROM_MODEL = ("Frame", "ModelError", "PhysicalModel")  # names that need MuJoCo, loaded on first use
+
+
+def __getattr__(name: str) -> Any:
+    if name in _FROM_MODEL:
+        from neuroanimator.physics import model
+
+        return getattr(model, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @cache
 def get(name: str) -> PhysicalModel:
     """A catalog model by name; unknown names raise ``ModelError`` listing the known ones."""
+    from neuroanimator.physics.model import ModelError
+
     try:
         factory = CATALOG[name]
     except KeyError:
@@ -30,6 +52,7 @@ def get(name: str) -> PhysicalModel:
 
 __all__ = [
     "CATALOG",
+    "SYSTEMS",
     "ForceInput",
     "Frame",
     "InitialStates",

@@ -1,11 +1,19 @@
-"""The lunar lander (thesis E.2): a free rigid body with a main jet and three attitude controls."""
+"""The lunar lander (thesis E.2): a free rigid body with a main jet and three attitude controls,
+and its landing task (thesis 6.2)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.control.criteria import SuccessCheck
+from neuroanimator.control.spec import Task
 from neuroanimator.physics.spec import InitialStates, ModelSpec
+from neuroanimator.state import StateLayout
+
+if TYPE_CHECKING:
+    from neuroanimator.physics.model import PhysicalModel
 
 XML_PATH = Path(__file__).with_name("lander.xml")
 HOVER_THRUST = 100 * 1.62 / 10.0  # main-jet control that balances lunar gravity
@@ -46,7 +54,12 @@ LAYOUT = [
 ]
 
 
+LABELS = tuple(StateLayout.from_dict(LAYOUT).labels())
+
+
 def lander() -> PhysicalModel:
+    from neuroanimator.physics.model import PhysicalModel  # MuJoCo loads when a model is built
+
     spec = ModelSpec(
         name="lander",
         description="lunar lander: free rigid body, main jet and attitude jets, lunar gravity (thesis E.2)",
@@ -66,3 +79,36 @@ def lander() -> PhysicalModel:
         thesis_hidden=50,
     )
     return PhysicalModel(XML_PATH.read_text(), spec)
+
+
+# Descend from 25 m up and 12 m off to the side, drifting, to a soft landing on the pad at the
+# origin: upright, on the spot, barely moving down. The attitude jets are weak (0.05 rad/s² at
+# most), so the lander must plan its tilt early to move sideways with the main jet.
+LANDING = Task(
+    name="lander-landing",
+    model="lander",
+    summary=(
+        "Lunar lander: from 25 m above and 12 m beside the pad, drifting, land softly on the pad "
+        "(the origin) in 20 s: upright, on the spot, with a small downward speed. Sideways motion "
+        "needs tilting the main jet with weak attitude jets."
+    ),
+    labels=LABELS,
+    initial_state=(-10.0, 6.0, 25.0, 1.0, 0.0, 0.0, 0.0, 0.5, 0.0, -1.0, 0.0, 0.0, 0.0),
+    target_state=(0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -0.5, 0.0, 0.0, 0.0),
+    state_weights=(1.0, 1.0, 1.0, 10.0, 10.0, 10.0, 10.0, 2.0, 2.0, 2.0, 2.0, 2.0, 2.0),
+    success=(
+        SuccessCheck(check="distance", variables=["position.x", "position.y", "position.z"], max=1.0),
+        SuccessCheck(
+            check="orientation",
+            variables=["orientation.w", "orientation.x", "orientation.y", "orientation.z"],
+            max=math.radians(10.0),
+        ),
+        SuccessCheck(check="range", variables=["velocity.z"], min=-1.0, max=0.0),
+        SuccessCheck(check="norm", variables=["velocity.x", "velocity.y"], max=0.5),
+    ),
+    initial_controls=(HOVER_THRUST, 0.0, 0.0, 0.0),  # hover, no attitude jets
+    mu_u=1e-4,
+    mu_s=1.0,
+    optimizer={"learning_rate": 1.5, "momentum": 0.5, "max_iterations": 100, "tolerance": 1e-6},
+)
+TASKS = (LANDING,)

@@ -1,13 +1,20 @@
 """The three-link pendulum (thesis E.1) in three variants: passive, active (3 motor torques) and
-with 3 applied forces (horizontal pushes on each link's centre of mass)."""
+with 3 applied forces (horizontal pushes on each link's centre of mass); and the active one's
+swing task (thesis 6.2)."""
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.control.criteria import SuccessCheck
+from neuroanimator.control.spec import Task
 from neuroanimator.physics.spec import ForceInput, InitialStates, ModelSpec
+from neuroanimator.state import StateLayout
+
+if TYPE_CHECKING:
+    from neuroanimator.physics.model import PhysicalModel
 
 XML_PATH = Path(__file__).with_name("pendulum.xml")
 
@@ -29,8 +36,15 @@ LAYOUT = [
         "labels": ["j0", "j1", "j2"],
     },
 ]
+LABELS = tuple(StateLayout.from_dict(LAYOUT).labels())
 # hanging at rest is angle 0; start anywhere within ±1.5 rad, slowly moving
 INITIAL = InitialStates(low=[-1.5] * 3 + [-0.5] * 3, high=[1.5] * 3 + [0.5] * 3)
+
+
+def _model(xml: str, spec: ModelSpec) -> PhysicalModel:
+    from neuroanimator.physics.model import PhysicalModel  # MuJoCo loads when a model is built
+
+    return PhysicalModel(xml, spec)
 
 
 def _xml(with_motors: bool, name: str) -> str:
@@ -51,7 +65,7 @@ def passive() -> PhysicalModel:
         episode_s=30.0,
         thesis_hidden=20,
     )
-    return PhysicalModel(_xml(False, spec.name), spec)
+    return _model(_xml(False, spec.name), spec)
 
 
 def active() -> PhysicalModel:
@@ -64,7 +78,7 @@ def active() -> PhysicalModel:
         thesis_hidden=20,
         control_spacing_s=1.0,
     )
-    return PhysicalModel(_xml(True, spec.name), spec)
+    return _model(_xml(True, spec.name), spec)
 
 
 def force() -> PhysicalModel:
@@ -80,4 +94,32 @@ def force() -> PhysicalModel:
         ],
         force_spacing_s=1.0,
     )
-    return PhysicalModel(_xml(True, spec.name), spec)
+    return _model(_xml(True, spec.name), spec)
+
+
+# From hanging at rest, end 20 s later at a pose well to the side, at zero velocity. Holding the
+# pose would need a torque of about 9.8·(0.25 + 0.75 + 1.25)·sin(θ) ≈ 18 N·m at the base; the
+# motors give at most 2, so the pendulum must pump energy by swinging back and forth and arrive at
+# the top of a swing (the thesis' Fig. 6.8 problem).
+SWING = Task(
+    name="pendulum-swing",
+    model="pendulum-active",
+    summary=(
+        "Three-link pendulum (pendulum-active, torque limit 2 N·m per joint): from hanging at rest, "
+        "end at the target pose with zero velocity after 20 s. The torque is far too low to lift the "
+        "links there directly, so the controller must swing back and forth to gain momentum."
+    ),
+    labels=LABELS,
+    initial_state=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    target_state=(1.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    state_weights=(1.0, 1.0, 1.0, 1.0, 1.0, 1.0),
+    success=(
+        SuccessCheck(check="angle", variables=["angles.j0", "angles.j1", "angles.j2"], max=0.1),
+        SuccessCheck(check="abs", variables=["rates.j0", "rates.j1", "rates.j2"], max=0.1),
+    ),
+    initial_controls=(0.0, 0.0, 0.0),
+    mu_u=1e-4,
+    mu_s=1.0,
+    optimizer={"learning_rate": 2.0, "momentum": 0.5, "max_iterations": 100, "tolerance": 1e-6},
+)
+TASKS = (SWING,)

@@ -1,11 +1,19 @@
-"""The truck (thesis E.3): a planar block steered by a side force ahead of its centre."""
+"""The truck (thesis E.3): a planar block steered by a side force ahead of its centre, and its
+parking task (thesis 6.2)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.control.criteria import SuccessCheck
+from neuroanimator.control.spec import Task
 from neuroanimator.physics.spec import InitialStates, ModelSpec
+from neuroanimator.state import StateLayout
+
+if TYPE_CHECKING:
+    from neuroanimator.physics.model import PhysicalModel
 
 XML_PATH = Path(__file__).with_name("truck.xml")
 
@@ -24,7 +32,12 @@ LAYOUT = [
 ]
 
 
+LABELS = tuple(StateLayout.from_dict(LAYOUT).labels())
+
+
 def truck() -> PhysicalModel:
+    from neuroanimator.physics.model import PhysicalModel  # MuJoCo loads when a model is built
+
     spec = ModelSpec(
         name="truck",
         description="truck: planar block with gas and steering, strong sideways friction (thesis E.3)",
@@ -38,3 +51,27 @@ def truck() -> PhysicalModel:
         thesis_hidden=40,
     )
     return PhysicalModel(XML_PATH.read_text(), spec)
+
+
+PARKING = Task(
+    name="truck-parking",
+    model="truck",
+    summary=(
+        "Truck: from rest at the origin facing +x, park 20 m ahead and 10 m to the left, facing +y, "
+        "and stop there within 20 s."
+    ),
+    labels=LABELS,
+    initial_state=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    target_state=(20.0, 10.0, math.pi / 2, 0.0, 0.0, 0.0),
+    state_weights=(1.0, 1.0, 10.0, 10.0, 10.0, 10.0),
+    success=(
+        SuccessCheck(check="distance", variables=["position.x", "position.y"], max=1.0),
+        SuccessCheck(check="angle", variables=["heading"], max=math.radians(10.0)),
+        SuccessCheck(check="norm", variables=["velocity.x", "velocity.y"], max=0.3),
+    ),
+    initial_controls=(0.0, 0.0),
+    mu_u=1e-4,
+    mu_s=1.0,
+    optimizer={"learning_rate": 1.5, "momentum": 0.5, "max_iterations": 100, "tolerance": 1e-6},
+)
+TASKS = (PARKING,)

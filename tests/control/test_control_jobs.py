@@ -13,6 +13,7 @@ from typing import Any
 
 import pytest
 
+from neuroanimator import physics
 from neuroanimator.control import TASKS, JobSpec, JobSpecError, run_job, validate_job
 from neuroanimator.control.terms import ForwardDistanceTerm, StayWithinBoundsTerm
 from neuroanimator.controller_schemas import JobCreate, OptimizerSpec
@@ -320,6 +321,17 @@ def test_thesis_control_variable_counts() -> None:
     assert TASKS["lander-landing"].control_variables(4) == 80
     assert TASKS["truck-parking"].control_variables(2) == 40
     assert {t.optimizer["learning_rate"] for t in TASKS.values()} == {2.0, 1.5}
+
+
+def test_the_registry_collects_every_systems_tasks_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    from neuroanimator.control import tasks
+
+    assert list(tasks.collect()) == ["pendulum-swing", "lander-landing", "truck-parking"]
+    assert all(t in s.TASKS for s in physics.SYSTEMS for t in s.TASKS if t.name in TASKS)
+    pendulum = physics.SYSTEMS[0]
+    monkeypatch.setattr(physics, "SYSTEMS", (*physics.SYSTEMS, pendulum))
+    with pytest.raises(ValueError, match="task 'pendulum-swing' is defined twice"):
+        tasks.collect()
 
 
 def test_task_info_keeps_its_json_form() -> None:

@@ -14,7 +14,7 @@ import torch
 from neuroanimator.control import JobSpec
 from neuroanimator.control.jobs import validate_job
 from neuroanimator.control.objectives import Objective, StateDistance, control_scale
-from neuroanimator.control.tasks import LANDER_LABELS
+from neuroanimator.physics.lander import LABELS as LANDER_LABELS
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts"
 

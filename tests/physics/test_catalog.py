@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import mujoco
 import numpy as np
 import pytest
@@ -266,3 +270,27 @@ def test_simulate_names_the_bad_argument(
     model = physics.get("pendulum-active")
     with pytest.raises(physics.ModelError, match=match):
         model.simulate(np.zeros(states_shape), controls)
+
+
+TASK_NAMES = sorted(t.name for system in physics.SYSTEMS for t in system.TASKS)
+
+
+@pytest.mark.parametrize("name", TASK_NAMES)
+def test_tasks_live_beside_their_model_and_speak_its_layout(name: str) -> None:
+    """A task is defined in the module of its model's system, and its labels are that model's layout's."""
+    (system, task) = next((s, t) for s in physics.SYSTEMS for t in s.TASKS if t.name == name)
+    assert physics.CATALOG[task.model].__module__ == system.__name__
+    model = physics.get(task.model)
+    assert list(task.labels) == model.layout.labels()
+    assert len(task.initial_controls) == model.num_controls
+    assert all(set(check.variables) <= set(task.labels) for check in task.success)
+
+
+def test_the_catalog_lists_its_names_and_tasks_without_mujoco() -> None:
+    code = (
+        "import sys; from neuroanimator import physics; "
+        "assert [t.name for s in physics.SYSTEMS for t in s.TASKS]; assert physics.CATALOG; "
+        "assert 'mujoco' not in sys.modules, 'mujoco loaded'; "
+        "physics.get('truck'); assert 'mujoco' in sys.modules"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60, cwd=Path(__file__).parents[2])
