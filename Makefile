@@ -2,7 +2,8 @@
 PY ?= python3.11
 VENV ?= .venv
 BIN := $(VENV)/bin
-MODELS := pendulum-passive pendulum-active pendulum-force lander truck
+# the physics catalog's models, asked when a recipe needs them (after install made the venv)
+MODELS = $(shell $(BIN)/neuro models --catalog)
 
 .PHONY: install install-web web chromium test lint up train train-all eval bench clean
 
@@ -55,6 +56,7 @@ train: install
 # super-step is the hardest map to learn, so N^100 gets a wider network and more time (see BENCHMARKS.md).
 N100_OPTS ?= --hidden 128,128 --epochs 2000 --max-seconds 270
 train-all: install
+	@test -n "$(MODELS)" || { echo "neuro models --catalog listed no models" >&2; exit 1; }
 	for m in $(MODELS); do \
 	  $(BIN)/neuro train $$m --substeps 25 || exit 1; \
 	  $(BIN)/neuro train $$m --substeps 100 $(N100_OPTS) || exit 1; \

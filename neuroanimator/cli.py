@@ -204,6 +204,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------- models
 def cmd_models(args: argparse.Namespace) -> int:
+    if args.catalog:  # for scripts (the Makefile, the stack): the built-in names, one per line
+        _out("\n".join(physics.CATALOG))
+        return 0
     root = Path(args.artifacts)
     rows = []
     for name in physics.CATALOG:
@@ -301,6 +304,7 @@ def build_parser() -> argparse.ArgumentParser:
     ls = sub.add_parser("models", help="the catalog and what is trained")
     ls.add_argument("--artifacts", default="artifacts")
     ls.add_argument("--json", action="store_true")
+    ls.add_argument("--catalog", action="store_true", help="only the catalog's model names, one per line")
     ls.set_defaults(func=cmd_models)
     return p
 

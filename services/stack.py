@@ -39,7 +39,6 @@ from services.common import logs
 
 log = logging.getLogger("stack")
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_MODELS = ("pendulum-passive", "pendulum-active", "pendulum-force", "lander", "truck")
 
 
 class StackError(RuntimeError):
@@ -156,8 +155,10 @@ class Stack:
             log.info("using the Redis at %s", self.redis_url)
 
     def _train_missing(self) -> None:
+        from neuroanimator.physics import CATALOG  # the default emulators: one per catalog model
+
         root = self.config.artifacts_dir
-        missing = [m for m in DEFAULT_MODELS if not (root / m / "latest").is_file()]
+        missing = [m for m in CATALOG if not (root / m / "latest").is_file()]
         for model in missing:
             log.info("no emulator for %s in %s: training one (a few minutes)", model, root)
             neuro = [self.config.python, "-m", "neuroanimator.cli", "train", model, "--substeps", "50"]

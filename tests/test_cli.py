@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from conftest import ARM_XML, Trained
 
-from neuroanimator import artifacts
+from neuroanimator import artifacts, physics
 from neuroanimator.cli import main
 
 
@@ -187,6 +187,12 @@ def test_models_lists_catalog_and_user_models(user_train: CliRun, capsys: pytest
     assert {"pendulum-passive", "pendulum-active", "pendulum-force", "lander", "truck"} <= rows.keys()
     assert rows["myarm"] == "10"
     assert rows["lander"] is None
+
+
+def test_models_catalog_prints_only_the_catalog_names(capsys: pytest.CaptureFixture[str]) -> None:
+    """What the Makefile and the stack read: one catalog name per line, nothing else."""
+    assert main(["models", "--catalog"]) == 0
+    assert capsys.readouterr().out.splitlines() == list(physics.CATALOG)
 
 
 # ---------------------------------------------------------------------------- bad input
