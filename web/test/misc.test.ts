@@ -1,5 +1,6 @@
 import { describe, expect, it } from 'vitest';
 import { absolute, wsUrl } from '../src/config';
+import { controlVariables, defaultTask, type TaskInfo } from '../src/api/controller';
 import { describeFailure, unreachable } from '../src/api/http';
 import { curvesOf } from '../src/api/measurements';
 import { finiteRows } from '../src/pages/replay';
@@ -51,5 +52,27 @@ describe('plot helpers', () => {
     expect(extent([3, NaN, -1, Infinity])).toEqual([-1, 3]);
     expect(extent([0, -2, 5], true)).toEqual([5, 5]);
     expect(extent([])).toBeNull();
+  });
+});
+
+describe('defaults from what the services list', () => {
+  // as GET /tasks lists the built-in tasks (only the fields the choice reads)
+  const tasks: TaskInfo[] = [
+    { name: 'pendulum-swing', model: 'pendulum-active', horizon: 40, points_per_step: 0.5, initial_controls: [0, 0, 0] },
+    { name: 'lander-landing', model: 'lander', horizon: 40, points_per_step: 0.5, initial_controls: [16.2, 0, 0, 0] },
+    { name: 'truck-parking', model: 'truck', horizon: 40, points_per_step: 0.5, initial_controls: [0, 0] },
+  ];
+
+  it('counts the control variables of a task (thesis 6.2: 60, 80 and 40)', () => {
+    expect(tasks.map(controlVariables)).toEqual([60, 80, 40]);
+    expect(controlVariables({ name: 'bare' })).toBe(Infinity);
+  });
+
+  it('opens the task asked for, else the smallest problem, else the first listed', () => {
+    expect(defaultTask(tasks, 'lander-landing')?.name).toBe('lander-landing');
+    expect(defaultTask(tasks, null)?.name).toBe('truck-parking');
+    expect(defaultTask(tasks, 'no-such-task')?.name).toBe('truck-parking');
+    expect(defaultTask([{ name: 'a' }, { name: 'b' }], null)?.name).toBe('a');
+    expect(defaultTask([], null)).toBeUndefined();
   });
 });

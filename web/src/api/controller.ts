@@ -20,8 +20,28 @@ export interface TaskInfo extends TaskInfoWire {
   model?: string;
   description?: string;
   horizon?: number;
+  points_per_step?: number;
   initial_state?: number[];
   target_state?: number[];
+  initial_controls?: number[];
+}
+
+/** Control variables a task optimises: its points per control (round(horizon · points per step)) times
+ * its controls; Infinity when the task does not say. */
+export function controlVariables(task: TaskInfo): number {
+  const { horizon, points_per_step: perStep, initial_controls: controls } = task;
+  if (horizon === undefined || perStep === undefined || !controls?.length) return Infinity;
+  return Math.max(1, Math.round(horizon * perStep)) * controls.length;
+}
+
+/** The task a page opens with: the one asked for by name, else the smallest problem the service
+ * lists (fewest control variables: the job that finishes first), else the first listed. */
+export function defaultTask(tasks: TaskInfo[], wanted: string | null): TaskInfo | undefined {
+  const asked = tasks.find((t) => t.name === wanted);
+  if (asked) return asked;
+  let best = tasks[0];
+  for (const t of tasks) if (best && controlVariables(t) < controlVariables(best)) best = t;
+  return best;
 }
 
 export class ControllerApi {

@@ -2,7 +2,7 @@
 // it), submit the job, watch the objective fall iteration by iteration (server-sent events), then
 // replay the controller on the emulator and on MuJoCo side by side.
 import * as THREE from 'three';
-import { FINAL_STATES, type JobStatus, type ProgressEvent, type TaskInfo } from '../api/controller';
+import { FINAL_STATES, defaultTask, type JobStatus, type ProgressEvent, type TaskInfo } from '../api/controller';
 import type { ModelDetail, ModelGeometry } from '../api/emulator.gen';
 import { errorText } from '../api/http';
 import { ModelView } from '../scene/model';
@@ -332,7 +332,7 @@ export const controllersPage: Page = (root, ctx) => {
       if (!alive) return;
       taskSelect.append(...tasks.map((t) => h('option', { value: t.name }, `${t.name}${t.model ? ` (${t.model})` : ''}`)));
       const want = new URLSearchParams(location.hash.split('?')[1] ?? '').get('task');
-      const pick = tasks.find((t) => t.name === want) ?? tasks.find((t) => t.model === 'truck') ?? tasks[0];
+      const pick = defaultTask(tasks, want);
       if (pick) {
         taskSelect.value = pick.name;
         await selectTask(pick.name);

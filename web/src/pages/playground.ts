@@ -114,9 +114,10 @@ export const playgroundPage: Page = (root, ctx) => {
     try {
       const { models } = await ctx.emulator.models();
       select.append(...models.map((m) => h('option', { value: m.model }, m.model)));
+      // the model the URL asks for, else the first one the emulator service lists
       const want = new URLSearchParams(location.hash.split('?')[1] ?? '').get('model');
-      if (want && models.some((m) => m.model === want)) select.value = want;
-      else if (models.some((m) => m.model === 'lander')) select.value = 'lander';
+      const pick = models.find((m) => m.model === want) ?? models[0];
+      if (pick) select.value = pick.model;
     } catch (e) {
       notify(`Cannot list the models. ${errorText(e)}`, 'error', 'playground');
     }
