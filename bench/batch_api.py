@@ -135,11 +135,12 @@ def rollout(
     max_s: float,
 ) -> dict[str, Any]:
     """MuJoCo stepping the same sessions under the same held controls, super-step by super-step."""
-    from neuroanimator.artifacts import load_physical_model
+    from neuroanimator import registry
 
-    path = artifacts / model / version
-    physical = load_physical_model(path)
-    n = int(json.loads((path / "manifest.json").read_text())["substeps"])
+    path = registry.resolve(artifacts, model, version)
+    manifest = registry.read_manifest(path)
+    physical = registry.load_physical_model(path, manifest)
+    n = manifest.substeps
     x = states.copy()
     controls = u[:, None, :].astype(np.float64)
     physical.simulate(x[:8], controls[:8], nstep=n, threads=threads)  # warm-up

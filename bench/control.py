@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from neuroanimator import artifacts
+from neuroanimator import registry
 from neuroanimator.control import TASKS, JobSpec, run_job, validate_job
 from neuroanimator.control.gradient_free import Trace, cma_es, nelder_mead
 from neuroanimator.control.runner import load_problem
@@ -151,7 +151,7 @@ def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
     target = float(res.objective_physics if res.objective_physics is not None else np.inf)
 
     problem, _, path = load_problem(spec, root)
-    physical = artifacts.load_physical_model(path)
+    physical = registry.load_physical_model(path)
     shape = problem.initial_points().shape
     low = np.broadcast_to(problem.z_low, shape).ravel()
     high = np.broadcast_to(problem.z_high, shape).ravel()

@@ -1,45 +1,46 @@
-"""The artifact registry: ``<root>/<model>/<version>/`` folders, written atomically.
+"""The artifact registry, write side (and the torch emulator of an artifact): needs torch.
 
-A version folder holds ``emulator.onnx`` (the whole step), ``weights.pt`` (the torch emulator's
-state dict), ``linear_baseline.npy``, ``model.xml`` (the MJCF it was trained on) and
-``manifest.json``. Pointer files name the current versions: ``latest`` (the model's default
-super-step, or the first trained) and ``latest-n<N>`` for each super-step N. A version folder is
-renamed into place only when complete, and pointers are replaced atomically, so a crash never
-leaves a half-written version marked latest.
+``save`` writes a trained emulator as a new version folder (the files and pointers described in
+``neuroanimator.registry``, which finds and reads them). A version folder is renamed into place only
+when complete, and pointers are replaced atomically, so a crash never leaves a half-written version
+marked latest. ``load_torch`` rebuilds the torch emulator of a version (the same weights as its ONNX
+graph) for the processes that differentiate through it.
 """
 
 from __future__ import annotations
 
 import datetime as dt
 import hashlib
-import json
 import os
-import re
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 
+from neuroanimator import registry
 from neuroanimator.export import to_onnx
+from neuroanimator.manifest import (
+    ControlInput,
+    EmulatorGraph,
+    GraphInput,
+    GraphIO,
+    Hashes,
+    InputGroup,
+    Manifest,
+    Network,
+    NetworkFrame,
+    NetworkReads,
+    Normalization,
+    Symmetries,
+    TrainMetrics,
+)
 from neuroanimator.physics.model import ModelError, PhysicalModel
-from neuroanimator.physics.spec import ModelSpec
 from neuroanimator.structured import FrameConfig, StructuredEmulator
 from neuroanimator.training import TrainResult
 
-FORMAT = 1
-DEFAULT_ROOT = Path("artifacts")
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
-
-
-class ArtifactError(LookupError):
-    """An artifact that does not exist or cannot be read; the message says which."""
-
-
-def _sha256(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
+CORE = "core"  # the network of a one-network emulator (StructuredEmulator.core)
 
 
 def _write_pointer(path: Path, version: str) -> None:
@@ -49,135 +50,126 @@ def _write_pointer(path: Path, version: str) -> None:
     os.replace(tmp, path)
 
 
+def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -> Network:
+    """The manifest's description of a one-network emulator: ``core`` in the root frame, writing every
+    state group; ``mode`` is the normalisation mode it was fitted with."""
+    read = {name for name, _ in emu.input_groups}
+    fr = emu.frame
+    return Network(
+        name=CORE,
+        frame=NetworkFrame(
+            translate=list(fr.translate), rotate=fr.rotate, force_pairs=[list(p) for p in fr.force_pairs]
+        ),
+        reads=NetworkReads(
+            state=[g.name for g in model.layout if g.name in read],
+            controls=list(model.control_names) if "controls" in read else [],
+            forces=list(model.force_names) if "forces" in read else [],
+        ),
+        writes=[g.name for g in model.layout],
+        hidden=list(emu.hidden),
+        activation=emu.activation,  # checked by the manifest
+        normalization=Normalization(
+            mode=mode,  # checked by the manifest
+            input_groups=[InputGroup(name=name, size=size) for name, size in emu.input_groups],
+            x_mean=emu.x_mean.tolist(),
+            x_std=emu.x_std.tolist(),
+            y_mean=emu.y_mean.tolist(),
+            y_std=emu.y_std.tolist(),
+        ),
+        input_size=emu.input_size,
+        output_size=model.state_size,
+        weights=sum(p.numel() for p in emu.core.parameters()),
+    )
+
+
+def build_manifest(
+    model: PhysicalModel, result: TrainResult, version: str, onnx_sha256: str, created: dt.datetime
+) -> Manifest:
+    """The manifest of a trained emulator of ``model`` saved as ``version``."""
+    cfg = result.config
+    inputs: list[GraphInput] = ["state"]
+    inputs += ["controls"] if model.num_controls else []
+    inputs += ["forces"] if model.num_forces else []
+    return Manifest(
+        model=model.name,
+        version=version,
+        created=created.isoformat(timespec="seconds"),
+        substeps=cfg.substeps,
+        timestep=model.dt,
+        super_timestep=model.dt * cfg.substeps,
+        description=model.spec.description,
+        state_size=model.state_size,
+        layout=model.layout.placed(),
+        state_labels=model.layout.labels(),
+        controls=[
+            ControlInput(name=n, low=float(lo), high=float(hi), limit_low=float(a), limit_high=float(b))
+            for n, (lo, hi), (a, b) in zip(
+                model.control_names, model.control_range, model.control_limits, strict=True
+            )
+        ],
+        forces=list(model.spec.forces),
+        frame=Symmetries(translate=list(model.frame.translate), rotate=model.frame.rotate),
+        io=GraphIO(inputs=inputs),
+        emulator=EmulatorGraph(
+            networks=[describe_network(result.emulator, model, cfg.normalization)], stages=[[CORE]]
+        ),
+        train_config=cfg,
+        metrics=TrainMetrics(**result.metrics),
+        hashes=Hashes(
+            mjcf_sha256=model.mjcf_sha256(),
+            training_data_sha256=result.data_sha256,
+            onnx_sha256=onnx_sha256,
+        ),
+        spec=model.spec,
+    )
+
+
 def save(root: Path, model: PhysicalModel, result: TrainResult) -> Path:
     """Write a trained emulator as a new version of ``model``; returns the version folder."""
-    if not _NAME.match(model.name):
+    if not registry.is_name(model.name):
         raise ModelError(
             f"model name {model.name!r} cannot name a folder: use letters, digits, '.', '_' or '-'"
         )
-    emu, cfg = result.emulator, result.config
+    substeps = result.config.substeps
     model_dir = root / model.name
     model_dir.mkdir(parents=True, exist_ok=True)
-    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S")
-    version = f"n{cfg.substeps}-{stamp}"
-    k = 1
-    while (model_dir / version).exists():
-        k += 1
-        version = f"n{cfg.substeps}-{stamp}-{k}"
-    onnx_bytes = to_onnx(emu)
-    manifest: dict[str, Any] = {
-        "format": FORMAT,
-        "model": model.name,
-        "version": version,
-        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        "substeps": cfg.substeps,
-        "timestep": model.dt,
-        "super_timestep": model.dt * cfg.substeps,
-        **{k: v for k, v in model.describe().items() if k not in ("name", "timestep")},
-        "io": {
-            "inputs": ["state"]
-            + (["controls"] if model.num_controls else [])
-            + (["forces"] if model.num_forces else []),
-            "output": "next_state",
-        },
-        "normalization": {
-            "mode": cfg.normalization,
-            "input_groups": [list(g) for g in emu.input_groups],
-            "x_mean": emu.x_mean.tolist(),
-            "x_std": emu.x_std.tolist(),
-            "y_mean": emu.y_mean.tolist(),
-            "y_std": emu.y_std.tolist(),
-        },
-        "architecture": emu.architecture(),
-        "train_config": cfg.to_dict(),
-        "metrics": result.metrics,
-        "hashes": {
-            "mjcf_sha256": model.mjcf_sha256(),
-            "training_data_sha256": result.data_sha256,
-            "onnx_sha256": _sha256(onnx_bytes),
-        },
-        "spec": model.spec.model_dump(),
-    }
+    now = dt.datetime.now(dt.UTC)
+    repeat = 1
+    while (model_dir / registry.version_name(substeps, now, repeat)).exists():
+        repeat += 1
+    version = registry.version_name(substeps, now, repeat)
+    onnx_bytes = to_onnx(result.emulator)
+    manifest = build_manifest(model, result, version, hashlib.sha256(onnx_bytes).hexdigest(), now)
     tmp = Path(tempfile.mkdtemp(dir=model_dir, prefix=f".tmp-{version}-"))
     try:
-        (tmp / "emulator.onnx").write_bytes(onnx_bytes)
-        torch.save(emu.state_dict(), tmp / "weights.pt")
-        np.save(tmp / "linear_baseline.npy", result.linear)
-        (tmp / "model.xml").write_text(model.xml)
-        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+        (tmp / registry.ONNX_FILE).write_bytes(onnx_bytes)
+        torch.save(result.emulator.state_dict(), tmp / registry.WEIGHTS_FILE)
+        np.save(tmp / registry.LINEAR_FILE, result.linear)
+        (tmp / registry.MJCF_FILE).write_text(model.xml)
+        (tmp / registry.MANIFEST_FILE).write_text(manifest.model_dump_json(indent=2) + "\n")
         os.rename(tmp, model_dir / version)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    _write_pointer(model_dir / f"latest-n{cfg.substeps}", version)
-    if cfg.substeps == model.spec.substeps or not (model_dir / "latest").exists():
-        _write_pointer(model_dir / "latest", version)
+    _write_pointer(model_dir / registry.pointer_name(substeps), version)
+    if substeps == model.spec.substeps or not (model_dir / registry.pointer_name()).exists():
+        _write_pointer(model_dir / registry.pointer_name(), version)
     return model_dir / version
 
 
-def resolve(root: Path, model: str, version: str | None = None, substeps: int | None = None) -> Path:
-    """The folder of a model's version: the named one, else the latest for ``substeps``, else ``latest``."""
-    model_dir = root / model
-    if not model_dir.is_dir():
-        known = list_models(root)
-        raise ArtifactError(f"no artifacts for model {model!r} in {str(root)!r}; found {known}")
-    if version is None:
-        ptr = model_dir / ("latest" if substeps is None else f"latest-n{substeps}")
-        if not ptr.is_file():
-            what = "a latest version" if substeps is None else f"a version with substeps={substeps}"
-            raise ArtifactError(f"model {model!r} has no {what} in {str(root)!r}")
-        version = ptr.read_text().strip()
-    path = model_dir / version
-    if not (path / "manifest.json").is_file():
-        raise ArtifactError(f"model {model!r} has no version {version!r} in {str(root)!r}")
-    return path
-
-
-def list_models(root: Path) -> list[str]:
-    if not root.is_dir():
-        return []
-    return sorted(p.name for p in root.iterdir() if p.is_dir() and (p / "latest").is_file())
-
-
-def available_substeps(root: Path, model: str) -> list[int]:
-    model_dir = root / model
-    out = []
-    for p in model_dir.glob("latest-n*"):
-        m = re.fullmatch(r"latest-n(\d+)", p.name)
-        if m:
-            out.append(int(m.group(1)))
-    return sorted(out)
-
-
-def load_manifest(path: Path) -> dict[str, Any]:
-    try:
-        data: dict[str, Any] = json.loads((path / "manifest.json").read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ArtifactError(f"cannot read the manifest of {str(path)!r}: {exc}") from exc
-    if data.get("format") != FORMAT:
-        raise ArtifactError(f"{str(path)!r}: manifest format {data.get('format')!r}, expected {FORMAT}")
-    return data
-
-
-def load_physical_model(path: Path) -> PhysicalModel:
-    """Rebuild the physical model an artifact was trained on, from the artifact alone."""
-    manifest = load_manifest(path)
-    return PhysicalModel((path / "model.xml").read_text(), ModelSpec(**manifest["spec"]))
-
-
 def load_torch(path: Path) -> StructuredEmulator:
-    """The torch emulator of an artifact (same weights as its ONNX graph)."""
-    manifest = load_manifest(path)
-    model = load_physical_model(path)
-    arch = manifest["architecture"]
-    fr = arch["frame"]
+    """The torch emulator of an artifact (same weights as its ONNX graph); one-network emulators only."""
+    manifest = registry.read_manifest(path)
+    model = registry.load_physical_model(path, manifest)
+    net = manifest.emulator.only()
+    fr = net.frame
     emu = StructuredEmulator(
         model.layout,
         model.num_controls,
         model.num_forces,
-        FrameConfig(tuple(fr["translate"]), bool(fr["rotate"]), tuple(tuple(p) for p in fr["force_pairs"])),
-        tuple(arch["hidden"]),
-        arch["activation"],
+        FrameConfig(tuple(fr.translate), fr.rotate, tuple((p[0], p[1]) for p in fr.force_pairs)),
+        tuple(net.hidden),
+        net.activation,
     )
-    emu.load_state_dict(torch.load(path / "weights.pt", weights_only=True))
+    emu.load_state_dict(torch.load(path / registry.WEIGHTS_FILE, weights_only=True))
     return emu.eval()

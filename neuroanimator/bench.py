@@ -13,13 +13,13 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from neuroanimator import artifacts
+from neuroanimator import registry
 from neuroanimator.export import OnnxEmulator
 from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.results import BatchedSpeed, ModelBench, SingleClientSpeed
 
 SINGLE_STEPS = 20_000
 BATCH_SECONDS = 20.0
@@ -46,12 +46,12 @@ def _inputs(
     return s0, u, f
 
 
-def single(path: Path, model: PhysicalModel, substeps: int, repeats: int = 3) -> dict[str, float]:
+def single(path: Path, model: PhysicalModel, substeps: int, repeats: int = 3) -> SingleClientSpeed:
     s0, u, f = _inputs(model, 1, SINGLE_STEPS, substeps)
     u_phys = np.repeat(u, substeps, axis=1)
     f_phys = np.repeat(f, substeps, axis=1) if model.num_forces else None
     physics = _best_time(lambda: model.simulate(s0, u_phys, f_phys, threads=1), repeats)
-    emu = OnnxEmulator(path / "emulator.onnx", threads=1)
+    emu = OnnxEmulator(path / registry.ONNX_FILE, threads=1)
     s32 = s0.astype(np.float32)
     u32 = np.ascontiguousarray(u.astype(np.float32))
     f32 = np.ascontiguousarray(f.astype(np.float32))
@@ -69,12 +69,12 @@ def single(path: Path, model: PhysicalModel, substeps: int, repeats: int = 3) ->
 
     run()  # warm-up
     emulator = _best_time(run, repeats)
-    return {"substeps": substeps, "physics_s": physics, "emulator_s": emulator, "ratio": physics / emulator}
+    return SingleClientSpeed(
+        substeps=substeps, version=path.name, physics_s=physics, emulator_s=emulator, ratio=physics / emulator
+    )
 
 
-def batched(
-    path: Path, model: PhysicalModel, substeps: int, batch: int, repeats: int = 2
-) -> dict[str, float]:
+def batched(path: Path, model: PhysicalModel, substeps: int, batch: int, repeats: int = 2) -> BatchedSpeed:
     steps = round(BATCH_SECONDS / model.dt)
     s0, u, f = _inputs(model, batch, steps, substeps)
     u_phys = np.repeat(u, substeps, axis=1)
@@ -82,7 +82,7 @@ def batched(
     physics = _best_time(
         lambda: model.simulate(s0, u_phys, f_phys, threads=2), 1 if batch >= 1024 else repeats
     )
-    emu = OnnxEmulator(path / "emulator.onnx", threads=2)
+    emu = OnnxEmulator(path / registry.ONNX_FILE, threads=2)
     s32 = s0.astype(np.float32)
     u32 = np.ascontiguousarray(u.astype(np.float32).transpose(1, 0, 2))  # (M, B, U): one slab per call
     f32 = np.ascontiguousarray(f.astype(np.float32).transpose(1, 0, 2))
@@ -98,27 +98,28 @@ def batched(
     run()
     emulator = _best_time(run, repeats + 1)
     covered = batch * steps
-    return {
-        "batch": batch,
-        "physics_steps_per_s": covered / physics,
-        "emulator_steps_per_s": covered / emulator,
-        "ratio": physics / emulator,
-    }
+    return BatchedSpeed(
+        batch=batch,
+        physics_steps_per_s=covered / physics,
+        emulator_steps_per_s=covered / emulator,
+        ratio=physics / emulator,
+    )
 
 
-def run(root: Path, name: str, batches: tuple[int, ...] = BATCHES, repeats: int = 3) -> dict[str, Any]:
-    """The whole benchmark for one model: single client for every trained n, batched for n = 50."""
-    ns = artifacts.available_substeps(root, name)
-    if not ns:
-        raise artifacts.ArtifactError(f"no artifacts for model {name!r} in {str(root)!r}")
-    latest = artifacts.resolve(root, name)
-    model = artifacts.load_physical_model(latest)
-    out: dict[str, Any] = {"model": name, "single": [], "batched": []}
-    for n in ns:
-        out["single"].append(single(artifacts.resolve(root, name, substeps=n), model, n, repeats))
-    n_batched = 50 if 50 in ns else int(artifacts.load_manifest(latest)["substeps"])
-    path = artifacts.resolve(root, name, substeps=n_batched)
-    out["batched_substeps"] = n_batched
-    for b in batches:
-        out["batched"].append(batched(path, model, n_batched, b, repeats=min(repeats, 2)))
-    return out
+def run(root: Path, name: str, batches: tuple[int, ...] = BATCHES, repeats: int = 3) -> ModelBench:
+    """The whole benchmark for one model: single client for every trained n, batched for n = 50
+    (else the latest's n)."""
+    latest = registry.resolve(root, name)
+    manifest = registry.read_manifest(latest)
+    model = registry.load_physical_model(latest, manifest)
+    ns = registry.available_substeps(root, name)
+    single_rows = [single(registry.resolve(root, name, substeps=n), model, n, repeats) for n in ns]
+    n_batched = 50 if 50 in ns else manifest.substeps
+    path = registry.resolve(root, name, substeps=n_batched)
+    return ModelBench(
+        model=name,
+        single=single_rows,
+        batched=[batched(path, model, n_batched, b, repeats=min(repeats, 2)) for b in batches],
+        batched_substeps=n_batched,
+        batched_version=path.name,
+    )

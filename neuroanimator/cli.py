@@ -15,10 +15,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from neuroanimator import artifacts, physics
+from neuroanimator import physics, registry
 from neuroanimator.physics.mjcf import load_mjcf
 from neuroanimator.physics.model import ModelError, PhysicalModel
-from neuroanimator.training import TrainConfig, TrainingDiverged
+from neuroanimator.results import NetworkSize, VersionEval, split_bench, summarize_eval
+from neuroanimator.train_config import TrainConfig
 
 log = logging.getLogger("neuroanimator")
 
@@ -66,9 +67,15 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.max_seconds = args.max_seconds
     if args.epochs is not None:
         cfg.max_epochs = args.epochs
-    from neuroanimator.training import train  # torch loads only for commands that need it
+    # torch loads only for the commands that need it
+    from neuroanimator import artifacts
+    from neuroanimator.training import TrainingDiverged, train
 
-    result = train(model, cfg)
+    try:
+        result = train(model, cfg)
+    except TrainingDiverged as exc:
+        log.error("%s", exc)
+        return 2
     path = artifacts.save(Path(args.out), model, result)
     m = result.metrics
     _out(
@@ -86,83 +93,62 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from neuroanimator import evaluation
 
     root = Path(args.artifacts)
-    ns = [args.substeps] if args.substeps else artifacts.available_substeps(root, args.model)
-    if not ns:
-        raise artifacts.ArtifactError(f"no artifacts for model {args.model!r} in {str(root)!r}")
-    results, curves = [], {}
+    latest = registry.read_manifest(registry.resolve(root, args.model))
+    ns = [args.substeps] if args.substeps else registry.available_substeps(root, args.model)
+    rows: list[VersionEval] = []
     for n in ns:
-        path = artifacts.resolve(root, args.model, substeps=n)
-        manifest = artifacts.load_manifest(path)
-        model = artifacts.load_physical_model(path)
+        path = registry.resolve(root, args.model, substeps=n)
+        manifest = registry.read_manifest(path)
+        model = registry.load_physical_model(path, manifest)
         errs = evaluation.one_step_errors(path, model, manifest)
         curve = evaluation.rollout_curve(path, model, n, trials=args.trials, steps=args.steps)
-        curves[n] = curve
-        results.append(
-            {
-                "model": args.model,
-                "substeps": n,
-                "version": manifest["version"],
+        net = manifest.emulator.only()
+        rows.append(
+            VersionEval(
+                model=args.model,
+                version=manifest.version,
+                substeps=n,
                 **errs,
-                "baseline_ratio": errs["linear_baseline_rel_error"] / max(errs["one_step_rel_error"], 1e-12),
-                "rollout_error_curve": {"t": curve.t, "error": curve.error},
-                "rollout_error_at_20s": curve.at(20.0),
-                "rollout_error_final": curve.error[-1],
-                "architecture": {k: manifest["architecture"][k] for k in ("hidden", "activation", "weights")},
-                "train_seconds": manifest["metrics"].get("total_seconds"),
-            }
+                baseline_ratio=errs["linear_baseline_rel_error"] / max(errs["one_step_rel_error"], 1e-12),
+                rollout_error_curve=curve,
+                rollout_error_at_20s=curve.at(20.0),
+                rollout_error_final=curve.error[-1],
+                architecture=NetworkSize(hidden=net.hidden, activation=net.activation, weights=net.weights),
+                train_seconds=manifest.metrics.total_seconds,
+            )
         )
-    plot = Path(args.plot) if args.plot else root / args.model / "rollout_error.png"
-    evaluation.plot_curves(curves, f"{args.model}: rollout error vs MuJoCo ({args.trials} trials)", plot)
+    plot = Path(args.plot) if args.plot else root / args.model / registry.PLOT_FILE
+    evaluation.plot_curves(
+        {r.substeps: r.rollout_error_curve for r in rows},
+        f"{args.model}: rollout error vs MuJoCo ({args.trials} trials)",
+        plot,
+    )
     _out(
         _table(
-            results,
+            [r.model_dump() for r in rows],
             [
                 ("substeps", "n", "d"),
                 ("one_step_rel_error", "one-step rel err", ".5f"),
                 ("linear_baseline_rel_error", "linear baseline", ".4f"),
                 ("baseline_ratio", "ratio", ".0f"),
                 ("rollout_error_at_20s", "rollout err @20s", ".4f"),
-                ("rollout_error_final", f"@{args.steps * physics_dt(results, root, args.model):.0f}s", ".4f"),
+                ("rollout_error_final", f"@{args.steps * latest.timestep:.0f}s", ".4f"),
             ],
         )
     )
-    primary = next((r for r in results if r["substeps"] == (args.substeps or 50)), results[-1])
-    spec_hidden = (
-        artifacts.load_manifest(artifacts.resolve(root, args.model)).get("spec", {}).get("thesis_hidden")
-    )
-    summary: dict[str, Any] = {
-        **primary,
-        "thesis_preset": {"hidden": [spec_hidden] if spec_hidden else None, "activation": "sigmoid"},
-        "by_substeps": [{k: v for k, v in r.items() if k != "model"} for r in results],
-        "plot": str(plot),
-    }
-    if 25 in curves and 100 in curves:
-        # thesis 6.1.2: predicting further means fewer iterations, so the error does not grow with n
-        ratios = n100_vs_n25(curves[25], curves[100])
-        summary.update(ratios)
+    summary = summarize_eval(rows, latest.spec.thesis_hidden, args.substeps, str(plot))
+    if summary.n100_vs_n25_at_20s is not None:
         _out(
-            f"N^100 / N^25 rollout error: {ratios['n100_vs_n25_at_20s']:.2f} at 20 s, "
-            f"at most {ratios['n100_vs_n25_max']:.2f} over matching times from 5 s on"
+            f"N^100 / N^25 rollout error: {summary.n100_vs_n25_at_20s:.2f} at 20 s, "
+            f"at most {summary.n100_vs_n25_max:.2f} over matching times from 5 s on"
         )
     _out(f"plot: {plot}")
+    if args.save:
+        for r in rows:
+            _out(f"saved {registry.write_eval(root, r)}")
     if args.json:
-        _out(json.dumps(summary))
+        _out(summary.model_dump_json())
     return 0
-
-
-def n100_vs_n25(c25: Any, c100: Any) -> dict[str, float]:
-    """Ratio of N^100's to N^25's rollout error at the times both reach (every 4th N^25 step)."""
-    common = [t for t in c100.t if t >= 5.0 and t <= c25.t[-1]]
-    ratios = [c100.at(t) / max(c25.at(t), 1e-12) for t in common]
-    return {
-        "n100_vs_n25_at_20s": c100.at(20.0) / max(c25.at(20.0), 1e-12),
-        "n100_vs_n25_max": max(ratios) if ratios else float("nan"),
-        "n100_vs_n25_mean": float(sum(ratios) / len(ratios)) if ratios else float("nan"),
-    }
-
-
-def physics_dt(results: list[dict[str, Any]], root: Path, name: str) -> float:
-    return float(artifacts.load_manifest(artifacts.resolve(root, name))["timestep"])
 
 
 # ---------------------------------------------------------------------------- bench
@@ -170,11 +156,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from neuroanimator import bench
 
     batches = tuple(int(b) for b in args.batches.split(",")) if args.batches else bench.BATCHES
-    res = bench.run(Path(args.artifacts), args.model, batches, repeats=args.repeats)
+    root = Path(args.artifacts)
+    res = bench.run(root, args.model, batches, repeats=args.repeats)
     _out(f"{args.model}: single client, {bench.SINGLE_STEPS} physical steps (thesis Table 6.2)")
     _out(
         _table(
-            res["single"],
+            [r.model_dump() for r in res.single],
             [
                 ("substeps", "n", "d"),
                 ("physics_s", "MuJoCo s", ".4f"),
@@ -184,11 +171,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
         )
     )
     _out(
-        f"\n{args.model}: batched, {bench.BATCH_SECONDS:.0f} s simulated per client, n={res['batched_substeps']}"
+        f"\n{args.model}: batched, {bench.BATCH_SECONDS:.0f} s simulated per client, n={res.batched_substeps}"
     )
     _out(
         _table(
-            res["batched"],
+            [r.model_dump() for r in res.batched],
             [
                 ("batch", "B", "d"),
                 ("physics_steps_per_s", "mujoco.rollout steps/s", ".3g"),
@@ -197,8 +184,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
             ],
         )
     )
+    if args.save:
+        for record in split_bench(res):
+            _out(f"saved {registry.write_bench(root, record)}")
     if args.json:
-        _out(json.dumps(res))
+        _out(res.model_dump_json())
     return 0
 
 
@@ -211,12 +201,12 @@ def cmd_models(args: argparse.Namespace) -> int:
     rows = []
     for name in physics.CATALOG:
         rows.append(
-            {"model": name, "trained": ",".join(map(str, artifacts.available_substeps(root, name))) or None}
+            {"model": name, "trained": ",".join(map(str, registry.available_substeps(root, name))) or None}
         )
-    for name in artifacts.list_models(root):
+    for name in registry.list_models(root):
         if name not in physics.CATALOG:
             rows.append(
-                {"model": name, "trained": ",".join(map(str, artifacts.available_substeps(root, name)))}
+                {"model": name, "trained": ",".join(map(str, registry.available_substeps(root, name)))}
             )
     _out(_table(rows, [("model", "model", "s"), ("trained", "trained n", "s")]))
     if args.json:
@@ -226,8 +216,8 @@ def cmd_models(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------- worker
 def cmd_worker(args: argparse.Namespace) -> int:
-    # This process has imported torch (through neuroanimator.artifacts), and a worker must not fork
-    # after torch started its thread pools: replace it with a fresh interpreter running the worker.
+    # A worker must not fork after torch started its thread pools: run it in a fresh interpreter, whatever
+    # this process has imported.
     argv = [sys.executable, "-m", "services.controller.worker"]
     argv += ["--burst"] if args.burst else []
     argv += ["--name", args.name] if args.name else []
@@ -281,6 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--trials", type=_positive_int, default=30)
     e.add_argument("--steps", type=_positive_int, default=6000, help="physical steps per trial")
     e.add_argument("--plot", help="PNG path (default: <artifacts>/<model>/rollout_error.png)")
+    e.add_argument(
+        "--save", action="store_true", help="store each version's results in its folder (eval.json)"
+    )
     e.add_argument("--json", action="store_true")
     e.set_defaults(func=cmd_eval)
 
@@ -289,6 +282,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--artifacts", default="artifacts")
     b.add_argument("--batches", help="comma-separated batch sizes (default 1,64,1024,4096)")
     b.add_argument("--repeats", type=_positive_int, default=3)
+    b.add_argument(
+        "--save", action="store_true", help="store each version's results in its folder (bench.json)"
+    )
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
 
@@ -318,7 +314,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     try:
         return int(args.func(args))
-    except (ModelError, artifacts.ArtifactError, TrainingDiverged, ValueError) as exc:
+    except (ModelError, registry.ArtifactError, ValueError) as exc:
         log.error("%s", exc)
         return 2
 

@@ -5,43 +5,33 @@ curves (thesis Fig. 6.6), all from the artifact alone (its ONNX graph, weights a
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from neuroanimator import artifacts, sampling
+from neuroanimator import artifacts, registry, sampling
 from neuroanimator.export import OnnxEmulator
+from neuroanimator.manifest import Manifest
 from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.results import RolloutCurve
 from neuroanimator.training import apply_linear, held_out_seed, relative_error, to_tensors
 
 log = logging.getLogger(__name__)
 EVAL_SEED = 20_000  # rollout trials use the same initial states and control functions for every n
 
 
-@dataclass
-class RolloutCurve:
-    t: list[float]
-    error: list[float]
-
-    def at(self, seconds: float) -> float:
-        return float(np.interp(seconds, self.t, self.error))
-
-
 def one_step_errors(
-    path: Path, model: PhysicalModel, manifest: dict[str, Any], count: int | None = None
+    path: Path, model: PhysicalModel, manifest: Manifest, count: int | None = None
 ) -> dict[str, float]:
     """Relative one-step error of the emulator and of the linear baseline on fresh held-out data."""
-    cfg = manifest["train_config"]
-    n = int(manifest["substeps"])
+    cfg = manifest.train_config
     test = sampling.generate(
-        model, n, count or int(cfg["test_examples"]), held_out_seed(int(cfg["seed"])), progress=False
+        model, manifest.substeps, count or cfg.test_examples, held_out_seed(cfg.seed), progress=False
     )
     emu = artifacts.load_torch(path)
-    linear = np.load(path / "linear_baseline.npy")
+    linear = np.load(path / registry.LINEAR_FILE)
     s, u, f, nxt = to_tensors(test)
     with torch.no_grad():
         x = emu.network_inputs(s, u, f)
@@ -86,7 +76,7 @@ def rollout_curve(
         np.repeat(u, substeps, axis=1),
         np.repeat(f, substeps, axis=1) if model.num_forces else None,
     )[:, substeps - 1 :: substeps]  # (trials, M, S) at the super-step boundaries
-    emu = OnnxEmulator(path / "emulator.onnx", threads=2)
+    emu = OnnxEmulator(path / registry.ONNX_FILE, threads=2)
     pred = emu.rollout(s0, u if model.num_controls else None, f if model.num_forces else None, steps=m)[:, 1:]
     std = np.concatenate([s0[:, None], phys], axis=1).reshape(-1, model.state_size).std(axis=0)
     std = np.where(std > 1e-9, std, 1.0)

@@ -16,6 +16,11 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from neuroanimator.state import LayoutGroup
+
+WIRE_MODELS_FROM_ELSEWHERE = (LayoutGroup,)
+"""Wire models owned by another module (the state layout's), exported to proto/ with these."""
+
 Number = Annotated[float, Field(strict=True, allow_inf_nan=False)]
 """A finite JSON number (int or float; no strings, booleans, NaN or Infinity)."""
 Vector = list[Number]
@@ -43,17 +48,6 @@ class ForceInfo(BaseModel):
     name: str
     low: float
     high: float
-
-
-class LayoutGroup(BaseModel):
-    """A group of the state vector: ``state[offset:offset+size]``; quaternions are ``[w, x, y, z]``."""
-
-    model_config = ConfigDict(extra="allow")
-    name: str
-    kind: str
-    size: int
-    offset: int
-    labels: list[str] = []
 
 
 class ModelSummary(BaseModel):

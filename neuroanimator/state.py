@@ -19,8 +19,10 @@ read from and written to MuJoCo without any model-specific code.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
-from dataclasses import asdict, dataclass, field
-from typing import Literal
+from dataclasses import dataclass, field
+from typing import Literal, get_args
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 GroupKind = Literal[
     "position",
@@ -32,16 +34,8 @@ GroupKind = Literal[
     "angle",
     "scalar",
 ]
-GROUP_KINDS: tuple[str, ...] = (
-    "position",
-    "quaternion",
-    "local_quaternion",
-    "world_vector",
-    "local_vector",
-    "heading",
-    "angle",
-    "scalar",
-)
+GROUP_KINDS: tuple[str, ...] = get_args(GroupKind)
+QUATERNION_KINDS: tuple[GroupKind, ...] = ("quaternion", "local_quaternion")
 _SIZES: dict[str, tuple[int, ...]] = {
     "position": (2, 3),
     "quaternion": (4,),
@@ -51,36 +45,54 @@ _SIZES: dict[str, tuple[int, ...]] = {
 }
 
 
-@dataclass(frozen=True)
-class StateGroup:
-    """One named group of state variables.
+class StateGroup(BaseModel):
+    """One named group of state variables: what its numbers mean and where MuJoCo keeps them.
 
-    ``source`` is ``"qpos"`` or ``"qvel"`` and ``address`` the first index in that MuJoCo array.
+    ``source`` is ``"qpos"`` or ``"qvel"`` and ``address`` the first index in that MuJoCo array;
+    ``labels`` (one per value, or none) name the values for people. The physics modules, the model
+    spec, the manifest and the wire contract all use this one type.
     """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: str
     kind: GroupKind
-    size: int
+    size: int = Field(ge=1)
     source: Literal["qpos", "qvel"]
-    address: int
+    address: int = Field(ge=0)
     labels: tuple[str, ...] = ()
 
-    def __post_init__(self) -> None:
-        if self.kind not in GROUP_KINDS:
-            raise ValueError(f"group {self.name!r}: kind must be one of {GROUP_KINDS}, got {self.kind!r}")
-        allowed = _SIZES.get(self.kind)
-        if allowed is not None and self.size not in allowed:
-            raise ValueError(
-                f"group {self.name!r} of kind {self.kind} must have {allowed} values, got {self.size}"
-            )
-        if self.size < 1:
-            raise ValueError(f"group {self.name!r} must have at least one value, got {self.size}")
-        if self.source not in ("qpos", "qvel"):
-            raise ValueError(f"group {self.name!r}: source must be 'qpos' or 'qvel', got {self.source!r}")
-        if self.address < 0:
-            raise ValueError(f"group {self.name!r}: address must be >= 0, got {self.address}")
-        if self.labels and len(self.labels) != self.size:
-            raise ValueError(f"group {self.name!r}: {len(self.labels)} labels for {self.size} values")
+    @model_validator(mode="before")
+    @classmethod
+    def _name_the_group(cls, data: object) -> object:
+        """Check kind, size and labels first, so that the message names the group."""
+        if not isinstance(data, dict):
+            return data
+        name, kind, size = data.get("name"), data.get("kind"), data.get("size")
+        if kind not in GROUP_KINDS:
+            raise ValueError(f"group {name!r}: kind must be one of {GROUP_KINDS}, got {kind!r}")
+        if data.get("source") not in ("qpos", "qvel"):
+            raise ValueError(f"group {name!r}: source must be 'qpos' or 'qvel', got {data.get('source')!r}")
+        address = data.get("address")
+        if isinstance(address, int) and address < 0:
+            raise ValueError(f"group {name!r}: address must be >= 0, got {address}")
+        if isinstance(size, int):
+            if size < 1:
+                raise ValueError(f"group {name!r} must have at least one value, got {size}")
+            allowed = _SIZES.get(kind)
+            if allowed is not None and size not in allowed:
+                raise ValueError(f"group {name!r} of kind {kind} must have {allowed} values, got {size}")
+            labels = data.get("labels") or ()
+            if labels and len(labels) != size:
+                raise ValueError(f"group {name!r}: {len(labels)} labels for {size} values")
+        return data
+
+
+class LayoutGroup(StateGroup):
+    """A group at its place in a state vector: ``state[offset:offset+size]``; quaternions are
+    ``[w, x, y, z]``. This is how manifests and the services' answers list a layout."""
+
+    offset: int = Field(ge=0)
 
 
 @dataclass(frozen=True)
@@ -100,6 +112,18 @@ class StateLayout:
             at += g.size
         object.__setattr__(self, "offsets", tuple(offsets))
         self._check_frame()
+
+    @classmethod
+    def of(cls, groups: Sequence[StateGroup]) -> StateLayout:
+        """The layout of these groups, in order. Placed groups (``LayoutGroup``) must sit where the
+        sizes before them put them."""
+        layout = cls(tuple(StateGroup(**g.model_dump(exclude={"offset"})) for g in groups))
+        for g, off in zip(groups, layout.offsets, strict=True):
+            if isinstance(g, LayoutGroup) and g.offset != off:
+                raise ValueError(
+                    f"group {g.name!r} has offset {g.offset}, but the groups before it end at {off}"
+                )
+        return layout
 
     def _check_frame(self) -> None:
         roots = [g for g in self.groups if g.kind == "position"]
@@ -147,21 +171,9 @@ class StateLayout:
                 out.extend(f"{g.name}[{i}]" for i in range(g.size))
         return out
 
-    def to_dict(self) -> list[dict[str, object]]:
-        return [dict(asdict(g), offset=off) for g, off in zip(self.groups, self.offsets, strict=True)]
-
-    @classmethod
-    def from_dict(cls, items: Sequence[dict[str, object]]) -> StateLayout:
-        groups = []
-        for it in items:
-            groups.append(
-                StateGroup(
-                    name=str(it["name"]),
-                    kind=it["kind"],  # type: ignore[arg-type]
-                    size=int(it["size"]),  # type: ignore[call-overload]
-                    source=it["source"],  # type: ignore[arg-type]
-                    address=int(it["address"]),  # type: ignore[call-overload]
-                    labels=tuple(str(x) for x in it.get("labels", ()) or ()),  # type: ignore[attr-defined]
-                )
-            )
-        return cls(tuple(groups))
+    def placed(self) -> list[LayoutGroup]:
+        """Every group with its offset in the state vector (what a manifest lists)."""
+        return [
+            LayoutGroup(**g.model_dump(), offset=off)
+            for g, off in zip(self.groups, self.offsets, strict=True)
+        ]

@@ -39,12 +39,15 @@ def _dump(obj: Any) -> str:
 
 
 def wire_schemas() -> dict[str, dict[str, Any]]:
-    """Every pydantic model defined in ``neuroanimator.schemas`` plus the websocket message unions."""
+    """Every pydantic model defined in ``neuroanimator.schemas`` or listed in its
+    ``WIRE_MODELS_FROM_ELSEWHERE``, plus the websocket message unions."""
     out: dict[str, dict[str, Any]] = {}
     for name, obj in vars(schemas).items():
         ours = inspect.isclass(obj) and obj.__module__ == schemas.__name__ and not name.startswith("_")
         if ours and issubclass(obj, BaseModel):
             out[name] = obj.model_json_schema()
+    for model in schemas.WIRE_MODELS_FROM_ELSEWHERE:
+        out[model.__name__] = model.model_json_schema()
     for name in UNIONS:
         schema = TypeAdapter(getattr(schemas, name)).json_schema()
         schema.setdefault("title", name)

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 
+from neuroanimator import registry
 from services.common import logs
 
 log = logging.getLogger("stack")
@@ -158,11 +159,11 @@ class Stack:
         from neuroanimator.physics import CATALOG  # the default emulators: one per catalog model
 
         root = self.config.artifacts_dir
-        missing = [m for m in CATALOG if not (root / m / "latest").is_file()]
+        missing = [m for m in CATALOG if m not in registry.list_models(root)]
         for model in missing:
             log.info("no emulator for %s in %s: training one (a few minutes)", model, root)
             neuro = [self.config.python, "-m", "neuroanimator.cli", "train", model, "--substeps", "50"]
-            r = subprocess.run([*neuro, "--artifacts", str(root), "--quiet"], cwd=ROOT, check=False)
+            r = subprocess.run([*neuro, "--out", str(root), "--quiet"], cwd=ROOT, check=False)
             if r.returncode != 0:
                 raise StackError(f"training the default emulator {model} failed (exit {r.returncode})")
 

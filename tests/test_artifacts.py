@@ -1,4 +1,5 @@
-"""The artifact registry: what a version folder holds, how it is found, and that writes are atomic."""
+"""Writing artifacts: what a version folder holds, its manifest, how it is found, that writes are atomic,
+and that the torch emulator read back is the one saved."""
 
 from __future__ import annotations
 
@@ -11,24 +12,22 @@ import pytest
 import torch
 from conftest import Trained
 
-from neuroanimator import artifacts, physics, training
+from neuroanimator import artifacts, physics, registry, training
 from neuroanimator.export import OnnxEmulator
+from neuroanimator.manifest import FORMAT, TrainMetrics
 from neuroanimator.training import TrainConfig, TrainResult
 
 FILES = {"emulator.onnx", "weights.pt", "linear_baseline.npy", "model.xml", "manifest.json"}
-KEYS = {
-    "model",
-    "version",
-    "substeps",
-    "timestep",
-    "layout",
-    "controls",
-    "forces",
-    "normalization",
-    "metrics",
-    "hashes",
-    "train_config",
-    "spec",
+METRICS = {
+    "weights": 1,
+    "examples": 1,
+    "test_examples": 1,
+    "one_step_rel_error": 0.5,
+    "linear_baseline_rel_error": 0.5,
+    "validation_rel_error": 0.5,
+    "data_seconds": 0.0,
+    "train_seconds": 0.0,
+    "total_seconds": 0.0,
 }
 
 
@@ -37,40 +36,56 @@ def _untrained_result(model: physics.PhysicalModel, substeps: int) -> TrainResul
     cfg = TrainConfig(substeps=substeps, hidden=(8,), progress=False)
     emu = training.build_emulator(model, cfg)
     linear = np.zeros((emu.input_size + 1, model.state_size))
-    return TrainResult(emu, cfg, {"one_step_rel_error": 0.5}, linear, "0" * 64)
+    return TrainResult(emu, cfg, METRICS, linear, "0" * 64)
 
 
 def test_version_folder_holds_the_documented_files(trained_pendulum: Trained) -> None:
-    assert {p.name for p in trained_pendulum.path.iterdir()} == FILES
+    assert {p.name for p in trained_pendulum.path.iterdir()} == FILES == set(registry.VERSION_FILES)
 
 
 @pytest.mark.parametrize("which", ["trained_pendulum", "trained_lander"])
-def test_manifest_has_the_documented_keys(which: str, request: pytest.FixtureRequest) -> None:
+def test_manifest_describes_the_saved_emulator(which: str, request: pytest.FixtureRequest) -> None:
     t: Trained = request.getfixturevalue(which)
-    manifest = artifacts.load_manifest(t.path)
-    assert manifest.keys() >= KEYS
-    assert manifest["model"] == t.model.name
-    assert manifest["version"] == t.path.name
-    assert manifest["substeps"] == 10
-    assert manifest["timestep"] == pytest.approx(t.model.dt)
-    assert manifest["layout"] == json.loads(json.dumps(t.model.layout.to_dict()))
-    assert [c["name"] for c in manifest["controls"]] == t.model.control_names
-    assert manifest["forces"] == []
-    assert manifest["metrics"] == json.loads(json.dumps(t.result.metrics))
-    assert manifest["train_config"]["hidden"] == [16]
-    assert manifest["spec"]["name"] == t.model.name
-    norm = manifest["normalization"]
-    np.testing.assert_allclose(norm["x_mean"], t.result.emulator.x_mean.numpy(), rtol=1e-6)
-    np.testing.assert_allclose(norm["y_std"], t.result.emulator.y_std.numpy(), rtol=1e-6)
+    manifest = registry.read_manifest(t.path)
+    assert json.loads((t.path / "manifest.json").read_text())["format"] == FORMAT
+    assert manifest.model == t.model.name
+    assert manifest.version == t.path.name
+    assert manifest.substeps == 10
+    assert manifest.timestep == pytest.approx(t.model.dt)
+    assert manifest.super_timestep == pytest.approx(10 * t.model.dt)
+    assert manifest.layout == t.model.layout.placed()
+    assert manifest.state_layout() == t.model.layout
+    assert [c.name for c in manifest.controls] == t.model.control_names
+    assert manifest.forces == []
+    assert manifest.metrics == TrainMetrics(**t.result.metrics)
+    assert manifest.train_config == t.result.config
+    assert manifest.spec == t.model.spec
+    assert manifest.io.inputs == ["state", "controls"]
+    emu = t.result.emulator
+    net = manifest.emulator.only()
+    assert manifest.emulator.stages == [[net.name]]
+    assert net.writes == [g.name for g in t.model.layout]
+    assert net.reads.controls == t.model.control_names
+    assert (net.hidden, net.activation, net.input_size) == ([16], "tanh", emu.input_size)
+    assert [(g.name, g.size) for g in net.normalization.input_groups] == list(emu.input_groups)
+    np.testing.assert_allclose(net.normalization.x_mean, emu.x_mean.numpy(), rtol=1e-6)
+    np.testing.assert_allclose(net.normalization.y_std, emu.y_std.numpy(), rtol=1e-6)
+
+
+def test_lander_network_reads_no_root_position_in_its_frame(trained_lander: Trained) -> None:
+    """Translation is a symmetry of the lander: the root position is not an input, only the frame."""
+    net = registry.read_manifest(trained_lander.path).emulator.only()
+    assert "position" not in net.reads.state and "position" in net.writes
+    assert net.frame.part is None and net.frame.rotate and net.frame.translate == [True, True, True]
 
 
 def test_manifest_hashes_match_the_files(trained_pendulum: Trained) -> None:
     path = trained_pendulum.path
-    hashes = artifacts.load_manifest(path)["hashes"]
-    assert hashes["mjcf_sha256"] == hashlib.sha256((path / "model.xml").read_bytes()).hexdigest()
-    assert hashes["mjcf_sha256"] == trained_pendulum.model.mjcf_sha256()
-    assert hashes["training_data_sha256"] == trained_pendulum.result.data_sha256
-    assert hashes["onnx_sha256"] == hashlib.sha256((path / "emulator.onnx").read_bytes()).hexdigest()
+    hashes = registry.read_manifest(path).hashes
+    assert hashes.mjcf_sha256 == hashlib.sha256((path / "model.xml").read_bytes()).hexdigest()
+    assert hashes.mjcf_sha256 == trained_pendulum.model.mjcf_sha256()
+    assert hashes.training_data_sha256 == trained_pendulum.result.data_sha256
+    assert hashes.onnx_sha256 == hashlib.sha256((path / "emulator.onnx").read_bytes()).hexdigest()
 
 
 def test_saved_linear_baseline_and_weights(trained_pendulum: Trained) -> None:
@@ -83,30 +98,18 @@ def test_saved_linear_baseline_and_weights(trained_pendulum: Trained) -> None:
 
 def test_resolve_latest_and_by_substeps(trained_pendulum: Trained) -> None:
     root = trained_pendulum.root
-    assert artifacts.resolve(root, "pendulum-active") == trained_pendulum.path
-    assert artifacts.resolve(root, "pendulum-active", substeps=10) == trained_pendulum.path
+    assert registry.resolve(root, "pendulum-active") == trained_pendulum.path
+    assert registry.resolve(root, "pendulum-active", substeps=10) == trained_pendulum.path
     assert (
-        artifacts.resolve(root, "pendulum-active", version=trained_pendulum.path.name)
-        == trained_pendulum.path
+        registry.resolve(root, "pendulum-active", version=trained_pendulum.path.name) == trained_pendulum.path
     )
-    assert 10 in artifacts.available_substeps(root, "pendulum-active")
-    assert "pendulum-active" in artifacts.list_models(root)
-
-
-def test_resolve_unknown_model_names_it(trained_pendulum: Trained) -> None:
-    with pytest.raises(artifacts.ArtifactError, match="no-such-model"):
-        artifacts.resolve(trained_pendulum.root, "no-such-model")
-
-
-def test_resolve_missing_substeps_or_version(trained_pendulum: Trained) -> None:
-    with pytest.raises(artifacts.ArtifactError, match="substeps=77"):
-        artifacts.resolve(trained_pendulum.root, "pendulum-active", substeps=77)
-    with pytest.raises(artifacts.ArtifactError, match="n1-nope"):
-        artifacts.resolve(trained_pendulum.root, "pendulum-active", version="n1-nope")
+    assert 10 in registry.available_substeps(root, "pendulum-active")
+    assert "pendulum-active" in registry.list_models(root)
+    assert trained_pendulum.path.name in registry.versions(root, "pendulum-active")
 
 
 def test_load_physical_model_rebuilds_the_same_model(trained_lander: Trained) -> None:
-    rebuilt = artifacts.load_physical_model(trained_lander.path)
+    rebuilt = registry.load_physical_model(trained_lander.path)
     original = trained_lander.model
     assert rebuilt.name == original.name
     assert rebuilt.xml == original.xml
@@ -132,6 +135,27 @@ def test_load_torch_gives_the_same_outputs(which: str, request: pytest.FixtureRe
     assert loaded.architecture() == t.result.emulator.architecture()
 
 
+def test_load_torch_refuses_a_composed_emulator(tmp_path: Path, trained_pendulum: Trained) -> None:
+    import shutil
+
+    path = tmp_path / "pendulum-active" / trained_pendulum.path.name
+    shutil.copytree(trained_pendulum.path, path)
+    data = json.loads((path / "manifest.json").read_text())
+    core = data["emulator"]["networks"][0]
+
+    def half(name: str, part: slice) -> dict[str, object]:
+        norm = core["normalization"]
+        y = {k: norm[k][part] for k in ("y_mean", "y_std")}
+        return dict(core, name=name, writes=[name], output_size=3, normalization=dict(norm, **y))
+
+    networks = [half("angles", slice(0, 3)), half("rates", slice(3, 6))]
+    data["emulator"] = {"networks": networks, "stages": [["angles", "rates"]]}
+    (path / "manifest.json").write_text(json.dumps(data))
+    assert len(registry.read_manifest(path).emulator.networks) == 2  # a valid description...
+    with pytest.raises(ValueError, match="composed of 2 networks"):
+        artifacts.load_torch(path)  # ...that the torch path does not build yet
+
+
 def test_saved_onnx_matches_saved_weights(trained_lander: Trained) -> None:
     rng = np.random.default_rng(6)
     s = trained_lander.model.initial_states(rng, 32)
@@ -149,13 +173,14 @@ def test_latest_stays_on_first_version_and_per_n_pointers_move(tmp_path: Path) -
     first = artifacts.save(tmp_path, model, _untrained_result(model, 10))
     second = artifacts.save(tmp_path, model, _untrained_result(model, 20))
     assert first != second
-    assert artifacts.resolve(tmp_path, "truck") == first  # the first trained, since neither is n = 50
-    assert artifacts.resolve(tmp_path, "truck", substeps=20) == second
+    assert registry.resolve(tmp_path, "truck") == first  # the first trained, since neither is n = 50
+    assert registry.resolve(tmp_path, "truck", substeps=20) == second
     third = artifacts.save(tmp_path, model, _untrained_result(model, 50))
-    assert artifacts.resolve(tmp_path, "truck") == third  # the model's default n takes over `latest`
+    assert registry.resolve(tmp_path, "truck") == third  # the model's default n takes over `latest`
     again = artifacts.save(tmp_path, model, _untrained_result(model, 10))
-    assert artifacts.resolve(tmp_path, "truck", substeps=10) == again
-    assert artifacts.available_substeps(tmp_path, "truck") == [10, 20, 50]
+    assert registry.resolve(tmp_path, "truck", substeps=10) == again
+    assert registry.available_substeps(tmp_path, "truck") == [10, 20, 50]
+    assert again.name.startswith("n10-") and third.name.startswith("n50-")
 
 
 def test_failed_write_leaves_nothing_behind(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -171,9 +196,9 @@ def test_failed_write_leaves_nothing_behind(tmp_path: Path, monkeypatch: pytest.
     model_dir = tmp_path / "truck"
     leftovers = sorted(p.name for p in model_dir.iterdir()) if model_dir.exists() else []
     assert leftovers == []  # no version folder, no `latest` pointers, no .tmp- folder
-    assert artifacts.list_models(tmp_path) == []
-    with pytest.raises(artifacts.ArtifactError):
-        artifacts.resolve(tmp_path, "truck")
+    assert registry.list_models(tmp_path) == []
+    with pytest.raises(registry.ArtifactError):
+        registry.resolve(tmp_path, "truck")
 
 
 def test_failed_write_keeps_the_previous_latest(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -186,8 +211,8 @@ def test_failed_write_keeps_the_previous_latest(tmp_path: Path, monkeypatch: pyt
     monkeypatch.setattr(np, "save", boom)
     with pytest.raises(OSError):
         artifacts.save(tmp_path, model, _untrained_result(model, 10))
-    assert artifacts.resolve(tmp_path, "truck") == good
-    assert artifacts.resolve(tmp_path, "truck", substeps=10) == good
+    assert registry.resolve(tmp_path, "truck") == good
+    assert registry.resolve(tmp_path, "truck", substeps=10) == good
     assert sorted(p.name for p in (tmp_path / "truck").iterdir()) == sorted(
         [good.name, "latest", "latest-n10"]
     )
@@ -199,12 +224,3 @@ def test_model_name_that_cannot_be_a_folder_is_refused(tmp_path: Path) -> None:
     with pytest.raises(physics.ModelError, match="folder"):
         artifacts.save(tmp_path, bad, _untrained_result(bad, 10))
     assert list(tmp_path.iterdir()) == []
-
-
-def test_unreadable_manifest_raises_artifact_error(tmp_path: Path) -> None:
-    (tmp_path / "manifest.json").write_text("{not json")
-    with pytest.raises(artifacts.ArtifactError, match="manifest"):
-        artifacts.load_manifest(tmp_path)
-    (tmp_path / "manifest.json").write_text(json.dumps({"format": 999}))
-    with pytest.raises(artifacts.ArtifactError, match="format"):
-        artifacts.load_manifest(tmp_path)

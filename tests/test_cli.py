@@ -12,8 +12,9 @@ from pathlib import Path
 import pytest
 from conftest import ARM_XML, Trained
 
-from neuroanimator import artifacts, physics
+from neuroanimator import physics, registry
 from neuroanimator.cli import main
+from neuroanimator.results import ModelBench, ModelEval
 
 
 @dataclass
@@ -67,20 +68,20 @@ def test_train_with_user_mjcf_writes_latest(user_train: CliRun) -> None:
     assert user_train.rc == 0
     assert (user_train.root / "myarm" / "latest").is_file()  # the name comes from the MJCF
     assert (user_train.root / "myarm" / "latest-n10").is_file()
-    path = artifacts.resolve(user_train.root, "myarm")
-    manifest = artifacts.load_manifest(path)
-    assert manifest["model"] == "myarm"
-    assert manifest["substeps"] == 10
-    assert manifest["metrics"]["examples"] == 400
-    assert manifest["train_config"]["hidden"] == [16]
-    assert manifest["train_config"]["max_epochs"] == 5
+    path = registry.resolve(user_train.root, "myarm")
+    manifest = registry.read_manifest(path)
+    assert manifest.model == "myarm"
+    assert manifest.substeps == 10
+    assert manifest.metrics.examples == 400
+    assert manifest.train_config.hidden == (16,)
+    assert manifest.train_config.max_epochs == 5
 
 
 def test_train_json_line_describes_the_artifact(user_train: CliRun) -> None:
     summary = _last_json(user_train.stdout)
     assert summary["model"] == "myarm"
     assert summary["substeps"] == 10
-    assert Path(summary["artifact"]) == artifacts.resolve(user_train.root, "myarm")
+    assert Path(summary["artifact"]) == registry.resolve(user_train.root, "myarm")
     assert summary["examples"] == 400
     assert "one_step_rel_error" in summary and "linear_baseline_rel_error" in summary
 
@@ -123,6 +124,21 @@ def test_eval_prints_json_and_writes_plot(user_train: CliRun, capsys: pytest.Cap
     plot = Path(summary["plot"])
     assert plot == user_train.root / "myarm" / "rollout_error.png"
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    ModelEval.model_validate(summary)  # the typed result, as the dashboard reads it
+    assert registry.read_eval(registry.resolve(user_train.root, "myarm")) is None  # not saved unless asked
+
+
+def test_eval_save_stores_each_versions_result(
+    user_train: CliRun, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["eval", "myarm", "--artifacts", str(user_train.root), "--trials", "2", "--steps", "100"]
+    assert main([*argv, "--save", "--json"]) == 0
+    summary = ModelEval.model_validate_json(capsys.readouterr().out.strip().splitlines()[-1])
+    stored = registry.read_eval(registry.resolve(user_train.root, "myarm", substeps=10))
+    assert stored is not None and stored == summary.by_substeps[0]
+    assert registry.model_eval(user_train.root, "myarm") == summary.model_copy(
+        update={"plot": "myarm/rollout_error.png"}
+    )
 
 
 def test_eval_plot_path_option(
@@ -168,9 +184,11 @@ def test_bench_reports_single_and_batched(
     assert rc == 0
     res = _last_json(capsys.readouterr().out)
     assert res["model"] == "pendulum-active"
-    assert [row["substeps"] for row in res["single"]] == artifacts.available_substeps(
+    assert [row["substeps"] for row in res["single"]] == registry.available_substeps(
         trained_pendulum.root, "pendulum-active"
     )
+    bench = ModelBench.model_validate(res)
+    assert bench.batched_version == registry.latest_version(trained_pendulum.root, "pendulum-active", 10)
     for row in res["single"]:
         assert row.keys() >= {"substeps", "physics_s", "emulator_s", "ratio"}
         assert row["physics_s"] > 0 and row["emulator_s"] > 0

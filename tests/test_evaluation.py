@@ -8,15 +8,14 @@ import numpy as np
 import pytest
 from conftest import Trained
 
-from neuroanimator import artifacts, evaluation, physics
+from neuroanimator import evaluation, physics, registry
+from neuroanimator.results import RolloutCurve
 
 
 def test_one_step_errors_reproduce_the_training_metrics(trained_pendulum: Trained) -> None:
     """Evaluation regenerates the same held-out set from the manifest: the same errors come out."""
     path = trained_pendulum.path
-    errs = evaluation.one_step_errors(
-        path, artifacts.load_physical_model(path), artifacts.load_manifest(path)
-    )
+    errs = evaluation.one_step_errors(path, registry.load_physical_model(path), registry.read_manifest(path))
     metrics = trained_pendulum.result.metrics
     assert errs["one_step_rel_error"] == pytest.approx(metrics["one_step_rel_error"], rel=1e-4)
     assert errs["linear_baseline_rel_error"] == pytest.approx(metrics["linear_baseline_rel_error"], rel=1e-4)
@@ -54,8 +53,8 @@ def test_curve_at_interpolates() -> None:
 def test_plot_curves_writes_a_png(tmp_path: Path) -> None:
     out = tmp_path / "deep" / "plot.png"
     curves = {
-        10: evaluation.RolloutCurve([0.0, 1.0], [0.0, 0.1]),
-        50: evaluation.RolloutCurve([0.0, 1.0], [0.0, 0.3]),
+        10: RolloutCurve(t=[0.0, 1.0], error=[0.0, 0.1]),
+        50: RolloutCurve(t=[0.0, 1.0], error=[0.0, 0.3]),
     }
     evaluation.plot_curves(curves, "test", out)
     assert out.read_bytes()[:4] == b"\x89PNG"

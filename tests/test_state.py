@@ -6,18 +6,26 @@ import json
 
 import pytest
 
-from neuroanimator.state import StateGroup, StateLayout
+from neuroanimator.state import GROUP_KINDS, LayoutGroup, StateGroup, StateLayout
+
+
+def group(
+    name: str, kind: str, size: int, source: str, address: int, labels: tuple[str, ...] = ()
+) -> StateGroup:
+    return StateGroup.model_validate(
+        {"name": name, "kind": kind, "size": size, "source": source, "address": address, "labels": labels}
+    )
 
 
 @pytest.fixture
 def layout() -> StateLayout:
     return StateLayout(
         (
-            StateGroup("pos", "position", 3, "qpos", 0, ("x", "y", "z")),
-            StateGroup("orient", "quaternion", 4, "qpos", 3),
-            StateGroup("vel", "world_vector", 3, "qvel", 0),
-            StateGroup("spin", "local_vector", 3, "qvel", 3),
-            StateGroup("hinge", "angle", 1, "qpos", 7),
+            group("pos", "position", 3, "qpos", 0, ("x", "y", "z")),
+            group("orient", "quaternion", 4, "qpos", 3),
+            group("vel", "world_vector", 3, "qvel", 0),
+            group("spin", "local_vector", 3, "qvel", 3),
+            group("hinge", "angle", 1, "qpos", 7),
         )
     )
 
@@ -56,7 +64,7 @@ def test_labels_name_every_variable(layout: StateLayout) -> None:
 
 def test_bad_kind_raises_naming_the_group() -> None:
     with pytest.raises(ValueError, match="'wobble'"):
-        StateGroup("wobble", "spinor", 2, "qpos", 0)  # type: ignore[arg-type]
+        group("wobble", "spinor", 2, "qpos", 0)
 
 
 @pytest.mark.parametrize(
@@ -65,40 +73,61 @@ def test_bad_kind_raises_naming_the_group() -> None:
 )
 def test_bad_size_for_kind_raises_naming_the_group(kind: str, size: int) -> None:
     with pytest.raises(ValueError, match="'badgroup'"):
-        StateGroup("badgroup", kind, size, "qpos", 0)  # type: ignore[arg-type]
+        group("badgroup", kind, size, "qpos", 0)
 
 
 def test_empty_group_raises_naming_the_group() -> None:
     with pytest.raises(ValueError, match="'empty'"):
-        StateGroup("empty", "scalar", 0, "qvel", 0)
+        group("empty", "scalar", 0, "qvel", 0)
 
 
 def test_label_count_mismatch_raises_naming_the_group() -> None:
     with pytest.raises(ValueError, match="'rates'"):
-        StateGroup("rates", "scalar", 3, "qvel", 0, ("a", "b"))
+        group("rates", "scalar", 3, "qvel", 0, ("a", "b"))
 
 
 def test_duplicate_group_names_raise() -> None:
-    g = StateGroup("a", "scalar", 1, "qpos", 0)
+    g = group("a", "scalar", 1, "qpos", 0)
     with pytest.raises(ValueError, match="unique"):
-        StateLayout((g, StateGroup("a", "angle", 1, "qpos", 1)))
+        StateLayout((g, group("a", "angle", 1, "qpos", 1)))
 
 
 def test_two_root_positions_raise() -> None:
     with pytest.raises(ValueError, match="position"):
-        StateLayout((StateGroup("p1", "position", 3, "qpos", 0), StateGroup("p2", "position", 3, "qpos", 3)))
+        StateLayout((group("p1", "position", 3, "qpos", 0), group("p2", "position", 3, "qpos", 3)))
 
 
 def test_two_root_orientations_raise() -> None:
     with pytest.raises(ValueError, match="orientation"):
-        StateLayout((StateGroup("q", "quaternion", 4, "qpos", 0), StateGroup("h", "heading", 1, "qpos", 4)))
+        StateLayout((group("q", "quaternion", 4, "qpos", 0), group("h", "heading", 1, "qpos", 4)))
 
 
-def test_to_dict_from_dict_round_trip(layout: StateLayout) -> None:
-    items = layout.to_dict()
-    assert [it["offset"] for it in items] == list(layout.offsets)
-    assert StateLayout.from_dict(items) == layout
+def test_placed_groups_carry_their_offsets_and_round_trip(layout: StateLayout) -> None:
+    placed = layout.placed()
+    assert [g.offset for g in placed] == list(layout.offsets)
+    assert all(isinstance(g, LayoutGroup) for g in placed)
+    assert StateLayout.of(placed) == layout
 
 
 def test_round_trip_through_json(layout: StateLayout) -> None:
-    assert StateLayout.from_dict(json.loads(json.dumps(layout.to_dict()))) == layout
+    text = json.dumps([g.model_dump(mode="json") for g in layout.placed()])
+    assert StateLayout.of([LayoutGroup.model_validate(g) for g in json.loads(text)]) == layout
+
+
+def test_a_placed_group_at_the_wrong_offset_is_refused(layout: StateLayout) -> None:
+    placed = layout.placed()
+    placed[1] = placed[1].model_copy(update={"offset": 4})
+    with pytest.raises(ValueError, match="'orient' has offset 4"):
+        StateLayout.of(placed)
+
+
+def test_groups_are_typed_values_with_a_closed_set_of_kinds() -> None:
+    g = group("heading", "heading", 1, "qpos", 2)
+    with pytest.raises(ValueError, match="frozen"):
+        g.size = 2  # type: ignore[misc]
+    with pytest.raises(ValueError, match="source"):
+        group("heading", "heading", 1, "qacc", 2)
+    with pytest.raises(ValueError, match="extra"):
+        StateGroup.model_validate({**g.model_dump(), "colour": "red"})
+    schema = LayoutGroup.model_json_schema()
+    assert schema["properties"]["kind"]["enum"] == list(GROUP_KINDS)

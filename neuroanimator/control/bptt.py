@@ -18,8 +18,6 @@ Shapes: B batch of controllers, M points per control, U controls, K super-steps,
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import torch
 from numpy.typing import NDArray
@@ -30,6 +28,7 @@ from neuroanimator.control.replay import simulate_held
 from neuroanimator.control.spec import JobSpec, num_points
 from neuroanimator.control.splines import ControlSpline
 from neuroanimator.export import fold_normalization
+from neuroanimator.manifest import Manifest
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.structured import StructuredEmulator
 
@@ -65,19 +64,19 @@ class ControlProblem:
         self,
         emu: StructuredEmulator,
         spec: JobSpec,
-        manifest: dict[str, Any],
+        manifest: Manifest,
         dtype: torch.dtype = torch.float32,
     ) -> None:
         self.spec = spec
         self.dtype = dtype  # float64 (with a float64 emulator) for finite-difference checks
         self.step = FastStep(emu)
         self.horizon = spec.horizon
-        self.super_dt = float(manifest["super_timestep"])
-        self.num_controls = len(manifest["controls"])
+        self.super_dt = manifest.super_timestep
+        self.num_controls = manifest.num_controls
         self.num_points = num_points(self.horizon, spec.points_per_step)
         self.spline = ControlSpline(self.horizon, self.num_points, self.super_dt, dtype)
-        useful = np.array([[c["low"], c["high"]] for c in manifest["controls"]], dtype=np.float64)  # (U, 2)
-        limits = np.array([[c["limit_low"], c["limit_high"]] for c in manifest["controls"]], dtype=np.float64)
+        useful = np.array([[c.low, c.high] for c in manifest.controls], dtype=np.float64)  # (U, 2)
+        limits = np.array([[c.limit_low, c.limit_high] for c in manifest.controls], dtype=np.float64)
         self.centre = 0.5 * (useful[:, 0] + useful[:, 1])
         self.half = np.maximum(0.5 * (useful[:, 1] - useful[:, 0]), 1e-9)
         self.limits = limits
@@ -87,7 +86,7 @@ class ControlProblem:
         self._half = torch.tensor(self.half, dtype=dtype)
         self._low = torch.tensor(limits[:, 0], dtype=dtype)
         self._high = torch.tensor(limits[:, 1], dtype=dtype)
-        self.objective = Objective(spec, manifest["layout"], control_scale(useful))
+        self.objective = Objective(spec, manifest.layout, control_scale(useful))
         self.s0 = torch.tensor(spec.initial_state, dtype=dtype)
         # per-step additive correction (K, S) learned from a MuJoCo replay (``set_correction``)
         self.correction: Tensor | None = None

@@ -1,23 +1,21 @@
 """Job specs: ``validate_job`` turns a request into a ``JobSpec``, without importing torch or MuJoCo.
 
-An API process calls it on every submission, so it reads only numpy and the artifact manifests
-(``<root>/<model>/<version>/manifest.json``, found through the ``latest``/``latest-n<N>`` pointer
-files exactly as ``neuroanimator.artifacts.resolve`` does; that module imports torch). The spec it
+An API process calls it on every submission, so it reads only numpy and the artifact manifests,
+through the torch-free ``neuroanimator.registry``. The spec it
 returns is itself a valid request, so validating twice changes nothing: a worker validates the
 queued spec again against its own artifacts.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from neuroanimator import registry
 from neuroanimator.control import criteria
 from neuroanimator.control.criteria import SuccessCheck
 from neuroanimator.control.errors import JobSpecError
@@ -39,48 +37,22 @@ from neuroanimator.control.spec import (
 from neuroanimator.control.tasks import TASKS
 from neuroanimator.control.terms import normalize_terms, unit, vector
 from neuroanimator.controller_schemas import JobCreate
+from neuroanimator.manifest import Manifest
+from neuroanimator.state import QUATERNION_KINDS, LayoutGroup
 
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")  # model and version names: never a path
 # what a request may set: the API body's fields, less what only the API uses
 JOB_FIELDS = frozenset(JobCreate.model_fields) - {"idempotency_key"}
 OPTIMIZER_FIELDS = frozenset(OptimizerSettings.model_fields)
 
 
-def _artifact_names(root: Path) -> list[str]:
-    if not root.is_dir():
-        return []
-    return sorted(p.name for p in root.iterdir() if p.is_dir() and (p / "latest").is_file())
-
-
-def find_artifact(
-    root: Path, model: str, version: str | None, substeps: int | None
-) -> tuple[Path, dict[str, Any]]:
-    """The version folder and manifest of a model (torch-free ``artifacts.resolve`` + ``load_manifest``)."""
-    if not _NAME.match(model) or not (root / model).is_dir():
-        raise JobSpecError("model", f"unknown model {model!r}; trained models are {_artifact_names(root)}")
-    model_dir = root / model
-    if version is None:
-        pointer = model_dir / ("latest" if substeps is None else f"latest-n{substeps}")
-        if not pointer.is_file():
-            have = sorted(int(p.name[8:]) for p in model_dir.glob("latest-n*") if p.name[8:].isdigit())
-            raise JobSpecError(
-                "substeps", f"model {model!r} has no emulator for substeps={substeps}; it has {have}"
-            )
-        version = pointer.read_text().strip()
-    path = model_dir / version
-    if not _NAME.match(version) or not (path / "manifest.json").is_file():
-        versions = sorted(p.parent.name for p in model_dir.glob("*/manifest.json"))
-        raise JobSpecError("version", f"model {model!r} has no version {version!r}; it has {versions}")
+def find_artifact(root: Path, model: str, version: str | None, substeps: int | None) -> tuple[Path, Manifest]:
+    """The version folder and manifest of a model (``registry.resolve`` + ``read_manifest``); a missing
+    model, version or super-step is a ``JobSpecError`` on that field."""
     try:
-        manifest: dict[str, Any] = json.loads((path / "manifest.json").read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise JobSpecError("version", f"cannot read the manifest of {model}/{version}: {exc}") from exc
-    if substeps is not None and int(manifest["substeps"]) != substeps:
-        raise JobSpecError(
-            "substeps",
-            f"version {version!r} of {model!r} has substeps={manifest['substeps']}, got {substeps}",
-        )
-    return path, manifest
+        path = registry.resolve(root, model, version, substeps)
+        return path, registry.read_manifest(path)
+    except registry.ArtifactError as exc:
+        raise JobSpecError("version" if exc.what in ("manifest", "results") else exc.what, str(exc)) from exc
 
 
 def _int(field: str, value: Any, low: int, high: int) -> int:
@@ -105,27 +77,27 @@ def _float(
     return v
 
 
-def _state(field: str, value: Any, layout: list[dict[str, Any]], size: int, model: str) -> list[float]:
+def _state(field: str, value: Any, layout: Sequence[LayoutGroup], size: int, model: str) -> list[float]:
     """A state of the model's size, finite, with every quaternion group of unit length."""
     out = vector(field, value, size, f"state values for model {model}")
     for g in layout:
-        if g["kind"] in ("quaternion", "local_quaternion"):
-            a = int(g["offset"])
+        if g.kind in QUATERNION_KINDS:
+            a = g.offset
             q = out[a : a + 4]
             if math.sqrt(sum(v * v for v in q)) < 1e-6:
                 raise JobSpecError(
-                    field, f"quaternion {g['name']} (values {a}..{a + 3}) must be non-zero, got {q}"
+                    field, f"quaternion {g.name} (values {a}..{a + 3}) must be non-zero, got {q}"
                 )
             out[a : a + 4] = unit(q)
     return out
 
 
-def default_state(layout: list[dict[str, Any]], size: int) -> list[float]:
+def default_state(layout: Sequence[LayoutGroup], size: int) -> list[float]:
     """Zeros with identity quaternions: the state a job without a task starts from by default."""
     s = [0.0] * size
     for g in layout:
-        if g["kind"] in ("quaternion", "local_quaternion"):
-            s[int(g["offset"])] = 1.0
+        if g.kind in QUATERNION_KINDS:
+            s[g.offset] = 1.0
     return s
 
 
@@ -172,11 +144,11 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: P
     if substeps is not None:
         substeps = _int("substeps", substeps, 1, MAX_SUBSTEPS)
     _, manifest = find_artifact(Path(artifacts_root), model, version, substeps)
-    layout: list[dict[str, Any]] = manifest["layout"]
-    labels: list[str] = manifest["state_labels"]
+    layout = manifest.layout
+    labels = manifest.state_labels
     size = len(labels)
-    super_dt = float(manifest["super_timestep"])
-    controls = manifest["controls"]
+    super_dt = manifest.super_timestep
+    controls = manifest.controls
     if not controls:
         raise JobSpecError("model", f"model {model!r} has no controls: there is nothing to synthesise")
 
@@ -221,7 +193,7 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: P
     if mu_u == 0 and mu_s == 0 and not terms:
         raise JobSpecError("terms", "the objective is empty: mu_u = mu_s = 0 and no terms")
 
-    lim = np.array([[c["limit_low"], c["limit_high"]] for c in controls], dtype=np.float64)
+    lim = np.array([[c.limit_low, c.limit_high] for c in controls], dtype=np.float64)
     u0 = vector(
         "initial_controls",
         spec.get(
@@ -235,7 +207,7 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: P
         if not lo <= v <= hi:
             raise JobSpecError(
                 "initial_controls",
-                f"control {controls[i]['name']} must lie in its limits [{lo:g}, {hi:g}], got {v:g}",
+                f"control {controls[i].name} must lie in its limits [{lo:g}, {hi:g}], got {v:g}",
             )
 
     success = spec.get("success", [c.model_dump() for c in task.success] if task else [])
@@ -246,8 +218,8 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: P
     return JobSpec(
         task=task.name if task else None,
         model=model,
-        version=manifest["version"],
-        substeps=int(manifest["substeps"]),
+        version=manifest.version,
+        substeps=manifest.substeps,
         initial_state=initial,
         target_state=target,
         state_weights=weights,

@@ -22,7 +22,6 @@ is differentiable for backpropagation through time.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 import torch
@@ -39,20 +38,21 @@ from neuroanimator.control.terms import (
     StayWithinBoundsTerm,
     Term,
 )
+from neuroanimator.state import QUATERNION_KINDS, LayoutGroup
 
 
 class StateDistance:
     """``‖W (s − s_d)‖²`` for states (..., S), respecting angles and quaternions (see module doc)."""
 
-    def __init__(self, layout: Sequence[dict[str, Any]], size: int) -> None:
+    def __init__(self, layout: Sequence[LayoutGroup], size: int) -> None:
         plain: list[int] = []
         angles: list[int] = []
         quats: list[int] = []
         for g in layout:
-            a, n = int(g["offset"]), int(g["size"])
-            if g["kind"] in ("angle", "heading"):
+            a, n = g.offset, g.size
+            if g.kind in ("angle", "heading"):
                 angles.extend(range(a, a + n))
-            elif g["kind"] in ("quaternion", "local_quaternion"):
+            elif g.kind in QUATERNION_KINDS:
                 quats.append(a)
             else:
                 plain.extend(range(a, a + n))
@@ -92,7 +92,7 @@ class Objective:
     def __init__(
         self,
         spec: JobSpec,
-        layout: Sequence[dict[str, Any]],
+        layout: Sequence[LayoutGroup],
         control_scale: Sequence[float] | np.ndarray,
     ) -> None:
         size = len(spec.target_state)

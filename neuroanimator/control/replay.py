@@ -2,7 +2,7 @@
 
 The emulator was trained with every control held for the n physical steps of a super-step, so the
 replay holds each super-step's value for its n steps too (``np.repeat``); the physical model is the
-artifact's own copy of the MJCF (``artifacts.load_physical_model``), so a later change to the
+artifact's own copy of the MJCF (``registry.load_physical_model``), so a later change to the
 catalog cannot make the replay disagree with what the emulator learned.
 """
 
@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from neuroanimator.control import criteria
 from neuroanimator.control.spec import JobSpec
 from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.state import QUATERNION_KINDS, LayoutGroup
 
 FloatArray = NDArray[np.float64]
 
@@ -36,7 +37,7 @@ def simulate_held(
 
 
 def final_error(
-    final: FloatArray, target: Sequence[float], weights: Sequence[float], layout: Sequence[dict[str, Any]]
+    final: FloatArray, target: Sequence[float], weights: Sequence[float], layout: Sequence[LayoutGroup]
 ) -> tuple[float, dict[str, float]]:
     """The distance of a final state (S,) from the goal: ‖W e‖ with e per variable (angles wrapped,
     a quaternion's error the rotation angle to its target), and every weighted variable's |e|.
@@ -49,21 +50,21 @@ def final_error(
     total = 0.0
     per: dict[str, float] = {}
     for g in layout:
-        a, n = int(g["offset"]), int(g["size"])
-        labels = [f"{g['name']}.{lab}" for lab in g.get("labels") or []] or (
-            [g["name"]] if n == 1 else [f"{g['name']}[{i}]" for i in range(n)]
+        a, n = g.offset, g.size
+        labels = [f"{g.name}.{lab}" for lab in g.labels] or (
+            [g.name] if n == 1 else [f"{g.name}[{i}]" for i in range(n)]
         )
-        if g["kind"] in ("quaternion", "local_quaternion"):
+        if g.kind in QUATERNION_KINDS:
             q = s[a : a + 4] / np.linalg.norm(s[a : a + 4])
             qd = tgt[a : a + 4] / np.linalg.norm(tgt[a : a + 4])
             angle = float(2.0 * np.arccos(min(1.0, abs(float(q @ qd)))))
             wq = float(np.sqrt(np.mean(w[a : a + 4] ** 2)))
             total += (wq * angle) ** 2
             if wq > 0:
-                per[f"{g['name']}.angle"] = angle
+                per[f"{g.name}.angle"] = angle
             continue
         e = s[a : a + n] - tgt[a : a + n]
-        if g["kind"] in ("angle", "heading"):
+        if g.kind in ("angle", "heading"):
             e = (e + np.pi) % (2 * np.pi) - np.pi
         total += float(np.sum((w[a : a + n] * e) ** 2))
         for i in range(n):
@@ -84,7 +85,7 @@ class Replay:
 
     @classmethod
     def of(
-        cls, states: FloatArray, spec: JobSpec, layout: Sequence[dict[str, Any]], labels: Sequence[str]
+        cls, states: FloatArray, spec: JobSpec, layout: Sequence[LayoutGroup], labels: Sequence[str]
     ) -> Replay:
         err, per = final_error(states[-1], spec.target_state, spec.state_weights, layout)
         ok, checks = criteria.evaluate(spec.success, states[-1], np.asarray(spec.target_state), labels)

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from neuroanimator import artifacts
+from neuroanimator import artifacts, registry
 from neuroanimator.control import criteria
 from neuroanimator.control.bptt import ControlProblem
 from neuroanimator.control.jobs import validate_job
@@ -41,6 +41,7 @@ from neuroanimator.controller_schemas import (
     RefinementRound,
     Trajectory,
 )
+from neuroanimator.manifest import Manifest
 
 log = logging.getLogger(__name__)
 
@@ -56,10 +57,10 @@ STATUS = {
 }
 
 
-def load_problem(spec: JobSpec, artifacts_root: Path) -> tuple[ControlProblem, dict[str, Any], Path]:
+def load_problem(spec: JobSpec, artifacts_root: Path) -> tuple[ControlProblem, Manifest, Path]:
     """The emulator objective of a validated spec, the artifact's manifest and its folder."""
-    path = artifacts.resolve(Path(artifacts_root), spec.model, spec.version)
-    manifest = artifacts.load_manifest(path)
+    path = registry.resolve(Path(artifacts_root), spec.model, spec.version)
+    manifest = registry.read_manifest(path)
     return ControlProblem(artifacts.load_torch(path), spec, manifest), manifest, path
 
 
@@ -103,9 +104,9 @@ def _run(
     t0: float,
 ) -> JobOutcome:
     problem, manifest, path = load_problem(spec, root)
-    physical = artifacts.load_physical_model(path)
-    labels: list[str] = manifest["state_labels"]
-    layout = manifest["layout"]
+    physical = registry.load_physical_model(path, manifest)
+    labels = manifest.state_labels
+    layout = manifest.layout
     target = np.asarray(spec.target_state, dtype=np.float64)
     s0 = np.asarray(spec.initial_state, dtype=np.float64)
     n = spec.substeps
@@ -230,7 +231,7 @@ def _run(
         objective=clean(problem.score(emulated, held)),
         objective_physics=clean(-neg_j_phys),
         objective_history=clean(outcome.history),
-        control_names=[c["name"] for c in manifest["controls"]],
+        control_names=[c.name for c in manifest.controls],
         control_points=clean(problem.to_physical(z)),
         control_spacing_s=problem.spline.spacing,
         super_timestep=problem.super_dt,

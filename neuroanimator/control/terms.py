@@ -24,6 +24,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from neuroanimator.control.errors import JobSpecError
+from neuroanimator.state import LayoutGroup
 
 TERMS: dict[str, str] = {
     "final_state": "weight/2 ‖W (s_K − target)‖² on the final state; params: target (S), weights (S); "
@@ -179,7 +180,7 @@ def normalize_terms(
     terms: Any,
     *,
     labels: Sequence[str],
-    layout: Sequence[dict[str, Any]],
+    layout: Sequence[LayoutGroup],
     target: list[float],
     weights: list[float],
     horizon: int,
@@ -220,12 +221,7 @@ def normalize_terms(
             term = ControlSmoothnessTerm(term="control_smoothness", weight=weight)
         elif name == "final_velocity":
             allowed |= {"variables"}
-            default = [
-                i
-                for g in layout
-                if g["source"] == "qvel"
-                for i in range(int(g["offset"]), int(g["offset"]) + int(g["size"]))
-            ]
+            default = [i for g in layout if g.source == "qvel" for i in range(g.offset, g.offset + g.size)]
             variables = _indices(f"{at}.variables", t.get("variables", default), labels)
             term = FinalVelocityTerm(term="final_velocity", weight=weight, variables=variables)
         elif name == "forward_distance":
@@ -233,14 +229,14 @@ def normalize_terms(
             if "variables" in t:
                 variables = _indices(f"{at}.variables", t["variables"], labels)
             else:
-                root = next((g for g in layout if g["kind"] == "position"), None)
+                root = next((g for g in layout if g.kind == "position"), None)
                 if root is None:
                     raise JobSpecError(
                         at,
                         "forward_distance needs a model with a root position group (this one has "
                         "none), or variables",
                     )
-                variables = list(range(int(root["offset"]), int(root["offset"]) + int(root["size"])))
+                variables = list(range(root.offset, root.offset + root.size))
             dim = len(variables)
             direction = vector(f"{at}.direction", t.get("direction", [1.0] + [0.0] * (dim - 1)), dim)
             if not any(direction):

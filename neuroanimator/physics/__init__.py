@@ -13,8 +13,8 @@ from functools import cache
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
+from neuroanimator.model_spec import ForceInput, InitialStates, ModelSpec
 from neuroanimator.physics import lander, pendulum, truck
-from neuroanimator.physics.spec import ForceInput, InitialStates, ModelSpec
 
 if TYPE_CHECKING:
     from neuroanimator.physics.model import Frame, ModelError, PhysicalModel

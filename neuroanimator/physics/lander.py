@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING
 
 from neuroanimator.control.criteria import SuccessCheck
 from neuroanimator.control.spec import Task
-from neuroanimator.physics.spec import InitialStates, ModelSpec
-from neuroanimator.state import StateLayout
+from neuroanimator.model_spec import InitialStates, ModelSpec
+from neuroanimator.state import StateGroup, StateLayout
 
 if TYPE_CHECKING:
     from neuroanimator.physics.model import PhysicalModel
@@ -19,42 +19,20 @@ XML_PATH = Path(__file__).with_name("lander.xml")
 HOVER_THRUST = 100 * 1.62 / 10.0  # main-jet control that balances lunar gravity
 
 LAYOUT = [
-    {
-        "name": "position",
-        "kind": "position",
-        "size": 3,
-        "source": "qpos",
-        "address": 0,
-        "labels": ["x", "y", "z"],
-    },
-    {
-        "name": "orientation",
-        "kind": "quaternion",
-        "size": 4,
-        "source": "qpos",
-        "address": 3,
-        "labels": ["w", "x", "y", "z"],
-    },
-    {
-        "name": "velocity",
-        "kind": "world_vector",
-        "size": 3,
-        "source": "qvel",
-        "address": 0,
-        "labels": ["x", "y", "z"],
-    },
-    {
-        "name": "angular_velocity",
-        "kind": "local_vector",
-        "size": 3,
-        "source": "qvel",
-        "address": 3,
-        "labels": ["x", "y", "z"],
-    },
+    StateGroup(name="position", kind="position", size=3, source="qpos", address=0, labels=("x", "y", "z")),
+    StateGroup(
+        name="orientation", kind="quaternion", size=4, source="qpos", address=3, labels=("w", "x", "y", "z")
+    ),
+    StateGroup(
+        name="velocity", kind="world_vector", size=3, source="qvel", address=0, labels=("x", "y", "z")
+    ),
+    StateGroup(
+        name="angular_velocity", kind="local_vector", size=3, source="qvel", address=3, labels=("x", "y", "z")
+    ),
 ]
 
 
-LABELS = tuple(StateLayout.from_dict(LAYOUT).labels())
+LABELS = tuple(StateLayout(tuple(LAYOUT)).labels())
 
 
 def lander() -> PhysicalModel:

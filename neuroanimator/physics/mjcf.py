@@ -7,8 +7,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from neuroanimator.model_spec import InitialStates, ModelSpec
 from neuroanimator.physics.model import ModelError, PhysicalModel, derive_layout, read_model_name
-from neuroanimator.physics.spec import InitialStates, ModelSpec
 
 
 def load_mjcf(path: str | Path, *, substeps: int | None = None) -> PhysicalModel:

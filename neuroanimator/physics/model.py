@@ -17,6 +17,7 @@ import threading
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Literal
 
 import mujoco
 import numpy as np
@@ -25,8 +26,8 @@ from numpy.typing import NDArray
 
 from neuroanimator import controls as ctl
 from neuroanimator import quaternion as quat
-from neuroanimator.physics.spec import ModelSpec
-from neuroanimator.state import StateGroup, StateLayout
+from neuroanimator.model_spec import ModelSpec
+from neuroanimator.state import GroupKind, StateGroup, StateLayout
 
 FloatArray = NDArray[np.float64]
 _PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -44,8 +45,16 @@ class Frame:
     translate: tuple[bool, ...]  # one flag per dimension of the root position group
     rotate: bool
 
-    def to_dict(self) -> dict[str, object]:
-        return {"translate": list(self.translate), "rotate": self.rotate}
+
+def _group(
+    name: str,
+    kind: GroupKind,
+    size: int,
+    source: Literal["qpos", "qvel"],
+    address: int,
+    labels: tuple[str, ...] = (),
+) -> StateGroup:
+    return StateGroup(name=name, kind=kind, size=size, source=source, address=address, labels=labels)
 
 
 def derive_layout(m: mujoco.MjModel) -> StateLayout:
@@ -66,9 +75,9 @@ def derive_layout(m: mujoco.MjModel) -> StateLayout:
             root = not root_taken
             root_taken = True
             xyz = ("x", "y", "z")
-            pos_groups.append(StateGroup(f"{name}.pos", "position" if root else "scalar", 3, "qpos", qa, xyz))
+            pos_groups.append(_group(f"{name}.pos", "position" if root else "scalar", 3, "qpos", qa, xyz))
             pos_groups.append(
-                StateGroup(
+                _group(
                     f"{name}.quat",
                     "quaternion" if root else "local_quaternion",
                     4,
@@ -77,21 +86,17 @@ def derive_layout(m: mujoco.MjModel) -> StateLayout:
                     ("w", "x", "y", "z"),
                 )
             )
-            vel_groups.append(
-                StateGroup(f"{name}.vel", "world_vector" if root else "scalar", 3, "qvel", va, xyz)
-            )
-            vel_groups.append(StateGroup(f"{name}.angvel", "local_vector", 3, "qvel", va + 3, xyz))
+            vel_groups.append(_group(f"{name}.vel", "world_vector" if root else "scalar", 3, "qvel", va, xyz))
+            vel_groups.append(_group(f"{name}.angvel", "local_vector", 3, "qvel", va + 3, xyz))
         elif jt == mujoco.mjtJoint.mjJNT_BALL:
-            pos_groups.append(
-                StateGroup(f"{name}.quat", "local_quaternion", 4, "qpos", qa, ("w", "x", "y", "z"))
-            )
-            vel_groups.append(StateGroup(f"{name}.angvel", "local_vector", 3, "qvel", va, ("x", "y", "z")))
+            pos_groups.append(_group(f"{name}.quat", "local_quaternion", 4, "qpos", qa, ("w", "x", "y", "z")))
+            vel_groups.append(_group(f"{name}.angvel", "local_vector", 3, "qvel", va, ("x", "y", "z")))
         elif jt == mujoco.mjtJoint.mjJNT_HINGE:
-            pos_groups.append(StateGroup(f"{name}.angle", "angle", 1, "qpos", qa))
-            vel_groups.append(StateGroup(f"{name}.rate", "scalar", 1, "qvel", va))
+            pos_groups.append(_group(f"{name}.angle", "angle", 1, "qpos", qa))
+            vel_groups.append(_group(f"{name}.rate", "scalar", 1, "qvel", va))
         else:  # slide
-            pos_groups.append(StateGroup(f"{name}.pos", "scalar", 1, "qpos", qa))
-            vel_groups.append(StateGroup(f"{name}.vel", "scalar", 1, "qvel", va))
+            pos_groups.append(_group(f"{name}.pos", "scalar", 1, "qpos", qa))
+            vel_groups.append(_group(f"{name}.vel", "scalar", 1, "qvel", va))
     if not pos_groups:
         raise ModelError("the MJCF has no joints: there is no state to emulate")
     return StateLayout(tuple(pos_groups + vel_groups))
@@ -110,7 +115,7 @@ class PhysicalModel:
             raise ModelError(f"malformed MJCF for model {spec.name!r}: {exc}") from exc
         m = self.mj_model
         try:
-            self.layout = StateLayout.from_dict(spec.layout) if spec.layout is not None else derive_layout(m)
+            self.layout = StateLayout.of(spec.layout) if spec.layout is not None else derive_layout(m)
         except (ValueError, KeyError) as exc:
             raise ModelError(f"model {spec.name}: bad state layout: {exc}") from exc
         self._check_layout()
@@ -194,31 +199,6 @@ class PhysicalModel:
 
     def mjcf_sha256(self) -> str:
         return hashlib.sha256(self.xml.encode()).hexdigest()
-
-    def describe(self) -> dict[str, object]:
-        """Plain data for manifests and listings."""
-        return {
-            "name": self.name,
-            "description": self.spec.description,
-            "timestep": self.dt,
-            "state_size": self.state_size,
-            "layout": self.layout.to_dict(),
-            "state_labels": self.layout.labels(),
-            "controls": [
-                {
-                    "name": n,
-                    "low": float(lo),
-                    "high": float(hi),
-                    "limit_low": float(a),
-                    "limit_high": float(b),
-                }
-                for n, (lo, hi), (a, b) in zip(
-                    self.control_names, self.control_range, self.control_limits, strict=True
-                )
-            ],
-            "forces": [f.model_dump() for f in self.spec.forces],
-            "frame": self.frame.to_dict(),
-        }
 
     # ------------------------------------------------------------------ checks
     def _check_layout(self) -> None:

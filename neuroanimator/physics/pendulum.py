@@ -10,8 +10,8 @@ from typing import TYPE_CHECKING
 
 from neuroanimator.control.criteria import SuccessCheck
 from neuroanimator.control.spec import Task
-from neuroanimator.physics.spec import ForceInput, InitialStates, ModelSpec
-from neuroanimator.state import StateLayout
+from neuroanimator.model_spec import ForceInput, InitialStates, ModelSpec
+from neuroanimator.state import StateGroup, StateLayout
 
 if TYPE_CHECKING:
     from neuroanimator.physics.model import PhysicalModel
@@ -19,24 +19,10 @@ if TYPE_CHECKING:
 XML_PATH = Path(__file__).with_name("pendulum.xml")
 
 LAYOUT = [
-    {
-        "name": "angles",
-        "kind": "angle",
-        "size": 3,
-        "source": "qpos",
-        "address": 0,
-        "labels": ["j0", "j1", "j2"],
-    },
-    {
-        "name": "rates",
-        "kind": "scalar",
-        "size": 3,
-        "source": "qvel",
-        "address": 0,
-        "labels": ["j0", "j1", "j2"],
-    },
+    StateGroup(name="angles", kind="angle", size=3, source="qpos", address=0, labels=("j0", "j1", "j2")),
+    StateGroup(name="rates", kind="scalar", size=3, source="qvel", address=0, labels=("j0", "j1", "j2")),
 ]
-LABELS = tuple(StateLayout.from_dict(LAYOUT).labels())
+LABELS = tuple(StateLayout(tuple(LAYOUT)).labels())
 # hanging at rest is angle 0; start anywhere within ±1.5 rad, slowly moving
 INITIAL = InitialStates(low=[-1.5] * 3 + [-0.5] * 3, high=[1.5] * 3 + [0.5] * 3)
 

@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING
 
 from neuroanimator.control.criteria import SuccessCheck
 from neuroanimator.control.spec import Task
-from neuroanimator.physics.spec import InitialStates, ModelSpec
-from neuroanimator.state import StateLayout
+from neuroanimator.model_spec import InitialStates, ModelSpec
+from neuroanimator.state import StateGroup, StateLayout
 
 if TYPE_CHECKING:
     from neuroanimator.physics.model import PhysicalModel
@@ -18,21 +18,14 @@ if TYPE_CHECKING:
 XML_PATH = Path(__file__).with_name("truck.xml")
 
 LAYOUT = [
-    {"name": "position", "kind": "position", "size": 2, "source": "qpos", "address": 0, "labels": ["x", "y"]},
-    {"name": "heading", "kind": "heading", "size": 1, "source": "qpos", "address": 2},
-    {
-        "name": "velocity",
-        "kind": "world_vector",
-        "size": 2,
-        "source": "qvel",
-        "address": 0,
-        "labels": ["x", "y"],
-    },
-    {"name": "yaw_rate", "kind": "scalar", "size": 1, "source": "qvel", "address": 2},
+    StateGroup(name="position", kind="position", size=2, source="qpos", address=0, labels=("x", "y")),
+    StateGroup(name="heading", kind="heading", size=1, source="qpos", address=2),
+    StateGroup(name="velocity", kind="world_vector", size=2, source="qvel", address=0, labels=("x", "y")),
+    StateGroup(name="yaw_rate", kind="scalar", size=1, source="qvel", address=2),
 ]
 
 
-LABELS = tuple(StateLayout.from_dict(LAYOUT).labels())
+LABELS = tuple(StateLayout(tuple(LAYOUT)).labels())
 
 
 def truck() -> PhysicalModel:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import AsyncIterator
-from pathlib import Path
 from urllib.parse import parse_qs, urlsplit, urlunsplit
 
 import redis
@@ -22,6 +21,7 @@ from prometheus_client import CONTENT_TYPE_LATEST
 from rq import Worker
 from starlette.types import ASGIApp, Receive, Scope, Send
 
+from neuroanimator import registry
 from neuroanimator.schemas import ErrorBody
 from services.common.auth import ApiKeyMiddleware, ApiKeys
 from services.common.errors import add_error_handlers
@@ -41,13 +41,6 @@ def redacted(url: str) -> str:
         netloc = f"{parts.username or ''}:***@{host}" + (f":{parts.port}" if parts.port else "")
         return urlunsplit(parts._replace(netloc=netloc))
     return url
-
-
-def artifact_models(root: Path) -> list[str]:
-    """Models with a ``latest`` pointer in the registry (what a job can use)."""
-    if not root.is_dir():
-        return []
-    return sorted(p.name for p in root.iterdir() if p.is_dir() and (p / "latest").is_file())
 
 
 class QueryKeyMiddleware:
@@ -141,7 +134,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @app.get("/readyz", tags=["ops"])
     def readyz() -> Response:
         """Ready when Redis answers and the artifact registry has a model (503 with the reason if not)."""
-        models = artifact_models(settings.artifacts_dir)
+        models = registry.list_models(settings.artifacts_dir)
         try:
             conn.ping()
             workers = Worker.count(queue=store.queue)

@@ -1,36 +1,32 @@
-"""A torch-free reader of the artifact registry, ``<root>/<model>/<version>/``.
+"""The emulators this service serves, loaded from the artifact registry (``neuroanimator.registry``).
 
 It loads every model's ``latest`` version into an ``OnnxEmulator`` and re-reads the pointer files at
 most every ``poll_s`` seconds, so a new version is served without a restart. Versions already loaded
 stay loaded: a session keeps the version it started with. An older version named explicitly is
-loaded on demand. (``neuroanimator.artifacts`` itself imports torch for saving; this module does not.)
+loaded on demand. Nothing here imports torch.
 """
 
 from __future__ import annotations
 
-import json
 import logging
-import re
 import threading
 import time
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from neuroanimator import registry
 from neuroanimator.export import OnnxEmulator
+from neuroanimator.manifest import Manifest
 from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.physics.spec import ModelSpec
+from neuroanimator.state import QUATERNION_KINDS
 from services.common.errors import ApiError
 from services.emulator.scene import Kinematics
 
 log = logging.getLogger(__name__)
-FORMAT = 1
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
-QUATERNION_KINDS = ("quaternion", "local_quaternion")
 
 
 @dataclass
@@ -40,7 +36,7 @@ class Loaded:
     model: str
     version: str
     path: Path
-    manifest: dict[str, Any]
+    manifest: Manifest
     emulator: OnnxEmulator
     control_range: NDArray[np.float64] = field(init=False)
     force_range: NDArray[np.float64] = field(init=False)
@@ -50,12 +46,12 @@ class Loaded:
 
     def __post_init__(self) -> None:
         m = self.manifest
-        self.control_range = np.array([[c["low"], c["high"]] for c in m["controls"]], float).reshape(-1, 2)
-        self.force_range = np.array([[f["low"], f["high"]] for f in m["forces"]], float).reshape(-1, 2)
+        self.control_range = np.array([[c.low, c.high] for c in m.controls], float).reshape(-1, 2)
+        self.force_range = np.array([[f.low, f.high] for f in m.forces], float).reshape(-1, 2)
         both = np.concatenate([self.control_range, self.force_range])
         self.input_low, self.input_high = both[:, 0].astype(np.float32), both[:, 1].astype(np.float32)
         self.quaternion_slices = [
-            slice(g["offset"], g["offset"] + g["size"]) for g in m["layout"] if g["kind"] in QUATERNION_KINDS
+            slice(g.offset, g.offset + g.size) for g in m.layout if g.kind in QUATERNION_KINDS
         ]
         e = self.emulator
         if (e.state_size, e.num_controls, e.num_forces) != (
@@ -67,24 +63,24 @@ class Loaded:
 
     @property
     def state_size(self) -> int:
-        return int(self.manifest["state_size"])
+        return self.manifest.state_size
 
     @property
     def num_controls(self) -> int:
-        return len(self.manifest["controls"])
+        return self.manifest.num_controls
 
     @property
     def num_forces(self) -> int:
-        return len(self.manifest["forces"])
+        return self.manifest.num_forces
 
     @property
     def super_timestep(self) -> float:
-        return float(self.manifest["super_timestep"])
+        return self.manifest.super_timestep
 
     @cached_property
     def physical(self) -> PhysicalModel:
         """The MuJoCo model the artifact was trained on (for typical initial states)."""
-        return PhysicalModel((self.path / "model.xml").read_text(), ModelSpec(**self.manifest["spec"]))
+        return registry.load_physical_model(self.path, self.manifest)
 
     @cached_property
     def kinematics(self) -> Kinematics:
@@ -93,19 +89,12 @@ class Loaded:
 
     @property
     def substeps(self) -> int:
-        return int(self.manifest["substeps"])
+        return self.manifest.substeps
 
     def initial_state(self, seed: int) -> NDArray[np.float32]:
         """(S,) a random typical start, deterministic for the seed."""
         s = self.physical.initial_states(np.random.default_rng(seed), 1)[0]
         return s.astype(np.float32)
-
-
-def read_manifest(path: Path) -> dict[str, Any]:
-    data: dict[str, Any] = json.loads((path / "manifest.json").read_text())
-    if data.get("format") != FORMAT:
-        raise ValueError(f"{path}: manifest format {data.get('format')!r}, expected {FORMAT}")
-    return data
 
 
 class Registry:
@@ -124,8 +113,8 @@ class Registry:
         key = (model, version)
         if key not in self.loaded:
             path = self.root / model / version
-            manifest = read_manifest(path)
-            emu = OnnxEmulator(path / "emulator.onnx", threads=self.threads)
+            manifest = registry.read_manifest(path)
+            emu = OnnxEmulator(path / registry.ONNX_FILE, threads=self.threads)
             self.loaded[key] = Loaded(model, version, path, manifest, emu)
             log.info("loaded emulator", extra={"model": model, "version": version})
         return self.loaded[key]
@@ -135,19 +124,14 @@ class Registry:
         logged and skipped (the previous latest keeps serving)."""
         with self._lock:
             self._checked = time.monotonic()
-            if not self.root.is_dir():
-                return
-            for model_dir in sorted(self.root.iterdir()):
-                ptr = model_dir / "latest"
-                if not (model_dir.is_dir() and ptr.is_file() and _NAME.match(model_dir.name)):
-                    continue
+            for model in registry.list_models(self.root):
                 try:
-                    version = ptr.read_text().strip()
-                    if self.latest.get(model_dir.name) != version:
-                        self._load(model_dir.name, version)
-                        self.latest[model_dir.name] = version
-                except (OSError, ValueError, KeyError) as exc:
-                    log.error("cannot load %s: %s", model_dir, exc)
+                    version = registry.latest_version(self.root, model)
+                    if self.latest.get(model) != version:
+                        self._load(model, version)
+                        self.latest[model] = version
+                except (OSError, ValueError, registry.ArtifactError) as exc:
+                    log.error("cannot load %s: %s", self.root / model, exc)
 
     def maybe_refresh(self) -> None:
         if time.monotonic() - self._checked >= self.poll_s:
@@ -176,13 +160,12 @@ class Registry:
             return self.loaded[(model, self.latest[model])]
         if (model, version) in self.loaded:
             return self.loaded[(model, version)]
-        path = self.root / model / version
-        if _NAME.match(version) and (path / "manifest.json").is_file():
+        if registry.is_name(version) and version in registry.versions(self.root, model):
             with self._lock:
                 try:
                     return self._load(model, version)
-                except (OSError, ValueError, KeyError) as exc:
-                    log.error("cannot load %s: %s", path, exc)
+                except (OSError, ValueError, registry.ArtifactError) as exc:
+                    log.error("cannot load %s: %s", self.root / model / version, exc)
         raise ApiError(
             404,
             "unknown_version",

@@ -2,27 +2,25 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 import torch
 
+from neuroanimator import registry
 from neuroanimator.control import JobSpec
 from neuroanimator.control.jobs import validate_job
 from neuroanimator.control.objectives import Objective, StateDistance, control_scale
 from neuroanimator.physics.lander import LABELS as LANDER_LABELS
+from neuroanimator.state import LayoutGroup
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts"
 
 
-def lander_layout() -> list[dict[str, Any]]:
-    manifest_dir = ARTIFACTS / "lander" / (ARTIFACTS / "lander" / "latest").read_text().strip()
-    layout: list[dict[str, Any]] = json.loads((manifest_dir / "manifest.json").read_text())["layout"]
-    return layout
+def lander_layout() -> list[LayoutGroup]:
+    return registry.read_manifest(registry.resolve(ARTIFACTS, "lander")).layout
 
 
 ALL_TERMS = [
@@ -110,8 +108,8 @@ def test_quaternion_error_is_sign_invariant_and_small_angle_consistent() -> None
 
 def test_angle_error_wraps_a_full_turn() -> None:
     layout = [
-        {"name": "angles", "kind": "angle", "size": 1, "offset": 0},
-        {"name": "rates", "kind": "scalar", "size": 1, "offset": 1},
+        LayoutGroup(name="angles", kind="angle", size=1, source="qpos", address=0, offset=0),
+        LayoutGroup(name="rates", kind="scalar", size=1, source="qvel", address=0, offset=1),
     ]
     dist = StateDistance(layout, 2)
     w = torch.ones(2, dtype=torch.float64)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, physics
+from neuroanimator import artifacts, physics, registry
 from neuroanimator.control import JobSpec, run_job, validate_job
 from neuroanimator.control.bptt import ControlProblem, FastStep
 from neuroanimator.control.replay import simulate_held
@@ -27,18 +27,18 @@ def short_spec(task: str = "pendulum-swing", **kw: Any) -> JobSpec:
 
 
 def problem_of(spec: JobSpec, dtype: torch.dtype = torch.float32) -> ControlProblem:
-    path = artifacts.resolve(ARTIFACTS, spec.model, spec.version)
+    path = registry.resolve(ARTIFACTS, spec.model, spec.version)
     emu = artifacts.load_torch(path)
     if dtype == torch.float64:
         emu = emu.double()
-    return ControlProblem(emu, spec, artifacts.load_manifest(path), dtype=dtype)
+    return ControlProblem(emu, spec, registry.read_manifest(path), dtype=dtype)
 
 
 @pytest.mark.parametrize("model", ["pendulum-active", "lander", "truck"])
 def test_torch_rollout_matches_the_artifacts_onnx(model: str) -> None:
     """The emulator the gradients run through is the artifact's ONNX graph, step for step."""
-    path = artifacts.resolve(ARTIFACTS, model, substeps=50)
-    physical = artifacts.load_physical_model(path)
+    path = registry.resolve(ARTIFACTS, model, substeps=50)
+    physical = registry.load_physical_model(path)
     rng = np.random.default_rng(0)
     s0 = physical.initial_states(rng, 4)
     u = physical.typical_controls(rng, 4, np.arange(10) * 0.5)  # (4, 10, U) held per super-step
@@ -77,8 +77,8 @@ def test_momentum_descent_on_a_tiny_emulator_lowers_the_objective(
     (fixed η and α, no line search) still go downhill."""
     spec = short_spec(optimizer={"learning_rate": 0.02, "momentum": 0.5, "line_search": False})
     emu = make_emulator(physics.get("pendulum-active"))
-    path = artifacts.resolve(ARTIFACTS, spec.model, spec.version)
-    problem = ControlProblem(emu, spec, artifacts.load_manifest(path))
+    path = registry.resolve(ARTIFACTS, spec.model, spec.version)
+    problem = ControlProblem(emu, spec, registry.read_manifest(path))
     seen: list[tuple[int, float, float, bool]] = []
     out = optimize(
         lambda z: problem.value_and_grad(z)[:3],
@@ -206,8 +206,8 @@ def test_result_contract() -> None:
 def test_physics_correction_makes_the_emulator_replay_the_physical_trajectory() -> None:
     spec = short_spec("lander-landing")
     problem = problem_of(spec)
-    path = artifacts.resolve(ARTIFACTS, spec.model, spec.version)
-    physical = artifacts.load_physical_model(path)
+    path = registry.resolve(ARTIFACTS, spec.model, spec.version)
+    physical = registry.load_physical_model(path)
     z = problem.project(problem.initial_points() + 0.2)
     _, held = problem.trajectory(z)
     phys = simulate_held(physical, np.asarray(spec.initial_state)[None], held[None], spec.substeps)[0]

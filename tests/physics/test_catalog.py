@@ -226,9 +226,10 @@ def test_bad_input_width_is_rejected() -> None:
 def _truck_with_layout(change: dict[str, object], group: int) -> PhysicalModel:
     truck = physics.get("truck")
     assert truck.spec.layout is not None
-    layout = [dict(g) for g in truck.spec.layout]
+    layout = [g.model_dump() for g in truck.spec.layout]
     layout[group].update(change)
-    return PhysicalModel(truck.xml, truck.spec.model_copy(update={"layout": layout}))
+    spec = physics.ModelSpec.model_validate({**truck.spec.model_dump(), "layout": layout})
+    return PhysicalModel(truck.xml, spec)
 
 
 def test_layout_reading_past_mujoco_arrays_raises_naming_the_group() -> None:

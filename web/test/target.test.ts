@@ -1,21 +1,22 @@
 import { describe, expect, it } from 'vitest';
+import type { LayoutGroup } from '../src/api/emulator.gen';
 import { headingOf, targetHandles, withHeading, withXY } from '../src/session/target';
 
-const truck = [
-  { name: 'position', kind: 'position', size: 2, offset: 0, source: 'qpos' },
-  { name: 'heading', kind: 'heading', size: 1, offset: 2, source: 'qpos' },
-  { name: 'velocity', kind: 'world_vector', size: 2, offset: 3, source: 'qvel' },
-  { name: 'yaw_rate', kind: 'scalar', size: 1, offset: 5, source: 'qvel' },
+const truck: LayoutGroup[] = [
+  { name: 'position', kind: 'position', size: 2, offset: 0, source: 'qpos', address: 0 },
+  { name: 'heading', kind: 'heading', size: 1, offset: 2, source: 'qpos', address: 2 },
+  { name: 'velocity', kind: 'world_vector', size: 2, offset: 3, source: 'qvel', address: 0 },
+  { name: 'yaw_rate', kind: 'scalar', size: 1, offset: 5, source: 'qvel', address: 2 },
 ];
-const lander = [
-  { name: 'position', kind: 'position', size: 3, offset: 0, source: 'qpos' },
-  { name: 'orientation', kind: 'quaternion', size: 4, offset: 3, source: 'qpos' },
-  { name: 'velocity', kind: 'world_vector', size: 3, offset: 7, source: 'qvel' },
-  { name: 'angular_velocity', kind: 'local_vector', size: 3, offset: 10, source: 'qvel' },
+const lander: LayoutGroup[] = [
+  { name: 'position', kind: 'position', size: 3, offset: 0, source: 'qpos', address: 0 },
+  { name: 'orientation', kind: 'quaternion', size: 4, offset: 3, source: 'qpos', address: 3 },
+  { name: 'velocity', kind: 'world_vector', size: 3, offset: 7, source: 'qvel', address: 0 },
+  { name: 'angular_velocity', kind: 'local_vector', size: 3, offset: 10, source: 'qvel', address: 3 },
 ];
-const pendulum = [
-  { name: 'angles', kind: 'angle', size: 3, offset: 0, source: 'qpos' },
-  { name: 'rates', kind: 'scalar', size: 3, offset: 3, source: 'qvel' },
+const pendulum: LayoutGroup[] = [
+  { name: 'angles', kind: 'angle', size: 3, offset: 0, source: 'qpos', address: 0 },
+  { name: 'rates', kind: 'scalar', size: 3, offset: 3, source: 'qvel', address: 0 },
 ];
 
 describe('targetHandles', () => {

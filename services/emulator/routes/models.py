@@ -6,7 +6,9 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from neuroanimator.schemas import (
+    ControlInfo,
     ErrorBody,
+    ForceInfo,
     ModelDetail,
     ModelGeometry,
     ModelList,
@@ -26,8 +28,8 @@ def summary(emu: Loaded, versions: list[str]) -> ModelSummary:
     return ModelSummary(
         model=emu.model,
         version=emu.version,
-        substeps=int(m["substeps"]),
-        timestep=float(m["timestep"]),
+        substeps=m.substeps,
+        timestep=m.timestep,
         super_timestep=emu.super_timestep,
         state_size=emu.state_size,
         num_controls=emu.num_controls,
@@ -49,12 +51,12 @@ async def get_model(model: str, engine: EngineDep, version: str | None = None) -
     m = emu.manifest
     return ModelDetail(
         **summary(emu, reg.versions(model)).model_dump(),
-        description=str(m.get("description", "")),
-        layout=m["layout"],
-        state_labels=m["state_labels"],
-        controls=m["controls"],
-        forces=m["forces"],
-        metrics=m.get("metrics", {}),
+        description=m.description,
+        layout=m.layout,
+        state_labels=m.state_labels,
+        controls=[ControlInfo(**c.model_dump()) for c in m.controls],
+        forces=[ForceInfo(**f.model_dump()) for f in m.forces],
+        metrics=m.metrics.model_dump(),
     )
 
 

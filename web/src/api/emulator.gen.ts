@@ -219,18 +219,28 @@ export interface ForceInfo {
   [k: string]: unknown;
 }
 /**
- * A group of the state vector: ``state[offset:offset+size]``; quaternions are ``[w, x, y, z]``.
+ * A group at its place in a state vector: ``state[offset:offset+size]``; quaternions are
+ * ``[w, x, y, z]``. This is how manifests and the services' answers list a layout.
  *
  * This interface was referenced by `EmulatorWire`'s JSON-Schema
  * via the `definition` "LayoutGroup".
  */
 export interface LayoutGroup {
   name: string;
-  kind: string;
+  kind:
+    | 'position'
+    | 'quaternion'
+    | 'local_quaternion'
+    | 'world_vector'
+    | 'local_vector'
+    | 'heading'
+    | 'angle'
+    | 'scalar';
   size: number;
-  offset: number;
+  source: 'qpos' | 'qvel';
+  address: number;
   labels?: string[];
-  [k: string]: unknown;
+  offset: number;
 }
 /**
  * The manifest's description of the latest (or the named) version.

@@ -10,14 +10,12 @@ export interface TargetHandles {
   editable: number[]; // state indices a person may type
 }
 
-const source = (g: LayoutGroup): string => (typeof g.source === 'string' ? g.source : 'qpos');
-
 export function targetHandles(layout: LayoutGroup[]): TargetHandles {
   const pos = layout.find((g) => g.kind === 'position' && g.size >= 2);
   const heading = layout.find((g) => g.kind === 'heading' && g.size === 1);
   const quat = layout.find((g) => g.kind === 'quaternion' && g.size === 4);
   const editable = layout
-    .filter((g) => source(g) === 'qpos' && g.kind !== 'quaternion' && g.kind !== 'local_quaternion')
+    .filter((g) => g.source === 'qpos' && g.kind !== 'quaternion' && g.kind !== 'local_quaternion')
     .flatMap((g) => Array.from({ length: g.size }, (_, i) => g.offset + i));
   return {
     xy: pos ? [pos.offset, pos.offset + 1] : null,

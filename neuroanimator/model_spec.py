@@ -1,14 +1,15 @@
 """``ModelSpec``: everything about a physical system that its MJCF does not say.
 
 A catalog model and a user's model are both an MJCF file plus a ``ModelSpec``; the spec is plain
-data (saved in every artifact's manifest), so a model can be rebuilt from its artifact alone.
+data (saved in every artifact's manifest), so a model can be rebuilt from its artifact alone. It
+imports neither MuJoCo nor torch, so processes that only read manifests stay light.
 """
 
 from __future__ import annotations
 
-from typing import Any
-
 from pydantic import BaseModel, ConfigDict, Field
+
+from neuroanimator.state import StateGroup
 
 
 class ForceInput(BaseModel):
@@ -50,7 +51,7 @@ class ModelSpec(BaseModel):
     name: str
     description: str = ""
     substeps: int = Field(50, ge=1, description="default super timestep n (Δt = n·δt)")
-    layout: list[dict[str, Any]] | None = Field(
+    layout: list[StateGroup] | None = Field(
         None, description="explicit state groups; None derives them from the MJCF's joints"
     )
     control_low: list[float] | None = Field(

@@ -1,0 +1,376 @@
+"""``Manifest``: what an artifact version is, read from its ``manifest.json``; the one owner of its keys.
+
+A manifest says which model and version an artifact is, its time steps (δt and the super-step
+Δt = n·δt), the state layout, the controls and external forces with their ranges, the inputs and
+output of its ONNX graph, how the emulator is built from networks, how it was trained, and hashes of
+what it was made from. Everything that reads an artifact reads this type; nothing reads the JSON by key.
+
+The emulator is described as networks plus a composition (``EmulatorGraph``), so that an emulator
+made of several networks is a manifest of the same shape as today's one-network emulator:
+
+- the one-network emulator: one network ``core`` in the model's root frame that reads every state
+  group it needs, the controls and the forces, and writes the change of every state group;
+  ``stages = [["core"]]``;
+- a hierarchy: a network ``body`` in the root frame writing the root's groups, then one network per
+  body part in that part's frame (``frame.part``: an MJCF body), each reading the root's new state
+  (``reads.predicted``) and its own part's groups; ``stages = [["body"], ["arm_l", "arm_r", ...]]``.
+
+The file carries a schema version, ``format``. Older formats are upgraded when read
+(``parse_manifest``); a format this code does not know is refused, naming the versions it reads.
+Imports neither torch nor MuJoCo.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from neuroanimator.model_spec import ForceInput, ModelSpec
+from neuroanimator.state import LayoutGroup, StateLayout
+from neuroanimator.train_config import TrainConfig
+
+FORMAT: Literal[2] = 2
+"""The manifest format this code writes."""
+READABLE_FORMATS = (1, 2)
+"""The formats this code reads (older ones are upgraded in memory)."""
+
+Activation = Literal["sigmoid", "tanh", "silu", "gelu", "relu"]
+GraphInput = Literal["state", "controls", "forces"]
+
+
+class ManifestError(ValueError):
+    """A manifest that cannot be read as this code understands it; the message says why."""
+
+
+class _Strict(BaseModel):
+    # Python's json writes an unlimited control's ±inf as Infinity, and reads it back: keep that.
+    model_config = ConfigDict(extra="forbid", frozen=True, ser_json_inf_nan="constants")
+
+
+class ControlInput(_Strict):
+    """One control: ``low``..``high`` is the range the emulator was trained over (inputs are clipped
+    to it); ``limit_low``/``limit_high`` the actuator's hard limits (±inf where unlimited)."""
+
+    name: str
+    low: float
+    high: float
+    limit_low: float
+    limit_high: float
+
+
+class Symmetries(_Strict):
+    """The symmetries that are true of the physics: translation of each root-position axis, and
+    rotation about the vertical axis (``PhysicalModel.frame``)."""
+
+    translate: list[bool]
+    rotate: bool
+
+
+class GraphIO(_Strict):
+    """The ONNX graph's inputs, in order (each (B, width)), and its output ``next_state`` (B, S)."""
+
+    inputs: list[GraphInput]
+    output: Literal["next_state"] = "next_state"
+
+
+class InputGroup(_Strict):
+    """A block of a network's inputs that shares normalisation statistics (``mode="group"``)."""
+
+    name: str
+    size: int = Field(ge=1)
+
+
+class Normalization(_Strict):
+    """T^σ of one network: inputs ``x`` (D values) and outputs ``y`` are normalised to zero mean and
+    unit deviation, per group (``"group"``, thesis eqs. 4.10-4.11) or per variable (``"variable"``)."""
+
+    mode: Literal["group", "variable"]
+    input_groups: list[InputGroup]
+    x_mean: list[float]
+    x_std: list[float]
+    y_mean: list[float]
+    y_std: list[float]
+
+    @model_validator(mode="after")
+    def _sizes_agree(self) -> Normalization:
+        d = sum(g.size for g in self.input_groups)
+        if not len(self.x_mean) == len(self.x_std) == d:
+            raise ValueError(
+                f"x_mean and x_std must have {d} values (the input groups' sizes), "
+                f"got {len(self.x_mean)} and {len(self.x_std)}"
+            )
+        if len(self.y_mean) != len(self.y_std):
+            raise ValueError(f"y_mean and y_std differ in length: {len(self.y_mean)} and {len(self.y_std)}")
+        return self
+
+
+class NetworkFrame(_Strict):
+    """The frame a network's inputs and outputs are expressed in.
+
+    ``part`` is ``None`` for the model's root frame, else the MJCF body whose frame it is (a body
+    part of a hierarchy). ``translate`` (one flag per root-position axis) and ``rotate`` (about the
+    vertical axis) are the symmetries removed; ``force_pairs`` lists force inputs (indices into the
+    forces) that are rotated together as one vector.
+    """
+
+    part: str | None = None
+    translate: list[bool] = []
+    rotate: bool = False
+    force_pairs: list[list[int]] = []
+
+
+class NetworkReads(_Strict):
+    """What a network reads: state groups of the current state (``state``), state groups of the next
+    state as written by networks of earlier stages (``predicted``), controls and forces, by name."""
+
+    state: list[str]
+    predicted: list[str] = []
+    controls: list[str] = []
+    forces: list[str] = []
+
+
+class Network(_Strict):
+    """One network of an emulator: an MLP (``hidden`` widths, ``activation``) between its
+    normalisation, reading ``reads`` in its frame and predicting the change of the state groups in
+    ``writes``. ``input_size`` D and ``output_size`` are its widths; ``weights`` its parameter count."""
+
+    name: str
+    frame: NetworkFrame
+    reads: NetworkReads
+    writes: list[str]
+    hidden: list[int]
+    activation: Activation
+    normalization: Normalization
+    input_size: int = Field(ge=1)
+    output_size: int = Field(ge=1)
+    weights: int = Field(ge=0)
+
+    @model_validator(mode="after")
+    def _widths_agree(self) -> Network:
+        norm = self.normalization
+        if len(norm.x_mean) != self.input_size:
+            raise ValueError(
+                f"network {self.name!r}: input_size is {self.input_size}, its normalisation has {len(norm.x_mean)}"
+            )
+        if len(norm.y_mean) != self.output_size:
+            raise ValueError(
+                f"network {self.name!r}: output_size is {self.output_size}, its normalisation has {len(norm.y_mean)}"
+            )
+        return self
+
+
+class EmulatorGraph(_Strict):
+    """An emulator as networks and their composition.
+
+    ``stages`` lists the networks by stage: the networks of a stage run after those of earlier stages
+    (they may read what those wrote, ``reads.predicted``) and are independent of each other. Every
+    state group is written by exactly one network; the next state is the state plus every network's
+    change, back in world axes. A one-network emulator is ``stages = [[name]]``.
+    """
+
+    networks: list[Network] = Field(min_length=1)
+    stages: list[list[str]] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _composition_is_sound(self) -> EmulatorGraph:
+        names = [n.name for n in self.networks]
+        if len(set(names)) != len(names):
+            raise ValueError(f"network names must be unique, got {names}")
+        staged = [name for stage in self.stages for name in stage]
+        if sorted(staged) != sorted(names) or any(not stage for stage in self.stages):
+            raise ValueError(f"stages must name every network once, in non-empty stages; got {self.stages}")
+        writers: dict[str, str] = {}
+        by_name = {n.name: n for n in self.networks}
+        for stage in self.stages:
+            for name in stage:
+                net = by_name[name]
+                for group in net.reads.predicted:
+                    if group not in writers:
+                        raise ValueError(
+                            f"network {name!r} reads the predicted {group!r}, which no earlier stage writes"
+                        )
+            for name in stage:
+                for group in by_name[name].writes:
+                    if group in writers:
+                        raise ValueError(
+                            f"state group {group!r} is written by {writers[group]!r} and {name!r}"
+                        )
+                    writers[group] = name
+        return self
+
+    @property
+    def written(self) -> list[str]:
+        """Every state group some network writes."""
+        return [g for n in self.networks for g in n.writes]
+
+    @property
+    def weights(self) -> int:
+        return sum(n.weights for n in self.networks)
+
+    def only(self) -> Network:
+        """The network of a one-network emulator; ``ManifestError`` for a composed one."""
+        if len(self.networks) != 1:
+            raise ManifestError(
+                f"this emulator is composed of {len(self.networks)} networks "
+                f"({[n.name for n in self.networks]}); only one-network emulators can be used here"
+            )
+        return self.networks[0]
+
+
+class TrainMetrics(BaseModel):
+    """Measured when the emulator was trained: sizes, held-out one-step errors, seconds spent.
+    Further measurements recorded at training time are kept beside these."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+
+    weights: int
+    examples: int
+    test_examples: int
+    one_step_rel_error: float
+    linear_baseline_rel_error: float
+    validation_rel_error: float
+    data_seconds: float
+    train_seconds: float
+    total_seconds: float
+
+
+class Hashes(_Strict):
+    """SHA-256 of the MJCF, of the training data (``Examples.sha256``) and of ``emulator.onnx``."""
+
+    mjcf_sha256: str
+    training_data_sha256: str
+    onnx_sha256: str
+
+
+class Manifest(_Strict):
+    """One artifact version (``<root>/<model>/<version>/manifest.json``); see the module docstring.
+
+    Shapes: S = ``state_size`` (the layout's total), U = ``len(controls)``, F = ``len(forces)``.
+    """
+
+    format: Literal[2] = FORMAT
+    model: str
+    version: str
+    created: str = Field(description="ISO 8601 time the version was written (UTC)")
+    substeps: int = Field(ge=1, description="n: physical steps per super-step")
+    timestep: float = Field(gt=0, description="δt of the physics, seconds")
+    super_timestep: float = Field(gt=0, description="Δt = n·δt, seconds")
+    description: str = ""
+    state_size: int
+    layout: list[LayoutGroup]
+    state_labels: list[str]
+    controls: list[ControlInput]
+    forces: list[ForceInput]
+    frame: Symmetries
+    io: GraphIO
+    emulator: EmulatorGraph
+    train_config: TrainConfig
+    metrics: TrainMetrics
+    hashes: Hashes
+    spec: ModelSpec
+
+    @model_validator(mode="after")
+    def _parts_agree(self) -> Manifest:
+        layout = self.state_layout()  # offsets in order, names unique
+        if layout.size != self.state_size or len(self.state_labels) != self.state_size:
+            raise ValueError(
+                f"state_size is {self.state_size}, the layout has {layout.size} values "
+                f"and {len(self.state_labels)} labels"
+            )
+        groups = [g.name for g in self.layout]
+        if sorted(self.emulator.written) != sorted(groups):
+            raise ValueError(
+                f"the networks must write every state group once: groups {groups}, written {self.emulator.written}"
+            )
+        sizes = {g.name: g.size for g in self.layout}
+        controls, forces = {c.name for c in self.controls}, {f.name for f in self.forces}
+        for net in self.emulator.networks:
+            written = sum(sizes[g] for g in net.writes)
+            if net.output_size != written:
+                raise ValueError(
+                    f"network {net.name!r} writes {net.writes} ({written} values), but its output_size is {net.output_size}"
+                )
+            r = net.reads
+            for kind, read, known in (
+                ("state group", r.state + r.predicted, set(groups)),
+                ("control", r.controls, controls),
+                ("force", r.forces, forces),
+            ):
+                unknown = sorted(set(read) - known)
+                if unknown:
+                    raise ValueError(f"network {net.name!r} reads unknown {kind}s {unknown}")
+        return self
+
+    @property
+    def num_controls(self) -> int:
+        return len(self.controls)
+
+    @property
+    def num_forces(self) -> int:
+        return len(self.forces)
+
+    def state_layout(self) -> StateLayout:
+        """The layout as a ``StateLayout`` (slices, labels, lookups by kind)."""
+        return StateLayout.of(self.layout)
+
+
+def parse_manifest(data: Mapping[str, Any], source: str = "manifest") -> Manifest:
+    """A manifest from its JSON data, upgraded from an older format if need be.
+
+    ``source`` names the file in messages. Raises ``ManifestError`` for a format this code does not
+    read (naming the format found and the formats read) and for data that does not fit the format.
+    """
+    found = data.get("format")
+    if found not in READABLE_FORMATS:
+        raise ManifestError(
+            f"{source}: manifest format {found!r} is not one this code reads (it reads formats "
+            f"{list(READABLE_FORMATS)}); a newer NeuroAnimator wrote it, or the file is not a manifest"
+        )
+    try:
+        upgraded = _upgrade_1_to_2(data) if found == 1 else data
+        return Manifest.model_validate(upgraded)
+    except (ValidationError, KeyError, TypeError, ValueError) as exc:
+        raise ManifestError(f"{source}: not a valid format-{found} manifest: {exc}") from exc
+
+
+def _upgrade_1_to_2(old: Mapping[str, Any]) -> dict[str, Any]:
+    """Format 1 described its one network by ``normalization`` and ``architecture``; format 2 by
+    ``emulator`` (networks and their composition). Everything else is unchanged."""
+    data = {k: v for k, v in old.items() if k not in ("normalization", "architecture")}
+    norm, arch = old["normalization"], old["architecture"]
+    groups = [{"name": str(name), "size": int(size)} for name, size in norm["input_groups"]]
+    read = {g["name"] for g in groups}
+    frame = arch["frame"]
+    core = {
+        "name": "core",
+        "frame": {
+            "part": None,
+            "translate": frame["translate"],
+            "rotate": frame["rotate"],
+            "force_pairs": frame.get("force_pairs", []),
+        },
+        "reads": {
+            "state": [g["name"] for g in old["layout"] if g["name"] in read],
+            "controls": [c["name"] for c in old["controls"]] if "controls" in read else [],
+            "forces": [f["name"] for f in old["forces"]] if "forces" in read else [],
+        },
+        "writes": [g["name"] for g in old["layout"]],
+        "hidden": arch["hidden"],
+        "activation": arch["activation"],
+        "normalization": {
+            "mode": norm["mode"],
+            "input_groups": groups,
+            "x_mean": norm["x_mean"],
+            "x_std": norm["x_std"],
+            "y_mean": norm["y_mean"],
+            "y_std": norm["y_std"],
+        },
+        "input_size": arch["input_size"],
+        "output_size": arch["output_size"],
+        "weights": arch["weights"],
+    }
+    data["format"] = FORMAT
+    data["emulator"] = {"networks": [core], "stages": [["core"]]}
+    return data

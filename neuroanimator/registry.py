@@ -1,0 +1,246 @@
+"""The artifact registry, read side: find, list and read artifacts without importing torch.
+
+A registry is a folder ``<root>/<model>/<version>/``. A version folder holds ``emulator.onnx`` (the
+whole step), ``weights.pt`` (the torch emulator's state dict), ``linear_baseline.npy``, ``model.xml``
+(the MJCF it was trained on) and ``manifest.json`` (a ``Manifest``), and, once measured,
+``eval.json`` and ``bench.json`` (``VersionEval``, ``VersionBench``). Pointer files in the model's
+folder name versions: ``latest`` (the model's default super-step, or the first trained) and
+``latest-n<N>`` for each super-step N. Versions are named ``n<N>-<UTC time>`` (``version_name``).
+
+Model and version names are plain names (``NAME``), never paths. Writing versions is
+``neuroanimator.artifacts`` (it needs torch); this module writes only measurement results. It imports
+neither torch nor MuJoCo nor ONNX Runtime (``load_physical_model`` imports MuJoCo when called).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import os
+import re
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal, TypeVar
+
+from pydantic import BaseModel, ValidationError
+
+from neuroanimator.manifest import Manifest, ManifestError, parse_manifest
+from neuroanimator.results import (
+    ModelBench,
+    ModelEval,
+    VersionBench,
+    VersionEval,
+    summarize_bench,
+    summarize_eval,
+)
+
+if TYPE_CHECKING:
+    from neuroanimator.physics.model import PhysicalModel
+
+NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+"""What a model or version name may be: a folder name, never a path."""
+LATEST = "latest"
+MANIFEST_FILE = "manifest.json"
+ONNX_FILE = "emulator.onnx"
+WEIGHTS_FILE = "weights.pt"
+LINEAR_FILE = "linear_baseline.npy"
+MJCF_FILE = "model.xml"
+EVAL_FILE = "eval.json"
+BENCH_FILE = "bench.json"
+PLOT_FILE = "rollout_error.png"  # in the model's folder: the rollout curves of every n
+VERSION_FILES = (ONNX_FILE, WEIGHTS_FILE, LINEAR_FILE, MJCF_FILE, MANIFEST_FILE)
+"""What every version folder holds."""
+_SUBSTEPS_POINTER = re.compile(r"latest-n(\d+)")
+
+Missing = Literal["model", "version", "substeps", "manifest", "results"]
+_R = TypeVar("_R", bound=BaseModel)
+
+
+class ArtifactError(LookupError):
+    """An artifact that does not exist or cannot be read. ``what`` says which part of the request
+    failed (``model``, ``version``, ``substeps``, ``manifest`` or ``results``); the message names it."""
+
+    def __init__(self, what: Missing, message: str) -> None:
+        super().__init__(message)
+        self.what: Missing = what
+
+
+def is_name(text: str) -> bool:
+    """Whether ``text`` can name a model or a version (a plain folder name)."""
+    return bool(NAME.match(text))
+
+
+def pointer_name(substeps: int | None = None) -> str:
+    """The pointer file to a model's current version: ``latest``, or ``latest-n<N>`` for super-step N."""
+    return LATEST if substeps is None else f"{LATEST}-n{substeps}"
+
+
+def version_name(substeps: int, when: dt.datetime, repeat: int = 1) -> str:
+    """The name of a new version: ``n<N>-<YYYYmmddTHHMMSS>`` (UTC), ``-<repeat>`` added after the first."""
+    stamp = when.astimezone(dt.UTC).strftime("%Y%m%dT%H%M%S")
+    return f"n{substeps}-{stamp}" if repeat == 1 else f"n{substeps}-{stamp}-{repeat}"
+
+
+# ---------------------------------------------------------------------------- listing
+def list_models(root: Path) -> list[str]:
+    """The models with a ``latest`` version, sorted."""
+    if not root.is_dir():
+        return []
+    return sorted(p.name for p in root.iterdir() if p.is_dir() and is_name(p.name) and (p / LATEST).is_file())
+
+
+def available_substeps(root: Path, model: str) -> list[int]:
+    """The super-steps N a model has a ``latest-n<N>`` version for, sorted."""
+    model_dir = root / model
+    if not is_name(model) or not model_dir.is_dir():
+        return []
+    found = (_SUBSTEPS_POINTER.fullmatch(p.name) for p in model_dir.iterdir())
+    return sorted(int(m.group(1)) for m in found if m)
+
+
+def versions(root: Path, model: str) -> list[str]:
+    """Every complete version of a model (a folder with a manifest), sorted by name."""
+    model_dir = root / model
+    if not is_name(model) or not model_dir.is_dir():
+        return []
+    return sorted(p.name for p in model_dir.iterdir() if is_name(p.name) and (p / MANIFEST_FILE).is_file())
+
+
+def latest_version(root: Path, model: str, substeps: int | None = None) -> str:
+    """The version a model's ``latest`` (or ``latest-n<substeps>``) pointer names."""
+    _check_model(root, model)
+    pointer = root / model / pointer_name(substeps)
+    try:
+        return pointer.read_text().strip()
+    except OSError:
+        if substeps is None:
+            raise ArtifactError("version", f"model {model!r} has no latest version") from None
+        raise ArtifactError(
+            "substeps",
+            f"model {model!r} has no emulator for substeps={substeps}; it has {available_substeps(root, model)}",
+        ) from None
+
+
+def _check_model(root: Path, model: str) -> None:
+    if not is_name(model) or not (root / model).is_dir():
+        raise ArtifactError("model", f"unknown model {model!r}; trained models are {list_models(root)}")
+
+
+def resolve(root: Path, model: str, version: str | None = None, substeps: int | None = None) -> Path:
+    """The folder of a model's version: the named one, else the latest for ``substeps``, else ``latest``.
+
+    ``ArtifactError`` names what is missing: an unknown model, a version it does not have (or a
+    name that is not a plain name), no version for ``substeps``, or a named version whose
+    super-step is not ``substeps``.
+    """
+    _check_model(root, model)
+    if version is None:
+        version = latest_version(root, model, substeps)
+        substeps = None  # the pointer names a version of that n
+    path = root / model / version
+    if not is_name(version) or not (path / MANIFEST_FILE).is_file():
+        raise ArtifactError(
+            "version", f"model {model!r} has no version {version!r}; it has {versions(root, model)}"
+        )
+    if substeps is not None:
+        found = read_manifest(path).substeps
+        if found != substeps:
+            raise ArtifactError(
+                "substeps", f"version {version!r} of {model!r} has substeps={found}, got {substeps}"
+            )
+    return path
+
+
+# ---------------------------------------------------------------------------- reading
+def read_manifest(path: Path) -> Manifest:
+    """The manifest of a version folder, upgraded from an older format if need be.
+
+    ``ArtifactError`` (``what="manifest"``) when it is missing, not JSON, of a format this code does
+    not read, or does not fit its format; the message names the file.
+    """
+    file = path / MANIFEST_FILE
+    try:
+        data = json.loads(file.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ArtifactError("manifest", f"cannot read the manifest {str(file)!r}: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ArtifactError("manifest", f"{str(file)!r} is not a manifest: expected a JSON object")
+    try:
+        return parse_manifest(data, str(file))
+    except ManifestError as exc:
+        raise ArtifactError("manifest", str(exc)) from exc
+
+
+def load_physical_model(path: Path, manifest: Manifest | None = None) -> PhysicalModel:
+    """Rebuild the physical model an artifact was trained on, from the artifact alone (imports MuJoCo)."""
+    from neuroanimator.physics.model import PhysicalModel
+
+    spec = (manifest or read_manifest(path)).spec
+    return PhysicalModel((path / MJCF_FILE).read_text(), spec)
+
+
+def _read_result(file: Path, kind: type[_R]) -> _R | None:
+    if not file.is_file():
+        return None
+    try:
+        return kind.model_validate_json(file.read_bytes())
+    except (OSError, ValidationError) as exc:
+        raise ArtifactError("results", f"cannot read {str(file)!r} as {kind.__name__}: {exc}") from exc
+
+
+def read_eval(path: Path) -> VersionEval | None:
+    """A version's evaluation (``eval.json``), or None when it has not been evaluated."""
+    return _read_result(path / EVAL_FILE, VersionEval)
+
+
+def read_bench(path: Path) -> VersionBench | None:
+    """A version's benchmark (``bench.json``), or None when it has not been benchmarked."""
+    return _read_result(path / BENCH_FILE, VersionBench)
+
+
+def _current_versions(root: Path, model: str) -> list[Path]:
+    """The version folders the ``latest-n<N>`` pointers name, by N."""
+    return [resolve(root, model, substeps=n) for n in available_substeps(root, model)]
+
+
+def model_eval(root: Path, model: str) -> ModelEval | None:
+    """A model's evaluation over its current versions (``summarize_eval``); None when none is evaluated.
+
+    The primary row is the ``latest`` version's.
+    """
+    rows = [r for p in _current_versions(root, model) if (r := read_eval(p)) is not None]
+    if not rows:
+        return None
+    latest = read_manifest(resolve(root, model))
+    plot = f"{model}/{PLOT_FILE}" if (root / model / PLOT_FILE).is_file() else None  # relative to the root
+    return summarize_eval(rows, latest.spec.thesis_hidden, latest.substeps, plot)
+
+
+def model_bench(root: Path, model: str) -> ModelBench | None:
+    """A model's benchmark over its current versions (``summarize_bench``); None when none is measured."""
+    rows = [r for p in _current_versions(root, model) if (r := read_bench(p)) is not None]
+    return summarize_bench(model, rows) if rows else None
+
+
+# ---------------------------------------------------------------------------- measurement results
+def _write_json(file: Path, record: BaseModel) -> Path:
+    """Write atomically: a reader sees the old file or the new one, never half of it."""
+    fd, tmp = tempfile.mkstemp(dir=file.parent, prefix=f".tmp-{file.name}-")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(record.model_dump_json(indent=1) + "\n")
+        os.replace(tmp, file)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return file
+
+
+def write_eval(root: Path, result: VersionEval) -> Path:
+    """Store a version's evaluation in its folder (``eval.json``); returns the file."""
+    return _write_json(resolve(root, result.model, result.version) / EVAL_FILE, result)
+
+
+def write_bench(root: Path, result: VersionBench) -> Path:
+    """Store a version's benchmark in its folder (``bench.json``); returns the file."""
+    return _write_json(resolve(root, result.model, result.version) / BENCH_FILE, result)

@@ -1,0 +1,56 @@
+"""``TrainConfig``: everything that decides an emulator, saved in full in every artifact's manifest.
+
+Plain data without torch, so that a manifest (which holds one) can be read by any process.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from pydantic import ConfigDict
+
+
+@dataclass
+class TrainConfig:
+    """Everything that decides an emulator. ``preset="thesis"`` swaps in Table 6.1's network."""
+
+    __pydantic_config__ = ConfigDict(extra="forbid")  # read back from manifests: unknown keys are errors
+
+    substeps: int = 50
+    preset: str = "default"  # "default" or "thesis" (one sigmoid hidden layer, Table 6.1 width)
+    hidden: tuple[int, ...] = (64, 64)
+    activation: str = "tanh"
+    normalization: str = "group"  # "group" (thesis eqs. 4.10-4.11) or "variable"
+    examples: int | None = None  # None: examples_per_weight × the network's weights (thesis: 8-10×)
+    examples_per_weight: float = 10.0
+    test_examples: int = 4000  # held out: drawn from an independent seed, never trained on
+    val_fraction: float = 0.1  # of the training examples, for early stopping
+    optimizer: str = "adam"  # "adam" or "sgd" (mini-batch gradient descent with momentum, thesis 4.5.3)
+    lr: float = 3e-3
+    momentum: float = 0.9
+    batch_size: int = 256
+    max_epochs: int = 300
+    patience: int = 30  # epochs without a better validation loss before stopping
+    max_seconds: float = 150.0  # wall-clock cap on the optimisation loop (keeps a run under 5 min)
+    input_noise: float = 0.0  # std of Gaussian noise on normalised state inputs during training
+    seed: int = 0
+    threads: int = 2
+    progress: bool = True
+    thesis_hidden: int | None = field(default=None, repr=False)
+
+    def resolved(self) -> TrainConfig:
+        """The config with the preset applied."""
+        if self.preset == "thesis":
+            width = self.thesis_hidden or 40
+            return TrainConfig(
+                **{**asdict(self), "hidden": (width,), "activation": "sigmoid", "preset": "thesis"}
+            )
+        if self.preset != "default":
+            raise ValueError(f"preset must be 'default' or 'thesis', got {self.preset!r}")
+        return self
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["hidden"] = list(self.hidden)
+        return d

@@ -1,0 +1,136 @@
+"""The registry's read side: finding versions (and naming what is missing), and the evaluation and
+benchmark results stored per version, summarised per model."""
+
+from __future__ import annotations
+
+import datetime as dt
+import shutil
+from pathlib import Path
+
+import pytest
+
+from neuroanimator import registry
+from neuroanimator.results import (
+    BatchedSpeed,
+    ModelBench,
+    NetworkSize,
+    RolloutCurve,
+    SingleClientSpeed,
+    VersionEval,
+    split_bench,
+)
+
+ARTIFACTS = Path(__file__).resolve().parents[1] / "artifacts"
+
+
+@pytest.fixture
+def lander(tmp_path: Path) -> Path:
+    """A copy of the committed lander artifacts (n = 25, 50, 100; latest n = 50), as a registry root."""
+    shutil.copytree(ARTIFACTS / "lander", tmp_path / "lander")
+    return tmp_path
+
+
+def _eval(root: Path, n: int, at_20s: float) -> VersionEval:
+    version = registry.latest_version(root, "lander", n)
+    t = [0.0, 10.0, 20.0, 30.0]
+    return VersionEval(
+        model="lander",
+        version=version,
+        substeps=n,
+        one_step_rel_error=0.001,
+        linear_baseline_rel_error=0.1,
+        baseline_ratio=100.0,
+        rollout_error_curve=RolloutCurve(t=t, error=[0.0, at_20s / 2, at_20s, at_20s * 2]),
+        rollout_error_at_20s=at_20s,
+        rollout_error_final=at_20s * 2,
+        architecture=NetworkSize(hidden=[64, 64], activation="tanh", weights=5901),
+    )
+
+
+@pytest.mark.parametrize(
+    ("model", "version", "substeps", "what", "text"),
+    [
+        ("submarine", None, None, "model", "unknown model 'submarine'; trained models are ['lander']"),
+        ("../lander", None, None, "model", "unknown model '../lander'"),
+        (
+            "lander",
+            None,
+            7,
+            "substeps",
+            "model 'lander' has no emulator for substeps=7; it has [25, 50, 100]",
+        ),
+        ("lander", "n1-nope", None, "version", "model 'lander' has no version 'n1-nope'; it has ['n100-"),
+        ("lander", "../truck/latest", None, "version", "has no version '../truck/latest'"),
+        ("lander", "n100-20261121T145529", 50, "substeps", "has substeps=100, got 50"),
+    ],
+)
+def test_resolve_names_what_is_missing(
+    lander: Path, model: str, version: str | None, substeps: int | None, what: str, text: str
+) -> None:
+    with pytest.raises(registry.ArtifactError) as exc:
+        registry.resolve(lander, model, version, substeps)
+    assert exc.value.what == what
+    assert text in str(exc.value)
+
+
+def test_listing(lander: Path) -> None:
+    (lander / "not a model").mkdir()
+    (lander / "half-written").mkdir()  # no latest pointer: not listed
+    assert registry.list_models(lander) == ["lander"]
+    assert registry.list_models(lander / "absent") == []
+    assert registry.available_substeps(lander, "lander") == [25, 50, 100]
+    assert registry.versions(lander, "lander") == sorted(p.name for p in (lander / "lander").glob("n*"))
+    assert registry.latest_version(lander, "lander") == registry.latest_version(lander, "lander", 50)
+
+
+def test_version_names_follow_one_pattern() -> None:
+    when = dt.datetime(2026, 11, 21, 14, 38, 38, tzinfo=dt.UTC)
+    assert registry.version_name(50, when) == "n50-20261121T143838"
+    assert registry.version_name(50, when, repeat=2) == "n50-20261121T143838-2"
+    assert registry.pointer_name() == "latest" and registry.pointer_name(25) == "latest-n25"
+
+
+def test_results_written_per_version_are_summarised_per_model(lander: Path) -> None:
+    for n in (25, 50, 100):
+        (registry.resolve(lander, "lander", substeps=n) / registry.EVAL_FILE).unlink(missing_ok=True)
+    assert registry.model_eval(lander, "lander") is None
+    written = registry.write_eval(lander, _eval(lander, 50, 0.2))
+    assert written.parent == registry.resolve(lander, "lander", substeps=50)
+    assert registry.read_eval(written.parent) == _eval(lander, 50, 0.2)
+    one = registry.model_eval(lander, "lander")
+    assert one is not None and [r.substeps for r in one.by_substeps] == [50]
+    assert one.n100_vs_n25_at_20s is None and one.thesis_preset.hidden == [50]
+    registry.write_eval(lander, _eval(lander, 25, 0.2))
+    registry.write_eval(lander, _eval(lander, 100, 0.3))
+    three = registry.model_eval(lander, "lander")
+    assert three is not None and [r.substeps for r in three.by_substeps] == [25, 50, 100]
+    assert three.version == registry.latest_version(lander, "lander")  # the primary row is latest's
+    assert three.n100_vs_n25_at_20s == pytest.approx(1.5)
+    assert three.plot == "lander/rollout_error.png"
+
+
+def test_a_model_benchmark_splits_into_versions_and_back(lander: Path) -> None:
+    versions = {n: registry.latest_version(lander, "lander", n) for n in (25, 50, 100)}
+    bench = ModelBench(
+        model="lander",
+        single=[
+            SingleClientSpeed(substeps=n, version=v, physics_s=1.0, emulator_s=0.1, ratio=10.0)
+            for n, v in versions.items()
+        ],
+        batched=[BatchedSpeed(batch=64, physics_steps_per_s=1e5, emulator_steps_per_s=1e7, ratio=100.0)],
+        batched_substeps=50,
+        batched_version=versions[50],
+    )
+    records = split_bench(bench)
+    assert [(r.substeps, len(r.batched)) for r in records] == [(25, 0), (50, 1), (100, 0)]
+    for r in records:
+        registry.write_bench(lander, r)
+    assert registry.model_bench(lander, "lander") == bench
+
+
+def test_an_unreadable_result_names_its_file(lander: Path) -> None:
+    path = registry.resolve(lander, "lander")
+    (path / registry.BENCH_FILE).write_text('{"model": "lander"}')
+    with pytest.raises(registry.ArtifactError, match=r"bench\.json") as exc:
+        registry.read_bench(path)
+    assert exc.value.what == "results"
