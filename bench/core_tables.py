@@ -2,9 +2,10 @@
 
     python bench/core_tables.py [--artifacts DIR] [--models a,b] [--no-save] [--json]
 
-Each model's results are also saved as ``<artifacts>/<model>/eval.json`` and ``bench.json`` (the
-dashboard's error plot and speed table read them). With ``--json`` the last line is one JSON object:
-{"eval": {model: ...}, "bench": {model: ...}}.
+Each version's results are also saved in its folder, ``<artifacts>/<model>/<version>/eval.json`` and
+``bench.json`` (``neuro eval --save``, ``neuro bench --save``; the dashboard's error plot and speed
+table read them). With ``--json`` the last line is one JSON object: {"eval": {model: ...}, "bench":
+{model: ...}}, each model's as ``neuro eval --json`` and ``neuro bench --json`` print it.
 """
 
 from __future__ import annotations
@@ -13,66 +14,68 @@ import argparse
 import json
 import subprocess
 import sys
-from pathlib import Path
-from typing import Any
 
 from neuroanimator import physics
+from neuroanimator.results import ModelBench, ModelEval
 
 
-def _neuro(*args: str) -> dict[str, Any]:
+def _neuro(*args: str) -> str:
+    """The last line of a ``neuro ... --json`` run: its JSON result."""
     out = subprocess.run(
         [sys.executable, "-m", "neuroanimator.cli", *args, "--json"],
         check=True,
         capture_output=True,
         text=True,
     ).stdout
-    result: dict[str, Any] = json.loads(out.strip().splitlines()[-1])
-    return result
+    return out.strip().splitlines()[-1]
 
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--artifacts", default="artifacts")
     p.add_argument("--models", default=",".join(physics.CATALOG))
-    p.add_argument("--no-save", action="store_true", help="do not write eval.json / bench.json")
+    p.add_argument("--no-save", action="store_true", help="do not write the versions' eval.json / bench.json")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     models = args.models.split(",")
-    evals = {m: _neuro("eval", m, "--artifacts", args.artifacts) for m in models}
-    benches = {m: _neuro("bench", m, "--artifacts", args.artifacts) for m in models}
-    if not args.no_save:
-        for m in models:
-            folder = Path(args.artifacts) / m
-            (folder / "eval.json").write_text(json.dumps(evals[m], indent=1) + "\n")
-            (folder / "bench.json").write_text(json.dumps(benches[m], indent=1) + "\n")
+    save = [] if args.no_save else ["--save"]
+    evals = {
+        m: ModelEval.model_validate_json(_neuro("eval", m, "--artifacts", args.artifacts, *save))
+        for m in models
+    }
+    benches = {
+        m: ModelBench.model_validate_json(_neuro("bench", m, "--artifacts", args.artifacts, *save))
+        for m in models
+    }
 
     print("| model | n | one-step rel. error | linear baseline | ratio | rollout error @20 s |")
     print("|---|---|---|---|---|---|")
     for m, e in evals.items():
-        for r in e["by_substeps"]:
+        for r in e.by_substeps:
             print(
-                f"| {m} | {r['substeps']} | {r['one_step_rel_error']:.5f} | {r['linear_baseline_rel_error']:.4f}"
-                f" | {r['baseline_ratio']:.0f}× | {r['rollout_error_at_20s']:.3f} |"
+                f"| {m} | {r.substeps} | {r.one_step_rel_error:.5f} | {r.linear_baseline_rel_error:.4f}"
+                f" | {r.baseline_ratio:.0f}× | {r.rollout_error_at_20s:.3f} |"
             )
     print()
     print("| model | n | MuJoCo 20,000 steps (s) | emulator (s) | speed-up |")
     print("|---|---|---|---|---|")
     for m, b in benches.items():
-        for r in b["single"]:
-            print(
-                f"| {m} | {r['substeps']} | {r['physics_s']:.4f} | {r['emulator_s']:.4f} | {r['ratio']:.1f}× |"
-            )
+        for s in b.single:
+            print(f"| {m} | {s.substeps} | {s.physics_s:.4f} | {s.emulator_s:.4f} | {s.ratio:.1f}× |")
     print()
     print("| model | B | mujoco.rollout steps/s | emulator steps/s | speed-up |")
     print("|---|---|---|---|---|")
     for m, b in benches.items():
-        for r in b["batched"]:
+        for row in b.batched:
             print(
-                f"| {m} | {r['batch']} | {r['physics_steps_per_s']:.3g} | {r['emulator_steps_per_s']:.3g}"
-                f" | {r['ratio']:.0f}× |"
+                f"| {m} | {row.batch} | {row.physics_steps_per_s:.3g} | {row.emulator_steps_per_s:.3g} | {row.ratio:.0f}× |"
             )
     if args.json:
-        print(json.dumps({"eval": evals, "bench": benches}))
+        out = {
+            "eval": {m: e.model_dump(mode="json") for m, e in evals.items()},
+            "bench": {m: b.model_dump(mode="json") for m, b in benches.items()},
+        }
+        print(json.dumps(out))
     return 0
 
 

@@ -4,15 +4,15 @@ Each artifact version keeps its own results beside its manifest (``<version>/eva
 ``<version>/bench.json``: ``VersionEval``, ``VersionBench``). A model's results over its super-steps
 (``ModelEval``, ``ModelBench``: what ``--json`` prints and the dashboard shows) are put together from
 the versions that the ``latest-n<N>`` pointers name, by ``summarize_eval`` and ``summarize_bench``.
-These types are part of the wire contract (``proto/schemas/results``). Imports neither torch nor MuJoCo.
+These types are part of the wire contract (``proto/schemas/results``). Needs only pydantic.
 """
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 
@@ -27,8 +27,15 @@ class RolloutCurve(_Result):
     error: list[float]
 
     def at(self, seconds: float) -> float:
-        """The error at a time, interpolated linearly (held at the ends)."""
-        return float(np.interp(seconds, self.t, self.error))
+        """The error at a time, interpolated linearly (held at the ends), as ``numpy.interp`` does."""
+        t, e = self.t, self.error
+        if seconds <= t[0]:
+            return float(e[0])
+        if seconds >= t[-1]:
+            return float(e[-1])
+        i = bisect.bisect_right(t, seconds)  # t[i - 1] <= seconds < t[i]
+        w = (seconds - t[i - 1]) / (t[i] - t[i - 1])
+        return float(e[i - 1] + w * (e[i] - e[i - 1]))
 
 
 class NetworkSize(_Result):

@@ -1,7 +1,9 @@
 """Write the wire contract into ``proto/``: JSON Schemas of the models in ``neuroanimator.schemas``
 (``proto/schemas/<Name>.json``) and the emulator service's OpenAPI document
 (``proto/emulator.openapi.json``); the controller service's models (``neuroanimator.controller_schemas``,
-``proto/schemas/controller/<Name>.json``) and OpenAPI document (``proto/controller.openapi.json``).
+``proto/schemas/controller/<Name>.json``) and OpenAPI document (``proto/controller.openapi.json``); the
+evaluation and benchmark results the dashboard shows (``neuroanimator.results``,
+``proto/schemas/results/<Name>.json``).
 ``proto/frames.md`` (the binary layouts) is written by hand.
 
     python -m services.export_proto            # (re)write proto/
@@ -25,13 +27,14 @@ from typing import Any
 
 from pydantic import BaseModel, TypeAdapter
 
-from neuroanimator import controller_schemas, schemas
+from neuroanimator import controller_schemas, results, schemas
 
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[1] / "proto"
 COMMAND = "python -m services.export_proto  (or: make proto)"
 UNIONS = ("ClientMessage", "ServerMessage")
 CONTROLLER = "schemas/controller"  # the controller's schemas, beside (not among) the emulator's
+RESULTS = "schemas/results"  # evaluation and benchmark results (served by the dashboard's server)
 
 
 def _dump(obj: Any) -> str:
@@ -57,7 +60,15 @@ def wire_schemas() -> dict[str, dict[str, Any]]:
 
 def controller_wire_schemas() -> dict[str, dict[str, Any]]:
     """Every pydantic model defined in ``neuroanimator.controller_schemas``."""
-    mod = controller_schemas
+    return _module_schemas(controller_schemas)
+
+
+def results_wire_schemas() -> dict[str, dict[str, Any]]:
+    """Every pydantic model defined in ``neuroanimator.results``."""
+    return _module_schemas(results)
+
+
+def _module_schemas(mod: Any) -> dict[str, dict[str, Any]]:
     return {
         name: obj.model_json_schema()
         for name, obj in sorted(vars(mod).items())
@@ -97,13 +108,16 @@ def render() -> dict[str, str]:
     files = {f"schemas/{name}.json": _dump(s) for name, s in wire_schemas().items()}
     files["emulator.openapi.json"] = _dump(emulator_openapi())
     files |= {f"{CONTROLLER}/{name}.json": _dump(s) for name, s in controller_wire_schemas().items()}
+    files |= {f"{RESULTS}/{name}.json": _dump(s) for name, s in results_wire_schemas().items()}
     files["controller.openapi.json"] = _dump(controller_openapi())
     return files
 
 
 def _schema_files(root: Path) -> list[str]:
     """The schema files now in ``root`` (both folders), relative to it."""
-    return [f"{d}/{p.name}" for d in ("schemas", CONTROLLER) for p in sorted((root / d).glob("*.json"))]
+    return [
+        f"{d}/{p.name}" for d in ("schemas", CONTROLLER, RESULTS) for p in sorted((root / d).glob("*.json"))
+    ]
 
 
 def drift(root: Path = ROOT) -> list[str]:
@@ -119,6 +133,7 @@ def write(root: Path = ROOT) -> list[str]:
     changed = drift(root)
     files = render()
     (root / CONTROLLER).mkdir(parents=True, exist_ok=True)
+    (root / RESULTS).mkdir(parents=True, exist_ok=True)
     for p in _schema_files(root):
         if p not in files:
             (root / p).unlink()

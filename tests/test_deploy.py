@@ -131,9 +131,8 @@ def test_dockerfile_targets(compose: dict[str, Any]) -> None:
 
 
 # Installed in the full environment but not in the dashboard's image (it installs fastapi, uvicorn, pydantic
-# and pydantic-settings only).
+# and pydantic-settings only, and copies neuroanimator's sources for the artifact registry's readers).
 NOT_IN_WEB_IMAGE = (
-    "neuroanimator",
     "numpy",
     "torch",
     "onnxruntime",
@@ -145,9 +144,11 @@ NOT_IN_WEB_IMAGE = (
 
 
 def test_web_image_holds_what_the_web_service_imports(tmp_path: Path) -> None:
-    """The dashboard's image copies a few folders of services/: the static server starts from them alone."""
+    """The dashboard's image copies a few folders of services/ and neuroanimator/: the static server, which
+    reads evaluation and benchmark results through the artifact registry, starts from them alone."""
     stage = _stages(ROOT / "deploy" / "web" / "Dockerfile")["web"]
-    copied = re.findall(r"(?m)^COPY (services/\S*) \./\1$", stage)
+    copied = re.findall(r"(?m)^COPY ((?:services|neuroanimator)\S*) \./\1$", stage)
+    assert "neuroanimator" in copied, copied
     assert "services/web" in copied, copied
     app = tmp_path / "app"
     for path in copied:
@@ -168,7 +169,9 @@ def test_web_image_holds_what_the_web_service_imports(tmp_path: Path) -> None:
         "import services.web.__main__\n"
         "from services.web.app import create_app\n"
         "from services.web.settings import Settings\n"
-        f"create_app(Settings(web_dist={str(tmp_path / 'dist')!r}))\n"
+        f"app = create_app(Settings(web_dist={str(tmp_path / 'dist')!r}, artifacts_dir={str(ROOT / 'artifacts')!r}))\n"
+        "from fastapi.testclient import TestClient\n"
+        "assert TestClient(app).get('/artifacts/lander/eval.json').status_code == 200\n"
         f"assert services.web.__file__.startswith({str(app)!r}), services.web.__file__\n"
     )
     env = {**os.environ, "PYTHONPATH": str(app)}

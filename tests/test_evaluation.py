@@ -44,10 +44,17 @@ def test_rollout_curve_is_deterministic(trained_pendulum: Trained) -> None:
 
 
 def test_curve_at_interpolates() -> None:
-    curve = evaluation.RolloutCurve(t=[0.0, 1.0, 2.0], error=[0.0, 0.4, 1.0])
+    curve = RolloutCurve(t=[0.0, 1.0, 2.0], error=[0.0, 0.4, 1.0])
     assert curve.at(0.5) == pytest.approx(0.2)
     assert curve.at(1.5) == pytest.approx(0.7)
     assert curve.at(5.0) == pytest.approx(1.0)  # past the end: the last value
+    assert curve.at(-1.0) == 0.0 and curve.at(1.0) == pytest.approx(0.4)
+    rng = np.random.default_rng(0)
+    t = np.cumsum(rng.uniform(0.1, 1.0, 50))
+    e = rng.uniform(0.0, 1.0, 50)
+    curve = RolloutCurve(t=t.tolist(), error=e.tolist())
+    for x in rng.uniform(-1.0, t[-1] + 1.0, 200):
+        assert curve.at(float(x)) == pytest.approx(float(np.interp(x, t, e)), abs=1e-12)
 
 
 def test_plot_curves_writes_a_png(tmp_path: Path) -> None:

@@ -193,14 +193,16 @@ def test_networks_read_only_what_the_model_has() -> None:
         Manifest.model_validate(data)
 
 
-def test_reading_manifests_imports_neither_torch_nor_mujoco() -> None:
+def test_reading_manifests_and_results_imports_neither_torch_nor_mujoco() -> None:
+    """Nor numpy: the dashboard's server reads results with pydantic alone."""
     code = (
         "import sys; from pathlib import Path; from neuroanimator import registry\n"
         f"root = Path({str(ARTIFACTS)!r})\n"
         "for model in registry.list_models(root):\n"
         "    for n in registry.available_substeps(root, model):\n"
         "        registry.read_manifest(registry.resolve(root, model, substeps=n))\n"
-        "bad = [m for m in ('torch', 'mujoco', 'onnxruntime') if m in sys.modules]\n"
+        "    assert registry.model_eval(root, model) and registry.model_bench(root, model)\n"
+        "bad = [m for m in ('torch', 'mujoco', 'onnxruntime', 'numpy') if m in sys.modules]\n"
         "assert not bad, bad\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT, timeout=120)

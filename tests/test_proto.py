@@ -43,3 +43,12 @@ def test_proto_has_the_controller_contract() -> None:
         paths
     )
     assert "text/event-stream" in paths["/jobs/{job_id}/events"]["get"]["responses"]["200"]["content"]
+
+
+def test_proto_has_the_results_contract() -> None:
+    names = set(export_proto.results_wire_schemas())
+    assert {"ModelEval", "ModelBench", "VersionEval", "VersionBench", "RolloutCurve"} <= names
+    files = export_proto.render()
+    assert "schemas/results/ModelEval.json" in files
+    layout = export_proto.wire_schemas()["LayoutGroup"]
+    assert "enum" in layout["properties"]["kind"]  # a closed set of kinds on the wire too

@@ -90,6 +90,24 @@ def test_version_names_follow_one_pattern() -> None:
     assert registry.pointer_name() == "latest" and registry.pointer_name(25) == "latest-n25"
 
 
+def test_committed_results_are_stored_per_version_and_typed() -> None:
+    for model in registry.list_models(ARTIFACTS):
+        assert (
+            not (ARTIFACTS / model / "eval.json").exists() and not (ARTIFACTS / model / "bench.json").exists()
+        )
+        for n in registry.available_substeps(ARTIFACTS, model):
+            path = registry.resolve(ARTIFACTS, model, substeps=n)
+            ev, bench = registry.read_eval(path), registry.read_bench(path)
+            assert ev is not None and (ev.model, ev.version, ev.substeps) == (model, path.name, n)
+            assert bench is not None and bench.single is not None and bench.single.version == path.name
+        summary = registry.model_eval(ARTIFACTS, model)
+        assert summary is not None and [r.substeps for r in summary.by_substeps] == [25, 50, 100]
+        assert summary.substeps == 50 and summary.n100_vs_n25_at_20s is not None
+        speed = registry.model_bench(ARTIFACTS, model)
+        assert speed is not None and [r.substeps for r in speed.single] == [25, 50, 100]
+        assert speed.batched_substeps == 50 and [r.batch for r in speed.batched] == [1, 64, 1024, 4096]
+
+
 def test_results_written_per_version_are_summarised_per_model(lander: Path) -> None:
     for n in (25, 50, 100):
         (registry.resolve(lander, "lander", substeps=n) / registry.EVAL_FILE).unlink(missing_ok=True)

@@ -1,4 +1,5 @@
-"""``create_app(settings)``: the built dashboard as static files, and ``/config.json`` for it.
+"""``create_app(settings)``: the built dashboard as static files, ``/config.json`` for it, and the
+models' evaluation and benchmark results from the artifact registry.
 
 The dashboard uses hash routes (``/#/playground``), so every page is ``index.html``; nothing needs a
 server-side fallback. When ``web/dist`` has not been built, ``/`` says how to build it instead of 404.
@@ -6,19 +7,18 @@ server-side fallback. When ``web/dist`` has not been built, ``/`` says how to bu
 
 from __future__ import annotations
 
-import json
 import logging
-import re
 
 from fastapi import FastAPI
-from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel
 
+from neuroanimator import registry
 from services.web.settings import Settings
 
 log = logging.getLogger(__name__)
-MEASUREMENTS = ("eval.json", "bench.json")
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+MEASUREMENTS = (registry.EVAL_FILE, registry.BENCH_FILE)
 
 NOT_BUILT = """<!doctype html><html><head><meta charset="utf-8"><title>NeuroAnimator</title></head>
 <body style="font-family: sans-serif; margin: 3em">
@@ -42,22 +42,45 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     def healthz() -> dict[str, str]:
         return {"status": "ok"}
 
+    root = settings.artifacts_dir
+
+    def answer(found: BaseModel | None, what: str) -> Response:
+        if found is None:
+            return JSONResponse({"error": "not_measured", "message": f"no {what}"}, status_code=404)
+        # JSON text from pydantic: a non-finite number is null there (JSON has no NaN)
+        return Response(found.model_dump_json(), media_type="application/json", headers={"Cache-Control": "no-cache"})
+
+    def unreadable(exc: registry.ArtifactError, what: str) -> Response:
+        if exc.what in ("model", "version", "substeps"):
+            return JSONResponse({"error": "not_measured", "message": f"no {what}: {exc}"}, status_code=404)
+        log.warning("cannot read %s: %s", what, exc)
+        return JSONResponse({"error": "unreadable", "message": f"{what} cannot be read"}, status_code=500)
+
     @app.get("/artifacts/{model}/{name}")
-    def measurements(model: str, name: str) -> JSONResponse:
-        """A model's evaluation or benchmark results (``eval.json``, ``bench.json``), when measured."""
-        path = settings.artifacts_dir / model / name
-        if name not in MEASUREMENTS or not _NAME.match(model) or not path.is_file():
-            return JSONResponse(
-                {"error": "not_measured", "message": f"no {name} for model {model!r}"}, status_code=404
-            )
+    def measurements(model: str, name: str) -> Response:
+        """A model's evaluation or benchmark over its current versions (``eval.json``: ``ModelEval``,
+        ``bench.json``: ``ModelBench``), when measured."""
+        what = f"{name} for model {model!r}"
+        if name not in MEASUREMENTS:
+            return answer(None, what)
         try:
-            data = json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            log.warning("cannot read %s: %s", path, exc)
-            return JSONResponse(
-                {"error": "unreadable", "message": f"{name} of {model!r} is not valid JSON"}, 500
-            )
-        return JSONResponse(data, headers={"Cache-Control": "no-cache"})
+            found = registry.model_eval(root, model) if name == registry.EVAL_FILE else registry.model_bench(root, model)
+        except registry.ArtifactError as exc:
+            return unreadable(exc, what)
+        return answer(found, what)
+
+    @app.get("/artifacts/{model}/{version}/{name}")
+    def version_measurements(model: str, version: str, name: str) -> Response:
+        """One version's evaluation or benchmark (``VersionEval``, ``VersionBench``), when measured."""
+        what = f"{name} for version {version!r} of model {model!r}"
+        if name not in MEASUREMENTS:
+            return answer(None, what)
+        try:
+            path = registry.resolve(root, model, version)
+            found = registry.read_eval(path) if name == registry.EVAL_FILE else registry.read_bench(path)
+        except registry.ArtifactError as exc:
+            return unreadable(exc, what)
+        return answer(found, what)
 
     dist = settings.web_dist
     if (dist / "index.html").is_file():

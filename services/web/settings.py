@@ -17,7 +17,7 @@ class Settings(ServiceSettings):
 
     web_dist: Path = Field(ROOT / "web" / "dist", description="the built dashboard (npm run build)")
     artifacts_dir: Path = Field(
-        Path("artifacts"), description="where eval.json and bench.json of each model are read from"
+        Path("artifacts"), description="the artifact registry whose evaluation and benchmark results are served"
     )
     emulator_url: str = Field(
         "http://127.0.0.1:8000", description="the emulator service, as the browser sees it"

@@ -3,6 +3,7 @@ import { absolute, wsUrl } from '../src/config';
 import { controlVariables, defaultTask, type TaskInfo } from '../src/api/controller';
 import { describeFailure, unreachable } from '../src/api/http';
 import { curvesOf } from '../src/api/measurements';
+import type { VersionEval } from '../src/api/results.gen';
 import { finiteRows } from '../src/pages/replay';
 import { extent, niceTicks } from '../src/ui/plot';
 
@@ -29,12 +30,23 @@ describe('errors in plain words', () => {
 });
 
 describe('measurements', () => {
-  it('reads curves per n, or the one top-level curve, or nothing', () => {
+  it('reads the curves of every measured n in increasing n, or nothing', () => {
     const curve = { t: [0, 1], error: [0.1, 0.2] };
+    const row = (substeps: number, c = curve): VersionEval => ({
+      model: 'm',
+      version: `n${substeps}-x`,
+      substeps,
+      one_step_rel_error: 0.001,
+      linear_baseline_rel_error: 0.1,
+      baseline_ratio: 100,
+      rollout_error_curve: c,
+      rollout_error_at_20s: 0.1,
+      rollout_error_final: 0.2,
+      architecture: { hidden: [64, 64], activation: 'tanh', weights: 100 },
+    });
     expect(curvesOf(null)).toEqual([]);
-    expect(curvesOf({ substeps: 50, rollout_error_curve: curve })).toEqual([{ substeps: 50, curve }]);
-    const e = { by_substeps: [{ substeps: 100, rollout_error_curve: curve }, { substeps: 25, rollout_error_curve: curve }] };
-    expect(curvesOf(e).map((c) => c.substeps)).toEqual([25, 100]);
+    expect(curvesOf({ by_substeps: [row(100), row(25), row(50, { t: [], error: [] })] }).map((c) => c.substeps)).toEqual([25, 100]);
+    expect(curvesOf({ by_substeps: [row(50)] })).toEqual([{ substeps: 50, curve }]);
   });
 });
 
