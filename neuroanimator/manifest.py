@@ -323,7 +323,7 @@ def parse_manifest(data: Mapping[str, Any], source: str = "manifest") -> Manifes
     read (naming the format found and the formats read) and for data that does not fit the format.
     """
     found = data.get("format")
-    if found not in READABLE_FORMATS:
+    if isinstance(found, bool) or found not in READABLE_FORMATS:  # true == 1 in Python, not in JSON
         raise ManifestError(
             f"{source}: manifest format {found!r} is not one this code reads (it reads formats "
             f"{list(READABLE_FORMATS)}); a newer NeuroAnimator wrote it, or the file is not a manifest"

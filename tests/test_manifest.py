@@ -122,7 +122,7 @@ def test_format_2_round_trips_through_json(path: Path) -> None:
     assert again == m
 
 
-@pytest.mark.parametrize("found", [0, 3, 999, None, "1"])
+@pytest.mark.parametrize("found", [0, 3, 999, None, "1", True])
 def test_unknown_format_is_refused_naming_the_file_and_the_formats_read(
     tmp_path: Path, found: object
 ) -> None:
