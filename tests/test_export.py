@@ -158,7 +158,7 @@ def test_rollout_iterates_the_step(
     emu = OnnxEmulator(data)
     model = physics.get("truck")
     s, _, _ = inputs_of(model, 3)
-    u = model.typical_controls(np.random.default_rng(0), 3, np.arange(4) * 0.5)
+    u = model.typical_controls(np.random.default_rng(0), 3, np.arange(4.0) * 0.5)
     states = emu.rollout(s, u)
     assert states.shape == (3, 5, 6)
     np.testing.assert_allclose(states[:, 0], s.astype(np.float32))

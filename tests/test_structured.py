@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import overload
 
 import numpy as np
 import pytest
@@ -18,10 +19,18 @@ MakeEmulator = Callable[..., StructuredEmulator]
 InputsOf = Callable[..., tuple[np.ndarray, np.ndarray | None, np.ndarray | None]]
 
 
+@overload
+def t32(a: np.ndarray) -> torch.Tensor: ...
+@overload
+def t32(a: np.ndarray | None) -> torch.Tensor | None: ...
 def t32(a: np.ndarray | None) -> torch.Tensor | None:
     return None if a is None else torch.from_numpy(np.asarray(a)).float()
 
 
+@overload
+def t64(a: np.ndarray) -> torch.Tensor: ...
+@overload
+def t64(a: np.ndarray | None) -> torch.Tensor | None: ...
 def t64(a: np.ndarray | None) -> torch.Tensor | None:
     return None if a is None else torch.from_numpy(np.asarray(a)).double()
 
@@ -88,7 +97,8 @@ def test_forward_is_finish_of_core_of_network_inputs(
 ) -> None:
     model = physics.get(name)
     emu = make_emulator(model)
-    s, u, f = (t32(a) for a in inputs_of(model, 16, seed=3))
+    ins = inputs_of(model, 16, seed=3)
+    s, u, f = t32(ins[0]), t32(ins[1]), t32(ins[2])
     with torch.no_grad():
         expected = emu.finish(s, emu.core(emu.network_inputs(s, u, f)))
         torch.testing.assert_close(emu(s, u, f), expected, rtol=0, atol=0)
@@ -102,7 +112,8 @@ def test_forward_is_the_composition_of_eq_4_14(
     """s' = T^Δ_y T'_y T^σ_y N T^σ_x T'_x [s, u, f], each transform written out here."""
     model = physics.get(name)
     emu = make_emulator(model, seed=4, mode=mode).double()
-    s, u, f = (t64(a) for a in inputs_of(model, 16, seed=4))
+    ins = inputs_of(model, 16, seed=4)
+    s, u, f = t64(ins[0]), t64(ins[1]), t64(ins[2])
     with torch.no_grad():
         x_local = emu.local_inputs(s, u, f)  # T'_x
         x = (x_local - emu.x_mean) / emu.x_std  # T^σ_x (eq. 4.9)
@@ -125,6 +136,7 @@ def test_lander_local_inputs_written_out(make_emulator: MakeEmulator, inputs_of:
     model = physics.get("lander")
     emu = make_emulator(model).double()
     s, u, _ = inputs_of(model, 8, seed=5)
+    assert u is not None  # the model has controls
     lay = model.layout
     x = emu.local_inputs(t64(s), t64(u), None).numpy()
     for i in range(s.shape[0]):
@@ -148,6 +160,7 @@ def test_truck_local_inputs_written_out(make_emulator: MakeEmulator, inputs_of: 
     model = physics.get("truck")
     emu = make_emulator(model).double()
     s, u, _ = inputs_of(model, 8, seed=6)
+    assert u is not None  # the model has controls
     x = emu.local_inputs(t64(s), t64(u), None).numpy()
     for i in range(s.shape[0]):
         psi = s[i, 2]
@@ -320,7 +333,9 @@ def test_constant_inputs_are_dropped(name: str, size: int) -> None:
     assert emu.input_size == size == expected_input_size(model)
     arch = emu.architecture()
     assert arch["input_size"] == size
-    assert sum(w for _, w in arch["input_groups"]) == size
+    groups = arch["input_groups"]
+    assert isinstance(groups, list)
+    assert sum(w for _, w in groups) == size
     assert arch["output_size"] == model.state_size
 
 

@@ -52,7 +52,7 @@ def test_bodies_are_named(model: PhysicalModel) -> None:
 def test_simulation_from_typical_states_stays_finite(model: PhysicalModel) -> None:
     rng = np.random.default_rng(5)
     steps = 2000
-    times = np.arange(steps) * model.dt
+    times = np.arange(float(steps)) * model.dt
     s0 = model.initial_states(rng, 4)
     u = model.typical_controls(rng, 4, times)
     f = model.typical_forces(rng, 4, times) if model.num_forces else None
@@ -63,7 +63,7 @@ def test_simulation_from_typical_states_stays_finite(model: PhysicalModel) -> No
 
 
 def test_same_seed_gives_same_inputs_and_data(model: PhysicalModel) -> None:
-    times = np.arange(50) * model.dt
+    times = np.arange(50.0) * model.dt
 
     def draw(seed: int) -> list[np.ndarray]:
         rng = np.random.default_rng(seed)
@@ -86,7 +86,7 @@ def test_same_seed_gives_same_inputs_and_data(model: PhysicalModel) -> None:
 
 def test_typical_controls_and_forces_stay_in_their_ranges(model: PhysicalModel) -> None:
     rng = np.random.default_rng(2)
-    times = np.arange(400) * model.dt
+    times = np.arange(400.0) * model.dt
     u = model.typical_controls(rng, 6, times)
     f = model.typical_forces(rng, 6, times)
     assert u.shape == (6, 400, model.num_controls)

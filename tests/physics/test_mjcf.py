@@ -67,7 +67,7 @@ def test_user_model_simulates_and_samples(arm_path: Path) -> None:
     s0 = model.initial_states(rng, 3)
     assert s0.shape == (3, 4)
     assert not np.allclose(s0, 0.0)
-    u = model.typical_controls(rng, 3, np.arange(200) * model.dt)
+    u = model.typical_controls(rng, 3, np.arange(200.0) * model.dt)
     assert np.all(np.isfinite(model.simulate(s0, u)))
 
 

@@ -86,7 +86,7 @@ def test_submit_progress_result_through_a_worker(ctl: Controller) -> None:
     assert [e for e, _ in tail] == ["end"]
 
     with api.websocket_connect(f"/ws/jobs/{job_id}") as ws:
-        msgs = []
+        msgs: list[dict[str, Any]] = []
         while not msgs or msgs[-1]["event"] != "end":
             msgs.append(ws.receive_json())
     assert [m["event"] for m in msgs] == names
