@@ -14,18 +14,19 @@ from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from neuroanimator.model_spec import ForceInput, InitialStates, ModelSpec
-from neuroanimator.physics import lander, pendulum, truck
+from neuroanimator.physics import dolphin, lander, pendulum, truck
 
 if TYPE_CHECKING:
     from neuroanimator.physics.model import Frame, ModelError, PhysicalModel
 
-SYSTEMS: tuple[ModuleType, ...] = (pendulum, lander, truck)
+SYSTEMS: tuple[ModuleType, ...] = (pendulum, lander, truck, dolphin)
 CATALOG: dict[str, Callable[[], PhysicalModel]] = {
     "pendulum-passive": pendulum.passive,
     "pendulum-active": pendulum.active,
     "pendulum-force": pendulum.force,
     "lander": lander.lander,
     "truck": truck.truck,
+    "dolphin": dolphin.dolphin,
 }
 _FROM_MODEL = ("Frame", "ModelError", "PhysicalModel")  # names that need MuJoCo, loaded on first use
 
