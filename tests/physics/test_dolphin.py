@@ -186,22 +186,23 @@ def test_travelling_wave_is_antagonistic_and_in_range() -> None:
 
 
 def test_the_travelling_wave_swims_forward_keeping_its_shape(model: PhysicalModel) -> None:
-    """10 s of the hand-written stroke: at least 2 m forward (about 0.28 m/s, 0.14 body lengths per
-    second once under way), straight, with the deformation energy bounded."""
-    steps = 1000
+    """20 s of the hand-written stroke (period 4 s): at least 0.8 m forward (about 1 m; 0.067 m/s,
+    0.033 body lengths per second once under way), straight, with the deformation energy bounded."""
+    steps = 2000
     u = dolphin.travelling_wave(np.arange(steps) * model.dt)[None]
     traj = model.simulate(model.rest_state()[None], u)[0]
     com = dolphin.centre_of_mass(traj)
     start = dolphin.centre_of_mass(model.rest_state())
-    assert com[-1, 0] - start[0] > 2.0
+    assert com[-1, 0] - start[0] > 0.8
+    assert com[-1, 0] - com[steps // 2, 0] > 0.5  # still swimming in the second half
     assert np.abs(com[:, 1] - start[1]).max() < 1e-6  # left-right symmetric: no drift sideways
-    assert np.abs(com[:, 2] - start[2]).max() < 0.3
+    assert np.abs(com[:, 2] - start[2]).max() < 0.2
     energy = dolphin.deformation_energy(dolphin.node_positions(traj))
     assert energy.max() < 0.3
 
 
 def test_without_muscles_the_dolphin_drifts_to_rest(model: PhysicalModel) -> None:
     s, _ = _deformed(model, 5)
-    traj = model.simulate(s[None], np.zeros((1, 1, 6)), nstep=500)[0]
+    traj = model.simulate(s[None], np.zeros((1, 1, 6)), nstep=1000)[0]
     assert dolphin.deformation_energy(dolphin.node_positions(traj[-1])) < 1e-3
     assert np.abs(traj[-1, dolphin.NODE_VEL]).max() < 0.05
