@@ -458,9 +458,13 @@ def dolphin() -> PhysicalModel:
         name="dolphin",
         description="dolphin: 23-node mass-spring body, 6 muscle pairs, swims by water drag (thesis E.4)",
         layout=LAYOUT,
+        # every activation over its whole range, a control point per second: strokes of 2 s period
+        # and slower, around the 4 s of the best one and the swim controller's 2 s control points
         control_low=[0.0] * 6,
         control_high=[1.0] * 6,
         control_spacing_s=1.0,
+        # training runs start from a nearly resting body; 60 s of typical controls then reach the
+        # shapes and speeds of swimming
         initial=InitialStates(low=low.tolist(), high=high.tolist()),
         episode_s=60.0,
         translation_invariant=False,
