@@ -1,0 +1,87 @@
+"""The runner (thesis 4.4, Fig. 4.8, 6.1): a 70 kg human figure of 35 degrees of freedom on a floor.
+
+The MJCF (``runner.xml``) says where its masses and sizes come from. Its 29 controls are the targets
+of position servos at the hinges, in radians (the actuators' order: waist, neck, left arm, right arm,
+left leg, right leg; ``JOINTS``). Servos rather than torque motors because the controller that drives
+the figure (``runner_control``) sets a pose a few times per control period and the servo's spring and
+damper run inside every physical step: stable at any control period, and the emulator's controls stay
+joint targets, held over a super-step like any model's controls. The torque a servo applies is capped
+by its ``forcerange``, so a target far away is a bounded torque, not an impulse.
+
+The running data come from the closed loop (``runner_control.run``). The spec's typical controls are
+the open-loop neighbourhood of standing: targets within a band around ``STAND`` (the figure sways,
+crouches, and falls over), which is what the catalog's samplers draw.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from neuroanimator.model_spec import InitialStates, ModelSpec
+
+if TYPE_CHECKING:
+    from neuroanimator.physics.model import PhysicalModel
+
+XML_PATH = Path(__file__).with_name("runner.xml")
+
+SIDES = ("left", "right")
+LEG = ("hip_x", "hip_z", "hip_y", "knee", "ankle_y", "ankle_x", "toe")
+ARM = ("shoulder_x", "shoulder_y", "shoulder_z", "elbow", "wrist")
+JOINTS: tuple[str, ...] = (
+    "waist_x",
+    "waist_y",
+    "waist_z",
+    "neck_y",
+    "neck_z",
+    *(f"{side}_{j}" for side in SIDES for j in ARM),
+    *(f"{side}_{j}" for side in SIDES for j in LEG),
+)
+"""The actuated hinges, in the order of the controls (each actuator is named after its joint)."""
+
+# A relaxed standing pose (radians): slightly bent knees, arms a little away from the body.
+STAND: dict[str, float] = {
+    **{f"{side}_shoulder_x": 0.15 for side in SIDES},
+    **{f"{side}_elbow": 0.3 for side in SIDES},
+}
+BAND = 0.35  # radians around the standing pose that typical open-loop controls span
+
+
+def stand_targets() -> list[float]:
+    """(29,) the servo targets of the standing pose, in the order of ``JOINTS``."""
+    return [STAND.get(name, 0.0) for name in JOINTS]
+
+
+def runner() -> PhysicalModel:
+    import numpy as np
+
+    from neuroanimator.physics.model import PhysicalModel  # MuJoCo loads when a model is built
+
+    xml = XML_PATH.read_text()
+    stand = np.asarray(stand_targets())
+    probe = PhysicalModel(xml, ModelSpec(name="runner"))
+    limits = probe.control_limits
+    low = np.clip(stand - BAND, limits[:, 0], limits[:, 1])
+    high = np.clip(stand + BAND, limits[:, 0], limits[:, 1])
+    size = probe.state_size
+    height = probe.layout.slice_of("root.pos").start + 2
+    jitter_low, jitter_high = np.zeros(size), np.zeros(size)
+    jitter_low[height], jitter_high[height] = -0.02, 0.0  # settle from at most 2 cm lower
+    vel = probe.layout.slice_of("root.vel")
+    jitter_low[vel], jitter_high[vel] = -0.2, 0.2
+    spec = ModelSpec(
+        name="runner",
+        description=(
+            "running human figure: 70 kg, 35 degrees of freedom (free root, 29 servoed hinges), "
+            "ground contact with friction; controls are joint targets (thesis 4.4, Hodgins' runner)"
+        ),
+        control_low=low.tolist(),
+        control_high=high.tolist(),
+        control_spacing_s=0.5,
+        initial=InitialStates(
+            low=jitter_low.tolist(), high=jitter_high.tolist(), random_yaw=True, max_tilt=0.05
+        ),
+        episode_s=10.0,
+        thesis_hidden=30,
+    )
+    return PhysicalModel(xml, spec)

@@ -1,0 +1,436 @@
+"""A running controller for the runner, after Hodgins (1995) and Raibert: a state machine per leg
+(stance, flight, swing), servo targets at the joints, foot placement from the forward speed, and
+torso attitude held by the stance hip.
+
+Every run of a batch has its own state machine; the controller works on arrays of runs at once, so
+data generation steps many runs together: ``run`` hands ``mujoco.rollout`` ``control_every`` physical
+steps at a time with the controls held, then asks the controller for the next ones.
+
+The cycle of one stride: stance on one leg (``stance_s`` seconds), flight (until the other foot
+touches, ``flight_max_s`` at most), stance on the other leg, flight. In stance the leg's hip servo
+holds the pelvis upright (pitch, roll and heading); its knee gives a little and extends to push off
+with the ankle. The other leg swings: knee folded, thigh brought to the angle that puts the foot at
+``x = v·stance_s/2 + k_v·(v − v_target)`` ahead of the centre of mass at touchdown (Raibert's rule),
+and sideways against the sideways speed. Before touchdown its knee extends.
+
+Shapes: B = runs, U = 29 controls (servo targets, ``runner.JOINTS``).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+from numpy.typing import NDArray
+
+from neuroanimator.physics import runner as body
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+
+_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
+_CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
+STANCE, FLIGHT = 0, 1
+
+
+@dataclass(frozen=True)
+class Gait:
+    """The controller's parameters (radians, seconds, metres; torques in N·m per radian)."""
+
+    stance_s: float = 0.22
+    flight_max_s: float = 0.2
+    lean: float = 0.08  # forward lean of the pelvis while running
+    lean_per_speed: float = 0.05  # extra lean per m/s below the target speed
+    pitch_kp: float = 900.0
+    pitch_kd: float = 90.0
+    roll_kp: float = 700.0
+    roll_kd: float = 70.0
+    yaw_kp: float = 300.0
+    yaw_kd: float = 30.0
+    leg_length: float = 0.88
+    step_gain: float = 0.5  # foot ahead of the centre of mass: step_gain·v·stance_s
+    speed_gain: float = 0.08  # ... plus speed_gain·(v − v_target)
+    side_gain: float = 0.12  # sideways placement per m/s of sideways speed
+    width: float = 0.06  # nominal sideways foot offset from the centre of mass
+    swing_knee: float = 1.7
+    fold_fraction: float = 0.6  # fraction of the other leg's stance the swing knee stays folded
+    touchdown_knee: float = 0.25
+    stance_knee: float = 0.45
+    pushoff_knee: float = 0.15
+    pushoff_ankle: float = -0.45
+    pushoff_from: float = 0.5  # fraction of stance after which the leg pushes off
+    liftoff_hip: float = 0.2  # world thigh angle the leaving leg swings towards
+    arm_swing: float = 0.8
+    elbow: float = 1.5
+    waist_lean: float = 0.05
+
+
+@dataclass(frozen=True)
+class Push:
+    """A push of the torso: ``force`` newtons (world x, y, z) from ``start_s`` for ``duration_s``."""
+
+    force: tuple[float, float, float] = (0.0, 250.0, 0.0)
+    start_s: float = 10.0
+    duration_s: float = 0.2
+
+
+def _quat_to_mat(q: FloatArray) -> FloatArray:
+    """(B, 4) unit quaternions (w, x, y, z) -> (B, 3, 3) rotation matrices."""
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=1),
+        ],
+        axis=1,
+    )
+
+
+@dataclass
+class Attitude:
+    """The pelvis in its heading frame: (B,) angles and rates; ``heading`` is the yaw."""
+
+    pitch: FloatArray
+    roll: FloatArray
+    heading: FloatArray
+    pitch_rate: FloatArray
+    roll_rate: FloatArray
+    yaw_rate: FloatArray
+    velocity: FloatArray  # (B, 2) centre-of-mass velocity, forward and leftward in the heading frame
+
+    @classmethod
+    def of(cls, qpos: FloatArray, qvel: FloatArray, com_vel: FloatArray) -> Attitude:
+        r = _quat_to_mat(qpos[:, 3:7])
+        heading = np.arctan2(r[:, 1, 0], r[:, 0, 0])
+        c, s = np.cos(heading), np.sin(heading)
+
+        def to_heading(v: FloatArray) -> FloatArray:
+            return np.stack([c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1], v[:, 2]], axis=1)
+
+        up = to_heading(r[:, :, 2])
+        omega = to_heading(np.einsum("bij,bj->bi", r, qvel[:, 3:6]))
+        return cls(
+            pitch=np.arctan2(up[:, 0], up[:, 2]),
+            roll=np.arctan2(-up[:, 1], up[:, 2]),
+            heading=heading,
+            pitch_rate=omega[:, 1],
+            roll_rate=omega[:, 0],
+            yaw_rate=omega[:, 2],
+            velocity=to_heading(com_vel)[:, :2],
+        )
+
+
+class RunnerController:
+    """The state machine and servo targets of a batch of runners (see the module docstring)."""
+
+    def __init__(self, m: mujoco.MjModel, gait: Gait | None = None) -> None:
+        self.m = m
+        self.gait = gait or Gait()
+        act = {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i): i for i in range(m.nu)}
+        joints = [int(m.actuator_trnid[act[name], 0]) for name in body.JOINTS]
+        self.ctrl_ids = np.array([act[name] for name in body.JOINTS])
+        self.qpos_at = m.jnt_qposadr[joints]
+        self.dof_at = m.jnt_dofadr[joints]
+        self.kp = m.actuator_gainprm[self.ctrl_ids, 0].copy()
+        self.kv = -m.actuator_biasprm[self.ctrl_ids, 2].copy()
+        self.force_limit = m.actuator_forcerange[self.ctrl_ids, 1].copy()
+        self.low = m.actuator_ctrlrange[self.ctrl_ids, 0].copy()
+        self.high = m.actuator_ctrlrange[self.ctrl_ids, 1].copy()
+        self.index = {name: k for k, name in enumerate(body.JOINTS)}
+        self.stand = np.asarray(body.stand_targets())
+        sensor = {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SENSOR, i): i for i in range(m.nsensor)}
+        self.sensor_at = {name: int(m.sensor_adr[i]) for name, i in sensor.items()}
+        self.sign = np.array([1.0, -1.0])
+        self.stand_gain = (2.0, 0.5)  # abduction and twist axes are mirrored on the right
+
+    # ------------------------------------------------------------------ state machine
+    def reset(self, batch: int, target_speed: FloatArray | float, heading: FloatArray | float = 0.0) -> None:
+        """Start ``batch`` runs in stance on the left leg; ``target_speed`` 0 means stand still."""
+        self.target_speed = np.broadcast_to(np.asarray(target_speed, float), (batch,)).copy()
+        self.target_heading = np.broadcast_to(np.asarray(heading, float), (batch,)).copy()
+        self.stance_leg = np.zeros(batch, int)
+        self.phase = np.full(batch, STANCE)
+        self.phase_time = np.zeros(batch)
+
+    def _touch(self, sensordata: FloatArray) -> FloatArray:
+        """(B, 2) normal force under each foot (sole and toes), newtons."""
+        at = self.sensor_at
+        return np.stack(
+            [
+                sensordata[:, at[f"{side}_sole"]] + sensordata[:, at[f"{side}_toe_pad"]]
+                for side in body.SIDES
+            ],
+            axis=1,
+        )
+
+    def _advance(self, touch: FloatArray, dt: float) -> None:
+        g = self.gait
+        self.phase_time += dt
+        runs = np.arange(self.stance_leg.size)
+        other = 1 - self.stance_leg
+        other_down = touch[runs, other] > 50.0
+        in_stance = self.phase == STANCE
+        to_flight = in_stance & (self.phase_time >= g.stance_s) & ~other_down
+        swap = (in_stance & (self.phase_time >= g.pushoff_from * g.stance_s) & other_down) | (
+            (self.phase == FLIGHT) & (other_down | (self.phase_time >= g.flight_max_s))
+        )
+        self.phase[to_flight] = FLIGHT
+        self.phase_time[to_flight] = 0.0
+        self.stance_leg[swap] = other[swap]
+        self.phase[swap] = STANCE
+        self.phase_time[swap] = 0.0
+        self.running = self.target_speed > 0.0
+
+    # ------------------------------------------------------------------ servo targets
+    def act(self, qpos: FloatArray, qvel: FloatArray, sensordata: FloatArray, dt: float) -> FloatArray:
+        """(B, nq), (B, nv), (B, nsensordata) -> (B, U) servo targets for the next ``dt`` seconds."""
+        self._advance(self._touch(sensordata), dt)
+        g = self.gait
+        at = self.sensor_at
+        com_vel = sensordata[:, at["com_vel"] : at["com_vel"] + 3]
+        att = Attitude.of(qpos, qvel, com_vel)
+        q = qpos[:, self.qpos_at]
+        qd = qvel[:, self.dof_at]
+        b = q.shape[0]
+        runs = np.arange(b)
+        u = np.repeat(self.stand[None], b, axis=0)
+        ix = self.index
+
+        def col(side: int, joint: str) -> int:
+            return ix[f"{body.SIDES[side]}_{joint}"]
+
+        speed_error = self.target_speed - att.velocity[:, 0]
+        running = self.running
+        lean = np.where(running, g.lean + g.lean_per_speed * np.clip(speed_error, -1.0, 1.0), 0.0)
+        # the torque that holds the pelvis: on pitch, roll and heading
+        heading_error = np.angle(np.exp(1j * (att.heading - self.target_heading)))
+        t_pitch = -g.pitch_kp * (att.pitch - lean) - g.pitch_kd * att.pitch_rate
+        t_roll = -g.roll_kp * att.roll - g.roll_kd * att.roll_rate
+        t_yaw = -g.yaw_kp * heading_error - g.yaw_kd * att.yaw_rate
+
+        stance = self.stance_leg
+        swing = 1 - stance
+        in_stance = self.phase == STANCE
+        frac = self.phase_time / g.stance_s
+        # the swing leg: foot placement from the speed (Raibert), thigh angle in the world
+        v = att.velocity
+        reach = g.step_gain * v[:, 0] * g.stance_s + g.speed_gain * (v[:, 0] - self.target_speed)
+        side_sign = self.sign[swing]
+        lateral = side_sign * g.width + g.side_gain * v[:, 1]
+        thigh_fwd = np.arcsin(np.clip(reach / g.leg_length, -0.8, 0.8))
+        thigh_side = np.arcsin(np.clip(lateral / g.leg_length, -0.5, 0.5))
+        folded = in_stance & (frac < g.fold_fraction)
+        sw_hip_y = thigh_fwd + att.pitch
+        sw_hip_x = side_sign * (thigh_side - att.roll)
+        sw_knee = np.where(folded, g.swing_knee, g.touchdown_knee)
+        # the leaving leg during flight: knee folds, thigh swings forward
+        u[runs, [col(s, "hip_y") for s in swing]] = sw_hip_y
+        u[runs, [col(s, "hip_x") for s in swing]] = sw_hip_x
+        u[runs, [col(s, "knee") for s in swing]] = sw_knee
+        u[runs, [col(s, "ankle_y") for s in swing]] = 0.2
+
+        # the stance leg (or, in flight, the leg that just left the ground)
+        st_knee = np.where(
+            in_stance, np.where(frac < g.pushoff_from, g.stance_knee, g.pushoff_knee), g.swing_knee
+        )
+        st_ankle = np.where(in_stance & (frac >= g.pushoff_from), g.pushoff_ankle, 0.0)
+        st_ankle = np.where(in_stance, st_ankle, 0.2)
+        u[runs, [col(s, "knee") for s in stance]] = st_knee
+        u[runs, [col(s, "ankle_y") for s in stance]] = st_ankle
+
+        # the stance hip holds the pelvis: its torque is what the pelvis needs less what the swing
+        # hip already applies to it (Hodgins; SIMBICON)
+        def servo_torque(cols: list[int], target: FloatArray) -> FloatArray:
+            c = np.asarray(cols)
+            tau = self.kp[c] * (target - q[runs, c]) - self.kv[c] * qd[runs, c]
+            return np.asarray(np.clip(tau, -self.force_limit[c], self.force_limit[c]))
+
+        def hold(cols: list[int], torque: FloatArray) -> FloatArray:
+            c = np.asarray(cols)
+            return np.asarray(q[runs, c] + (torque + self.kv[c] * qd[runs, c]) / self.kp[c])
+
+        sw_y = [col(s, "hip_y") for s in swing]
+        sw_x = [col(s, "hip_x") for s in swing]
+        st_y = [col(s, "hip_y") for s in stance]
+        st_x = [col(s, "hip_x") for s in stance]
+        st_z = [col(s, "hip_z") for s in stance]
+        tau_sw_y = servo_torque(sw_y, sw_hip_y)
+        tau_sw_x = servo_torque(sw_x, sw_hip_x)
+        # pelvis pitch gets +flexion torque of each hip; roll gets -sign·abduction; yaw -sign·twist
+        st_sign = self.sign[stance]
+        stance_pitch = t_pitch - tau_sw_y
+        stance_roll = -st_sign * (t_roll + side_sign * tau_sw_x)
+        stance_yaw = -st_sign * t_yaw
+        # in flight no foot holds anything: the leaving leg swings forward instead
+        u[runs, st_y] = np.where(in_stance, hold(st_y, stance_pitch), g.liftoff_hip + att.pitch)
+        u[runs, st_x] = np.where(in_stance, hold(st_x, stance_roll), st_sign * (st_sign * g.width - att.roll))
+        u[runs, st_z] = np.where(in_stance, hold(st_z, stance_yaw), 0.0)
+
+        # arms swing against the legs; waist leans a little
+        for s in (0, 1):
+            u[:, col(s, "shoulder_y")] = g.arm_swing * 0.5 * (q[:, col(1 - s, "hip_y")] - q[:, col(s, "hip_y")])
+            u[:, col(s, "elbow")] = np.where(running, g.elbow, self.stand[col(s, "elbow")])
+        u[:, ix["waist_y"]] = np.where(running, g.waist_lean, 0.0)
+
+        standing = ~running
+        if standing.any():
+            u[standing] = self._stand(q[standing], qd[standing], att, standing, sensordata[standing])
+        return np.clip(u, self.low, self.high)
+
+    def _stand(
+        self, q: FloatArray, qd: FloatArray, att: Attitude, rows: NDArray[np.bool_], sensordata: FloatArray
+    ) -> FloatArray:
+        """Servo targets that keep standing runs up: both hips hold the pelvis, ankles the centre of mass."""
+        at = self.sensor_at
+        com = sensordata[:, at["com"] : at["com"] + 3]
+        com_vel = sensordata[:, at["com_vel"] : at["com_vel"] + 3]
+        feet = 0.5 * (
+            sensordata[:, at["left_foot_pos"] : at["left_foot_pos"] + 3]
+            + sensordata[:, at["right_foot_pos"] : at["right_foot_pos"] + 3]
+        )
+        heading = att.heading[rows]
+        c, s = np.cos(heading), np.sin(heading)
+        rel = com[:, :2] - feet[:, :2]
+        fwd = c * rel[:, 0] + s * rel[:, 1] - 0.03  # balance over the middle of the feet
+        side = -s * rel[:, 0] + c * rel[:, 1]
+        vel = att.velocity[rows]
+        u = np.repeat(self.stand[None], q.shape[0], axis=0)
+        ix = self.index
+        # ankle strategy: lean the stiff body back over the feet (positive ankle_y leans it forward)
+        ankle = -(self.stand_gain[0] * fwd + self.stand_gain[1] * vel[:, 0])
+        for side_name in body.SIDES:
+            u[:, ix[f"{side_name}_ankle_y"]] = ankle
+        del side
+        return u
+
+
+@dataclass
+class RunResult:
+    """A closed-loop run: states every ``every`` physical steps and whether and when each run fell."""
+
+    states: FloatArray  # (B, T, nfull) MuJoCo full-physics states
+    controls: FloatArray  # (B, T, U) servo targets applied from each recorded state on
+    sensordata: FloatArray  # (B, T, nsensordata)
+    dt: float  # seconds between records
+    fell_at: FloatArray  # (B,) seconds into the run when the pelvis dropped, inf if it never did
+    wall_s: float
+    extra: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def fell(self) -> NDArray[np.bool_]:
+        return np.asarray(np.isfinite(self.fell_at))
+
+
+def running_start(m: mujoco.MjModel, speed: float) -> FloatArray:
+    """(nfull,) a full-physics state: standing on the left leg, knee bent, moving forward at ``speed``."""
+    d = mujoco.MjData(m)
+    ix = {name: k for k, name in enumerate(body.JOINTS)}
+    ctl = RunnerController(m)
+    pose = np.zeros(len(body.JOINTS))
+    pose[ix["left_knee"]] = 0.3
+    pose[ix["left_hip_y"]] = 0.15
+    pose[ix["left_ankle_y"]] = 0.15
+    pose[ix["right_knee"]] = 1.2
+    pose[ix["right_hip_y"]] = 0.3
+    d.qpos[ctl.qpos_at] = pose
+    mujoco.mj_kinematics(m, d)
+    foot = d.body("left_foot").xpos[2] - 0.07
+    d.qpos[2] -= foot - 0.005
+    d.qvel[0] = speed
+    state = np.empty(mujoco.mj_stateSize(m, _STATE))
+    mujoco.mj_getState(m, d, state, _STATE)
+    return state
+
+
+def run(
+    m: mujoco.MjModel,
+    start: FloatArray,
+    target_speed: FloatArray | float,
+    seconds: float,
+    *,
+    gait: Gait | None = None,
+    control_every: int = 3,
+    push: Push | None = None,
+    push_body: str = "torso",
+    threads: int = 2,
+    record: bool = True,
+) -> RunResult:
+    """Run the closed loop from ``start`` (B|1, nfull) for ``seconds``.
+
+    The controller sees the state every ``control_every`` physical steps and its targets are held in
+    between; ``push`` adds a force on ``push_body``. A run has fallen once its pelvis is below 0.55 m.
+    """
+    start = np.atleast_2d(np.asarray(start, float))
+    speeds = np.atleast_1d(np.asarray(target_speed, float))
+    batch = max(start.shape[0], speeds.size)
+    state = np.repeat(start, batch // start.shape[0], axis=0)
+    ctl = RunnerController(m, gait)
+    ctl.reset(batch, speeds)
+    datas = [mujoco.MjData(m) for _ in range(max(1, min(threads, batch)))]
+    models = [m] * batch
+    nstate = mujoco.mj_stateSize(m, _STATE)
+    ncontrol = mujoco.mj_stateSize(m, _CONTROL)
+    probe = mujoco.MjData(m)
+    probe.ctrl[:] = np.arange(m.nu) + 1000.0
+    cvec = np.empty(ncontrol)
+    mujoco.mj_getState(m, probe, cvec, _CONTROL)
+    ctrl_at = int(np.flatnonzero(cvec == 1000.0)[0])
+    xfrc_at = ctrl_at + m.nu
+    qpos_at = 1  # full physics: time, qpos, qvel, ...
+    qvel_at = 1 + m.nq
+    body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, push_body)
+    dt = m.opt.timestep * control_every
+    periods = int(round(seconds / dt))
+    control = np.zeros((batch, control_every, ncontrol))
+    sensordata = np.zeros((batch, control_every, m.nsensordata))
+    out_state = np.zeros((batch, control_every, nstate))
+    # the first sensor reading: one forward pass per distinct start
+    sens = np.zeros((batch, m.nsensordata))
+    for i in range(batch):
+        mujoco.mj_setState(m, probe, state[i], _STATE)
+        mujoco.mj_forward(m, probe)
+        sens[i] = probe.sensordata
+    rec_states = np.zeros((batch, periods, nstate)) if record else np.zeros((batch, 0, nstate))
+    rec_ctrl = np.zeros((batch, periods, m.nu)) if record else np.zeros((batch, 0, m.nu))
+    rec_sens = np.zeros((batch, periods, m.nsensordata)) if record else np.zeros((batch, 0, m.nsensordata))
+    fell_at = np.full(batch, np.inf)
+    t0 = time.perf_counter()
+    for k in range(periods):
+        qpos = state[:, qpos_at : qpos_at + m.nq]
+        qvel = state[:, qvel_at : qvel_at + m.nv]
+        targets = ctl.act(qpos, qvel, sens, dt)
+        control[:, :, ctrl_at + ctl.ctrl_ids] = targets[:, None, :]
+        control[:, :, xfrc_at:] = 0.0
+        now = k * dt
+        if push is not None and push.start_s <= now < push.start_s + push.duration_s:
+            control[:, :, xfrc_at + 6 * body_id : xfrc_at + 6 * body_id + 3] = push.force
+        if record:
+            rec_states[:, k] = state
+            rec_ctrl[:, k] = targets
+            rec_sens[:, k] = sens
+        rollout.rollout(
+            models,
+            datas,
+            state,
+            control,
+            control_spec=int(_CONTROL),
+            skip_checks=True,
+            nstep=control_every,
+            state=out_state,
+            sensordata=sensordata,
+        )
+        state = out_state[:, -1].copy()
+        sens = sensordata[:, -1].copy()
+        down = (state[:, qpos_at + 2] < 0.55) & ~np.isfinite(fell_at)
+        fell_at[down] = now + dt
+    wall = time.perf_counter() - t0
+    return RunResult(rec_states, rec_ctrl, rec_sens, dt, fell_at, wall, {"final_x": 0.0})
+
+
+def with_gait(gait: Gait, **changes: float) -> Gait:
+    return replace(gait, **changes)
