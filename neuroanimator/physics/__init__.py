@@ -14,12 +14,12 @@ from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from neuroanimator.model_spec import ForceInput, InitialStates, ModelSpec
-from neuroanimator.physics import dolphin, lander, pendulum, truck
+from neuroanimator.physics import dolphin, lander, pendulum, runner, truck
 
 if TYPE_CHECKING:
     from neuroanimator.physics.model import Frame, ModelError, PhysicalModel
 
-SYSTEMS: tuple[ModuleType, ...] = (pendulum, lander, truck, dolphin)
+SYSTEMS: tuple[ModuleType, ...] = (pendulum, lander, truck, dolphin, runner)
 CATALOG: dict[str, Callable[[], PhysicalModel]] = {
     "pendulum-passive": pendulum.passive,
     "pendulum-active": pendulum.active,
@@ -27,6 +27,7 @@ CATALOG: dict[str, Callable[[], PhysicalModel]] = {
     "lander": lander.lander,
     "truck": truck.truck,
     "dolphin": dolphin.dolphin,
+    "runner": runner.runner,
 }
 _FROM_MODEL = ("Frame", "ModelError", "PhysicalModel")  # names that need MuJoCo, loaded on first use
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -35,38 +35,39 @@ FloatArray = NDArray[np.float64]
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
 STANCE, FLIGHT = 0, 1
+BODY_WEIGHT = 70.0 * 9.81  # newtons
 
 
 @dataclass(frozen=True)
 class Gait:
     """The controller's parameters (radians, seconds, metres; torques in N·m per radian)."""
 
-    stance_s: float = 0.22
-    flight_max_s: float = 0.2
-    lean: float = 0.08  # forward lean of the pelvis while running
-    lean_per_speed: float = 0.05  # extra lean per m/s below the target speed
-    pitch_kp: float = 900.0
-    pitch_kd: float = 90.0
-    roll_kp: float = 700.0
-    roll_kd: float = 70.0
-    yaw_kp: float = 300.0
-    yaw_kd: float = 30.0
+    stance_s: float = 0.331
+    flight_max_s: float = 0.05
+    lean: float = 0.056  # forward lean of the pelvis while running
+    lean_per_speed: float = 0.0  # extra lean per m/s below the target speed
+    pitch_kp: float = 1488.5
+    pitch_kd: float = 96.1
+    roll_kp: float = 1392.9
+    roll_kd: float = 152.6
+    yaw_kp: float = 133.4
+    yaw_kd: float = 30.4
     leg_length: float = 0.88
-    step_gain: float = 0.5  # foot ahead of the centre of mass: step_gain·v·stance_s
-    speed_gain: float = 0.08  # ... plus speed_gain·(v − v_target)
-    side_gain: float = 0.12  # sideways placement per m/s of sideways speed
-    width: float = 0.06  # nominal sideways foot offset from the centre of mass
-    swing_knee: float = 1.7
-    fold_fraction: float = 0.6  # fraction of the other leg's stance the swing knee stays folded
-    touchdown_knee: float = 0.25
-    stance_knee: float = 0.45
-    pushoff_knee: float = 0.15
-    pushoff_ankle: float = -0.45
-    pushoff_from: float = 0.5  # fraction of stance after which the leg pushes off
-    liftoff_hip: float = 0.2  # world thigh angle the leaving leg swings towards
-    arm_swing: float = 0.8
+    step_gain: float = 0.941  # foot ahead of the centre of mass: step_gain·v·stance_s
+    speed_gain: float = 0.149  # ... plus speed_gain·(v − v_target)
+    side_gain: float = 0.142  # sideways placement per m/s of sideways speed
+    width: float = 0.015  # nominal sideways foot offset from the centre of mass
+    swing_knee: float = 1.823
+    fold_fraction: float = 0.843  # fraction of the other leg's stance the swing knee stays folded
+    touchdown_knee: float = 0.555
+    stance_knee: float = 0.506
+    pushoff_knee: float = 0.156
+    pushoff_ankle: float = -0.488
+    pushoff_from: float = 0.66  # fraction of stance after which the leg pushes off
+    liftoff_hip: float = 0.637  # world thigh angle the leaving leg swings towards
+    arm_swing: float = 1.102
     elbow: float = 1.5
-    waist_lean: float = 0.05
+    waist_lean: float = 0.071
 
 
 @dataclass(frozen=True)
@@ -156,25 +157,29 @@ class RunnerController:
         self.stance_leg = np.zeros(batch, int)
         self.phase = np.full(batch, STANCE)
         self.phase_time = np.zeros(batch)
+        self.load = np.ones(batch)
 
-    def _touch(self, sensordata: FloatArray) -> FloatArray:
-        """(B, 2) normal force under each foot (sole and toes), newtons."""
+    def feet_touch(self, sensordata: FloatArray) -> FloatArray:
+        """(..., nsensordata) -> (..., 2) normal force under the left and right foot (sole and toes), newtons."""
         at = self.sensor_at
         return np.stack(
             [
-                sensordata[:, at[f"{side}_sole"]] + sensordata[:, at[f"{side}_toe_pad"]]
+                sensordata[..., at[f"{side}_sole"]] + sensordata[..., at[f"{side}_toe_pad"]]
                 for side in body.SIDES
             ],
-            axis=1,
+            axis=-1,
         )
 
     def _advance(self, touch: FloatArray, dt: float) -> None:
+        """Move each run's state machine on by ``dt``: stance ends after ``stance_s`` on the ground
+        (or when the other foot lands after push-off began), flight when the other foot lands."""
         g = self.gait
-        self.phase_time += dt
         runs = np.arange(self.stance_leg.size)
         other = 1 - self.stance_leg
         other_down = touch[runs, other] > 50.0
         in_stance = self.phase == STANCE
+        # stance time counts only while the stance foot is on the ground: a late touchdown waits
+        self.phase_time += np.where(in_stance & (touch[runs, self.stance_leg] <= 50.0), 0.0, dt)
         to_flight = in_stance & (self.phase_time >= g.stance_s) & ~other_down
         swap = (in_stance & (self.phase_time >= g.pushoff_from * g.stance_s) & other_down) | (
             (self.phase == FLIGHT) & (other_down | (self.phase_time >= g.flight_max_s))
@@ -185,15 +190,18 @@ class RunnerController:
         self.phase[swap] = STANCE
         self.phase_time[swap] = 0.0
         self.running = self.target_speed > 0.0
+        # how much the stance foot bears: the hip holds the pelvis only as far as the foot is loaded
+        self.load = np.clip(touch[runs, self.stance_leg] / (0.3 * BODY_WEIGHT), 0.0, 1.0)
 
     # ------------------------------------------------------------------ servo targets
     def act(self, qpos: FloatArray, qvel: FloatArray, sensordata: FloatArray, dt: float) -> FloatArray:
         """(B, nq), (B, nv), (B, nsensordata) -> (B, U) servo targets for the next ``dt`` seconds."""
-        self._advance(self._touch(sensordata), dt)
+        self._advance(self.feet_touch(sensordata), dt)
         g = self.gait
         at = self.sensor_at
         com_vel = sensordata[:, at["com_vel"] : at["com_vel"] + 3]
         att = Attitude.of(qpos, qvel, com_vel)
+        heading_error = np.angle(np.exp(1j * (att.heading - self.target_heading)))
         q = qpos[:, self.qpos_at]
         qd = qvel[:, self.dof_at]
         b = q.shape[0]
@@ -208,7 +216,6 @@ class RunnerController:
         running = self.running
         lean = np.where(running, g.lean + g.lean_per_speed * np.clip(speed_error, -1.0, 1.0), 0.0)
         # the torque that holds the pelvis: on pitch, roll and heading
-        heading_error = np.angle(np.exp(1j * (att.heading - self.target_heading)))
         t_pitch = -g.pitch_kp * (att.pitch - lean) - g.pitch_kd * att.pitch_rate
         t_roll = -g.roll_kp * att.roll - g.roll_kd * att.roll_rate
         t_yaw = -g.yaw_kp * heading_error - g.yaw_kd * att.yaw_rate
@@ -219,11 +226,24 @@ class RunnerController:
         frac = self.phase_time / g.stance_s
         # the swing leg: foot placement from the speed (Raibert), thigh angle in the world
         v = att.velocity
-        reach = g.step_gain * v[:, 0] * g.stance_s + g.speed_gain * (v[:, 0] - self.target_speed)
+        # placement in the frame of the target heading (the way to run), turned into the pelvis'
+        # heading frame, so that a turned pelvis does not read its own turn as sideways speed
+        ce, se = np.cos(heading_error), np.sin(heading_error)
+        v_run = np.stack([ce * v[:, 0] - se * v[:, 1], se * v[:, 0] + ce * v[:, 1]], axis=1)
+        reach_run = g.step_gain * v_run[:, 0] * g.stance_s + g.speed_gain * (v_run[:, 0] - self.target_speed)
+
+        def placement(sign: FloatArray) -> tuple[FloatArray, FloatArray]:
+            """Thigh angles (forward, sideways) in the pelvis' heading frame for a foot on side ``sign``."""
+            lateral_run = sign * g.width + g.side_gain * v_run[:, 1]
+            fwd = ce * reach_run + se * lateral_run
+            side = -se * reach_run + ce * lateral_run
+            return (
+                np.arcsin(np.clip(fwd / g.leg_length, -0.8, 0.8)),
+                np.arcsin(np.clip(side / g.leg_length, -0.5, 0.5)),
+            )
+
         side_sign = self.sign[swing]
-        lateral = side_sign * g.width + g.side_gain * v[:, 1]
-        thigh_fwd = np.arcsin(np.clip(reach / g.leg_length, -0.8, 0.8))
-        thigh_side = np.arcsin(np.clip(lateral / g.leg_length, -0.5, 0.5))
+        thigh_fwd, thigh_side = placement(side_sign)
         folded = in_stance & (frac < g.fold_fraction)
         sw_hip_y = thigh_fwd + att.pitch
         sw_hip_x = side_sign * (thigh_side - att.roll)
@@ -266,14 +286,28 @@ class RunnerController:
         stance_pitch = t_pitch - tau_sw_y
         stance_roll = -st_sign * (t_roll + side_sign * tau_sw_x)
         stance_yaw = -st_sign * t_yaw
-        # in flight no foot holds anything: the leaving leg swings forward instead
-        u[runs, st_y] = np.where(in_stance, hold(st_y, stance_pitch), g.liftoff_hip + att.pitch)
-        u[runs, st_x] = np.where(in_stance, hold(st_x, stance_roll), st_sign * (st_sign * g.width - att.roll))
-        u[runs, st_z] = np.where(in_stance, hold(st_z, stance_yaw), 0.0)
+        # a stance foot not yet (or no longer) loaded holds nothing: its leg keeps reaching for the
+        # touchdown point; in flight the leaving leg swings forward instead
+        w = self.load
+        st_fwd, st_lateral = placement(st_sign)
+        reach_y = st_fwd + att.pitch
+        reach_x = st_sign * (st_lateral - att.roll)
+        held_y = w * hold(st_y, stance_pitch) + (1 - w) * reach_y
+        held_x = w * hold(st_x, stance_roll) + (1 - w) * reach_x
+        held_z = w * hold(st_z, stance_yaw)
+        u[runs, st_y] = np.where(in_stance, held_y, g.liftoff_hip + att.pitch)
+        u[runs, st_x] = np.where(in_stance, held_x, st_sign * (st_sign * g.width - att.roll))
+        u[runs, st_z] = np.where(in_stance, held_z, 0.0)
+        st_knee_now = u[runs, [col(s, "knee") for s in stance]]
+        u[runs, [col(s, "knee") for s in stance]] = np.where(
+            in_stance, w * st_knee_now + (1 - w) * g.touchdown_knee, st_knee_now
+        )
 
         # arms swing against the legs; waist leans a little
         for s in (0, 1):
-            u[:, col(s, "shoulder_y")] = g.arm_swing * 0.5 * (q[:, col(1 - s, "hip_y")] - q[:, col(s, "hip_y")])
+            u[:, col(s, "shoulder_y")] = (
+                g.arm_swing * 0.5 * (q[:, col(1 - s, "hip_y")] - q[:, col(s, "hip_y")])
+            )
             u[:, col(s, "elbow")] = np.where(running, g.elbow, self.stand[col(s, "elbow")])
         u[:, ix["waist_y"]] = np.where(running, g.waist_lean, 0.0)
 
@@ -288,7 +322,7 @@ class RunnerController:
         """Servo targets that keep standing runs up: both hips hold the pelvis, ankles the centre of mass."""
         at = self.sensor_at
         com = sensordata[:, at["com"] : at["com"] + 3]
-        com_vel = sensordata[:, at["com_vel"] : at["com_vel"] + 3]
+        sensordata[:, at["com_vel"] : at["com_vel"] + 3]
         feet = 0.5 * (
             sensordata[:, at["left_foot_pos"] : at["left_foot_pos"] + 3]
             + sensordata[:, at["right_foot_pos"] : at["right_foot_pos"] + 3]
@@ -319,7 +353,7 @@ class RunResult:
     dt: float  # seconds between records
     fell_at: FloatArray  # (B,) seconds into the run when the pelvis dropped, inf if it never did
     wall_s: float
-    extra: dict[str, float] = field(default_factory=dict)
+    final_qpos: FloatArray  # (B, nq) where each run ended
 
     @property
     def fell(self) -> NDArray[np.bool_]:
@@ -367,7 +401,9 @@ def run(
     """
     start = np.atleast_2d(np.asarray(start, float))
     speeds = np.atleast_1d(np.asarray(target_speed, float))
-    batch = max(start.shape[0], speeds.size)
+    # the batch: one run per start, per target speed, or per value of a gait parameter given as an array
+    sizes = [np.size(v) for v in vars(gait).values()] if gait is not None else []
+    batch = max(start.shape[0], speeds.size, *sizes)
     state = np.repeat(start, batch // start.shape[0], axis=0)
     ctl = RunnerController(m, gait)
     ctl.reset(batch, speeds)
@@ -385,7 +421,7 @@ def run(
     qvel_at = 1 + m.nq
     body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, push_body)
     dt = m.opt.timestep * control_every
-    periods = int(round(seconds / dt))
+    periods = round(seconds / dt)
     control = np.zeros((batch, control_every, ncontrol))
     sensordata = np.zeros((batch, control_every, m.nsensordata))
     out_state = np.zeros((batch, control_every, nstate))
@@ -429,8 +465,6 @@ def run(
         down = (state[:, qpos_at + 2] < 0.55) & ~np.isfinite(fell_at)
         fell_at[down] = now + dt
     wall = time.perf_counter() - t0
-    return RunResult(rec_states, rec_ctrl, rec_sens, dt, fell_at, wall, {"final_x": 0.0})
-
-
-def with_gait(gait: Gait, **changes: float) -> Gait:
-    return replace(gait, **changes)
+    return RunResult(
+        rec_states, rec_ctrl, rec_sens, dt, fell_at, wall, state[:, qpos_at : qpos_at + m.nq].copy()
+    )

@@ -1,0 +1,126 @@
+"""Search the running controller's gait parameters: many candidate gaits run at once, the best kept.
+
+    python bench/runner_tune.py [--init gait.json] [--batch 64] [--rounds 10] [--speeds 2.0,3.0]
+                                [--seconds 4,8,15] [--push-n 250] [--budget-s 600]
+
+Each candidate gait runs at every target speed, and (from the last horizon on) once more with a
+sideways push; all runs of all candidates are one batch of the closed loop. A candidate scores its
+worst condition: the seconds it stayed up, less the error of its mean speed. The next round samples
+around the 16 best (a shrinking Gaussian step). The last line is the best gait as JSON, the form
+``runner_control.Gait`` takes; the controller's defaults come from such a search.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from neuroanimator import physics
+from neuroanimator.physics import runner_control as rc
+
+RANGES: dict[str, tuple[float, float]] = {
+    "stance_s": (0.15, 0.45),
+    "flight_max_s": (0.02, 0.25),
+    "lean": (-0.1, 0.3),
+    "lean_per_speed": (0.0, 0.2),
+    "pitch_kp": (300.0, 2500.0),
+    "pitch_kd": (20.0, 250.0),
+    "roll_kp": (200.0, 2000.0),
+    "roll_kd": (20.0, 200.0),
+    "yaw_kp": (50.0, 1500.0),
+    "yaw_kd": (5.0, 200.0),
+    "step_gain": (0.1, 1.0),
+    "speed_gain": (0.0, 0.3),
+    "side_gain": (0.0, 0.4),
+    "width": (0.0, 0.12),
+    "swing_knee": (0.8, 2.1),
+    "fold_fraction": (0.2, 0.9),
+    "touchdown_knee": (0.05, 0.6),
+    "stance_knee": (0.1, 0.8),
+    "pushoff_knee": (0.0, 0.5),
+    "pushoff_ankle": (-0.8, 0.2),
+    "pushoff_from": (0.2, 0.9),
+    "liftoff_hip": (-0.3, 1.0),
+    "arm_swing": (0.0, 1.5),
+    "waist_lean": (-0.1, 0.3),
+}
+
+
+def score(
+    pop: np.ndarray, names: list[str], speeds: list[float], seconds: float, push_n: float | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(C, P) candidates -> (C,) scores, (C,) worst seconds up, (C,) mean speed at the first target."""
+    m = physics.get("runner").mj_model
+    conditions: list[tuple[float, rc.Push | None]] = [(v, None) for v in speeds]
+    if push_n:
+        conditions.append((speeds[0], rc.Push(force=(0.0, push_n, 0.0), start_s=seconds / 2, duration_s=0.2)))
+    c = pop.shape[0]
+    scores, alive_all, speed0 = [], [], np.zeros(c)
+    for k, (v, push) in enumerate(conditions):
+        gait = rc.Gait(**{n: pop[:, i] for i, n in enumerate(names)})  # type: ignore[arg-type]
+        res = rc.run(m, rc.running_start(m, v), v, seconds, gait=gait, push=push, record=False)
+        alive = np.minimum(res.fell_at, seconds)
+        mean = res.final_qpos[:, 0] / np.maximum(alive, 1e-3)
+        scores.append(alive - 2.0 * np.abs(mean - v) - np.abs(res.final_qpos[:, 1]) / seconds)
+        alive_all.append(alive)
+        if k == 0:
+            speed0 = mean
+    return np.min(scores, axis=0), np.min(alive_all, axis=0), speed0
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--init", type=Path, help="a gait as JSON to start from (else the defaults)")
+    p.add_argument("--batch", type=int, default=64)
+    p.add_argument("--rounds", type=int, default=10)
+    p.add_argument("--speeds", default="2.0,3.0")
+    p.add_argument("--seconds", default="4,8,15", help="horizons, each for an equal share of the rounds")
+    p.add_argument("--push-n", type=float, default=250.0)
+    p.add_argument("--sigma", type=float, default=0.08, help="first step, as a fraction of each range")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--budget-s", type=float, default=600.0)
+    args = p.parse_args()
+    rng = np.random.default_rng(args.seed)
+    names = list(RANGES)
+    lo = np.array([RANGES[n][0] for n in names])
+    hi = np.array([RANGES[n][1] for n in names])
+    init = dataclasses.asdict(rc.Gait())
+    if args.init:
+        init.update(json.loads(args.init.read_text()))
+    centre = np.array([init[n] for n in names])
+    sigma = args.sigma * (hi - lo)
+    pop = np.clip(centre + sigma * rng.standard_normal((args.batch, len(names))), lo, hi)
+    pop[0] = centre
+    speeds = [float(s) for s in args.speeds.split(",")]
+    horizons = [float(s) for s in args.seconds.split(",")]
+    t0 = time.time()
+    best = centre
+    for r in range(args.rounds):
+        stage = min(len(horizons) - 1, r * len(horizons) // args.rounds)
+        seconds = horizons[stage]
+        push = args.push_n if stage == len(horizons) - 1 else None
+        s, alive, v = score(pop, names, speeds, seconds, push)
+        order = np.argsort(-s)
+        best = pop[order[0]].copy()
+        print(
+            f"round {r}: {seconds:.0f} s, best score {s[order[0]]:.2f} (up {alive[order[0]]:.1f} s, "
+            f"{v[order[0]]:.2f} m/s), {(alive >= seconds).sum()} of {len(s)} stay up, {time.time() - t0:.0f} s",
+            flush=True,
+        )
+        if time.time() - t0 > args.budget_s:
+            break
+        elite = pop[order[:16]]
+        parents = elite[rng.integers(0, len(elite), args.batch)]
+        pop = np.clip(parents + sigma * (0.8 ** (r + 1)) * rng.standard_normal(parents.shape), lo, hi)
+        pop[: len(elite)] = elite
+    print(json.dumps({n: round(float(best[i]), 4) for i, n in enumerate(names)}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
