@@ -3,8 +3,8 @@
     python bench/runner_tune.py [--init gait.json] [--batch 64] [--rounds 10] [--speeds 2.0,3.0]
                                 [--seconds 4,8,15] [--push-n 250] [--budget-s 600]
 
-Each candidate gait runs at every target speed, and (from the last horizon on) once more with a
-sideways push; all runs of all candidates are one batch of the closed loop. A candidate scores its
+Each candidate gait runs at every target speed, and (from the last horizon on) four times more
+with a push of the torso (sideways both ways, forwards, backwards); all runs of all candidates are one batch of the closed loop. A candidate scores its
 worst condition: the seconds it stayed up, less the error of its mean speed. The next round samples
 around the 16 best (a shrinking Gaussian step). The last line is the best gait as JSON, the form
 ``runner_control.Gait`` takes; the controller's defaults come from such a search.
@@ -57,8 +57,9 @@ def score(
     """(C, P) candidates -> (C,) scores, (C,) worst seconds up, (C,) mean speed at the first target."""
     m = physics.get("runner").mj_model
     conditions: list[tuple[float, rc.Push | None]] = [(v, None) for v in speeds]
-    if push_n:
-        conditions.append((speeds[0], rc.Push(force=(0.0, push_n, 0.0), start_s=seconds / 2, duration_s=0.2)))
+    if push_n:  # sideways both ways, and forwards and backwards at 0.8 of the force
+        for force in ((0.0, push_n, 0.0), (0.0, -push_n, 0.0), (0.8 * push_n, 0.0, 0.0), (-0.8 * push_n, 0.0, 0.0)):
+            conditions.append((speeds[0], rc.Push(force=force, start_s=seconds / 2, duration_s=0.2)))
     c = pop.shape[0]
     scores, alive_all, speed0 = [], [], np.zeros(c)
     for k, (v, push) in enumerate(conditions):

@@ -42,32 +42,32 @@ BODY_WEIGHT = 70.0 * 9.81  # newtons
 class Gait:
     """The controller's parameters (radians, seconds, metres; torques in N·m per radian)."""
 
-    stance_s: float = 0.331
-    flight_max_s: float = 0.05
-    lean: float = 0.056  # forward lean of the pelvis while running
-    lean_per_speed: float = 0.0  # extra lean per m/s below the target speed
-    pitch_kp: float = 1488.5
-    pitch_kd: float = 96.1
-    roll_kp: float = 1392.9
-    roll_kd: float = 152.6
-    yaw_kp: float = 133.4
-    yaw_kd: float = 30.4
+    stance_s: float = 0.192
+    flight_max_s: float = 0.028
+    lean: float = -0.07  # forward lean of the pelvis while running
+    lean_per_speed: float = 0.112  # extra lean per m/s below the target speed
+    pitch_kp: float = 1407.4
+    pitch_kd: float = 111.7
+    roll_kp: float = 800.3
+    roll_kd: float = 146.5
+    yaw_kp: float = 291.2
+    yaw_kd: float = 76.7
     leg_length: float = 0.88
-    step_gain: float = 0.941  # foot ahead of the centre of mass: step_gain·v·stance_s
-    speed_gain: float = 0.149  # ... plus speed_gain·(v − v_target)
-    side_gain: float = 0.142  # sideways placement per m/s of sideways speed
-    width: float = 0.015  # nominal sideways foot offset from the centre of mass
-    swing_knee: float = 1.823
-    fold_fraction: float = 0.843  # fraction of the other leg's stance the swing knee stays folded
-    touchdown_knee: float = 0.555
-    stance_knee: float = 0.506
-    pushoff_knee: float = 0.156
-    pushoff_ankle: float = -0.488
-    pushoff_from: float = 0.66  # fraction of stance after which the leg pushes off
-    liftoff_hip: float = 0.637  # world thigh angle the leaving leg swings towards
-    arm_swing: float = 1.102
+    step_gain: float = 0.983  # foot ahead of the centre of mass: step_gain·v·stance_s
+    speed_gain: float = 0.117  # ... plus speed_gain·(v − v_target)
+    side_gain: float = 0.086  # sideways placement per m/s of sideways speed
+    width: float = 0.008  # nominal sideways foot offset from the centre of mass
+    swing_knee: float = 1.942
+    fold_fraction: float = 0.834  # fraction of the other leg's stance the swing knee stays folded
+    touchdown_knee: float = 0.495
+    stance_knee: float = 0.656
+    pushoff_knee: float = 0.323
+    pushoff_ankle: float = -0.367
+    pushoff_from: float = 0.562  # fraction of stance after which the leg pushes off
+    liftoff_hip: float = 0.92  # world thigh angle the leaving leg swings towards
+    arm_swing: float = 0.852
     elbow: float = 1.5
-    waist_lean: float = 0.071
+    waist_lean: float = 0.3
 
 
 @dataclass(frozen=True)

@@ -83,9 +83,10 @@ def test_runs_in_a_batch_equal_runs_alone(m: mujoco.MjModel) -> None:
 
 
 def test_the_control_period_is_a_parameter(m: mujoco.MjModel) -> None:
-    fine = runner_control.run(m, _standing_start(m), 0.0, 1.0, control_every=1)
-    coarse = runner_control.run(m, _standing_start(m), 0.0, 1.0, control_every=6)
-    assert fine.states.shape[1] == 6 * coarse.states.shape[1]
+    seconds = 60 * 6 * m.opt.timestep  # 60 control periods of 6 steps
+    fine = runner_control.run(m, _standing_start(m), 0.0, seconds, control_every=1)
+    coarse = runner_control.run(m, _standing_start(m), 0.0, seconds, control_every=6)
+    assert (fine.states.shape[1], coarse.states.shape[1]) == (360, 60)
     assert fine.dt == pytest.approx(m.opt.timestep)
     assert not (fine.fell.any() or coarse.fell.any())
 
