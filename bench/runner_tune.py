@@ -58,7 +58,12 @@ def score(
     m = physics.get("runner").mj_model
     conditions: list[tuple[float, rc.Push | None]] = [(v, None) for v in speeds]
     if push_n:  # sideways both ways, and forwards and backwards at 0.8 of the force
-        for force in ((0.0, push_n, 0.0), (0.0, -push_n, 0.0), (0.8 * push_n, 0.0, 0.0), (-0.8 * push_n, 0.0, 0.0)):
+        for force in (
+            (0.0, push_n, 0.0),
+            (0.0, -push_n, 0.0),
+            (0.8 * push_n, 0.0, 0.0),
+            (-0.8 * push_n, 0.0, 0.0),
+        ):
             conditions.append((speeds[0], rc.Push(force=force, start_s=seconds / 2, duration_s=0.2)))
     c = pop.shape[0]
     scores, alive_all, speed0 = [], [], np.zeros(c)

@@ -18,7 +18,6 @@ Shapes: B = runs, U = 29 controls (servo targets, ``runner.JOINTS``).
 
 from __future__ import annotations
 
-import logging
 import time
 from dataclasses import dataclass
 
@@ -29,7 +28,6 @@ from numpy.typing import NDArray
 
 from neuroanimator.physics import runner as body
 
-log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -248,7 +246,7 @@ class RunnerController:
         sw_hip_y = thigh_fwd + att.pitch
         sw_hip_x = side_sign * (thigh_side - att.roll)
         sw_knee = np.where(folded, g.swing_knee, g.touchdown_knee)
-        # the leaving leg during flight: knee folds, thigh swings forward
+        # the swing leg: knee folded for most of the other leg's stance, then extended for touchdown
         u[runs, [col(s, "hip_y") for s in swing]] = sw_hip_y
         u[runs, [col(s, "hip_x") for s in swing]] = sw_hip_x
         u[runs, [col(s, "knee") for s in swing]] = sw_knee
@@ -313,16 +311,14 @@ class RunnerController:
 
         standing = ~running
         if standing.any():
-            u[standing] = self._stand(q[standing], qd[standing], att, standing, sensordata[standing])
+            u[standing] = self._stand(att, standing, sensordata[standing])
         return np.clip(u, self.low, self.high)
 
-    def _stand(
-        self, q: FloatArray, qd: FloatArray, att: Attitude, rows: NDArray[np.bool_], sensordata: FloatArray
-    ) -> FloatArray:
-        """Servo targets that keep standing runs up: both hips hold the pelvis, ankles the centre of mass."""
+    def _stand(self, att: Attitude, rows: NDArray[np.bool_], sensordata: FloatArray) -> FloatArray:
+        """Servo targets that keep standing runs up: the standing pose, held stiff, with the ankles
+        leaning the body so that its centre of mass stays over the middle of the feet."""
         at = self.sensor_at
         com = sensordata[:, at["com"] : at["com"] + 3]
-        sensordata[:, at["com_vel"] : at["com_vel"] + 3]
         feet = 0.5 * (
             sensordata[:, at["left_foot_pos"] : at["left_foot_pos"] + 3]
             + sensordata[:, at["right_foot_pos"] : at["right_foot_pos"] + 3]
@@ -331,15 +327,13 @@ class RunnerController:
         c, s = np.cos(heading), np.sin(heading)
         rel = com[:, :2] - feet[:, :2]
         fwd = c * rel[:, 0] + s * rel[:, 1] - 0.03  # balance over the middle of the feet
-        side = -s * rel[:, 0] + c * rel[:, 1]
         vel = att.velocity[rows]
-        u = np.repeat(self.stand[None], q.shape[0], axis=0)
+        u = np.repeat(self.stand[None], rows.sum(), axis=0)
         ix = self.index
         # ankle strategy: lean the stiff body back over the feet (positive ankle_y leans it forward)
         ankle = -(self.stand_gain[0] * fwd + self.stand_gain[1] * vel[:, 0])
         for side_name in body.SIDES:
             u[:, ix[f"{side_name}_ankle_y"]] = ankle
-        del side
         return u
 
 
