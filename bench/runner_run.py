@@ -1,6 +1,6 @@
 """The runner's controller on MuJoCo: speed over 30 s at two target speeds, pushes, throughput.
 
-    python bench/runner_run.py [--speeds 2.0,3.0] [--seconds 30] [--push-n 250] [--json]
+    python bench/runner_run.py [--speeds 2.0,2.6] [--seconds 30] [--push-n 250] [--json]
 
 Each run starts from ``runner_control.running_start`` at the target speed. The speed is the mean
 forward speed of the pelvis over the whole run and over its last 25 s; a run has fallen once its
@@ -32,7 +32,7 @@ def _speeds(result: rc.RunResult, seconds: float) -> tuple[float, float]:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--speeds", default="2.0,3.0")
+    p.add_argument("--speeds", default="2.0,2.6")
     p.add_argument("--seconds", type=float, default=30.0)
     p.add_argument("--push-n", type=float, default=250.0)
     p.add_argument("--json", action="store_true")
