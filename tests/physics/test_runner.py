@@ -75,7 +75,7 @@ def test_a_short_run_stays_upright_and_moves_forward(m: mujoco.MjModel) -> None:
 def test_runs_in_a_batch_equal_runs_alone(m: mujoco.MjModel) -> None:
     """Data generation steps many runs at once; each run of a batch is the run it would be alone."""
     start = runner_control.running_start(m, 2.0)
-    both = runner_control.run(m, start, [2.0, 3.0], 0.5)
+    both = runner_control.run(m, start, np.array([2.0, 3.0]), 0.5)
     alone = runner_control.run(m, start, 3.0, 0.5)
     np.testing.assert_array_equal(both.states[1], alone.states[0])
     np.testing.assert_array_equal(both.controls[1], alone.controls[0])
