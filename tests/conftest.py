@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -14,26 +13,8 @@ import torch
 from neuroanimator import artifacts, physics, training
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.structured import StructuredEmulator
-from neuroanimator.training import TrainConfig, TrainResult
-
-ARM_XML = """<mujoco model="myarm">
-  <option timestep="0.005"/>
-  <worldbody>
-    <body name="upper" pos="0 0 1">
-      <joint name="shoulder" type="hinge" axis="0 1 0" damping="0.5"/>
-      <geom name="upper_geom" type="capsule" fromto="0 0 0 0.5 0 0" size="0.05" mass="1"/>
-      <body name="lower" pos="0.5 0 0">
-        <joint name="elbow" type="hinge" axis="0 1 0" damping="0.5"/>
-        <geom name="lower_geom" type="capsule" fromto="0 0 0 0.5 0 0" size="0.04" mass="0.5"/>
-      </body>
-    </body>
-  </worldbody>
-  <actuator>
-    <motor name="shoulder_motor" joint="shoulder" ctrlrange="-3 3"/>
-    <motor name="elbow_motor" joint="elbow" ctrlrange="-1.5 2"/>
-  </actuator>
-</mujoco>
-"""
+from neuroanimator.training import TrainConfig
+from tests.helpers import ARM_XML, Trained
 
 
 @pytest.fixture(autouse=True)
@@ -64,14 +45,6 @@ def make_emulator() -> Callable[..., StructuredEmulator]:
         return emu.eval()
 
     return make
-
-
-@dataclass
-class Trained:
-    model: PhysicalModel
-    result: TrainResult
-    path: Path  # the saved version folder
-    root: Path  # the artifact registry
 
 
 def _train_and_save(root: Path, name: str, substeps: int) -> Trained:
@@ -124,8 +97,6 @@ def inputs_of() -> Callable[..., tuple[np.ndarray, np.ndarray | None, np.ndarray
 
 
 # ---------------------------------------------------------------- emulator service (tests/services/emulator)
-# Here rather than in tests/services/emulator/conftest.py: a second module named ``conftest`` would
-# shadow this one for the tests that do ``from conftest import Trained``.
 @pytest.fixture(scope="session")
 def service_root(trained_pendulum: Trained, trained_lander: Trained) -> Path:
     """A registry with pendulum-active and lander (tiny, n = 10). Tests must not write to it."""

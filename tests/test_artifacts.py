@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import Trained
 
 from neuroanimator import artifacts, physics, registry, training
 from neuroanimator.export import OnnxEmulator
 from neuroanimator.manifest import FORMAT, TrainMetrics
 from neuroanimator.training import TrainConfig, TrainResult
+from tests.helpers import Trained
 
 FILES = {"emulator.onnx", "weights.pt", "linear_baseline.npy", "model.xml", "manifest.json"}
 METRICS = {

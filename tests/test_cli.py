@@ -10,11 +10,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from conftest import ARM_XML, Trained
 
 from neuroanimator import physics, registry
 from neuroanimator.cli import main
 from neuroanimator.results import ModelBench, ModelEval
+from tests.helpers import ARM_XML, Trained
 
 
 @dataclass

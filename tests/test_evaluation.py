@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import Trained
 
 from neuroanimator import evaluation, physics, registry
 from neuroanimator.results import RolloutCurve
+from tests.helpers import Trained
 
 
 def test_one_step_errors_reproduce_the_training_metrics(trained_pendulum: Trained) -> None:

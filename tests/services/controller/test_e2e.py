@@ -6,9 +6,17 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from ctl import ARTIFACTS, QUICK, Controller, ctl_fixture, ended, job, maps_torch, wait_for  # noqa: F401
-
 from services.controller.settings import Settings
+from tests.services.controller.ctl import (  # noqa: F401
+    ARTIFACTS,
+    QUICK,
+    Controller,
+    ctl_fixture,
+    ended,
+    job,
+    maps_torch,
+    wait_for,
+)
 
 
 def _sse(text: str) -> list[tuple[str, dict[str, Any]]]:

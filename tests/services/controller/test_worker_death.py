@@ -3,7 +3,7 @@ the job's lease expires, another worker re-queues it and runs it to the end."""
 
 from __future__ import annotations
 
-from ctl import Controller, ctl_fixture, ended, job, kill, long_job, wait_for  # noqa: F401
+from tests.services.controller.ctl import Controller, ctl_fixture, ended, job, kill, long_job, wait_for  # noqa: F401
 
 
 def test_sigkilled_worker_job_completes_on_another_worker(ctl: Controller) -> None:

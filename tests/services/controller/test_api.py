@@ -8,7 +8,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from ctl import QUICK, Controller, ctl_fixture  # noqa: F401
+
+from tests.services.controller.ctl import QUICK, Controller, ctl_fixture  # noqa: F401
 
 
 def _closed_port() -> int:

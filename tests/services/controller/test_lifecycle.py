@@ -7,7 +7,16 @@ import shutil
 import signal
 from pathlib import Path
 
-from ctl import ARTIFACTS, QUICK, Controller, ctl_fixture, ended, job, long_job, wait_for  # noqa: F401
+from tests.services.controller.ctl import (  # noqa: F401
+    ARTIFACTS,
+    QUICK,
+    Controller,
+    ctl_fixture,
+    ended,
+    job,
+    long_job,
+    wait_for,
+)
 
 
 def test_cancel_a_queued_job(ctl: Controller) -> None:

@@ -1,0 +1,39 @@
+"""What several test modules share besides fixtures: a user's MJCF file and the trained-artifact record.
+
+Here rather than in ``conftest.py``, which pytest imports itself and tests should not import.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.training import TrainResult
+
+ARM_XML = """<mujoco model="myarm">
+  <option timestep="0.005"/>
+  <worldbody>
+    <body name="upper" pos="0 0 1">
+      <joint name="shoulder" type="hinge" axis="0 1 0" damping="0.5"/>
+      <geom name="upper_geom" type="capsule" fromto="0 0 0 0.5 0 0" size="0.05" mass="1"/>
+      <body name="lower" pos="0.5 0 0">
+        <joint name="elbow" type="hinge" axis="0 1 0" damping="0.5"/>
+        <geom name="lower_geom" type="capsule" fromto="0 0 0 0.5 0 0" size="0.04" mass="0.5"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor name="shoulder_motor" joint="shoulder" ctrlrange="-3 3"/>
+    <motor name="elbow_motor" joint="elbow" ctrlrange="-1.5 2"/>
+  </actuator>
+</mujoco>
+"""
+
+
+@dataclass
+class Trained:
+    model: PhysicalModel
+    result: TrainResult
+    path: Path  # the saved version folder
+    root: Path  # the artifact registry
