@@ -24,7 +24,7 @@ import numpy as np
 from mujoco import rollout
 from numpy.typing import NDArray
 
-from neuroanimator import controls as ctl
+from neuroanimator import catmull_rom
 from neuroanimator import quaternion as quat
 from neuroanimator.model_spec import ModelSpec
 from neuroanimator.state import GroupKind, StateGroup, StateLayout
@@ -427,9 +427,9 @@ class PhysicalModel:
             return np.zeros((batch, times.size, 0))
         t0 = float(times.min())
         npts = int(np.ceil((float(times.max()) - t0) / spacing)) + 2
-        points = ctl.random_points(rng, (batch, npts), rng_lohi[:, 0], rng_lohi[:, 1])
+        points = catmull_rom.random_points(rng, (batch, npts), rng_lohi[:, 0], rng_lohi[:, 1])
         # Catmull-Rom overshoots a little between points: keep it inside the range
-        values = ctl.evaluate(points, times - t0, spacing)
+        values = catmull_rom.evaluate(points, times - t0, spacing)
         return np.clip(values, rng_lohi[:, 0], rng_lohi[:, 1])
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import controls as ctl
+from neuroanimator import catmull_rom
 from neuroanimator.control.splines import ControlSpline, spacing_of
 
 
@@ -18,7 +18,7 @@ def points() -> torch.Tensor:
 def test_held_values_equal_the_numpy_curve_at_super_step_starts(points: torch.Tensor) -> None:
     spline = ControlSpline(horizon=40, num_points=20, super_dt=0.5, dtype=torch.float64)
     held = spline.held(points).numpy()
-    expected = ctl.evaluate(points.numpy(), spline.times(), spline.spacing)
+    expected = catmull_rom.evaluate(points.numpy(), spline.times(), spline.spacing)
     np.testing.assert_allclose(held, expected, atol=1e-12)
     assert held.shape == (40, 3)
 
@@ -49,14 +49,14 @@ def test_end_points_are_duplicated() -> None:
     segment formula evaluated on the duplicated points written out."""
     p = np.array([[1.0], [3.0], [2.0], [5.0]])
     tau = 0.3
-    value = ctl.evaluate(p, np.array([tau]), 1.0)[0, 0]
+    value = catmull_rom.evaluate(p, np.array([tau]), 1.0)[0, 0]
     seg = np.array([p[0, 0], p[0, 0], p[1, 0], p[2, 0]])  # u^{j-1} = u^j = p0 at the start
-    expected = np.array([tau**3, tau**2, tau, 1.0]) @ ctl.CATMULL_ROM @ seg
+    expected = np.array([tau**3, tau**2, tau, 1.0]) @ catmull_rom.CATMULL_ROM @ seg
     assert value == pytest.approx(expected, abs=1e-12)
     # and at the far end: u^{M+1} = u^M
-    value_end = ctl.evaluate(p, np.array([2.0 + tau]), 1.0)[0, 0]
+    value_end = catmull_rom.evaluate(p, np.array([2.0 + tau]), 1.0)[0, 0]
     seg_end = np.array([p[1, 0], p[2, 0], p[3, 0], p[3, 0]])
-    expected_end = np.array([tau**3, tau**2, tau, 1.0]) @ ctl.CATMULL_ROM @ seg_end
+    expected_end = np.array([tau**3, tau**2, tau, 1.0]) @ catmull_rom.CATMULL_ROM @ seg_end
     assert value_end == pytest.approx(expected_end, abs=1e-12)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neuroanimator import controls as ctl
+from neuroanimator import catmull_rom
 
 SPACING = 0.7
 
@@ -17,19 +17,19 @@ def points() -> np.ndarray:
 
 def test_curve_interpolates_control_points_at_knots(points: np.ndarray) -> None:
     knots = np.arange(points.shape[0]) * SPACING
-    np.testing.assert_allclose(ctl.evaluate(points, knots, SPACING), points, atol=1e-12)
+    np.testing.assert_allclose(catmull_rom.evaluate(points, knots, SPACING), points, atol=1e-12)
 
 
 def test_end_points_are_reached(points: np.ndarray) -> None:
     end = (points.shape[0] - 1) * SPACING
-    values = ctl.evaluate(points, np.array([0.0, end]), SPACING)
+    values = catmull_rom.evaluate(points, np.array([0.0, end]), SPACING)
     np.testing.assert_allclose(values[0], points[0], atol=1e-12)
     np.testing.assert_allclose(values[1], points[-1], atol=1e-12)
 
 
 def _slope(points: np.ndarray, t: float, h: float) -> np.ndarray:
     """du/dτ (per unit of normalised time τ = t / spacing) by a one-sided difference of step h."""
-    u = ctl.evaluate(points, np.array([t, t + h]), SPACING)
+    u = catmull_rom.evaluate(points, np.array([t, t + h]), SPACING)
     return (u[1] - u[0]) / (h / SPACING)
 
 
@@ -56,57 +56,59 @@ def test_slope_at_interior_knot_is_central_difference(points: np.ndarray) -> Non
 
 def test_basis_times_points_equals_evaluate(points: np.ndarray) -> None:
     times = np.linspace(-0.5, points.shape[0] * SPACING, 57)
-    w = ctl.basis(points.shape[0], times, SPACING)
+    w = catmull_rom.basis(points.shape[0], times, SPACING)
     assert w.shape == (times.size, points.shape[0])
-    np.testing.assert_allclose(w @ points, ctl.evaluate(points, times, SPACING), atol=1e-12)
+    np.testing.assert_allclose(w @ points, catmull_rom.evaluate(points, times, SPACING), atol=1e-12)
 
 
 def test_curve_is_linear_in_points(points: np.ndarray) -> None:
     other = np.random.default_rng(4).normal(size=points.shape)
     times = np.linspace(0.0, 5 * SPACING, 31)
-    combo = ctl.evaluate(2.5 * points - 1.5 * other, times, SPACING)
-    separate = 2.5 * ctl.evaluate(points, times, SPACING) - 1.5 * ctl.evaluate(other, times, SPACING)
+    combo = catmull_rom.evaluate(2.5 * points - 1.5 * other, times, SPACING)
+    separate = 2.5 * catmull_rom.evaluate(points, times, SPACING) - 1.5 * catmull_rom.evaluate(
+        other, times, SPACING
+    )
     np.testing.assert_allclose(combo, separate, atol=1e-12)
 
 
 def test_basis_rows_sum_to_one() -> None:
-    w = ctl.basis(5, np.linspace(0.0, 4.0, 41), 1.0)
+    w = catmull_rom.basis(5, np.linspace(0.0, 4.0, 41), 1.0)
     np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-12)
 
 
 @pytest.mark.parametrize("num_points", [1, 2, 5])
 def test_constant_points_give_constant_curve(num_points: int) -> None:
     pts = np.tile(np.array([[1.25, -3.0]]), (num_points, 1))
-    values = ctl.evaluate(pts, np.linspace(0.0, 4.0, 23), 0.5)
+    values = catmull_rom.evaluate(pts, np.linspace(0.0, 4.0, 23), 0.5)
     np.testing.assert_allclose(values, np.broadcast_to(pts[0], values.shape), atol=1e-12)
 
 
 def test_batched_points_evaluate_each_batch(points: np.ndarray) -> None:
     batch = np.stack([points, 2 * points + 1])
     times = np.linspace(0.0, 3.0, 9)
-    out = ctl.evaluate(batch, times, SPACING)
+    out = catmull_rom.evaluate(batch, times, SPACING)
     assert out.shape == (2, times.size, points.shape[1])
-    np.testing.assert_allclose(out[1], 2 * ctl.evaluate(points, times, SPACING) + 1, atol=1e-12)
+    np.testing.assert_allclose(out[1], 2 * catmull_rom.evaluate(points, times, SPACING) + 1, atol=1e-12)
 
 
 @pytest.mark.parametrize("spacing", [0.0, -1.0])
 def test_non_positive_spacing_raises(spacing: float) -> None:
     with pytest.raises(ValueError, match="spacing"):
-        ctl.basis(3, np.zeros(2), spacing)
+        catmull_rom.basis(3, np.zeros(2), spacing)
 
 
 def test_no_points_raises() -> None:
     with pytest.raises(ValueError, match="num_points"):
-        ctl.basis(0, np.zeros(2), 1.0)
+        catmull_rom.basis(0, np.zeros(2), 1.0)
 
 
 def test_points_without_control_axis_raise() -> None:
     with pytest.raises(ValueError):
-        ctl.evaluate(np.zeros(4), np.zeros(2), 1.0)
+        catmull_rom.evaluate(np.zeros(4), np.zeros(2), 1.0)
 
 
 def test_random_points_stay_in_range() -> None:
     lo, hi = np.array([-1.0, 0.0, 5.0]), np.array([1.0, 0.5, 6.0])
-    pts = ctl.random_points(np.random.default_rng(0), (10, 7), lo, hi)
+    pts = catmull_rom.random_points(np.random.default_rng(0), (10, 7), lo, hi)
     assert pts.shape == (10, 7, 3)
     assert np.all(pts >= lo) and np.all(pts <= hi)
