@@ -153,12 +153,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------- bench
 def cmd_bench(args: argparse.Namespace) -> int:
-    from neuroanimator import bench
+    from neuroanimator import speed
 
-    batches = tuple(int(b) for b in args.batches.split(",")) if args.batches else bench.BATCHES
+    batches = tuple(int(b) for b in args.batches.split(",")) if args.batches else speed.BATCHES
     root = Path(args.artifacts)
-    res = bench.run(root, args.model, batches, repeats=args.repeats)
-    _out(f"{args.model}: single client, {bench.SINGLE_STEPS} physical steps (thesis Table 6.2)")
+    res = speed.run(root, args.model, batches, repeats=args.repeats)
+    _out(f"{args.model}: single client, {speed.SINGLE_STEPS} physical steps (thesis Table 6.2)")
     _out(
         _table(
             [r.model_dump() for r in res.single],
@@ -171,7 +171,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         )
     )
     _out(
-        f"\n{args.model}: batched, {bench.BATCH_SECONDS:.0f} s simulated per client, n={res.batched_substeps}"
+        f"\n{args.model}: batched, {speed.BATCH_SECONDS:.0f} s simulated per client, n={res.batched_substeps}"
     )
     _out(
         _table(
