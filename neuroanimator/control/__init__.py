@@ -12,7 +12,7 @@ MuJoCo and, if it misses there, refines it on an emulator corrected along the re
 
 Modules: ``spec`` (``JobSpec``, ``OptimizerSettings``, ``Task``), ``tasks`` (the registry of the
 tasks defined beside each physical model), ``terms`` (the objective-term catalogue and its types,
-torch-free), ``criteria`` (success checks, numpy), ``jobs`` (``validate_job``), ``splines``
+torch-free), ``criteria`` (success checks, numpy), ``validation`` (``validate_job``), ``splines``
 (Catmull-Rom controls in torch), ``objectives`` (J in torch), ``bptt`` (the emulator objective and
 its gradient), ``synthesis`` (the momentum optimiser), ``replay`` (MuJoCo replay),
 ``gradient_free`` (Nelder-Mead and CMA-ES baselines), ``runner`` (``run_job``).
@@ -31,11 +31,11 @@ from neuroanimator.control.errors import JobSpecError
 from neuroanimator.control.spec import JobSpec, Task
 
 if TYPE_CHECKING:
-    from neuroanimator.control.jobs import validate_job
     from neuroanimator.control.tasks import TASKS
+    from neuroanimator.control.validation import validate_job
     from neuroanimator.controller_schemas import JobOutcome
 
-_LAZY = {"TASKS": "neuroanimator.control.tasks", "validate_job": "neuroanimator.control.jobs"}
+_LAZY = {"TASKS": "neuroanimator.control.tasks", "validate_job": "neuroanimator.control.validation"}
 
 
 def __getattr__(name: str) -> Any:

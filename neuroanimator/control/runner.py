@@ -30,10 +30,10 @@ import torch
 from neuroanimator import artifacts, registry
 from neuroanimator.control import criteria
 from neuroanimator.control.bptt import ControlProblem
-from neuroanimator.control.jobs import validate_job
 from neuroanimator.control.replay import Replay, final_error, simulate_held
 from neuroanimator.control.spec import JobSpec
 from neuroanimator.control.synthesis import Settings, clean, elapsed, optimize
+from neuroanimator.control.validation import validate_job
 from neuroanimator.controller_schemas import (
     EmulatorPhase,
     JobOutcome,

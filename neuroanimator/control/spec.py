@@ -1,7 +1,7 @@
 """The types of a control-synthesis job: ``JobSpec`` (validated, what a worker runs) and ``Task``.
 
 A request (``controller_schemas.JobCreate``: a task and/or a model, every other field optional)
-becomes a ``JobSpec`` through ``jobs.validate_job``: the task's defaults filled in, the model's
+becomes a ``JobSpec`` through ``validation.validate_job``: the task's defaults filled in, the model's
 artifact pinned (version and substeps), states checked against its layout, terms typed with their
 variables as indices, the optimiser's every setting present. The JSON of a ``JobSpec`` is itself a
 valid request that validates to the same spec, which is what a worker does with the spec it reads

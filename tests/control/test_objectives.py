@@ -11,8 +11,8 @@ import torch
 
 from neuroanimator import registry
 from neuroanimator.control import JobSpec
-from neuroanimator.control.jobs import validate_job
 from neuroanimator.control.objectives import Objective, StateDistance, control_scale
+from neuroanimator.control.validation import validate_job
 from neuroanimator.physics.lander import LABELS as LANDER_LABELS
 from neuroanimator.state import LayoutGroup
 
