@@ -147,18 +147,16 @@ class OnnxEmulator:
         """One super-step for a batch. ``validate=False`` skips the checks on a hot path whose
         inputs were validated at its entry."""
         feed = {"state": np.ascontiguousarray(state, dtype=np.float32)}
-        if self.num_controls:
-            if controls is None:
-                raise ValueError(f"controls are required: this emulator takes {self.num_controls} controls")
-            feed["controls"] = np.ascontiguousarray(controls, dtype=np.float32)
-        elif controls is not None and np.size(controls):
-            raise ValueError(f"this emulator takes no controls, got {np.shape(controls)}")
-        if self.num_forces:
-            if forces is None:
-                raise ValueError(f"forces are required: this emulator takes {self.num_forces} forces")
-            feed["forces"] = np.ascontiguousarray(forces, dtype=np.float32)
-        elif forces is not None and np.size(forces):
-            raise ValueError(f"this emulator takes no forces, got {np.shape(forces)}")
+        for name, values, width in (
+            ("controls", controls, self.num_controls),
+            ("forces", forces, self.num_forces),
+        ):
+            if width:
+                if values is None:
+                    raise ValueError(f"{name} are required: this emulator takes {width} {name}")
+                feed[name] = np.ascontiguousarray(values, dtype=np.float32)
+            elif values is not None and np.size(values):
+                raise ValueError(f"this emulator takes no {name}, got {np.shape(values)}")
         if validate:
             self._validate(feed)
         out: NDArray[np.float32] = self.session.run(None, feed)[0]
