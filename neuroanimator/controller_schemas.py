@@ -18,7 +18,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from neuroanimator.control.spec import JobSpec
-from neuroanimator.schemas import Number, Vector
+from neuroanimator.schemas import Flag, Integer, Number, Vector
 
 JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 """queued (waiting for a worker, also after a re-queue) → running → succeeded | failed | cancelled."""
@@ -42,17 +42,29 @@ class OptimizerSpec(_Wire):
 
     learning_rate: Number | None = Field(None, gt=0, description="η")
     momentum: Number | None = Field(None, ge=0, lt=1, description="α")
-    max_iterations: int | None = Field(None, ge=1, description="iteration cap")
+    max_iterations: Integer | None = Field(None, ge=1, description="iteration cap")
     tolerance: Number | None = Field(None, ge=0, description="stop when the objective changes less")
-    stop_on_success: bool | None = Field(None, description="stop once the success criterion holds")
-    line_search: bool | None = Field(
+    stop_on_success: Flag | None = Field(None, description="stop once the success criterion holds")
+    line_search: Flag | None = Field(
         None, description="pick η and α afresh each iteration from a batch of candidates (off: fixed η, α)"
     )
-    polish_iterations: int | None = Field(
+    polish_iterations: Integer | None = Field(
         None, ge=0, le=10_000, description="updates after the success criterion first holds"
     )
-    physics_rounds: int | None = Field(
+    physics_rounds: Integer | None = Field(
         None, ge=0, le=20, description="rounds of re-optimising on an emulator corrected by the MuJoCo replay"
+    )
+    starts: Integer | None = Field(
+        None,
+        ge=1,
+        le=16,
+        description="controllers descended at once, from a global search's best and fixed starts",
+    )
+    global_generations: Integer | None = Field(
+        None,
+        ge=0,
+        le=50,
+        description="generations of the cross-entropy search before gradient descent (0: none)",
     )
 
 
@@ -70,11 +82,11 @@ class JobCreate(_Wire):
     task: str | None = Field(None, max_length=64, description="a built-in task of GET /tasks")
     model: str | None = Field(None, max_length=128, description="an emulator in the artifact registry")
     version: str | None = Field(None, max_length=128, description="an artifact version (default: latest)")
-    substeps: int | None = Field(None, ge=1, description="the emulator's super timestep n")
+    substeps: Integer | None = Field(None, ge=1, description="the emulator's super timestep n")
     initial_state: Vector | None = None
     target_state: Vector | None = Field(None, description="s_d of the final-state term")
     state_weights: Vector | None = Field(None, description="weight of each state variable in that term")
-    horizon: int | None = Field(None, ge=1, description="length of the controller, in super-steps")
+    horizon: Integer | None = Field(None, ge=1, description="length of the controller, in super-steps")
     points_per_step: Number | None = Field(None, gt=0, description="control points per super-step")
     initial_controls: Vector | None = Field(None, description="the controls the optimisation starts from")
     mu_u: Number | None = Field(None, ge=0, description="μ_u, weight of the control effort")
@@ -204,6 +216,16 @@ class Refinement(BaseModel):
     physics_replays: int = Field(1, description="MuJoCo replays, the first one included")
 
 
+class SearchInfo(BaseModel):
+    """The search before single-start descent: a cross-entropy pass and several starts descended at
+    once, all batched on the emulator (``neuroanimator.control.search``)."""
+
+    starts: int = Field(1, description="controllers descended at once")
+    global_rollouts: int = Field(0, description="controllers the global (cross-entropy) pass scored")
+    start_iterations: int = Field(0, description="batched descent iterations over all starts")
+    chosen: str = Field("initial controls", description="the start the returned controller came from")
+
+
 class JobOutcome(BaseModel):
     """What ``run_job`` returns (a job that crashed has only ``status``, ``reason`` and what was known):
     the controller (control points and the sampled ``controls`` at ``times``), the trajectory it gives
@@ -215,7 +237,11 @@ class JobOutcome(BaseModel):
     status: Literal["succeeded", "failed", "cancelled"]
     reason: str | None = None
     stop: str | None = Field(
-        None, description="success | converged | stalled | max_iterations | diverged | cancelled"
+        None,
+        description=(
+            "success | converged | stalled | max_iterations | missed_on_physics (met on the emulator, "
+            "neither on the returned controller's emulation nor on MuJoCo) | diverged | cancelled"
+        ),
     )
     task: str | None = None
     model: str | None = None
@@ -248,6 +274,11 @@ class JobOutcome(BaseModel):
     success_physics: bool | None = None
     checks_emulator: list[CheckOutcome] | None = None
     checks_physics: list[CheckOutcome] | None = None
+    reachable: bool | None = Field(
+        None, description="whether a controller meets the criterion (null: the job has none)"
+    )
+    reachability: str | None = Field(None, description="why the goal counts as reached or unreachable")
+    search: SearchInfo | None = None
     emulator_phase: EmulatorPhase | None = None
     refinement: Refinement | None = None
     target_state: list[MaybeFloat] | None = None

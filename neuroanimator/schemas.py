@@ -24,6 +24,10 @@ WIRE_MODELS_FROM_ELSEWHERE = (LayoutGroup,)
 Number = Annotated[float, Field(strict=True, allow_inf_nan=False)]
 """A finite JSON number (int or float; no strings, booleans, NaN or Infinity)."""
 Vector = list[Number]
+Integer = Annotated[int, Field(strict=True)]
+"""A JSON integer (no strings, booleans or fractions)."""
+Flag = Annotated[bool, Field(strict=True)]
+"""JSON ``true`` or ``false`` (no strings or numbers)."""
 
 
 class _Wire(BaseModel):

@@ -136,6 +136,22 @@ class ControlProblem:
         grad = zt.grad[0].double().numpy()
         return float(j.detach()), grad, states[0].detach().double().numpy(), u[0].detach().double().numpy()
 
+    def values_and_grads(self, zs: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """J (B,), ∇_z J (B, M, U), states (B, K+1, S) and held controls (B, K, U) of a batch of
+        controllers (B, M, U), in one batched rollout and one backward pass (the controllers are
+        independent, so the gradient of the sum is each one's own gradient)."""
+        zt = torch.tensor(np.asarray(zs), dtype=self.dtype, requires_grad=True)
+        states, u = self.rollout(zt)
+        j = self.objective(states.double(), u.double())
+        j.sum().backward()
+        assert zt.grad is not None
+        return (
+            j.detach().numpy(),
+            zt.grad.double().numpy(),
+            states.detach().double().numpy(),
+            u.detach().double().numpy(),
+        )
+
     @torch.no_grad()
     def trajectory(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
         """States (K+1, S) and held controls (K, U) of one controller (M, U), without gradients."""

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from neuroanimator.control.criteria import SuccessCheck
 from neuroanimator.control.spec import JobSpec
 from neuroanimator.control.terms import (
     ControlEffortTerm,
@@ -36,6 +37,7 @@ from neuroanimator.control.terms import (
     ForwardDistanceTerm,
     PathTargetTerm,
     StayWithinBoundsTerm,
+    SuccessMarginTerm,
     Term,
 )
 from neuroanimator.state import QUATERNION_KINDS, LayoutGroup
@@ -82,6 +84,76 @@ class StateDistance:
         return total
 
 
+def state_labels(layout: Sequence[LayoutGroup]) -> list[str]:
+    """The label of every state variable of a placed layout (as ``StateLayout.labels()``)."""
+    out: list[str] = []
+    for g in sorted(layout, key=lambda g: g.offset):
+        if g.labels:
+            out.extend(f"{g.name}.{lab}" for lab in g.labels)
+        elif g.size == 1:
+            out.append(g.name)
+        else:
+            out.extend(f"{g.name}[{i}]" for i in range(g.size))
+    return out
+
+
+class CheckPenalty:
+    """Σ_checks max(0, r − margin)² on final states (B, S): the success checks (``criteria.py``) as a
+    smooth penalty, zero while every check is met with room to spare.
+
+    r is a check's measure over its bound, squared, in a form with a gradient everywhere (no square
+    roots, no arccos): a distance or norm ``Σ e²/max²``; per variable of an abs check ``e²/max²``
+    and of an angle check ``(1 − cos e)/(1 − cos max)``; an orientation ``(1 − ⟨q̂, q_d⟩²)/sin²(max/2)``
+    (the sine of half the rotation, squared); a range check its violation of the range shrunk by
+    (1 − √margin)/2 of its width on each side (of a one-sided range: the bound itself), over the
+    width (or 1).
+    """
+
+    def __init__(
+        self, checks: Sequence[SuccessCheck], layout: Sequence[LayoutGroup], target: list[float]
+    ) -> None:
+        labels = state_labels(layout)
+        self.items: list[tuple[SuccessCheck, Tensor, Tensor]] = []
+        for c in checks:
+            idx = torch.tensor([labels.index(n) for n in c.variables], dtype=torch.long)
+            tgt = c.target if c.target is not None else [target[int(i)] for i in idx]
+            self.items.append((c, idx, _tensor(list(tgt))))
+
+    def __call__(self, final: Tensor, margin: float) -> Tensor:
+        total = torch.zeros(final.shape[:-1], dtype=final.dtype)
+        for c, idx, tgt in self.items:
+            x = final[..., idx]
+            t = tgt.to(final.dtype)
+            if c.check == "range":
+                lo, hi = c.min, c.max
+                width = (hi - lo) if lo is not None and hi is not None else 1.0
+                inset = 0.5 * (1.0 - margin**0.5) * width if lo is not None and hi is not None else 0.0
+                v = torch.zeros_like(x)
+                if lo is not None:
+                    v = v + torch.clamp(lo + inset - x, min=0.0)
+                if hi is not None:
+                    v = v + torch.clamp(x - (hi - inset), min=0.0)
+                total = total + ((v / max(width, 1e-9)) ** 2).sum(-1)
+                continue
+            b = c.bound
+            if c.check == "orientation":
+                q = x / torch.sqrt((x * x).sum(-1, keepdim=True) + 1e-12)
+                qd = t / t.norm()
+                dot = (q * qd).sum(-1)
+                r = (1.0 - dot * dot) / max(float(np.sin(b / 2)) ** 2, 1e-12)
+            elif c.check == "angle":
+                r = (1.0 - torch.cos(x - t)) / max(1.0 - float(np.cos(b)), 1e-12)
+            elif c.check == "abs":
+                r = (x - t) ** 2 / max(b * b, 1e-12)
+            elif c.check == "distance":
+                r = ((x - t) ** 2).sum(-1) / max(b * b, 1e-12)
+            else:  # norm
+                r = (x * x).sum(-1) / max(b * b, 1e-12)
+            pen = torch.clamp(r - margin, min=0.0) ** 2
+            total = total + (pen.sum(-1) if pen.dim() == final.dim() else pen)
+        return total
+
+
 def _tensor(values: list[float]) -> Tensor:
     return torch.tensor(values, dtype=torch.float64)
 
@@ -104,6 +176,7 @@ class Objective:
         scale = np.asarray(control_scale, dtype=np.float64)
         self.inv_scale = torch.from_numpy(1.0 / np.where(scale > 0, scale, 1.0))  # (U,)
         self.terms = list(spec.terms)
+        self.checks = CheckPenalty(spec.success, layout, spec.target_state)
         # each term's vectors as tensors, once, not per call: target, weights, direction, waypoints'
         self._tensors: list[dict[str, Tensor]] = []
         for t in self.terms:
@@ -148,6 +221,8 @@ class Objective:
         if isinstance(t, ForwardDistanceTerm):
             moved = states[..., -1, t.variables] - states[..., 0, t.variables]
             return -(moved * vectors["direction"].to(dt)).sum(-1)
+        if isinstance(t, SuccessMarginTerm):
+            return self.checks(states[..., -1, :], t.margin)
         if isinstance(t, StayWithinBoundsTerm):
             x = states[..., 1:, t.variable]  # s_0 is given: only the controlled states count
             pen = torch.zeros_like(x)

@@ -1,8 +1,19 @@
 """``run_job``: one control-synthesis job from spec to replayed result (what a job worker calls).
 
-validate the spec (a ``JobSpec``) → load the artifact's torch emulator and its MJCF → optimise the
-controller on the emulator (``synthesis.optimize``) → replay it on MuJoCo → a ``JobOutcome``.
-PyTorch is imported here, never by ``validate_job``.
+validate the spec (a ``JobSpec``) → load the artifact's torch emulator and its MJCF → search on the
+emulator (``search.py``: a cross-entropy pass and ``optimizer.starts`` controllers descended at
+once, batched) → optimise the best start further (``synthesis.optimize``) → replay it on MuJoCo →
+a ``JobOutcome``. PyTorch is imported here, never by ``validate_job``. ``iterations`` counts the
+batched descent steps and the single-start ones; ``emulator_rollouts`` every trajectory the
+emulator scored (global search, starts, line-search candidates, gradients).
+
+What the outcome claims is what happened: a job without success checks has ``success_*`` null,
+no physics-refinement rounds (there is nothing for MuJoCo to miss) and its final errors as the
+result; ``stop`` is ``success`` only when the returned controller meets the criterion on the
+emulator or on MuJoCo (else ``missed_on_physics``: it held on the emulator during the search, and
+refinement did not carry it to MuJoCo); ``reachable`` is false, with ``reachability`` naming the
+checks the best controller misses and what was tried, when no controller found meets the
+criterion on either.
 
 Physics refinement (``optimizer.physics_rounds``, default 3): an emulator's small systematic
 errors add up over 40 super-steps (the lander's drifts ~4 m in 20 s at hover), so a controller that
@@ -20,7 +31,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,14 +42,16 @@ from neuroanimator import artifacts, registry
 from neuroanimator.control import criteria
 from neuroanimator.control.bptt import ControlProblem
 from neuroanimator.control.replay import Replay, final_error, simulate_held
+from neuroanimator.control.search import cross_entropy, descend_starts, starting_points
 from neuroanimator.control.spec import JobSpec
-from neuroanimator.control.synthesis import Settings, clean, elapsed, optimize
+from neuroanimator.control.synthesis import Outcome, Settings, clean, elapsed, optimize
 from neuroanimator.control.validation import validate_job
 from neuroanimator.controller_schemas import (
     EmulatorPhase,
     JobOutcome,
     Refinement,
     RefinementRound,
+    SearchInfo,
     Trajectory,
 )
 from neuroanimator.manifest import Manifest
@@ -52,6 +65,7 @@ STATUS = {
     "converged": "succeeded",
     "stalled": "succeeded",
     "max_iterations": "succeeded",
+    "missed_on_physics": "succeeded",
     "diverged": "failed",
     "cancelled": "cancelled",
 }
@@ -140,17 +154,50 @@ def _run(
         ok = bool(spec.success) and criteria.evaluate(spec.success, states[-1], target, labels)[0]
         return states, problem.score(states, held), ok
 
+    def values_and_grads(zs: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[Any]]:
+        j, g, states, held = problem.values_and_grads(zs)
+        return j, g, list(zip(states, held, strict=True))
+
     settings = Settings.from_spec(spec.optimizer)
+    z0 = problem.initial_points()
+    searched = SearchSummary()
+    if spec.optimizer.starts > 1 or spec.optimizer.global_generations > 0:
+        j_init, ok_init = _initial(problem, z0, is_success)
+        report(0, j_init, j_init, ok_init)
+        z0, searched = _search(
+            problem,
+            spec,
+            settings,
+            values_and_grads,
+            is_success,
+            report,
+            should_stop,
+            [c.name for c in manifest.controls],
+        )
+        phase["offset"] = searched.iterations
+        # the history is what progress reported: the initial controller, then the best start's J
+        searched.history = [j_init, *searched.history]
+        searched.rollouts += 1
     outcome = optimize(
         value_and_grad,
-        problem.initial_points(),
-        settings,
+        z0,
+        replace(settings, max_iterations=max(1, settings.max_iterations - searched.iterations)),
         project=problem.project,
         evaluate=problem.evaluate,
         is_success=is_success,
-        on_iteration=report,
+        on_iteration=lambda i, j, b, ok: report(i, j, b, ok) if i > 0 or not searched.ran else None,
         should_stop=should_stop,
     )
+    outcome.iterations += searched.iterations
+    if outcome.stop == "cancelled":
+        outcome.reason = f"cancelled after {outcome.iterations} iterations"
+    outcome.rollouts += searched.rollouts
+    if searched.ran:  # the descent's first entry is the search's last
+        outcome.history = searched.history + outcome.history[1:]
+    if outcome.iterations_to_success is not None:
+        outcome.iterations_to_success += searched.iterations
+    elif searched.success:
+        outcome.iterations_to_success = searched.iterations
     stop, reason = outcome.stop, outcome.reason
     _, held = outcome.extra
     phys_states, j_phys, ok_phys = replay(held)
@@ -164,7 +211,9 @@ def _run(
     best = (ok_phys, -j_phys, z, held, phys_states)
     rounds: list[RefinementRound] = []
     refine_iterations = 0
-    for r in range(1, spec.optimizer.physics_rounds + 1):
+    # without a criterion there is nothing for MuJoCo to miss: no refinement rounds
+    rounds_allowed = spec.optimizer.physics_rounds if spec.success else 0
+    for r in range(1, rounds_allowed + 1):
         if stop in ("diverged", "cancelled") or best[0]:
             break
         if should_stop is not None and should_stop():
@@ -217,6 +266,15 @@ def _run(
     phys = Replay.of(phys_states, spec, layout, labels)
     # how far the physics ends from where the emulator said it would, in the goal's own metric
     transfer, _ = final_error(phys_states[-1], emulated[-1].tolist(), spec.state_weights, layout)
+    if stop == "success" and not (emu.success or phys.success):
+        # the criterion held on the emulator during the search, but the controller returned (the one
+        # best on MuJoCo after refinement) meets it on neither
+        stop = "missed_on_physics"
+        reason = (
+            f"the criterion held on the emulator after {outcome.iterations_to_success} iterations but "
+            f"not on MuJoCo, and {len(rounds)} physics-refinement rounds did not reach it"
+        )
+    reachable, reachability = _reachability(spec, emu, phys, outcome, searched)
     result = JobOutcome(
         status=STATUS[stop],
         reason=reason,
@@ -245,14 +303,17 @@ def _run(
         final_errors_physics=clean(phys.final_errors),
         transfer_error=clean(transfer),
         success_criterion=criteria.describe(spec.success, spec.target_state, labels),
-        success_emulator=emu.success,
-        success_physics=phys.success,
+        success_emulator=emu.success if spec.success else None,
+        success_physics=phys.success if spec.success else None,
         checks_emulator=clean(emu.checks),
         checks_physics=clean(phys.checks),
+        reachable=reachable,
+        reachability=reachability,
+        search=searched.to_info(),
         emulator_phase=EmulatorPhase(
             objective=clean(outcome.objective),
-            success_emulator=phase_emu.success,
-            success_physics=phase_phys.success,
+            success_emulator=phase_emu.success if spec.success else None,
+            success_physics=phase_phys.success if spec.success else None,
             final_error_emulator=clean(phase_emu.final_error),
             final_error_physics=clean(phase_phys.final_error),
         ),
@@ -275,3 +336,122 @@ def _run(
         result.wall_s,
     )
     return result
+
+
+GLOBAL_POPULATION = 128  # controllers per cross-entropy generation
+START_ITERATIONS = 6  # batched descent steps from all starts before the best one continues alone
+
+
+@dataclass
+class SearchSummary:
+    """What the global search and the batched starts did before single-start descent."""
+
+    ran: bool = False
+    starts: int = 1
+    global_rollouts: int = 0
+    iterations: int = 0
+    rollouts: int = 0
+    success: bool = False
+    chosen: str = "initial controls"
+    history: list[float] = field(default_factory=list)
+
+    def to_info(self) -> SearchInfo:
+        return SearchInfo(
+            starts=self.starts,
+            global_rollouts=self.global_rollouts,
+            start_iterations=self.iterations,
+            chosen=self.chosen,
+        )
+
+
+def _initial(
+    problem: ControlProblem, z0: np.ndarray, is_success: Callable[[Any], bool]
+) -> tuple[float, bool]:
+    """J of the job's initial controller (M, U) on the emulator, and whether it meets the criterion."""
+    with torch.no_grad():
+        states, held = problem.trajectory(z0)
+    return problem.score(states, held), is_success((states, held))
+
+
+def _search(
+    problem: ControlProblem,
+    spec: JobSpec,
+    settings: Settings,
+    values_and_grads: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, list[Any]]],
+    is_success: Callable[[Any], bool],
+    report: Callable[[int, float, float, bool], None],
+    should_stop: Callable[[], bool] | None,
+    control_names: list[str],
+) -> tuple[np.ndarray, SearchSummary]:
+    """The cross-entropy pass and the batched starts (``search.py``): the controller to refine (M, U)."""
+    opt = spec.optimizer
+    fixed = starting_points(problem.initial_points(), problem.project)
+    names = ["initial controls"] + [
+        f"initial controls with {c} {sign}" for c in control_names for sign in ("up", "down")
+    ]
+    candidates: list[tuple[str, np.ndarray]] = []
+    global_rollouts = 0
+    if opt.global_generations > 0:
+        found = cross_entropy(
+            problem.evaluate,
+            fixed,
+            problem.project,
+            generations=opt.global_generations,
+            population=GLOBAL_POPULATION,
+        )
+        global_rollouts = found.rollouts
+        candidates.append(("global search", found.best[0]))
+        order = np.argsort(found.start_values, kind="stable")
+    else:
+        order = np.arange(len(fixed))
+    for i in order:
+        if not any(np.allclose(fixed[i], z) for _, z in candidates):
+            candidates.append((names[i] if i < len(names) else f"start {i}", fixed[i]))
+    candidates = candidates[: opt.starts]
+    out = descend_starts(
+        values_and_grads,
+        problem.evaluate,
+        np.stack([z for _, z in candidates]),
+        settings,
+        min(START_ITERATIONS, settings.max_iterations - 1),  # at least one left for the chosen start
+        project=problem.project,
+        is_success=is_success,
+        on_iteration=report,
+        should_stop=should_stop,
+    )
+    return out.z, SearchSummary(
+        ran=True,
+        starts=len(candidates),
+        global_rollouts=global_rollouts,
+        iterations=out.iterations,
+        rollouts=global_rollouts + out.rollouts,
+        success=out.success,
+        chosen=candidates[out.index][0],
+        history=out.history,
+    )
+
+
+def _reachability(
+    spec: JobSpec,
+    emu: Replay,
+    phys: Replay,
+    outcome: Outcome,
+    searched: SearchSummary,
+) -> tuple[bool | None, str]:
+    """Whether the goal was reached, and in words why not: the checks the best controller failed on
+    the emulator after the whole search (a goal no controller reaches within the horizon and the
+    controls' limits ends here as unreachable, with how close it came)."""
+    if not spec.success:
+        return None, "no success criterion: the final errors are the result"
+    if emu.success or phys.success:
+        return True, "the criterion holds " + ("on MuJoCo" if phys.success else "on the emulator only")
+    missed = [f"{c['check']} (measured {c['value']:.3g})" for c in emu.checks if not c["passed"]]
+    tried = (
+        f"{searched.starts} starts, {searched.global_rollouts} controllers of a global search and "
+        f"{outcome.iterations} gradient iterations"
+    )
+    return False, (
+        f"unreachable as found: no controller among {tried} meets the criterion on the emulator "
+        f"within the horizon ({spec.horizon} super-steps) and the controls' limits; the best misses "
+        + "; ".join(missed)
+    )

@@ -30,6 +30,8 @@ MAX_LEARNING_RATE = 100.0
 MAX_PHYSICS_ROUNDS = 20
 MAX_SUBSTEPS = 100_000
 MAX_MU = 1e12
+MAX_STARTS = 16
+MAX_GLOBAL_GENERATIONS = 50
 # Defaults of a job that names a model but no task.
 DEFAULT_HORIZON = 40
 DEFAULT_POINTS_PER_STEP = 1.0
@@ -56,6 +58,10 @@ class OptimizerSettings(BaseModel):
     line_search: bool = True
     polish_iterations: int = Field(3, ge=0, le=MAX_ITERATIONS)
     physics_rounds: int = Field(3, ge=0, le=MAX_PHYSICS_ROUNDS)
+    starts: int = Field(4, ge=1, le=MAX_STARTS, description="controllers descended at once (search.py)")
+    global_generations: int = Field(
+        3, ge=0, le=MAX_GLOBAL_GENERATIONS, description="cross-entropy generations before descent"
+    )
 
 
 class JobSpec(BaseModel):

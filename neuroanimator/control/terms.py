@@ -37,6 +37,9 @@ TERMS: dict[str, str] = {
     "(default: the root position) along direction (default +x)",
     "stay_within_bounds": "weight/2 Σ_k (max(0, low − x_k)² + max(0, x_k − high)²): a soft box on one "
     "state variable over the whole trajectory; params: variable, low and/or high (null: no bound)",
+    "success_margin": "weight Σ_checks max(0, r − margin)²: the job's success checks as a penalty, r "
+    "the check's measure over its bound, squared (a check at its bound has r = 1, one met with room "
+    "to spare r < margin, and adds nothing); params: margin (default 0.5)",
     "path_target": "weight/2 Σ_waypoints ‖W (s_k − target)‖²; params: waypoints [{step | time, target}], "
     "weights (S; default the job's)",
 }
@@ -96,6 +99,13 @@ class StayWithinBoundsTerm(_Term):
     high: Finite | None
 
 
+class SuccessMarginTerm(_Term):
+    """weight Σ_checks max(0, r − margin)² over the job's success checks (``objectives.py``)."""
+
+    term: Literal["success_margin"]
+    margin: Finite = Field(gt=0, le=1)
+
+
 class Waypoint(BaseModel):
     """A target state (S,) at super-step ``step`` (0 is the initial state)."""
 
@@ -120,6 +130,7 @@ Term = Annotated[
     | FinalVelocityTerm
     | ForwardDistanceTerm
     | StayWithinBoundsTerm
+    | SuccessMarginTerm
     | PathTargetTerm,
     Field(discriminator="term"),
 ]
@@ -257,6 +268,12 @@ def normalize_terms(
             term = StayWithinBoundsTerm(
                 term="stay_within_bounds", weight=weight, variable=variable, low=lo, high=hi
             )
+        elif name == "success_margin":
+            allowed |= {"margin"}
+            margin = _number(f"{at}.margin", t.get("margin", 0.5), low=0.0)
+            if not 0 < margin <= 1:
+                raise JobSpecError(f"{at}.margin", f"expected a number in (0, 1], got {margin!r}")
+            term = SuccessMarginTerm(term="success_margin", weight=weight, margin=margin)
         else:  # path_target
             allowed |= {"waypoints", "weights"}
             term = PathTargetTerm(

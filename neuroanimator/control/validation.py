@@ -24,11 +24,13 @@ from neuroanimator.control.spec import (
     DEFAULT_MU_S,
     DEFAULT_MU_U,
     DEFAULT_POINTS_PER_STEP,
+    MAX_GLOBAL_GENERATIONS,
     MAX_HORIZON,
     MAX_ITERATIONS,
     MAX_LEARNING_RATE,
     MAX_MU,
     MAX_PHYSICS_ROUNDS,
+    MAX_STARTS,
     MAX_SUBSTEPS,
     JobSpec,
     OptimizerSettings,
@@ -258,4 +260,8 @@ def _optimizer(given: Any, task: Task | None) -> OptimizerSettings:
         line_search=opt["line_search"],
         polish_iterations=_int("optimizer.polish_iterations", opt["polish_iterations"], 0, MAX_ITERATIONS),
         physics_rounds=_int("optimizer.physics_rounds", opt["physics_rounds"], 0, MAX_PHYSICS_ROUNDS),
+        starts=_int("optimizer.starts", opt["starts"], 1, MAX_STARTS),
+        global_generations=_int(
+            "optimizer.global_generations", opt["global_generations"], 0, MAX_GLOBAL_GENERATIONS
+        ),
     )

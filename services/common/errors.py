@@ -69,6 +69,20 @@ def from_validation(errors: list[dict[str, Any]]) -> ApiError:
     if not errors:
         return ApiError(422, "invalid_request", "the request is invalid")
     err = errors[0]
+    if err.get("type") == "json_invalid":
+        # pydantic puts the character offset of a syntax error where a field's path would be
+        loc = tuple(err.get("loc", ()))
+        at = loc[-1] if loc and isinstance(loc[-1], int) else None
+        why = str((err.get("ctx") or {}).get("error", "JSON decode error"))
+        where = f" at character {at}" if at is not None else ""
+        return ApiError(
+            422,
+            "invalid_json",
+            f"the body is not valid JSON{where}: {why}",
+            field="body",
+            expected="a JSON document",
+            got=f"a syntax error{where}",
+        )
     name = field_name(tuple(err.get("loc", ())))
     msg = str(err.get("msg", "invalid value"))
     more = f" (and {len(errors) - 1} more problems)" if len(errors) > 1 else ""

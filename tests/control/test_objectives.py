@@ -35,6 +35,7 @@ ALL_TERMS = [
         "weight": 0.4,
         "waypoints": [{"step": 2, "target": [0.0] * 3 + [1.0] + [0.0] * 9}],
     },
+    {"term": "success_margin", "weight": 0.05},
 ]
 
 
@@ -147,3 +148,28 @@ def test_term_behaviour(lander_spec: JobSpec) -> None:
         -0.2 * 3 / math.sqrt(2)
     )
     assert LANDER_LABELS[2] == "position.z"
+
+
+def test_success_margin_is_zero_with_room_to_spare_and_grows_past_each_bound(lander_spec: JobSpec) -> None:
+    """The lander's checks: within 1 m of the pad, tilt ≤ 10°, vz in [-1, 0], |v_xy| ≤ 0.5."""
+    objective = Objective(lander_spec, lander_layout(), np.ones(4))
+    (i,) = [k for k, t in enumerate(lander_spec.terms) if t.term == "success_margin"]
+    name = f"{i}:success_margin"
+    controls = torch.zeros(1, 4, 4, dtype=torch.float64)
+    landed = torch.zeros(1, 5, 13, dtype=torch.float64)
+    landed[..., 3] = 1.0
+    landed[..., -1, 9] = -0.5  # the target's small downward speed
+    assert float(objective.parts(landed, controls)[name]) == 0.0
+
+    def penalty(index: int, value: float) -> float:
+        s = landed.clone()
+        s[0, -1, index] = value
+        if 3 <= index < 7:
+            s[0, -1, 3:7] = s[0, -1, 3:7] / s[0, -1, 3:7].norm()
+        return float(objective.parts(s, controls)[name])
+
+    assert penalty(0, 0.5) == 0.0 < penalty(0, 0.9) < penalty(0, 1.5)  # 1 m from the pad: r = 0.81
+    tilt = math.sin(math.radians(15) / 2)  # 15° about x: past the 10° bound
+    assert penalty(4, tilt) > 0.05 * (1.5**2 * 1.0 - 0.5) ** 2 * 0.9
+    assert penalty(9, -0.9) > 0.0 and penalty(9, 0.2) > penalty(9, -0.1) > 0.0
+    assert penalty(7, 0.3) == 0.0 < penalty(7, 0.6)

@@ -139,7 +139,8 @@ def test_run_job_reports_divergence_as_failed_with_the_best_finite_controller(
         return (j, g * np.nan, s, u) if calls["n"] == 3 else (j, g, s, u)
 
     monkeypatch.setattr(ControlProblem, "value_and_grad", flaky)
-    result = run_job({"task": "truck-parking", "horizon": 6}, ARTIFACTS)
+    single = {"starts": 1, "global_generations": 0}  # the single-start descent alone
+    result = run_job({"task": "truck-parking", "horizon": 6, "optimizer": single}, ARTIFACTS)
     assert result.status == "failed"
     assert (
         result.reason is not None and "diverged at iteration 2: the gradient is not finite" in result.reason

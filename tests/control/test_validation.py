@@ -91,6 +91,12 @@ CUSTOM_JOBS: list[dict[str, Any]] = [
         "success": [{"check": "range", "variables": ["position.x"], "min": 19}],
     },
     {"model": "pendulum-active", "target_state": [0.5, 0, 0, 0, 0, 0], "optimizer": {"line_search": False}},
+    {
+        "task": "lander-landing",
+        "terms": [{"term": "success_margin", "weight": 10}],
+        "optimizer": {"starts": 8, "global_generations": 0},
+    },
+    {"model": "truck", "terms": [{"term": "success_margin", "margin": 0.3}], "success": []},
 ]
 
 
@@ -264,6 +270,20 @@ def test_quaternions_are_normalised() -> None:
         ({"task": "truck-parking", "mu_u": 0, "mu_s": 0}, "terms", "the objective is empty"),
         ({"task": "truck-parking", "colour": "red"}, "colour", "unknown key; a job takes"),
         ({"model": "pendulum-passive"}, "model", "has no controls"),
+        ({"task": "truck-parking", "horizon": True}, "horizon", "expected an integer in [1, 1000], got True"),
+        ({"task": "truck-parking", "horizon": "40"}, "horizon", "expected an integer in [1, 1000], got '40'"),
+        ({"task": "truck-parking", "mu_u": "0.1"}, "mu_u", "got '0.1'"),
+        ({"task": "truck-parking", "optimizer": {"starts": True}}, "optimizer.starts", "got True"),
+        (
+            {"task": "truck-parking", "optimizer": {"global_generations": 51}},
+            "optimizer.global_generations",
+            "[0, 50]",
+        ),
+        (
+            {"task": "truck-parking", "terms": [{"term": "success_margin", "margin": 2}]},
+            "terms[0].margin",
+            "(0, 1]",
+        ),
         ({"model": "../artifacts/lander"}, "model", "unknown model '../artifacts/lander'"),
         (
             {"task": "truck-parking", "version": "../lander/latest"},

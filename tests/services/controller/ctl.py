@@ -33,10 +33,13 @@ QUICK = {"task": "pendulum-swing", "optimizer": {"max_iterations": 3}}
 
 def long_job(iterations: int = 10_000) -> dict[str, Any]:
     """A job that runs ``iterations`` (about 20 ms each) unless stopped: steps so small that the line
-    search always finds a lower objective, no tolerance, no stop on success."""
+    search always finds a lower objective, no tolerance, no stop on success; one start, no global
+    search, so every iteration is one plain descent step."""
     return {
         "task": "pendulum-swing",
         "optimizer": {
+            "starts": 1,
+            "global_generations": 0,
             "learning_rate": 0.001,
             "max_iterations": iterations,
             "tolerance": 0.0,

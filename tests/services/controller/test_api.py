@@ -45,6 +45,26 @@ BAD: list[tuple[dict[str, Any], str, str]] = [
     ({"task": "pendulum-swing", "model": "truck"}, "model", "pendulum-active"),
     ({"task": "pendulum-swing", "terms": [{"term": "no-such-term"}]}, "terms[0]", "no-such-term"),
     ({"task": "pendulum-swing", "wings": 2}, "wings", "xtra"),
+    # numbers are strict: a boolean or a string is not a number, whatever it would convert to
+    ({"task": "pendulum-swing", "horizon": True}, "horizon", "valid integer"),
+    ({"task": "pendulum-swing", "horizon": "40"}, "horizon", "valid integer"),
+    ({"task": "pendulum-swing", "horizon": 40.5}, "horizon", "valid integer"),
+    ({"task": "pendulum-swing", "substeps": "50"}, "substeps", "valid integer"),
+    ({"task": "pendulum-swing", "mu_u": "0.1"}, "mu_u", "valid number"),
+    ({"task": "pendulum-swing", "mu_s": False}, "mu_s", "valid number"),
+    (
+        {"task": "pendulum-swing", "optimizer": {"max_iterations": "5"}},
+        "optimizer.max_iterations",
+        "valid integer",
+    ),
+    ({"task": "pendulum-swing", "optimizer": {"starts": True}}, "optimizer.starts", "valid integer"),
+    ({"task": "pendulum-swing", "optimizer": {"line_search": "yes"}}, "optimizer.line_search", "boolean"),
+    ({"task": "pendulum-swing", "optimizer": {"stop_on_success": 1}}, "optimizer.stop_on_success", "boolean"),
+    (
+        {"task": "pendulum-swing", "optimizer": {"starts": 0}},
+        "optimizer.starts",
+        "greater than or equal to 1",
+    ),
 ]
 
 
@@ -71,6 +91,16 @@ def test_non_finite_numbers_are_refused(ctl: Controller) -> None:
         r = api.post("/jobs", content=raw, headers={"content-type": "application/json"})
         assert r.status_code == 422 and r.json()["field"] == field, r.text
         assert "finite" in r.json()["message"]
+
+
+def test_a_json_syntax_error_names_its_position_not_a_field(ctl: Controller) -> None:
+    api = ctl.client()
+    raw = '{"task": "pendulum-swing",, "horizon": 4}'
+    r = api.post("/jobs", content=raw, headers={"content-type": "application/json"})
+    assert r.status_code == 422, r.text
+    err = r.json()
+    assert err["error"] == "invalid_json" and err["field"] == "body", err
+    assert "not valid JSON at character 26" in err["message"], err
 
 
 def test_redis_down_is_503_with_a_message(ctl: Controller) -> None:

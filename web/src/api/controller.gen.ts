@@ -26,9 +26,11 @@ export interface ControllerWire {
   ProgressEvent?: ProgressEvent;
   Refinement?: Refinement;
   RefinementRound?: RefinementRound;
+  SearchInfo?: SearchInfo;
   StatusEvent?: StatusEvent;
   StayWithinBoundsTerm?: StayWithinBoundsTerm;
   SuccessCheck?: SuccessCheck;
+  SuccessMarginTerm?: SuccessMarginTerm;
   TaskInfo?: TaskInfo;
   TaskList?: TaskList;
   Trajectory?: Trajectory;
@@ -281,6 +283,14 @@ export interface OptimizerSpec {
    * rounds of re-optimising on an emulator corrected by the MuJoCo replay
    */
   physics_rounds?: number | null;
+  /**
+   * controllers descended at once, from a global search's best and fixed starts
+   */
+  starts?: number | null;
+  /**
+   * generations of the cross-entropy search before gradient descent (0: none)
+   */
+  global_generations?: number | null;
 }
 /**
  * The caller's jobs, newest first.
@@ -321,7 +331,7 @@ export interface JobOutcome {
   status: 'succeeded' | 'failed' | 'cancelled';
   reason?: string | null;
   /**
-   * success | converged | stalled | max_iterations | diverged | cancelled
+   * success | converged | stalled | max_iterations | missed_on_physics (met on the emulator, neither on the returned controller's emulation nor on MuJoCo) | diverged | cancelled
    */
   stop?: string | null;
   task?: string | null;
@@ -375,6 +385,15 @@ export interface JobOutcome {
   success_physics?: boolean | null;
   checks_emulator?: CheckOutcome[] | null;
   checks_physics?: CheckOutcome[] | null;
+  /**
+   * whether a controller meets the criterion (null: the job has none)
+   */
+  reachable?: boolean | null;
+  /**
+   * why the goal counts as reached or unreachable
+   */
+  reachability?: string | null;
+  search?: SearchInfo | null;
   emulator_phase?: EmulatorPhase | null;
   refinement?: Refinement | null;
   target_state?: (number | null)[] | null;
@@ -396,6 +415,31 @@ export interface JobOutcome {
 export interface Trajectory {
   states?: (number | null)[][];
   [k: string]: unknown;
+}
+/**
+ * The search before single-start descent: a cross-entropy pass and several starts descended at
+ * once, all batched on the emulator (``neuroanimator.control.search``).
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "SearchInfo".
+ */
+export interface SearchInfo {
+  /**
+   * controllers descended at once
+   */
+  starts?: number;
+  /**
+   * controllers the global (cross-entropy) pass scored
+   */
+  global_rollouts?: number;
+  /**
+   * batched descent iterations over all starts
+   */
+  start_iterations?: number;
+  /**
+   * the start the returned controller came from
+   */
+  chosen?: string;
 }
 /**
  * The physics-refinement rounds of a run (none when the first replay met the criterion).
@@ -472,6 +516,7 @@ export interface JobSpec {
     | FinalVelocityTerm
     | ForwardDistanceTerm
     | StayWithinBoundsTerm
+    | SuccessMarginTerm
     | PathTargetTerm
   )[];
   initial_controls: number[];
@@ -491,6 +536,17 @@ export interface StayWithinBoundsTerm {
   variable: number;
   low: number | null;
   high: number | null;
+}
+/**
+ * weight Σ_checks max(0, r − margin)² over the job's success checks (``objectives.py``).
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "SuccessMarginTerm".
+ */
+export interface SuccessMarginTerm {
+  term: 'success_margin';
+  weight: number;
+  margin: number;
 }
 /**
  * weight/2 Σ_waypoints ‖W (s_step − target)‖² with weights (S,).
@@ -559,6 +615,14 @@ export interface OptimizerSettings {
   line_search?: boolean;
   polish_iterations?: number;
   physics_rounds?: number;
+  /**
+   * controllers descended at once (search.py)
+   */
+  starts?: number;
+  /**
+   * cross-entropy generations before descent
+   */
+  global_generations?: number;
 }
 /**
  * A job's result (``GET /jobs/{id}/result``): what its run returned, and the job's id.
@@ -570,7 +634,7 @@ export interface JobResult {
   status: 'succeeded' | 'failed' | 'cancelled';
   reason?: string | null;
   /**
-   * success | converged | stalled | max_iterations | diverged | cancelled
+   * success | converged | stalled | max_iterations | missed_on_physics (met on the emulator, neither on the returned controller's emulation nor on MuJoCo) | diverged | cancelled
    */
   stop?: string | null;
   task?: string | null;
@@ -624,6 +688,15 @@ export interface JobResult {
   success_physics?: boolean | null;
   checks_emulator?: CheckOutcome[] | null;
   checks_physics?: CheckOutcome[] | null;
+  /**
+   * whether a controller meets the criterion (null: the job has none)
+   */
+  reachable?: boolean | null;
+  /**
+   * why the goal counts as reached or unreachable
+   */
+  reachability?: string | null;
+  search?: SearchInfo | null;
   emulator_phase?: EmulatorPhase | null;
   refinement?: Refinement | null;
   target_state?: (number | null)[] | null;
