@@ -24,7 +24,7 @@ Prints a table; with ``--json`` the last line is one JSON object:
 ``{"tasks": [{"task", "iterations_to_success", "iterations", "wall_s", "success_emulator",
 "success_physics", "final_error_emulator", "final_error_physics", "transfer_error",
 "gradient_free_iterations", "gradient_free_method", "gradient_free_reached", "iteration_ratio",
-"wall_ratio", ...}], "settings": {...}}``.
+"emulator_rollouts", "rollout_ratio", "wall_ratio", ...}], "settings": {...}}``.
 """
 
 from __future__ import annotations
@@ -222,6 +222,9 @@ def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
         "gradient_free_wall_s": gf_wall,
         "gradient_free": [t.to_dict() for t in traces],
         "iteration_ratio": ratio_iters,
+        # MuJoCo simulations of the gradient-free search per emulator trajectory of the gradient
+        # method (its global search, starts, line-search candidates and gradients all count)
+        "rollout_ratio": (gf_iters or args.gf_evals) / max(res.emulator_rollouts or 0, 1),
         "wall_ratio": gf_wall / wall if wall > 0 else None,
         "fixed_rate": fixed,
         "plot": str(png),
@@ -235,8 +238,9 @@ def table(rows: list[dict[str, Any]]) -> str:
     lines = [
         "| task | vars | iterations to success (total) | wall s | MuJoCo success / error, emulator-only controller"
         " | success emulator / MuJoCo | final error emulator / MuJoCo | transfer error"
-        " | gradient-free evals to the same J | iteration ratio | wall ratio |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        " | emulator rollouts | gradient-free evals to the same J | iteration ratio | rollout ratio"
+        " | wall ratio |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         reached = r["gradient_free_reached"]
@@ -251,7 +255,8 @@ def table(rows: list[dict[str, Any]]) -> str:
             f" | {'yes' if r['success_physics_emulator_phase'] else 'no'} / {f(r['final_error_physics_emulator_phase'])}"
             f" | {'yes' if r['success_emulator'] else 'no'} / {'yes' if r['success_physics'] else 'no'}"
             f" | {f(r['final_error_emulator'])} / {f(r['final_error_physics'])} | {f(r['transfer_error'])}"
-            f" | {gf} | {bound}{r['iteration_ratio']:.0f}× | {bound}{f(r['wall_ratio'], '.1f')}× |"
+            f" | {r['emulator_rollouts']} | {gf} | {bound}{r['iteration_ratio']:.0f}×"
+            f" | {bound}{r['rollout_ratio']:.2f}× | {bound}{f(r['wall_ratio'], '.1f')}× |"
         )
     lines.append("")
     lines.append(
