@@ -77,7 +77,7 @@ def from_validation(errors: list[dict[str, Any]]) -> ApiError:
         where = f" at character {at}" if at is not None else ""
         return ApiError(
             422,
-            "invalid_json",
+            "invalid_request",
             f"the body is not valid JSON{where}: {why}",
             field="body",
             expected="a JSON document",

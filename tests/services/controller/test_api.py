@@ -99,7 +99,7 @@ def test_a_json_syntax_error_names_its_position_not_a_field(ctl: Controller) -> 
     r = api.post("/jobs", content=raw, headers={"content-type": "application/json"})
     assert r.status_code == 422, r.text
     err = r.json()
-    assert err["error"] == "invalid_json" and err["field"] == "body", err
+    assert err["error"] == "invalid_request" and err["field"] == "body", err
     assert "not valid JSON at character 26" in err["message"], err
 
 

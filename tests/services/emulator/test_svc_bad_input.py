@@ -101,6 +101,7 @@ def test_malformed_json_is_422(client: TestClient, sid: str) -> None:
         f"/sessions/{sid}/step", content="{not json", headers={"content-type": "application/json"}
     )
     assert r.status_code == 422 and r.json()["error"] == "invalid_request"
+    assert r.json()["field"] == "body" and "not valid JSON at character 1" in r.json()["message"]
 
 
 def test_out_of_range_controls_are_clipped_and_reported(client: TestClient, sid: str) -> None:
