@@ -44,6 +44,7 @@ import torch
 from neuroanimator.control import TASKS, run_job
 
 log = logging.getLogger("bench.control_goals")
+GOAL_TASKS = ("pendulum-swing", "lander-landing", "truck-parking")  # the tasks with a goal range
 TRUCK_RANGE_M = 15.0
 LANDER_RANGE_M = 10.0
 
@@ -158,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--goals", type=int, default=20, help="goals per task")
-    p.add_argument("--tasks", default=",".join(TASKS))
+    p.add_argument("--tasks", default=",".join(GOAL_TASKS))
     p.add_argument("--artifacts", default="artifacts")
     p.add_argument("--starts", type=int, default=4, help="the jobs' optimizer.starts")
     p.add_argument("--global-generations", type=int, default=3, help="the jobs' optimizer.global_generations")
@@ -176,8 +177,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     rows = []
     for name in args.tasks.split(","):
-        if name not in TASKS:
-            p.error(f"unknown task {name!r}; tasks are {sorted(TASKS)}")
+        if name not in GOAL_TASKS:
+            p.error(f"no goal range for task {name!r}; tasks are {list(GOAL_TASKS)}")
         rows.append(bench_task(name, args))
         print(f"{name}: done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     print(table(rows))
