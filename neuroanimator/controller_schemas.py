@@ -18,7 +18,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from neuroanimator.control.spec import JobSpec
-from neuroanimator.schemas import Flag, Integer, Number, Vector
+from neuroanimator.emulator_schemas import Flag, Integer, Number, Vector
 
 JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 """queued (waiting for a worker, also after a re-queue) → running → succeeded | failed | cancelled."""

@@ -1,4 +1,4 @@
-"""Write the wire contract into ``proto/``: JSON Schemas of the models in ``neuroanimator.schemas``
+"""Write the wire contract into ``proto/``: JSON Schemas of the models in ``neuroanimator.emulator_schemas``
 (``proto/schemas/<Name>.json``) and the emulator service's OpenAPI document
 (``proto/emulator.openapi.json``); the controller service's models (``neuroanimator.controller_schemas``,
 ``proto/schemas/controller/<Name>.json``) and OpenAPI document (``proto/controller.openapi.json``); the
@@ -27,7 +27,7 @@ from typing import Any
 
 from pydantic import BaseModel, TypeAdapter
 
-from neuroanimator import controller_schemas, results, schemas
+from neuroanimator import controller_schemas, emulator_schemas, results
 
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[1] / "proto"
@@ -42,17 +42,19 @@ def _dump(obj: Any) -> str:
 
 
 def wire_schemas() -> dict[str, dict[str, Any]]:
-    """Every pydantic model defined in ``neuroanimator.schemas`` or listed in its
+    """Every pydantic model defined in ``neuroanimator.emulator_schemas`` or listed in its
     ``WIRE_MODELS_FROM_ELSEWHERE``, plus the websocket message unions."""
     out: dict[str, dict[str, Any]] = {}
-    for name, obj in vars(schemas).items():
-        ours = inspect.isclass(obj) and obj.__module__ == schemas.__name__ and not name.startswith("_")
+    for name, obj in vars(emulator_schemas).items():
+        ours = (
+            inspect.isclass(obj) and obj.__module__ == emulator_schemas.__name__ and not name.startswith("_")
+        )
         if ours and issubclass(obj, BaseModel):
             out[name] = obj.model_json_schema()
-    for model in schemas.WIRE_MODELS_FROM_ELSEWHERE:
+    for model in emulator_schemas.WIRE_MODELS_FROM_ELSEWHERE:
         out[model.__name__] = model.model_json_schema()
     for name in UNIONS:
-        schema = TypeAdapter(getattr(schemas, name)).json_schema()
+        schema = TypeAdapter(getattr(emulator_schemas, name)).json_schema()
         schema.setdefault("title", name)
         out[name] = schema
     return dict(sorted(out.items()))

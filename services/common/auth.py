@@ -25,7 +25,7 @@ from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
 from starlette.websockets import WebSocket
 
-from neuroanimator.schemas import ErrorBody
+from neuroanimator.emulator_schemas import ErrorBody
 
 log = logging.getLogger(__name__)
 

@@ -14,7 +14,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
-from neuroanimator.schemas import ErrorBody
+from neuroanimator.emulator_schemas import ErrorBody
 
 
 class ApiError(Exception):

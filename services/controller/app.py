@@ -22,7 +22,7 @@ from rq import Worker
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from neuroanimator import registry
-from neuroanimator.schemas import ErrorBody
+from neuroanimator.emulator_schemas import ErrorBody
 from services.common.auth import ApiKeyMiddleware, ApiKeys
 from services.common.errors import add_error_handlers
 from services.controller.metrics import Metrics

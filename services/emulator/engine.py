@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.schemas import (
+from neuroanimator.emulator_schemas import (
     BatchStepRequest,
     BatchStepResponse,
     BatchStepResult,

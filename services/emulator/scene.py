@@ -19,8 +19,8 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
+from neuroanimator.emulator_schemas import BodyInfo, GeomInfo, ModelGeometry
 from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.schemas import BodyInfo, GeomInfo, ModelGeometry
 from services.common.errors import ApiError
 
 _PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS

@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 from pydantic import TypeAdapter, ValidationError
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from neuroanimator.schemas import (
+from neuroanimator.emulator_schemas import (
     ClientMessage,
     ShadowState,
     WsControls,

@@ -20,7 +20,7 @@ from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.websockets import WebSocketDisconnect
 
-from neuroanimator.schemas import ErrorBody
+from neuroanimator.emulator_schemas import ErrorBody
 from services.common.auth import OwnerDep, get_owner
 from services.controller.deps import StoreDep
 from services.controller.routes.jobs import owned

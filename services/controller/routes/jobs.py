@@ -22,7 +22,7 @@ from neuroanimator.controller_schemas import (
     JobStatus,
     JobSummary,
 )
-from neuroanimator.schemas import ErrorBody
+from neuroanimator.emulator_schemas import ErrorBody
 from services.common.auth import OwnerDep
 from services.common.errors import ApiError
 from services.controller.deps import SettingsDep, StoreDep

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from neuroanimator.schemas import (
+from neuroanimator.emulator_schemas import (
     ControlInfo,
     ErrorBody,
     ForceInfo,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Response
 
-from neuroanimator.schemas import ErrorBody, SessionCreate, SessionInfo, StepRequest, StepResponse
+from neuroanimator.emulator_schemas import ErrorBody, SessionCreate, SessionInfo, StepRequest, StepResponse
 from services.emulator.deps import EngineDep
 
 router = APIRouter(tags=["sessions"])

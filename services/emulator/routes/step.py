@@ -19,7 +19,7 @@ import numpy as np
 from fastapi import APIRouter, Request, Response
 from pydantic import ValidationError
 
-from neuroanimator.schemas import BatchStepRequest, BatchStepResponse, ErrorBody
+from neuroanimator.emulator_schemas import BatchStepRequest, BatchStepResponse, ErrorBody
 from services.common.errors import ApiError, from_validation
 from services.emulator import binary
 from services.emulator.batcher import ROW_DIVERGED, ROW_GONE

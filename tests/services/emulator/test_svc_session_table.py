@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from neuroanimator.schemas import SessionCreate
+from neuroanimator.emulator_schemas import SessionCreate
 from services.emulator import binary
 from services.emulator.engine import Engine
 from services.emulator.routes.step import binary_step

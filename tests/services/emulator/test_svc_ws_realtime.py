@@ -21,7 +21,7 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from websockets.sync.client import connect
 
-from neuroanimator.schemas import SessionCreate
+from neuroanimator.emulator_schemas import SessionCreate
 from services.emulator import binary
 from services.emulator.app import create_app
 from services.emulator.engine import Engine
