@@ -1,7 +1,7 @@
 """Jobs in Redis: their records, progress, events and results, and every change of their state.
 
 RQ only *delivers* a job to a worker: each delivery is an RQ job ``<job id>-<n>`` that runs
-``services.controller.jobs.perform(job_id, n)`` in a forked process. What a client sees is this
+``services.controller.execution.perform(job_id, n)`` in a forked process. What a client sees is this
 module's record of the job, under ``<REDIS_PREFIX>``:
 
     job:<id>       hash: owner, spec, status, times, attempt, delivery (n), rq_id, failures, worker, error
@@ -46,7 +46,7 @@ from services.controller.settings import Settings
 
 log = logging.getLogger(__name__)
 
-PERFORM = "services.controller.jobs.perform"
+PERFORM = "services.controller.execution.perform"
 FINAL = frozenset(FINAL_STATES)
 MAX_EVENTS = 20_000  # a stream keeps about this many events (SSE replays what is left)
 MAX_OWNER_JOBS = 1000  # a caller's job list keeps the newest this many ids

@@ -1,6 +1,6 @@
 """A controller worker: ``python -m services.controller.worker`` (or ``neuro worker``).
 
-It is an RQ worker on the controller queue that forks one process per job (``jobs.perform``), so a
+It is an RQ worker on the controller queue that forks one process per job (``execution.perform``), so a
 job's PyTorch thread pools live and die with that process; this parent process never imports torch.
 Start as many as you like, on one machine or many: they share only Redis.
 
@@ -33,7 +33,7 @@ from rq import Queue, Worker
 from rq.worker import BaseWorker
 
 from services.common import logs
-from services.controller import jobs
+from services.controller import execution
 from services.controller.settings import Settings
 from services.controller.store import JobStore
 
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace, settings: Settings | None = None) -> int:
         settings = settings.model_copy(update={"worker_threads": max(1, args.threads)})
     conn = redis.Redis.from_url(settings.redis_url, socket_connect_timeout=5.0)
     store = JobStore(conn, settings)
-    jobs.configure(settings)  # the forked job processes inherit these settings
+    execution.configure(settings)  # the forked job processes inherit these settings
     name = args.name or f"{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:6]}"
     worker = ControllerWorker(
         [store.queue],
