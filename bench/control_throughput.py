@@ -34,6 +34,8 @@ from typing import Any
 import httpx
 from _server import REPO, serve
 
+from services.stack import RedisUnavailable, find_redis
+
 MAX_JOBS = 200
 MAX_WORKERS = 16
 
@@ -42,22 +44,17 @@ MAX_WORKERS = 16
 def redis_url() -> Iterator[str]:
     """A Redis URL for the run (one started here is stopped afterwards)."""
     pidfile = Path(f"/tmp/control-bench-redis-{os.getpid()}.pid")
-    r = subprocess.run(
-        [str(REPO / "scripts" / "redis.sh"), "--pidfile", str(pidfile)],
-        capture_output=True,
-        text=True,
-        timeout=30,
-        check=False,
-    )
-    if r.returncode != 0:
-        raise SystemExit(f"no Redis: {r.stderr.strip()}")
     try:
-        yield r.stdout.strip()
+        url, started = find_redis(pidfile, timeout=30)
+    except RedisUnavailable as e:
+        raise SystemExit(f"no Redis: {e}") from e
+    try:
+        yield url
     finally:
-        if pidfile.is_file():
-            with contextlib.suppress(ProcessLookupError, ValueError):
-                os.kill(int(pidfile.read_text()), signal.SIGTERM)
-            pidfile.unlink()
+        if started is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(started, signal.SIGTERM)
+        pidfile.unlink(missing_ok=True)
 
 
 def _stop(procs: list[subprocess.Popen[bytes]]) -> None:

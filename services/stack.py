@@ -42,6 +42,30 @@ log = logging.getLogger("stack")
 ROOT = Path(__file__).resolve().parents[1]
 
 
+class RedisUnavailable(RuntimeError):
+    """``scripts/redis.sh`` found no Redis and could not start one (the message says why)."""
+
+
+def find_redis(
+    pidfile: Path, env: dict[str, str] | None = None, timeout: float = 60.0
+) -> tuple[str, int | None]:
+    """A Redis URL from ``scripts/redis.sh`` (REDIS_URL, else 127.0.0.1:6379, else a ``redis-server``
+    it starts on a free port), and the pid of the server it started (None when it found one running),
+    which the caller stops when done. ``env`` replaces the environment the script sees."""
+    r = subprocess.run(
+        [str(ROOT / "scripts" / "redis.sh"), "--pidfile", str(pidfile)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=timeout,
+        check=False,
+    )
+    if r.returncode != 0:
+        raise RedisUnavailable(r.stderr.strip())
+    pid = pidfile.read_text().strip() if pidfile.is_file() else ""
+    return r.stdout.strip(), int(pid) if pid else None
+
+
 class StackError(RuntimeError):
     """The stack could not start (the message says which part and why)."""
 
@@ -136,21 +160,12 @@ class Stack:
         if c.redis_url:
             self.redis_url = c.redis_url
             return
-        pidfile = self.log_dir / "redis.pid"
         env = {k: v for k, v in os.environ.items() if k != "REDIS_URL"}
-        r = subprocess.run(
-            [str(ROOT / "scripts" / "redis.sh"), "--pidfile", str(pidfile)],
-            capture_output=True,
-            text=True,
-            env=env,
-            timeout=60,
-            check=False,
-        )
-        if r.returncode != 0:
-            raise StackError(f"no Redis: {r.stderr.strip()} (set REDIS_URL, or install redis-server)")
-        self.redis_url = r.stdout.strip()
-        if pidfile.is_file() and pidfile.read_text().strip():
-            self._redis_pid = int(pidfile.read_text())
+        try:
+            self.redis_url, self._redis_pid = find_redis(self.log_dir / "redis.pid", env=env)
+        except RedisUnavailable as e:
+            raise StackError(f"no Redis: {e} (set REDIS_URL, or install redis-server)") from e
+        if self._redis_pid is not None:
             log.info("started redis-server (pid %d) at %s", self._redis_pid, self.redis_url)
         else:
             log.info("using the Redis at %s", self.redis_url)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -14,6 +16,7 @@ from neuroanimator import artifacts, physics, training
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.structured import StructuredEmulator
 from neuroanimator.training import TrainConfig
+from services.stack import RedisUnavailable, find_redis
 from tests.helpers import ARM_XML, Trained
 
 
@@ -152,20 +155,14 @@ def client(make_client: Callable[..., Any]) -> Any:
 def redis_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """A real Redis: REDIS_URL, else one on 127.0.0.1:6379, else a ``redis-server`` started on a free
     port for this test session (all by ``scripts/redis.sh``, which ``make up`` uses too)."""
-    import os
-    import signal
-    import subprocess
-
     pidfile = tmp_path_factory.mktemp("redis") / "redis.pid"
-    script = Path(__file__).resolve().parents[1] / "scripts" / "redis.sh"
-    r = subprocess.run(
-        [str(script), "--pidfile", str(pidfile)], capture_output=True, text=True, timeout=30, check=False
-    )
-    if r.returncode != 0:
-        pytest.skip(f"no Redis reachable and none could be started: {r.stderr.strip()}")
-    yield r.stdout.strip()
-    if pidfile.is_file() and pidfile.read_text().strip():
-        os.kill(int(pidfile.read_text()), signal.SIGTERM)
+    try:
+        url, started = find_redis(pidfile, timeout=30)
+    except RedisUnavailable as e:
+        pytest.skip(f"no Redis reachable and none could be started: {e}")
+    yield url
+    if started is not None:
+        os.kill(started, signal.SIGTERM)
 
 
 @pytest.fixture
