@@ -18,7 +18,7 @@ read from and written to MuJoCo without any model-specific code.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Literal, get_args
 
@@ -95,6 +95,20 @@ class LayoutGroup(StateGroup):
     offset: int = Field(ge=0)
 
 
+def labels_of(groups: Iterable[StateGroup]) -> list[str]:
+    """A readable name for every variable of ``groups``, in the order given: ``name.label`` where the
+    group names its values, ``name`` for a group of one, else ``name[i]``."""
+    out: list[str] = []
+    for g in groups:
+        if g.labels:
+            out.extend(f"{g.name}.{lab}" for lab in g.labels)
+        elif g.size == 1:
+            out.append(g.name)
+        else:
+            out.extend(f"{g.name}[{i}]" for i in range(g.size))
+    return out
+
+
 @dataclass(frozen=True)
 class StateLayout:
     """An ordered list of groups; the state vector is their concatenation."""
@@ -161,15 +175,7 @@ class StateLayout:
 
     def labels(self) -> list[str]:
         """A readable name for every state variable, in order."""
-        out: list[str] = []
-        for g in self.groups:
-            if g.labels:
-                out.extend(f"{g.name}.{lab}" for lab in g.labels)
-            elif g.size == 1:
-                out.append(g.name)
-            else:
-                out.extend(f"{g.name}[{i}]" for i in range(g.size))
-        return out
+        return labels_of(self.groups)
 
     def placed(self) -> list[LayoutGroup]:
         """Every group with its offset in the state vector (what a manifest lists)."""

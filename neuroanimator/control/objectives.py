@@ -40,7 +40,7 @@ from neuroanimator.control.terms import (
     SuccessMarginTerm,
     Term,
 )
-from neuroanimator.state import QUATERNION_KINDS, LayoutGroup
+from neuroanimator.state import QUATERNION_KINDS, LayoutGroup, labels_of
 
 
 class StateDistance:
@@ -84,19 +84,6 @@ class StateDistance:
         return total
 
 
-def state_labels(layout: Sequence[LayoutGroup]) -> list[str]:
-    """The label of every state variable of a placed layout (as ``StateLayout.labels()``)."""
-    out: list[str] = []
-    for g in sorted(layout, key=lambda g: g.offset):
-        if g.labels:
-            out.extend(f"{g.name}.{lab}" for lab in g.labels)
-        elif g.size == 1:
-            out.append(g.name)
-        else:
-            out.extend(f"{g.name}[{i}]" for i in range(g.size))
-    return out
-
-
 class CheckPenalty:
     """Σ_checks max(0, r − margin)² on final states (B, S): the success checks (``criteria.py``) as a
     smooth penalty, zero while every check is met with room to spare.
@@ -112,7 +99,8 @@ class CheckPenalty:
     def __init__(
         self, checks: Sequence[SuccessCheck], layout: Sequence[LayoutGroup], target: list[float]
     ) -> None:
-        labels = state_labels(layout)
+        in_order = sorted(layout, key=lambda g: g.offset)
+        labels = labels_of(in_order)
         self.items: list[tuple[SuccessCheck, Tensor, Tensor]] = []
         for c in checks:
             idx = torch.tensor([labels.index(n) for n in c.variables], dtype=torch.long)
