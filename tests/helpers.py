@@ -1,15 +1,22 @@
-"""What several test modules share besides fixtures: a user's MJCF file and the trained-artifact record.
+"""What several test modules share besides fixtures: a user's MJCF file, the trained-artifact record,
+and running a benchmark script.
 
 Here rather than in ``conftest.py``, which pytest imports itself and tests should not import.
 """
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.training import TrainResult
+
+ROOT = Path(__file__).resolve().parents[1]
 
 ARM_XML = """<mujoco model="myarm">
   <option timestep="0.005"/>
@@ -37,3 +44,18 @@ class Trained:
     result: TrainResult
     path: Path  # the saved version folder
     root: Path  # the artifact registry
+
+
+def run_bench(*args: str, timeout: float = 300.0) -> tuple[list[str], dict[str, Any]]:
+    """Run ``python <script> <args> --json`` from the repository root (e.g. ``bench/control.py``):
+    its output lines, and the JSON object it prints last."""
+    out = subprocess.run(
+        [sys.executable, *args, "--json"],
+        cwd=ROOT,
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    ).stdout
+    lines = out.strip().splitlines()
+    return lines, json.loads(lines[-1])

@@ -2,35 +2,16 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.helpers import run_bench
 
 
 def test_bench_control_quick(tmp_path: Path) -> None:
-    out = subprocess.run(
-        [
-            sys.executable,
-            "bench/control.py",
-            "--quick",
-            "--tasks",
-            "pendulum-swing",
-            "--out",
-            str(tmp_path),
-            "--json",
-        ],
-        cwd=ROOT,
-        check=True,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    ).stdout
-    lines = out.strip().splitlines()
+    lines, result = run_bench(
+        "bench/control.py", "--quick", "--tasks", "pendulum-swing", "--out", str(tmp_path)
+    )
     assert lines[0].startswith("| task |")
-    result = json.loads(lines[-1])
     (row,) = result["tasks"]
     for key in (
         "task",

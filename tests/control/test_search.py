@@ -3,9 +3,6 @@ reports about its goal: reachability, a job without a criterion, an honest ``sto
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +11,7 @@ import numpy as np
 from neuroanimator.control import run_job
 from neuroanimator.control.search import cross_entropy, descend_starts, starting_points
 from neuroanimator.control.synthesis import Settings
+from tests.helpers import run_bench
 
 ROOT = Path(__file__).resolve().parents[2]
 ARTIFACTS = ROOT / "artifacts"
@@ -128,26 +126,8 @@ def test_stop_says_success_only_when_a_replay_meets_the_criterion() -> None:
 
 
 def test_bench_control_goals_quick() -> None:
-    out = subprocess.run(
-        [
-            sys.executable,
-            "bench/control_goals.py",
-            "--quick",
-            "--goals",
-            "1",
-            "--tasks",
-            "truck-parking",
-            "--json",
-        ],
-        cwd=ROOT,
-        check=True,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    ).stdout
-    lines = out.strip().splitlines()
+    lines, result = run_bench("bench/control_goals.py", "--quick", "--goals", "1", "--tasks", "truck-parking")
     assert lines[0].startswith("| task |")
-    result = json.loads(lines[-1])
     assert result["seed"] == 0 and result["goals"] == 1
     (row,) = result["tasks"]
     assert row["task"] == "truck-parking" and row["goals"] == 1

@@ -2,46 +2,43 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[3]
-
-
-def _run(args: list[str]) -> dict[str, object]:
-    out = subprocess.run(
-        [sys.executable, *args, "--json"], cwd=REPO, capture_output=True, text=True, timeout=120, check=True
-    ).stdout
-    result: dict[str, object] = json.loads(out.strip().splitlines()[-1])
-    return result
+from tests.helpers import run_bench
 
 
 def test_ws_load_small(service_root: Path) -> None:
-    r = _run(["bench/ws_load.py", "--clients", "4", "--duration", "0.5", "--artifacts", str(service_root)])
+    _, r = run_bench(
+        "bench/ws_load.py",
+        "--clients",
+        "4",
+        "--duration",
+        "0.5",
+        "--artifacts",
+        str(service_root),
+        timeout=120,
+    )
     assert r["clients"] == 4 and r["errors"] == 0 and isinstance(r["steps_per_s"], float)
     assert {"p50_ms", "p99_ms"} <= set(r)
 
 
 def test_batch_api_small(service_root: Path) -> None:
-    r = _run(
-        [
-            "bench/batch_api.py",
-            "--sessions",
-            "16",
-            "--duration",
-            "0.3",
-            "--rollout-max-s",
-            "0.3",
-            "--idle-sessions",
-            "50",
-            "--compare-off",
-            "--concurrency",
-            "4",
-            "--artifacts",
-            str(service_root),
-        ]
+    _, r = run_bench(
+        "bench/batch_api.py",
+        "--sessions",
+        "16",
+        "--duration",
+        "0.3",
+        "--rollout-max-s",
+        "0.3",
+        "--idle-sessions",
+        "50",
+        "--compare-off",
+        "--concurrency",
+        "4",
+        "--artifacts",
+        str(service_root),
+        timeout=120,
     )
     assert r["sessions"] == 16 and r["errors"] == 0
     assert {"session_steps_per_s", "rollout_session_steps_per_s", "ratio", "rss_per_10k_idle_mb"} <= set(r)
