@@ -58,7 +58,10 @@ def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -
     return Network(
         name=CORE,
         frame=NetworkFrame(
-            translate=list(fr.translate), rotate=fr.rotate, force_pairs=[list(p) for p in fr.force_pairs]
+            translate=list(fr.translate),
+            rotate=fr.rotate,
+            force_pairs=[list(p) for p in fr.force_pairs],
+            body=emu.architecture()["frame"]["body"],  # type: ignore[index]
         ),
         reads=NetworkReads(
             state=[g.name for g in model.layout if g.name in read],
@@ -78,7 +81,8 @@ def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -
         ),
         input_size=emu.input_size,
         output_size=model.state_size,
-        weights=sum(p.numel() for p in emu.core.parameters()),
+        weights=sum(p.numel() for p in emu.parameters()),
+        skip=emu.skip is not None,
     )
 
 
@@ -167,9 +171,15 @@ def load_torch(path: Path) -> StructuredEmulator:
         model.layout,
         model.num_controls,
         model.num_forces,
-        FrameConfig(tuple(fr.translate), fr.rotate, tuple((p[0], p[1]) for p in fr.force_pairs)),
+        FrameConfig(
+            tuple(fr.translate),
+            fr.rotate,
+            tuple(tuple(p) for p in fr.force_pairs),
+            fr.body,
+        ),
         tuple(net.hidden),
         net.activation,
+        skip=net.skip,
     )
     emu.load_state_dict(torch.load(path / registry.WEIGHTS_FILE, weights_only=True))
     return emu.eval()

@@ -37,7 +37,7 @@ def one_step_errors(
         x = emu.network_inputs(s, u, f)
         y = emu.network_targets(s, nxt)
         return {
-            "one_step_rel_error": relative_error(emu.core(x), y),
+            "one_step_rel_error": relative_error(emu.network(x), y),
             "linear_baseline_rel_error": relative_error(apply_linear(linear, x), y),
         }
 

@@ -36,18 +36,39 @@ def fold_normalization(emu: StructuredEmulator) -> Any:
     import torch
     from torch import nn
 
+    class WithSkip(nn.Module):
+        """The folded MLP plus the folded linear path: ``core(cols) + skip(cols)``."""
+
+        def __init__(self, core: nn.Module, skip: nn.Module) -> None:
+            super().__init__()
+            self.core = core
+            self.skip = skip
+
+        def forward(self, cols: torch.Tensor) -> torch.Tensor:
+            return self.core(cols) + self.skip(cols)
+
     core = copy.deepcopy(emu.core)
     first, last = core[0], core[-1]
     assert isinstance(first, nn.Linear) and isinstance(last, nn.Linear)
-    with torch.no_grad():
-        w = first.weight / emu.x_std  # (H, D) / (D,)
-        first.bias.copy_(first.bias - w @ emu.x_mean)
+
+    def fold_input(layer: nn.Linear) -> None:
+        w = layer.weight / emu.x_std  # (H, D) / (D,)
+        layer.bias.copy_(layer.bias - w @ emu.x_mean)
         placed = w @ emu.input_placement.T  # (H, E)
-        first.weight = nn.Parameter(placed)
-        first.in_features = placed.shape[1]
+        layer.weight = nn.Parameter(placed)
+        layer.in_features = placed.shape[1]
+
+    with torch.no_grad():
+        fold_input(first)
         last.weight.copy_(last.weight * emu.y_std[:, None])
         last.bias.copy_(last.bias * emu.y_std + emu.y_mean)
-    return core
+        if emu.skip is None:
+            return core
+        skip = copy.deepcopy(emu.skip)
+        fold_input(skip)
+        skip.weight.copy_(skip.weight * emu.y_std[:, None])
+        skip.bias.copy_(skip.bias * emu.y_std)  # y_mean is added once, by the MLP's last layer
+    return WithSkip(core, skip)
 
 
 def _step_module(emu: StructuredEmulator) -> Any:
@@ -65,7 +86,7 @@ def _step_module(emu: StructuredEmulator) -> Any:
             it = iter(rest)
             u = next(it) if emu.num_controls else None
             f = next(it) if emu.num_forces else None
-            frame = emu.heading(state)  # computed once, used by T'_x and T'_y
+            frame = emu.local_frame(state)  # computed once, used by T'_x and T'_y
             cols = emu.local_inputs(state, u, f, frame, place=False)
             return emu.apply_delta(state, self.core(cols), frame)
 

@@ -112,13 +112,15 @@ class NetworkFrame(_Strict):
     ``part`` is ``None`` for the model's root frame, else the MJCF body whose frame it is (a body
     part of a hierarchy). ``translate`` (one flag per root-position axis) and ``rotate`` (about the
     vertical axis) are the symmetries removed; ``force_pairs`` lists force inputs (indices into the
-    forces) that are rotated together as one vector.
+    forces) that are rotated together as one vector. ``body``: the frame turns with the whole attitude
+    of the root (the body frame, gravity entering as the body-frame up vector), not only its heading.
     """
 
     part: str | None = None
     translate: list[bool] = []
     rotate: bool = False
     force_pairs: list[list[int]] = []
+    body: bool = False
 
 
 class NetworkReads(_Strict):
@@ -134,7 +136,8 @@ class NetworkReads(_Strict):
 class Network(_Strict):
     """One network of an emulator: an MLP (``hidden`` widths, ``activation``) between its
     normalisation, reading ``reads`` in its frame and predicting the change of the state groups in
-    ``writes``. ``input_size`` D and ``output_size`` are its widths; ``weights`` its parameter count."""
+    ``writes``. ``input_size`` D and ``output_size`` are its widths; ``weights`` its parameter count;
+    ``skip``: a linear map of the inputs is added to the MLP's output."""
 
     name: str
     frame: NetworkFrame
@@ -146,6 +149,7 @@ class Network(_Strict):
     input_size: int = Field(ge=1)
     output_size: int = Field(ge=1)
     weights: int = Field(ge=0)
+    skip: bool = False
 
     @model_validator(mode="after")
     def _widths_agree(self) -> Network:
@@ -373,4 +377,6 @@ def _upgrade_1_to_2(old: Mapping[str, Any]) -> dict[str, Any]:
     }
     data["format"] = FORMAT
     data["emulator"] = {"networks": [core], "stages": [["core"]]}
+    # format 1 trained in the heading frame, without the linear path or the rollout phase
+    data["train_config"] = {**old["train_config"], "frame": "heading", "skip": False, "rollout_steps": 0}
     return data

@@ -109,13 +109,15 @@ def generate(
         lags[fresh] = rng.integers(1, 5 * substeps + 1, size=int(fresh.sum()))
         span = int(lags.max())
         idx = np.minimum(step_at[:, None] + np.arange(span)[None, :], times.size - 1)  # (R, span)
-        traj = model.simulate(state, u_traj[rows[:, None], idx], f_traj[rows[:, None], idx] if F else None)
+        traj = model.simulate(
+            state, u_traj[rows[:, None], idx], f_traj[rows[:, None], idx] if F else None, check=True
+        )
         state = traj[rows, lags - 1]  # each run continues from its own sample time
         step_at = step_at + lags
         u_now = u_traj[rows, step_at]
         f_now = f_traj[rows, step_at]
         # the example: the same state stepped n times with u and f held at their sampled values
-        nxt = model.step_held(state, u_now if U else None, f_now if F else None, substeps)
+        nxt = model.step_held(state, u_now if U else None, f_now if F else None, substeps, check=True)
         take = min(runs, count - filled)
         sel = slice(filled, filled + take)
         out_s[sel], out_u[sel], out_f[sel], out_n[sel] = state[:take], u_now[:take], f_now[:take], nxt[:take]
@@ -126,3 +128,74 @@ def generate(
     ex = Examples(out_s[perm], out_u[perm], out_f[perm], out_n[perm])
     ex.check_finite(f"simulated data of {model.name}")
     return ex
+
+
+@dataclass
+class Sequences:
+    """N runs of K super-steps each: states (N, K+1, S), controls (N, K, U), forces (N, K, F); the
+    controls and forces are held over each super-step, as the emulator takes them."""
+
+    states: FloatArray
+    controls: FloatArray
+    forces: FloatArray
+
+    def __len__(self) -> int:
+        return int(self.states.shape[0])
+
+
+def generate_sequences(
+    model: PhysicalModel,
+    substeps: int,
+    count: int,
+    horizon: int,
+    seed: int,
+    *,
+    runs: int = 256,
+    progress: bool = True,
+) -> Sequences:
+    """``count`` runs of ``horizon`` super-steps from typical states, for training over rollouts.
+
+    Each starts where a run under typical smooth controls is after a random lag (as ``generate``'s
+    examples do); the controls and forces of its super-steps are that run's, sampled at the start of
+    each super-step and held for it.
+    """
+    if count < 1 or horizon < 1:
+        raise ValueError(f"count and horizon must be positive, got {count} and {horizon}")
+    rng = np.random.default_rng(seed)
+    runs = max(1, min(runs, count))
+    n, k = substeps, horizon
+    S, U, F = model.state_size, model.num_controls, model.num_forces
+    warm = 5 * n  # the longest lag before a sequence starts
+    times = np.arange(warm + k * n + 1, dtype=np.float64) * model.dt
+    out_s = np.empty((count, k + 1, S))
+    out_u = np.empty((count, k, U))
+    out_f = np.empty((count, k, F))
+    filled = 0
+    bar = tqdm(
+        total=count, desc=f"sequences {model.name} n={n}", unit="seq", disable=not progress, leave=False
+    )
+    rows = np.arange(runs)
+    while filled < count:
+        state = model.initial_states(rng, runs)
+        u_traj = model.typical_controls(rng, runs, times)  # (R, T, U)
+        f_traj = model.typical_forces(rng, runs, times)
+        lags = rng.integers(1, warm + 1, size=runs)
+        span = int(lags.max())
+        lead = model.simulate(state, u_traj[:, :span], f_traj[:, :span] if F else None, check=True)
+        start = lead[rows, lags - 1]  # (R, S)
+        at = lags[:, None] + np.arange(k)[None, :] * n  # (R, K): time index of each super-step start
+        u_held = u_traj[rows[:, None], at]  # (R, K, U)
+        f_held = f_traj[rows[:, None], at]
+        traj = model.simulate(
+            start, np.repeat(u_held, n, axis=1), np.repeat(f_held, n, axis=1) if F else None, check=True
+        )[:, n - 1 :: n]  # (R, K, S) at the super-step ends
+        take = min(runs, count - filled)
+        sel = slice(filled, filled + take)
+        out_s[sel, 0], out_s[sel, 1:] = start[:take], traj[:take]
+        out_u[sel], out_f[sel] = u_held[:take], f_held[:take]
+        filled += take
+        bar.update(take)
+    bar.close()
+    if not np.all(np.isfinite(out_s)):
+        raise ValueError(f"simulated sequences of {model.name} contain NaN or Inf")
+    return Sequences(out_s, out_u, out_f)

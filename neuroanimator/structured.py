@@ -51,11 +51,20 @@ def make_core(inputs: int, outputs: int, hidden: Sequence[int], activation: str)
 
 @dataclass(frozen=True)
 class FrameConfig:
-    """Symmetries used: translation of root-position axes, rotation about z; see PhysicalModel.frame."""
+    """Symmetries used: translation of root-position axes, rotation about z; see PhysicalModel.frame.
+
+    ``body=True`` (a root with a quaternion only) takes the thesis' full body frame instead of the
+    heading frame: world vectors are rotated by the root's whole orientation and the direction of
+    gravity enters as a body-frame vector. The heading of a body that is upside down is undefined,
+    so the heading frame jumps there; the body frame is continuous over every attitude, and exactly
+    as equivariant (the body-frame "up" vector is unchanged by rotations about the gravity axis).
+    """
 
     translate: tuple[bool, ...] = ()
     rotate: bool = False
-    force_pairs: tuple[tuple[int, int], ...] = ()  # (x, y) indices of horizontal force inputs to rotate
+    # (x, y) or (x, y, z) indices of force inputs acting on one body, rotated together
+    force_pairs: tuple[tuple[int, ...], ...] = ()
+    body: bool = False
 
 
 @dataclass(frozen=True)
@@ -83,6 +92,54 @@ def _select(rows: int, cols: Sequence[int]) -> Tensor:
     for j, c in enumerate(cols):
         m[c, j] = 1.0
     return m
+
+
+def _select_or_zero(rows: int, cols: Sequence[int]) -> Tensor:
+    """Like ``_select``, but a column index of -1 gives a column of zeros."""
+    m = torch.zeros(rows, len(cols))
+    for j, c in enumerate(cols):
+        if c >= 0:
+            m[c, j] = 1.0
+    return m
+
+
+def _rotation_from_quaternion() -> tuple[Tensor, Tensor]:
+    """Constants (A (16, 9), I (9,)) with ``R = (q ⊗ q) @ A + I`` the row-major rotation matrix of a
+    unit quaternion q = [w, x, y, z], where ``q ⊗ q`` is the flattened outer product (B, 16)."""
+    a = torch.zeros(16, 9)
+
+    def at(i: int, j: int) -> int:
+        return 4 * i + j
+
+    w, x, y, z = range(4)
+    for (i, j), col, coef in [
+        ((y, y), 0, -2), ((z, z), 0, -2),
+        ((x, y), 1, 2), ((w, z), 1, -2),
+        ((x, z), 2, 2), ((w, y), 2, 2),
+        ((x, y), 3, 2), ((w, z), 3, 2),
+        ((x, x), 4, -2), ((z, z), 4, -2),
+        ((y, z), 5, 2), ((w, x), 5, -2),
+        ((x, z), 6, 2), ((w, y), 6, -2),
+        ((y, z), 7, 2), ((w, x), 7, 2),
+        ((x, x), 8, -2), ((y, y), 8, -2),
+    ]:  # fmt: skip
+        a[at(i, j), col] = float(coef)
+    return a, torch.eye(3).flatten()
+
+
+def _left_product() -> Tensor:
+    """Constant C (4, 16) with ``q @ C`` the row-major 4×4 matrix L(q) such that q ⊗ p = L(q) p."""
+    signs = [  # L(q)[i][j] = sign * q[k]
+        [(1, 0), (-1, 1), (-1, 2), (-1, 3)],
+        [(1, 1), (1, 0), (-1, 3), (1, 2)],
+        [(1, 2), (1, 3), (1, 0), (-1, 1)],
+        [(1, 3), (-1, 2), (1, 1), (1, 0)],
+    ]
+    c = torch.zeros(4, 16)
+    for i, row in enumerate(signs):
+        for j, (sign, k) in enumerate(row):
+            c[k, 4 * i + j] = float(sign)
+    return c
 
 
 class _Rotation(nn.Module):
@@ -136,6 +193,12 @@ class StructuredEmulator(nn.Module):
     _frame_sel: Tensor
     _half_to_table: Tensor
     _swap: Tensor
+    _vec_in_sel: Tensor
+    _vec_out_sel: Tensor
+    _outer_to_r: Tensor
+    _r_offset: Tensor
+    _left: Tensor
+    _identity_q: Tensor
 
     def __init__(
         self,
@@ -145,6 +208,7 @@ class StructuredEmulator(nn.Module):
         frame: FrameConfig,
         hidden: Sequence[int] = (64, 64),
         activation: str = "tanh",
+        skip: bool = False,
     ) -> None:
         super().__init__()
         self.layout = layout
@@ -155,6 +219,10 @@ class StructuredEmulator(nn.Module):
         self.activation = activation
         self._plan()
         self.core = make_core(self.input_size, layout.size, hidden, activation)
+        # A linear path beside the MLP: in a good local frame most of a step is close to linear (the
+        # lander's body-frame least-squares fit leaves 1% of the variance), so the MLP only has to learn
+        # the remainder. Initialised from the least-squares fit by the trainer.
+        self.skip = nn.Linear(self.input_size, layout.size) if skip else None
         # normalisation statistics (T^σ), set from training data by ``set_normalization``
         self.register_buffer("x_mean", torch.zeros(self.input_size))
         self.register_buffer("x_std", torch.ones(self.input_size))
@@ -165,9 +233,11 @@ class StructuredEmulator(nn.Module):
     def _plan(self) -> None:
         """Decide, once, which columns go where, as constant 0/1 matrices (tracing sees constants).
 
-        Network inputs are picked from ``[state, controls, forces, rotated pairs, sin(angles),
-        cos(angles)]`` and world state changes from ``[delta, rotated pairs]``, so each transform is a
-        handful of graph nodes whatever the model (a small graph is what makes one ONNX call cheap).
+        Network inputs are picked from ``[state, controls, forces, heading-rotated pairs, sin(angles),
+        cos(angles), body-rotated vectors, body-frame up]`` and world state changes from ``[delta,
+        heading-rotated pairs, body-rotated vectors, root quaternion increment]``, so each transform
+        is a handful of graph nodes whatever the model (a small graph is what makes one ONNX call
+        cheap).
         """
         lay, fr = self.layout, self.frame
         S, U, F = lay.size, self.num_controls, self.num_forces
@@ -178,12 +248,18 @@ class StructuredEmulator(nn.Module):
                 self._quat = (sl.start, sl.start + 3)
             elif g.kind == "heading":
                 self._heading = sl.start
-        self._rotate = fr.rotate and (self._quat is not None or self._heading is not None)
-        rot = self._rotate
+        self._body = bool(fr.body and fr.rotate and self._quat is not None)
+        self._rotate = fr.rotate and (self._quat is not None or self._heading is not None) and not self._body
+        rot, body = self._rotate, self._body
         translate = fr.translate
+
+        def rotated_root(g_size: int) -> bool:
+            # a root position is rotated only when its horizontal axes are not translated away
+            return g_size >= 2 and not any(translate[:2])
 
         # ---- inputs: columns of base = [state (S), controls (U), forces (F)]
         in_pairs: list[tuple[int, int, int]] = []
+        in_vecs: list[tuple[int, int, int]] = []  # body frame: (x, y, z) base columns, -1 for a zero
         angles: list[int] = []
         for g, sl in lay.group_slices():
             if g.kind == "angle":
@@ -192,14 +268,22 @@ class StructuredEmulator(nn.Module):
         if rot:
             for g, sl in lay.group_slices():
                 a = sl.start
-                # a root position is rotated only when it is not translated away (translation off)
-                untranslated_root = g.kind == "position" and g.size >= 2 and not any(translate[:2])
-                if untranslated_root or g.kind == "world_vector":
+                if (g.kind == "position" and rotated_root(g.size)) or g.kind == "world_vector":
                     in_pairs.append((a, a + 1, 0))
                 elif g.kind == "quaternion":
                     in_pairs += [(a, a + 3, 1), (a + 1, a + 2, 1)]  # (w, z) and (x, y)
-            for ix, iy in fr.force_pairs:
-                in_pairs.append((S + U + ix, S + U + iy, 0))
+            for pair in fr.force_pairs:
+                in_pairs.append((S + U + pair[0], S + U + pair[1], 0))
+        vec_of: dict[int, int] = {}  # first column of a body-rotated vector -> its index
+        if body:
+            for g, sl in lay.group_slices():
+                a = sl.start
+                if (g.kind == "position" and rotated_root(g.size)) or g.kind == "world_vector":
+                    vec_of[a] = len(in_vecs)
+                    in_vecs.append((a, a + 1, a + 2 if g.size == 3 else -1))
+            for vec in fr.force_pairs:
+                vec_of[S + U + vec[0]] = len(in_vecs)
+                in_vecs.append(tuple(S + U + c for c in vec) + ((-1,) if len(vec) == 2 else ()))  # type: ignore[arg-type]
         p = len(in_pairs)
         for k, (ix, iy, _h) in enumerate(in_pairs):
             replaced[ix] = k
@@ -207,19 +291,30 @@ class StructuredEmulator(nn.Module):
         rot_at = S + U + F  # rotated columns follow the base: first all x', then all y'
         sin_at = rot_at + 2 * p
         cos_at = sin_at + len(angles)
+        vec_at = cos_at + len(angles)  # body frame: the rotated vectors, 3 columns each
+        up_at = vec_at + 3 * len(in_vecs)  # body frame: the up direction in the body frame
+        width = up_at + (3 if body else 0)
 
         def col(c: int) -> int:
             return rot_at + replaced[c] if c in replaced else c
+
+        def vec_cols(first: int) -> list[int]:
+            k = vec_of[first]
+            return [vec_at + 3 * k + i for i in range(3)]
 
         gather: list[int] = []
         groups: list[tuple[str, int]] = []  # network input groups (name, width) for normalisation
         for g, sl in lay.group_slices():
             cols: list[int] = []
-            if g.kind == "position":
+            if body and sl.start in vec_of:
+                cols = vec_cols(sl.start)
+            elif g.kind == "position":
                 kept = [i for i in range(g.size) if not (translate and translate[i])]
                 cols = [col(sl.start + i) for i in kept]  # translated axes are 0: dropped (App. F.1)
             elif g.kind == "heading":
                 cols = [] if rot else [sl.start]  # the heading defines the frame: 0, dropped
+            elif g.kind == "quaternion" and body:
+                cols = [up_at, up_at + 1, up_at + 2]  # the attitude, as the direction of "up"
             elif g.kind == "quaternion" and rot:
                 cols = [col(sl.start), col(sl.start + 1), col(sl.start + 2)]  # z' is exactly 0: dropped
             elif g.kind == "angle":
@@ -234,33 +329,59 @@ class StructuredEmulator(nn.Module):
             gather += list(range(S, S + U))
             groups.append(("controls", U))
         if F:
-            gather += [col(c) for c in range(S + U, S + U + F)]
-            groups.append(("forces", F))
+            in_a_vec = {c for v in in_vecs for c in v if c >= S + U}
+            force_cols = [col(c) for c in range(S + U, S + U + F) if c not in in_a_vec]
+            for first in sorted(f for f in vec_of if f >= S + U):
+                force_cols += vec_cols(first)
+            gather += force_cols
+            groups.append(("forces", len(force_cols)))
         in_plan = _PairPlan(*map(tuple, zip(*in_pairs, strict=True))) if in_pairs else _PairPlan()
         self._rot_in = _Rotation(S + U + F, in_plan) if in_pairs else None
         self._angles = tuple(angles)
+        self._num_in_vecs = len(in_vecs)
         self.register_buffer("_angle_sel", _select(S, angles), persistent=False)  # (S, A)
-        self.register_buffer("_in_place", _select(sin_at + 2 * len(angles), gather), persistent=False)
+        self.register_buffer(
+            "_vec_in_sel", _select_or_zero(S + U + F, [c for v in in_vecs for c in v]), persistent=False
+        )  # (S+U+F, 3K)
+        self.register_buffer("_in_place", _select(width, gather), persistent=False)
         self.input_groups = groups
         self.input_size = len(gather)
 
         # ---- outputs: state changes, rotated back to world axes
         out_pairs: list[tuple[int, int, int]] = []
-        if rot:
-            for g, sl in lay.group_slices():
-                a = sl.start
-                if g.kind in ("position", "world_vector") and g.size >= 2:
+        out_vecs: list[tuple[int, int, int]] = []
+        for g, sl in lay.group_slices():
+            a = sl.start
+            if g.kind in ("position", "world_vector") and g.size >= 2:
+                if rot:
                     out_pairs.append((a, a + 1, 0))
-                elif g.kind == "quaternion":
-                    out_pairs += [(a, a + 3, 1), (a + 1, a + 2, 1)]
+                elif body:
+                    out_vecs.append((a, a + 1, a + 2 if g.size == 3 else -1))
+            elif g.kind == "quaternion" and rot:
+                out_pairs += [(a, a + 3, 1), (a + 1, a + 2, 1)]
         q = len(out_pairs)
         out_gather = list(range(S))
         for k, (ix, iy, _h) in enumerate(out_pairs):
             out_gather[ix] = S + k
             out_gather[iy] = S + q + k
+        vec_out_at = S + 2 * q
+        for k, vec in enumerate(out_vecs):
+            for i, c in enumerate(vec):
+                if c >= 0:
+                    out_gather[c] = vec_out_at + 3 * k + i
+        quat_out_at = vec_out_at + 3 * len(out_vecs)
+        if body:
+            assert self._quat is not None
+            for i in range(4):
+                out_gather[self._quat[0] + i] = quat_out_at + i
         out_plan = _PairPlan(*map(tuple, zip(*out_pairs, strict=True))) if out_pairs else _PairPlan()
         self._rot_out = _Rotation(S, out_plan) if out_pairs else None
-        self.register_buffer("_out_place", _select(S + 2 * q, out_gather), persistent=False)  # (S+2Q, S)
+        self._num_out_vecs = len(out_vecs)
+        self.register_buffer(
+            "_vec_out_sel", _select_or_zero(S, [c for v in out_vecs for c in v]), persistent=False
+        )  # (S, 3K')
+        out_width = quat_out_at + (4 if body else 0)
+        self.register_buffer("_out_place", _select(out_width, out_gather), persistent=False)  # (W, S)
 
         # ---- quaternion renormalisation: next = nxt @ keep + normalised(nxt @ quat) @ place
         quats = [sl for g, sl in lay.group_slices() if g.kind in ("quaternion", "local_quaternion")]
@@ -274,8 +395,13 @@ class StructuredEmulator(nn.Module):
         self.register_buffer("_keep", keep, persistent=False)  # (S, S): every column but the quaternions
         self.register_buffer("_quat_place", _select(S, qcols).T.contiguous(), persistent=False)  # (4k, S)
 
-        # ---- the frame: the root quaternion's (w, z), or the heading angle
-        if self._quat is not None:
+        # ---- the frame: the root quaternion's (w, z), the heading angle, or the whole root quaternion
+        if body:
+            assert self._quat is not None
+            self.register_buffer(
+                "_frame_sel", _select(S, range(self._quat[0], self._quat[0] + 4)), persistent=False
+            )  # (S, 4)
+        elif self._quat is not None:
             self.register_buffer("_frame_sel", _select(S, self._quat), persistent=False)  # (S, 2)
         elif self._heading is not None:
             self.register_buffer("_frame_sel", _select(S, [self._heading]), persistent=False)  # (S, 1)
@@ -286,13 +412,23 @@ class StructuredEmulator(nn.Module):
         table[4, 2] = table[5, 3] = 1.0
         self.register_buffer("_half_to_table", table, persistent=False)
         self.register_buffer("_swap", torch.tensor([[0.0, 1.0], [1.0, 0.0]]), persistent=False)
+        outer_to_r, r_offset = _rotation_from_quaternion()
+        self.register_buffer("_outer_to_r", outer_to_r, persistent=False)  # (16, 9)
+        self.register_buffer("_r_offset", r_offset, persistent=False)  # (9,)
+        self.register_buffer("_left", _left_product(), persistent=False)  # (4, 16)
+        self.register_buffer("_identity_q", torch.tensor([1.0, 0.0, 0.0, 0.0]), persistent=False)
 
     def output_groups(self) -> list[tuple[str, int]]:
         return [(g.name, g.size) for g in self.layout]
 
     # ------------------------------------------------------------------ frame helpers
     def frame_of(self, state: Tensor) -> Frame:
-        """The heading table (B, 4): cos ψ, sin ψ, cos ψ/2, sin ψ/2 of each state's heading ψ."""
+        """The local frame of each state: in the body frame the root's rotation matrix (B, 9), row-major
+        from the unit root quaternion; else the heading table (B, 4): cos ψ, sin ψ, cos ψ/2, sin ψ/2."""
+        if self._body:
+            q = self._root_quaternion(state)
+            outer = (q.unsqueeze(2) * q.unsqueeze(1)).reshape(-1, 16)
+            return outer @ self._outer_to_r + self._r_offset
         if self._quat is not None:
             wz = state @ self._frame_sel  # (B, 2)
             h = wz / torch.sqrt((wz * wz).sum(dim=1, keepdim=True) + 1e-12)  # twist of q about z
@@ -300,9 +436,14 @@ class StructuredEmulator(nn.Module):
         psi = state @ self._frame_sel  # (B, 1)
         return torch.cat([torch.cos(psi), torch.sin(psi), torch.cos(0.5 * psi), torch.sin(0.5 * psi)], dim=1)
 
-    def heading(self, state: Tensor) -> Frame | None:
-        """The heading of each state if this emulator rotates, else None; compute once per step."""
-        return self.frame_of(state) if self._rotate else None
+    def _root_quaternion(self, state: Tensor) -> Tensor:
+        """The root quaternion (B, 4), normalised (a client may send one that is not quite unit)."""
+        q = state @ self._frame_sel
+        return q / torch.sqrt((q * q).sum(dim=1, keepdim=True) + 1e-12)
+
+    def local_frame(self, state: Tensor) -> Frame | None:
+        """The frame of each state if this emulator uses one, else None; compute once per step."""
+        return self.frame_of(state) if (self._rotate or self._body) else None
 
     # ------------------------------------------------------------------ T'_x and T'_y
     def local_inputs(
@@ -333,6 +474,12 @@ class StructuredEmulator(nn.Module):
         if self._angles:
             a = state @ self._angle_sel
             ext += [torch.sin(a), torch.cos(a)]
+        if self._body:
+            r = (self.frame_of(state) if frame is None else frame).reshape(-1, 3, 3)
+            if self._num_in_vecs:
+                vecs = (base @ self._vec_in_sel).reshape(-1, self._num_in_vecs, 3)
+                ext.append((vecs @ r).reshape(-1, 3 * self._num_in_vecs))  # rows v^T R = (R^T v)^T
+            ext.append(r[:, 2, :])  # R^T e_z: the world's up in the body frame
         cols = torch.cat(ext, dim=1) if len(ext) > 1 else base
         return cols @ self._in_place if place else cols
 
@@ -342,7 +489,11 @@ class StructuredEmulator(nn.Module):
         return self._in_place
 
     def delta_to_local(self, state: Tensor, delta: Tensor) -> Tensor:
-        """(T'_y)^-1: world state changes (B,S) -> local changes (B,S), for building training targets."""
+        """(T'_y)^-1: world state changes (B,S) -> local changes (B,S), for building training targets.
+
+        In the body frame the root quaternion's change is the increment q⁻¹ ⊗ q' − 1 in the body frame,
+        with the sign of q' chosen so that the increment's w is not negative.
+        """
         return self._map_delta(state, delta, inverse=False)
 
     def delta_to_world(self, state: Tensor, delta_local: Tensor) -> Tensor:
@@ -350,10 +501,31 @@ class StructuredEmulator(nn.Module):
         return self._map_delta(state, delta_local, inverse=True)
 
     def _map_delta(self, state: Tensor, delta: Tensor, inverse: bool, frame: Frame | None = None) -> Tensor:
+        if self._body:
+            return self._map_delta_body(state, delta, inverse, frame)
         if self._rot_out is None:
             return delta
         rotated = self._rot_out(self.frame_of(state) if frame is None else frame, delta, inverse)
         return torch.cat([delta, rotated], dim=1) @ self._out_place
+
+    def _map_delta_body(self, state: Tensor, delta: Tensor, inverse: bool, frame: Frame | None) -> Tensor:
+        r = (self.frame_of(state) if frame is None else frame).reshape(-1, 3, 3)
+        parts = [delta]
+        if self._num_out_vecs:
+            vecs = (delta @ self._vec_out_sel).reshape(-1, self._num_out_vecs, 3)
+            turned = vecs @ r.transpose(1, 2) if inverse else vecs @ r  # rows (R v)^T or (R^T v)^T
+            parts.append(turned.reshape(-1, 3 * self._num_out_vecs))
+        q = self._root_quaternion(state)
+        left = (q @ self._left).reshape(-1, 4, 4)  # L(q): q ⊗ p = L(q) p
+        dq = delta @ self._frame_sel  # (B, 4)
+        if inverse:  # increment -> change of q: q ⊗ (1 + d) − q
+            nxt = (left @ (self._identity_q + dq).unsqueeze(2)).squeeze(2)
+            parts.append(nxt - q)
+        else:  # change of q -> increment: L(q)ᵀ q' − 1, with q' on the side of q
+            inc = (left.transpose(1, 2) @ (q + dq).unsqueeze(2)).squeeze(2)
+            inc = torch.where(inc[:, :1] < 0, -inc, inc)
+            parts.append(inc - self._identity_q)
+        return torch.cat(parts, dim=1) @ self._out_place
 
     # ------------------------------------------------------------------ T^σ
     def normalize_inputs(self, x: Tensor) -> Tensor:
@@ -400,9 +572,14 @@ class StructuredEmulator(nn.Module):
         return nxt @ self._keep + q.reshape(-1, 4 * self._num_quats) @ self._quat_place
 
     def forward(self, state: Tensor, controls: Tensor | None = None, forces: Tensor | None = None) -> Tensor:
-        frame = self.heading(state)
+        frame = self.local_frame(state)
         x = self.normalize_inputs(self.local_inputs(state, controls, forces, frame))
-        return self.apply_delta(state, self.denormalize_outputs(self.core(x)), frame)
+        return self.apply_delta(state, self.denormalize_outputs(self.network(x)), frame)
+
+    def network(self, x: Tensor) -> Tensor:
+        """N^σ: normalised inputs (B, D) -> normalised local state changes (B, S)."""
+        y = self.core(x)
+        return y + self.skip(x) if self.skip is not None else y
 
     def architecture(self) -> dict[str, object]:
         return {
@@ -411,11 +588,13 @@ class StructuredEmulator(nn.Module):
             "input_size": self.input_size,
             "input_groups": [list(g) for g in self.input_groups],
             "output_size": self.layout.size,
-            "weights": sum(p.numel() for p in self.core.parameters()),
+            "weights": sum(p.numel() for p in self.parameters()),
+            "skip": self.skip is not None,
             "frame": {
                 "translate": list(self.frame.translate),
                 "rotate": self.frame.rotate,
                 "force_pairs": [list(p) for p in self.frame.force_pairs],
+                "body": self._body,
             },
         }
 

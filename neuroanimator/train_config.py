@@ -34,6 +34,13 @@ class TrainConfig:
     patience: int = 30  # epochs without a better validation loss before stopping
     max_seconds: float = 150.0  # wall-clock cap on the optimisation loop (keeps a run under 5 min)
     input_noise: float = 0.0  # std of Gaussian noise on normalised state inputs during training
+    frame: str = "auto"  # "auto"/"body": full body frame for a quaternion root; "heading": yaw only
+    skip: bool = True  # a linear path beside the MLP, started from the least-squares fit
+    # Then train over emulated rollouts of this many super-steps (0: off), so that a long rollout stays
+    # on track: one-step training leaves small biases that a rollout integrates into drift.
+    rollout_steps: int = 8
+    rollout_sequences: int | None = None  # None: one per 16 one-step examples
+    rollout_seconds: float = 60.0  # wall-clock cap on the rollout phase
     seed: int = 0
     threads: int = 2
     progress: bool = True

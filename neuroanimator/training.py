@@ -25,6 +25,19 @@ from neuroanimator.train_config import TrainConfig
 log = logging.getLogger(__name__)
 
 
+class _Network(torch.nn.Module):
+    """N^σ as one module (the MLP and the linear path) for the optimiser: (B, D) -> (B, S)."""
+
+    def __init__(self, emu: StructuredEmulator) -> None:
+        super().__init__()
+        self.core = emu.core
+        self.skip = emu.skip
+
+    def forward(self, x: Tensor) -> Tensor:
+        y = self.core(x)
+        return y + self.skip(x) if self.skip is not None else y
+
+
 class TrainingDiverged(RuntimeError):
     """Training produced a non-finite loss; no artifact is written."""
 
@@ -38,10 +51,18 @@ class TrainResult:
     data_sha256: str
 
 
-def frame_config(model: PhysicalModel) -> FrameConfig:
-    """The emulator's symmetries for a model; horizontal external forces are rotated in pairs."""
+def frame_config(model: PhysicalModel, frame: str = "auto") -> FrameConfig:
+    """The emulator's symmetries for a model; external forces on a body are rotated together.
+
+    ``frame``: ``"body"`` (the default, ``"auto"``, for a root with a quaternion) rotates world vectors
+    into the root's body frame, gravity entering as the body-frame up vector; ``"heading"`` removes
+    only the rotation about the gravity axis.
+    """
+    if frame not in ("auto", "body", "heading"):
+        raise ValueError(f"frame must be 'auto', 'body' or 'heading', got {frame!r}")
     fr = model.frame
-    pairs: list[tuple[int, int]] = []
+    body = frame in ("auto", "body") and model.layout.find("quaternion") is not None
+    pairs: list[tuple[int, ...]] = []
     rotate = fr.rotate
     if rotate and model.num_forces:
         by_body: dict[tuple[str, int], dict[int, int]] = {}
@@ -49,15 +70,26 @@ def frame_config(model: PhysicalModel) -> FrameConfig:
             by_body.setdefault((f.body, f.component // 3), {})[f.component % 3] = i
         for comps in by_body.values():
             if 0 in comps and 1 in comps:
-                pairs.append((comps[0], comps[1]))
+                pairs.append((comps[0], comps[1], comps[2]) if body and 2 in comps else (comps[0], comps[1]))
             elif 0 in comps or 1 in comps:
                 rotate = False  # a lone horizontal component is not rotation-invariant: keep world frame
-    return FrameConfig(translate=fr.translate, rotate=rotate, force_pairs=tuple(pairs) if rotate else ())
+    return FrameConfig(
+        translate=fr.translate,
+        rotate=rotate,
+        force_pairs=tuple(pairs) if rotate else (),
+        body=body and rotate,
+    )
 
 
 def build_emulator(model: PhysicalModel, cfg: TrainConfig) -> StructuredEmulator:
     return StructuredEmulator(
-        model.layout, model.num_controls, model.num_forces, frame_config(model), cfg.hidden, cfg.activation
+        model.layout,
+        model.num_controls,
+        model.num_forces,
+        frame_config(model, cfg.frame),
+        cfg.hidden,
+        cfg.activation,
+        skip=cfg.skip and cfg.preset != "thesis",
     )
 
 
@@ -99,7 +131,7 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
     torch.set_num_threads(cfg.threads)
     t_start = time.perf_counter()
     emu = build_emulator(model, cfg)
-    weights = sum(p.numel() for p in emu.core.parameters())
+    weights = sum(p.numel() for p in emu.parameters())
     count = cfg.examples or math.ceil(cfg.examples_per_weight * weights)
     log.info("%s n=%d: %d weights, %d examples", model.name, cfg.substeps, weights, count)
 
@@ -121,18 +153,35 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
     n_val = max(1, int(len(data) * cfg.val_fraction))
     x_tr, y_tr, x_val, y_val = x[n_val:], y[n_val:], x[:n_val], y[:n_val]
 
-    # 3. the core network
-    train_core(emu, x_tr, y_tr, x_val, y_val, cfg)
-
-    # 4. held-out evaluation and the linear baseline fitted on the same training inputs
+    # 3. the linear baseline, fitted on the training inputs; it also starts the network's linear path
     linear = fit_linear(x_tr, y_tr)
+    if emu.skip is not None:
+        start_from_linear(emu, linear)
+
+    # 4. the core network
+    final_lr = train_core(emu, x_tr, y_tr, x_val, y_val, cfg)
+
+    # 5. training over rollouts, from the one-step solution
+    rollout_metrics: dict[str, Any] = {}
+    if cfg.rollout_steps > 0:
+        seqs = sampling.generate_sequences(
+            model,
+            cfg.substeps,
+            cfg.rollout_sequences or max(64, count // 16),
+            cfg.rollout_steps,
+            cfg.seed + 7,
+            progress=cfg.progress,
+        )
+        rollout_metrics = train_over_rollouts(emu, seqs, cfg, lr=final_lr)
+
+    # 6. held-out evaluation
     ts, tu, tf, tn = to_tensors(test)
     with torch.no_grad():
         xt = emu.network_inputs(ts, tu, tf)
         yt = emu.network_targets(ts, tn)
-        one_step = relative_error(emu.core(xt), yt)
+        one_step = relative_error(emu.network(xt), yt)
         lin = relative_error(apply_linear(linear, xt), yt)
-        val = relative_error(emu.core(x_val), y_val)
+        val = relative_error(emu.network(x_val), y_val)
     metrics = {
         "weights": weights,
         "examples": count,
@@ -140,12 +189,13 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
         "one_step_rel_error": one_step,
         "linear_baseline_rel_error": lin,
         "validation_rel_error": val,
+        **rollout_metrics,
         "data_seconds": round(t_data, 2),
         "train_seconds": round(time.perf_counter() - t_start - t_data, 2),
         "total_seconds": round(time.perf_counter() - t_start, 2),
     }
     log.info(
-        "%s n=%d: one-step relative error %.5f (linear %.4f), %.0f s",
+        "%s n=%d: one-step relative error %.3g (linear %.3g), %.0f s",
         model.name,
         cfg.substeps,
         one_step,
@@ -155,11 +205,26 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
     return TrainResult(emu, cfg, metrics, linear, data.sha256())
 
 
+def start_from_linear(emu: StructuredEmulator, linear: np.ndarray) -> None:
+    """Set the linear path to the least-squares fit (D+1, S) and silence the MLP's last layer, so that
+    training starts from the linear model and the MLP learns what it leaves."""
+    assert emu.skip is not None
+    w = torch.from_numpy(linear).float()
+    last = emu.core[-1]
+    assert isinstance(last, torch.nn.Linear)
+    with torch.no_grad():
+        emu.skip.weight.copy_(w[:-1].T)
+        emu.skip.bias.copy_(w[-1])
+        last.weight.mul_(0.01)
+        last.bias.zero_()
+
+
 def train_core(
     emu: StructuredEmulator, x: Tensor, y: Tensor, x_val: Tensor, y_val: Tensor, cfg: TrainConfig
-) -> None:
-    """Mini-batch training of N^σ on normalised data, early stopping on the validation loss."""
-    net = emu.core
+) -> float:
+    """Mini-batch training of N^σ on normalised data, early stopping on the validation loss; returns
+    the learning rate it ended with."""
+    net = _Network(emu)
     if cfg.optimizer == "adam":
         opt: torch.optim.Optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     elif cfg.optimizer == "sgd":
@@ -194,7 +259,9 @@ def train_core(
         with torch.no_grad():
             val = float(torch.mean((net(x_val) - y_val) ** 2))
         if not math.isfinite(val):
-            raise TrainingDiverged(f"validation loss became {val} at epoch {epoch}; lower the learning rate")
+            raise TrainingDiverged(
+                f"training diverged: the validation loss became {val} at epoch {epoch}; lower the learning rate"
+            )
         sched.step(val)
         if val < best * (1 - 1e-4):
             best, stale = val, 0
@@ -211,3 +278,78 @@ def train_core(
     bar.close()
     if best_state is not None:
         net.load_state_dict(best_state)
+    return float(opt.param_groups[0]["lr"])
+
+
+def _sequence_tensors(seq: sampling.Sequences) -> tuple[Tensor, Tensor | None, Tensor | None]:
+    s = torch.from_numpy(seq.states).float()
+    u = torch.from_numpy(seq.controls).float() if seq.controls.shape[2] else None
+    f = torch.from_numpy(seq.forces).float() if seq.forces.shape[2] else None
+    return s, u, f
+
+
+def rollout_loss(
+    emu: StructuredEmulator, s: Tensor, u: Tensor | None, f: Tensor | None, scale: Tensor
+) -> Tensor:
+    """Mean squared error of a K-step emulated rollout against the physics, each variable divided by
+    the spread of its change over one super-step: s (B, K+1, S), u (B, K, U), f (B, K, F)."""
+    k_steps = s.shape[1] - 1
+    state = s[:, 0]
+    total = torch.zeros(())
+    for k in range(k_steps):
+        state = emu(state, None if u is None else u[:, k], None if f is None else f[:, k])
+        total = total + torch.mean(((state - s[:, k + 1]) / scale) ** 2)
+    return total / k_steps
+
+
+def train_over_rollouts(
+    emu: StructuredEmulator, seq: sampling.Sequences, cfg: TrainConfig, lr: float | None = None
+) -> dict[str, Any]:
+    """Fine-tune N^σ on the error of emulated rollouts (``rollout_loss``), early stopping on held-back
+    sequences, at ``lr`` (default: a tenth of the config's; the one-step phase's last rate is a good
+    start); returns the validation rollout loss before and after."""
+    s, u, f = _sequence_tensors(seq)
+    scale = (s[:, 1:] - s[:, :-1]).reshape(-1, s.shape[2]).std(dim=0)
+    scale = torch.where(scale > 1e-8, scale, torch.ones_like(scale))
+    n_val = max(1, len(seq) // 10)
+
+    def part(t: Tensor | None, sl: slice | Tensor) -> Tensor | None:
+        return None if t is None else t[sl]
+
+    val, tr = slice(0, n_val), slice(n_val, None)
+    s_tr, u_tr, f_tr = s[tr], part(u, tr), part(f, tr)
+    net = _Network(emu)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr * 0.1 if lr is None else lr)
+    gen = torch.Generator().manual_seed(cfg.seed + 11)
+
+    def validate() -> float:
+        emu.eval()
+        with torch.no_grad():
+            return float(rollout_loss(emu, s[val], part(u, val), part(f, val), scale))
+
+    before = best = validate()
+    best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+    t0, epochs, stale = time.perf_counter(), 0, 0
+    batch = max(32, cfg.batch_size // 4)
+    while time.perf_counter() - t0 < cfg.rollout_seconds and stale < 10 and epochs < cfg.max_epochs:
+        emu.train()
+        perm = torch.randperm(s_tr.shape[0], generator=gen)
+        for i in range(0, perm.numel(), batch):
+            idx = perm[i : i + batch]
+            loss = rollout_loss(emu, s_tr[idx], part(u_tr, idx), part(f_tr, idx), scale)
+            if not torch.isfinite(loss):
+                raise TrainingDiverged(f"training over rollouts diverged (loss {float(loss.detach())})")
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+        epochs += 1
+        now = validate()
+        if now < best * (1 - 1e-3):
+            best, stale = now, 0
+            best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+        else:
+            stale += 1
+    net.load_state_dict(best_state)
+    emu.eval()
+    log.info("rollout phase: %d epochs, validation rollout loss %.3g -> %.3g", epochs, before, best)
+    return {"rollout_loss_before": before, "rollout_loss_after": best, "rollout_epochs": epochs}

@@ -38,9 +38,11 @@ def arm_path(tmp_path: Path) -> Path:
 def make_emulator() -> Callable[..., StructuredEmulator]:
     """Factory: the structured emulator of a model with random core weights and random T^σ statistics."""
 
-    def make(model: PhysicalModel, seed: int = 0, mode: str = "group") -> StructuredEmulator:
+    def make(
+        model: PhysicalModel, seed: int = 0, mode: str = "group", frame: str = "auto"
+    ) -> StructuredEmulator:
         torch.manual_seed(seed)
-        emu = training.build_emulator(model, TrainConfig(hidden=(16,), progress=False))
+        emu = training.build_emulator(model, TrainConfig(hidden=(16,), progress=False, frame=frame))
         gen = torch.Generator().manual_seed(seed)
         x = torch.randn(64, emu.input_size, generator=gen) * 2.0 + 0.5
         y = torch.randn(64, model.state_size, generator=gen) * 0.3 + 0.1

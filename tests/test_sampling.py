@@ -113,3 +113,16 @@ def test_subset_and_check_finite() -> None:
     sub.next_states[0, 1] = np.nan
     with pytest.raises(ValueError, match="next_states"):
         sub.check_finite()
+
+
+def test_sequences_are_held_super_steps_of_the_physics() -> None:
+    """Each super-step of a sequence is the physics stepped n times with its controls held."""
+    model = physics.get("lander")
+    seq = sampling.generate_sequences(model, 10, 12, 3, seed=5, progress=False)
+    assert seq.states.shape == (12, 4, model.state_size)
+    assert seq.controls.shape == (12, 3, model.num_controls)
+    for k in range(3):
+        nxt = model.step_held(seq.states[:, k], seq.controls[:, k], None, 10)
+        np.testing.assert_allclose(seq.states[:, k + 1], nxt, atol=1e-9)
+    again = sampling.generate_sequences(model, 10, 12, 3, seed=5, progress=False)
+    np.testing.assert_array_equal(again.states, seq.states)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, physics, training
+from neuroanimator import artifacts, physics, sampling, training
 from neuroanimator.training import TrainConfig, TrainingDiverged
 
 
@@ -39,7 +39,7 @@ def test_metrics_describe_the_run(pendulum_result: training.TrainResult) -> None
     m = pendulum_result.metrics
     assert m["examples"] == 3000
     assert m["test_examples"] == 500
-    assert m["weights"] == sum(p.numel() for p in pendulum_result.emulator.core.parameters())
+    assert m["weights"] == sum(p.numel() for p in pendulum_result.emulator.parameters())
     assert len(pendulum_result.data_sha256) == 64
     assert pendulum_result.linear.shape == (pendulum_result.emulator.input_size + 1, 6)
 
@@ -113,7 +113,7 @@ def test_optimizers_reduce_the_validation_loss(optimizer: str) -> None:
     x, y, xv, yv = _regression_problem()
     emu = _emulator()
     with torch.no_grad():
-        before = float(torch.mean((emu.core(xv) - yv) ** 2))
+        before = float(torch.mean((emu.network(xv) - yv) ** 2))
     cfg = TrainConfig(
         optimizer=optimizer,
         lr=0.05 if optimizer == "sgd" else 1e-2,
@@ -124,7 +124,7 @@ def test_optimizers_reduce_the_validation_loss(optimizer: str) -> None:
     )
     training.train_core(emu, x, y, xv, yv, cfg)
     with torch.no_grad():
-        after = float(torch.mean((emu.core(xv) - yv) ** 2))
+        after = float(torch.mean((emu.network(xv) - yv) ** 2))
     assert after < 0.5 * before
 
 
@@ -187,3 +187,18 @@ def test_frame_config_of_catalog_models() -> None:
     assert truck.rotate and truck.translate == (True, True)
     pend = training.frame_config(physics.get("pendulum-force"))
     assert not pend.rotate and pend.force_pairs == ()
+
+
+def test_training_over_rollouts_lowers_the_rollout_loss() -> None:
+    """From a one-step solution, the rollout phase lowers the error of emulated rollouts."""
+    model = physics.get("pendulum-active")
+    cfg = TrainConfig(
+        substeps=10, hidden=(16,), examples=600, max_epochs=15, rollout_steps=0, progress=False, threads=1
+    )
+    result = training.train(model, cfg)
+    seqs = sampling.generate_sequences(model, 10, 96, 6, seed=3, progress=False)
+    out = training.train_over_rollouts(
+        result.emulator, seqs, TrainConfig(substeps=10, rollout_seconds=5.0, threads=1, progress=False)
+    )
+    assert out["rollout_loss_after"] < out["rollout_loss_before"]
+    assert out["rollout_epochs"] >= 1

@@ -48,7 +48,7 @@ class FastStep(nn.Module):
     def forward(self, state: Tensor, controls: Tensor) -> Tensor:
         emu = self.emu
         forces = torch.zeros(state.shape[0], self.num_forces, dtype=state.dtype) if self.num_forces else None
-        frame = emu.heading(state)  # once per step, shared by T'_x and T'_y
+        frame = emu.local_frame(state)  # once per step, shared by T'_x and T'_y
         cols = emu.local_inputs(state, controls, forces, frame, place=False)
         return emu.apply_delta(state, self.core(cols), frame)
 

@@ -14,12 +14,12 @@ from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from neuroanimator.model_spec import ForceInput, InitialStates, ModelSpec
-from neuroanimator.physics import dolphin, lander, pendulum, runner, truck
+from neuroanimator.physics import dolphin, lander, pendulum, quadrotor, runner, truck
 
 if TYPE_CHECKING:
     from neuroanimator.physics.model import Frame, ModelError, PhysicalModel
 
-SYSTEMS: tuple[ModuleType, ...] = (pendulum, lander, truck, dolphin, runner)
+SYSTEMS: tuple[ModuleType, ...] = (pendulum, lander, truck, dolphin, runner, quadrotor)
 CATALOG: dict[str, Callable[[], PhysicalModel]] = {
     "pendulum-passive": pendulum.passive,
     "pendulum-active": pendulum.active,
@@ -28,6 +28,7 @@ CATALOG: dict[str, Callable[[], PhysicalModel]] = {
     "truck": truck.truck,
     "dolphin": dolphin.dolphin,
     "runner": runner.runner,
+    "quadrotor": quadrotor.quadrotor,
 }
 _FROM_MODEL = ("Frame", "ModelError", "PhysicalModel")  # names that need MuJoCo, loaded on first use
 

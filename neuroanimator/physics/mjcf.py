@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import mujoco
@@ -9,6 +10,8 @@ import numpy as np
 
 from neuroanimator.model_spec import InitialStates, ModelSpec
 from neuroanimator.physics.model import ModelError, PhysicalModel, derive_layout, read_model_name
+
+log = logging.getLogger(__name__)
 
 
 def load_mjcf(path: str | Path, *, substeps: int | None = None) -> PhysicalModel:
@@ -33,6 +36,18 @@ def load_mjcf(path: str | Path, *, substeps: int | None = None) -> PhysicalModel
     except Exception as exc:
         raise ModelError(f"malformed MJCF {str(p)!r}: {exc}") from exc
     layout = derive_layout(m)
+    unlimited = [
+        mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator{i}"
+        for i in range(m.nu)
+        if not m.actuator_ctrllimited[i]
+    ]
+    if unlimited:
+        log.warning(
+            "%s: actuators without ctrlrange: %s; their typical controls are drawn from [-1, 1] and the "
+            "emulator is trained there only (give each a ctrlrange in the MJCF to choose the range)",
+            p.name,
+            ", ".join(unlimited),
+        )
     low, high = np.zeros(layout.size), np.zeros(layout.size)
     for g, sl in layout.group_slices():
         if g.kind in ("angle", "scalar", "local_vector", "world_vector"):

@@ -12,6 +12,7 @@ Shapes: B = batch, T = time steps, S = state size, U = controls, F = external fo
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 import threading
 import xml.etree.ElementTree as ET
@@ -29,13 +30,27 @@ from neuroanimator import quaternion as quat
 from neuroanimator.model_spec import ModelSpec
 from neuroanimator.state import GroupKind, StateGroup, StateLayout
 
+log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
+_BAD_QACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
 _PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CONTROL_SPEC = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
 
 
 class ModelError(ValueError):
     """A model that cannot be built or used as asked; the message names the problem."""
+
+
+class SimulationDiverged(ModelError):
+    """MuJoCo found NaN, Inf or huge accelerations while simulating; the message says when and where."""
+
+
+def _log_mujoco_warning(text: str) -> None:
+    # MuJoCo's default prints to stderr and appends to MUJOCO_LOG.TXT in the working directory
+    log.warning("MuJoCo: %s", text.strip())
+
+
+mujoco.set_mju_user_warning(_log_mujoco_warning)
 
 
 @dataclass(frozen=True)
@@ -314,11 +329,14 @@ class PhysicalModel:
         *,
         nstep: int | None = None,
         threads: int | None = None,
+        check: bool = False,
     ) -> FloatArray:
         """Roll the physics out from states (B, S) under controls (B|1, T|1, U) and forces (B|1, T|1, F).
 
         Returns the states after every physical step, (B, T, S). A control or force with T = 1 is
-        held for all ``nstep`` steps (the emulator's super-step contract).
+        held for all ``nstep`` steps (the emulator's super-step contract). With ``check``, a run that
+        MuJoCo found unstable (it then resets the run to its initial pose) raises
+        ``SimulationDiverged`` naming the time and the joint.
         """
         states = np.asarray(states, dtype=np.float64)
         if states.ndim != 2 or states.shape[1] != self.state_size:
@@ -351,6 +369,8 @@ class PhysicalModel:
         datas = self._datas()
         if threads is not None:
             datas = datas[: max(1, threads)]
+        for d in datas:
+            d.warning[_BAD_QACC].number = 0
         out, _ = rollout.rollout(
             self.mj_model,
             datas,
@@ -359,7 +379,30 @@ class PhysicalModel:
             control_spec=int(_CONTROL_SPEC),
             nstep=steps,
         )
-        return self.from_physics(out).reshape(b, steps, self.state_size)
+        result = self.from_physics(out).reshape(b, steps, self.state_size)
+        bad = [d for d in datas if d.warning[_BAD_QACC].number]
+        if check and bad:
+            raise self._diverged(states, result, int(bad[0].warning[_BAD_QACC].lastinfo))
+        return result
+
+    def _diverged(self, start: FloatArray, traj: FloatArray, dof: int) -> SimulationDiverged:
+        """The error for an unstable rollout from (B, S) to (B, T, S): it names the first step with a
+        non-finite value or one a thousand times the start's (MuJoCo resets the run right after)."""
+        m = self.mj_model
+        huge = ~np.isfinite(traj) | (np.abs(traj) > 1e3 * (1.0 + np.abs(start[:, None, :])))
+        steps = np.flatnonzero(huge.any(axis=(0, 2)))
+        when = f"{(int(steps[0]) + 1) * self.dt:.4g} s into" if steps.size else "during"
+        joint = (
+            mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.dof_jntid[dof]))
+            if 0 <= dof < m.nv
+            else None
+        )
+        return SimulationDiverged(
+            f"the simulation of model {self.name} diverged {when} a run from a typical state: MuJoCo found "
+            f"NaN, Inf or huge accelerations at degree of freedom {dof} (joint {joint!r}). Try a smaller "
+            f"timestep (now {self.dt:g} s), more damping or less stiffness at that joint, or narrower "
+            "typical controls and initial states"
+        )
 
     def _check_inputs(self, name: str, values: FloatArray, width: int, batch: int) -> None:
         if values.ndim != 3 or values.shape[2] != width:
@@ -379,12 +422,18 @@ class PhysicalModel:
             raise ModelError(f"{name} must be finite for model {self.name}; got NaN or Inf")
 
     def step_held(
-        self, states: FloatArray, controls: FloatArray | None, forces: FloatArray | None, substeps: int
+        self,
+        states: FloatArray,
+        controls: FloatArray | None,
+        forces: FloatArray | None,
+        substeps: int,
+        *,
+        check: bool = False,
     ) -> FloatArray:
         """One super-step of the physics: hold controls (B, U) and forces (B, F) for ``substeps`` steps."""
         u = None if controls is None else np.asarray(controls, dtype=np.float64)[:, None, :]
         f = None if forces is None else np.asarray(forces, dtype=np.float64)[:, None, :]
-        return self.simulate(states, u, f, nstep=substeps)[:, -1]
+        return self.simulate(states, u, f, nstep=substeps, check=check)[:, -1]
 
     # ------------------------------------------------------------------ typical inputs
     def initial_states(self, rng: np.random.Generator, batch: int) -> FloatArray:
@@ -400,7 +449,8 @@ class PhysicalModel:
         if qg is not None and (init.random_yaw or init.max_tilt > 0):
             sl = self.layout.slice_of(qg.name)
             yaw = rng.uniform(-np.pi, np.pi, batch) if init.random_yaw else np.zeros(batch)
-            tilt = init.max_tilt * np.sqrt(rng.random(batch))  # uniform over the spherical cap
+            # uniform over the spherical cap of half-angle max_tilt (the whole sphere for π)
+            tilt = np.arccos(1.0 - rng.random(batch) * (1.0 - np.cos(min(init.max_tilt, np.pi))))
             axis_angle = rng.uniform(-np.pi, np.pi, batch)
             axis = np.stack([np.cos(axis_angle), np.sin(axis_angle), np.zeros(batch)], axis=1)
             q_yaw = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), yaw)

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from neuroanimator import sampling
+from neuroanimator.cli import main
 from neuroanimator.physics.mjcf import load_mjcf
-from neuroanimator.physics.model import ModelError
+from neuroanimator.physics.model import ModelError, SimulationDiverged
 
 FREE_BODY = """<mujoco>
   <option gravity="0 0 -9.81"/>
@@ -167,3 +170,36 @@ def test_ball_and_slide_joints_give_their_groups(tmp_path: Path) -> None:
     ]
     assert model.num_controls == 0
     assert not model.frame.rotate and model.frame.translate == ()
+
+
+def test_actuators_without_ctrlrange_are_named_with_the_range_assumed(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    path = tmp_path / "free.xml"
+    path.write_text(
+        """<mujoco model="loose"><worldbody><body><joint name="j" type="hinge"/>
+        <geom type="sphere" size="0.1"/></body></worldbody>
+        <actuator><motor name="push" joint="j" ctrllimited="false"/><motor name="held" joint="j" ctrlrange="-2 2"/>
+        </actuator></mujoco>"""
+    )
+    with caplog.at_level(logging.WARNING):
+        model = load_mjcf(path)
+    assert "push" in caplog.text and "held" not in caplog.text and "[-1, 1]" in caplog.text
+    np.testing.assert_allclose(model.control_range, [[-1.0, 1.0], [-2.0, 2.0]])
+
+
+def test_a_model_that_diverges_is_refused_with_the_time_and_joint(tmp_path: Path) -> None:
+    """Training data of an unstable model: the error says when and at which joint, nothing is written."""
+    path = tmp_path / "unstable.xml"
+    path.write_text(
+        """<mujoco model="unstable"><option timestep="0.05"/><worldbody><body>
+        <joint name="stiff" type="hinge" axis="0 0 1" stiffness="1e9"/>
+        <geom type="capsule" fromto="0 0 0 1 0 0" size="0.05"/></body></worldbody>
+        <actuator><motor name="m" joint="stiff" ctrlrange="-1 1"/></actuator></mujoco>"""
+    )
+    out = tmp_path / "artifacts"
+    model = load_mjcf(path, substeps=5)
+    with pytest.raises(SimulationDiverged, match=r"diverged .* s into .*joint 'stiff'.*smaller timestep"):
+        sampling.generate(model, 5, 50, seed=0, progress=False)
+    assert main(["train", "--mjcf", str(path), "--substeps", "5", "--out", str(out), "--quiet"]) == 2
+    assert not out.exists()

@@ -1,0 +1,99 @@
+"""Rollout errors in physical units: root position in metres, attitude in degrees, joints in radians.
+
+A normalised rollout error divides by the spread of each variable over the data, so a lander that
+flies tens of metres hides metres of drift behind a small number. These are the errors a user sees:
+how far the emulated body is from MuJoCo's, how differently it is turned, how far its joints are off.
+
+Shapes: N trials, M super-steps, S state size.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neuroanimator.state import StateLayout
+
+FloatArray = NDArray[np.float64]
+REPORT_TIMES_S: tuple[float, ...] = (1.0, 5.0, 10.0, 20.0)
+
+
+def _wrap(angle: FloatArray) -> FloatArray:
+    """Angles folded into [-π, π)."""
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def _quaternion_angle(a: FloatArray, b: FloatArray) -> FloatArray:
+    """The rotation angle (rad) between unit quaternions a and b (..., 4); q and −q are the same."""
+    na = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    nb = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    dot = np.clip(np.abs(np.sum(na * nb, axis=-1)), 0.0, 1.0)
+    return 2.0 * np.arccos(dot)
+
+
+def error_series(layout: StateLayout, pred: FloatArray, truth: FloatArray) -> dict[str, FloatArray]:
+    """Per trial and super-step errors (N, M) in physical units, for the quantities the layout has.
+
+    - ``root_position_m``: distance between the root positions (a ``position`` group);
+    - ``attitude_deg``: the angle between root orientations (``quaternion``) or headings (``heading``);
+    - ``joint_angle_rad``: mean absolute wrapped difference over hinge angles (``angle`` groups) and
+      ball joints (``local_quaternion``, the angle between them).
+    """
+    out: dict[str, FloatArray] = {}
+    pos = layout.find("position")
+    if pos is not None:
+        sl = layout.slice_of(pos.name)
+        out["root_position_m"] = np.linalg.norm(pred[..., sl] - truth[..., sl], axis=-1)
+    att = layout.find("quaternion", "heading")
+    if att is not None:
+        sl = layout.slice_of(att.name)
+        if att.kind == "quaternion":
+            rad = _quaternion_angle(pred[..., sl], truth[..., sl])
+        else:
+            rad = np.abs(_wrap(pred[..., sl.start] - truth[..., sl.start]))
+        out["attitude_deg"] = np.degrees(rad)
+    joints: list[FloatArray] = []
+    for g, sl in layout.group_slices():
+        if g.kind == "angle":
+            joints.extend(np.abs(_wrap(pred[..., c] - truth[..., c])) for c in range(sl.start, sl.stop))
+        elif g.kind == "local_quaternion":
+            joints.append(_quaternion_angle(pred[..., sl], truth[..., sl]))
+    if joints:
+        out["joint_angle_rad"] = np.mean(np.stack(joints, axis=0), axis=0)
+    return out
+
+
+def summarize(
+    series: dict[str, FloatArray], super_dt: float, times_s: Sequence[float] = REPORT_TIMES_S
+) -> dict[str, dict[str, dict[str, float]]]:
+    """``{quantity: {"<t>s": {"mean": .., "p90": ..}}}`` at the given times (those within the rollout).
+
+    ``series[q]`` is (N, M) with column k the error after k + 1 super-steps of ``super_dt`` seconds.
+    A non-finite error (a diverged emulator) is reported as infinity, never hidden.
+    """
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for name, err in series.items():
+        m = err.shape[1]
+        row: dict[str, dict[str, float]] = {}
+        for t in times_s:
+            k = round(t / super_dt) - 1
+            if k < 0 or k >= m:
+                continue
+            col = np.where(np.isfinite(err[:, k]), err[:, k], np.inf)
+            row[f"{t:g}s"] = {"mean": float(np.mean(col)), "p90": float(np.percentile(col, 90))}
+        out[name] = row
+    return out
+
+
+UNITS = {"root_position_m": "m", "attitude_deg": "°", "joint_angle_rad": "rad"}
+
+
+def format_table(summary: dict[str, dict[str, dict[str, float]]]) -> list[str]:
+    """Readable lines: one per quantity, mean (p90) at each reported time."""
+    lines = []
+    for name, row in summary.items():
+        cells = "  ".join(f"{t}: {v['mean']:.3g} ({v['p90']:.3g})" for t, v in row.items())
+        lines.append(f"{name:<16} mean (p90) {UNITS.get(name, '')}: {cells}")
+    return lines
