@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from neuroanimator import physics, registry
+from neuroanimator import physical_errors, physics, registry
 from neuroanimator.physics.mjcf import load_mjcf
 from neuroanimator.physics.model import ModelError, PhysicalModel
 from neuroanimator.results import NetworkSize, VersionEval, split_bench, summarize_eval
@@ -101,7 +101,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         manifest = registry.read_manifest(path)
         model = registry.load_physical_model(path, manifest)
         errs = evaluation.one_step_errors(path, model, manifest)
-        curve = evaluation.rollout_curve(path, model, n, trials=args.trials, steps=args.steps)
+        curve, physical = evaluation.rollout_errors(path, model, n, trials=args.trials, steps=args.steps)
         net = manifest.emulator.only()
         rows.append(
             VersionEval(
@@ -115,6 +115,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
                 rollout_error_final=curve.error[-1],
                 architecture=NetworkSize(hidden=net.hidden, activation=net.activation, weights=net.weights),
                 train_seconds=manifest.metrics.total_seconds,
+                physical_errors=physical,
             )
         )
     plot = Path(args.plot) if args.plot else root / args.model / registry.PLOT_FILE
@@ -136,6 +137,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
             ],
         )
     )
+    for r in rows:  # a normalised error can hide metres of drift: the same rollouts in physical units
+        _out(f"n={r.substeps}, rollout errors vs MuJoCo over {args.trials} trials:")
+        for line in physical_errors.format_table(r.physical_errors):
+            _out(f"  {line}")
     summary = summarize_eval(rows, latest.spec.thesis_hidden, args.substeps, str(plot))
     if summary.n100_vs_n25_at_20s is not None:
         _out(

@@ -1,5 +1,6 @@
-"""Evaluation of an artifact against MuJoCo: one-step error on held-out data and rollout error
-curves (thesis Fig. 6.6), all from the artifact alone (its ONNX graph, weights and MJCF).
+"""Evaluation of an artifact against MuJoCo: one-step error on held-out data, rollout error curves
+(thesis Fig. 6.6) and rollout errors in physical units, all from the artifact alone (its ONNX graph,
+weights and MJCF).
 """
 
 from __future__ import annotations
@@ -11,11 +12,11 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from neuroanimator import artifacts, registry, sampling
+from neuroanimator import artifacts, physical_errors, registry, sampling
 from neuroanimator.export import OnnxEmulator
 from neuroanimator.manifest import Manifest
 from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.results import RolloutCurve
+from neuroanimator.results import PhysicalErrors, RolloutCurve
 from neuroanimator.training import apply_linear, held_out_seed, relative_error, to_tensors
 
 log = logging.getLogger(__name__)
@@ -66,6 +67,19 @@ def rollout_curve(
 ) -> RolloutCurve:
     """Mean absolute error between emulator and MuJoCo rollouts from the same initial states under the
     same held controls, over trials and state variables, each normalised by its standard deviation."""
+    return rollout_errors(path, model, substeps, trials, steps, seed)[0]
+
+
+def rollout_errors(
+    path: Path,
+    model: PhysicalModel,
+    substeps: int,
+    trials: int = 30,
+    steps: int = 6000,
+    seed: int = EVAL_SEED,
+) -> tuple[RolloutCurve, PhysicalErrors]:
+    """The normalised rollout curve (``rollout_curve``) and the same rollouts' errors in physical units
+    (root position in metres, attitude in degrees, joints in radians) at 1, 5, 10 and 20 s."""
     rng = np.random.default_rng(seed)
     s0 = model.initial_states(rng, trials)
     u, f = held_controls(model, rng, trials, steps, substeps)
@@ -84,7 +98,11 @@ def rollout_curve(
     err = np.where(np.isfinite(err), err, 1e6)  # a diverged emulator shows as a huge error, not NaN
     curve = np.concatenate([[0.0], err.mean(axis=(0, 2))])
     t = np.arange(m + 1) * substeps * model.dt
-    return RolloutCurve(t=[round(float(x), 6) for x in t], error=[float(e) for e in curve])
+    series = physical_errors.error_series(model.layout, pred.astype(np.float64), phys)
+    return (
+        RolloutCurve(t=[round(float(x), 6) for x in t], error=[float(e) for e in curve]),
+        physical_errors.summarize(series, substeps * model.dt),
+    )
 
 
 def plot_curves(curves: dict[int, RolloutCurve], title: str, out: Path) -> None:

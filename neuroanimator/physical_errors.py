@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from neuroanimator.results import PhysicalErrorAt, PhysicalErrors
 from neuroanimator.state import StateLayout
 
 FloatArray = NDArray[np.float64]
@@ -67,33 +68,34 @@ def error_series(layout: StateLayout, pred: FloatArray, truth: FloatArray) -> di
 
 def summarize(
     series: dict[str, FloatArray], super_dt: float, times_s: Sequence[float] = REPORT_TIMES_S
-) -> dict[str, dict[str, dict[str, float]]]:
-    """``{quantity: {"<t>s": {"mean": .., "p90": ..}}}`` at the given times (those within the rollout).
+) -> PhysicalErrors:
+    """The errors at the given times (those the rollouts reach): mean and 90th percentile over trials.
 
     ``series[q]`` is (N, M) with column k the error after k + 1 super-steps of ``super_dt`` seconds.
     A non-finite error (a diverged emulator) is reported as infinity, never hidden.
     """
-    out: dict[str, dict[str, dict[str, float]]] = {}
+    out: dict[str, list[PhysicalErrorAt]] = {}
     for name, err in series.items():
-        m = err.shape[1]
-        row: dict[str, dict[str, float]] = {}
+        rows = []
         for t in times_s:
             k = round(t / super_dt) - 1
-            if k < 0 or k >= m:
+            if k < 0 or k >= err.shape[1]:
                 continue
             col = np.where(np.isfinite(err[:, k]), err[:, k], np.inf)
-            row[f"{t:g}s"] = {"mean": float(np.mean(col)), "p90": float(np.percentile(col, 90))}
-        out[name] = row
-    return out
+            rows.append(PhysicalErrorAt(t_s=t, mean=float(np.mean(col)), p90=float(np.percentile(col, 90))))
+        out[name] = rows
+    return PhysicalErrors(**out)
 
 
 UNITS = {"root_position_m": "m", "attitude_deg": "°", "joint_angle_rad": "rad"}
 
 
-def format_table(summary: dict[str, dict[str, dict[str, float]]]) -> list[str]:
+def format_table(errors: PhysicalErrors) -> list[str]:
     """Readable lines: one per quantity, mean (p90) at each reported time."""
     lines = []
-    for name, row in summary.items():
-        cells = "  ".join(f"{t}: {v['mean']:.3g} ({v['p90']:.3g})" for t, v in row.items())
-        lines.append(f"{name:<16} mean (p90) {UNITS.get(name, '')}: {cells}")
+    for name in ("root_position_m", "attitude_deg", "joint_angle_rad"):
+        rows = getattr(errors, name)
+        if rows:
+            cells = "  ".join(f"{e.t_s:g} s: {e.mean:.3g} ({e.p90:.3g})" for e in rows)
+            lines.append(f"{name:<16} mean (p90) in {UNITS[name]}: {cells}")
     return lines

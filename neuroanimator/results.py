@@ -46,6 +46,32 @@ class NetworkSize(_Result):
     weights: int
 
 
+class PhysicalErrorAt(_Result):
+    """An error in physical units at ``t_s`` seconds into the rollouts: mean and 90th percentile over
+    the trials; infinite where an emulated rollout diverged."""
+
+    t_s: float
+    mean: float
+    p90: float
+
+
+class PhysicalErrors(_Result):
+    """Rollout errors against MuJoCo in physical units, for the quantities the model has: the root's
+    position (metres), its attitude (degrees: the angle between orientations, or between headings) and
+    the joints (radians: mean absolute difference of hinge angles and ball-joint rotations)."""
+
+    root_position_m: list[PhysicalErrorAt] | None = None
+    attitude_deg: list[PhysicalErrorAt] | None = None
+    joint_angle_rad: list[PhysicalErrorAt] | None = None
+
+    def at(self, quantity: str, seconds: float) -> PhysicalErrorAt | None:
+        """The entry of ``quantity`` at ``seconds``, if measured."""
+        for e in getattr(self, quantity) or []:
+            if math.isclose(e.t_s, seconds):
+                return e
+        return None
+
+
 class VersionEval(_Result):
     """One version's accuracy against MuJoCo, on held-out data and in rollouts (``<version>/eval.json``).
 
@@ -64,6 +90,7 @@ class VersionEval(_Result):
     rollout_error_final: float
     architecture: NetworkSize
     train_seconds: float | None = None
+    physical_errors: PhysicalErrors = PhysicalErrors()
 
 
 class ThesisPreset(_Result):

@@ -6,6 +6,7 @@ import contextlib
 import io
 import json
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -121,6 +122,11 @@ def test_eval_prints_json_and_writes_plot(user_train: CliRun, capsys: pytest.Cap
     assert curve["t"][1] == pytest.approx(10 * 0.005)  # one super-step of the arm (timestep 0.005)
     assert all(e >= 0.0 for e in curve["error"])
     assert summary["one_step_rel_error"] >= 0.0
+    # the same rollouts in physical units: an arm of hinges has joint errors (radians), no root
+    physical = summary["physical_errors"]
+    assert physical["root_position_m"] is None and physical["attitude_deg"] is None
+    assert [e["t_s"] for e in physical["joint_angle_rad"]] == [1.0]  # 200 steps of 0.005 s reach 1 s
+    assert 0.0 <= physical["joint_angle_rad"][0]["mean"] <= physical["joint_angle_rad"][0]["p90"] < math.pi
     plot = Path(summary["plot"])
     assert plot == user_train.root / "myarm" / "rollout_error.png"
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

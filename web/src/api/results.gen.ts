@@ -6,6 +6,8 @@ export interface ResultsWire {
   ModelBench?: ModelBench;
   ModelEval?: ModelEval;
   NetworkSize?: NetworkSize;
+  PhysicalErrorAt?: PhysicalErrorAt;
+  PhysicalErrors?: PhysicalErrors2;
   RolloutCurve?: RolloutCurve;
   SingleClientSpeed?: SingleClientSpeed;
   ThesisPreset?: ThesisPreset;
@@ -70,6 +72,7 @@ export interface ModelEval {
   rollout_error_final: number;
   architecture: NetworkSize;
   train_seconds?: number | null;
+  physical_errors?: PhysicalErrors;
   thesis_preset: ThesisPreset;
   by_substeps: VersionEval[];
   plot?: string | null;
@@ -97,6 +100,28 @@ export interface NetworkSize {
   hidden: number[];
   activation: string;
   weights: number;
+}
+/**
+ * Rollout errors against MuJoCo in physical units, for the quantities the model has: the root's
+ * position (metres), its attitude (degrees: the angle between orientations, or between headings) and
+ * the joints (radians: mean absolute difference of hinge angles and ball-joint rotations).
+ */
+export interface PhysicalErrors {
+  root_position_m?: PhysicalErrorAt[] | null;
+  attitude_deg?: PhysicalErrorAt[] | null;
+  joint_angle_rad?: PhysicalErrorAt[] | null;
+}
+/**
+ * An error in physical units at ``t_s`` seconds into the rollouts: mean and 90th percentile over
+ * the trials; infinite where an emulated rollout diverged.
+ *
+ * This interface was referenced by `ResultsWire`'s JSON-Schema
+ * via the `definition` "PhysicalErrorAt".
+ */
+export interface PhysicalErrorAt {
+  t_s: number;
+  mean: number;
+  p90: number;
 }
 /**
  * The thesis' network for this model (Table 6.1), for comparison.
@@ -129,6 +154,30 @@ export interface VersionEval {
   rollout_error_final: number;
   architecture: NetworkSize;
   train_seconds?: number | null;
+  physical_errors?: PhysicalErrors1;
+}
+/**
+ * Rollout errors against MuJoCo in physical units, for the quantities the model has: the root's
+ * position (metres), its attitude (degrees: the angle between orientations, or between headings) and
+ * the joints (radians: mean absolute difference of hinge angles and ball-joint rotations).
+ */
+export interface PhysicalErrors1 {
+  root_position_m?: PhysicalErrorAt[] | null;
+  attitude_deg?: PhysicalErrorAt[] | null;
+  joint_angle_rad?: PhysicalErrorAt[] | null;
+}
+/**
+ * Rollout errors against MuJoCo in physical units, for the quantities the model has: the root's
+ * position (metres), its attitude (degrees: the angle between orientations, or between headings) and
+ * the joints (radians: mean absolute difference of hinge angles and ball-joint rotations).
+ *
+ * This interface was referenced by `ResultsWire`'s JSON-Schema
+ * via the `definition` "PhysicalErrors".
+ */
+export interface PhysicalErrors2 {
+  root_position_m?: PhysicalErrorAt[] | null;
+  attitude_deg?: PhysicalErrorAt[] | null;
+  joint_angle_rad?: PhysicalErrorAt[] | null;
 }
 /**
  * One version's speed against MuJoCo (``<version>/bench.json``): a single client, and batched

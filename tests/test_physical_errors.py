@@ -1,0 +1,51 @@
+"""Rollout errors in physical units: metres, degrees and radians, from known differences."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from neuroanimator import physical_errors, physics, quaternion
+from neuroanimator.state import StateGroup, StateLayout
+
+
+def test_lander_position_and_attitude_errors_in_metres_and_degrees() -> None:
+    layout = physics.get("lander").layout
+    truth = np.tile(physics.get("lander").rest_state(), (2, 3, 1))  # (N=2, M=3, S)
+    pred = truth.copy()
+    pos, att = layout.slice_of("position"), layout.slice_of("orientation")
+    pred[0, :, pos] += [3.0, 4.0, 0.0]  # 5 m away
+    pred[1, :, att] = quaternion.from_axis_angle(np.array([0.0, 1.0, 0.0]), math.radians(10.0))
+    pred[1, 2, att] *= -1.0  # the same rotation written as −q
+    series = physical_errors.error_series(layout, pred, truth)
+    np.testing.assert_allclose(series["root_position_m"], [[5.0] * 3, [0.0] * 3], atol=1e-12)
+    np.testing.assert_allclose(series["attitude_deg"], [[0.0] * 3, [10.0] * 3], atol=1e-6)
+    assert "joint_angle_rad" not in series
+
+
+def test_headings_and_hinges_are_compared_on_the_circle() -> None:
+    layout = StateLayout.of(
+        [
+            StateGroup(name="heading", kind="heading", size=1, source="qpos", address=0),
+            StateGroup(name="knee", kind="angle", size=2, source="qpos", address=1),
+        ]
+    )
+    truth = np.array([[[math.pi - 0.01, 0.0, 2 * math.pi]]])
+    pred = np.array([[[-math.pi + 0.01, 0.3, 0.1]]])
+    series = physical_errors.error_series(layout, pred, truth)
+    np.testing.assert_allclose(series["attitude_deg"], [[math.degrees(0.02)]], atol=1e-9)
+    np.testing.assert_allclose(series["joint_angle_rad"], [[(0.3 + 0.1) / 2]], atol=1e-9)
+
+
+def test_summary_reports_mean_and_p90_at_the_times_reached_and_infinity_for_a_divergence() -> None:
+    err = np.tile(np.arange(1.0, 41.0), (10, 1))  # error k + 1 after k + 1 super-steps of 0.5 s
+    err[9, 39] = np.nan  # one trial diverged by 20 s
+    summary = physical_errors.summarize({"root_position_m": err}, 0.5, (1.0, 5.0, 20.0, 30.0))
+    rows = summary.root_position_m
+    assert rows is not None
+    assert [r.t_s for r in rows] == [1.0, 5.0, 20.0]  # 30 s is beyond the rollouts
+    assert rows[0].mean == 2.0 and rows[1].p90 == 10.0
+    assert math.isinf(rows[2].mean)
+    assert summary.at("root_position_m", 5.0) == rows[1] and summary.attitude_deg is None
+    assert any("root_position_m" in line for line in physical_errors.format_table(summary))
