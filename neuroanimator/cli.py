@@ -79,7 +79,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     path = artifacts.save(Path(args.out), model, result)
     m = result.metrics
     _out(
-        f"{model.name} n={cfg.substeps}: one-step relative error {m['one_step_rel_error']:.5f} "
+        f"{model.name} n={cfg.substeps}: one-step relative error {m['one_step_rel_error']:.3g} "
         f"(linear baseline {m['linear_baseline_rel_error']:.4f}), {m['weights']} weights, "
         f"{m['examples']} examples, {m['total_seconds']:.0f} s\nwrote {path}"
     )
