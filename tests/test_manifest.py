@@ -100,7 +100,7 @@ def _hierarchy(stages: list[list[str]] | None = None, **changes: Any) -> dict[st
 @pytest.mark.parametrize("path", COMMITTED, ids=lambda p: f"{p.parent.name}/{p.name}")
 def test_every_committed_manifest_reads_as_one_network(path: Path) -> None:
     raw = _committed(path)
-    assert raw["format"] == 1  # the committed artifacts are read as written: upgraded in memory
+    assert raw["format"] in (1, FORMAT)  # the committed artifacts are read as written (format 1 upgraded)
     m = registry.read_manifest(path)
     assert (m.format, m.model, m.version) == (FORMAT, path.parent.name, path.name)
     net = m.emulator.only()
@@ -108,11 +108,17 @@ def test_every_committed_manifest_reads_as_one_network(path: Path) -> None:
     assert net.writes == [g.name for g in m.layout]
     assert set(net.reads.state) <= {g.name for g in m.layout}
     assert net.reads.controls == [c.name for c in m.controls]
+    assert m.state_layout().size == m.state_size == len(m.state_labels)
+    if raw["format"] == FORMAT:
+        assert net.model_dump(mode="json") == raw["emulator"]["networks"][0]
+        return
     assert net.hidden == raw["architecture"]["hidden"] and net.weights == raw["architecture"]["weights"]
     assert net.normalization.x_mean == raw["normalization"]["x_mean"]
     assert net.input_size == len(net.normalization.x_mean) == raw["architecture"]["input_size"]
     assert net.frame.translate == raw["architecture"]["frame"]["translate"]
-    assert m.state_layout().size == m.state_size == len(m.state_labels)
+    # format 1 was trained in the heading frame, without the linear path or the rollout phase
+    assert not net.frame.body and not net.skip
+    assert (m.train_config.frame, m.train_config.skip, m.train_config.rollout_steps) == ("heading", False, 0)
 
 
 @pytest.mark.parametrize("path", COMMITTED[:3], ids=lambda p: p.name)
