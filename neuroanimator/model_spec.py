@@ -71,3 +71,8 @@ class ModelSpec(BaseModel):
     rotation_invariant: bool = Field(True, description="use the rotation about gravity as a symmetry")
     translation_invariant: bool = Field(True, description="use translations of the root as a symmetry")
     thesis_hidden: int | None = Field(None, description="hidden units of the thesis' network (Table 6.1)")
+    train_at_start: bool = Field(
+        True,
+        description="the stack trains this model's emulator at start when none is stored; off for a model "
+        "whose training takes long (it is then served once trained)",
+    )

@@ -171,13 +171,16 @@ class Stack:
             log.info("using the Redis at %s", self.redis_url)
 
     def _train_missing(self) -> None:
-        from neuroanimator.physics import CATALOG  # the default emulators: one per catalog model
+        from neuroanimator import physics  # the default emulators: one per catalog model
 
         root = self.config.artifacts_dir
-        missing = [m for m in CATALOG if m not in registry.list_models(root)]
+        missing = [m for m in physics.CATALOG if m not in registry.list_models(root)]
         for model in missing:
+            if not physics.get(model).spec.train_at_start:
+                log.info("no emulator for %s in %s: served once trained (neuro train %s)", model, root, model)
+                continue
             log.info("no emulator for %s in %s: training one (a few minutes)", model, root)
-            neuro = [self.config.python, "-m", "neuroanimator.cli", "train", model, "--substeps", "50"]
+            neuro = [self.config.python, "-m", "neuroanimator.cli", "train", model]
             r = subprocess.run([*neuro, "--out", str(root), "--quiet"], cwd=ROOT, check=False)
             if r.returncode != 0:
                 raise StackError(f"training the default emulator {model} failed (exit {r.returncode})")

@@ -456,6 +456,7 @@ def dolphin() -> PhysicalModel:
     low[NODE_VEL], high[NODE_VEL] = -0.1, 0.1
     spec = ModelSpec(
         name="dolphin",
+        train_at_start=False,  # 278 state variables: minutes of training, not for a start-up
         description="dolphin: 23-node mass-spring body, 6 muscle pairs, swims by water drag (thesis E.4)",
         layout=LAYOUT,
         # every activation over its whole range, a control point per second: strokes of 2 s period
