@@ -100,12 +100,15 @@ def test_committed_results_are_stored_per_version_and_typed() -> None:
             ev, bench = registry.read_eval(path), registry.read_bench(path)
             assert ev is not None and (ev.model, ev.version, ev.substeps) == (model, path.name, n)
             assert bench is not None and bench.single is not None and bench.single.version == path.name
+        ns = registry.available_substeps(ARTIFACTS, model)  # the thesis models: 25, 50 and 100
         summary = registry.model_eval(ARTIFACTS, model)
-        assert summary is not None and [r.substeps for r in summary.by_substeps] == [25, 50, 100]
-        assert summary.substeps == 50 and summary.n100_vs_n25_at_20s is not None
+        assert summary is not None and [r.substeps for r in summary.by_substeps] == ns
         speed = registry.model_bench(ARTIFACTS, model)
-        assert speed is not None and [r.substeps for r in speed.single] == [25, 50, 100]
-        assert speed.batched_substeps == 50 and [r.batch for r in speed.batched] == [1, 64, 1024, 4096]
+        assert speed is not None and [r.substeps for r in speed.single] == ns
+        assert [r.batch for r in speed.batched] == [1, 64, 1024, 4096]
+        if ns == [25, 50, 100]:
+            assert summary.substeps == 50 and summary.n100_vs_n25_at_20s is not None
+            assert speed.batched_substeps == 50
 
 
 def test_results_written_per_version_are_summarised_per_model(lander: Path) -> None:
