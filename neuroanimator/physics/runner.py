@@ -71,6 +71,7 @@ def runner() -> PhysicalModel:
     jitter_low[vel], jitter_high[vel] = -0.2, 0.2
     spec = ModelSpec(
         name="runner",
+        train_at_start=False,  # 71 state variables and 29 controls: its emulator is trained on purpose
         description=(
             "running human figure: 70 kg, 35 degrees of freedom (free root, 29 servoed hinges), "
             "ground contact with friction; controls are joint targets (thesis 4.4, Hodgins' runner)"
