@@ -67,6 +67,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.max_seconds = args.max_seconds
     if args.epochs is not None:
         cfg.max_epochs = args.epochs
+    cfg.frame, cfg.skip = args.frame, not args.no_skip
+    if args.rollout_steps is not None:
+        if args.rollout_steps < 0:
+            raise ModelError(f"--rollout-steps must be 0 or more, got {args.rollout_steps}")
+        cfg.rollout_steps = args.rollout_steps
     # torch loads only for the commands that need it
     from neuroanimator import artifacts
     from neuroanimator.training import TrainingDiverged, train
@@ -264,6 +269,16 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--epochs", type=_positive_int, help="maximum epochs")
     t.add_argument("--lr", type=_positive_float, help="learning rate")
     t.add_argument("--max-seconds", type=_positive_float, help="cap on optimisation time")
+    t.add_argument(
+        "--frame",
+        choices=["auto", "body", "heading"],
+        default="auto",
+        help="local frame of a free root: body (the default) or heading only",
+    )
+    t.add_argument("--no-skip", action="store_true", help="no linear path beside the MLP")
+    t.add_argument(
+        "--rollout-steps", type=int, help="super-steps of the rollout training phase (default 8; 0: off)"
+    )
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--quiet", action="store_true", help="no progress bars")
     t.add_argument("--json", action="store_true")

@@ -320,3 +320,18 @@ def test_train_zero_substeps_is_refused(tmp_path: Path, capsys: pytest.CaptureFi
     assert exc.value.code == 2
     assert "--substeps" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_train_frame_skip_and_rollout_options_reach_the_manifest(tmp_path: Path) -> None:
+    """--frame heading --no-skip --rollout-steps 0 trains the older form of the emulator (the default,
+    the body frame with the linear path, is checked in tests/test_body_frame.py)."""
+    small = ["--substeps", "10", "--examples", "300", "--epochs", "2", "--hidden", "8", "--quiet"]
+    options = ["--frame", "heading", "--no-skip", "--rollout-steps", "0"]
+    assert main(["train", "lander", *small, *options, "--out", str(tmp_path)]) == 0
+    older = registry.read_manifest(registry.resolve(tmp_path, "lander"))
+    assert (older.emulator.only().frame.body, older.emulator.only().skip) == (False, False)
+    assert (older.train_config.frame, older.train_config.skip, older.train_config.rollout_steps) == (
+        "heading",
+        False,
+        0,
+    )
