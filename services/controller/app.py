@@ -24,6 +24,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from neuroanimator import registry
 from neuroanimator.emulator_schemas import ErrorBody
 from services.common.auth import ApiKeyMiddleware, ApiKeys
+from services.common.docs import add_offline_docs
 from services.common.errors import add_error_handlers
 from services.controller.metrics import Metrics
 from services.controller.routes import events, jobs, tasks
@@ -93,7 +94,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await app.state.aredis.aclose()
             conn.close()
 
-    app = FastAPI(title="NeuroAnimator controller service", version="0.1.0", lifespan=lifespan)
+    app = FastAPI(
+        title="NeuroAnimator controller service",
+        version="0.1.0",
+        lifespan=lifespan,
+        docs_url=None,
+        redoc_url=None,
+    )
+    add_offline_docs(app)  # /docs and /redoc with packaged assets: they work offline
     app.state.settings = settings
     app.state.store = store
     app.state.metrics = metrics

@@ -14,6 +14,7 @@ from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
 
 from services.common.auth import ApiKeyMiddleware, ApiKeys
+from services.common.docs import add_offline_docs
 from services.common.errors import add_error_handlers
 from services.emulator.deps import EngineDep
 from services.emulator.engine import Engine
@@ -65,7 +66,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await persistence.close()
             await engine.close()
 
-    app = FastAPI(title="NeuroAnimator emulator service", version="0.1.0", lifespan=lifespan)
+    app = FastAPI(
+        title="NeuroAnimator emulator service",
+        version="0.1.0",
+        lifespan=lifespan,
+        docs_url=None,
+        redoc_url=None,
+    )
+    add_offline_docs(app)  # /docs and /redoc with packaged assets: they work offline
     app.state.engine = engine
     app.state.persistence = persistence
     # innermost first: the binary POST /step and websocket fast paths see the caller the key check set

@@ -15,6 +15,7 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel
 
 from neuroanimator import registry
+from services.common.docs import add_offline_docs
 from services.web.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -31,6 +32,7 @@ NOT_BUILT = """<!doctype html><html><head><meta charset="utf-8"><title>NeuroAnim
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
     app = FastAPI(title="NeuroAnimator dashboard", version="0.1.0", docs_url=None, redoc_url=None)
+    add_offline_docs(app)  # /docs and /redoc with packaged assets, before the dashboard's mount at /
     config = {"emulator_url": settings.emulator_url, "controller_url": settings.controller_url}
 
     @app.get("/config.json")
