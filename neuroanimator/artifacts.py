@@ -106,9 +106,20 @@ def build_manifest(
         layout=model.layout.placed(),
         state_labels=model.layout.labels(),
         controls=[
-            ControlInput(name=n, low=float(lo), high=float(hi), limit_low=float(a), limit_high=float(b))
-            for n, (lo, hi), (a, b) in zip(
-                model.control_names, model.control_range, model.control_limits, strict=True
+            ControlInput(
+                name=n,
+                low=float(lo),
+                high=float(hi),
+                limit_low=float(a),
+                limit_high=float(b),
+                **info.model_dump(),
+            )
+            for n, (lo, hi), (a, b), info in zip(
+                model.control_names,
+                model.control_range,
+                model.control_limits,
+                model.control_info,
+                strict=True,
             )
         ],
         forces=list(model.spec.forces),

@@ -36,13 +36,19 @@ class _Wire(BaseModel):
 
 # ---------------------------------------------------------------- catalog
 class ControlInfo(BaseModel):
-    """One control input: ``low``..``high`` is the trained range (inputs are clipped to it)."""
+    """One control input: ``low``..``high`` is the trained range (inputs are clipped to it). A value
+    ``u`` applies ``gain · u`` of ``unit`` (N, N·m; a servo's target in rad or m); ``sign`` says what a
+    positive value does. Emulators trained before these were recorded leave them null."""
 
     name: str
     low: float
     high: float
     limit_low: float | None = None
     limit_high: float | None = None
+    label: str | None = Field(None, description="a short name in words, e.g. 'main jet'")
+    unit: str | None = Field(None, description="unit of what the control applies: N, N·m, rad, m, rad/s, m/s")
+    gain: float | None = Field(None, description="what a control value of 1 applies, in unit")
+    sign: str | None = Field(None, description="what a positive value does (the sign convention)")
 
 
 class ForceInfo(BaseModel):

@@ -13,12 +13,15 @@ from __future__ import annotations
 import copy
 import io
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import onnxruntime as ort
 from numpy.typing import NDArray
+
+from neuroanimator.quaternion import wrap_angle
 
 if TYPE_CHECKING:
     from neuroanimator.structured import StructuredEmulator
@@ -148,8 +151,11 @@ def session_options(threads: int = 1) -> ort.SessionOptions:
 class OnnxEmulator:
     """An emulator served by ONNX Runtime: ``step(state (B,S), controls (B,U), forces (B,F)) -> (B,S)``."""
 
-    def __init__(self, model: bytes | str | Path, threads: int = 1) -> None:
+    def __init__(self, model: bytes | str | Path, threads: int = 1, wrap: Sequence[int] = ()) -> None:
+        """``wrap``: state columns (a ``heading``, ``state.heading_columns``) that each step reports
+        wrapped to [-π, π)."""
         src = str(model) if isinstance(model, Path) else model
+        self.wrap = list(wrap)
         self.session = ort.InferenceSession(src, session_options(threads), providers=["CPUExecutionProvider"])
         ins = {i.name: i for i in self.session.get_inputs()}
         self.input_names = list(ins)
@@ -181,6 +187,8 @@ class OnnxEmulator:
         if validate:
             self._validate(feed)
         out: NDArray[np.float32] = self.session.run(None, feed)[0]
+        if self.wrap:
+            out[:, self.wrap] = wrap_angle(out[:, self.wrap])
         return out
 
     def _validate(self, feed: dict[str, NDArray[np.float32]]) -> None:

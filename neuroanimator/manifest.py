@@ -51,13 +51,21 @@ class _Strict(BaseModel):
 
 class ControlInput(_Strict):
     """One control: ``low``..``high`` is the range the emulator was trained over (inputs are clipped
-    to it); ``limit_low``/``limit_high`` the actuator's hard limits (±inf where unlimited)."""
+    to it); ``limit_low``/``limit_high`` the actuator's hard limits (±inf where unlimited).
+
+    What it means (``ModelSpec.control_info``, else derived from the MJCF's actuator): a value ``u``
+    applies ``gain · u`` of ``unit``, and ``sign`` says what a positive value does. Versions written
+    before these were recorded have None there."""
 
     name: str
     low: float
     high: float
     limit_low: float
     limit_high: float
+    label: str | None = None
+    unit: str | None = None
+    gain: float | None = None
+    sign: str | None = None
 
 
 class Symmetries(_Strict):

@@ -27,6 +27,23 @@ class ForceInput(BaseModel):
     high: float
 
 
+class ControlInfo(BaseModel):
+    """What one control means, for people and game clients: the MJCF says it only in numbers.
+
+    A control value ``u`` applies ``gain · u`` of ``unit`` (a force in N, a torque in N·m; for a servo,
+    the target angle in rad or position in m); ``sign`` says in words what a positive value does. Every
+    field is optional: ``PhysicalModel.control_info`` derives what the spec leaves out from the MJCF's
+    actuator (its transmission, gear and gain).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    label: str | None = Field(None, description="a short name in words, e.g. 'main jet'")
+    unit: str | None = Field(None, description="unit of what the control applies: N, N·m, rad, m, rad/s, m/s")
+    gain: float | None = Field(None, description="what a control value of 1 applies, in unit")
+    sign: str | None = Field(None, description="what a positive value does (the sign convention), in words")
+
+
 class InitialStates(BaseModel):
     """Typical initial states: uniform perturbations of the model's rest state.
 
@@ -58,6 +75,10 @@ class ModelSpec(BaseModel):
         None, description="useful control range; None: actuator ctrlrange"
     )
     control_high: list[float] | None = None
+    control_info: dict[str, ControlInfo] = Field(
+        default_factory=dict,
+        description="per control (actuator name): what it means, where the MJCF's numbers do not say it",
+    )
     control_spacing_s: float = Field(
         1.0, gt=0, description="seconds between control points of typical controls"
     )

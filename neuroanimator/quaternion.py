@@ -106,3 +106,8 @@ def angle_between(q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
     """Rotation angle (radians) taking q0 to q1 (thesis D.6 error metric), shape (...)."""
     dot = np.abs(np.sum(np.asarray(q0) * np.asarray(q1), axis=-1))
     return 2.0 * np.arccos(np.clip(dot, -1.0, 1.0))
+
+
+def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
+    """Angles (radians) wrapped to [-π, π): how a ``heading`` is reported (``state.heading_columns``)."""
+    return np.remainder(np.asarray(angle, dtype=np.float64) + np.pi, 2 * np.pi) - np.pi

@@ -109,6 +109,14 @@ def labels_of(groups: Iterable[StateGroup]) -> list[str]:
     return out
 
 
+def heading_columns(groups: Iterable[LayoutGroup]) -> list[int]:
+    """The state columns of ``heading`` groups (at most one): reported wrapped to [-π, π)
+    (``quaternion.wrap_angle``). Only the
+    heading is: it defines the emulator's frame, so its turns are invisible to the emulator, while a
+    hinge's angle may be limited or sprung, where a turn of 2π is a different state."""
+    return [g.offset for g in groups if g.kind == "heading"]
+
+
 @dataclass(frozen=True)
 class StateLayout:
     """An ordered list of groups; the state vector is their concatenation."""

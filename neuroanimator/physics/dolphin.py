@@ -61,7 +61,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.model_spec import InitialStates, ModelSpec
+from neuroanimator.model_spec import ControlInfo, InitialStates, ModelSpec
 from neuroanimator.state import StateGroup
 
 if TYPE_CHECKING:
@@ -159,6 +159,17 @@ def muscle_pairs() -> list[tuple[tuple[int, int], tuple[int, int]]]:
 
 MUSCLES = muscle_pairs()
 CONTROL_NAMES = [f"{side}_{n}" for n in range(1, len(MUSCLE_INTERVALS) + 1) for side in ("dorsal", "ventral")]
+# A muscle's activation a in [0, 1] (the MJCF's unit and gain: the pulling force, in N per unit).
+CONTROL_INFO = {
+    f"{side}_{n}": ControlInfo(
+        label=f"{side} muscle {n}",
+        sign=f"activation from 0 (relaxed) to 1 (fully contracted) of the {side} muscle pair on body interval "
+        f"{interval} (cross-section {interval} to {interval + 1}): contracting it bends the body "
+        f"{'up' if side == 'dorsal' else 'down'} there",
+    )
+    for n, interval in enumerate(MUSCLE_INTERVALS, start=1)
+    for side in ("dorsal", "ventral")
+}
 
 
 def rest_lengths() -> FloatArray:
@@ -459,6 +470,7 @@ def dolphin() -> PhysicalModel:
         train_at_start=False,  # 278 state variables: minutes of training, not for a start-up
         description="dolphin: 23-node mass-spring body, 6 muscle pairs, swims by water drag (thesis E.4)",
         layout=LAYOUT,
+        control_info=CONTROL_INFO,
         # every activation over its whole range, a control point per second: strokes of 2 s period
         # and slower, around the 4 s of the best one and the swim controller's 2 s control points
         control_low=[0.0] * 6,

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 from neuroanimator.control.criteria import SuccessCheck
 from neuroanimator.control.spec import Task
-from neuroanimator.model_spec import InitialStates, ModelSpec
+from neuroanimator.model_spec import ControlInfo, InitialStates, ModelSpec
 from neuroanimator.state import StateGroup, StateLayout
 
 if TYPE_CHECKING:
@@ -33,6 +33,20 @@ LAYOUT = [
 
 
 LABELS = tuple(StateLayout(tuple(LAYOUT)).labels())
+# What the jets do (their units and gains come from the MJCF: 10 N and 0.25 N·m per unit of control).
+CONTROL_INFO = {
+    "main_jet": ControlInfo(
+        label="main jet",
+        sign="thrust along the lander's own +z axis (up when it is upright); 0 is off, it never pulls",
+    ),
+    **{
+        axis: ControlInfo(
+            label=f"{axis} jet",
+            sign=f"positive turns the lander about its own +{letter} axis (right-hand rule)",
+        )
+        for axis, letter in (("roll", "x"), ("pitch", "y"), ("yaw", "z"))
+    },
+}
 
 
 def lander() -> PhysicalModel:
@@ -42,6 +56,7 @@ def lander() -> PhysicalModel:
         name="lander",
         description="lunar lander: free rigid body, main jet and attitude jets, lunar gravity (thesis E.2)",
         layout=LAYOUT,
+        control_info=CONTROL_INFO,
         # the useful range brackets hover thrust; attitude jets use their full range
         control_low=[0.0, -1.0, -1.0, -1.0],
         control_high=[2.0 * HOVER_THRUST, 1.0, 1.0, 1.0],

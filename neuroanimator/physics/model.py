@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from neuroanimator import catmull_rom
 from neuroanimator import quaternion as quat
-from neuroanimator.model_spec import ModelSpec
+from neuroanimator.model_spec import ControlInfo, ModelSpec
 from neuroanimator.state import GroupKind, StateGroup, StateLayout
 
 log = logging.getLogger(__name__)
@@ -143,6 +143,11 @@ class PhysicalModel:
             mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, int(i)) or f"actuator{i}"
             for i in self._control_ids
         ]
+        unknown = sorted(set(spec.control_info) - set(self.control_names))
+        if unknown:
+            raise ModelError(
+                f"model {spec.name}: control_info names {unknown}, which are not controls ({self.control_names})"
+            )
         self.force_names = [f.name for f in spec.forces]
         self._force_index = self._resolve_forces()
         self._threads = max(1, min(2, os.cpu_count() or 1))
@@ -161,6 +166,18 @@ class PhysicalModel:
     @property
     def num_forces(self) -> int:
         return len(self.spec.forces)
+
+    @property
+    def control_ids(self) -> NDArray[np.intp]:
+        """(U,) the MuJoCo actuator index of each control."""
+        return self._control_ids
+
+    @cached_property
+    def control_info(self) -> list[ControlInfo]:
+        """(U,) what each control means: unit, gain, sign convention (``physics.controls``)."""
+        from neuroanimator.physics.controls import control_info
+
+        return control_info(self)
 
     @cached_property
     def control_limits(self) -> FloatArray:

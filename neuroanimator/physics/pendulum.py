@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 from neuroanimator.control.criteria import SuccessCheck
 from neuroanimator.control.spec import Task
-from neuroanimator.model_spec import ForceInput, InitialStates, ModelSpec
+from neuroanimator.model_spec import ControlInfo, ForceInput, InitialStates, ModelSpec
 from neuroanimator.state import StateGroup, StateLayout
 
 if TYPE_CHECKING:
@@ -54,10 +54,22 @@ def passive() -> PhysicalModel:
     return _model(_xml(False, spec.name), spec)
 
 
+# The motors' meaning (their unit and gain come from the MJCF: 1 N·m per unit of control).
+CONTROL_INFO = {
+    f"torque{i}": ControlInfo(
+        label=f"motor at joint {i}" + (" (the pivot)" if i == 0 else f" (between links {i - 1} and {i})"),
+        sign=f"positive turns link {i} (relative to what it hangs from) about the world's +y axis, "
+        "right-hand rule: a hanging link swings towards −x",
+    )
+    for i in range(3)
+}
+
+
 def active() -> PhysicalModel:
     spec = ModelSpec(
         name="pendulum-active",
         description="three-link pendulum with a motor torque at each joint (thesis E.1)",
+        control_info=CONTROL_INFO,
         layout=LAYOUT,
         initial=INITIAL,
         episode_s=30.0,
@@ -71,6 +83,7 @@ def force() -> PhysicalModel:
     spec = ModelSpec(
         name="pendulum-force",
         description="active three-link pendulum plus horizontal forces applied to each link (thesis 4.2)",
+        control_info=CONTROL_INFO,
         layout=LAYOUT,
         initial=INITIAL,
         episode_s=30.0,

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from neuroanimator.control.spec import Task
-from neuroanimator.model_spec import InitialStates, ModelSpec
+from neuroanimator.model_spec import ControlInfo, InitialStates, ModelSpec
 
 if TYPE_CHECKING:
     from neuroanimator.physics.model import PhysicalModel
@@ -23,12 +23,29 @@ HOVER_THRUST = 1.0 * 9.81 / 4.0  # per rotor, newtons
 TASKS: tuple[Task, ...] = ()  # no control task is set on it yet
 
 
+# The rotors (units and gains from the MJCF: 1 N of thrust per unit, 0.016 N·m of reaction torque per N).
+CONTROL_INFO = {
+    f"rotor_{corner}": ControlInfo(
+        label=f"{where} rotor",
+        sign=f"thrust along the body's own +z axis (0 is off, it never pulls); the blades' reaction "
+        f"torque turns the body about its {turn} axis (right-hand rule)",
+    )
+    for corner, where, turn in (
+        ("fl", "front-left", "+z"),
+        ("fr", "front-right", "−z"),
+        ("bl", "back-left", "−z"),
+        ("br", "back-right", "+z"),
+    )
+}
+
+
 def quadrotor() -> PhysicalModel:
     from neuroanimator.physics.model import PhysicalModel  # MuJoCo loads when a model is built
 
     spec = ModelSpec(
         name="quadrotor",
         description="quadrotor: free rigid body, four rotors with reaction torques, air drag; flips over",
+        control_info=CONTROL_INFO,
         # rotor commands within ±50% of hover, changing every 0.5 s: a differential of a newton or two
         # spins it at several turns per second, so it flips within a few seconds
         control_low=[0.5 * HOVER_THRUST] * 4,

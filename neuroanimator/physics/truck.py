@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 from neuroanimator.control.criteria import SuccessCheck
 from neuroanimator.control.spec import Task
-from neuroanimator.model_spec import InitialStates, ModelSpec
+from neuroanimator.model_spec import ControlInfo, InitialStates, ModelSpec
 from neuroanimator.state import StateGroup, StateLayout
 
 if TYPE_CHECKING:
@@ -26,6 +26,19 @@ LAYOUT = [
 
 
 LABELS = tuple(StateLayout(tuple(LAYOUT)).labels())
+# Controls in MJCF order, [steer, gas] (units and gains from the MJCF: 2 N and 10 N per unit).
+CONTROL_INFO = {
+    "steer": ControlInfo(
+        label="steering",
+        sign="a sideways force 2 m ahead of the centre: positive pushes the front to the truck's left "
+        "(its +y), so it turns left, counter-clockwise seen from above (heading increases)",
+    ),
+    "gas": ControlInfo(
+        label="gas",
+        sign="a force along the truck's own +x axis at its centre: positive drives forward, negative brakes "
+        "and then reverses",
+    ),
+}
 
 
 def truck() -> PhysicalModel:
@@ -35,6 +48,7 @@ def truck() -> PhysicalModel:
         name="truck",
         description="truck: planar block with gas and steering, strong sideways friction (thesis E.3)",
         layout=LAYOUT,
+        control_info=CONTROL_INFO,
         control_spacing_s=1.0,
         initial=InitialStates(
             low=[-30, -30, -3.1416, -3, -3, -0.1],

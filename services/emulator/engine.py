@@ -257,7 +257,12 @@ class Engine:
         states = np.stack(out)
         fr = None
         if frames_per_step is not None:
-            fr = frames(np.concatenate([start[None], states]), frames_per_step, sess.emu.quaternion_slices)
+            fr = frames(
+                np.concatenate([start[None], states]),
+                frames_per_step,
+                sess.emu.quaternion_slices,
+                sess.emu.emulator.wrap,  # a heading: the shorter arc
+            )
         return StepResponse(
             id=sess.id,
             state=states[-1].tolist(),

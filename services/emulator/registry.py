@@ -22,7 +22,7 @@ from neuroanimator import registry
 from neuroanimator.export import OnnxEmulator
 from neuroanimator.manifest import Manifest
 from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.state import QUATERNION_KINDS
+from neuroanimator.state import QUATERNION_KINDS, heading_columns
 from services.common.errors import ApiError
 from services.emulator.scene import Kinematics
 
@@ -114,7 +114,8 @@ class Registry:
         if key not in self.loaded:
             path = self.root / model / version
             manifest = registry.read_manifest(path)
-            emu = OnnxEmulator(path / registry.ONNX_FILE, threads=self.threads)
+            # a heading is reported wrapped to [-π, π) (frames interpolate it along the shorter arc)
+            emu = OnnxEmulator(path / registry.ONNX_FILE, self.threads, wrap=heading_columns(manifest.layout))
             self.loaded[key] = Loaded(model, version, path, manifest, emu)
             log.info("loaded emulator", extra={"model": model, "version": version})
         return self.loaded[key]

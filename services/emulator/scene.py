@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from neuroanimator.emulator_schemas import BodyInfo, GeomInfo, ModelGeometry
 from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.quaternion import wrap_angle
 from services.common.errors import ApiError
 
 _PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -162,6 +163,8 @@ class Twin:
         self.substeps = substeps
         self.state = np.asarray(state, dtype=np.float64).copy()
         self.diverged = False
+        # a heading is reported wrapped to [-π, π), as the emulator's (state.heading_columns)
+        self.wrap = [sl.start for g, sl in physical.layout.group_slices() if g.kind == "heading"]
 
     def step(self, controls: NDArray[np.float32], forces: NDArray[np.float32]) -> NDArray[np.float64]:
         if self.diverged:
@@ -171,6 +174,7 @@ class Twin:
         f = forces[None].astype(np.float64) if p.num_forces else None
         new = p.step_held(self.state[None], u, f, self.substeps)[0]
         if np.all(np.isfinite(new)):
+            new[self.wrap] = wrap_angle(new[self.wrap])
             self.state = new
         else:
             self.diverged = True

@@ -31,3 +31,14 @@ def test_quaternions_are_slerped_and_unit() -> None:
 def test_one_frame_per_step_is_the_states() -> None:
     s = np.random.default_rng(0).normal(size=(4, 3))
     np.testing.assert_array_equal(frames(s, 1, []), s.astype(np.float32))
+
+
+def test_a_wrapped_heading_turns_the_shorter_way() -> None:
+    """3.0 rad to -3.0 rad is a turn of 0.28 rad through ±π, not one of -6 rad through 0."""
+    s = np.array([[0.0, 3.0], [1.0, -3.0]])
+    fr = frames(s, 4, [], angle_columns=[1])
+    heading = fr[:, 1].astype(np.float64)
+    assert np.all(np.abs(heading) <= np.pi + 1e-6)  # float32 frames: -π rounds to just below it
+    turned = np.diff(np.unwrap(heading))
+    np.testing.assert_allclose(turned, (2 * np.pi - 6.0) / 4, atol=1e-6)
+    np.testing.assert_allclose(fr[:, 0], np.linspace(0, 1, 5), atol=1e-7)  # other columns: linear

@@ -194,7 +194,9 @@ export interface WsControls {
   seq?: number | null;
 }
 /**
- * One control input: ``low``..``high`` is the trained range (inputs are clipped to it).
+ * One control input: ``low``..``high`` is the trained range (inputs are clipped to it). A value
+ * ``u`` applies ``gain · u`` of ``unit`` (N, N·m; a servo's target in rad or m); ``sign`` says what a
+ * positive value does. Emulators trained before these were recorded leave them null.
  *
  * This interface was referenced by `EmulatorWire`'s JSON-Schema
  * via the `definition` "ControlInfo".
@@ -205,6 +207,22 @@ export interface ControlInfo {
   high: number;
   limit_low?: number | null;
   limit_high?: number | null;
+  /**
+   * a short name in words, e.g. 'main jet'
+   */
+  label?: string | null;
+  /**
+   * unit of what the control applies: N, N·m, rad, m, rad/s, m/s
+   */
+  unit?: string | null;
+  /**
+   * what a control value of 1 applies, in unit
+   */
+  gain?: number | null;
+  /**
+   * what a positive value does (the sign convention)
+   */
+  sign?: string | null;
 }
 /**
  * One external-force input (a body's force or torque component) and its trained range.
