@@ -13,12 +13,35 @@ Numbers that are not finite (an objective that diverged to NaN) travel as ``null
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from neuroanimator.control.spec import JobSpec
-from neuroanimator.emulator_schemas import Flag, Integer, Number, Vector
+from neuroanimator.control.criteria import CheckKind
+from neuroanimator.control.spec import (
+    MAX_GLOBAL_GENERATIONS,
+    MAX_HORIZON,
+    MAX_ITERATIONS,
+    MAX_LEARNING_RATE,
+    MAX_MU,
+    MAX_PHYSICS_ROUNDS,
+    MAX_STARTS,
+    MAX_SUBSTEPS,
+    JobSpec,
+)
+from neuroanimator.control.terms import MAX_VALUE
+from neuroanimator.emulator_schemas import Flag, Integer, Number
+
+MAX_VECTOR = 1024
+"""The longest state, weight or control vector a request may carry (the service then checks it
+against the model's own size)."""
+MAX_LABEL = 128
+"""The longest state label, term name or model name."""
+Vector = Annotated[list[Number], Field(max_length=MAX_VECTOR)]
+"""A list of finite JSON numbers, at most ``MAX_VECTOR`` of them."""
+Bounded = Annotated[Number, Field(ge=-MAX_VALUE, le=MAX_VALUE)]
+"""A finite number of magnitude at most ``terms.MAX_VALUE`` (a state value, target or bound)."""
+Label = Annotated[str, Field(min_length=1, max_length=MAX_LABEL)]
 
 JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 """queued (waiting for a worker, also after a re-queue) → running → succeeded | failed | cancelled."""
@@ -40,39 +63,55 @@ class OptimizerSpec(_Wire):
     """Gradient descent with momentum (thesis eq. 5.4): ``u ← u − η∇J + α·δu_prev``; it stops after
     ``max_iterations`` or when the objective improves by less than ``tolerance``."""
 
-    learning_rate: Number | None = Field(None, gt=0, description="η")
+    learning_rate: Number | None = Field(None, gt=0, le=MAX_LEARNING_RATE, description="η")
     momentum: Number | None = Field(None, ge=0, lt=1, description="α")
-    max_iterations: Integer | None = Field(None, ge=1, description="iteration cap")
-    tolerance: Number | None = Field(None, ge=0, description="stop when the objective changes less")
+    max_iterations: Integer | None = Field(None, ge=1, le=MAX_ITERATIONS, description="iteration cap")
+    tolerance: Number | None = Field(None, ge=0, le=1, description="stop when the objective changes less")
     stop_on_success: Flag | None = Field(None, description="stop once the success criterion holds")
     line_search: Flag | None = Field(
         None, description="pick η and α afresh each iteration from a batch of candidates (off: fixed η, α)"
     )
     polish_iterations: Integer | None = Field(
-        None, ge=0, le=10_000, description="updates after the success criterion first holds"
+        None, ge=0, le=MAX_ITERATIONS, description="updates after the success criterion first holds"
     )
     physics_rounds: Integer | None = Field(
-        None, ge=0, le=20, description="rounds of re-optimising on an emulator corrected by the MuJoCo replay"
+        None,
+        ge=0,
+        le=MAX_PHYSICS_ROUNDS,
+        description="rounds of re-optimising on an emulator corrected by the MuJoCo replay",
     )
     starts: Integer | None = Field(
         None,
         ge=1,
-        le=16,
+        le=MAX_STARTS,
         description="controllers descended at once, from a global search's best and fixed starts",
     )
     global_generations: Integer | None = Field(
         None,
         ge=0,
-        le=50,
+        le=MAX_GLOBAL_GENERATIONS,
         description="generations of the cross-entropy search before gradient descent (0: none)",
     )
 
 
 class ObjectiveTerm(BaseModel):
-    """One term of a custom objective: ``term`` names it, its other keys are the term's parameters."""
+    """One term of a custom objective: ``term`` names it, its other keys are the term's parameters
+    (``GET /tasks`` and the README list them; the service checks each against the model, 422 naming it)."""
 
     model_config = ConfigDict(extra="allow")
     term: str = Field(min_length=1, max_length=64)
+
+
+class SuccessCheckSpec(_Wire):
+    """One check on the final state (``neuroanimator.control.criteria``): ``variables`` are state labels
+    of the model; ``target`` (one value per variable) overrides the job's target state; ``max`` bounds
+    the measured value (``range``: ``min`` and/or ``max``)."""
+
+    check: CheckKind
+    variables: list[Label] = Field(min_length=1, max_length=MAX_VECTOR)
+    max: Bounded | None = None
+    min: Bounded | None = None
+    target: Annotated[list[Bounded], Field(max_length=MAX_VECTOR)] | None = None
 
 
 class JobCreate(_Wire):
@@ -82,17 +121,21 @@ class JobCreate(_Wire):
     task: str | None = Field(None, max_length=64, description="a built-in task of GET /tasks")
     model: str | None = Field(None, max_length=128, description="an emulator in the artifact registry")
     version: str | None = Field(None, max_length=128, description="an artifact version (default: latest)")
-    substeps: Integer | None = Field(None, ge=1, description="the emulator's super timestep n")
+    substeps: Integer | None = Field(
+        None, ge=1, le=MAX_SUBSTEPS, description="the emulator's super timestep n"
+    )
     initial_state: Vector | None = None
     target_state: Vector | None = Field(None, description="s_d of the final-state term")
     state_weights: Vector | None = Field(None, description="weight of each state variable in that term")
-    horizon: Integer | None = Field(None, ge=1, description="length of the controller, in super-steps")
-    points_per_step: Number | None = Field(None, gt=0, description="control points per super-step")
+    horizon: Integer | None = Field(
+        None, ge=1, le=MAX_HORIZON, description="length of the controller, in super-steps"
+    )
+    points_per_step: Number | None = Field(None, gt=0, le=1, description="control points per super-step")
     initial_controls: Vector | None = Field(None, description="the controls the optimisation starts from")
-    mu_u: Number | None = Field(None, ge=0, description="μ_u, weight of the control effort")
-    mu_s: Number | None = Field(None, ge=0, description="μ_s, weight of the final-state error")
+    mu_u: Number | None = Field(None, ge=0, le=MAX_MU, description="μ_u, weight of the control effort")
+    mu_s: Number | None = Field(None, ge=0, le=MAX_MU, description="μ_s, weight of the final-state error")
     terms: list[ObjectiveTerm] | None = Field(None, max_length=32, description="a custom objective")
-    success: list[dict[str, Any]] | None = Field(
+    success: list[SuccessCheckSpec] | None = Field(
         None, max_length=32, description="checks on the final state that define success"
     )
     optimizer: OptimizerSpec | None = None

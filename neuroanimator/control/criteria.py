@@ -26,6 +26,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from neuroanimator.control.terms import MAX_VALUE, finite_number, shown
+
 CheckKind = Literal["angle", "abs", "distance", "norm", "orientation", "range"]
 KINDS: tuple[str, ...] = get_args(CheckKind)
 
@@ -175,50 +177,82 @@ def describe(
     return "at the end: " + "; ".join(describe_check(c, target, labels) for c in checks)
 
 
-def validate_checks(checks: Any, labels: Sequence[str]) -> list[str]:
-    """Problems with a list of checks (empty when it is valid); each names the check and the field."""
-    problems: list[str] = []
+def validate_checks(checks: Any, labels: Sequence[str]) -> list[tuple[str, str]]:
+    """Problems with a list of checks (empty when it is valid): (where, what) pairs, ``where`` the
+    path of the offending field below the list (``[0].target[1]``), ``what`` the expected and the got."""
+    problems: list[tuple[str, str]] = []
     if not isinstance(checks, list):
-        return [f"must be a list of checks, got {type(checks).__name__}"]
+        return [("", f"must be a list of checks, got {type(checks).__name__}")]
     for i, c in enumerate(checks):
         where = f"[{i}]"
         if not isinstance(c, dict):
-            problems.append(f"{where} must be an object, got {type(c).__name__}")
+            problems.append((where, f"must be an object, got {type(c).__name__}"))
             continue
         kind = c.get("check")
         if kind not in KINDS:
-            problems.append(f"{where}.check must be one of {list(KINDS)}, got {kind!r}")
+            problems.append((f"{where}.check", f"must be one of {list(KINDS)}, got {shown(kind)}"))
             continue
         unknown_keys = sorted(set(c) - set(SuccessCheck.model_fields))
         if unknown_keys:
             problems.append(
-                f"{where}: unknown keys {unknown_keys}; a check takes {sorted(SuccessCheck.model_fields)}"
+                (where, f"unknown keys {unknown_keys}; a check takes {sorted(SuccessCheck.model_fields)}")
             )
         names = c.get("variables")
         if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
-            problems.append(f"{where}.variables must be a non-empty list of state labels, got {names!r}")
+            problems.append(
+                (f"{where}.variables", f"must be a non-empty list of state labels, got {shown(names)}")
+            )
+            continue
+        if len(names) > len(labels):
+            problems.append(
+                (f"{where}.variables", f"must name at most {len(labels)} state labels, got {len(names)}")
+            )
             continue
         unknown = [n for n in names if n not in labels]
         if unknown:
-            problems.append(f"{where}.variables: unknown state labels {unknown}; labels are {list(labels)}")
+            problems.append(
+                (f"{where}.variables", f"unknown state labels {shown(unknown)}; labels are {list(labels)}")
+            )
         if kind == "orientation" and len(names) != 4:
-            problems.append(f"{where}.variables must name 4 quaternion components, got {len(names)}")
-        if "target" in c and (
-            not isinstance(c["target"], list)
-            or len(c["target"]) != len(names)
-            or not all(_finite(v) for v in c["target"])
-        ):
-            problems.append(f"{where}.target must be {len(names)} finite numbers, got {c['target']!r}")
+            problems.append((f"{where}.variables", f"must name 4 quaternion components, got {len(names)}"))
+        if "target" in c:
+            target = c["target"]
+            if not isinstance(target, list) or len(target) != len(names):
+                problems.append((f"{where}.target", f"must be {len(names)} numbers, got {shown(target)}"))
+            else:
+                for j, v in enumerate(target):
+                    if not _finite(v):
+                        problems.append(
+                            (
+                                f"{where}.target[{j}]",
+                                f"must be a number of magnitude <= {MAX_VALUE:g}, got {shown(v)}",
+                            )
+                        )
+                        break
         bounds = [b for b in ("min", "max") if b in c]
         if kind != "range" and "max" not in c:
-            problems.append(f"{where}.max is required for a {kind} check")
+            problems.append((f"{where}.max", f"is required for a {kind} check"))
         if kind == "range" and not bounds:
-            problems.append(f"{where} needs min or max")
+            problems.append((where, "needs min or max"))
         for b in bounds:
             if not _finite(c[b]):
-                problems.append(f"{where}.{b} must be a finite number, got {c[b]!r}")
+                problems.append(
+                    (f"{where}.{b}", f"must be a number of magnitude <= {MAX_VALUE:g}, got {shown(c[b])}")
+                )
+        if (
+            kind == "range"
+            and len(bounds) == 2
+            and _finite(c["min"])
+            and _finite(c["max"])
+            and finite_number(c["min"]) > finite_number(c["max"])  # type: ignore[operator]
+        ):
+            problems.append(
+                (f"{where}.min", f"must be <= max, got min={shown(c['min'])} > max={shown(c['max'])}")
+            )
     return problems
 
 
 def _finite(value: Any) -> bool:
-    return not isinstance(value, bool) and isinstance(value, int | float) and bool(np.isfinite(value))
+    """A finite JSON number of magnitude at most ``terms.MAX_VALUE`` (a huge integer is not)."""
+    v = finite_number(value)
+    return v is not None and abs(v) <= MAX_VALUE

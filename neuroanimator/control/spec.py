@@ -131,7 +131,8 @@ class Task:
                 )
         problems = criteria.validate_checks([c.model_dump() for c in self.success], self.labels)
         if problems:
-            raise ValueError(f"task {self.name}: success{problems[0]}")
+            where, what = problems[0]
+            raise ValueError(f"task {self.name}: success{where} {what}")
         unknown = sorted(set(self.optimizer) - set(OptimizerSettings.model_fields))
         if unknown:
             raise ValueError(f"task {self.name}: unknown optimizer settings {unknown}")

@@ -44,6 +44,12 @@ TERMS: dict[str, str] = {
     "weights (S; default the job's)",
 }
 UNIT_TOLERANCE = 1e-12  # a direction or quaternion this close to unit length is kept as it is
+MAX_VALUE = 1e4
+"""The largest magnitude of a state value, target, bound or direction component in a job (metres,
+radians and their rates): beyond it no model of the catalog has a physical state, and a simulation
+started there diverges at once."""
+MAX_WEIGHT = 1e6
+"""The largest weight of a term or of a state variable."""
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 
 
@@ -137,25 +143,53 @@ Term = Annotated[
 """A validated objective term; ``term`` names its kind (the keys of ``TERMS``)."""
 
 
-def _number(field: str, value: Any, *, low: float | None = None) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise JobSpecError(field, f"expected a finite number, got {value!r}")
-    if low is not None and value < low:
-        raise JobSpecError(field, f"expected a number >= {low}, got {value!r}")
-    return float(value)
+def finite_number(value: Any) -> float | None:
+    """``value`` as a float when it is a finite JSON number, else None: booleans, strings, NaN, ±inf
+    and integers too large for a float (JSON may carry 1 followed by 330 zeros) are not."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    try:
+        out = float(value)
+    except OverflowError:
+        return None
+    return out if math.isfinite(out) else None
 
 
-def vector(field: str, value: Any, size: int, what: str = "numbers") -> list[float]:
-    """A list of ``size`` finite numbers, or JobSpecError naming the field, the expected and the got."""
+def shown(value: Any) -> str:
+    """``repr`` of a value for a message, cut to 80 characters (a number may have hundreds of digits)."""
+    text = repr(value)
+    return text if len(text) <= 80 else f"{text[:60]}... ({len(text)} characters)"
+
+
+def _number(field: str, value: Any, *, low: float | None = None, high: float = MAX_VALUE) -> float:
+    v = finite_number(value)
+    if v is None:
+        raise JobSpecError(field, f"expected a finite number, got {shown(value)}")
+    if low is not None and v < low:
+        raise JobSpecError(field, f"expected a number >= {low}, got {shown(value)}")
+    if abs(v) > high:
+        raise JobSpecError(field, f"expected a number of magnitude <= {high:g}, got {shown(value)}")
+    return v
+
+
+def vector(field: str, value: Any, size: int, what: str = "numbers", bound: float = MAX_VALUE) -> list[float]:
+    """A list of ``size`` finite numbers of magnitude at most ``bound``, or JobSpecError naming the
+    field, the expected and the got."""
     if not isinstance(value, list | tuple):
         raise JobSpecError(field, f"expected a list of {size} {what}, got {type(value).__name__}")
     if len(value) != size:
         raise JobSpecError(field, f"expected {size} {what}, got {len(value)}")
     out = []
     for i, v in enumerate(value):
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-            raise JobSpecError(field, f"expected {size} finite {what}, got {v!r} at index {i}")
-        out.append(float(v))
+        f = finite_number(v)
+        if f is None:
+            raise JobSpecError(f"{field}[{i}]", f"expected {size} finite {what}, got {shown(v)} at index {i}")
+        if abs(f) > bound:
+            raise JobSpecError(
+                f"{field}[{i}]",
+                f"expected {size} {what} of magnitude <= {bound:g}, got {shown(v)} at index {i}",
+            )
+        out.append(f)
     return out
 
 
@@ -165,13 +199,16 @@ def variable_index(field: str, name: Any, labels: Sequence[str]) -> int:
         return name
     if isinstance(name, str) and name in labels:
         return list(labels).index(name)
-    raise JobSpecError(field, f"expected a state label (one of {list(labels)}) or an index, got {name!r}")
+    raise JobSpecError(
+        field, f"expected a state label (one of {list(labels)}) or an index, got {shown(name)}"
+    )
 
 
 def unit(values: list[float]) -> list[float]:
     """``values`` scaled to length 1, or as they are when already of unit length (so a validated
-    direction or quaternion validates to the same numbers, not to a last-bit rounding of them)."""
-    length = math.sqrt(sum(v * v for v in values))
+    direction or quaternion validates to the same numbers, not to a last-bit rounding of them).
+    ``math.hypot`` scales as it goes, so huge components do not overflow to a length of inf."""
+    length = math.hypot(*values)
     if abs(length - 1.0) <= UNIT_TOLERANCE:
         return values
     return [v / length for v in values]
@@ -179,8 +216,12 @@ def unit(values: list[float]) -> list[float]:
 
 def _indices(field: str, names: Any, labels: Sequence[str]) -> list[int]:
     if not isinstance(names, list) or not names:
-        raise JobSpecError(field, f"expected a non-empty list of state labels, got {names!r}")
-    return [variable_index(field, n, labels) for n in names]
+        raise JobSpecError(field, f"expected a non-empty list of state labels, got {shown(names)}")
+    if len(names) > len(labels):
+        raise JobSpecError(
+            field, f"expected at most {len(labels)} state variables (the model's), got {len(names)}"
+        )
+    return [variable_index(f"{field}[{i}]", n, labels) for i, n in enumerate(names)]
 
 
 def _bound(field: str, t: dict[str, Any], key: str) -> float | None:
@@ -215,7 +256,7 @@ def normalize_terms(
         name = t.get("term")
         if name not in TERMS:
             raise JobSpecError(f"{at}.term", f"unknown term {name!r}; known terms are {sorted(TERMS)}")
-        weight = _number(f"{at}.weight", t.get("weight", 1.0), low=0.0)
+        weight = _number(f"{at}.weight", t.get("weight", 1.0), low=0.0, high=MAX_WEIGHT)
         allowed = {"term", "weight"}
         term: Term
         if name == "final_state":
@@ -224,7 +265,7 @@ def normalize_terms(
                 term="final_state",
                 weight=weight,
                 target=vector(f"{at}.target", t.get("target", target), size),
-                weights=vector(f"{at}.weights", t.get("weights", weights), size),
+                weights=vector(f"{at}.weights", t.get("weights", weights), size, bound=MAX_WEIGHT),
             )
         elif name == "control_effort":
             term = ControlEffortTerm(term="control_effort", weight=weight)
@@ -279,7 +320,7 @@ def normalize_terms(
             term = PathTargetTerm(
                 term="path_target",
                 weight=weight,
-                weights=vector(f"{at}.weights", t.get("weights", weights), size),
+                weights=vector(f"{at}.weights", t.get("weights", weights), size, bound=MAX_WEIGHT),
                 waypoints=_waypoints(f"{at}.waypoints", t.get("waypoints"), size, horizon, super_dt),
             )
         extra = sorted(set(t) - allowed)
@@ -294,23 +335,30 @@ def normalize_terms(
 def _waypoints(field: str, wps: Any, size: int, horizon: int, super_dt: float) -> list[Waypoint]:
     """Waypoints ``[{step | time, target}]`` with every time turned into a super-step index."""
     if not isinstance(wps, list) or not wps:
-        raise JobSpecError(field, f"expected a non-empty list of waypoints, got {wps!r}")
+        raise JobSpecError(field, f"expected a non-empty list of waypoints, got {shown(wps)}")
+    if len(wps) > horizon + 1:
+        raise JobSpecError(
+            field,
+            f"expected at most {horizon + 1} waypoints (one per super-step of the horizon), got {len(wps)}",
+        )
     out = []
     for j, wp in enumerate(wps):
         wat = f"{field}[{j}]"
         if not isinstance(wp, dict):
-            raise JobSpecError(wat, f"expected an object {{step|time, target}}, got {wp!r}")
+            raise JobSpecError(wat, f"expected an object {{step|time, target}}, got {shown(wp)}")
         if "step" in wp:
             step = wp["step"]
             if isinstance(step, bool) or not isinstance(step, int) or not 0 <= step <= horizon:
-                raise JobSpecError(f"{wat}.step", f"expected an integer in [0, {horizon}], got {step!r}")
+                raise JobSpecError(f"{wat}.step", f"expected an integer in [0, {horizon}], got {shown(step)}")
         elif "time" in wp:
-            time = _number(f"{wat}.time", wp["time"], low=0.0)
-            step = round(time / super_dt)
-            if step > horizon:
+            end = horizon * super_dt
+            steps = _number(f"{wat}.time", wp["time"], low=0.0, high=math.inf) / super_dt
+            # the quotient may be inf (a time near 1e308): compared before it is rounded
+            if not steps <= horizon + 0.5 or round(steps) > horizon:
                 raise JobSpecError(
-                    f"{wat}.time", f"expected a time in [0, {horizon * super_dt:g}] s, got {time:g}"
+                    f"{wat}.time", f"expected a time in [0, {end:g}] s, got {shown(wp['time'])}"
                 )
+            step = round(steps)
         else:
             raise JobSpecError(wat, "expected a step (super-step index) or a time (seconds), got neither")
         out.append(Waypoint(step=int(step), target=vector(f"{wat}.target", wp.get("target"), size)))

@@ -37,7 +37,7 @@ from neuroanimator.control.spec import (
     Task,
 )
 from neuroanimator.control.tasks import TASKS
-from neuroanimator.control.terms import normalize_terms, unit, vector
+from neuroanimator.control.terms import MAX_WEIGHT, finite_number, normalize_terms, shown, unit, vector
 from neuroanimator.controller_schemas import JobCreate
 from neuroanimator.manifest import Manifest
 from neuroanimator.state import QUATERNION_KINDS, LayoutGroup
@@ -58,10 +58,15 @@ def find_artifact(root: Path, model: str, version: str | None, substeps: int | N
 
 
 def _int(field: str, value: Any, low: int, high: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | float) or value != int(value):
-        raise JobSpecError(field, f"expected an integer in [{low}, {high}], got {value!r}")
-    if not low <= int(value) <= high:
-        raise JobSpecError(field, f"expected an integer in [{low}, {high}], got {value!r}")
+    """An integer (or a float of integer value) in [low, high]; a huge integer or ±inf is out of it."""
+    ok = (
+        isinstance(value, int | float)
+        and not isinstance(value, bool)
+        and (isinstance(value, int) or (math.isfinite(value) and value == int(value)))
+        and low <= value <= high
+    )
+    if not ok:
+        raise JobSpecError(field, f"expected an integer in [{low}, {high}], got {shown(value)}")
     return int(value)
 
 
@@ -71,11 +76,9 @@ def _float(
     lo_s = "(" if low_open else "["
     hi_s = ")" if high_open else "]"
     expected = f"a number in {lo_s}{low:g}, {high:g}{hi_s}"
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise JobSpecError(field, f"expected {expected}, got {value!r}")
-    v = float(value)
-    if v < low or v > high or (low_open and v == low) or (high_open and v == high):
-        raise JobSpecError(field, f"expected {expected}, got {value!r}")
+    v = finite_number(value)
+    if v is None or v < low or v > high or (low_open and v == low) or (high_open and v == high):
+        raise JobSpecError(field, f"expected {expected}, got {shown(value)}")
     return v
 
 
@@ -169,10 +172,17 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: P
         model,
     )
     weights = vector(
-        "state_weights", spec.get("state_weights", list(task.state_weights) if task else [1.0] * size), size
+        "state_weights",
+        spec.get("state_weights", list(task.state_weights) if task else [1.0] * size),
+        size,
+        bound=MAX_WEIGHT,
     )
-    if any(w < 0 for w in weights):
-        raise JobSpecError("state_weights", f"expected {size} weights >= 0, got {weights}")
+    negative = [i for i, w in enumerate(weights) if w < 0]
+    if negative:
+        i = negative[0]
+        raise JobSpecError(
+            f"state_weights[{i}]", f"expected {size} weights >= 0, got {weights[i]:g} at index {i}"
+        )
     horizon = _int("horizon", spec.get("horizon", task.horizon if task else DEFAULT_HORIZON), 1, MAX_HORIZON)
     pps = _float(
         "points_per_step",
@@ -215,7 +225,8 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: P
     success = spec.get("success", [c.model_dump() for c in task.success] if task else [])
     problems = criteria.validate_checks(success, labels)
     if problems:
-        raise JobSpecError("success", problems[0])
+        where, what = problems[0]
+        raise JobSpecError(f"success{where}", what)
 
     return JobSpec(
         task=task.name if task else None,

@@ -163,12 +163,12 @@ def test_quaternions_are_normalised() -> None:
         ),
         (
             {"task": "truck-parking", "initial_state": [0, 0, math.nan, 0, 0, 0]},
-            "initial_state",
+            "initial_state[2]",
             "expected 6 finite state values for model truck, got nan at index 2",
         ),
         (
             {"task": "truck-parking", "initial_state": [0, 0, math.inf, 0, 0, 0]},
-            "initial_state",
+            "initial_state[2]",
             "got inf at index 2",
         ),
         (
@@ -178,7 +178,7 @@ def test_quaternions_are_normalised() -> None:
         ),
         (
             {"task": "truck-parking", "state_weights": [1, 1, 1, 1, 1, -1]},
-            "state_weights",
+            "state_weights[5]",
             "expected 6 weights >= 0",
         ),
         ({"task": "truck-parking", "horizon": 0}, "horizon", "expected an integer in [1, 1000], got 0"),
@@ -226,7 +226,7 @@ def test_quaternions_are_normalised() -> None:
         ),
         (
             {"task": "truck-parking", "terms": [{"term": "final_velocity", "variables": ["speed"]}]},
-            "terms[0].variables",
+            "terms[0].variables[0]",
             "expected a state label (one of ['position.x', ",
         ),
         (
@@ -264,8 +264,8 @@ def test_quaternions_are_normalised() -> None:
         ),
         (
             {"task": "truck-parking", "success": [{"check": "near", "variables": ["heading"]}]},
-            "success",
-            "[0].check must be one of",
+            "success[0].check",
+            "must be one of",
         ),
         ({"task": "truck-parking", "mu_u": 0, "mu_s": 0}, "terms", "the objective is empty"),
         ({"task": "truck-parking", "colour": "red"}, "colour", "unknown key; a job takes"),
@@ -360,3 +360,112 @@ def test_task_info_keeps_its_json_form() -> None:
     assert data["success"][2] == {"check": "range", "variables": ["velocity.z"], "min": -1.0, "max": 0.0}
     assert data["state_labels"][:3] == ["position.x", "position.y", "position.z"]
     assert data["initial_controls"][0] == pytest.approx(16.2)
+
+
+HUGE = 10**330  # what JSON's 1 followed by 330 zeros parses to: an integer no float can hold
+ZEROS6 = [0, 0, 0, 0, 0, 0]
+
+
+@pytest.mark.parametrize(
+    ("spec", "field"),
+    [
+        (
+            {"task": "truck-parking", "success": [{"check": "abs", "variables": ["heading"], "max": HUGE}]},
+            "success[0].max",
+        ),
+        (
+            {
+                "task": "truck-parking",
+                "success": [{"check": "abs", "variables": ["heading"], "max": 1, "target": ["a"]}],
+            },
+            "success[0].target[0]",
+        ),
+        (
+            {
+                "task": "truck-parking",
+                "success": [{"check": "abs", "variables": ["heading"], "max": 1, "target": [[1, 2]]}],
+            },
+            "success[0].target[0]",
+        ),
+        (
+            {
+                "task": "truck-parking",
+                "success": [{"check": "range", "variables": ["heading"], "min": 2, "max": 1}],
+            },
+            "success[0].min",
+        ),
+        (
+            {"task": "truck-parking", "success": [{"check": "norm", "variables": ["heading"] * 7, "max": 1}]},
+            "success[0].variables",
+        ),
+        ({"task": "truck-parking", "terms": [{"term": "control_effort", "weight": HUGE}]}, "terms[0].weight"),
+        (
+            {"task": "truck-parking", "terms": [{"term": "control_effort", "weight": 1e308}]},
+            "terms[0].weight",
+        ),
+        (
+            {
+                "task": "truck-parking",
+                "terms": [{"term": "path_target", "waypoints": [{"time": 1e308, "target": ZEROS6}]}],
+            },
+            "terms[0].waypoints[0].time",
+        ),
+        (
+            {
+                "task": "truck-parking",
+                "terms": [{"term": "path_target", "waypoints": [{"time": HUGE, "target": ZEROS6}]}],
+            },
+            "terms[0].waypoints[0].time",
+        ),
+        (
+            {
+                "task": "truck-parking",
+                "terms": [{"term": "path_target", "waypoints": [{"step": 1, "target": ZEROS6}] * 42}],
+            },
+            "terms[0].waypoints",
+        ),
+        (
+            {
+                "task": "truck-parking",
+                "terms": [{"term": "path_target", "waypoints": [{"step": 1, "target": [1e308] * 6}]}],
+            },
+            "terms[0].waypoints[0].target[0]",
+        ),
+        (
+            {"task": "truck-parking", "terms": [{"term": "forward_distance", "direction": [1e308, 1e308]}]},
+            "terms[0].direction[0]",
+        ),
+        (
+            {"task": "truck-parking", "terms": [{"term": "final_velocity", "variables": [0] * 7}]},
+            "terms[0].variables",
+        ),
+        (
+            {"task": "truck-parking", "terms": [{"term": "stay_within_bounds", "variable": 0, "low": -HUGE}]},
+            "terms[0].low",
+        ),
+        ({"task": "truck-parking", "initial_state": [1e308, 1e308, 0, 0, 0, 0]}, "initial_state[0]"),
+        ({"task": "truck-parking", "target_state": [0, HUGE, 0, 0, 0, 0]}, "target_state[1]"),
+        ({"task": "truck-parking", "state_weights": [1, 1, 1e300, 1, 1, 1]}, "state_weights[2]"),
+        ({"task": "truck-parking", "initial_controls": [HUGE, 0]}, "initial_controls[0]"),
+        ({"task": "truck-parking", "horizon": HUGE}, "horizon"),
+        ({"task": "truck-parking", "horizon": math.inf}, "horizon"),
+        ({"task": "truck-parking", "mu_u": HUGE}, "mu_u"),
+        ({"task": "truck-parking", "optimizer": {"learning_rate": HUGE}}, "optimizer.learning_rate"),
+    ],
+)
+def test_hostile_numbers_and_lengths_are_refused_naming_the_field(spec: dict[str, Any], field: str) -> None:
+    """Huge integers, 1e308 and lists longer than the model are refused before a worker sees them:
+    a spec that validates is one a worker can run (each of these once raised in the API or failed
+    in every retry of the worker)."""
+    err = error_of(spec)
+    assert err.field == field, str(err)
+    assert len(str(err)) < 400, "a message quotes a huge input cut short"
+
+
+def test_a_direction_of_huge_components_is_refused_and_a_valid_one_stays_unit() -> None:
+    spec = validate_job(
+        {"task": "truck-parking", "terms": [{"term": "forward_distance", "direction": [1e4, 1e4]}]}, ARTIFACTS
+    )
+    direction = spec.terms[0].direction  # type: ignore[union-attr]
+    assert direction == pytest.approx([math.sqrt(0.5)] * 2)
+    assert validate_job(spec, ARTIFACTS) == spec

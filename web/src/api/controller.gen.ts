@@ -30,6 +30,7 @@ export interface ControllerWire {
   StatusEvent?: StatusEvent;
   StayWithinBoundsTerm?: StayWithinBoundsTerm;
   SuccessCheck?: SuccessCheck;
+  SuccessCheckSpec?: SuccessCheckSpec;
   SuccessMarginTerm?: SuccessMarginTerm;
   TaskInfo?: TaskInfo;
   TaskList?: TaskList;
@@ -222,11 +223,7 @@ export interface JobCreate {
   /**
    * checks on the final state that define success
    */
-  success?:
-    | {
-        [k: string]: unknown;
-      }[]
-    | null;
+  success?: SuccessCheckSpec[] | null;
   optimizer?: OptimizerSpec | null;
   /**
    * the same key (and body) returns the same job instead of a new one
@@ -234,7 +231,8 @@ export interface JobCreate {
   idempotency_key?: string | null;
 }
 /**
- * One term of a custom objective: ``term`` names it, its other keys are the term's parameters.
+ * One term of a custom objective: ``term`` names it, its other keys are the term's parameters
+ * (``GET /tasks`` and the README list them; the service checks each against the model, 422 naming it).
  *
  * This interface was referenced by `ControllerWire`'s JSON-Schema
  * via the `definition` "ObjectiveTerm".
@@ -242,6 +240,25 @@ export interface JobCreate {
 export interface ObjectiveTerm {
   term: string;
   [k: string]: unknown;
+}
+/**
+ * One check on the final state (``neuroanimator.control.criteria``): ``variables`` are state labels
+ * of the model; ``target`` (one value per variable) overrides the job's target state; ``max`` bounds
+ * the measured value (``range``: ``min`` and/or ``max``).
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "SuccessCheckSpec".
+ */
+export interface SuccessCheckSpec {
+  check: 'angle' | 'abs' | 'distance' | 'norm' | 'orientation' | 'range';
+  /**
+   * @minItems 1
+   * @maxItems 1024
+   */
+  variables: [string, ...string[]];
+  max?: number | null;
+  min?: number | null;
+  target?: number[] | null;
 }
 /**
  * Gradient descent with momentum (thesis eq. 5.4): ``u ← u − η∇J + α·δu_prev``; it stops after
