@@ -121,6 +121,7 @@ def make_settings(service_root: Path) -> Callable[..., Any]:
             "registry_poll_s": 0.0,
             "redis_url": "",  # the environment's REDIS_URL / API_KEYS must not leak into tests
             "api_keys": "",
+            "api_key_secret": "test-secret",  # one for every app of a test: restored owners are kept
         }
         return Settings(**{**base, **kw})
 

@@ -7,15 +7,21 @@ send a denial response).
 
 The caller is known for the rest of the request through the ``CALLER`` context variable, set by
 ``ApiKeyMiddleware`` (a pure ASGI middleware, so the value reaches the endpoint and every task it
-starts). It holds the key's *id* (``k-`` + 16 hex digits of its SHA-256), never the key: that id
-owns what the key creates (the emulator's sessions, the controller's jobs), and is what is stored
-with them in Redis. ``OwnerDep`` is that owner as a FastAPI dependency, ``public`` while keys are off.
+starts). It holds the key's *id*, never the key: that id owns what the key creates (the emulator's
+sessions, the controller's jobs), and is what is stored with them in Redis and written in logs. An id
+is ``k-`` + 16 hex digits of the key's HMAC-SHA256 under the server secret ``API_KEY_SECRET``, so that
+an id read from a checkpoint or a log cannot be turned back into a short key by trying keys offline.
+Without ``API_KEY_SECRET`` a service draws a random secret at start: ids then change at each restart
+(restored sessions and earlier jobs lose their owners), which it warns about. ``OwnerDep`` is the
+owner as a FastAPI dependency, ``public`` while keys are off.
 """
 
 from __future__ import annotations
 
 import hashlib
+import hmac
 import logging
+import secrets
 from contextvars import ContextVar
 from typing import Annotated
 
@@ -36,17 +42,30 @@ PUBLIC = "public"
 """The owner of what is made while API keys are off (``OwnerDep``)."""
 
 
-def key_id(key: str) -> str:
-    """The id of a key: what owns what the key creates and is stored with it (never the key itself)."""
-    return "k-" + hashlib.sha256(key.encode()).hexdigest()[:16]
+def key_id(key: str, secret: bytes) -> str:
+    """The id of a key under the server secret: what owns what the key creates and is stored with it
+    (never the key itself); a keyed hash, so that it cannot be checked against guessed keys offline."""
+    return "k-" + hmac.new(secret, key.encode(), hashlib.sha256).hexdigest()[:16]
 
 
 class ApiKeys:
-    """The configured keys, from the comma-separated ``API_KEYS`` (blanks around keys are ignored)."""
+    """The configured keys, from the comma-separated ``API_KEYS`` (blanks around keys are ignored), and
+    the secret of their ids (``API_KEY_SECRET``; a random one when it is empty)."""
 
-    def __init__(self, spec: str) -> None:
+    def __init__(self, spec: str, secret: str = "") -> None:
         keys = {k.strip() for k in spec.split(",") if k.strip()}
-        self._ids = {hashlib.sha256(k.encode()).digest(): key_id(k) for k in keys}
+        self.secret_given = bool(secret)
+        self._secret = secret.encode() if secret else secrets.token_bytes(32)
+        self._ids = {hashlib.sha256(k.encode()).digest(): key_id(k, self._secret) for k in keys}
+        if keys and not secret:
+            log.warning(
+                "API_KEY_SECRET is not set: the ids of API keys (the owners of sessions and jobs) are "
+                "drawn afresh at each start, so what a restart restores loses its owner; set it"
+            )
+
+    def id_of(self, key: str) -> str:
+        """The id ``key`` has here (configured or not)."""
+        return key_id(key, self._secret)
 
     @property
     def enabled(self) -> bool:

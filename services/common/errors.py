@@ -1,8 +1,9 @@
 """``ApiError``: every error a service answers, as an HTTP status plus an ``ErrorBody``.
 
 The JSON of an error is ``ErrorBody``'s: ``{"error", "message", "field", "expected", "got"}``, the last
-three set for bad input. ``add_error_handlers(app)`` answers ``ApiError`` and FastAPI's request
-validation errors in that form.
+three set for bad input. ``add_error_handlers(app)`` answers in that form ``ApiError``, FastAPI's request
+validation errors, Starlette's HTTP errors (an unknown path, a method the path does not take, a body
+that could not be read) and, as 500 ``internal_error``, anything a route did not expect.
 """
 
 from __future__ import annotations
@@ -13,8 +14,20 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException
 
 from neuroanimator.emulator_schemas import ErrorBody
+
+HTTP_ERRORS = {
+    400: "bad_request",
+    401: "unauthorized",
+    403: "forbidden",
+    404: "not_found",
+    405: "method_not_allowed",
+    413: "body_too_large",
+    415: "unsupported_media_type",
+}
+"""The ``error`` of a Starlette ``HTTPException`` by status (one may name its own in ``exc.error``)."""
 
 
 class ApiError(Exception):
@@ -37,18 +50,33 @@ class ApiError(Exception):
         )
 
 
-def jsonable(value: Any) -> Any:
-    """Values JSON can carry: non-finite floats become strings ("nan", "inf"), long inputs are cut."""
+MAX_SHOWN = 200
+"""The longest text of an input quoted back in an error (a string, or the digits of a huge integer)."""
+
+
+def _cut(text: str) -> str:
+    return text if len(text) <= MAX_SHOWN else f"{text[: MAX_SHOWN - 40]}... ({len(text)} characters)"
+
+
+def jsonable(value: Any, depth: int = 0) -> Any:
+    """Values JSON can carry: non-finite floats become strings ("nan", "inf"), long inputs are cut
+    (strings, lists and objects, and integers beyond 64 bits: shown as text)."""
     if isinstance(value, float) and not math.isfinite(value):
         return str(value)
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 2**63:
+        return _cut(str(value))
+    if isinstance(value, str):
+        return _cut(value)
+    if isinstance(value, (list, tuple, dict)) and depth >= 8:
+        return "..."
     if isinstance(value, (list, tuple)):
-        items = [jsonable(v) for v in value[:16]]
+        items = [jsonable(v, depth + 1) for v in value[:16]]
         return [*items, "..."] if len(value) > 16 else items
     if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in list(value.items())[:16]}
-    if value is None or isinstance(value, (bool, int, float, str)):
+        return {_cut(str(k)): jsonable(v, depth + 1) for k, v in list(value.items())[:16]}
+    if value is None or isinstance(value, (bool, int, float)):
         return value
-    return repr(value)[:200]
+    return _cut(repr(value))
 
 
 def field_name(loc: tuple[Any, ...]) -> str:
@@ -89,7 +117,7 @@ def from_validation(errors: list[dict[str, Any]]) -> ApiError:
     return ApiError(
         422,
         "invalid_request",
-        f"{name}: {msg}; got {jsonable(err.get('input'))!r}{more}",
+        f"{name}: {_cut(msg)}; got {_cut(repr(jsonable(err.get('input'))))}{more}",
         field=name,
         expected=msg.removeprefix("Input should be ").removeprefix("Field "),
         got=err.get("input"),
@@ -109,7 +137,34 @@ async def validation_error_handler(request: Request, exc: Exception) -> JSONResp
     return JSONResponse(err.body.model_dump(), status_code=err.status)
 
 
+async def http_error_handler(request: Request, exc: Exception) -> JSONResponse:
+    """Starlette's and FastAPI's own HTTP errors in the project's form, their headers kept."""
+    assert isinstance(exc, HTTPException)
+    error = getattr(exc, "error", None) or HTTP_ERRORS.get(exc.status_code, f"http_{exc.status_code}")
+    detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
+    if exc.status_code == 404 and detail == "Not Found":
+        detail = f"no such path: {request.url.path}"
+    elif exc.status_code == 405:
+        detail = f"{request.method} is not a method of {request.url.path}"
+    field = "body" if exc.status_code in (400, 413, 415) else None
+    body = ErrorBody(error=error, message=detail, field=field)
+    return JSONResponse(body.model_dump(), status_code=exc.status_code, headers=exc.headers)
+
+
+async def internal_error_handler(request: Request, exc: Exception) -> JSONResponse:
+    """An exception no route expected: 500 ``internal_error``; the server logs the traceback (Starlette
+    raises the exception on after this answer)."""
+    body = ErrorBody(
+        error="internal_error",
+        message=f"the service failed on this request ({type(exc).__name__}); it is logged",
+    )
+    return JSONResponse(body.model_dump(), status_code=500)
+
+
 def add_error_handlers(app: FastAPI) -> None:
-    """Answer ``ApiError`` and request validation errors with ``ErrorBody`` JSON."""
+    """Answer ``ApiError``, request validation errors, HTTP errors and unexpected exceptions with
+    ``ErrorBody`` JSON."""
     app.add_exception_handler(ApiError, api_error_handler)
     app.add_exception_handler(RequestValidationError, validation_error_handler)
+    app.add_exception_handler(HTTPException, http_error_handler)
+    app.add_exception_handler(Exception, internal_error_handler)

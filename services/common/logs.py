@@ -9,11 +9,38 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import sys
 from typing import Any
 
 # Attributes every LogRecord has; anything else on a record came from ``extra=``.
 _STANDARD = set(vars(logging.makeLogRecord({}))) | {"message", "asctime", "taskName", "color_message"}
+
+
+SECRET_PARAM = re.compile(r"((?:api_key|apikey|access_token|token)=)[^&\s\"']*", re.IGNORECASE)
+"""A query parameter that carries a secret (browsers send API keys as ``?api_key=`` on websockets and
+event streams), as uvicorn's access log would write it with the request's path."""
+
+
+def redact(text: str) -> str:
+    """``text`` with the value of every secret query parameter replaced by ``***``."""
+    return SECRET_PARAM.sub(r"\1***", text)
+
+
+class RedactSecrets(logging.Filter):
+    """Blanks secret query parameters in every record's message and arguments (uvicorn's access and
+    websocket lines carry the path with its query string)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if isinstance(record.msg, str) and "=" in record.msg:
+            record.msg = redact(record.msg)
+        if isinstance(record.args, tuple):
+            record.args = tuple(redact(a) if isinstance(a, str) and "=" in a else a for a in record.args)
+        elif isinstance(record.args, dict):
+            record.args = {
+                k: redact(v) if isinstance(v, str) and "=" in v else v for k, v in record.args.items()
+            }
+        return True
 
 
 class JsonFormatter(logging.Formatter):
@@ -36,9 +63,11 @@ class JsonFormatter(logging.Formatter):
 
 def setup(level: str, formatter: logging.Formatter | None = None) -> None:
     """One handler on stderr for the root logger (and so for uvicorn's and RQ's loggers too), writing
-    JSON lines unless another ``formatter`` is given (a terminal's plain lines)."""
+    JSON lines unless another ``formatter`` is given (a terminal's plain lines), with secret query
+    parameters redacted (``RedactSecrets``)."""
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(formatter or JsonFormatter())
+    handler.addFilter(RedactSecrets())  # no API key reaches a log line
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level.upper())

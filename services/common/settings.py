@@ -22,6 +22,11 @@ class ServiceSettings(BaseSettings):
     host: str = Field("127.0.0.1", description="the address to listen on (0.0.0.0: every interface)")
     port: Port
     log_level: str = Field("info", description="debug, info, warning or error")
+    max_body_bytes: int = Field(
+        65_536,
+        ge=1024,
+        description="the largest request body: a larger one is answered 413 before it is read or parsed",
+    )
 
 
 class ApiSettings(ServiceSettings):
@@ -29,6 +34,11 @@ class ApiSettings(ServiceSettings):
 
     api_keys: str = Field(
         "", description="comma-separated API keys; empty: no auth (every endpoint but ops then needs one)"
+    )
+    api_key_secret: str = Field(
+        "",
+        description="the server secret of API key ids (HMAC-SHA256): the same on every replica and across "
+        "restarts, so that restored sessions and jobs keep their owners; empty: a random one at each start",
     )
     cors_origins: str = Field(
         "",

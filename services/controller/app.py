@@ -16,9 +16,7 @@ import redis
 import redis.asyncio as aioredis
 from fastapi import FastAPI, Request, Response
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import JSONResponse
-from prometheus_client import CONTENT_TYPE_LATEST
-from rq import Worker
+from fastapi.responses import JSONResponse, PlainTextResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from neuroanimator import registry
@@ -26,6 +24,8 @@ from neuroanimator.emulator_schemas import ErrorBody
 from services.common.auth import ApiKeyMiddleware, ApiKeys
 from services.common.docs import add_offline_docs
 from services.common.errors import add_error_handlers
+from services.common.limits import limit_bodies
+from services.common.openapi import METRICS_RESPONSES, METRICS_TYPE, document_errors, readiness_responses
 from services.controller.metrics import Metrics
 from services.controller.routes import events, jobs, tasks
 from services.controller.settings import Settings
@@ -72,7 +72,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         socket_timeout=settings.redis_timeout_s,
     )
     store = JobStore(conn, settings)
-    keys = ApiKeys(settings.api_keys)
+    keys = ApiKeys(settings.api_keys, settings.api_key_secret)
     metrics = Metrics(store)
     where = redacted(settings.redis_url)
 
@@ -108,6 +108,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     if keys.enabled:
         app.add_middleware(ApiKeyMiddleware, keys=keys)
         app.add_middleware(QueryKeyMiddleware)
+    limit_bodies(app, settings.max_body_bytes)  # before the key check: nobody sends an unbounded body
     origins = settings.cors_list()
     if origins:  # outermost, so that preflight requests are answered before the API-key check
         app.add_middleware(
@@ -122,10 +123,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def redis_down(request: Request, exc: Exception) -> JSONResponse:
         if request.url.path == "/jobs" and request.method == "POST":
             metrics.rejected.labels("redis_unavailable").inc()
-        log.warning("Redis unreachable", extra={"path": request.url.path, "error": str(exc)})
+        # where Redis is, and the driver's text (which names host and port), go to the log only
+        log.warning("Redis unreachable", extra={"path": request.url.path, "redis": where, "error": str(exc)})
         body = ErrorBody(
             error="redis_unavailable",
-            message=f"the job queue is unavailable: Redis at {where} does not answer ({exc}); try again later",
+            message=f"the job queue is unavailable: Redis does not answer ({type(exc).__name__}); "
+            "try again later",
         )
         return JSONResponse(body.model_dump(), status_code=503, headers={"Retry-After": "5"})
 
@@ -139,24 +142,32 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     def healthz() -> dict[str, str]:
         return {"status": "ok"}
 
-    @app.get("/readyz", tags=["ops"])
+    @app.get(
+        "/readyz",
+        tags=["ops"],
+        response_class=JSONResponse,
+        responses=readiness_responses("Redis does not answer, or there is no trained model"),
+    )
     def readyz() -> Response:
-        """Ready when Redis answers and the artifact registry has a model (503 with the reason if not)."""
+        """Ready when Redis answers and the artifact registry has a model (503 with the reason if not).
+        ``workers`` counts the workers heard from lately (``WORKER_ALIVE_S``)."""
         models = registry.list_models(settings.artifacts_dir)
         try:
             conn.ping()
-            workers = Worker.count(queue=store.queue)
+            workers = store.worker_count()
             depth = store.queue_depth()
         except redis.RedisError as exc:
-            msg = f"Redis at {where} does not answer: {exc}"
+            log.warning("readyz: Redis unreachable", extra={"redis": where, "error": str(exc)})
+            msg = f"Redis does not answer ({type(exc).__name__})"
             return JSONResponse({"status": "redis unavailable", "message": msg}, status_code=503)
         if not models:
             msg = f"no trained models in {str(settings.artifacts_dir)!r} (train one: neuro train pendulum-active)"
             return JSONResponse({"status": "no artifacts", "message": msg}, status_code=503)
         return JSONResponse({"status": "ready", "models": models, "workers": workers, "queue_depth": depth})
 
-    @app.get("/metrics", tags=["ops"])
+    @app.get("/metrics", tags=["ops"], response_class=PlainTextResponse, responses=METRICS_RESPONSES)
     def metrics_endpoint() -> Response:
-        return Response(metrics.render(), media_type=CONTENT_TYPE_LATEST)
+        return Response(metrics.render(), media_type=METRICS_TYPE)
 
+    document_errors(app, everywhere={"503": "Redis (the job queue) does not answer; try again later"})
     return app

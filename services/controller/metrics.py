@@ -14,7 +14,6 @@ import redis
 from prometheus_client import CollectorRegistry, Counter, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily, Metric
 from prometheus_client.registry import Collector
-from rq import Worker
 
 from neuroanimator.controller_schemas import FINAL_STATES
 from services.controller.store import DURATION_BUCKETS, ITERATION_BUCKETS, JobStore
@@ -44,7 +43,7 @@ class QueueCollector(Collector):
         try:
             depth = s.queue_depth()
             running = int(s.r.zcard(s.keys.running))
-            workers = Worker.count(queue=s.queue)
+            workers = s.worker_count()
             stats = s.stats()
         except redis.RedisError as exc:
             log.warning("metrics: Redis unreachable", extra={"error": str(exc)})

@@ -3,6 +3,7 @@ workers read the same variables, so one environment file configures both."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from pydantic import Field
@@ -25,6 +26,11 @@ class Settings(ApiSettings):
     )
     redis_timeout_s: float = Field(2.0, gt=0.0, description="connect and command timeout of the API's Redis")
     artifacts_dir: Path = Path("artifacts")
+    max_body_bytes: int = Field(
+        1024 * 1024,
+        ge=1024,
+        description="the largest request body (a job's spec): 413 beyond, before it is read or parsed",
+    )
     max_queue: int = Field(100, ge=1, description="queued (not yet running) jobs; beyond, POST /jobs is 503")
     job_timeout_s: float = Field(
         600.0,
@@ -56,3 +62,12 @@ class Settings(ApiSettings):
         description="how often an idle worker looks for jobs whose lease expired and re-queues them",
     )
     port: Port = 8001
+
+    def heartbeat_s(self) -> int:
+        """How often a worker reports itself alive: RQ's dequeue timeout while idle (the reap interval)
+        and its job monitoring interval while a job runs (the lease's time to live), whole seconds."""
+        return max(1, min(30, math.ceil(self.lease_ttl_s)), math.ceil(self.reap_interval_s))
+
+    def worker_alive_s(self) -> float:
+        """A worker not heard from for this long is counted gone (killed, or cut off from Redis)."""
+        return 3.0 * self.heartbeat_s()

@@ -12,6 +12,7 @@ module's record of the job, under ``<REDIS_PREFIX>``:
     lease:<id>     the running attempt's lease, renewed by the job; gone: its worker died
     cancel:<id>    set by DELETE; yield:<id> set by a worker shutting down
     running        sorted set of running jobs (the reaper looks there for expired leases)
+    workers        sorted set of worker names by their last heartbeat (Redis's clock): the live workers
     owner:<key id> sorted set of a caller's jobs; idem:<key id>:<hash> the job of an idempotency key
     stats          hash: counts and histogram buckets of finished jobs (``/metrics``)
 
@@ -39,6 +40,7 @@ from redis.client import Pipeline
 from rq import Queue
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job
+from rq.serializers import JSONSerializer
 
 from neuroanimator.control.spec import JobSpec
 from neuroanimator.controller_schemas import FINAL_STATES, JobOutcome
@@ -53,6 +55,20 @@ MAX_OWNER_JOBS = 1000  # a caller's job list keeps the newest this many ids
 DURATION_BUCKETS = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 60.0, 120.0, 300.0, 600.0, 1800.0, 3600.0)
 ITERATION_BUCKETS = (1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 2000.0, 5000.0)
 T = TypeVar("T")
+# Worker heartbeats on Redis's own clock (so machines' clocks need not agree): seen marks a worker alive
+# now and drops the ones silent longer than ARGV[2]; count counts the ones heard within ARGV[1] seconds.
+_WORKER_SEEN = """
+local t = redis.call('TIME')
+local now = tonumber(t[1]) + tonumber(t[2]) / 1000000
+redis.call('ZADD', KEYS[1], now, ARGV[1])
+redis.call('ZREMRANGEBYSCORE', KEYS[1], '-inf', now - tonumber(ARGV[2]))
+return 1
+"""
+_WORKER_COUNT = """
+local t = redis.call('TIME')
+local now = tonumber(t[1]) + tonumber(t[2]) / 1000000
+return redis.call('ZCOUNT', KEYS[1], now - tonumber(ARGV[1]), '+inf')
+"""
 
 
 class QueueFull(Exception):
@@ -112,6 +128,7 @@ class Keys:
         self.prefix = prefix
         self.running = f"{prefix}:running"
         self.stats = f"{prefix}:stats"
+        self.workers = f"{prefix}:workers"
 
     def job(self, job_id: str) -> str:
         return f"{self.prefix}:job:{job_id}"
@@ -151,7 +168,10 @@ class JobStore:
         self.r = conn
         self.settings = settings
         self.keys = Keys(settings.redis_prefix)
-        self.queue = Queue(settings.queue_name, connection=conn)
+        # JSON, not RQ's default pickle: what is on the queue is data, never code to unpickle
+        self.queue = Queue(settings.queue_name, connection=conn, serializer=JSONSerializer)
+        self._seen = conn.register_script(_WORKER_SEEN)
+        self._count = conn.register_script(_WORKER_COUNT)
 
     # ------------------------------------------------------------ plumbing
     def _transition(self, job_id: str, change: Callable[[Pipeline, dict[str, str]], T]) -> T:
@@ -359,14 +379,27 @@ class JobStore:
         status = self._transition(job_id, change)
         for rid in cancelled_delivery:  # a worker that takes it anyway finds it ended and does nothing
             with contextlib.suppress(NoSuchJobError, InvalidJobOperation):
-                Job.fetch(rid, connection=self.r).cancel()
+                Job.fetch(rid, connection=self.r, serializer=JSONSerializer).cancel()
         log.info("job cancel requested", extra={"job": job_id, "status": status})
         return status
 
     def stats(self) -> dict[str, str]:
         return _text(self.r.hgetall(self.keys.stats))
 
+    def worker_count(self) -> int:
+        """Workers heard from within ``WORKER_ALIVE_S`` (a killed one drops out; a Redis that lost its
+        data counts each worker again at its next heartbeat)."""
+        return int(self._count(keys=[self.keys.workers], args=[self.settings.worker_alive_s()]))
+
     # ------------------------------------------------------------ worker side
+    def worker_seen(self, name: str, pipe: Pipeline | None = None) -> None:
+        """A worker's heartbeat (``ControllerWorker.heartbeat``)."""
+        self._seen(keys=[self.keys.workers], args=[name, self.settings.worker_alive_s()], client=pipe)
+
+    def worker_gone(self, name: str) -> None:
+        """A worker that stopped cleanly."""
+        self.r.zrem(self.keys.workers, name)
+
     def start(self, job_id: str, delivery: int, worker: str, pid: int) -> tuple[dict[str, str] | None, str]:
         """Mark delivery ``n`` running and take the lease; (record, "started"), or (None, why not)."""
         k, s = self.keys, self.settings

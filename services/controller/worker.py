@@ -13,11 +13,19 @@ Beyond RQ it does two things:
 - **Shuts down cleanly on SIGTERM** (or Ctrl-C): a running job is asked to stop at its next
   iteration and goes back on the queue for another worker; the worker then exits. A second signal
   kills the job at once (RQ's cold shutdown); the lease then brings it back.
+- **Reports itself alive** with each of RQ's heartbeats (``JobStore.worker_seen``), so that the count
+  of ``/readyz`` and ``controller_workers`` drops a killed worker within ``WORKER_ALIVE_S`` and finds
+  every worker again after Redis lost its data (RQ's own registry only knows workers from their start,
+  and keeps a killed one for minutes).
+- **Runs only controller jobs**: the queue's messages are JSON (not RQ's default pickle), and a job
+  that names any function but ``execution.perform`` is refused, not run, so that whoever can write
+  to Redis cannot make a worker run code of their choosing.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
 import os
@@ -30,12 +38,14 @@ from typing import Any
 
 import redis
 from rq import Queue, Worker
+from rq.job import Job
+from rq.serializers import JSONSerializer
 from rq.worker import BaseWorker
 
 from services.common import logs
 from services.controller import execution
 from services.controller.settings import Settings
-from services.controller.store import JobStore
+from services.controller.store import PERFORM, JobStore
 
 log = logging.getLogger("services.controller.worker")
 
@@ -52,7 +62,8 @@ class ControllerWorker(Worker):
 
     @property
     def dequeue_timeout(self) -> int:
-        # RQ blocks this long waiting for a job; waking at the reap interval lets an idle worker reap.
+        # RQ blocks this long waiting for a job; waking at the reap interval lets an idle worker reap
+        # (and send its heartbeat)
         return max(1, math.ceil(self.reap_every))
 
     @property
@@ -74,6 +85,25 @@ class ControllerWorker(Worker):
                     log.warning("re-queued abandoned jobs", extra={"jobs": reaped, "worker": self.name})
         if BaseWorker.should_run_maintenance_tasks.fget(self):  # type: ignore[attr-defined]
             super().run_maintenance_tasks()
+
+    def heartbeat(self, timeout: int | None = None, pipeline: Any = None) -> None:
+        super().heartbeat(timeout, pipeline)
+        self.store.worker_seen(self.name, pipeline)
+
+    def execute_job(self, job: Job, queue: Queue) -> None:
+        """Run a controller delivery; refuse (fail in RQ, run nothing) a job naming another function."""
+        try:
+            func = job.func_name
+        except Exception as exc:  # a payload that is not our JSON
+            func = f"<unreadable: {type(exc).__name__}>"
+        if func != PERFORM:
+            log.error(
+                "refused a queued job that is not a controller delivery",
+                extra={"rq_job": job.id, "func": func},
+            )
+            self.handle_job_failure(job, queue=queue, exc_string=f"refused: {func} is not {PERFORM}")
+            return
+        super().execute_job(job, queue)
 
     def request_stop(self, signum: Any, frame: Any) -> None:
         """Warm shutdown that does not wait for a long job: the job yields and is re-queued."""
@@ -116,10 +146,11 @@ def run(args: argparse.Namespace, settings: Settings | None = None) -> int:
         [store.queue],
         store=store,
         connection=conn,
+        serializer=JSONSerializer,
         name=name,
         default_result_ttl=settings.result_ttl_s,
         # RQ's heartbeat while a job runs; the job's own lease is what re-queues it
-        job_monitoring_interval=max(1, min(30, math.ceil(settings.lease_ttl_s))),
+        job_monitoring_interval=settings.heartbeat_s(),
     )
     if "torch" in sys.modules:  # forking after torch started its thread pools can deadlock the child
         log.warning("the worker process has imported torch; jobs may hang after fork")
@@ -127,7 +158,11 @@ def run(args: argparse.Namespace, settings: Settings | None = None) -> int:
         "controller worker up",
         extra={"worker": name, "queue": settings.queue_name, "threads": settings.worker_threads},
     )
-    worker.work(burst=args.burst, max_jobs=args.max_jobs, logging_level=settings.log_level.upper())
+    try:
+        worker.work(burst=args.burst, max_jobs=args.max_jobs, logging_level=settings.log_level.upper())
+    finally:
+        with contextlib.suppress(redis.RedisError):
+            store.worker_gone(name)
     log.info("controller worker stopped", extra={"worker": name})
     return 0
 

@@ -10,12 +10,13 @@ from collections.abc import AsyncIterator
 
 from fastapi import FastAPI, Response
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import JSONResponse
-from prometheus_client import CONTENT_TYPE_LATEST
+from fastapi.responses import JSONResponse, PlainTextResponse
 
 from services.common.auth import ApiKeyMiddleware, ApiKeys
 from services.common.docs import add_offline_docs
 from services.common.errors import add_error_handlers
+from services.common.limits import limit_bodies
+from services.common.openapi import METRICS_RESPONSES, METRICS_TYPE, document_errors, readiness_responses
 from services.emulator.deps import EngineDep
 from services.emulator.engine import Engine
 from services.emulator.fastpath import BinaryStepRoute
@@ -31,7 +32,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """The app for these settings; artifacts are loaded now, so it is ready when this returns."""
     settings = settings or Settings()
     engine = Engine(settings)
-    keys = ApiKeys(settings.api_keys)
+    keys = ApiKeys(settings.api_keys, settings.api_key_secret)
     persistence = Persistence(engine)
 
     @contextlib.asynccontextmanager
@@ -81,6 +82,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(SessionSocketRoute, engine=engine)
     if keys.enabled:
         app.add_middleware(ApiKeyMiddleware, keys=keys)
+    # every body bounded before it is read (even by a caller without a key): large ones on the stepping
+    # and pose endpoints only
+    big = settings.max_body_bytes
+    limit_bodies(app, settings.small_body_bytes, per_path=[("/step", big), ("/models/[^/]+/poses", big)])
     origins = settings.cors_list()
     if origins:  # added last, so outermost: preflight requests are answered before the key check
         app.add_middleware(
@@ -98,7 +103,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def healthz() -> dict[str, str]:
         return {"status": "ok"}
 
-    @app.get("/readyz", tags=["ops"])
+    @app.get(
+        "/readyz",
+        tags=["ops"],
+        response_class=JSONResponse,
+        responses=readiness_responses("no models loaded"),
+    )
     async def readyz(engine: EngineDep) -> Response:
         names = engine.registry.models()
         p = persistence.status  # "off", "ok" or "degraded" (Redis unreachable: serving, not persisting)
@@ -106,9 +116,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             return JSONResponse({"status": "no models loaded", "persistence": p}, status_code=503)
         return JSONResponse({"status": "ready", "persistence": p})
 
-    @app.get("/metrics", tags=["ops"])
+    @app.get("/metrics", tags=["ops"], response_class=PlainTextResponse, responses=METRICS_RESPONSES)
     async def metrics(engine: EngineDep) -> Response:
         engine.update_gauges()
-        return Response(engine.metrics.render(), media_type=CONTENT_TYPE_LATEST)
+        return Response(engine.metrics.render(), media_type=METRICS_TYPE)
 
+    document_errors(app)
     return app

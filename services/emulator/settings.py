@@ -14,6 +14,15 @@ class Settings(ApiSettings):
     environment variables have the upper-case names."""
 
     artifacts_dir: Path = Path("artifacts")
+    max_body_bytes: int = Field(
+        8 * 1024 * 1024,
+        ge=1024,
+        description="the largest body of POST /step and POST /models/{model}/poses (413 beyond, before it "
+        "is read); every other endpoint takes at most SMALL_BODY_BYTES",
+    )
+    small_body_bytes: int = Field(
+        65_536, ge=1024, description="the largest body of the endpoints that take small ones (sessions)"
+    )
     max_batch: int = Field(4096, ge=1, description="most rows in one ORT call, and items in one POST /step")
     max_wait_ms: float = Field(
         1.0,

@@ -16,6 +16,7 @@ from pydantic import BaseModel
 
 from neuroanimator import registry
 from services.common.docs import add_offline_docs
+from services.common.limits import limit_bodies
 from services.web.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -34,6 +35,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="NeuroAnimator dashboard", version="0.1.0", docs_url=None, redoc_url=None)
     add_offline_docs(app)  # /docs and /redoc with packaged assets, before the dashboard's mount at /
     config = {"emulator_url": settings.emulator_url, "controller_url": settings.controller_url}
+    limit_bodies(app, settings.max_body_bytes)  # the dashboard takes no bodies: any is small
 
     @app.get("/config.json")
     def get_config() -> JSONResponse:

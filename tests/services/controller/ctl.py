@@ -74,6 +74,7 @@ class Controller:
             "QUEUE_NAME": f"test-controller-{tag}",
             "ARTIFACTS_DIR": str(ARTIFACTS),
             "API_KEYS": "",
+            "API_KEY_SECRET": "test-secret",
             "RESULT_TTL_S": "600",
             "QUEUED_TTL_S": "600",
             "LEASE_TTL_S": "1.5",

@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 from starlette.testclient import WebSocketDenialResponse
 from starlette.websockets import WebSocketDisconnect
 
-from services.common.auth import ApiKeys, key_id
+from services.common.auth import ApiKeys
 
 ALPHA = {"Authorization": "Bearer alpha"}
 BETA = {"X-API-Key": "beta"}
@@ -30,8 +30,20 @@ def test_off_by_default(client: TestClient) -> None:
 def test_keys_parsed() -> None:
     keys = ApiKeys(" alpha, beta ,,")
     assert len(keys) == 2 and keys.enabled and not ApiKeys(" , ").enabled
-    assert keys.owner("alpha") == key_id("alpha") != keys.owner("beta")
+    assert keys.owner("alpha") == keys.id_of("alpha") != keys.owner("beta")
     assert keys.owner("gamma") is None and keys.owner("") is None and keys.owner(None) is None
+
+
+def test_key_ids_are_keyed_by_the_server_secret() -> None:
+    """An id read from a checkpoint or a log cannot be checked against guessed keys without the secret:
+    it is no plain hash of the key, differs under another secret, and is stable under the same one."""
+    import hashlib
+
+    one, same, other = ApiKeys("alpha", "s1"), ApiKeys("alpha", "s1"), ApiKeys("alpha", "s2")
+    ident = one.owner("alpha")
+    assert ident is not None and ident == same.owner("alpha") != other.owner("alpha")
+    assert ident.removeprefix("k-") not in hashlib.sha256(b"alpha").hexdigest()
+    assert ApiKeys("alpha").owner("alpha") != ApiKeys("alpha").owner("alpha")  # no secret: drawn at start
 
 
 @pytest.mark.parametrize(
