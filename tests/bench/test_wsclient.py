@@ -254,11 +254,11 @@ def test_json_round_trips_and_long_frames(service: str) -> None:
         ws.send_text(json.dumps({"type": "step", "controls": [0.1, 0.0, -0.1], "seq": 8}))
         state = json.loads(await ws.recv())
         assert (state["type"], state["seq"], state["steps"]) == ("state", 8, 1)
-        # an extra field is refused with an error that quotes it: replies of 16- and 64-bit lengths
+        # an extra field is refused with an error that quotes it, cut short (a reply of a 16-bit length)
         for pad in (300, 70_000):
             ws.send_text(json.dumps({"type": "ping", "seq": pad, "pad": "x" * pad}))
             reply = await ws.recv()
-            assert isinstance(reply, str) and len(reply) > pad > 125
+            assert isinstance(reply, str) and 125 < len(reply) < 2000
             err = json.loads(reply)
             assert (err["type"], err["error"], err["seq"]) == ("error", "invalid_request", pad)
         ws.send_text(json.dumps({"type": "ping", "seq": 9}))  # the connection is still in step
