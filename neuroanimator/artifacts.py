@@ -14,7 +14,9 @@ import hashlib
 import os
 import shutil
 import tempfile
+import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
@@ -29,6 +31,7 @@ from neuroanimator.manifest import (
     Hashes,
     InputGroup,
     Manifest,
+    ModelAsset,
     Network,
     NetworkFrame,
     NetworkReads,
@@ -86,6 +89,50 @@ def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -
     )
 
 
+def asset_kinds(xml: str) -> dict[str, Literal["mesh", "texture", "hfield", "skin"]]:
+    """Which kind of asset each file the MJCF names is (``file`` of a mesh, height field, skin, texture,
+    and a texture's cube faces ``file*``)."""
+    kinds: dict[str, Literal["mesh", "texture", "hfield", "skin"]] = {}
+    for el in ET.fromstring(xml).iter():
+        if el.tag in ("mesh", "hfield", "skin", "texture"):
+            for key, value in el.attrib.items():
+                if key.startswith("file") and value:
+                    kinds[value] = el.tag  # type: ignore[assignment]
+    return kinds
+
+
+def describe_assets(model: PhysicalModel) -> list[ModelAsset]:
+    """The manifest's list of the files a model's MJCF names, by content (``ModelAsset``)."""
+    kinds = asset_kinds(model.xml) if model.assets else {}
+    out = []
+    for name, data in sorted(model.assets.items()):
+        if name not in kinds:
+            raise ModelError(f"model {model.name}: asset {name!r} is not named by its MJCF")
+        sha = hashlib.sha256(data).hexdigest()
+        if not name.startswith(sha):
+            raise ModelError(f"model {model.name}: asset {name!r} is not named by its content ({sha})")
+        source = model.asset_sources.get(name, "")
+        out.append(ModelAsset(name=name, sha256=sha, kind=kinds[name], size=len(data), source=source))
+    return out
+
+
+def write_assets(model_dir: Path, model: PhysicalModel) -> None:
+    """Store the model's assets in ``<model>/assets/`` by content: a file already there is the same
+    file (its name is its hash), so versions share it; a new one appears whole or not at all."""
+    if not model.assets:
+        return
+    folder = model_dir / registry.ASSETS_DIR
+    folder.mkdir(exist_ok=True)
+    for name, data in model.assets.items():
+        target = folder / name
+        if target.is_file() and target.stat().st_size == len(data):
+            continue
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-asset-")
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, target)
+
+
 def build_manifest(
     model: PhysicalModel, result: TrainResult, version: str, onnx_sha256: str, created: dt.datetime
 ) -> Manifest:
@@ -136,6 +183,7 @@ def build_manifest(
             onnx_sha256=onnx_sha256,
         ),
         spec=model.spec,
+        assets=describe_assets(model),
     )
 
 
@@ -155,6 +203,7 @@ def save(root: Path, model: PhysicalModel, result: TrainResult) -> Path:
     version = registry.version_name(substeps, now, repeat)
     onnx_bytes = to_onnx(result.emulator)
     manifest = build_manifest(model, result, version, hashlib.sha256(onnx_bytes).hexdigest(), now)
+    write_assets(model_dir, model)  # before the version appears: a version always has its assets
     tmp = Path(tempfile.mkdtemp(dir=model_dir, prefix=f".tmp-{version}-"))
     try:
         (tmp / registry.ONNX_FILE).write_bytes(onnx_bytes)

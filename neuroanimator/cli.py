@@ -44,8 +44,12 @@ def _out(text: str) -> None:
 def cmd_train(args: argparse.Namespace) -> int:
     if (args.model is None) == (args.mjcf is None):
         raise ModelError("give either a catalog model name or --mjcf PATH (not both)")
+    if args.mjcf is None and (args.entry or args.name):
+        raise ModelError("--entry and --name go with --mjcf")
     model: PhysicalModel = (
-        load_mjcf(args.mjcf, substeps=args.substeps) if args.mjcf else physics.get(args.model)
+        load_mjcf(args.mjcf, substeps=args.substeps, entry=args.entry, name=args.name)
+        if args.mjcf
+        else physics.get(args.model)
     )
     cfg = TrainConfig(
         substeps=args.substeps if args.substeps is not None else model.spec.substeps,
@@ -208,20 +212,32 @@ def cmd_models(args: argparse.Namespace) -> int:
         _out("\n".join(physics.CATALOG))
         return 0
     root = Path(args.artifacts)
+    names = list(physics.CATALOG) + [m for m in registry.list_models(root) if m not in physics.CATALOG]
     rows = []
-    for name in physics.CATALOG:
-        rows.append(
-            {"model": name, "trained": ",".join(map(str, registry.available_substeps(root, name))) or None}
-        )
-    for name in registry.list_models(root):
-        if name not in physics.CATALOG:
-            rows.append(
-                {"model": name, "trained": ",".join(map(str, registry.available_substeps(root, name)))}
-            )
-    _out(_table(rows, [("model", "model", "s"), ("trained", "trained n", "s")]))
+    for name in names:
+        trained = ",".join(map(str, registry.available_substeps(root, name))) or None
+        row: dict[str, Any] = {"model": name, "trained": trained, "versions": None, "size": None}
+        if trained is not None:
+            versions = registry.versions(root, name)
+            sizes = {v: registry.version_size(root / name / v) for v in versions}
+            latest = registry.latest_version(root, name)
+            row |= {
+                "versions": len(versions),
+                "latest_bytes": sizes.get(latest),
+                "size_bytes": registry.model_size(root, name),
+                "version_bytes": sizes,
+                "size": f"{_bytes(sizes.get(latest, 0))} ({_bytes(registry.model_size(root, name))} stored)",
+            }
+        rows.append(row)
+    columns = [("model", "model", "s"), ("trained", "trained n", "s"), ("versions", "versions", "d")]
+    _out(_table(rows, [*columns, ("size", "size: latest (all stored)", "s")]))
     if args.json:
         _out(json.dumps(rows))
     return 0
+
+
+def _bytes(n: int) -> str:
+    return f"{n / 1e6:.1f} MB" if n >= 1_000_000 else f"{n / 1e3:.1f} kB"
 
 
 # ---------------------------------------------------------------------------- worker
@@ -258,7 +274,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     t = sub.add_parser("train", help="simulate data, train an emulator, export it to the artifact registry")
     t.add_argument("model", nargs="?", help=f"catalog model: {', '.join(physics.CATALOG)}")
-    t.add_argument("--mjcf", help="train on your own MJCF file instead of a catalog model")
+    t.add_argument(
+        "--mjcf",
+        help="train on your own model instead of a catalog one: an MJCF file (its includes and assets are "
+        "read from beside it), a model folder, or a .zip / .tar.gz of one",
+    )
+    t.add_argument(
+        "--entry", help="with --mjcf FOLDER or ARCHIVE: the MJCF file in it (default: the only one)"
+    )
+    t.add_argument("--name", help="with --mjcf: the model's name (default: the MJCF's model attribute)")
     t.add_argument("--substeps", type=_positive_int, help="super timestep n (default: the model's, 50)")
     t.add_argument("--out", default="artifacts", help="artifact registry to write to (default: artifacts/)")
     t.add_argument("--preset", choices=["default", "thesis"], default="default")

@@ -248,6 +248,18 @@ class TrainMetrics(BaseModel):
     total_seconds: float
 
 
+class ModelAsset(_Strict):
+    """A file the model's MJCF names (a mesh, texture, height field or skin), stored once per model by
+    its content: ``<root>/<model>/assets/<name>``, ``name`` = ``<sha256><extension>``, shared by every
+    version that uses it. ``source`` is where it was found, relative to the model's folder."""
+
+    name: str = Field(pattern=r"^[0-9a-f]{64}(\.[A-Za-z0-9]+)?$")
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    kind: Literal["mesh", "texture", "hfield", "skin"]
+    size: int = Field(ge=0, description="bytes")
+    source: str = ""
+
+
 class Hashes(_Strict):
     """SHA-256 of the MJCF, of the training data (``Examples.sha256``) and of ``emulator.onnx``."""
 
@@ -282,6 +294,9 @@ class Manifest(_Strict):
     metrics: TrainMetrics
     hashes: Hashes
     spec: ModelSpec
+    assets: list[ModelAsset] = Field(
+        default_factory=list, description="the files model.xml names, stored by content beside the versions"
+    )
 
     @model_validator(mode="after")
     def _parts_agree(self) -> Manifest:

@@ -6,6 +6,9 @@ whole step), ``weights.pt`` (the torch emulator's state dict), ``linear_baseline
 ``eval.json`` and ``bench.json`` (``VersionEval``, ``VersionBench``). Pointer files in the model's
 folder name versions: ``latest`` (the model's default super-step, or the first trained) and
 ``latest-n<N>`` for each super-step N. Versions are named ``n<N>-<UTC time>`` (``version_name``).
+The files the MJCF names (meshes, textures, height fields, skins) are stored once per model by their
+content in ``<root>/<model>/assets/`` (``<sha256><extension>``, listed in each manifest's ``assets``),
+shared by the versions that use them: a version folder and that folder are all a model needs.
 
 Model and version names are plain names (``NAME``), never paths. Writing versions is
 ``neuroanimator.artifacts`` (it needs torch); this module writes only measurement results. It imports
@@ -15,6 +18,7 @@ neither torch nor MuJoCo nor ONNX Runtime (``load_physical_model`` imports MuJoC
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 import json
 import os
 import re
@@ -48,6 +52,7 @@ MJCF_FILE = "model.xml"
 EVAL_FILE = "eval.json"
 BENCH_FILE = "bench.json"
 PLOT_FILE = "rollout_error.png"  # in the model's folder: the rollout curves of every n
+ASSETS_DIR = "assets"  # in the model's folder: the MJCF's files, by content, shared by the versions
 VERSION_FILES = (ONNX_FILE, WEIGHTS_FILE, LINEAR_FILE, MJCF_FILE, MANIFEST_FILE)
 """What every version folder holds."""
 _SUBSTEPS_POINTER = re.compile(r"latest-n(\d+)")
@@ -171,12 +176,57 @@ def read_manifest(path: Path) -> Manifest:
         raise ArtifactError("manifest", str(exc)) from exc
 
 
+def assets_dir(path: Path) -> Path:
+    """The folder of a version's assets (its model's ``assets/``)."""
+    return path.parent / ASSETS_DIR
+
+
+def read_assets(path: Path, manifest: Manifest | None = None) -> dict[str, bytes]:
+    """The files a version's MJCF names, by name, each checked against its SHA-256.
+
+    ``ArtifactError`` (``what="manifest"``) names a file that is missing or altered."""
+    manifest = manifest or read_manifest(path)
+    out: dict[str, bytes] = {}
+    for a in manifest.assets:
+        file = assets_dir(path) / a.name
+        try:
+            data = file.read_bytes()
+        except OSError as exc:
+            raise ArtifactError(
+                "manifest",
+                f"{manifest.model} {manifest.version}: its {a.kind} {a.source or a.name} is missing ({file})",
+            ) from exc
+        if hashlib.sha256(data).hexdigest() != a.sha256:
+            raise ArtifactError(
+                "manifest", f"{manifest.model} {manifest.version}: {file} is not the file it names"
+            )
+        out[a.name] = data
+    return out
+
+
 def load_physical_model(path: Path, manifest: Manifest | None = None) -> PhysicalModel:
-    """Rebuild the physical model an artifact was trained on, from the artifact alone (imports MuJoCo)."""
+    """Rebuild the physical model an artifact was trained on, from the artifact alone: its MJCF and the
+    assets it names (imports MuJoCo)."""
     from neuroanimator.physics.model import PhysicalModel
 
-    spec = (manifest or read_manifest(path)).spec
-    return PhysicalModel((path / MJCF_FILE).read_text(), spec)
+    manifest = manifest or read_manifest(path)
+    sources = {a.name: a.source for a in manifest.assets}
+    return PhysicalModel((path / MJCF_FILE).read_text(), manifest.spec, read_assets(path, manifest), sources)
+
+
+def version_size(path: Path, manifest: Manifest | None = None) -> int:
+    """Bytes of a version: its folder's files and the assets it names (what a copy of it weighs)."""
+    own = sum(f.stat().st_size for f in path.iterdir() if f.is_file())
+    manifest = manifest or read_manifest(path)
+    return own + sum(a.size for a in manifest.assets)
+
+
+def model_size(root: Path, model: str) -> int:
+    """Bytes a model takes in the registry: every version, its shared assets (once) and its plots."""
+    model_dir = root / model
+    if not is_name(model) or not model_dir.is_dir():
+        return 0
+    return sum(f.stat().st_size for f in model_dir.rglob("*") if f.is_file() and not f.is_symlink())
 
 
 def _read_result(file: Path, kind: type[_R]) -> _R | None:

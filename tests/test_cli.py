@@ -248,7 +248,7 @@ def test_train_malformed_mjcf_exits_2(tmp_path: Path, caplog: pytest.LogCaptureF
     with caplog.at_level(logging.ERROR):
         rc = main(["train", "--mjcf", str(bad), "--out", str(tmp_path / "out"), "--quiet"])
     assert rc == 2
-    assert "malformed" in caplog.text
+    assert "bad.xml is not XML: no element found: line 1" in caplog.text
     assert not (tmp_path / "out").exists()
 
 

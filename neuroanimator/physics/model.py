@@ -16,6 +16,7 @@ import logging
 import os
 import threading
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Literal
@@ -120,12 +121,23 @@ def derive_layout(m: mujoco.MjModel) -> StateLayout:
 class PhysicalModel:
     """A MuJoCo model plus its ``ModelSpec``; see the module docstring for the contract."""
 
-    def __init__(self, xml: str, spec: ModelSpec) -> None:
+    def __init__(
+        self,
+        xml: str,
+        spec: ModelSpec,
+        assets: Mapping[str, bytes] | None = None,
+        sources: Mapping[str, str] | None = None,
+    ) -> None:
+        """``assets``: the files the MJCF names (meshes, textures, ...), by the names it uses
+        (MuJoCo's virtual file system); a model read from files has them by content (``bundle``), and
+        ``sources`` says where each was found (for people)."""
         self.xml = xml
+        self.assets = dict(assets or {})
+        self.asset_sources = dict(sources or {})
         self.spec = spec
         self.name = spec.name
         try:
-            self.mj_model = mujoco.MjModel.from_xml_string(xml)
+            self.mj_model = mujoco.MjModel.from_xml_string(xml, self.assets or None)
         except Exception as exc:  # MuJoCo raises ValueError with the parser's message
             raise ModelError(f"malformed MJCF for model {spec.name!r}: {exc}") from exc
         m = self.mj_model
