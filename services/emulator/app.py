@@ -111,7 +111,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     async def readyz(engine: EngineDep) -> Response:
         names = engine.registry.models()
-        p = persistence.status  # "off", "ok" or "degraded" (Redis unreachable: serving, not persisting)
+        # "off", "ok" or "degraded" (Redis unreachable: serving, not persisting), asked of Redis now
+        p = await persistence.check()
         if not names:
             return JSONResponse({"status": "no models loaded", "persistence": p}, status_code=503)
         return JSONResponse({"status": "ready", "persistence": p})

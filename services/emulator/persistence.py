@@ -8,7 +8,13 @@ then the state, S little-endian float32 (4·S bytes).
 Every ``CHECKPOINT_INTERVAL_S`` a background task writes, in one pipeline, the sessions that changed
 since the last successful checkpoint (a new step count or diverged flag; reading a session is not a
 change) and removes the sessions that are gone (deleted or expired). A failed checkpoint changes
-nothing on this side, so the next one writes everything it missed. On startup a replica with the same
+nothing on this side, so the next one writes everything it missed. Each checkpoint first asks Redis
+whether it still holds what was written: when its server restarted (a new ``run_id``: it may have
+come back empty, or from an append-only file a second behind) or the hash holds fewer records than
+were written (flushed, evicted, deleted), every live session is written again in that same
+checkpoint, so that a Redis that lost data has every session back within one interval. The same
+question is Redis's health: ``status`` turns ``degraded`` within an interval of Redis going away,
+changed sessions or not (and ``/readyz`` asks it afresh, ``check``). On startup a replica with the same
 REPLICA_ID reads its hash back and recreates the sessions with their ids, versions, states and owners.
 If Redis is unreachable the service still starts (status ``degraded``, on ``/readyz``) and the restore
 is retried before each checkpoint until it succeeds. Without REDIS_URL nothing is persisted (``off``).
@@ -29,7 +35,7 @@ from numpy.typing import NDArray
 from prometheus_client import Counter, Gauge, Histogram
 from redis.asyncio.retry import Retry
 from redis.backoff import ExponentialBackoff
-from redis.exceptions import RedisError
+from redis.exceptions import RedisError, ResponseError
 
 from services.common.errors import ApiError
 from services.emulator.engine import Engine
@@ -108,6 +114,8 @@ class Persistence:
         self.restored = self.client is None
         self.last_error: str | None = None
         self._saved: dict[str, tuple[int, bool]] = {}  # session id -> (steps, diverged) in Redis
+        self._run_id: str | None = None  # the Redis server written to (INFO's run_id): new after a restart
+        self.rewrites = 0  # times Redis was found to have lost data and every session was written again
         self._lock = asyncio.Lock()  # one checkpoint at a time (the timer, a forced one, the last one)
         r = engine.metrics.registry
         self._seconds = Histogram(
@@ -154,9 +162,33 @@ class Persistence:
         self._ok()
         log.info("persistence on", extra={"key": self.key, "restored": n, "interval_s": self.interval_s})
 
+    async def _server_id(self, client: aioredis.Redis) -> str | None:
+        """The Redis server's ``run_id`` (new at each start), or None where INFO is not allowed."""
+        try:
+            info = await client.info("server")
+        except ResponseError:  # a managed Redis may refuse INFO: the record count still tells
+            return None
+        run_id = info.get("run_id")
+        return None if run_id is None else str(run_id)
+
+    async def _lost_data(self, client: aioredis.Redis) -> str | None:
+        """Why Redis no longer holds every record this replica wrote (None: it does). Also the health
+        check of every checkpoint: it raises when Redis does not answer."""
+        count = int(await client.hlen(self.key))
+        run_id = await self._server_id(client)
+        restarted = run_id is not None and self._run_id is not None and run_id != self._run_id
+        if run_id is not None:
+            self._run_id = run_id
+        if restarted:
+            return "the Redis server restarted"
+        if count < len(self._saved):
+            return f"the hash holds {count} of the {len(self._saved)} records written"
+        return None
+
     async def restore(self) -> int:
         """Recreate the sessions of this replica's hash that are not here yet; returns how many."""
         assert self.client is not None
+        self._run_id = await self._server_id(self.client)
         raw = cast(dict[bytes, bytes], await self.client.hgetall(self.key))  # decode_responses is off
         store = self.engine.store
         now_wall, now_mono = time.time(), time.monotonic()
@@ -204,6 +236,17 @@ class Persistence:
         if not self.restored:
             await self.restore()
         t0 = time.perf_counter()
+        why = await self._lost_data(client)
+        if why is not None:
+            # every record counts as unwritten (the ids are kept: gone sessions are still removed)
+            self._saved = dict.fromkeys(self._saved, (-2, False))
+            self.rewrites += 1
+            log.warning(
+                "Redis lost session checkpoints (%s): writing all %d sessions again",
+                why,
+                len(self.engine.store.sessions),
+                extra={"key": self.key},
+            )
         sessions = self.engine.store.sessions
         now_wall, now_mono = time.time(), time.monotonic()
         records: dict[str, bytes] = {}
@@ -215,8 +258,6 @@ class Persistence:
                 marks[sid] = mark
         gone = [sid for sid in self._saved if sid not in sessions]
         if not records and not gone:
-            if self.status != "ok":
-                await client.ping()
             return 0
         pipe = client.pipeline(transaction=False)
         items = list(records.items())
@@ -231,6 +272,20 @@ class Persistence:
         self._written.inc(len(records) + len(gone))
         self._seconds.observe(time.perf_counter() - t0)
         return len(records) + len(gone)
+
+    async def check(self, timeout_s: float = 1.0) -> Status:
+        """Ask Redis now (``/readyz``): ``ok`` when it answers a PING within ``timeout_s``, else
+        ``degraded``; ``off`` without persistence."""
+        if self.client is None:
+            return self.status
+        try:
+            await asyncio.wait_for(self.client.ping(), timeout_s)
+        except (RedisError, OSError, TimeoutError) as exc:
+            self._failed("a readiness check of Redis", exc)
+        else:
+            if self.restored:  # ok only once the restore, which a checkpoint retries, is done
+                self._ok()
+        return self.status
 
     async def run_forever(self) -> None:
         """Checkpoint every interval until cancelled; Redis errors are logged, not raised."""
