@@ -5,15 +5,23 @@ and then follow it: ``status`` (queued, running, re-queued with why), ``progress
 iteration: the ``on_progress`` dict of ``run_job`` and the attempt) and one last ``end`` (the final
 status), after which the stream closes. Browsers' ``EventSource`` cannot send headers, so with API
 keys on these two take ``?api_key=<key>`` as well.
+
+When Redis goes away mid-stream, both end with an ``error`` event (``{"error": "redis_unavailable",
+"message"}``) rather than being cut: a client knows to reconnect (SSE: with ``Last-Event-ID``) later.
+A websocket for a job the key does not own (or that does not exist) is accepted and closed with code
+4404, as documented, not refused with an HTTP status the browser's API cannot read.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import re
 from collections.abc import AsyncIterator
 from typing import Annotated, Any
 
+import redis
 import redis.asyncio as aioredis
 from fastapi import APIRouter, Header, Request, WebSocket
 from fastapi.responses import StreamingResponse
@@ -26,8 +34,13 @@ from services.controller.deps import StoreDep
 from services.controller.routes.jobs import owned
 from services.controller.store import JobStore
 
+log = logging.getLogger(__name__)
 router = APIRouter(tags=["events"])
 _STREAM_ID = re.compile(r"^\d+-\d+$")
+REDIS_GONE = {
+    "error": "redis_unavailable",
+    "message": "Redis (the job queue) stopped answering: this stream ends here; reconnect later",
+}
 
 
 async def follow(
@@ -57,7 +70,10 @@ async def follow(
     "/jobs/{job_id}/events",
     response_class=StreamingResponse,
     responses={
-        200: {"content": {"text/event-stream": {}}, "description": "status, progress and end events"},
+        200: {
+            "content": {"text/event-stream": {}},
+            "description": "status, progress and end events (an error event when Redis goes away)",
+        },
         404: {"model": ErrorBody},
     },
 )
@@ -76,12 +92,16 @@ async def job_events(
 
     async def body() -> AsyncIterator[str]:
         yield "retry: 2000\n\n"
-        async for event, eid, data in follow(aredis, store, job_id, after, keepalive):
-            if not event:
-                yield ": keep-alive\n\n"
-                continue
-            head = f"id: {eid}\n" if eid else ""
-            yield f"{head}event: {event}\ndata: {data}\n\n"
+        try:
+            async for event, eid, data in follow(aredis, store, job_id, after, keepalive):
+                if not event:
+                    yield ": keep-alive\n\n"
+                    continue
+                head = f"id: {eid}\n" if eid else ""
+                yield f"{head}event: {event}\ndata: {data}\n\n"
+        except (redis.RedisError, OSError) as exc:
+            log.warning("event stream ended: Redis unreachable", extra={"job": job_id, "error": str(exc)})
+            yield f"event: error\ndata: {json.dumps(REDIS_GONE)}\n\n"
 
     return StreamingResponse(
         body(),
@@ -94,11 +114,16 @@ async def job_events(
 async def job_events_ws(websocket: WebSocket, job_id: str) -> None:
     """The same events as JSON messages ``{"event": ..., "data": {...}}``; closes after ``end``."""
     store: JobStore = websocket.app.state.store
-    rec = await run_in_threadpool(store.record, job_id, await get_owner())
-    if rec is None:
-        await websocket.close(code=4404, reason=f"no job {job_id!r}")
+    await websocket.accept()  # first: a close before it would reach the browser as HTTP 403
+    try:
+        rec = await run_in_threadpool(store.record, job_id, await get_owner())
+    except redis.RedisError:
+        await websocket.send_json({"event": "error", "data": REDIS_GONE})
+        await websocket.close(code=1011, reason="Redis unavailable")
         return
-    await websocket.accept()
+    if rec is None:
+        await websocket.close(code=4404, reason=f"no job {job_id!r}"[:120])
+        return
     aredis: aioredis.Redis = websocket.app.state.aredis
     keepalive = websocket.app.state.settings.sse_keepalive_s
     try:
@@ -108,3 +133,8 @@ async def job_events_ws(websocket: WebSocket, job_id: str) -> None:
         await websocket.close(code=1000)
     except WebSocketDisconnect:
         pass
+    except (redis.RedisError, OSError) as exc:
+        log.warning("job websocket ended: Redis unreachable", extra={"job": job_id, "error": str(exc)})
+        with contextlib.suppress(WebSocketDisconnect, RuntimeError):
+            await websocket.send_json({"event": "error", "data": REDIS_GONE})
+            await websocket.close(code=1011, reason="Redis unavailable")

@@ -1,0 +1,62 @@
+"""The live event streams at their edges: a stream whose Redis goes away ends with an ``error`` event
+(SSE and websocket), and the job websocket of another key's job is closed with 4404, not refused."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from starlette.websockets import WebSocketDisconnect
+
+from tests.services.controller.ctl import QUICK, Controller, ctl_fixture  # noqa: F401
+from tests.services.private_redis import PrivateRedis, private_redis_fixture  # noqa: F401
+
+
+def test_another_keys_job_websocket_closes_4404(ctl: Controller) -> None:
+    api = ctl.client(api_keys="alpha,beta")
+    job_id = api.post("/jobs", json=QUICK, headers={"X-API-Key": "alpha"}).json()["id"]
+    for path in (f"/ws/jobs/{job_id}?api_key=beta", "/ws/jobs/nope?api_key=alpha"):
+        with pytest.raises(WebSocketDisconnect) as info, api.websocket_connect(path) as ws:
+            ws.receive_json()
+        assert info.value.code == 4404, path
+    with api.websocket_connect(f"/ws/jobs/{job_id}?api_key=alpha") as ws:
+        assert ws.receive_json()["event"] == "status"
+
+
+def test_sse_ends_with_an_error_event_when_redis_goes_away(
+    ctl: Controller, private_redis: PrivateRedis
+) -> None:
+    ctl.env["REDIS_URL"] = private_redis.url
+    api = ctl.client(sse_keepalive_s=0.5)
+    job_id = api.post("/jobs", json=QUICK).json()["id"]  # no worker: it stays queued
+    events: list[tuple[str, str]] = []
+    with api.stream("GET", f"/jobs/{job_id}/events") as r:
+        assert r.status_code == 200
+        event = ""
+        for line in r.iter_lines():
+            if line.startswith("event: "):
+                event = line.removeprefix("event: ")
+            elif line.startswith("data: "):
+                events.append((event, line.removeprefix("data: ")))
+                if event == "status":
+                    private_redis.stop()
+    assert [e for e, _ in events] == ["status", "error"]
+    assert json.loads(events[-1][1])["error"] == "redis_unavailable"
+
+
+def test_the_job_websocket_ends_with_an_error_event_when_redis_goes_away(
+    ctl: Controller, private_redis: PrivateRedis
+) -> None:
+    ctl.env["REDIS_URL"] = private_redis.url
+    api = ctl.client(sse_keepalive_s=0.5)
+    job_id = api.post("/jobs", json=QUICK).json()["id"]
+    with api.websocket_connect(f"/ws/jobs/{job_id}") as ws:
+        assert ws.receive_json()["event"] == "status"
+        private_redis.stop()
+        last = ws.receive_json()
+        assert (
+            last == {"event": "error", "data": last["data"]} and last["data"]["error"] == "redis_unavailable"
+        )
+        with pytest.raises(WebSocketDisconnect) as info:
+            ws.receive_json()
+        assert info.value.code == 1011
