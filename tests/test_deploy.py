@@ -7,8 +7,10 @@ import os
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -241,3 +243,44 @@ def test_redis_script_starts_a_server(tmp_path: Path) -> None:
         [str(ROOT / "scripts" / "redis.sh")], capture_output=True, text=True, env=env, check=True
     )
     assert r.stdout.strip() == "redis://example:6379/3"
+
+
+def test_compose_redis_keeps_its_data_and_its_command_runs(compose: dict[str, Any], tmp_path: Path) -> None:
+    """AOF on (fsync every second) into a volume, so the queue, job records and checkpoints survive a
+    restart of Redis (docs/persistence.md); the command's options are ones this redis-server takes."""
+    svc = compose["services"]["redis"]
+    cmd = svc["command"]
+    assert cmd[0] == "redis-server"
+    opts = dict(zip(cmd[1::2], cmd[2::2], strict=True))
+    assert opts["--appendonly"] == "yes" and opts["--appendfsync"] == "everysec"
+    assert any(str(v).endswith(":/data") for v in svc["volumes"])
+    for name, s in compose["services"].items():
+        env = s.get("environment") or {}
+        if "API_KEYS" in env:
+            assert "API_KEY_SECRET" in env, name  # the key ids' secret goes with the keys
+    if shutil.which("redis-server") is None:
+        pytest.skip("redis-server is not installed")
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    proc = subprocess.Popen(
+        [*cmd, "--port", str(port), "--bind", "127.0.0.1", "--dir", str(tmp_path)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        client = redis.Redis(port=port, socket_connect_timeout=0.2)
+        deadline = time.monotonic() + 10
+        while True:
+            try:
+                client.ping()
+                break
+            except redis.RedisError:
+                assert time.monotonic() < deadline, "redis-server did not start with compose's options"
+                time.sleep(0.05)
+        assert client.config_get("appendonly") == {"appendonly": "yes"}
+        assert client.config_get("appendfsync") == {"appendfsync": "everysec"}
+        client.close()
+    finally:
+        proc.terminate()
+        proc.wait(10)
