@@ -7,6 +7,8 @@
 // (default /usr/bin/chromium), TRUCK_TASK (the truck-parking task's name, optional).
 // Every phase prints progress lines and, last, one JSON object {"phase", "ok", ...measurements}; it
 // exits 1 on a failed check (the message says which) or on a console error on the happy path.
+// Whether a model or a goal is on screen is read from the view's projection of it (data-screen-<name>
+// on the view, written by the page's viewer), colours from the canvas' pixels.
 import { mkdirSync, mkdtempSync, rmSync } from 'node:fs';
 import { createRequire } from 'node:module';
 import { tmpdir } from 'node:os';
@@ -32,30 +34,33 @@ function log(msg) {
   console.log(`[${phase}] ${msg}`);
 }
 
-/** Non-background pixels of the view's canvas and a small fingerprint of it (read in the page). */
-async function canvasStats(page, selector) {
-  return page.evaluate((sel) => {
-    const c = document.querySelector(sel);
-    if (!(c instanceof HTMLCanvasElement)) return null;
-    const w = 160;
-    const h = Math.max(1, Math.round((c.height / c.width) * w));
-    const small = document.createElement('canvas');
-    small.width = w;
-    small.height = h;
-    const g = small.getContext('2d');
-    window.__neuroRedraw?.(c); // the view keeps no drawing buffer: draw it now and read it in this task
-    g.drawImage(c, 0, 0, w, h);
-    const d = g.getImageData(0, 0, w, h).data;
-    const bg = [0x11, 0x16, 0x1d];
-    let lit = 0;
-    const cells = [];
-    for (let i = 0; i < d.length; i += 4) {
-      const diff = Math.abs(d[i] - bg[0]) + Math.abs(d[i + 1] - bg[1]) + Math.abs(d[i + 2] - bg[2]);
-      if (diff > 40) lit += 1;
-      cells.push(d[i] + d[i + 1] + d[i + 2]);
-    }
-    return { lit, total: w * h, cells };
-  }, selector);
+/** A small fingerprint of a view's canvas (read in the page): per-cell brightness, and the colour at
+ * given CSS-pixel points of the canvas. */
+async function canvasStats(page, selector, points = []) {
+  return page.evaluate(
+    ([sel, pts]) => {
+      const c = document.querySelector(sel);
+      if (!(c instanceof HTMLCanvasElement)) return null;
+      const w = 160;
+      const h = Math.max(1, Math.round((c.height / c.width) * w));
+      const small = document.createElement('canvas');
+      small.width = w;
+      small.height = h;
+      const g = small.getContext('2d');
+      window.__neuroRedraw?.(c); // the view keeps no drawing buffer: draw it now and read it in this task
+      g.drawImage(c, 0, 0, w, h);
+      const d = g.getImageData(0, 0, w, h).data;
+      const cells = [];
+      for (let i = 0; i < d.length; i += 4) cells.push(d[i] + d[i + 1] + d[i + 2]);
+      const sx = w / c.clientWidth;
+      const colours = pts.map(([x, y]) => {
+        const i = (Math.min(h - 1, Math.max(0, Math.round(y * sx))) * w + Math.min(w - 1, Math.max(0, Math.round(x * sx)))) * 4;
+        return [d[i], d[i + 1], d[i + 2]];
+      });
+      return { total: w * h, cells, colours };
+    },
+    [selector, points],
+  );
 }
 
 function changed(a, b) {
@@ -64,11 +69,43 @@ function changed(a, b) {
   return n;
 }
 
+/** Where an object the view marks is on its canvas: data-screen-<name>="x,y,on" (viewer.mark). */
+async function screenOf(page, view, name) {
+  const raw = await page.$eval(view, (el, n) => el.dataset[`screen${n[0].toUpperCase()}${n.slice(1)}`] ?? '', name);
+  if (!raw) return null;
+  const [x, y, on] = raw.split(',').map(Number);
+  return { x, y, on: on === 1 };
+}
+
+/** Waits until the view marks `name` on screen, inside the canvas with `inset` pixels to spare. */
+async function onScreen(page, view, name, inset = 4, timeout = 8000) {
+  const t0 = Date.now();
+  let s = null;
+  let box = null;
+  while (Date.now() - t0 < timeout) {
+    s = await screenOf(page, view, name);
+    box = await page.$eval(view, (el) => ({ w: el.clientWidth, h: el.clientHeight }));
+    if (s && s.on && s.x >= inset && s.y >= inset && s.x <= box.w - inset && s.y <= box.h - inset) return s;
+    await page.waitForTimeout(250);
+  }
+  const marks = await page.$eval(view, (el) => JSON.stringify(el.dataset));
+  throw new Error(`check failed: the ${name} is on screen in ${view} (at ${JSON.stringify(s)} of ${JSON.stringify(box)}; marks ${marks})`);
+}
+
 async function frameRate(page, seconds) {
   const f0 = await page.evaluate(() => ({ frames: window.__neuro?.frames ?? 0, t: performance.now() }));
   await page.waitForTimeout(seconds * 1000);
-  const f1 = await page.evaluate(() => ({ frames: window.__neuro?.frames ?? 0, t: performance.now() }));
-  return ((f1.frames - f0.frames) * 1000) / (f1.t - f0.t);
+  const f1 = await page.evaluate(() => ({ frames: window.__neuro?.frames ?? 0, t: performance.now(), scale: window.__neuro?.scale ?? 1 }));
+  return { fps: ((f1.frames - f0.frames) * 1000) / (f1.t - f0.t), scale: f1.scale };
+}
+
+async function noErrorNotice(page, what) {
+  const errors = await page.$$eval('.notice-error', (els) => els.map((e) => e.textContent));
+  check(errors.length === 0, `${what}: no error notice (got ${errors.join(' | ')})`);
+}
+
+async function shot(page, name, opts = {}) {
+  await page.screenshot({ path: join(shots, `${name}.png`), ...opts });
 }
 
 async function models(page) {
@@ -78,95 +115,225 @@ async function models(page) {
   const names = await page.$$eval('.model-card', (els) => els.map((e) => e.dataset.model));
   log(`models: ${names.join(', ')}`);
   check(['lander', 'truck', 'pendulum-active'].every((m) => names.includes(m)), `the default models are listed (got ${names})`);
-  const plots = await page.$$eval('.rollout svg polyline', (els) => els.length);
-  const missing = await page.$$eval('.not-measured', (els) => els.length);
-  log(`rollout curves drawn: ${plots}, "not measured" notes: ${missing}`);
-  check(plots > 0 || missing > 0, 'each model shows its rollout error or says it was not measured');
+  await page.waitForFunction(() => document.querySelectorAll('.rollout .uplot').length > 0 || document.querySelectorAll('.not-measured').length > 0, null, { timeout: 10000 });
+  // every curve is of a version the emulator serves, or says it is not loaded
+  const cards = await page.$$eval('.model-card', (els) =>
+    els.map((card) => {
+      const loaded = [...card.querySelectorAll('.facts tr')].find((tr) => tr.textContent.startsWith('versions loaded'));
+      const legend = [...card.querySelectorAll('.rollout .u-legend .u-label')].map((l) => l.textContent);
+      const series = JSON.parse(card.querySelector('.rollout .plot')?.dataset.series ?? '[]');
+      const physical = [...card.querySelectorAll('table.physical tr[data-quantity]')].map((tr) => ({
+        version: tr.dataset.version,
+        quantity: tr.dataset.quantity,
+        served: !tr.classList.contains('not-served'),
+        cells: [...tr.querySelectorAll('td.num')].map((td) => td.textContent),
+      }));
+      return { model: card.dataset.model, loaded: loaded?.querySelector('td')?.textContent ?? '', legend, series, physical };
+    }),
+  );
+  let curves = 0;
+  for (const c of cards) {
+    curves += c.series.length;
+    for (const name of c.legend) check(c.series.includes(name), `${c.model}: the legend names a drawn curve (${name})`);
+    for (const r of c.physical) check(c.loaded.split(', ').includes(r.version) === r.served, `${c.model}: ${r.version} is marked served only when loaded`);
+    const notLoaded = c.series.filter((n) => /not loaded/.test(n)).length;
+    check(c.series.length - notLoaded <= Math.max(1, c.loaded.split(', ').length), `${c.model}: only loaded versions are unlabelled (${c.series} vs ${c.loaded})`);
+  }
+  const lander = cards.find((c) => c.model === 'lander');
+  log(`rollout curves: ${curves}; lander physical rows: ${lander.physical.map((r) => `${r.quantity}@${r.version}`).join(', ')}`);
+  check(lander.physical.some((r) => r.quantity === 'root_position_m' && r.cells.length === 4 && r.cells.every((x) => / \/ /.test(x))), 'the lander shows its root position error (mean / p90) at 4 times');
+  check(lander.physical.some((r) => r.quantity === 'attitude_deg'), 'the lander shows its attitude error');
   out.models = names.length;
-  out.rollout_curves = plots;
-  await page.screenshot({ path: join(shots, 'models.png'), fullPage: false });
+  out.rollout_curves = curves;
+  await noErrorNotice(page, 'models');
+  await shot(page, 'models');
+}
+
+async function startSession(page, model) {
+  await page.selectOption('#pg-model', model);
+  await page.click('#pg-start');
+  await page.waitForFunction(
+    (m) => document.querySelector('#pg-model')?.value === m && /t = /.test(document.querySelector('#pg-status')?.textContent ?? '') && !/Starting/.test(document.querySelector('#pg-status')?.textContent ?? ''),
+    model,
+    { timeout: 20000 },
+  );
+  await page.waitForTimeout(1200); // the camera glides to the model
 }
 
 async function playground(page) {
-  await page.goto(`${base}/#/playground?model=lander`);
+  // a start (seed 5) 23 m above the ground and climbing, so the lander stays above it
+  await page.goto(`${base}/#/playground?model=lander&seed=5`);
   await page.waitForFunction(() => document.querySelector('#pg-model')?.value === 'lander', null, { timeout: 20000 });
+  // the session starts at a random state, maybe falling: hover thrust on the slider (mass 100 under
+  // lunar gravity: 16.2) and full thrust from the key for two seconds, as soon as the sliders are there
   await page.click('#pg-start');
-  await page.waitForFunction(() => /t = /.test(document.querySelector('#pg-status')?.textContent ?? ''), null, { timeout: 20000 });
-  log('lander session is live');
-  await page.waitForTimeout(1500);
-  const a = await canvasStats(page, '#pg-view canvas');
-  check(a && a.lit > 50, `the view shows the model (${a?.lit} lit pixels of ${a?.total})`);
-  // drive: full thrust and a roll for two seconds
+  await page.waitForSelector('[data-control="main_jet"]', { timeout: 20000 });
+  await page.$eval('[data-control="main_jet"]', (el) => {
+    el.value = '16.4';
+    el.dispatchEvent(new Event('input', { bubbles: true }));
+  });
   await page.focus('body');
   await page.keyboard.down('ArrowUp');
-  await page.keyboard.down('KeyW');
+  await page.waitForFunction(() => /t = /.test(document.querySelector('#pg-status')?.textContent ?? ''), null, { timeout: 20000 });
+  log('lander session is live');
+  const a = await canvasStats(page, '#pg-view canvas');
   await page.waitForTimeout(2500);
   const jet = await page.$eval('[data-control="main_jet"]', (el) => el.closest('.slider').querySelector('.value').textContent);
   await page.keyboard.up('ArrowUp');
-  await page.keyboard.up('KeyW');
   log(`main jet while the key was held: ${jet}`);
   check(Number(jet) > 30, 'holding ↑ drives the main jet to its high end');
   const b = await canvasStats(page, '#pg-view canvas');
   const moved = changed(a, b);
-  log(`lit pixels ${a.lit} -> ${b.lit}; ${moved} of ${a.total} cells changed`);
-  check(b.lit > 50 && moved > 20, 'the picture changes as the lander moves');
-  // the MuJoCo ghost
+  log(`${moved} of ${a.total} cells changed`);
+  check(moved > 20, 'the picture changes as the lander moves');
+  const m0 = await onScreen(page, '#pg-view', 'model');
+  const g0 = await onScreen(page, '#pg-view', 'ground');
+  log(`lander at ${m0.x},${m0.y}; the ground below it at ${g0.x},${g0.y}`);
+  // the MuJoCo ghost, and how far it is from the emulator, as a number and a curve
   await page.check('#pg-ghost');
+  await page.waitForFunction(() => document.querySelector('#pg-divergence')?.dataset.position !== undefined, null, { timeout: 10000 });
+  await onScreen(page, '#pg-view', 'ghost');
   await page.waitForTimeout(1500);
-  await page.screenshot({ path: join(shots, 'playground.png') });
-  const fps = await frameRate(page, 5);
-  log(`dashboard frame rate with a live session: ${fps.toFixed(1)} fps`);
-  out.fps = Number(fps.toFixed(1));
-  out.lit_pixels = b.lit;
+  const gap = await page.$eval('#pg-divergence', (el) => ({ position: Number(el.dataset.position), text: el.querySelector('.gap-now').textContent, points: Number(el.querySelector('.plot').dataset.points) }));
+  log(`divergence: ${gap.text} (${gap.points} points plotted)`);
+  check(Number.isFinite(gap.position) && /root position error: .* m · root attitude error: .*°/.test(gap.text) && gap.points >= 2, 'the gap to MuJoCo is shown as a number and a curve');
+  await shot(page, 'playground');
+  const rate = await frameRate(page, 5);
+  log(`dashboard frame rate with a live session: ${rate.fps.toFixed(1)} fps at resolution scale ${rate.scale}`);
+  out.fps = Number(rate.fps.toFixed(1));
+  out.resolution_scale = rate.scale;
   out.changed_cells = moved;
+
+  // a second session without reloading: the camera frames the new model and the ground below it
+  await startSession(page, 'pendulum-force');
+  const m1 = await onScreen(page, '#pg-view', 'model');
+  const g1 = await onScreen(page, '#pg-view', 'ground');
+  const box = await page.$eval('#pg-view', (el) => ({ w: el.clientWidth, h: el.clientHeight }));
+  log(`second session: pendulum at ${m1.x},${m1.y}, ground below it at ${g1.x},${g1.y} in ${box.w}×${box.h}`);
+  check(Math.abs(m1.x - box.w / 2) < box.w * 0.35 && Math.abs(m1.y - box.h / 2) < box.h * 0.4, 'the second model is framed near the middle');
+  // the bottom of the view is ground (grey), not sky
+  const px = await canvasStats(page, '#pg-view canvas', [0.2, 0.5, 0.8].map((f) => [box.w * f, box.h - 6]));
+  log(`colours along the bottom of the view: ${JSON.stringify(px.colours)}`);
+  check(px.colours.every(([r, g, bl]) => Math.abs(r - bl) < 45 && r + g + bl > 150), 'the ground is drawn below the pendulum');
+  // pendulum-force: sliders for its pushes drive the session's forces
+  const pushes = await page.$$eval('[data-force]', (els) => els.map((e) => e.dataset.force));
+  log(`force sliders: ${pushes.join(', ')}`);
+  check(pushes.length === 3, 'pendulum-force has a slider for each of its 3 pushes');
+  await page.$eval('[data-force="push0"]', (el) => {
+    el.value = el.max;
+    el.dispatchEvent(new Event('input', { bubbles: true }));
+  });
+  await page.waitForTimeout(1500);
+  const sent = JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.sent ?? '{}'));
+  const t1 = Number(await page.$eval('#pg-status', (el) => el.dataset.t));
+  await page.waitForTimeout(1200);
+  const t2 = Number(await page.$eval('#pg-status', (el) => el.dataset.t));
+  log(`sent ${JSON.stringify(sent)}; session time ${t1} -> ${t2}`);
+  check(sent.forces?.length === 3 && sent.forces[0] === 2 && sent.controls?.length === 3, 'the session is sent 3 controls and 3 forces, push0 at its high end');
+  check(t2 > t1, 'the session keeps stepping with the forces');
+  await onScreen(page, '#pg-view', 'model');
+  await noErrorNotice(page, 'pendulum-force');
+  await shot(page, 'playground-pendulum-force');
   await page.click('#pg-stop');
 }
 
-async function controllers(page) {
-  const task = process.env.TRUCK_TASK;
-  await page.goto(`${base}/#/controllers${task ? `?task=${encodeURIComponent(task)}` : ''}`);
-  await page.waitForFunction(() => document.querySelector('#ct-view')?.dataset.goal && !document.querySelector('#ct-submit')?.disabled, null, { timeout: 30000 });
-  const chosen = await page.$eval('#ct-task', (el) => el.value);
-  log(`task: ${chosen}`);
-  // drag the goal 80 px to the right on the ground
-  const before = await page.$$eval('#ct-target input', (els) => els.map((e) => Number(e.value)));
-  const [gx, gy] = (await page.$eval('#ct-view', (el) => el.dataset.goal)).split(',').map(Number);
-  const box = await (await page.$('#ct-view canvas')).boundingBox();
-  await page.mouse.move(box.x + gx, box.y + gy);
-  await page.mouse.down();
-  for (let i = 1; i <= 8; i++) await page.mouse.move(box.x + gx + i * 10, box.y + gy + i * 3);
-  await page.mouse.up();
-  await page.waitForTimeout(800);
-  const after = await page.$$eval('#ct-target input', (els) => els.map((e) => Number(e.value)));
-  log(`goal before ${before.slice(0, 3)} after the drag ${after.slice(0, 3)}`);
-  check(before.length >= 2 && (after[0] !== before[0] || after[1] !== before[1]), 'dragging the goal moves it');
-  out.goal_moved = Math.hypot(after[0] - before[0], after[1] - before[1]);
+async function submitAndReplay(page) {
   const t0 = Date.now();
   await page.click('#ct-submit');
   await page.waitForFunction(() => Number(document.querySelector('#objective-plot')?.dataset.points ?? 0) >= 3, null, { timeout: 180000 });
   log('the objective curve is updating');
   await page.waitForSelector('#replay .replay-view canvas', { timeout: 240000 });
   out.job_s = (Date.now() - t0) / 1000;
+}
+
+async function controllers(page) {
+  const task = process.env.TRUCK_TASK;
+  await page.goto(`${base}/#/controllers${task ? `?task=${encodeURIComponent(task)}` : ''}`);
+  await page.waitForFunction(() => document.querySelector('#ct-view')?.dataset.screenGoal && !document.querySelector('#ct-submit')?.disabled, null, { timeout: 30000 });
+  const chosen = await page.$eval('#ct-task', (el) => el.value);
+  log(`task: ${chosen}`);
+  // drag the goal 80 px to the right on the ground
+  const before = await page.$$eval('#ct-target input', (els) => els.map((e) => Number(e.value)));
+  const goal = await onScreen(page, '#ct-view', 'goal');
+  const box = await (await page.$('#ct-view canvas')).boundingBox();
+  await page.mouse.move(box.x + goal.x, box.y + goal.y);
+  await page.mouse.down();
+  for (let i = 1; i <= 8; i++) await page.mouse.move(box.x + goal.x + i * 10, box.y + goal.y + i * 3);
+  await page.mouse.up();
+  await page.waitForTimeout(800);
+  const after = await page.$$eval('#ct-target input', (els) => els.map((e) => Number(e.value)));
+  log(`goal before ${before.slice(0, 3)} after the drag ${after.slice(0, 3)}`);
+  check(before.length >= 2 && (after[0] !== before[0] || after[1] !== before[1]), 'dragging the goal moves it');
+  out.goal_moved = Math.hypot(after[0] - before[0], after[1] - before[1]);
+  await submitAndReplay(page);
   const objectives = JSON.parse(await page.$eval('#objective-plot', (el) => el.dataset.objectives ?? '[]')).filter((v) => v !== null);
   log(`objective: ${objectives[0]} -> ${objectives[objectives.length - 1]} over ${objectives.length} iterations`);
   check(objectives.length >= 3 && Math.min(...objectives.slice(1)) < objectives[0], 'the objective goes down');
-  const final = await page.$eval('#final-errors', (el) => el.textContent);
-  log(`final errors: ${final}`);
-  check(/Emulator/.test(final) && /MuJoCo/.test(final), 'the final errors are shown');
+
+  // success is the result's own, per check, on both sides, and the status line says the same
+  const job = await page.$eval('#job-status', (el) => el.dataset.job);
+  const controller = await page.evaluate(async () => (await (await fetch('config.json')).json()).controller_url);
+  const result = await page.evaluate(async (url) => (await fetch(url)).json(), `${controller}/jobs/${job}/result`);
+  const shown = await page.$eval('#outcome', (el) => ({
+    emulator: el.dataset.successEmulator,
+    physics: el.dataset.successPhysics,
+    criterion: el.querySelector('.criterion').textContent,
+    rows: [...el.querySelectorAll('tr.check')].map((tr) => [tr.children[0].textContent, tr.children[1].dataset.passed, tr.children[2].dataset.passed]),
+  }));
+  const status = await page.$eval('#job-status', (el) => el.textContent);
+  log(`status: ${status}`);
+  log(`criterion: ${shown.criterion}; checks ${JSON.stringify(shown.rows)}`);
+  check(shown.physics === String(result.success_physics) && shown.emulator === String(result.success_emulator), 'the verdicts shown are the result\'s');
+  check(shown.criterion.includes(result.success_criterion), 'the criterion shown is the job\'s');
+  check(shown.rows.length === result.checks_physics.length, 'one row per check');
+  shown.rows.forEach(([text, emu, phys], i) => {
+    check(text === result.checks_physics[i].check, `check ${i} is named as the service names it`);
+    check(emu === String(result.checks_emulator[i].passed) && phys === String(result.checks_physics[i].passed), `check ${i}: passed as the service says`);
+  });
+  check(/meets the success criterion on MuJoCo/.test(status) === (result.success_physics === true), 'the status line agrees with the result on MuJoCo');
+  check(!/succeeded/.test(status), 'the status line does not call a job "succeeded" (that is its run, not the criterion)');
+  out.success_physics = result.success_physics;
+
   const t1 = Number(await page.$eval('#replay', (el) => el.dataset.t ?? '0'));
   await page.waitForTimeout(1500);
   const t2 = Number(await page.$eval('#replay', (el) => el.dataset.t ?? '0'));
   log(`replay clock ${t1} -> ${t2}`);
   check(t2 > t1, 'the replay plays');
-  const s = await canvasStats(page, '#replay .replay-view canvas');
-  check(s && s.lit > 50, 'the replay shows the model');
-  await page.waitForTimeout(1500);
+  for (const side of ['Emulator', 'MuJoCo (physics)']) {
+    const view = `#replay .replay-view[data-side="${side}"]`;
+    await onScreen(page, view, 'model');
+    await onScreen(page, view, 'goal');
+  }
+  const gap = await page.$eval('#replay-divergence', (el) => Number(el.querySelector('.plot').dataset.points));
+  check(gap >= 10, `the replay plots the gap between the emulator and MuJoCo over time (${gap} points)`);
   await page.locator('#replay').scrollIntoViewIfNeeded();
-  await page.screenshot({ path: join(shots, 'controllers.png'), fullPage: true });
+  await page.waitForTimeout(500);
+  await shot(page, 'replay');
+  await page.evaluate(() => window.scrollTo(0, 0));
+  await shot(page, 'controllers');
   out.iterations = objectives.length;
   out.objective_first = objectives[0];
   out.objective_last = objectives[objectives.length - 1];
-  out.final_errors = final;
+
+  // another task: the job shown is dropped, and the lander and its goal are framed on screen
+  await page.selectOption('#ct-task', 'lander-landing');
+  await page.waitForFunction(() => !document.querySelector('#ct-submit')?.disabled && document.querySelector('#ct-view')?.dataset.screenModel, null, { timeout: 20000 });
+  const cleared = await page.evaluate(() => ({
+    replay: document.querySelectorAll('#replay').length,
+    status: document.querySelector('#job-status').textContent,
+    points: document.querySelector('#objective-plot').dataset.points,
+  }));
+  log(`after switching task: ${JSON.stringify(cleared)}`);
+  check(cleared.replay === 0 && cleared.status === 'No job yet.' && cleared.points === '0', 'switching task clears the job, its curve and its replay');
+  const lander = await onScreen(page, '#ct-view', 'model', 20);
+  const pad = await onScreen(page, '#ct-view', 'goal', 20);
+  log(`lander at ${lander.x},${lander.y}; its goal at ${pad.x},${pad.y}`);
+  check(Math.hypot(lander.x - pad.x, lander.y - pad.y) > 60, 'the lander and its goal are apart on screen, both visible');
+  await shot(page, 'controllers-lander');
+  // a task whose model has no heading shows no heading control
+  await page.selectOption('#ct-task', 'pendulum-swing');
+  await page.waitForFunction(() => !document.querySelector('#ct-submit')?.disabled, null, { timeout: 20000 });
+  check(!(await page.isVisible('#ct-heading')), 'the pendulum task shows no goal heading');
 }
 
 async function workerDown(page) {
@@ -182,7 +349,7 @@ async function workerDown(page) {
   const text = await page.$$eval('.notice', (els) => els.map((e) => e.textContent).join(' | '));
   log(`notice: ${text}`);
   out.message = text;
-  await page.screenshot({ path: join(shots, 'worker-down.png') });
+  await shot(page, 'worker-down');
   const id = await page.$eval('#job-status', (el) => el.dataset.job ?? '');
   if (id) await page.click('#ct-cancel'); // leave no job behind for a later worker
 }
@@ -208,7 +375,7 @@ const browser = await chromium.launchPersistentContext(profile, {
     '--use-angle=swiftshader',
     '--enable-unsafe-swiftshader',
   ],
-  viewport: { width: 1400, height: 900 },
+  viewport: { width: 1280, height: 800 }, // the size of the screenshots in docs/
 });
 const errors = [];
 let code = 1;

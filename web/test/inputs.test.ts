@@ -52,6 +52,20 @@ describe('Drive', () => {
     expect(d.values()).toEqual([0, 1.5]);
   });
 
+  it('binds external forces after the controls and sends each vector apart', () => {
+    const torques = [0, 1, 2].map((i) => ({ name: `torque${i}`, low: -2, high: 2 }));
+    const pushes = [0, 1, 2].map((i) => ({ name: `push${i}`, low: -2, high: 2 }));
+    const b = bindingsFor(torques, pushes);
+    expect(b.map((x) => `${x.kind}:${x.index}`)).toEqual(['control:0', 'control:1', 'control:2', 'force:0', 'force:1', 'force:2']);
+    const keys = b.flatMap((x) => [x.keyHigh, x.keyLow]);
+    expect(new Set(keys).size).toBe(12);
+    const d = new Drive(b);
+    d.base[4] = 1.5;
+    d.press(b[3]!.keyHigh);
+    expect(d.split()).toEqual({ controls: [0, 0, 0], forces: [2, 1.5, 0] });
+    expect(new Drive(bindingsFor(truck)).split().forces).toEqual([]);
+  });
+
   it('labels keys as printed', () => {
     expect(keyLabel('KeyW')).toBe('W');
     expect(keyLabel('ArrowLeft')).toBe('←');

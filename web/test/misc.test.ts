@@ -2,10 +2,10 @@ import { describe, expect, it } from 'vitest';
 import { absolute, wsUrl } from '../src/config';
 import { controlVariables, defaultTask, type TaskInfo } from '../src/api/controller';
 import { describeFailure, unreachable } from '../src/api/http';
-import { curvesOf } from '../src/api/measurements';
+import { curvesOf, physicalRows, servedLabel } from '../src/api/measurements';
 import type { VersionEval } from '../src/api/results.gen';
 import { finiteRows } from '../src/pages/replay';
-import { extent, niceTicks } from '../src/ui/plot';
+import { aligned, extent, isDecade, logRange, tickLabel } from '../src/ui/series';
 
 describe('config', () => {
   it('resolves service URLs against the page', () => {
@@ -30,23 +30,42 @@ describe('errors in plain words', () => {
 });
 
 describe('measurements', () => {
+  const curve = { t: [0, 1], error: [0.1, 0.2] };
+  const row = (substeps: number, c = curve): VersionEval => ({
+    model: 'm',
+    version: `n${substeps}-x`,
+    substeps,
+    one_step_rel_error: 0.001,
+    linear_baseline_rel_error: 0.1,
+    baseline_ratio: 100,
+    rollout_error_curve: c,
+    rollout_error_at_20s: 0.1,
+    rollout_error_final: 0.2,
+    architecture: { hidden: [64, 64], activation: 'tanh', weights: 100 },
+  });
+
   it('reads the curves of every measured n in increasing n, or nothing', () => {
-    const curve = { t: [0, 1], error: [0.1, 0.2] };
-    const row = (substeps: number, c = curve): VersionEval => ({
-      model: 'm',
-      version: `n${substeps}-x`,
-      substeps,
-      one_step_rel_error: 0.001,
-      linear_baseline_rel_error: 0.1,
-      baseline_ratio: 100,
-      rollout_error_curve: c,
-      rollout_error_at_20s: 0.1,
-      rollout_error_final: 0.2,
-      architecture: { hidden: [64, 64], activation: 'tanh', weights: 100 },
-    });
     expect(curvesOf(null)).toEqual([]);
     expect(curvesOf({ by_substeps: [row(100), row(25), row(50, { t: [], error: [] })] }).map((c) => c.substeps)).toEqual([25, 100]);
-    expect(curvesOf({ by_substeps: [row(50)] })).toEqual([{ substeps: 50, curve }]);
+    expect(curvesOf({ by_substeps: [row(50)] })).toEqual([{ substeps: 50, version: 'n50-x', curve }]);
+  });
+
+  it('labels versions the emulator does not serve, and lists physical errors per version and quantity', () => {
+    expect(servedLabel(50, true)).toBe('N^50');
+    expect(servedLabel(25, false)).toBe('N^25 (not loaded)');
+    const at = [{ t_s: 1, mean: 0.1, p90: 0.2 }];
+    const rows = physicalRows({
+      by_substeps: [
+        { ...row(50), physical_errors: { root_position_m: at, attitude_deg: null, joint_angle_rad: [] } },
+        { ...row(25), physical_errors: { attitude_deg: at } },
+      ],
+    });
+    expect(rows.map((r) => [r.substeps, r.quantity])).toEqual([
+      [25, 'attitude_deg'],
+      [50, 'root_position_m'],
+    ]);
+    expect(physicalRows({ by_substeps: [row(50)] })).toEqual([]);
+    expect(physicalRows(null)).toEqual([]);
   });
 });
 
@@ -58,12 +77,38 @@ describe('replay', () => {
 });
 
 describe('plot helpers', () => {
-  it('makes round ticks and finite extents', () => {
-    expect(niceTicks(0, 1, 5)).toEqual([0, 0.2, 0.4, 0.6, 0.8, 1]);
-    expect(niceTicks(3, 3)).toEqual([3]);
+  it('merges series on their own x values into aligned columns', () => {
+    const cols = aligned([
+      { name: 'a', xs: [0, 1, 2], ys: [1, 2, 3], color: '#fff' },
+      { name: 'b', xs: [1, 3], ys: [5, 6], color: '#000' },
+    ]);
+    expect(cols).toEqual([
+      [0, 1, 2, 3],
+      [1, 2, 3, null],
+      [null, 5, null, 6],
+    ]);
+    expect(aligned([])).toEqual([[]]);
+  });
+
+  it('leaves out what an axis cannot draw: non-finite values, and non-positive ones on a log axis', () => {
+    const s = [{ name: 'a', xs: [0, 1, 2, 3], ys: [0, -1, NaN, 0.5], color: '#fff' }];
+    expect(aligned(s, true)).toEqual([[0, 1, 2, 3], [null, null, null, 0.5]]);
+    expect(aligned(s, false)).toEqual([[0, 1, 2, 3], [0, -1, null, 0.5]]);
+  });
+
+  it('makes whole-decade log ranges, finite extents and readable tick labels', () => {
+    expect(logRange([0.02, 0.5])).toEqual([0.01, 1]);
+    expect(logRange([3, 3])).toEqual([1, 10]);
+    expect(logRange([0, -1])).toBeNull();
     expect(extent([3, NaN, -1, Infinity])).toEqual([-1, 3]);
     expect(extent([0, -2, 5], true)).toEqual([5, 5]);
     expect(extent([])).toBeNull();
+    expect(tickLabel(0.1 + 0.2)).toBe('0.3');
+    expect(tickLabel(1e-5)).toBe('1e-5');
+    expect(tickLabel(250000)).toBe('3e5');
+    expect(tickLabel(0)).toBe('0');
+    expect(tickLabel(null)).toBe('');
+    expect([1e-4, 0.01, 1, 100, 0.02, 3, 0, -10, null].map(isDecade)).toEqual([true, true, true, true, false, false, false, false, false]);
   });
 });
 

@@ -2,19 +2,46 @@
 // emulator, thesis Table 6.2), as the dashboard's server puts them together from each current version's
 // eval.json and bench.json. Types come from proto/schemas/results (results.gen.ts).
 // Either may be absent: null means "not measured".
-import type { ModelBench, ModelEval, RolloutCurve } from './results.gen';
+import type { ModelBench, ModelEval, PhysicalErrorAt, PhysicalErrors, RolloutCurve } from './results.gen';
 
 export type { ModelBench, ModelEval, RolloutCurve };
 export type EvalResult = ModelEval;
 export type BenchResult = ModelBench;
 
-/** Rollout error curves by n (those with points), in increasing n. */
-export function curvesOf(e: Pick<ModelEval, 'by_substeps'> | null): { substeps: number; curve: RolloutCurve }[] {
+/** Rollout error curves by n (those with points), in increasing n, with the version each comes from. */
+export function curvesOf(e: Pick<ModelEval, 'by_substeps'> | null): { substeps: number; version: string; curve: RolloutCurve }[] {
   if (!e) return [];
   return e.by_substeps
     .filter((r) => r.rollout_error_curve.t.length > 0)
-    .map((r) => ({ substeps: r.substeps, curve: r.rollout_error_curve }))
+    .map((r) => ({ substeps: r.substeps, version: r.version, curve: r.rollout_error_curve }))
     .sort((a, b) => a.substeps - b.substeps);
+}
+
+/** The name of an emulator by its super-step, saying when the emulator service does not serve it. */
+export function servedLabel(substeps: number, served: boolean): string {
+  return `N^${substeps}${served ? '' : ' (not loaded)'}`;
+}
+
+export type PhysicalQuantity = keyof PhysicalErrors;
+export const PHYSICAL_QUANTITIES: Record<PhysicalQuantity, string> = {
+  root_position_m: 'root position (m)',
+  attitude_deg: 'attitude (°)',
+  joint_angle_rad: 'joint angles (rad)',
+};
+
+/** One table row per version (in increasing n) and per measured physical quantity. */
+export function physicalRows(
+  e: Pick<ModelEval, 'by_substeps'> | null,
+): { substeps: number; version: string; quantity: PhysicalQuantity; values: PhysicalErrorAt[] }[] {
+  if (!e) return [];
+  const quantities = Object.keys(PHYSICAL_QUANTITIES) as PhysicalQuantity[];
+  return [...e.by_substeps]
+    .sort((a, b) => a.substeps - b.substeps)
+    .flatMap((r) =>
+      quantities
+        .map((q) => ({ substeps: r.substeps, version: r.version, quantity: q, values: r.physical_errors?.[q] ?? [] }))
+        .filter((row) => row.values.length > 0),
+    );
 }
 
 async function fetchOptional<T>(url: string): Promise<T | null> {

@@ -1,18 +1,22 @@
 // Controllers: pick a task, set its goal by dragging the translucent target on the ground (or typing
 // it), submit the job, watch the objective fall iteration by iteration (server-sent events), then
-// replay the controller on the emulator and on MuJoCo side by side.
+// replay the controller on the emulator and on MuJoCo side by side. Switching task drops the job shown.
 import * as THREE from 'three';
-import { FINAL_STATES, defaultTask, type JobStatus, type ProgressEvent, type TaskInfo } from '../api/controller';
+import { FINAL_STATES, defaultTask, type JobResult, type JobStatus, type ProgressEvent, type TaskInfo } from '../api/controller';
 import type { ModelDetail, ModelGeometry } from '../api/emulator.gen';
 import { errorText } from '../api/http';
-import { ModelView } from '../scene/model';
-import { makeViewer, staging } from '../scene/setup';
+import { groundHeight, ModelView } from '../scene/model';
+import { DropLine } from '../scene/trail';
+import { makeViewer } from '../scene/setup';
 import type { Viewer } from '../scene/viewer';
+import { rootMoves } from '../scene/divergence';
 import { headingOf, targetHandles, withHeading, withXY, type TargetHandles } from '../session/target';
 import { fmt, h } from '../ui/dom';
 import { clearNotice, notify } from '../ui/notices';
 import { LinePlot } from '../ui/plot';
 import type { Page } from './context';
+import { GOAL_COLOR, MODEL_TRAIL } from './divergence';
+import { outcomeSummary } from './outcome';
 import { Replay } from './replay';
 
 const QUEUED_WARN_S = 8;
@@ -26,6 +30,7 @@ interface Scene {
   target: number[];
   model: ModelView;
   goal: ModelView;
+  drops: [DropLine, DropLine]; // below the model and below the goal
 }
 
 export const controllersPage: Page = (root, ctx) => {
@@ -37,8 +42,8 @@ export const controllersPage: Page = (root, ctx) => {
   const submitBtn = h('button', { id: 'ct-submit', class: 'primary', disabled: true }, 'Synthesise controller');
   const cancelBtn = h('button', { id: 'ct-cancel', disabled: true }, 'Cancel job');
   const jobStatus = h('div', { class: 'status', id: 'job-status' }, 'No job yet.');
-  const plot = new LinePlot({ logY: true, xLabel: 'iteration', yLabel: 'objective', height: 220 });
-  plot.svg.id = 'objective-plot';
+  const plot = new LinePlot({ logY: true, xLabel: 'iteration', yLabel: 'objective', height: 240 });
+  plot.el.id = 'objective-plot';
   const viewHost = h('div', { class: 'view', id: 'ct-view' });
   const replayHost = h('div', { id: 'replay-host' });
   root.append(
@@ -56,7 +61,7 @@ export const controllersPage: Page = (root, ctx) => {
         editor,
         h('div', { class: 'buttons' }, submitBtn, cancelBtn),
         jobStatus,
-        h('figure', { class: 'objective' }, plot.svg, h('figcaption', {}, 'Objective vs iteration (live)')),
+        h('figure', { class: 'objective' }, h('figcaption', {}, 'Objective per iteration (live)'), plot.el),
       ),
       viewHost,
     ),
@@ -113,9 +118,11 @@ export const controllersPage: Page = (root, ctx) => {
   const selectTask = async (name: string): Promise<void> => {
     const task = tasks.find((t) => t.name === name);
     if (!task) return;
-    scene?.model.dispose();
-    scene?.goal.dispose();
+    clearJob();
+    if (scene) disposeScene(scene);
     scene = null;
+    editor.textContent = '';
+    headingRow.hidden = true;
     submitBtn.disabled = true;
     desc.textContent = task.description ?? '';
     if (!task.model) {
@@ -133,7 +140,8 @@ export const controllersPage: Page = (root, ctx) => {
         handles: targetHandles(detail.layout),
         target,
         model: new ModelView(geometry),
-        goal: new ModelView(geometry, { ghost: true, color: 0x7dffb0, opacity: 0.5 }),
+        goal: new ModelView(geometry, { ghost: true, color: GOAL_COLOR, opacity: 0.3 }),
+        drops: [new DropLine(MODEL_TRAIL), new DropLine(GOAL_COLOR, 0.9)],
       };
       if (!alive || taskSelect.value !== name) return;
       scene = s;
@@ -143,15 +151,11 @@ export const controllersPage: Page = (root, ctx) => {
       if (poses[poses.length - 1] && target.length) s.goal.setPoses(poses[poses.length - 1]!);
       if (viewer) {
         viewer.world.add(s.model.group, s.goal.group);
-        const all = poses.flat();
-        const st = staging(geometry, poses[0] ?? geometry.rest_poses);
-        const xs = all.map((p) => p[0] ?? 0);
-        const ys = all.map((p) => p[1] ?? 0);
-        const zs = all.map((p) => p[2] ?? 0);
-        const mid = all.length ? [(Math.min(...xs) + Math.max(...xs)) / 2, (Math.min(...ys) + Math.max(...ys)) / 2, (Math.min(...zs) + Math.max(...zs)) / 2] : st.center;
-        const span = all.length ? Math.max(Math.max(...xs) - Math.min(...xs), Math.max(...ys) - Math.min(...ys)) : 0;
-        viewer.setGroundHeight(st.ground);
-        viewer.frame(mid, Math.max(st.radius, span * 0.6));
+        // how high the model starts and the goal is, for a model that moves in the world
+        if (rootMoves(detail.layout)) viewer.world.add(...s.drops.map((d) => d.group));
+        viewer.setGroundHeight(groundHeight(s.model, poses.length ? poses : [geometry.rest_poses]));
+        // the model where it starts and the goal, whole, with the ground below them
+        viewer.frameObjects([s.model.group, s.goal.group]);
       }
       drawEditor();
       submitBtn.disabled = target.length !== detail.state_size;
@@ -170,16 +174,24 @@ export const controllersPage: Page = (root, ctx) => {
     void poseGoal();
   }) : () => undefined;
 
-  // where the goal is on screen (for people's tests and automated ones alike): data-goal="x,y" in pixels
-  let lastMark = 0;
-  const stopMark = viewer
-    ? viewer.onBeforeRender((now) => {
-        const root = scene?.goal.bodies[0];
-        if (!root || now - lastMark < 250) return;
-        lastMark = now;
-        const p = root.getWorldPosition(new THREE.Vector3()).project(viewer.camera);
-        const r = viewer.renderer.domElement.getBoundingClientRect();
-        viewHost.dataset.goal = `${(((p.x + 1) / 2) * r.width).toFixed(0)},${(((1 - p.y) / 2) * r.height).toFixed(0)}`;
+  // where the model and the goal are on screen (for people's tests and automated ones alike):
+  // data-screen-model and data-screen-goal = "x,y,on" in CSS pixels of the view
+  const marks = viewer ? [viewer.mark('model', () => scene?.model.root ?? null), viewer.mark('goal', () => scene?.goal.root ?? null)] : [];
+  // the drop lines follow the model and the goal (dragged, typed); the view redraws when they move
+  let placed = '';
+  const stopDrops = viewer
+    ? viewer.onBeforeRender(() => {
+        const s = scene;
+        const m = s?.model.root;
+        const g = s?.goal.root;
+        if (!s || !m || !g) return;
+        const off = s.goal.group.position;
+        const key = [m.position.x, m.position.y, m.position.z, g.position.x + off.x, g.position.y + off.y, g.position.z, viewer.groundZ].map((v) => v.toFixed(3)).join();
+        if (key === placed) return;
+        placed = key;
+        s.drops[0].set(m.position.x, m.position.y, m.position.z, viewer.groundZ);
+        s.drops[1].set(g.position.x + off.x, g.position.y + off.y, g.position.z, viewer.groundZ);
+        viewer.invalidate();
       })
     : () => undefined;
 
@@ -192,6 +204,20 @@ export const controllersPage: Page = (root, ctx) => {
     clearNotice('job-queued');
   };
 
+  /** Forget the job shown (another task was chosen): its events, status, curve and replay. */
+  const clearJob = (): void => {
+    stopJob();
+    job = null;
+    replay?.dispose();
+    replay = null;
+    plot.set([]);
+    jobStatus.textContent = 'No job yet.';
+    delete jobStatus.dataset.status;
+    delete jobStatus.dataset.job;
+    delete jobStatus.dataset.successPhysics;
+    clearNotice('job');
+  };
+
   const showProgress = (): void => {
     if (!job) return;
     const pts = job.points;
@@ -199,8 +225,7 @@ export const controllersPage: Page = (root, ctx) => {
       { name: 'objective', xs: pts.map((p) => p.iteration), ys: pts.map((p) => p.objective ?? NaN), color: '#4fc3f7' },
       { name: 'best', xs: pts.map((p) => p.iteration), ys: pts.map((p) => p.best_objective ?? NaN), color: '#aed581' },
     ]);
-    plot.svg.dataset.points = String(pts.length);
-    plot.svg.dataset.objectives = JSON.stringify(pts.map((p) => p.objective ?? null));
+    plot.el.dataset.objectives = JSON.stringify(pts.map((p) => p.objective ?? null));
   };
 
   const finish = async (status: JobStatus): Promise<void> => {
@@ -215,18 +240,22 @@ export const controllersPage: Page = (root, ctx) => {
       jobStatus.textContent = `Job ${status.id} was cancelled.`;
       return;
     }
-    jobStatus.textContent = `Job ${status.id} succeeded after ${status.iteration} iterations (best objective ${fmt(status.best_objective)}). Loading the replay…`;
+    const ran = `Job ${status.id} ran ${status.iteration} iterations (best objective ${fmt(status.best_objective)}).`;
+    jobStatus.textContent = `${ran} Loading its result…`;
+    const j = job;
     try {
-      const result = await ctx.controller.result(status.id);
+      const result: JobResult = await ctx.controller.result(status.id);
       const s = scene;
-      if (!alive || !s) return;
+      if (!alive || !s || job !== j) return;
+      // the verdict is the result's own (success_physics, success_emulator): never judged again here
+      jobStatus.textContent = `${ran} ${outcomeSummary(result)}`;
+      jobStatus.dataset.successPhysics = String(result.success_physics ?? '');
       replay?.dispose();
-      replay = new Replay(ctx.emulator, s.geometry, result, s.detail.super_timestep);
+      replay = new Replay(ctx.emulator, s.geometry, s.detail.layout, result, s.detail.super_timestep);
       replayHost.append(replay.el);
       await replay.start();
-      jobStatus.textContent = `Job ${status.id} succeeded after ${status.iteration} iterations (best objective ${fmt(status.best_objective)}).`;
     } catch (e) {
-      notify(`The job succeeded but its result could not be shown. ${errorText(e)}`, 'error', 'job');
+      notify(`The job ended but its result could not be shown. ${errorText(e)}`, 'error', 'job');
     }
   };
 
@@ -347,13 +376,19 @@ export const controllersPage: Page = (root, ctx) => {
     alive = false;
     stopJob();
     drag();
-    stopMark();
+    marks.forEach((m) => m());
     replay?.dispose();
-    scene?.model.dispose();
-    scene?.goal.dispose();
+    stopDrops();
+    if (scene) disposeScene(scene);
     viewer?.dispose();
   };
 };
+
+function disposeScene(s: Scene): void {
+  s.model.dispose();
+  s.goal.dispose();
+  s.drops.forEach((d) => d.dispose());
+}
 
 /** Pointer drag of the goal on the horizontal plane through it; calls `moved(x, y)` on release. */
 function dragGoal(viewer: Viewer, current: () => Scene | null, moved: (x: number, y: number) => void): () => void {

@@ -1,8 +1,10 @@
 // Models: every loaded emulator with its manifest (layout, controls, δt and n), training metrics, the
-// rollout error over time (thesis Fig. 6.6) and the speed table (thesis Table 6.2) when measured.
+// rollout error over time (thesis Fig. 6.6), the errors in physical units (metres, degrees, radians)
+// and the speed table (thesis Table 6.2) when measured. Curves and rows of versions the emulator
+// service does not serve are labelled so.
 import type { ModelDetail } from '../api/emulator.gen';
 import { errorText } from '../api/http';
-import { curvesOf, loadBench, loadEval, type BenchResult, type EvalResult } from '../api/measurements';
+import { curvesOf, loadBench, loadEval, PHYSICAL_QUANTITIES, physicalRows, servedLabel, type BenchResult, type EvalResult } from '../api/measurements';
 import { fmt, h } from '../ui/dom';
 import { notify } from '../ui/notices';
 import { LinePlot } from '../ui/plot';
@@ -60,13 +62,51 @@ function metrics(m: ModelDetail): HTMLElement {
   return h('table', { class: 'facts' }, ...got.map(([k, label]) => h('tr', {}, h('th', {}, label), h('td', {}, fmt(m.metrics?.[k] as number)))));
 }
 
-function rolloutPlot(model: string, e: EvalResult | null): HTMLElement {
+function rolloutPlot(m: ModelDetail, e: EvalResult | null, plots: LinePlot[]): HTMLElement {
   const curves = curvesOf(e);
   if (!curves.length)
-    return h('p', { class: 'muted not-measured' }, 'Rollout error: not measured. ', h('code', {}, `neuro eval ${model} --json`), ' measures it.');
-  const plot = new LinePlot({ logY: true, xLabel: 'time (s)', yLabel: 'error vs MuJoCo' });
-  plot.set(curves.map((c, i) => ({ name: `N^${c.substeps}`, xs: c.curve.t, ys: c.curve.error, color: COLORS[i % COLORS.length]! })));
-  return h('figure', { class: 'rollout' }, plot.svg, h('figcaption', {}, 'Rollout error over time, by super-step n (thesis Fig. 6.6)'));
+    return h('p', { class: 'muted not-measured' }, 'Rollout error: not measured. ', h('code', {}, `neuro eval ${m.model} --json`), ' measures it.');
+  const plot = new LinePlot({ logY: true, xLabel: 'time (s)', yLabel: 'normalised error', height: 230 });
+  plots.push(plot);
+  const series = curves.map((c, i) => {
+    const served = m.versions.includes(c.version);
+    return { name: servedLabel(c.substeps, served), xs: c.curve.t, ys: c.curve.error, color: COLORS[i % COLORS.length]!, dash: served ? undefined : [6, 4] };
+  });
+  const figure = h(
+    'figure',
+    { class: 'rollout' },
+    h('figcaption', {}, 'Rollout error against MuJoCo over time, by super-step n (thesis Fig. 6.6)'),
+    plot.el,
+  );
+  // drawn once the figure is in the page (the plot takes its element's width)
+  queueMicrotask(() => plot.set(series));
+  return figure;
+}
+
+/** Root position (m), attitude (deg) and joint angles (rad) against MuJoCo, mean and p90 at each time. */
+function physicalTable(m: ModelDetail, e: EvalResult | null): HTMLElement {
+  const rows = physicalRows(e);
+  if (!rows.length)
+    return h('p', { class: 'muted not-measured' }, 'Errors in physical units: not measured. ', h('code', {}, `neuro eval ${m.model} --json`), ' measures them.');
+  const times = [...new Set(rows.flatMap((r) => r.values.map((v) => v.t_s)))].sort((a, b) => a - b);
+  return h(
+    'table',
+    { class: 'grid physical', id: `physical-${m.model}` },
+    h('caption', {}, 'Rollout error against MuJoCo in physical units: mean / 90th percentile over the trials'),
+    h('tr', {}, h('th', {}, 'n'), h('th', {}, 'quantity'), ...times.map((t) => h('th', { class: 'num' }, `${fmt(t)} s`))),
+    ...rows.map((r) =>
+      h(
+        'tr',
+        { 'data-version': r.version, 'data-quantity': r.quantity, class: m.versions.includes(r.version) ? '' : 'not-served' },
+        h('td', {}, servedLabel(r.substeps, m.versions.includes(r.version))),
+        h('td', {}, PHYSICAL_QUANTITIES[r.quantity]),
+        ...times.map((t) => {
+          const v = r.values.find((x) => x.t_s === t);
+          return h('td', { class: 'num' }, v ? `${fmt(v.mean)} / ${fmt(v.p90)}` : '–');
+        }),
+      ),
+    ),
+  );
 }
 
 function speedTable(model: string, b: BenchResult | null): HTMLElement {
@@ -98,6 +138,7 @@ function speedTable(model: string, b: BenchResult | null): HTMLElement {
 
 export const modelsPage: Page = (root, ctx) => {
   let alive = true;
+  const plots: LinePlot[] = [];
   const list = h('div', { class: 'models' }, h('p', { class: 'muted' }, 'Loading the emulators…'));
   root.append(h('h1', {}, 'Models'), list);
   void (async () => {
@@ -119,8 +160,8 @@ export const modelsPage: Page = (root, ctx) => {
           h(
             'div',
             { class: 'cols' },
-            h('div', {}, facts(m), h('h3', {}, 'Inputs'), inputs(m), h('h3', {}, 'State layout'), layout(m)),
-            h('div', {}, h('h3', {}, 'Training'), metrics(m), h('h3', {}, 'Accuracy'), rolloutPlot(s.model, ev), h('h3', {}, 'Speed'), speedTable(s.model, bench)),
+            h('div', {}, facts(m), h('h3', {}, 'Inputs'), inputs(m), h('h3', {}, 'State layout'), layout(m), h('h3', {}, 'Training'), metrics(m)),
+            h('div', {}, h('h3', {}, 'Accuracy'), rolloutPlot(m, ev, plots), physicalTable(m, ev), h('h3', {}, 'Speed'), speedTable(s.model, bench)),
           ),
         );
       }
@@ -133,5 +174,6 @@ export const modelsPage: Page = (root, ctx) => {
   })();
   return () => {
     alive = false;
+    plots.forEach((p) => p.dispose());
   };
 };

@@ -1,26 +1,31 @@
 // Playground: start a session of any model and drive it live (keyboard or sliders derived from the
-// manifest's controls) over a real-time websocket; the view interpolates the states to the display
-// rate. "MuJoCo ghost" shows the physics driven by the same controls, translucent.
-import type { ModelDetail, ModelGeometry, SessionInfo } from '../api/emulator.gen';
+// manifest's controls and external forces) over a real-time websocket; the view interpolates the
+// states to the display rate, keeps the model framed with the ground below it, and draws its trail.
+// "MuJoCo ghost" shows the physics driven by the same inputs as a cyan outline, with the gap between
+// the two (root position, attitude) as numbers and a curve beside the view.
+import * as THREE from 'three';
+import type { ForceInfo, ModelDetail, ModelGeometry, SessionInfo, WsState } from '../api/emulator.gen';
 import { errorText } from '../api/http';
-import { ModelView } from '../scene/model';
-import { makeViewer, staging } from '../scene/setup';
+import { gapLabel, poseGap, rootMoves } from '../scene/divergence';
+import type { Pose } from '../scene/interp';
+import { groundHeight, ModelView } from '../scene/model';
+import { makeViewer } from '../scene/setup';
+import { DropLine, Trail } from '../scene/trail';
 import type { Viewer } from '../scene/viewer';
 import { bindingsFor, Drive, keyLabel } from '../session/inputs';
-import { RealtimeSession } from '../session/realtime';
+import { envelopeText, RealtimeSession } from '../session/realtime';
 import { fmt, h } from '../ui/dom';
 import { clearNotice, notify } from '../ui/notices';
+import { DivergencePanel, GHOST_COLOR, MODEL_TRAIL } from './divergence';
 import type { Ctx, Page } from './context';
 
 interface Live {
   info: SessionInfo;
-  detail: ModelDetail;
-  geometry: ModelGeometry;
   socket: RealtimeSession;
   drive: Drive;
   model: ModelView;
   ghost: ModelView;
-  stopFrame: () => void;
+  dispose: () => void;
 }
 
 export const playgroundPage: Page = (root, ctx) => {
@@ -30,7 +35,9 @@ export const playgroundPage: Page = (root, ctx) => {
   const ghostBox = h('input', { type: 'checkbox', id: 'pg-ghost' });
   const sliders = h('div', { class: 'sliders', id: 'pg-sliders' });
   const status = h('div', { class: 'status', id: 'pg-status' }, 'No session. Pick a model and start one.');
+  const envelope = h('div', { class: 'envelope', id: 'pg-envelope', hidden: true });
   const viewHost = h('div', { class: 'view', id: 'pg-view' });
+  const divergence = new DivergencePanel('pg-divergence', { overlay: true });
   root.append(
     h('h1', {}, 'Playground'),
     h(
@@ -41,11 +48,22 @@ export const playgroundPage: Page = (root, ctx) => {
         { class: 'panel' },
         h('label', {}, 'Model ', select),
         h('div', { class: 'buttons' }, startBtn, stopBtn),
-        h('label', { class: 'check' }, ghostBox, ' Show the MuJoCo ghost (same controls)'),
+        h('label', { class: 'check' }, ghostBox, ' Show the MuJoCo ghost (same inputs)'),
+        h(
+          'p',
+          { class: 'legend' },
+          h('span', { class: 'swatch solid' }),
+          'emulator ',
+          h('span', { class: 'swatch ghost' }),
+          'MuJoCo ghost ',
+          h('span', { class: 'swatch trail' }),
+          'trail',
+        ),
         sliders,
+        envelope,
         status,
       ),
-      viewHost,
+      h('div', { class: 'stage' }, viewHost, divergence.el),
     ),
   );
   const viewer = makeViewer(viewHost);
@@ -57,11 +75,9 @@ export const playgroundPage: Page = (root, ctx) => {
     live = null;
     stopBtn.disabled = true;
     if (!l) return;
-    l.stopFrame();
-    l.socket.close();
-    l.model.dispose();
-    l.ghost.dispose();
+    l.dispose();
     sliders.textContent = '';
+    envelope.hidden = true;
     try {
       await ctx.emulator.deleteSession(l.info.id);
     } catch {
@@ -77,9 +93,11 @@ export const playgroundPage: Page = (root, ctx) => {
     status.textContent = `Starting a ${name} session…`;
     try {
       const [detail, geometry] = await Promise.all([ctx.emulator.model(name), ctx.emulator.geometry(name)]);
-      const info = await ctx.emulator.createSession({ model: name });
+      // ?seed=N in the page's address starts from the same state every time (else a random one)
+      const seed = Number(new URLSearchParams(location.hash.split('?')[1] ?? '').get('seed') ?? NaN);
+      const info = await ctx.emulator.createSession(Number.isInteger(seed) && seed >= 0 ? { model: name, seed } : { model: name });
       if (!alive) return;
-      live = begin(ctx, viewer, info, detail, geometry, ghostBox.checked, sliders, status, () => void stop());
+      live = begin(ctx, viewer, { info, detail, geometry, ghostOn: ghostBox.checked, sliders, status, envelope, divergence }, () => void stop());
       stopBtn.disabled = false;
       clearNotice('playground');
     } catch (e) {
@@ -99,6 +117,7 @@ export const playgroundPage: Page = (root, ctx) => {
     if (!live) return;
     live.socket.setShadow(ghostBox.checked);
     live.ghost.visible = ghostBox.checked;
+    divergence.reset(ghostBox.checked);
   });
   const onKey = (ev: KeyboardEvent): void => {
     if (!live || (ev.target instanceof HTMLInputElement && ev.target.type !== 'range') || ev.target instanceof HTMLSelectElement) return;
@@ -129,26 +148,98 @@ export const playgroundPage: Page = (root, ctx) => {
     window.removeEventListener('keyup', onKey);
     window.removeEventListener('blur', onBlur);
     void stop();
+    divergence.dispose();
     viewer?.dispose();
   };
 };
 
-function begin(
-  ctx: Ctx,
-  viewer: Viewer | null,
-  info: SessionInfo,
-  detail: ModelDetail,
-  geometry: ModelGeometry,
-  ghostOn: boolean,
-  sliders: HTMLElement,
-  status: HTMLElement,
-  onDead: () => void,
-): Live {
-  const drive = new Drive(bindingsFor(detail.controls));
+interface Setup {
+  info: SessionInfo;
+  detail: ModelDetail;
+  geometry: ModelGeometry;
+  ghostOn: boolean;
+  sliders: HTMLElement;
+  status: HTMLElement;
+  envelope: HTMLElement;
+  divergence: DivergencePanel;
+}
+
+/** Sliders for every control and force, with their keys. */
+function drawSliders(host: HTMLElement, drive: Drive): HTMLElement[] {
+  const labels: HTMLElement[] = [];
+  host.textContent = '';
+  if (!drive.bindings.length) host.append(h('p', { class: 'muted' }, 'This model has no inputs: watch it move.'));
+  let kind = '';
+  drive.bindings.forEach((b, i) => {
+    if (b.kind !== kind) {
+      kind = b.kind;
+      if (b.kind === 'force') host.append(h('h3', {}, 'External forces'));
+    }
+    const value = h('span', { class: 'value' }, fmt(b.rest));
+    labels.push(value);
+    const range = h('input', { type: 'range', min: b.low, max: b.high, step: (b.high - b.low) / 200, value: b.rest, [`data-${b.kind}`]: b.name });
+    range.addEventListener('input', () => {
+      drive.base[i] = Number(range.value);
+    });
+    const keys = b.keyHigh ? h('span', { class: 'keys' }, `${keyLabel(b.keyHigh)} / ${keyLabel(b.keyLow)}`) : null;
+    host.append(h('div', { class: 'slider' }, h('div', { class: 'slider-head' }, h('b', {}, b.name), ' ', value, ' ', keys), range));
+  });
+  return labels;
+}
+
+/** Arrows for the external forces that push along a world axis (component 0–2 of a body's force). */
+function forceArrows(viewer: Viewer, model: ModelView, forces: ForceInfo[]): (values: number[]) => void {
+  const arrows = forces.map((f) => {
+    const body = model.bodies.find((b) => b.name === f.body);
+    const component = typeof f.component === 'number' ? f.component : -1;
+    if (!body || component < 0 || component > 2) return null;
+    const arrow = new THREE.ArrowHelper(new THREE.Vector3(1, 0, 0), new THREE.Vector3(), 0.5, 0xff7043, 0.12, 0.08);
+    arrow.visible = false;
+    viewer.world.add(arrow);
+    return { arrow, body, axis: component, scale: Math.max(Math.abs(f.low), Math.abs(f.high)) || 1 };
+  });
+  const at = new THREE.Vector3();
+  return (values) => {
+    arrows.forEach((a, i) => {
+      if (!a) return;
+      const v = values[i] ?? 0;
+      a.arrow.visible = Math.abs(v) > 1e-6 && model.visible;
+      if (!a.arrow.visible) return;
+      // at the middle of the body's first geom (a link's centre), in MuJoCo's frame
+      const geom = a.body.children[0];
+      if (geom) geom.getWorldPosition(at);
+      else a.body.getWorldPosition(at);
+      viewer.world.worldToLocal(at);
+      const dir = new THREE.Vector3().setComponent(a.axis, Math.sign(v));
+      const length = 0.15 + 0.6 * (Math.abs(v) / a.scale);
+      a.arrow.position.copy(at).addScaledVector(dir, -length); // the arrow pushes on the body
+      a.arrow.setDirection(dir);
+      a.arrow.setLength(length, 0.12, 0.08);
+    });
+  };
+}
+
+function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): Live {
+  const { info, detail, geometry, divergence } = s;
+  const drive = new Drive(bindingsFor(detail.controls, detail.forces));
   const model = new ModelView(geometry);
-  const ghost = new ModelView(geometry, { ghost: true, color: 0x9be7ff, opacity: 0.3 });
-  ghost.visible = ghostOn;
-  const socket = new RealtimeSession(ctx.emulator.socketUrl(info.id, `mode=realtime&poses=true${ghostOn ? '&shadow=true' : ''}`), {
+  const ghost = new ModelView(geometry, { ghost: true, color: GHOST_COLOR });
+  ghost.visible = s.ghostOn;
+  const rooted = rootMoves(detail.layout);
+  divergence.configure(gapLabel(detail.layout), s.ghostOn);
+  const onState = (msg: WsState): void => {
+    if (msg.poses && msg.shadow?.poses && ghost.visible) {
+      const gap = poseGap(msg.poses, msg.shadow.poses, rooted);
+      if (gap) divergence.add(msg.t, gap);
+    }
+    const text = envelopeText(msg);
+    s.envelope.hidden = !text;
+    s.envelope.textContent = text ?? '';
+    if (text) notify(`The session left the emulator's trained envelope: ${text}. Its states are extrapolated.`, 'warning', 'envelope');
+    else clearNotice('envelope');
+  };
+  const socket = new RealtimeSession(ctx.emulator.socketUrl(info.id, `mode=realtime&poses=true${s.ghostOn ? '&shadow=true' : ''}`), {
+    onState,
     onError: (text, code) => {
       notify(text, 'error', 'playground');
       if (code === 'diverged' || code === 'unknown_session') onDead();
@@ -158,50 +249,92 @@ function begin(
       onDead();
     },
   });
-  const valueLabels: HTMLElement[] = [];
-  sliders.textContent = '';
-  if (!drive.bindings.length) sliders.append(h('p', { class: 'muted' }, 'This model has no controls: watch it move.'));
-  drive.bindings.forEach((b, i) => {
-    const value = h('span', { class: 'value' }, fmt(b.rest));
-    valueLabels.push(value);
-    const range = h('input', { type: 'range', min: b.low, max: b.high, step: (b.high - b.low) / 200, value: b.rest, 'data-control': b.name });
-    range.addEventListener('input', () => {
-      drive.base[i] = Number(range.value);
-    });
-    const keys = b.keyHigh ? h('span', { class: 'keys' }, `${keyLabel(b.keyHigh)} / ${keyLabel(b.keyLow)}`) : null;
-    sliders.append(h('div', { class: 'slider' }, h('div', { class: 'slider-head' }, h('b', {}, b.name), ' ', value, ' ', keys), range));
-  });
-  if (viewer) {
-    viewer.world.add(model.group, ghost.group);
-    const st = staging(geometry);
-    viewer.setGroundHeight(st.ground);
-    viewer.frame(st.center, st.radius);
+  const valueLabels = drawSliders(s.sliders, drive);
+  if (!viewer) {
+    return { info, socket, drive, model, ghost, dispose: () => socket.close() };
   }
+  const trail = new Trail(MODEL_TRAIL);
+  const ghostTrail = new Trail(GHOST_COLOR);
+  const drop = new DropLine(MODEL_TRAIL);
+  drop.group.visible = rooted; // a free model's height above the ground; a fixed one stands on it
+  viewer.world.add(model.group, ghost.group, trail.line, ghostTrail.line, drop.group);
+  viewer.setGroundHeight(groundHeight(model, [geometry.rest_poses]));
+  viewer.groundVisible = true;
+  viewer.animating = true;
+  // frame the moving bodies (a free model) or the whole model with its stand (a fixed one), with the
+  // ghost while it is shown, and the ground below them while they are near it
+  const framed = (): THREE.Box3 => viewer.boxOf(...(rooted ? model.moving : [model.group]), ...(ghost.visible ? ghost.moving : []));
+  viewer.follow(framed);
+  const arrows = forceArrows(viewer, model, detail.forces);
+  // the spot on the ground below the model: data-screen-ground says whether the ground is in view
+  const below = new THREE.Object3D();
+  viewer.world.add(below);
+  const unmark = [
+    viewer.mark('model', () => model.root),
+    viewer.mark('ghost', () => (ghost.visible ? ghost.root : null)),
+    viewer.mark('ground', () => below),
+  ];
   let lastStatus = 0;
-  const stopFrame = viewer
-    ? viewer.onBeforeRender((now) => {
-        const u = drive.values();
-        socket.setControls(u);
-        const poses = socket.sample(now);
-        if (poses) {
-          model.setPoses(poses);
-          viewer.follow(poses[0] ?? null);
-        }
-        const shadow = ghost.group.visible ? socket.sample(now, socket.shadow) : null;
-        if (shadow) ghost.setPoses(shadow);
-        if (now - lastStatus > 200) {
-          lastStatus = now;
-          u.forEach((v, i) => {
-            const label = valueLabels[i];
-            if (label) label.textContent = fmt(v);
-          });
-          const s = socket.last;
-          const fps = window.__neuro?.fps ?? 0;
-          status.textContent = s
-            ? `session ${info.id} · t = ${s.t.toFixed(1)} s · ${s.steps} super-steps of ${fmt(detail.super_timestep)} s${s.clipped ? ' · controls clipped to the trained range' : ''} · ${fps.toFixed(0)} fps`
-            : `session ${info.id} · waiting for the first state…`;
-        }
-      })
-    : () => undefined;
-  return { info, detail, geometry, socket, drive, model, ghost, stopFrame };
+  const tracePoint = (poses: Pose[] | null, t: Trail): void => {
+    const p = poses?.[rooted ? 0 : poses.length - 1];
+    if (p) t.push(p[0] ?? 0, p[1] ?? 0, p[2] ?? 0);
+  };
+  const stopFrame = viewer.onBeforeRender((now) => {
+    const { controls, forces } = drive.split();
+    socket.setControls(controls, forces);
+    arrows(forces);
+    const poses = socket.sample(now);
+    if (poses) {
+      model.setPoses(poses);
+      tracePoint(poses, trail);
+      const p = poses[0];
+      if (p) below.position.set(p[0] ?? 0, p[1] ?? 0, viewer.groundZ);
+      if (p && rooted) drop.set(p[0] ?? 0, p[1] ?? 0, p[2] ?? 0, viewer.groundZ);
+    }
+    const shadow = ghost.visible ? socket.sample(now, socket.shadow) : null;
+    if (shadow) {
+      ghost.setPoses(shadow);
+      tracePoint(shadow, ghostTrail);
+    }
+    ghostTrail.line.visible = ghost.visible;
+    if (now - lastStatus > 200) {
+      lastStatus = now;
+      drive.values().forEach((v, i) => {
+        const label = valueLabels[i];
+        if (label) label.textContent = fmt(v);
+      });
+      const last = socket.last;
+      const stats = window.__neuro;
+      const fps = `${(stats?.fps ?? 0).toFixed(0)} fps${stats && stats.scale < 1 ? ` at ${Math.round(stats.scale * 100)} % resolution` : ''}`;
+      s.status.dataset.sent = JSON.stringify({ controls, forces });
+      s.status.dataset.t = String(last?.t ?? '');
+      s.status.textContent = last
+        ? `session ${info.id}${info.seed != null ? ` (start seed ${info.seed})` : ''} · t = ${last.t.toFixed(1)} s · ${last.steps} super-steps of ${fmt(detail.super_timestep)} s${last.clipped ? ' · inputs clipped to the trained range' : ''} · ${fps}`
+        : `session ${info.id} · waiting for the first state…`;
+    }
+  });
+  return {
+    info,
+    socket,
+    drive,
+    model,
+    ghost,
+    dispose: () => {
+      stopFrame();
+      socket.close();
+      unmark.forEach((u) => u());
+      viewer.follow(null);
+      viewer.animating = false;
+      model.dispose();
+      ghost.dispose();
+      trail.dispose();
+      ghostTrail.dispose();
+      below.removeFromParent();
+      drop.dispose();
+      arrows([]);
+      viewer.world.children.filter((c) => c instanceof THREE.ArrowHelper).forEach((c) => c.removeFromParent());
+      divergence.reset(false);
+      viewer.invalidate();
+    },
+  };
 }

@@ -1,13 +1,20 @@
 // Replaying a controller: the emulated and the physical (MuJoCo) trajectories side by side, each with
-// the translucent goal, interpolated between super-steps at the display rate.
-import type { ModelGeometry } from '../api/emulator.gen';
+// the translucent goal and its path, interpolated between super-steps at the display rate; the
+// emulator's side also shows MuJoCo as a cyan outline, and the gap between them is plotted over time.
+// Above them, the job's outcome: its success criterion and each check on both sides.
+import * as THREE from 'three';
+import type { LayoutGroup, ModelGeometry } from '../api/emulator.gen';
 import type { EmulatorApi } from '../api/emulator';
 import type { JobResult } from '../api/controller';
+import { gapLabel, poseGap, rootMoves, type Gap } from '../scene/divergence';
 import { locate, lerpPoses, type Pose } from '../scene/interp';
-import { ModelView } from '../scene/model';
-import { makeViewer, staging } from '../scene/setup';
+import { groundHeight, ModelView } from '../scene/model';
+import { makeViewer } from '../scene/setup';
+import { DropLine, Trail } from '../scene/trail';
 import type { Viewer } from '../scene/viewer';
-import { fmt, h } from '../ui/dom';
+import { h } from '../ui/dom';
+import { DivergencePanel, GHOST_COLOR, GOAL_COLOR, MODEL_TRAIL } from './divergence';
+import { outcomeView } from './outcome';
 
 /** Rows with a non-finite value (a diverged physics run) are replaced by the last finite row. */
 export function finiteRows(states: (number | null)[][]): number[][] {
@@ -21,26 +28,34 @@ export function finiteRows(states: (number | null)[][]): number[][] {
   return out;
 }
 
-function verdict(err: number | null | undefined, ok: boolean | null | undefined): string {
-  const mark = ok === true ? 'reached the goal' : ok === false ? 'missed the goal' : '';
-  return `final error ${fmt(err)}${mark ? ` (${mark})` : ''}`;
+interface Side {
+  viewer: Viewer;
+  model: ModelView;
+  drop: DropLine | null;
+  poses: Pose[][];
+  ghost: { view: ModelView; poses: Pose[][] } | null;
 }
 
 export class Replay {
   readonly el: HTMLElement;
-  private readonly views: { viewer: Viewer; model: ModelView; poses: Pose[][] }[] = [];
+  private readonly views: Side[] = [];
   private times: number[] = [];
+  private gaps: (Gap | null)[] = [];
   private t = 0;
   private playing = true;
   private last = 0;
+  private lastPanel = 0;
   private readonly slider: HTMLInputElement;
   private readonly clock: HTMLElement;
   private readonly playBtn: HTMLButtonElement;
+  private readonly divergence = new DivergencePanel('replay-divergence', { marker: true });
   private stops: (() => void)[] = [];
+  private disposables: { dispose(): void }[] = [];
 
   constructor(
     private readonly api: EmulatorApi,
     private readonly geometry: ModelGeometry,
+    private readonly layout: LayoutGroup[],
     private readonly result: JobResult,
     private readonly superTimestep: number,
   ) {
@@ -78,25 +93,19 @@ export class Replay {
     const n = Math.max(emulated.length, physical.length);
     const times = r.times && r.times.length === n ? r.times : Array.from({ length: n }, (_, i) => i * this.superTimestep);
     this.times = times;
+    const rooted = rootMoves(this.layout);
+    const goalPoses = pt?.poses[0] ?? null;
     const row = h('div', { class: 'replay-views' });
-    this.el.append(
-      h(
-        'p',
-        { class: 'final-errors', id: 'final-errors' },
-        h('b', {}, 'Emulator: '),
-        verdict(r.final_error_emulator, r.success_emulator),
-        ' · ',
-        h('b', {}, 'MuJoCo: '),
-        verdict(r.final_error_physics, r.success_physics),
-      ),
-      row,
-      h('div', { class: 'replay-bar' }, this.playBtn, this.slider, this.clock),
-    );
-    const sides: [string, Pose[][] | undefined][] = [
-      ['Emulator', pe?.poses],
-      ['MuJoCo (physics)', pp?.poses],
+    this.el.append(outcomeView(r), row, h('div', { class: 'replay-bar' }, this.playBtn, this.slider, this.clock), this.divergence.el);
+    const sides: [string, Pose[][] | undefined, Pose[][] | undefined][] = [
+      ['Emulator', pe?.poses, pp?.poses],
+      ['MuJoCo (physics)', pp?.poses, undefined],
     ];
-    for (const [title, poses] of sides) {
+    // one ground height for both sides: the model standing at its lowest over both runs and the goal
+    const probe = new ModelView(this.geometry);
+    const ground = groundHeight(probe, [...(pe?.poses ?? []), ...(pp?.poses ?? []), ...(goalPoses ? [goalPoses] : [])]);
+    probe.dispose();
+    for (const [title, poses, ghostPoses] of sides) {
       const host = h('div', { class: 'view replay-view', 'data-side': title });
       row.append(h('div', { class: 'replay-side' }, h('h3', {}, title), host));
       if (!poses?.length) {
@@ -107,21 +116,48 @@ export class Replay {
       if (!viewer) continue;
       const view = new ModelView(this.geometry);
       viewer.world.add(view.group);
-      if (pt) {
-        const goal = new ModelView(this.geometry, { ghost: true, color: 0x7dffb0, opacity: 0.5 });
-        goal.setPoses(pt.poses[0] ?? []);
+      const framed: THREE.Object3D[] = [view.group];
+      let goal: ModelView | null = null;
+      if (goalPoses) {
+        goal = new ModelView(this.geometry, { ghost: true, color: GOAL_COLOR, opacity: 0.3 });
+        goal.setPoses(goalPoses);
         viewer.world.add(goal.group);
+        framed.push(goal.group);
+        this.disposables.push(goal);
       }
-      const all = poses.flat();
-      const st = staging(this.geometry, poses[0] ?? this.geometry.rest_poses);
-      const xs = all.map((p) => p[0] ?? 0);
-      const ys = all.map((p) => p[1] ?? 0);
-      const zs = all.map((p) => p[2] ?? 0);
-      const mid = [(Math.min(...xs) + Math.max(...xs)) / 2, (Math.min(...ys) + Math.max(...ys)) / 2, (Math.min(...zs) + Math.max(...zs)) / 2];
-      const span = Math.max(Math.max(...xs) - Math.min(...xs), Math.max(...ys) - Math.min(...ys), Math.max(...zs) - Math.min(...zs));
-      viewer.setGroundHeight(st.ground);
-      viewer.frame(mid, Math.max(st.radius, span * 0.45));
-      this.views.push({ viewer, model: view, poses });
+      let ghost: Side['ghost'] = null;
+      if (ghostPoses?.length) {
+        const g = new ModelView(this.geometry, { ghost: true, color: GHOST_COLOR });
+        viewer.world.add(g.group);
+        ghost = { view: g, poses: ghostPoses };
+        this.disposables.push(g);
+      }
+      // the whole path, for the framing and drawn as the trail
+      const path = poses.map((p) => p[rooted ? 0 : p.length - 1] ?? [0, 0, 0]);
+      const trail = new Trail(MODEL_TRAIL, Math.max(2, path.length));
+      trail.set(path);
+      viewer.world.add(trail.line);
+      this.disposables.push(trail);
+      view.setPoses(poses[0] ?? []);
+      viewer.setGroundHeight(ground);
+      const drop = rooted ? new DropLine(MODEL_TRAIL) : null;
+      if (drop) {
+        viewer.world.add(drop.group);
+        this.disposables.push(drop);
+      }
+      viewer.frameObjects(framed, { points: path.map((p) => viewer.toScene(p[0] ?? 0, p[1] ?? 0, p[2] ?? 0)) });
+      viewer.animating = true;
+      this.stops.push(viewer.mark('model', () => view.root), viewer.mark('goal', () => goal?.root ?? null));
+      this.views.push({ viewer, model: view, drop, poses, ghost });
+    }
+    if (pe?.poses.length && pp?.poses.length) {
+      this.gaps = times.map((_, i) => {
+        const a = pe.poses[Math.min(i, pe.poses.length - 1)];
+        const b = pp.poses[Math.min(i, pp.poses.length - 1)];
+        return a && b ? poseGap(a, b, rooted) : null;
+      });
+      this.divergence.configure(gapLabel(this.layout), true);
+      this.divergence.setAll(times, this.gaps);
     }
     const first = this.views[0];
     if (first) this.stops.push(first.viewer.onBeforeRender((now) => this.tick(now)));
@@ -139,10 +175,23 @@ export class Replay {
       this.slider.value = String(this.end > 0 ? this.t / this.end : 0);
     }
     const { i, f } = locate(this.times, this.t);
+    const at = (poses: Pose[][]): Pose[] | null => {
+      const a = poses[Math.min(i, poses.length - 1)];
+      const b = poses[Math.min(i + 1, poses.length - 1)];
+      return a && b ? lerpPoses(a, b, f) : null;
+    };
     for (const v of this.views) {
-      const a = v.poses[Math.min(i, v.poses.length - 1)];
-      const b = v.poses[Math.min(i + 1, v.poses.length - 1)];
-      if (a && b) v.model.setPoses(lerpPoses(a, b, f));
+      const p = at(v.poses);
+      if (p) v.model.setPoses(p);
+      const root = p?.[0];
+      if (root && v.drop) v.drop.set(root[0] ?? 0, root[1] ?? 0, root[2] ?? 0, v.viewer.groundZ);
+      const g = v.ghost ? at(v.ghost.poses) : null;
+      if (g && v.ghost) v.ghost.view.setPoses(g);
+    }
+    if (now - this.lastPanel > 100) {
+      this.lastPanel = now;
+      this.divergence.show(this.gaps[Math.min(i + (f > 0.5 ? 1 : 0), this.gaps.length - 1)] ?? null);
+      this.divergence.mark(this.t);
     }
     this.clock.textContent = `${this.t.toFixed(1)} / ${this.end.toFixed(1)} s`;
     this.el.dataset.t = this.t.toFixed(2);
@@ -150,11 +199,13 @@ export class Replay {
 
   dispose(): void {
     for (const s of this.stops) s();
+    for (const d of this.disposables) d.dispose();
     for (const v of this.views) {
       v.model.dispose();
       v.viewer.dispose();
     }
     this.views.length = 0;
+    this.divergence.dispose();
     this.el.remove();
   }
 }

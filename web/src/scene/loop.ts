@@ -1,11 +1,14 @@
-// One requestAnimationFrame loop for every view on the page, with a frame counter: window.__neuro
-// holds {frames, fps} (fps over the last second), which the end-to-end test reads.
+// One requestAnimationFrame loop for every view on the page, with a frame counter and the resolution
+// governor (quality.ts): window.__neuro holds {frames, fps, scale} (fps over the last second; scale:
+// the share of the device pixels the views draw), which the status lines and end-to-end tests read.
+import { ResolutionGovernor } from './quality';
 
 type Tick = (now: number) => void;
 
 interface FrameStats {
   frames: number;
   fps: number;
+  scale: number;
 }
 
 declare global {
@@ -15,22 +18,27 @@ declare global {
 }
 
 const ticks = new Set<Tick>();
-const stats: FrameStats = { frames: 0, fps: 0 };
+const stats: FrameStats = { frames: 0, fps: 0, scale: 1 };
+const governor = new ResolutionGovernor();
 let running = false;
-let windowStart = 0;
-let windowFrames = 0;
+let last = 0;
 
 function frame(now: number): void {
   stats.frames += 1;
-  windowFrames += 1;
-  if (now - windowStart >= 1000) {
-    stats.fps = (windowFrames * 1000) / (now - windowStart);
-    windowStart = now;
-    windowFrames = 0;
-  }
+  // a gap of more than half a second is a pause (hidden tab, a breakpoint), not slow drawing
+  if (now - last > 500) governor.reset();
+  last = now;
+  governor.frame(now);
+  stats.fps = governor.fps;
+  stats.scale = governor.scale;
   for (const t of ticks) t(now);
   if (ticks.size) requestAnimationFrame(frame);
   else running = false;
+}
+
+/** The resolution scale the views should draw at now (1: every device pixel). */
+export function resolutionScale(): number {
+  return governor.scale;
 }
 
 export function onFrame(t: Tick): () => void {
@@ -38,8 +46,8 @@ export function onFrame(t: Tick): () => void {
   window.__neuro = stats;
   if (!running) {
     running = true;
-    windowStart = performance.now();
-    windowFrames = 0;
+    last = performance.now();
+    governor.reset();
     requestAnimationFrame(frame);
   }
   return () => ticks.delete(t);

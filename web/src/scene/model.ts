@@ -1,49 +1,49 @@
 // A model drawn from its MJCF geometry (GET /models/{model}/geometry): one group per body, placed by
 // world poses [x, y, z, qw, qx, qy, qz]; geoms are boxes, spheres, capsules, cylinders, ellipsoids and
-// planes in their body's frame. A "ghost" is the same model translucent (the MuJoCo twin, a target).
+// planes in their body's frame, with their MJCF colours. Groups 0–2 are drawn (MuJoCo's defaults:
+// collision geoms in group 3 stay hidden, visual-only geoms in group 2 give a model its look).
+// A "ghost" is the same model as a translucent outline in one colour (the MuJoCo twin, a goal).
 import * as THREE from 'three';
 import type { GeomInfo, ModelGeometry } from '../api/emulator.gen';
 import type { Pose } from './interp';
 
 export interface Look {
   ghost?: boolean;
-  color?: number; // overrides the MJCF colours (ghosts and targets)
-  opacity?: number;
+  color?: number; // a ghost's colour
+  opacity?: number; // a ghost's faces
 }
 
-function shape(g: GeomInfo): THREE.BufferGeometry | null {
+const HIDDEN_GROUP = 3;
+
+function shape(g: GeomInfo, ghost: boolean): THREE.BufferGeometry | null {
   const [a = 0.05, b = 0.05, c = 0.05] = g.size;
+  const round = ghost ? 12 : 28;
   switch (g.type) {
     case 'box':
     case 'mesh':
       return new THREE.BoxGeometry(2 * a, 2 * b, 2 * c);
     case 'sphere':
-      return new THREE.SphereGeometry(a, 24, 16);
+      return new THREE.SphereGeometry(a, round, round / 2 + 2);
     case 'ellipsoid':
-      return new THREE.SphereGeometry(1, 24, 16).scale(a, b, c);
+      return new THREE.SphereGeometry(1, round, round / 2 + 2).scale(a, b, c);
     case 'capsule': // three's capsule and cylinder run along y; MuJoCo's along the geom's z
-      return new THREE.CapsuleGeometry(a, 2 * b, 8, 16).rotateX(Math.PI / 2);
+      return new THREE.CapsuleGeometry(a, 2 * b, 6, round / 2 + 4).rotateX(Math.PI / 2);
     case 'cylinder':
-      return new THREE.CylinderGeometry(a, a, 2 * b, 24).rotateX(Math.PI / 2);
-    case 'plane':
-      return new THREE.PlaneGeometry(a > 0 ? 2 * a : 200, b > 0 ? 2 * b : 200);
+      return new THREE.CylinderGeometry(a, a, 2 * b, round).rotateX(Math.PI / 2);
     default:
-      return null;
+      return null; // planes are the ground (the viewer draws it), other types are not drawn
   }
 }
 
-function material(g: GeomInfo, look: Look): THREE.Material {
+function solidMaterial(g: GeomInfo): THREE.Material {
   const [r = 0.7, gr = 0.7, b = 0.7, a = 1] = g.rgba;
-  const color = look.color !== undefined ? new THREE.Color(look.color) : new THREE.Color(r, gr, b);
-  const opacity = look.ghost ? (look.opacity ?? 0.35) : a;
   return new THREE.MeshStandardMaterial({
-    color,
-    roughness: 0.55,
-    metalness: 0.1,
-    transparent: opacity < 1,
-    opacity,
-    depthWrite: opacity >= 1,
-    side: g.type === 'plane' ? THREE.DoubleSide : THREE.FrontSide,
+    color: new THREE.Color().setRGB(r, gr, b, THREE.SRGBColorSpace),
+    roughness: 0.6,
+    metalness: 0.15,
+    transparent: a < 1,
+    opacity: a,
+    depthWrite: a >= 1,
   });
 }
 
@@ -55,16 +55,25 @@ function setPose(o: THREE.Object3D, p: number[]): void {
 export class ModelView {
   readonly group = new THREE.Group();
   readonly bodies: THREE.Group[];
+  /** The height of the model's own floor (a plane fixed to the world), if it has one. */
+  readonly floorZ: number | null = null;
+  private readonly faces: THREE.Material | null = null;
+  private readonly edges: THREE.LineBasicMaterial | null = null;
 
   constructor(
     readonly geometry: ModelGeometry,
-    look: Look = {},
+    readonly look: Look = {},
   ) {
+    if (look.ghost) {
+      const color = new THREE.Color(look.color ?? 0x9be7ff);
+      this.faces = new THREE.MeshBasicMaterial({ color, transparent: true, opacity: look.opacity ?? 0.22, depthWrite: false });
+      this.edges = new THREE.LineBasicMaterial({ color, transparent: true, opacity: 0.9 });
+    }
     this.bodies = geometry.bodies.map((body) => {
       const g = new THREE.Group();
       g.name = body.name;
       for (const geom of body.geoms) {
-        const mesh = this.mesh(geom, look);
+        const mesh = this.mesh(geom);
         if (mesh) g.add(mesh);
       }
       this.group.add(g);
@@ -72,22 +81,36 @@ export class ModelView {
     });
     if (!look.ghost) {
       for (const geom of geometry.world) {
-        const mesh = this.mesh(geom, look);
+        if (geom.type === 'plane') {
+          if (this.floorZ === null || geom.pos[2]! < this.floorZ) this.floorZ = geom.pos[2] ?? 0;
+          continue;
+        }
+        const mesh = this.mesh(geom);
         if (mesh) this.group.add(mesh);
       }
     }
     this.setPoses(geometry.rest_poses);
   }
 
-  private mesh(geom: GeomInfo, look: Look): THREE.Mesh | null {
-    if (geom.group !== undefined && geom.group >= 3) return null; // MuJoCo hides groups 3-5 by default
-    const s = shape(geom);
+  private mesh(geom: GeomInfo): THREE.Object3D | null {
+    if (geom.group !== undefined && geom.group >= HIDDEN_GROUP) return null;
+    const s = shape(geom, !!this.look.ghost);
     if (!s) return null;
-    const mesh = new THREE.Mesh(s, material(geom, look));
-    mesh.name = geom.name;
-    setPose(mesh, [...geom.pos, ...geom.quat]);
-    if (look.ghost) mesh.renderOrder = 1;
-    return mesh;
+    let obj: THREE.Object3D;
+    if (this.faces && this.edges) {
+      const mesh = new THREE.Mesh(s, this.faces);
+      mesh.renderOrder = 2;
+      mesh.add(new THREE.LineSegments(new THREE.EdgesGeometry(s, 25), this.edges));
+      obj = mesh;
+    } else {
+      const mesh = new THREE.Mesh(s, solidMaterial(geom));
+      mesh.castShadow = true;
+      mesh.receiveShadow = true;
+      obj = mesh;
+    }
+    obj.name = geom.name;
+    setPose(obj, [...geom.pos, ...geom.quat]);
+    return obj;
   }
 
   setPoses(poses: Pose[]): void {
@@ -97,17 +120,66 @@ export class ModelView {
     });
   }
 
+  /** The root body (the first one): what a camera follows and a trail traces. */
+  get root(): THREE.Group | null {
+    return this.bodies[0] ?? null;
+  }
+
+  /** The moving bodies alone (without what is fixed to the world), for framing. */
+  get moving(): THREE.Object3D[] {
+    return this.bodies;
+  }
+
   set visible(v: boolean) {
     this.group.visible = v;
   }
 
+  get visible(): boolean {
+    return this.group.visible;
+  }
+
   dispose(): void {
     this.group.traverse((o) => {
-      if (o instanceof THREE.Mesh) {
+      if (o instanceof THREE.Mesh || o instanceof THREE.LineSegments) {
         o.geometry.dispose();
-        (o.material as THREE.Material).dispose();
+        if (!this.faces) (o.material as THREE.Material).dispose();
       }
     });
+    this.faces?.dispose();
+    this.edges?.dispose();
     this.group.removeFromParent();
   }
+}
+
+/**
+ * The height of the ground for a model: its own floor if it has one; else just below the lowest point
+ * of what is drawn at the given poses (and never above z = 0, where a free body's goal usually lies),
+ * so a model resting at its goal stands on it. `boxAt(poses)` measures the model in MuJoCo's frame.
+ */
+export function groundHeight(model: ModelView, posesList: Pose[][]): number {
+  if (model.floorZ !== null) return model.floorZ;
+  let low = 0;
+  const saved = model.bodies.map((b) => [b.position.clone(), b.quaternion.clone()] as const);
+  const box = new THREE.Box3();
+  for (const poses of posesList) {
+    model.setPoses(poses);
+    model.group.updateMatrixWorld(true);
+    // measure in the model group's own frame (MuJoCo's): undo whatever parent transform it has
+    const inv = model.group.matrixWorld.clone().invert();
+    box.makeEmpty();
+    model.group.traverse((o) => {
+      if (o instanceof THREE.Mesh) {
+        o.geometry.computeBoundingBox();
+        const b = o.geometry.boundingBox!.clone().applyMatrix4(o.matrixWorld).applyMatrix4(inv);
+        box.union(b);
+      }
+    });
+    if (!box.isEmpty()) low = Math.min(low, box.min.z);
+  }
+  model.bodies.forEach((b, i) => {
+    const [p, q] = saved[i]!;
+    b.position.copy(p);
+    b.quaternion.copy(q);
+  });
+  return low;
 }

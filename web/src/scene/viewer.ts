@@ -1,8 +1,11 @@
-// A three.js view of MuJoCo models: z is up in `world` (MuJoCo's frame), an orbiting camera, a ground
-// grid, and a render every animation frame. Throws WebGLUnavailable when the browser has no WebGL.
+// A three.js view of MuJoCo models: z is up in `world` (MuJoCo's frame); a sky with a horizon, a sun
+// that casts shadows onto a gridded ground, an orbiting camera that frames what it is given (a model
+// and its goal; a moving model and the ground below it), and a render every animation frame while
+// something moves. Throws WebGLUnavailable when the browser has no WebGL.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
-import { onFrame } from './loop';
+import { corners, fitPoints, followPoints, viewDirection } from './camera';
+import { onFrame, resolutionScale } from './loop';
 
 export class WebGLUnavailable extends Error {
   constructor() {
@@ -12,8 +15,8 @@ export class WebGLUnavailable extends Error {
 
 /**
  * Whether WebGL is drawn in software (SwiftShader, llvmpipe: no GPU, as in a headless browser or a
- * remote desktop). There every fragment costs CPU, so the views drop multisampling and draw at one
- * device pixel per CSS pixel to keep the display rate.
+ * remote desktop). There every fragment costs CPU, so the views drop multisampling, draw at one
+ * device pixel per CSS pixel and use the cheapest shadow filter.
  */
 let software: boolean | undefined;
 export function softwareRendering(): boolean {
@@ -27,24 +30,64 @@ export function softwareRendering(): boolean {
   return software;
 }
 
-/** A tiled grid texture: one cell per repeat, lines a shade lighter than the ground. */
-function gridTexture(repeat: number): THREE.Texture {
+export const SKY = { top: 0x1b3354, horizon: 0x8fa6bd, below: 0x2a2f36 };
+const GROUND = '#5b6168';
+const GROUND_LINE = '#737a82';
+
+/** A tiled grid texture: one 1 m cell per repeat, every fifth line stronger. */
+function gridTexture(): THREE.Texture {
   const c = document.createElement('canvas');
-  c.width = c.height = 128;
+  c.width = c.height = 256;
   const g = c.getContext('2d');
   if (g) {
-    g.fillStyle = '#1b232c';
-    g.fillRect(0, 0, 128, 128);
-    g.strokeStyle = '#3d4a58';
-    g.lineWidth = 3;
-    g.strokeRect(0, 0, 128, 128);
+    g.fillStyle = GROUND;
+    g.fillRect(0, 0, 256, 256);
+    g.strokeStyle = GROUND_LINE;
+    g.lineWidth = 2;
+    for (let i = 0; i <= 5; i++) {
+      const p = (i * 256) / 5;
+      g.lineWidth = i === 0 || i === 5 ? 4 : 1.5;
+      g.beginPath();
+      g.moveTo(p, 0);
+      g.lineTo(p, 256);
+      g.moveTo(0, p);
+      g.lineTo(256, p);
+      g.stroke();
+    }
   }
   const t = new THREE.CanvasTexture(c);
   t.wrapS = t.wrapT = THREE.RepeatWrapping;
-  t.repeat.set(repeat, repeat);
-  t.anisotropy = 4;
+  t.anisotropy = 8;
   t.colorSpace = THREE.SRGBColorSpace;
   return t;
+}
+
+/** A sky dome: a gradient from the zenith to the horizon, darker below it, following the camera. */
+function skyDome(): THREE.Mesh {
+  const material = new THREE.ShaderMaterial({
+    uniforms: {
+      top: { value: new THREE.Color(SKY.top) },
+      horizon: { value: new THREE.Color(SKY.horizon) },
+      below: { value: new THREE.Color(SKY.below) },
+    },
+    vertexShader: `varying vec3 vDir;
+      void main() { vDir = normalize(position); gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0); gl_Position.z = gl_Position.w; }`,
+    fragmentShader: `uniform vec3 top; uniform vec3 horizon; uniform vec3 below; varying vec3 vDir;
+      void main() {
+        float h = normalize(vDir).y;
+        vec3 c = h > 0.0 ? mix(horizon, top, pow(min(h * 1.6, 1.0), 0.7)) : mix(horizon, below, min(-h * 6.0, 1.0));
+        gl_FragColor = vec4(c, 1.0);
+        #include <colorspace_fragment>
+      }`,
+    side: THREE.BackSide,
+    depthWrite: false,
+    depthTest: false,
+    fog: false,
+  });
+  const dome = new THREE.Mesh(new THREE.SphereGeometry(1, 24, 12), material);
+  dome.renderOrder = -10;
+  dome.frustumCulled = false;
+  return dome;
 }
 
 declare global {
@@ -63,53 +106,105 @@ function redraw(canvas: HTMLCanvasElement): boolean {
   return true;
 }
 
+/** What the camera does: stay (the person orbits), or keep a moving object framed. */
+interface Follow {
+  box: () => THREE.Box3 | null; // the object's box in three's world frame, each frame
+  zoom: number; // the person's zoom relative to the automatic distance
+}
+
 export class Viewer {
   readonly renderer: THREE.WebGLRenderer;
   readonly scene = new THREE.Scene();
-  readonly camera = new THREE.PerspectiveCamera(45, 1, 0.05, 2000);
+  readonly camera = new THREE.PerspectiveCamera(40, 1, 0.05, 2000);
   readonly controls: OrbitControls;
   /** MuJoCo's frame (z up); add models here. */
   readonly world = new THREE.Group();
+  /** The ground's height in MuJoCo's frame. */
+  groundZ = 0;
+  /** Draw every frame (a live session, a replay), not only when something changed. */
+  animating = false;
   private readonly ground: THREE.Mesh;
-  private readonly followed = new THREE.Vector3();
-  private following: THREE.Vector3 | null = null;
+  private readonly sky: THREE.Mesh;
+  private readonly sun: THREE.DirectionalLight;
+  private readonly sunDir = new THREE.Vector3(0.45, 1, 0.3).normalize();
+  private following: Follow | null = null;
+  private readonly followed = new THREE.Vector3(NaN, NaN, NaN); // the followed box's centre last frame
+  private dirty = true;
+  private visible = true;
+  private userBusy = false;
+  private scale = 0;
   private lastRender = 0;
+  private readonly basePixelRatio: number;
   private readonly beforeRender = new Set<(now: number) => void>();
+  private readonly marks = new Map<string, () => THREE.Object3D | null>();
+  private lastMarks = 0;
   private readonly stopLoop: () => void;
   private readonly resize: ResizeObserver;
+  private readonly seen: IntersectionObserver;
 
   constructor(readonly host: HTMLElement) {
     let renderer: THREE.WebGLRenderer;
+    const soft = softwareRendering();
     try {
       // no preserveDrawingBuffer: keeping the buffer costs a full-frame copy every frame; a reader of
       // the pixels calls window.__neuroRedraw(canvas) and reads them in the same task instead
-      renderer = new THREE.WebGLRenderer({ antialias: !softwareRendering() });
+      renderer = new THREE.WebGLRenderer({ antialias: !soft, powerPreference: 'high-performance' });
     } catch {
       throw new WebGLUnavailable();
     }
     this.renderer = renderer;
-    renderer.setPixelRatio(softwareRendering() ? 1 : Math.min(window.devicePixelRatio || 1, 2));
+    this.basePixelRatio = soft ? 1 : Math.min(window.devicePixelRatio || 1, 2);
+    renderer.shadowMap.enabled = true;
+    renderer.shadowMap.type = soft ? THREE.PCFShadowMap : THREE.PCFSoftShadowMap;
+    renderer.toneMapping = THREE.ACESFilmicToneMapping;
+    renderer.toneMappingExposure = 1.05;
     renderer.domElement.className = 'view-canvas';
     host.append(renderer.domElement);
-    this.scene.background = new THREE.Color(0x11161d);
+
+    this.sky = skyDome();
+    this.scene.add(this.sky);
+    this.scene.fog = new THREE.Fog(SKY.horizon, 60, 400);
     this.world.rotation.x = -Math.PI / 2; // MuJoCo z (up) -> three y (up)
     this.scene.add(this.world);
-    this.scene.add(new THREE.HemisphereLight(0xdde6ff, 0x30343a, 1.6));
-    const sun = new THREE.DirectionalLight(0xffffff, 1.8);
-    sun.position.set(5, 12, 7);
-    this.scene.add(sun);
-    // the ground: a plane in MuJoCo's xy plane with a 2 m grid drawn into its texture
+    this.scene.add(new THREE.HemisphereLight(0xcfe0ff, 0x3a3430, 1.4));
+    this.sun = new THREE.DirectionalLight(0xfff1dc, 2.6);
+    this.sun.castShadow = true;
+    const size = soft ? 1024 : 2048;
+    this.sun.shadow.mapSize.set(size, size);
+    this.sun.shadow.bias = -0.0004;
+    this.sun.shadow.normalBias = 0.02;
+    this.scene.add(this.sun, this.sun.target);
+
+    // the ground: a plane in MuJoCo's xy plane with a 1 m grid (every 5 m stronger) drawn into its texture
+    const tex = gridTexture();
+    const extent = 4000;
+    tex.repeat.set(extent / 5, extent / 5);
     this.ground = new THREE.Mesh(
-      new THREE.PlaneGeometry(400, 400),
+      new THREE.PlaneGeometry(extent, extent),
       // Lambert, not the physically based material: a matte ground looks the same and costs far less per pixel
-      new THREE.MeshLambertMaterial({ map: gridTexture(200) }),
+      new THREE.MeshLambertMaterial({ map: tex, side: THREE.DoubleSide }),
     );
+    this.ground.receiveShadow = true;
+    this.ground.name = 'ground';
     this.world.add(this.ground);
+
     this.controls = new OrbitControls(this.camera, renderer.domElement);
     this.controls.enableDamping = true;
+    this.controls.maxPolarAngle = Math.PI * 0.49; // stay above the horizon
+    this.controls.addEventListener('change', () => {
+      this.dirty = true;
+      if (this.userBusy && this.following) this.following.zoom = this.currentZoom();
+    });
+    this.controls.addEventListener('start', () => (this.userBusy = true));
+    this.controls.addEventListener('end', () => (this.userBusy = false));
     this.camera.position.set(4, 3, 6);
     this.resize = new ResizeObserver(() => this.fit());
     this.resize.observe(host);
+    this.seen = new IntersectionObserver((entries) => {
+      for (const e of entries) this.visible = e.isIntersecting;
+      this.dirty = true;
+    });
+    this.seen.observe(host);
     this.fit();
     this.stopLoop = onFrame((now) => this.render(now));
     viewers.set(renderer.domElement, this);
@@ -118,43 +213,161 @@ export class Viewer {
 
   /** A point in MuJoCo coordinates -> three's world coordinates. */
   toScene(x: number, y: number, z: number): THREE.Vector3 {
+    this.world.updateMatrixWorld();
     return new THREE.Vector3(x, y, z).applyMatrix4(this.world.matrixWorld);
   }
 
-  /** Look at `center` (MuJoCo coordinates) from a distance that shows about `radius` around it. */
-  frame(center: number[], radius: number): void {
-    this.world.updateMatrixWorld();
-    const c = this.toScene(center[0] ?? 0, center[1] ?? 0, center[2] ?? 0);
-    const r = Math.max(radius, 0.5);
-    this.controls.target.copy(c);
-    this.camera.position.copy(c).add(new THREE.Vector3(1.0, 1.2, 1.6).normalize().multiplyScalar(r * 3.2));
-    this.scene.fog = new THREE.Fog(0x11161d, r * 6, r * 40); // the ground fades out instead of ending
-    this.camera.near = r / 100;
-    this.camera.far = r * 400;
-    this.camera.updateProjectionMatrix();
-    this.controls.update();
-  }
-
-  /** Keep the camera on a moving point (MuJoCo coordinates); null stops following. */
-  follow(point: number[] | null): void {
-    if (!point) {
-      this.following = null;
-      return;
-    }
-    this.world.updateMatrixWorld();
-    const p = this.toScene(point[0] ?? 0, point[1] ?? 0, point[2] ?? 0);
-    if (!this.following) {
-      // jump to the point at once, keeping the camera's offset; then glide after it
-      const jump = p.clone().sub(this.controls.target);
-      this.controls.target.add(jump);
-      this.camera.position.add(jump);
-      this.followed.copy(p);
-    }
-    this.following = p;
+  /** The world box of objects in the view (three's frame), their invisible parts left out. */
+  boxOf(...objects: THREE.Object3D[]): THREE.Box3 {
+    this.world.updateMatrixWorld(true);
+    const box = new THREE.Box3();
+    for (const o of objects) if (o.visible) box.union(new THREE.Box3().setFromObject(o, false));
+    return box;
   }
 
   setGroundHeight(z: number): void {
+    this.groundZ = z;
     this.ground.position.z = z;
+    this.dirty = true;
+  }
+
+  /** Show the ground, or not (a model with a floor of its own draws that instead). */
+  set groundVisible(v: boolean) {
+    this.ground.visible = v;
+  }
+
+  /** Frame `objects` and `points` (three's world frame), and the ground below them, once, from the
+   * usual angle; stops following. */
+  frameObjects(
+    objects: THREE.Object3D[],
+    opts: { points?: THREE.Vector3[]; withGround?: boolean; azimuth?: number; elevation?: number } = {},
+  ): void {
+    this.following = null;
+    const box = this.boxOf(...objects);
+    for (const p of opts.points ?? []) box.expandByPoint(p);
+    const pts = corners(box);
+    if (opts.withGround !== false && !box.isEmpty()) {
+      const c = box.getCenter(new THREE.Vector3());
+      pts.push(new THREE.Vector3(c.x, this.groundZ, c.z));
+    }
+    this.frameFit(pts, viewDirection(opts.azimuth ?? -62, opts.elevation ?? 15));
+  }
+
+  /** Keep `box()` (three's world frame) framed as it moves, with the ground below it while it is near;
+   * the person may still orbit and zoom. null stops following. */
+  follow(box: (() => THREE.Box3 | null) | null): void {
+    if (!box) {
+      this.following = null;
+      return;
+    }
+    this.following = { box, zoom: 1 };
+    this.followed.set(NaN, NaN, NaN);
+    const b = box();
+    if (b && !b.isEmpty()) this.frameFit(this.followPoints(b), this.direction());
+  }
+
+  /** The direction from the target to the camera now (unit). */
+  private direction(): THREE.Vector3 {
+    const dir = this.camera.position.clone().sub(this.controls.target);
+    return dir.lengthSq() > 1e-12 ? dir.normalize() : viewDirection(-62, 15);
+  }
+
+  /** What a followed box is framed with: itself, and the ground below it while near, never less than
+   * a couple of metres across (a small model does not fill the view). */
+  private followPoints(b: THREE.Box3): THREE.Vector3[] {
+    const size = b.getSize(new THREE.Vector3()).length();
+    const pts = followPoints(b, this.groundZ, Math.max(60, 20 * size));
+    this.host.dataset.framing = `${pts.length > 8 ? 'model and ground' : 'model'} (${(b.min.y - this.groundZ).toFixed(1)} m above it)`;
+    const c = b.getCenter(new THREE.Vector3());
+    const r = Math.max(1, size * 0.5);
+    pts.push(c.clone().addScalar(r), c.clone().subScalar(r));
+    return pts;
+  }
+
+  private frameFit(points: THREE.Vector3[], direction: THREE.Vector3): void {
+    const f = fitPoints(points, direction, this.camera.fov, this.camera.aspect);
+    this.controls.target.copy(f.target);
+    this.camera.position.copy(f.target).addScaledVector(direction, f.distance);
+    this.setDepthRange(f.distance, this.radiusOf(points, f.target));
+    this.controls.update();
+    this.dirty = true;
+  }
+
+  private radiusOf(points: THREE.Vector3[], c: THREE.Vector3): number {
+    return Math.max(0.5, ...points.map((p) => p.distanceTo(c)));
+  }
+
+  private setDepthRange(distance: number, radius: number): void {
+    this.camera.near = Math.max(0.02, Math.min(distance / 100, (distance - radius) / 4));
+    this.camera.far = Math.max(2000, distance * 40);
+    this.camera.updateProjectionMatrix();
+    const fog = this.scene.fog as THREE.Fog;
+    fog.near = Math.max(60, distance * 4);
+    fog.far = Math.max(400, distance * 25);
+  }
+
+  private currentZoom(): number {
+    const f = this.following;
+    const b = f?.box();
+    if (!f || !b || b.isEmpty()) return 1;
+    const auto = fitPoints(this.followPoints(b), this.direction(), this.camera.fov, this.camera.aspect).distance;
+    return this.camera.position.distanceTo(this.controls.target) / auto;
+  }
+
+  /** Keep the sun's shadow camera on what is framed, so shadows stay sharp wherever the model goes. */
+  private aimSun(center: THREE.Vector3, radius: number): void {
+    const r = Math.min(Math.max(radius * 1.3, 3), 300);
+    this.sun.position.copy(center).addScaledVector(this.sunDir, r * 3);
+    this.sun.target.position.copy(center);
+    const cam = this.sun.shadow.camera;
+    if (cam.right !== r) {
+      cam.left = -r;
+      cam.right = r;
+      cam.top = r;
+      cam.bottom = -r;
+      cam.near = 0.1;
+      cam.far = r * 6;
+      cam.updateProjectionMatrix();
+    }
+  }
+
+  /** Tests and people alike: `data-screen-<name>="x,y,on"` on the view's host, in CSS pixels of the
+   * canvas, for the object `get()` returns (refreshed four times a second). */
+  mark(name: string, get: () => THREE.Object3D | null): () => void {
+    this.marks.set(name, get);
+    return () => {
+      this.marks.delete(name);
+      delete this.host.dataset[`screen${name[0]!.toUpperCase()}${name.slice(1)}`];
+    };
+  }
+
+  /** Where a MuJoCo point is on the canvas (CSS pixels) and whether it is inside the view. */
+  screenOf(p: THREE.Vector3): { x: number; y: number; on: boolean } {
+    const n = p.clone().project(this.camera);
+    const w = this.host.clientWidth;
+    const h = this.host.clientHeight;
+    return { x: ((n.x + 1) / 2) * w, y: ((1 - n.y) / 2) * h, on: Math.abs(n.x) <= 1 && Math.abs(n.y) <= 1 && n.z < 1 };
+  }
+
+  private writeMarks(now: number): void {
+    if (!this.marks.size || now - this.lastMarks < 250) return;
+    this.lastMarks = now;
+    for (const [name, get] of this.marks) {
+      const o = get();
+      const key = `screen${name[0]!.toUpperCase()}${name.slice(1)}`;
+      if (!o) {
+        delete this.host.dataset[key];
+        continue;
+      }
+      const box = new THREE.Box3().setFromObject(o);
+      const c = box.isEmpty() ? o.getWorldPosition(new THREE.Vector3()) : box.getCenter(new THREE.Vector3());
+      const s = this.screenOf(c);
+      this.host.dataset[key] = `${s.x.toFixed(0)},${s.y.toFixed(0)},${s.on ? 1 : 0}`;
+    }
+  }
+
+  invalidate(): void {
+    this.dirty = true;
   }
 
   onBeforeRender(f: (now: number) => void): () => void {
@@ -165,29 +378,59 @@ export class Viewer {
   private fit(): void {
     const w = Math.max(1, this.host.clientWidth);
     const h = Math.max(1, this.host.clientHeight);
+    this.scale = resolutionScale();
+    this.renderer.setPixelRatio(this.basePixelRatio * this.scale);
     this.renderer.setSize(w, h, false);
     this.camera.aspect = w / h;
     this.camera.updateProjectionMatrix();
+    this.dirty = true;
   }
 
   private render(now: number): void {
-    for (const f of this.beforeRender) f(now);
-    const dt = this.lastRender ? Math.min(1, (now - this.lastRender) / 1000) : 0;
+    const dt = this.lastRender ? Math.min(0.25, (now - this.lastRender) / 1000) : 0;
     this.lastRender = now;
-    if (this.following) {
-      // glide after the point at the same pace whatever the frame rate (15 % per 60 Hz frame)
-      const delta = this.following.clone().sub(this.followed).multiplyScalar(1 - Math.pow(0.85, dt * 60));
-      this.followed.add(delta);
-      this.controls.target.add(delta);
-      this.camera.position.add(delta);
+    for (const f of this.beforeRender) f(now); // the clocks run on while the view is scrolled away
+    if (!this.visible) return;
+    if (resolutionScale() !== this.scale) this.fit();
+    const f = this.following;
+    const b = f?.box();
+    if (f && b && !b.isEmpty()) {
+      // glide towards the framing at the same pace whatever the frame rate (about 8 % per 60 Hz frame)
+      const pts = this.followPoints(b);
+      const dir = this.direction();
+      const fit = fitPoints(pts, dir, this.camera.fov, this.camera.aspect);
+      const k = 1 - Math.pow(0.92, dt * 60);
+      const now = this.camera.position.distanceTo(this.controls.target);
+      const dist = now + (fit.distance * f.zoom - now) * (this.userBusy ? 0 : k);
+      // move with the model at once (however fast it goes, it stays where it was in the view), and
+      // glide towards the new framing when what is framed changes (the ground comes into it)
+      const centre = b.getCenter(new THREE.Vector3());
+      const target = this.controls.target.clone();
+      if (Number.isFinite(this.followed.x)) target.add(centre.clone().sub(this.followed));
+      this.followed.copy(centre);
+      target.lerp(fit.target, k);
+      this.controls.target.copy(target);
+      this.camera.position.copy(target).addScaledVector(dir, dist);
+      const radius = this.radiusOf(pts, fit.target);
+      this.setDepthRange(dist, radius);
+      this.aimSun(fit.target, radius);
+      this.dirty = true;
+    } else {
+      this.aimSun(this.controls.target, this.camera.position.distanceTo(this.controls.target) * 0.6);
     }
     this.controls.update();
+    this.sky.position.copy(this.camera.position);
+    this.sky.scale.setScalar(this.camera.far * 0.9);
+    this.writeMarks(now);
+    if (!this.dirty && !this.animating) return;
+    this.dirty = false;
     this.renderer.render(this.scene, this.camera);
   }
 
   dispose(): void {
     this.stopLoop();
     this.resize.disconnect();
+    this.seen.disconnect();
     this.controls.dispose();
     this.renderer.dispose();
     this.renderer.domElement.remove();

@@ -1,11 +1,15 @@
 // Keyboard and slider driving, derived from the manifest's controls alone: each control gets a key
 // pair (held: the control's high or low end; released: back to its slider's value). Throttle-like
 // controls (thrust, jet, gas) get the up/down arrows, steering-like ones (steer, yaw, turn) left/right,
-// the rest W/S, D/A, E/Q, I/K, L/J, O/U in order.
-import type { ControlInfo } from '../api/emulator.gen';
+// the rest W/S, D/A, E/Q, I/K, L/J, O/U in order. External forces (a model such as pendulum-force has
+// pushes besides its motors) get sliders and the key pairs left after the controls.
+import type { ControlInfo, ForceInfo } from '../api/emulator.gen';
+
+export type InputKind = 'control' | 'force';
 
 export interface Binding {
-  index: number;
+  index: number; // within its kind: the control's or the force's place in the manifest
+  kind: InputKind;
   name: string;
   low: number;
   high: number;
@@ -31,11 +35,19 @@ export function restValue(low: number, high: number): number {
   return Math.min(high, Math.max(low, 0));
 }
 
-export function bindingsFor(controls: ControlInfo[]): Binding[] {
+type Input = Pick<ControlInfo | ForceInfo, 'name' | 'low' | 'high'>;
+
+/** Key and slider bindings of a model's controls, then of its external forces (in the manifest's order). */
+export function bindingsFor(controls: Input[], forces: Input[] = []): Binding[] {
   const taken = new Set<string>();
-  const out: (Binding | null)[] = controls.map(() => null);
-  const make = (i: number, c: ControlInfo, hi: string, lo: string): void => {
-    out[i] = { index: i, name: c.name, low: c.low, high: c.high, rest: restValue(c.low, c.high), keyHigh: hi, keyLow: lo };
+  const inputs = [...controls.map((c, i) => ({ c, i, kind: 'control' as const })), ...forces.map((c, i) => ({ c, i, kind: 'force' as const }))];
+  const out: (Binding | null)[] = inputs.map(() => null);
+  const binding = (j: number, hi: string, lo: string): Binding => {
+    const { c, i, kind } = inputs[j]!;
+    return { index: i, kind, name: c.name, low: c.low, high: c.high, rest: restValue(c.low, c.high), keyHigh: hi, keyLow: lo };
+  };
+  const make = (j: number, _c: Input, hi: string, lo: string): void => {
+    out[j] = binding(j, hi, lo);
     taken.add(hi).add(lo);
   };
   const throttle = controls.findIndex((c) => THROTTLE.test(c.name));
@@ -43,11 +55,11 @@ export function bindingsFor(controls: ControlInfo[]): Binding[] {
   const steer = controls.findIndex((c, i) => i !== throttle && STEER.test(c.name));
   if (steer >= 0) make(steer, controls[steer]!, 'ArrowLeft', 'ArrowRight'); // positive steering turns left
   const free = PAIRS.filter(([a, b]) => !taken.has(a) && !taken.has(b));
-  controls.forEach((c, i) => {
-    if (out[i]) return;
+  inputs.forEach(({ c }, j) => {
+    if (out[j]) return;
     const pair = free.shift();
-    if (pair) make(i, c, pair[0], pair[1]);
-    else out[i] = { index: i, name: c.name, low: c.low, high: c.high, rest: restValue(c.low, c.high), keyHigh: '', keyLow: '' };
+    if (pair) make(j, c, pair[0], pair[1]);
+    else out[j] = binding(j, '', '');
   });
   return out as Binding[];
 }
@@ -80,6 +92,15 @@ export class Drive {
 
   releaseAll(): void {
     this.held.clear();
+  }
+
+  /** The control vector (U) and the force vector (F) to send. */
+  split(): { controls: number[]; forces: number[] } {
+    const v = this.values();
+    return {
+      controls: v.filter((_, i) => this.bindings[i]!.kind === 'control'),
+      forces: v.filter((_, i) => this.bindings[i]!.kind === 'force'),
+    };
   }
 
   values(): number[] {

@@ -4,6 +4,25 @@
 import type { ServerMessage, WsState } from '../api/emulator.gen';
 import { lerpPoses, SnapshotBuffer, type Pose } from '../scene/interp';
 
+/**
+ * Whether a state left what the emulator was trained on, in words, from the `outside_envelope` field of
+ * a state message when the emulator service sends one (true, or the groups or variables outside, or a
+ * message); null when the state is inside or the service does not say.
+ */
+export function envelopeText(msg: object): string | null {
+  const v = (msg as Record<string, unknown>).outside_envelope;
+  if (v === undefined || v === null || v === false) return null;
+  if (Array.isArray(v)) return v.length ? `outside the trained range of ${v.map(String).join(', ')}` : null;
+  if (typeof v === 'string') return v || null;
+  if (typeof v === 'object') {
+    const keys = Object.entries(v as Record<string, unknown>)
+      .filter(([, x]) => x)
+      .map(([k]) => k);
+    return keys.length ? `outside the trained range of ${keys.join(', ')}` : null;
+  }
+  return 'outside the range of states the emulator was trained on';
+}
+
 export interface RealtimeHandlers {
   onState?: (msg: WsState) => void;
   onError?: (message: string, code: string) => void;

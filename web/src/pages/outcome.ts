@@ -1,0 +1,68 @@
+// A controller's outcome, as the controller service decided it: one success criterion (the job's
+// checks on the final state, in the service's own words), and for the emulator and for MuJoCo whether
+// each check held and the value it measured. Nothing here judges success again: the verdicts are the
+// result's `success_emulator`, `success_physics` and `checks_*[i].passed`.
+import type { JobResult } from '../api/controller';
+import { fmt, h } from '../ui/dom';
+
+type Verdict = boolean | null | undefined;
+
+/** A side's verdict in words. */
+export function verdictText(ok: Verdict): string {
+  return ok === true ? 'meets the criterion' : ok === false ? 'misses the criterion' : 'has no criterion to meet';
+}
+
+/** One line on a finished job: how it ended and where its controller meets the criterion. */
+export function outcomeSummary(r: Pick<JobResult, 'success_emulator' | 'success_physics' | 'success_criterion'>): string {
+  if (!r.success_criterion && r.success_physics == null && r.success_emulator == null) return 'The task states no success criterion.';
+  const e = r.success_emulator;
+  const p = r.success_physics;
+  if (p === true && e === true) return 'The controller meets the success criterion on MuJoCo and on the emulator.';
+  if (p === true) return 'The controller meets the success criterion on MuJoCo (not on the emulator).';
+  if (e === true) return 'The controller meets the success criterion on the emulator but misses it on MuJoCo.';
+  return 'The controller misses the success criterion on the emulator and on MuJoCo.';
+}
+
+function mark(ok: Verdict): HTMLElement {
+  return h('span', { class: ok === true ? 'pass' : ok === false ? 'fail' : 'muted' }, ok === true ? '✓' : ok === false ? '✗' : '–');
+}
+
+/** The criterion and its checks on both sides: a table with one row per check. */
+export function outcomeView(r: JobResult): HTMLElement {
+  const emu = r.checks_emulator ?? [];
+  const phys = r.checks_physics ?? [];
+  const rows = Math.max(emu.length, phys.length);
+  const cell = (c: (typeof emu)[number] | undefined): HTMLElement =>
+    h('td', { 'data-passed': c ? String(c.passed) : '' }, c ? mark(c.passed) : '–', ' ', c ? fmt(c.value) : '');
+  const attrs = {
+    class: 'outcome',
+    id: 'outcome',
+    'data-success-emulator': String(r.success_emulator ?? ''),
+    'data-success-physics': String(r.success_physics ?? ''),
+  };
+  return h(
+    'div',
+    attrs,
+    h('p', { class: 'criterion' }, h('b', {}, 'Success criterion: '), r.success_criterion ?? 'none stated by the task'),
+    rows
+      ? h(
+          'table',
+          { class: 'grid checks' },
+          h('tr', {}, h('th', {}, 'check at the end'), h('th', {}, 'emulator'), h('th', {}, 'MuJoCo')),
+          ...Array.from({ length: rows }, (_, i) => h('tr', { class: 'check' }, h('td', {}, (phys[i] ?? emu[i])!.check), cell(emu[i]), cell(phys[i]))),
+          h(
+            'tr',
+            { class: 'verdict' },
+            h('th', {}, 'all checks'),
+            h('td', { 'data-side': 'emulator' }, mark(r.success_emulator), ' ', verdictText(r.success_emulator)),
+            h('td', { 'data-side': 'physics' }, mark(r.success_physics), ' ', verdictText(r.success_physics)),
+          ),
+        )
+      : null,
+    h(
+      'p',
+      { class: 'muted final-errors', id: 'final-errors' },
+      `Weighted distance of the final state to the target (what the objective penalises, not the criterion): emulator ${fmt(r.final_error_emulator)}, MuJoCo ${fmt(r.final_error_physics)}.`,
+    ),
+  );
+}

@@ -1,0 +1,93 @@
+import { describe, expect, it } from 'vitest';
+import { ResolutionGovernor } from '../src/scene/quality';
+import { angleBetween, gapLabel, poseGap, rootMoves } from '../src/scene/divergence';
+import { envelopeText } from '../src/session/realtime';
+import { outcomeSummary, verdictText } from '../src/pages/outcome';
+import type { LayoutGroup } from '../src/api/emulator.gen';
+
+/** Frames at `fps` for `seconds`, from `t0` (ms); returns the time after the last one. */
+function run(g: ResolutionGovernor, fps: number, seconds: number, t0: number): number {
+  let t = t0;
+  for (let i = 0; i < fps * seconds; i++) {
+    t += 1000 / fps;
+    g.frame(t);
+  }
+  return t;
+}
+
+describe('resolution governor', () => {
+  it('keeps full resolution at 60 fps', () => {
+    const g = new ResolutionGovernor();
+    run(g, 60, 5, 0);
+    expect(g.scale).toBe(1);
+    expect(g.fps).toBeCloseTo(60, 0);
+  });
+
+  it('steps down while slow, to its floor, and back up once fast again', () => {
+    const g = new ResolutionGovernor({ min: 0.5 });
+    let t = run(g, 20, 2.5, 0);
+    expect(g.scale).toBeLessThan(1);
+    t = run(g, 20, 10, t);
+    expect(g.scale).toBe(0.5);
+    t = run(g, 60, 2, t);
+    expect(g.scale).toBe(0.5); // not at once: after a few good windows
+    run(g, 60, 20, t);
+    expect(g.scale).toBe(1);
+  });
+
+  it('does not step down between 45 and 57 fps (no flicker around the threshold)', () => {
+    const g = new ResolutionGovernor();
+    run(g, 50, 10, 0);
+    expect(g.scale).toBe(1);
+  });
+});
+
+const lander: LayoutGroup[] = [
+  { name: 'position', kind: 'position', size: 3, source: 'qpos', address: 0, offset: 0 },
+  { name: 'orientation', kind: 'quaternion', size: 4, source: 'qpos', address: 3, offset: 3 },
+];
+const pendulum: LayoutGroup[] = [{ name: 'angles', kind: 'angle', size: 3, source: 'qpos', address: 0, offset: 0 }];
+
+describe('divergence', () => {
+  it('measures the root gap of a free model, the largest body gap of a fixed one', () => {
+    expect(rootMoves(lander)).toBe(true);
+    expect(rootMoves(pendulum)).toBe(false);
+    expect(gapLabel(lander)).toBe('root position error');
+    const a = [[0, 0, 0, 1, 0, 0, 0], [0, 0, -1, 1, 0, 0, 0]];
+    const b = [[0, 0, 0, 1, 0, 0, 0], [3, 0, -5, 1, 0, 0, 0]];
+    expect(poseGap(a, b, true)!.position).toBe(0);
+    expect(poseGap(a, b, false)!.position).toBe(5);
+    expect(poseGap([], b, true)).toBeNull();
+  });
+
+  it('measures attitude in degrees, q and -q alike', () => {
+    const s = Math.SQRT1_2;
+    expect(angleBetween([1, 0, 0, 0], [s, 0, 0, s])).toBeCloseTo(90);
+    expect(angleBetween([1, 0, 0, 0], [-1, 0, 0, 0])).toBeCloseTo(0);
+  });
+});
+
+describe('the trained envelope', () => {
+  it('says nothing while inside, or when the service does not send the flag', () => {
+    expect(envelopeText({ type: 'state' })).toBeNull();
+    expect(envelopeText({ outside_envelope: false })).toBeNull();
+    expect(envelopeText({ outside_envelope: [] })).toBeNull();
+  });
+
+  it('names what is outside when told', () => {
+    expect(envelopeText({ outside_envelope: true })).toMatch(/outside the range of states/);
+    expect(envelopeText({ outside_envelope: ['position', 'velocity'] })).toBe('outside the trained range of position, velocity');
+    expect(envelopeText({ outside_envelope: { position: true, velocity: false } })).toBe('outside the trained range of position');
+  });
+});
+
+describe('outcome', () => {
+  it("states the result's own verdicts, never its own judgement", () => {
+    expect(verdictText(true)).toBe('meets the criterion');
+    expect(verdictText(false)).toBe('misses the criterion');
+    expect(outcomeSummary({ success_criterion: 'c', success_emulator: true, success_physics: false })).toMatch(/meets .* on the emulator but misses it on MuJoCo/);
+    expect(outcomeSummary({ success_criterion: 'c', success_emulator: true, success_physics: true })).toMatch(/on MuJoCo and on the emulator/);
+    expect(outcomeSummary({ success_criterion: 'c', success_emulator: false, success_physics: false })).toMatch(/misses/);
+    expect(outcomeSummary({ success_criterion: null, success_emulator: null, success_physics: null })).toMatch(/no success criterion/);
+  });
+});
