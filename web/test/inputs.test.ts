@@ -1,5 +1,5 @@
 import { describe, expect, it } from 'vitest';
-import { bindingsFor, Drive, keyLabel, restValue } from '../src/session/inputs';
+import { bindingsFor, controlMeaning, Drive, keyLabel, restValue } from '../src/session/inputs';
 
 const lander = [
   { name: 'main_jet', low: 0, high: 32.4 },
@@ -69,5 +69,13 @@ describe('Drive', () => {
   it('labels keys as printed', () => {
     expect(keyLabel('KeyW')).toBe('W');
     expect(keyLabel('ArrowLeft')).toBe('←');
+  });
+});
+
+describe('controlMeaning', () => {
+  it("says what a control does in the manifest's words, or nothing", () => {
+    expect(controlMeaning({ label: 'main jet', unit: 'N', gain: 10, sign: 'up along the body z axis' })).toBe('main jet; 1 = 10 N; positive: up along the body z axis');
+    expect(controlMeaning({ label: 'steering', unit: 'N' })).toBe('steering; in N');
+    expect(controlMeaning({})).toBe('');
   });
 });

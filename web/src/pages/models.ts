@@ -3,6 +3,7 @@
 // and the speed table (thesis Table 6.2) when measured. Curves and rows of versions the emulator
 // service does not serve are labelled so.
 import type { ModelDetail } from '../api/emulator.gen';
+import { controlMeaning } from '../session/inputs';
 import { errorText } from '../api/http';
 import { curvesOf, loadBench, loadEval, PHYSICAL_QUANTITIES, physicalRows, servedLabel, type BenchResult, type EvalResult } from '../api/measurements';
 import { fmt, h } from '../ui/dom';
@@ -33,14 +34,14 @@ function facts(m: ModelDetail): HTMLElement {
 
 function inputs(m: ModelDetail): HTMLElement {
   const rows = [
-    ...m.controls.map((c) => ['control', c.name, `${fmt(c.low)} … ${fmt(c.high)}`]),
-    ...m.forces.map((f) => ['force', f.name, `${fmt(f.low)} … ${fmt(f.high)}`]),
+    ...m.controls.map((c) => ['control', c.name, `${fmt(c.low)} … ${fmt(c.high)}`, controlMeaning(c)]),
+    ...m.forces.map((f) => ['force', f.name, `${fmt(f.low)} … ${fmt(f.high)}`, '']),
   ];
   if (!rows.length) return h('p', { class: 'muted' }, 'No inputs: a passive model.');
   return h(
     'table',
-    { class: 'grid' },
-    h('tr', {}, h('th', {}, 'input'), h('th', {}, 'name'), h('th', {}, 'trained range')),
+    { class: 'grid inputs' },
+    h('tr', {}, h('th', {}, 'input'), h('th', {}, 'name'), h('th', {}, 'trained range'), h('th', {}, 'what 1 applies; positive')),
     ...rows.map((r) => h('tr', {}, ...r.map((v) => h('td', {}, v)))),
   );
 }

@@ -4,7 +4,7 @@
 // "MuJoCo ghost" shows the physics driven by the same inputs as a cyan outline, with the gap between
 // the two (root position, attitude) as numbers and a curve beside the view.
 import * as THREE from 'three';
-import type { ForceInfo, ModelDetail, ModelGeometry, SessionInfo, WsState } from '../api/emulator.gen';
+import type { ControlInfo, ForceInfo, ModelDetail, ModelGeometry, SessionInfo, WsState } from '../api/emulator.gen';
 import { errorText } from '../api/http';
 import { gapLabel, poseGap, rootMoves } from '../scene/divergence';
 import type { Pose } from '../scene/interp';
@@ -12,7 +12,7 @@ import { groundHeight, ModelView } from '../scene/model';
 import { makeViewer } from '../scene/setup';
 import { DropLine, Trail } from '../scene/trail';
 import type { Viewer } from '../scene/viewer';
-import { bindingsFor, Drive, keyLabel } from '../session/inputs';
+import { bindingsFor, controlMeaning, Drive, keyLabel } from '../session/inputs';
 import { envelopeText, RealtimeSession } from '../session/realtime';
 import { fmt, h } from '../ui/dom';
 import { clearNotice, notify } from '../ui/notices';
@@ -164,8 +164,8 @@ interface Setup {
   divergence: DivergencePanel;
 }
 
-/** Sliders for every control and force, with their keys. */
-function drawSliders(host: HTMLElement, drive: Drive): HTMLElement[] {
+/** Sliders for every control and force, with their keys and (as a tooltip) what they do. */
+function drawSliders(host: HTMLElement, drive: Drive, controls: ControlInfo[]): HTMLElement[] {
   const labels: HTMLElement[] = [];
   host.textContent = '';
   if (!drive.bindings.length) host.append(h('p', { class: 'muted' }, 'This model has no inputs: watch it move.'));
@@ -182,7 +182,9 @@ function drawSliders(host: HTMLElement, drive: Drive): HTMLElement[] {
       drive.base[i] = Number(range.value);
     });
     const keys = b.keyHigh ? h('span', { class: 'keys' }, `${keyLabel(b.keyHigh)} / ${keyLabel(b.keyLow)}`) : null;
-    host.append(h('div', { class: 'slider' }, h('div', { class: 'slider-head' }, h('b', {}, b.name), ' ', value, ' ', keys), range));
+    const meaning = b.kind === 'control' ? controlMeaning(controls[b.index] ?? {}) : '';
+    const head = h('div', { class: 'slider-head' }, h('b', {}, b.name), ' ', value, ' ', keys);
+    host.append(h('div', { class: 'slider' }, head, meaning ? h('div', { class: 'meaning' }, meaning) : null, range));
   });
   return labels;
 }
@@ -249,7 +251,7 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
       onDead();
     },
   });
-  const valueLabels = drawSliders(s.sliders, drive);
+  const valueLabels = drawSliders(s.sliders, drive, detail.controls);
   if (!viewer) {
     return { info, socket, drive, model, ghost, dispose: () => socket.close() };
   }

@@ -64,6 +64,16 @@ export function bindingsFor(controls: Input[], forces: Input[] = []): Binding[] 
   return out as Binding[];
 }
 
+/** What a control does, from the manifest's words: its label, what a value of 1 applies (gain and
+ * unit) and what a positive value does; empty when the manifest does not say. */
+export function controlMeaning(c: Pick<ControlInfo, 'label' | 'unit' | 'gain' | 'sign'>): string {
+  const parts: string[] = [];
+  if (c.label) parts.push(c.label);
+  if (c.unit) parts.push(c.gain != null ? `1 = ${Number(c.gain.toPrecision(3))} ${c.unit}` : `in ${c.unit}`);
+  if (c.sign) parts.push(`positive: ${c.sign}`);
+  return parts.join('; ');
+}
+
 /** A key code as printed on the key: 'KeyW' -> 'W', 'ArrowUp' -> '↑'. */
 export function keyLabel(code: string): string {
   const arrows: Record<string, string> = { ArrowUp: '↑', ArrowDown: '↓', ArrowLeft: '←', ArrowRight: '→' };
