@@ -34,8 +34,9 @@ export const SKY = { top: 0x1b3354, horizon: 0x8fa6bd, below: 0x2a2f36 };
 const GROUND = '#5b6168';
 const GROUND_LINE = '#737a82';
 
-/** A tiled grid texture: one 1 m cell per repeat, every fifth line stronger. */
-function gridTexture(): THREE.Texture {
+/** A tiled grid texture: five 1 m cells per repeat, every fifth line stronger. Anisotropic filtering
+ * keeps far lines crisp; in software it costs more than it shows. */
+function gridTexture(anisotropy: number): THREE.Texture {
   const c = document.createElement('canvas');
   c.width = c.height = 256;
   const g = c.getContext('2d');
@@ -57,7 +58,7 @@ function gridTexture(): THREE.Texture {
   }
   const t = new THREE.CanvasTexture(c);
   t.wrapS = t.wrapT = THREE.RepeatWrapping;
-  t.anisotropy = 8;
+  t.anisotropy = anisotropy;
   t.colorSpace = THREE.SRGBColorSpace;
   return t;
 }
@@ -176,7 +177,7 @@ export class Viewer {
     this.scene.add(this.sun, this.sun.target);
 
     // the ground: a plane in MuJoCo's xy plane with a 1 m grid (every 5 m stronger) drawn into its texture
-    const tex = gridTexture();
+    const tex = gridTexture(soft ? 1 : 8);
     const extent = 4000;
     tex.repeat.set(extent / 5, extent / 5);
     this.ground = new THREE.Mesh(
