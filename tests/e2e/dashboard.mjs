@@ -161,11 +161,11 @@ async function startSession(page, model) {
 }
 
 async function playground(page) {
-  // a start (seed 5) 23 m above the ground and climbing, so the lander stays above it
-  await page.goto(`${base}/#/playground?model=lander&seed=5`);
+  // the lander at rest 20 m above its pad, as its MJCF puts it
+  await page.goto(`${base}/#/playground?model=lander&start=rest`);
   await page.waitForFunction(() => document.querySelector('#pg-model')?.value === 'lander', null, { timeout: 20000 });
-  // the session starts at a random state, maybe falling: hover thrust on the slider (mass 100 under
-  // lunar gravity: 16.2) and full thrust from the key for two seconds, as soon as the sliders are there
+  // hover thrust on the slider (mass 100 under lunar gravity: 16.2) and full thrust from the key for a
+  // second and a half, as soon as the sliders are there
   await page.click('#pg-start');
   await page.waitForSelector('[data-control="main_jet"]', { timeout: 20000 });
   await page.$eval('[data-control="main_jet"]', (el) => {
@@ -177,7 +177,7 @@ async function playground(page) {
   await page.waitForFunction(() => /t = /.test(document.querySelector('#pg-status')?.textContent ?? ''), null, { timeout: 20000 });
   log('lander session is live');
   const a = await canvasStats(page, '#pg-view canvas');
-  await page.waitForTimeout(2500);
+  await page.waitForTimeout(1500);
   const jet = await page.$eval('[data-control="main_jet"]', (el) => el.closest('.slider').querySelector('.value').textContent);
   await page.keyboard.up('ArrowUp');
   log(`main jet while the key was held: ${jet}`);
@@ -215,22 +215,29 @@ async function playground(page) {
   const px = await canvasStats(page, '#pg-view canvas', [0.2, 0.5, 0.8].map((f) => [box.w * f, box.h - 6]));
   log(`colours along the bottom of the view: ${JSON.stringify(px.colours)}`);
   check(px.colours.every(([r, g, bl]) => Math.abs(r - bl) < 45 && r + g + bl > 150), 'the ground is drawn below the pendulum');
-  // pendulum-force: sliders for its pushes drive the session's forces
+  // pendulum-force: sliders for its pushes drive the session's forces; it hangs at rest until pushed
+  const still = JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.state));
   const pushes = await page.$$eval('[data-force]', (els) => els.map((e) => e.dataset.force));
   log(`force sliders: ${pushes.join(', ')}`);
   check(pushes.length === 3, 'pendulum-force has a slider for each of its 3 pushes');
-  await page.$eval('[data-force="push0"]', (el) => {
-    el.value = el.max;
-    el.dispatchEvent(new Event('input', { bubbles: true }));
-  });
+  await page.$$eval('[data-force]', (els) =>
+    els.forEach((el) => {
+      el.value = el.max;
+      el.dispatchEvent(new Event('input', { bubbles: true }));
+    }),
+  );
   await page.waitForTimeout(1500);
   const sent = JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.sent ?? '{}'));
   const t1 = Number(await page.$eval('#pg-status', (el) => el.dataset.t));
   await page.waitForTimeout(1200);
   const t2 = Number(await page.$eval('#pg-status', (el) => el.dataset.t));
   log(`sent ${JSON.stringify(sent)}; session time ${t1} -> ${t2}`);
-  check(sent.forces?.length === 3 && sent.forces[0] === 2 && sent.controls?.length === 3, 'the session is sent 3 controls and 3 forces, push0 at its high end');
+  check(sent.forces?.length === 3 && sent.forces.every((f) => f === 2) && sent.controls?.length === 3, 'the session is sent 3 controls and 3 forces, each push at its high end');
   check(t2 > t1, 'the session keeps stepping with the forces');
+  const pushed = JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.state));
+  log(`joint angles at rest ${still.slice(0, 3)}, pushed ${pushed.slice(0, 3)}`);
+  check(still.slice(0, 3).every((a) => Math.abs(a) < 0.05), 'the pendulum starts hanging at rest (the emulator drifts a little there)');
+  check(Math.max(...[0, 1, 2].map((i) => Math.abs(pushed[i] - still[i]))) > 0.02, 'the push moves the pendulum');
   await onScreen(page, '#pg-view', 'model');
   await noErrorNotice(page, 'pendulum-force');
   await shot(page, 'playground-pendulum-force');

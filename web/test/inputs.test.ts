@@ -77,5 +77,7 @@ describe('controlMeaning', () => {
     expect(controlMeaning({ label: 'main jet', unit: 'N', gain: 10, sign: 'up along the body z axis' })).toBe('main jet; 1 = 10 N; positive: up along the body z axis');
     expect(controlMeaning({ label: 'steering', unit: 'N' })).toBe('steering; in N');
     expect(controlMeaning({})).toBe('');
+    expect(controlMeaning({ label: 'roll jet', unit: 'N·m', gain: 0.25, sign: 'positive turns the lander about +x' })).toBe('roll jet; 1 = 0.25 N·m; positive turns the lander about +x');
+    expect(controlMeaning({ label: 'roll jet', unit: 'N·m', gain: 0.25, sign: 'turns left' }, false)).toBe('roll jet; 1 = 0.25 N·m');
   });
 });

@@ -5,7 +5,7 @@ import { describeFailure, unreachable } from '../src/api/http';
 import { curvesOf, physicalRows, servedLabel } from '../src/api/measurements';
 import type { VersionEval } from '../src/api/results.gen';
 import { finiteRows } from '../src/pages/replay';
-import { aligned, extent, isDecade, logRange, tickLabel } from '../src/ui/series';
+import { aligned, extent, isDecade, logRange, roundUp, tickLabel } from '../src/ui/series';
 
 describe('config', () => {
   it('resolves service URLs against the page', () => {
@@ -108,6 +108,7 @@ describe('plot helpers', () => {
     expect(tickLabel(250000)).toBe('3e5');
     expect(tickLabel(0)).toBe('0');
     expect(tickLabel(null)).toBe('');
+    expect([0.0023, 0.2, 3, 7, 0, null].map(roundUp)).toEqual([0.005, 0.2, 5, 10, 1e-3, 1e-3]);
     expect([1e-4, 0.01, 1, 100, 0.02, 3, 0, -10, null].map(isDecade)).toEqual([true, true, true, true, false, false, false, false, false]);
   });
 });

@@ -23,7 +23,7 @@ export class DivergencePanel {
   constructor(id: string, opts: { marker?: boolean; overlay?: boolean } = {}) {
     this.now = h('p', { class: 'gap-now' });
     this.title = h('h3', {}, 'Emulator vs MuJoCo');
-    this.plot = new LinePlot({ height: opts.overlay ? 120 : 150, xLabel: 'time (s)', marker: opts.marker ?? false, legend: false });
+    this.plot = new LinePlot({ height: opts.overlay ? 140 : 160, xLabel: 'time (s)', marker: opts.marker ?? false, legend: false, fromZero: true });
     const cls = `card divergence${opts.overlay ? ' overlay' : ''}`;
     this.el = h('section', { class: cls, id, hidden: true }, this.title, this.now, this.plot.el);
   }

@@ -14,6 +14,7 @@ import { DropLine, Trail } from '../scene/trail';
 import type { Viewer } from '../scene/viewer';
 import { bindingsFor, controlMeaning, Drive, keyLabel } from '../session/inputs';
 import { envelopeText, RealtimeSession } from '../session/realtime';
+import { restState, startFromQuery } from '../session/start';
 import { fmt, h } from '../ui/dom';
 import { clearNotice, notify } from '../ui/notices';
 import { DivergencePanel, GHOST_COLOR, MODEL_TRAIL } from './divergence';
@@ -30,6 +31,12 @@ interface Live {
 
 export const playgroundPage: Page = (root, ctx) => {
   const select = h('select', { id: 'pg-model', 'aria-label': 'model' });
+  const startFrom = h(
+    'select',
+    { id: 'pg-start-from', 'aria-label': 'start from' },
+    h('option', { value: 'rest' }, 'at rest, in its MJCF pose'),
+    h('option', { value: 'random' }, 'a random typical state'),
+  );
   const startBtn = h('button', { id: 'pg-start', class: 'primary' }, 'Start session');
   const stopBtn = h('button', { id: 'pg-stop', disabled: true }, 'Stop');
   const ghostBox = h('input', { type: 'checkbox', id: 'pg-ghost' });
@@ -47,6 +54,7 @@ export const playgroundPage: Page = (root, ctx) => {
         'aside',
         { class: 'panel' },
         h('label', {}, 'Model ', select),
+        h('label', {}, 'Start ', startFrom),
         h('div', { class: 'buttons' }, startBtn, stopBtn),
         h('label', { class: 'check' }, ghostBox, ' Show the MuJoCo ghost (same inputs)'),
         h(
@@ -93,9 +101,10 @@ export const playgroundPage: Page = (root, ctx) => {
     status.textContent = `Starting a ${name} session…`;
     try {
       const [detail, geometry] = await Promise.all([ctx.emulator.model(name), ctx.emulator.geometry(name)]);
-      // ?seed=N in the page's address starts from the same state every time (else a random one)
-      const seed = Number(new URLSearchParams(location.hash.split('?')[1] ?? '').get('seed') ?? NaN);
-      const info = await ctx.emulator.createSession(Number.isInteger(seed) && seed >= 0 ? { model: name, seed } : { model: name });
+      // at rest, or a random typical state (?seed=N in the page's address: the same one every time)
+      const rest = startFrom.value === 'rest' ? restState(detail.layout, geometry.rest_poses[0]) : null;
+      const { seed } = startFromQuery(location.hash.split('?')[1] ?? '');
+      const info = await ctx.emulator.createSession(rest ? { model: name, state: rest } : seed !== null ? { model: name, seed } : { model: name });
       if (!alive) return;
       live = begin(ctx, viewer, { info, detail, geometry, ghostOn: ghostBox.checked, sliders, status, envelope, divergence }, () => void stop());
       stopBtn.disabled = false;
@@ -134,9 +143,18 @@ export const playgroundPage: Page = (root, ctx) => {
       const { models } = await ctx.emulator.models();
       select.append(...models.map((m) => h('option', { value: m.model }, m.model)));
       // the model the URL asks for, else the first one the emulator service lists
-      const want = new URLSearchParams(location.hash.split('?')[1] ?? '').get('model');
+      const query = location.hash.split('?')[1] ?? '';
+      const want = new URLSearchParams(query).get('model');
+      // a model without inputs starts moving (a random state); one a person drives starts at rest
+      const asked = startFromQuery(query).from;
       const pick = models.find((m) => m.model === want) ?? models[0];
       if (pick) select.value = pick.model;
+      const pickStart = (): void => {
+        const m = models.find((x) => x.model === select.value);
+        startFrom.value = asked ?? (m && m.num_controls + m.num_forces > 0 ? 'rest' : 'random');
+      };
+      pickStart();
+      select.addEventListener('change', pickStart);
     } catch (e) {
       notify(`Cannot list the models. ${errorText(e)}`, 'error', 'playground');
     }
@@ -182,9 +200,12 @@ function drawSliders(host: HTMLElement, drive: Drive, controls: ControlInfo[]): 
       drive.base[i] = Number(range.value);
     });
     const keys = b.keyHigh ? h('span', { class: 'keys' }, `${keyLabel(b.keyHigh)} / ${keyLabel(b.keyLow)}`) : null;
-    const meaning = b.kind === 'control' ? controlMeaning(controls[b.index] ?? {}) : '';
+    // what it applies under the name; the sign convention too when pointed at
+    const control = b.kind === 'control' ? controls[b.index] : undefined;
+    const short = control ? controlMeaning(control, false) : '';
     const head = h('div', { class: 'slider-head' }, h('b', {}, b.name), ' ', value, ' ', keys);
-    host.append(h('div', { class: 'slider' }, head, meaning ? h('div', { class: 'meaning' }, meaning) : null, range));
+    const meaning = short ? h('div', { class: 'meaning', title: controlMeaning(control!) }, short) : null;
+    host.append(h('div', { class: 'slider', title: control ? controlMeaning(control) : '' }, head, meaning, range));
   });
   return labels;
 }
@@ -310,6 +331,7 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
       const fps = `${(stats?.fps ?? 0).toFixed(0)} fps${stats && stats.scale < 1 ? ` at ${Math.round(stats.scale * 100)} % resolution` : ''}`;
       s.status.dataset.sent = JSON.stringify({ controls, forces });
       s.status.dataset.t = String(last?.t ?? '');
+      s.status.dataset.state = last ? JSON.stringify(last.state.map((v) => Number(v.toPrecision(4)))) : '';
       s.status.textContent = last
         ? `session ${info.id}${info.seed != null ? ` (start seed ${info.seed})` : ''} · t = ${last.t.toFixed(1)} s · ${last.steps} super-steps of ${fmt(detail.super_timestep)} s${last.clipped ? ' · inputs clipped to the trained range' : ''} · ${fps}`
         : `session ${info.id} · waiting for the first state…`;

@@ -198,7 +198,7 @@ export class Viewer {
     });
     this.controls.addEventListener('start', () => (this.userBusy = true));
     this.controls.addEventListener('end', () => (this.userBusy = false));
-    this.camera.position.set(4, 3, 6);
+    this.camera.position.copy(viewDirection(-62, 15).multiplyScalar(10));
     this.resize = new ResizeObserver(() => this.fit());
     this.resize.observe(host);
     this.seen = new IntersectionObserver((entries) => {

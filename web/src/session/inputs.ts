@@ -66,11 +66,11 @@ export function bindingsFor(controls: Input[], forces: Input[] = []): Binding[] 
 
 /** What a control does, from the manifest's words: its label, what a value of 1 applies (gain and
  * unit) and what a positive value does; empty when the manifest does not say. */
-export function controlMeaning(c: Pick<ControlInfo, 'label' | 'unit' | 'gain' | 'sign'>): string {
+export function controlMeaning(c: Pick<ControlInfo, 'label' | 'unit' | 'gain' | 'sign'>, withSign = true): string {
   const parts: string[] = [];
   if (c.label) parts.push(c.label);
   if (c.unit) parts.push(c.gain != null ? `1 = ${Number(c.gain.toPrecision(3))} ${c.unit}` : `in ${c.unit}`);
-  if (c.sign) parts.push(`positive: ${c.sign}`);
+  if (c.sign && withSign) parts.push(/^positive/i.test(c.sign) ? c.sign : `positive: ${c.sign}`);
   return parts.join('; ');
 }
 

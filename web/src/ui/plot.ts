@@ -4,7 +4,7 @@
 // element and follows it; its legend sits below the curves, never over them.
 import uPlot from 'uplot';
 import 'uplot/dist/uPlot.min.css';
-import { aligned, isDecade, logRange, tickLabel, type Series } from './series';
+import { aligned, isDecade, logRange, roundUp, tickLabel, type Series } from './series';
 
 export type { Series } from './series';
 
@@ -17,6 +17,8 @@ export interface PlotOptions {
   marker?: boolean;
   /** the series' names below the plot (default: yes) */
   legend?: boolean;
+  /** a linear y axis from 0 to a round value above the data (errors, distances) */
+  fromZero?: boolean;
 }
 
 const AXIS = { stroke: '#aab6c2', font: '12px system-ui, sans-serif', labelFont: '12px system-ui, sans-serif' };
@@ -33,7 +35,7 @@ export class LinePlot {
   private readonly empty: HTMLDivElement;
 
   constructor(opts: PlotOptions = {}) {
-    this.o = { height: 220, logY: false, xLabel: '', yLabel: '', marker: false, legend: true, ...opts };
+    this.o = { height: 220, logY: false, xLabel: '', yLabel: '', marker: false, legend: true, fromZero: false, ...opts };
     this.el = document.createElement('div');
     this.el.className = 'plot';
     this.el.setAttribute('role', 'img');
@@ -90,7 +92,11 @@ export class LinePlot {
       scales: {
         x: { time: false },
         // the data's range now (it grows as points arrive), on whole decades
-        y: logY ? { distr: 3, log: 10, range: (_u, lo, hi) => (logRange([lo, hi]) ?? [1e-3, 1]) as uPlot.Range.MinMax } : { auto: true },
+        y: logY
+          ? { distr: 3, log: 10, range: (_u, lo, hi) => (logRange([lo, hi]) ?? [1e-3, 1]) as uPlot.Range.MinMax }
+          : this.o.fromZero
+            ? { range: (_u, _lo, hi) => [0, roundUp(hi)] as uPlot.Range.MinMax }
+            : { auto: true },
       },
       axes: [
         { ...AXIS, label: this.o.xLabel, grid: GRID, ticks: GRID, values: (_u, v) => v.map(tickLabel) },
@@ -98,6 +104,7 @@ export class LinePlot {
           ...AXIS,
           label: this.o.yLabel,
           size: 60,
+          space: 24, // px between labels: a short plot still gets three or more
           values: (_u, v) => v.map(tickLabel),
           ...(decades ? { filter: decades, grid: { ...GRID, filter: decades }, ticks: { ...GRID, filter: decades } } : { grid: GRID, ticks: GRID }),
         },

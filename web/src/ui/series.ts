@@ -66,3 +66,10 @@ export function isDecade(v: number | null): boolean {
   const e = Math.log10(v);
   return Math.abs(e - Math.round(e)) < 1e-9;
 }
+
+/** A round number (1, 2 or 5 × 10^k) at or above v; 1e-3 for a value that is not positive. */
+export function roundUp(v: number | null): number {
+  if (v === null || !(v > 0) || !Number.isFinite(v)) return 1e-3;
+  const mag = 10 ** Math.floor(Math.log10(v));
+  return ([1, 2, 5, 10].map((m) => m * mag).find((c) => c >= v * (1 - 1e-9)) ?? 10 * mag);
+}
