@@ -10,20 +10,20 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import AsyncIterator
-from urllib.parse import parse_qs, urlsplit, urlunsplit
+from urllib.parse import urlsplit, urlunsplit
 
 import redis
 import redis.asyncio as aioredis
 from fastapi import FastAPI, Request, Response
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse, PlainTextResponse
-from starlette.types import ASGIApp, Receive, Scope, Send
 
 from neuroanimator import registry
 from neuroanimator.emulator_schemas import ErrorBody
 from services.common.auth import ApiKeyMiddleware, ApiKeys
 from services.common.docs import add_offline_docs
 from services.common.errors import add_error_handlers
+from services.common.job_events import QueryKeyMiddleware
 from services.common.limits import limit_bodies
 from services.common.openapi import METRICS_RESPONSES, METRICS_TYPE, document_errors, readiness_responses
 from services.controller.metrics import Metrics
@@ -42,25 +42,6 @@ def redacted(url: str) -> str:
         netloc = f"{parts.username or ''}:***@{host}" + (f":{parts.port}" if parts.port else "")
         return urlunsplit(parts._replace(netloc=netloc))
     return url
-
-
-class QueryKeyMiddleware:
-    """Copies ``?api_key=`` into the ``X-API-Key`` header for the event streams: a browser's
-    ``EventSource`` cannot set headers (websockets already take the query parameter)."""
-
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if (
-            scope["type"] == "http"
-            and scope["path"].endswith("/events")
-            and b"api_key=" in scope["query_string"]
-        ):
-            key = parse_qs(scope["query_string"].decode()).get("api_key", [""])[0]
-            headers = [(k, v) for k, v in scope["headers"] if k != b"x-api-key"]
-            scope = {**scope, "headers": [*headers, (b"x-api-key", key.encode())]}
-        await self.app(scope, receive, send)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:

@@ -19,15 +19,15 @@ from __future__ import annotations
 import json
 import logging
 import os
-import threading
 import time
 from typing import Any
 
 import redis
 
 from neuroanimator.controller_schemas import JobOutcome
+from services.common.job_worker import Watch, connect_job
 from services.controller.settings import Settings
-from services.controller.store import JobStore, rq_id
+from services.controller.store import JobStore
 
 log = logging.getLogger(__name__)
 
@@ -45,51 +45,10 @@ def settings() -> Settings:
     return _settings if _settings is not None else Settings()
 
 
-def connect(s: Settings) -> redis.Redis:
-    return redis.Redis.from_url(s.redis_url, socket_connect_timeout=5.0, socket_timeout=30.0)
-
-
-class Watch(threading.Thread):
-    """Renews the lease of a running job and reads its flags a few times a second."""
-
-    def __init__(self, store: JobStore, job_id: str, delivery: int, worker: str) -> None:
-        super().__init__(name=f"watch-{job_id}", daemon=True)
-        self.store, self.job_id, self.worker = store, job_id, worker
-        self.mine = rq_id(job_id, delivery)
-        ttl = store.settings.lease_ttl_s
-        self.renew_every = ttl / 3.0
-        self.poll_s = min(0.25, ttl / 6.0)
-        self.cancelled = self.yielding = self.superseded = False
-        self._done = threading.Event()
-
-    def run(self) -> None:
-        renewed = time.monotonic()
-        while not self._done.wait(self.poll_s):
-            renew = time.monotonic() - renewed >= self.renew_every
-            try:
-                cancel, yld, current = self.store.heartbeat(self.job_id, self.worker, renew)
-            except redis.RedisError as exc:  # the lease may lapse: the job then runs again elsewhere
-                log.warning("job heartbeat failed", extra={"job": self.job_id, "error": str(exc)})
-                continue
-            if renew:
-                renewed = time.monotonic()
-            self.cancelled |= cancel
-            self.yielding |= yld
-            self.superseded |= current != self.mine
-
-    @property
-    def stop_requested(self) -> bool:
-        return self.cancelled or self.yielding or self.superseded
-
-    def stop(self) -> None:
-        self._done.set()
-        self.join(timeout=5.0)
-
-
 def perform(job_id: str, delivery: int) -> str:
     """Run delivery ``n`` of a job; returns how it ended (for RQ's log)."""
     s = settings()
-    store = JobStore(connect(s), s)
+    store = JobStore(connect_job(s), s)
     worker = os.environ.get("RQ_WORKER_ID", f"pid-{os.getpid()}")
     rec, why = store.start(job_id, delivery, worker, os.getpid())
     if rec is None:

@@ -17,9 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import re
-from collections.abc import AsyncIterator
-from typing import Annotated, Any
+from typing import Annotated
 
 import redis
 import redis.asyncio as aioredis
@@ -29,53 +27,21 @@ from starlette.concurrency import run_in_threadpool
 from starlette.websockets import WebSocketDisconnect
 
 from neuroanimator.emulator_schemas import ErrorBody
+from services.common import job_events as sse
 from services.common.auth import OwnerDep, get_owner
+from services.common.job_events import REDIS_GONE, SSE_RESPONSES, follow
 from services.controller.deps import StoreDep
 from services.controller.routes.jobs import owned
 from services.controller.store import JobStore
 
 log = logging.getLogger(__name__)
 router = APIRouter(tags=["events"])
-_STREAM_ID = re.compile(r"^\d+-\d+$")
-REDIS_GONE = {
-    "error": "redis_unavailable",
-    "message": "Redis (the job queue) stopped answering: this stream ends here; reconnect later",
-}
-
-
-async def follow(
-    aredis: aioredis.Redis, store: JobStore, job_id: str, after: str, keepalive_s: float
-) -> AsyncIterator[tuple[str, str, str]]:
-    """(event, stream id, JSON data) from ``after`` on, until ``end``; ("", "", "") after each idle
-    ``keepalive_s``. A job whose records expired ends with ``expired``."""
-    key, last = store.keys.events(job_id), after
-    while True:
-        resp: Any = await aredis.xread({key: last}, count=200, block=max(1, int(keepalive_s * 1000)))
-        if not resp:
-            if not await aredis.exists(store.keys.job(job_id)):
-                yield "end", "", json.dumps({"status": "expired", "reason": "the job's records expired"})
-                return
-            yield "", "", ""
-            continue
-        for _key, entries in resp:
-            for eid, fields in entries:
-                last = eid.decode()
-                event = fields[b"event"].decode()
-                yield event, last, fields[b"data"].decode()
-                if event == "end":
-                    return
 
 
 @router.get(
     "/jobs/{job_id}/events",
     response_class=StreamingResponse,
-    responses={
-        200: {
-            "content": {"text/event-stream": {}},
-            "description": "status, progress and end events (an error event when Redis goes away)",
-        },
-        404: {"model": ErrorBody},
-    },
+    responses={**SSE_RESPONSES, 404: {"model": ErrorBody}},
 )
 async def job_events(
     job_id: str,
@@ -86,28 +52,9 @@ async def job_events(
 ) -> StreamingResponse:
     """Server-sent events of a job: ``status``, ``progress`` per iteration, then one ``end``."""
     await run_in_threadpool(owned, store, job_id, owner)
-    after = last_event_id if last_event_id and _STREAM_ID.match(last_event_id) else "0"
     aredis: aioredis.Redis = request.app.state.aredis
     keepalive = request.app.state.settings.sse_keepalive_s
-
-    async def body() -> AsyncIterator[str]:
-        yield "retry: 2000\n\n"
-        try:
-            async for event, eid, data in follow(aredis, store, job_id, after, keepalive):
-                if not event:
-                    yield ": keep-alive\n\n"
-                    continue
-                head = f"id: {eid}\n" if eid else ""
-                yield f"{head}event: {event}\ndata: {data}\n\n"
-        except (redis.RedisError, OSError) as exc:
-            log.warning("event stream ended: Redis unreachable", extra={"job": job_id, "error": str(exc)})
-            yield f"event: error\ndata: {json.dumps(REDIS_GONE)}\n\n"
-
-    return StreamingResponse(
-        body(),
-        media_type="text/event-stream",
-        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},  # no proxy buffering
-    )
+    return sse.job_events(aredis, store, job_id, last_event_id, keepalive)
 
 
 @router.websocket("/ws/jobs/{job_id}")
