@@ -26,5 +26,6 @@ def serve(create_app: Callable[[S], ASGIApp], settings: S, **uvicorn_options: An
         port=settings.port,
         log_level=settings.log_level,
         log_config=None,  # uvicorn's own logging config would replace the JSON handler set up above
+        ws_max_size=settings.ws_max_message_bytes,
         **uvicorn_options,
     )

@@ -27,6 +27,12 @@ class ServiceSettings(BaseSettings):
         ge=1024,
         description="the largest request body: a larger one is answered 413 before it is read or parsed",
     )
+    ws_max_message_bytes: int = Field(
+        1024 * 1024,
+        ge=1024,
+        description="the largest websocket message a client may send (uvicorn closes the connection "
+        "with 1009 beyond)",
+    )
 
 
 class ApiSettings(ServiceSettings):
