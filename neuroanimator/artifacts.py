@@ -34,13 +34,14 @@ from neuroanimator.manifest import (
     ModelAsset,
     Network,
     NetworkFrame,
+    NetworkLimit,
     NetworkReads,
     Normalization,
     Symmetries,
     TrainMetrics,
 )
 from neuroanimator.physics.model import ModelError, PhysicalModel
-from neuroanimator.structured import FrameConfig, StructuredEmulator
+from neuroanimator.structured import FrameConfig, JointLimit, StructuredEmulator
 from neuroanimator.training import TrainResult
 
 CORE = "core"  # the network of a one-network emulator (StructuredEmulator.core)
@@ -86,6 +87,12 @@ def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -
         output_size=model.state_size,
         weights=sum(p.numel() for p in emu.parameters()),
         skip=emu.skip is not None,
+        limits=[
+            NetworkLimit(
+                position=lim.position, velocity=lim.velocity, low=lim.low, high=lim.high, horizon=emu.horizon
+            )
+            for lim in emu.limits
+        ],
     )
 
 
@@ -240,6 +247,8 @@ def load_torch(path: Path) -> StructuredEmulator:
         tuple(net.hidden),
         net.activation,
         skip=net.skip,
+        limits=[JointLimit(lim.position, lim.velocity, lim.low, lim.high) for lim in net.limits],
+        horizon=net.limits[0].horizon if net.limits else 0.0,
     )
     emu.load_state_dict(torch.load(path / registry.WEIGHTS_FILE, weights_only=True))
     return emu.eval()

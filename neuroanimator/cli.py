@@ -46,13 +46,15 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise ModelError("give either a catalog model name or --mjcf PATH (not both)")
     if args.mjcf is None and (args.entry or args.name):
         raise ModelError("--entry and --name go with --mjcf")
+    auto = args.substeps == "auto" or (args.substeps is None and args.mjcf is not None)
+    fixed = None if auto or args.substeps is None else int(args.substeps)
     model: PhysicalModel = (
-        load_mjcf(args.mjcf, substeps=args.substeps, entry=args.entry, name=args.name)
+        load_mjcf(args.mjcf, substeps=fixed, entry=args.entry, name=args.name)
         if args.mjcf
         else physics.get(args.model)
     )
     cfg = TrainConfig(
-        substeps=args.substeps if args.substeps is not None else model.spec.substeps,
+        substeps=fixed if fixed is not None else model.spec.substeps,
         preset=args.preset,
         optimizer=args.optimizer,
         seed=args.seed,
@@ -77,16 +79,27 @@ def cmd_train(args: argparse.Namespace) -> int:
             raise ModelError(f"--rollout-steps must be 0 or more, got {args.rollout_steps}")
         cfg.rollout_steps = args.rollout_steps
     # torch loads only for the commands that need it
-    from neuroanimator import artifacts
+    from neuroanimator import artifacts, super_step
     from neuroanimator.training import TrainingDiverged, train
 
     try:
+        if auto:
+            choice = super_step.choose_substeps(model, cfg)
+            log.info("%s: super-step %s", model.name, choice.reason)
+            cfg.substeps = choice.substeps
+            model.spec = model.spec.model_copy(update={"substeps": choice.substeps})
         result = train(model, cfg)
     except TrainingDiverged as exc:
         log.error("%s", exc)
         return 2
-    path = artifacts.save(Path(args.out), model, result)
+    if auto:
+        result.metrics["substeps_reason"] = choice.reason
     m = result.metrics
+    if not args.force:
+        super_step.check_useful(
+            model.name, cfg.substeps, m["one_step_rel_error"], m["linear_baseline_rel_error"]
+        )
+    path = artifacts.save(Path(args.out), model, result)
     _out(
         f"{model.name} n={cfg.substeps}: one-step relative error {m['one_step_rel_error']:.3g} "
         f"(linear baseline {m['linear_baseline_rel_error']:.4f}), {m['weights']} weights, "
@@ -267,6 +280,10 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _substeps(text: str) -> int | str:
+    return "auto" if text == "auto" else _positive_int(text)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="neuro", description="NeuroAnimator: neural emulators of MuJoCo models")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -283,7 +300,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--entry", help="with --mjcf FOLDER or ARCHIVE: the MJCF file in it (default: the only one)"
     )
     t.add_argument("--name", help="with --mjcf: the model's name (default: the MJCF's model attribute)")
-    t.add_argument("--substeps", type=_positive_int, help="super timestep n (default: the model's, 50)")
+    t.add_argument(
+        "--substeps",
+        type=_substeps,
+        help="super timestep n, or 'auto' (default: the catalog model's; 'auto' for --mjcf: 50 for a model "
+        "without contacts or limits, else the longest of 50, 25, 10 that short probes can learn)",
+    )
+    t.add_argument(
+        "--force", action="store_true", help="write the emulator even when it misses the acceptance bar"
+    )
     t.add_argument("--out", default="artifacts", help="artifact registry to write to (default: artifacts/)")
     t.add_argument("--preset", choices=["default", "thesis"], default="default")
     t.add_argument("--optimizer", choices=["adam", "sgd"], default="adam")

@@ -131,6 +131,18 @@ class NetworkFrame(_Strict):
     body: bool = False
 
 
+class NetworkLimit(_Strict):
+    """A limited joint the network reads through ramps past its limits (see ``structured.JointLimit``):
+    ``position``/``velocity`` are state columns, ``low``/``high`` the range, ``horizon`` the seconds
+    over which the joint is extrapolated (one super-step)."""
+
+    position: int = Field(ge=0)
+    velocity: int | None = Field(default=None, ge=0)
+    low: float
+    high: float
+    horizon: float = Field(ge=0.0)
+
+
 class NetworkReads(_Strict):
     """What a network reads: state groups of the current state (``state``), state groups of the next
     state as written by networks of earlier stages (``predicted``), controls and forces, by name."""
@@ -158,6 +170,7 @@ class Network(_Strict):
     output_size: int = Field(ge=1)
     weights: int = Field(ge=0)
     skip: bool = False
+    limits: list[NetworkLimit] = []
 
     @model_validator(mode="after")
     def _widths_agree(self) -> Network:

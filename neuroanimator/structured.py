@@ -50,6 +50,26 @@ def make_core(inputs: int, outputs: int, hidden: Sequence[int], activation: str)
 
 
 @dataclass(frozen=True)
+class JointLimit:
+    """A limited hinge or slide joint, seen by the network through its distance to the limits.
+
+    ``position`` and ``velocity`` are state columns, ``low``/``high`` the joint's range. A limit that
+    engages inside a super-step makes the step a kink in the state; an MLP of smooth units rounds a
+    kink off. So the network also reads, for the joint extrapolated over the super-step at constant
+    velocity (``q + a·v·horizon``, a = 0, ½, 1), how far past each limit it would be: ramps that are
+    zero away from the limit and carry the kink exactly where the constraint switches on.
+    """
+
+    position: int
+    velocity: int | None
+    low: float
+    high: float
+
+
+LIMIT_FRACTIONS = (0.0, 0.5, 1.0)  # points of the super-step at which each joint is extrapolated
+
+
+@dataclass(frozen=True)
 class FrameConfig:
     """Symmetries used: translation of root-position axes, rotation about z; see PhysicalModel.frame.
 
@@ -199,6 +219,9 @@ class StructuredEmulator(nn.Module):
     _r_offset: Tensor
     _left: Tensor
     _identity_q: Tensor
+    _limit_sel: Tensor
+    _limit_low: Tensor
+    _limit_high: Tensor
 
     def __init__(
         self,
@@ -209,9 +232,13 @@ class StructuredEmulator(nn.Module):
         hidden: Sequence[int] = (64, 64),
         activation: str = "tanh",
         skip: bool = False,
+        limits: Sequence[JointLimit] = (),
+        horizon: float = 0.0,
     ) -> None:
         super().__init__()
         self.layout = layout
+        self.limits = tuple(limits)
+        self.horizon = float(horizon)  # seconds of one super-step, for the limit extrapolation
         self.num_controls = num_controls
         self.num_forces = num_forces
         self.frame = frame
@@ -234,8 +261,8 @@ class StructuredEmulator(nn.Module):
         """Decide, once, which columns go where, as constant 0/1 matrices (tracing sees constants).
 
         Network inputs are picked from ``[state, controls, forces, heading-rotated pairs, sin(angles),
-        cos(angles), body-rotated vectors, body-frame up]`` and world state changes from ``[delta,
-        heading-rotated pairs, body-rotated vectors, root quaternion increment]``, so each transform
+        cos(angles), body-rotated vectors, body-frame up, joint-limit ramps]`` and world state changes
+        from ``[delta, heading-rotated pairs, body-rotated vectors, root quaternion increment]``, so each transform
         is a handful of graph nodes whatever the model (a small graph is what makes one ONNX call
         cheap).
         """
@@ -293,7 +320,9 @@ class StructuredEmulator(nn.Module):
         cos_at = sin_at + len(angles)
         vec_at = cos_at + len(angles)  # body frame: the rotated vectors, 3 columns each
         up_at = vec_at + 3 * len(in_vecs)  # body frame: the up direction in the body frame
-        width = up_at + (3 if body else 0)
+        lim_at = up_at + (3 if body else 0)  # joint-limit ramps: first all "past high", then all "past low"
+        lim_width = 2 * len(LIMIT_FRACTIONS) * len(self.limits)
+        width = lim_at + lim_width
 
         def col(c: int) -> int:
             return rot_at + replaced[c] if c in replaced else c
@@ -335,6 +364,10 @@ class StructuredEmulator(nn.Module):
                 force_cols += vec_cols(first)
             gather += force_cols
             groups.append(("forces", len(force_cols)))
+        if lim_width:
+            gather += list(range(lim_at, width))
+            groups.append(("limits", lim_width))
+        self._plan_limits(S)
         in_plan = _PairPlan(*map(tuple, zip(*in_pairs, strict=True))) if in_pairs else _PairPlan()
         self._rot_in = _Rotation(S + U + F, in_plan) if in_pairs else None
         self._angles = tuple(angles)
@@ -418,6 +451,23 @@ class StructuredEmulator(nn.Module):
         self.register_buffer("_left", _left_product(), persistent=False)  # (4, 16)
         self.register_buffer("_identity_q", torch.tensor([1.0, 0.0, 0.0, 0.0]), persistent=False)
 
+    def _plan_limits(self, S: int) -> None:
+        """``state @ _limit_sel`` (S, K·L) is every limited joint extrapolated to each fraction of the
+        super-step; ``_limit_high``/``_limit_low`` (K·L,) the limits repeated to match."""
+        k, lims = len(LIMIT_FRACTIONS), self.limits
+        sel = torch.zeros(S, k * len(lims))
+        high, low = torch.zeros(k * len(lims)), torch.zeros(k * len(lims))
+        for j, lim in enumerate(lims):
+            for i, a in enumerate(LIMIT_FRACTIONS):
+                c = i * len(lims) + j
+                sel[lim.position, c] = 1.0
+                if lim.velocity is not None:
+                    sel[lim.velocity, c] = a * self.horizon
+                high[c], low[c] = lim.high, lim.low
+        self.register_buffer("_limit_sel", sel, persistent=False)
+        self.register_buffer("_limit_high", high, persistent=False)
+        self.register_buffer("_limit_low", low, persistent=False)
+
     def output_groups(self) -> list[tuple[str, int]]:
         return [(g.name, g.size) for g in self.layout]
 
@@ -480,6 +530,9 @@ class StructuredEmulator(nn.Module):
                 vecs = (base @ self._vec_in_sel).reshape(-1, self._num_in_vecs, 3)
                 ext.append((vecs @ r).reshape(-1, 3 * self._num_in_vecs))  # rows v^T R = (R^T v)^T
             ext.append(r[:, 2, :])  # R^T e_z: the world's up in the body frame
+        if self.limits:
+            z = state @ self._limit_sel  # (B, K·L) extrapolated joint positions
+            ext += [torch.relu(z - self._limit_high), torch.relu(self._limit_low - z)]
         cols = torch.cat(ext, dim=1) if len(ext) > 1 else base
         return cols @ self._in_place if place else cols
 
@@ -590,6 +643,7 @@ class StructuredEmulator(nn.Module):
             "output_size": self.layout.size,
             "weights": sum(p.numel() for p in self.parameters()),
             "skip": self.skip is not None,
+            "limits": len(self.limits),
             "frame": {
                 "translate": list(self.frame.translate),
                 "rotate": self.frame.rotate,

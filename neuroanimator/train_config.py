@@ -29,6 +29,7 @@ class TrainConfig:
     optimizer: str = "adam"  # "adam" or "sgd" (mini-batch gradient descent with momentum, thesis 4.5.3)
     lr: float = 3e-3
     momentum: float = 0.9
+    schedule: str = "cosine"  # "cosine" over the epoch/time budget, or "plateau" (halve when stuck)
     batch_size: int = 256
     max_epochs: int = 300
     patience: int = 30  # epochs without a better validation loss before stopping
@@ -36,6 +37,7 @@ class TrainConfig:
     input_noise: float = 0.0  # std of Gaussian noise on normalised state inputs during training
     frame: str = "auto"  # "auto"/"body": full body frame for a quaternion root; "heading": yaw only
     skip: bool = True  # a linear path beside the MLP, started from the least-squares fit
+    limits: bool = True  # limited joints also enter as ramps past their limits (structured.JointLimit)
     # Then train over emulated rollouts of this many super-steps (0: off), so that a long rollout stays
     # on track: one-step training leaves small biases that a rollout integrates into drift.
     rollout_steps: int = 8

@@ -12,6 +12,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+import mujoco
 import numpy as np
 import torch
 from torch import Tensor
@@ -19,7 +20,7 @@ from tqdm import tqdm
 
 from neuroanimator import sampling
 from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.structured import FrameConfig, StructuredEmulator
+from neuroanimator.structured import FrameConfig, JointLimit, StructuredEmulator
 from neuroanimator.train_config import TrainConfig
 
 log = logging.getLogger(__name__)
@@ -81,6 +82,27 @@ def frame_config(model: PhysicalModel, frame: str = "auto") -> FrameConfig:
     )
 
 
+def joint_limits(model: PhysicalModel) -> list[JointLimit]:
+    """The limited hinge and slide joints of ``model`` whose angle (or position) is a state column,
+    with the column of their rate when the state has it."""
+    m = model.mj_model
+    columns: dict[tuple[str, int], int] = {}
+    for g, sl in model.layout.group_slices():
+        if g.size == 1 and g.kind in ("angle", "scalar"):
+            columns[(g.source, g.address)] = sl.start
+    kinds = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    limits = []
+    for j in range(m.njnt):
+        if not m.jnt_limited[j] or int(m.jnt_type[j]) not in kinds:
+            continue
+        pos = columns.get(("qpos", int(m.jnt_qposadr[j])))
+        if pos is None:
+            continue
+        low, high = (float(v) for v in m.jnt_range[j])
+        limits.append(JointLimit(pos, columns.get(("qvel", int(m.jnt_dofadr[j]))), low, high))
+    return limits
+
+
 def build_emulator(model: PhysicalModel, cfg: TrainConfig) -> StructuredEmulator:
     return StructuredEmulator(
         model.layout,
@@ -90,6 +112,8 @@ def build_emulator(model: PhysicalModel, cfg: TrainConfig) -> StructuredEmulator
         cfg.hidden,
         cfg.activation,
         skip=cfg.skip and cfg.preset != "thesis",
+        limits=joint_limits(model) if cfg.limits else (),
+        horizon=model.dt * cfg.substeps,
     )
 
 
@@ -231,7 +255,9 @@ def train_core(
         opt = torch.optim.SGD(net.parameters(), lr=cfg.lr, momentum=cfg.momentum)
     else:
         raise ValueError(f"optimizer must be 'adam' or 'sgd', got {cfg.optimizer!r}")
-    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(2, cfg.patience // 4))
+    if cfg.schedule not in ("cosine", "plateau"):
+        raise ValueError(f"schedule must be 'cosine' or 'plateau', got {cfg.schedule!r}")
+    plateau = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(2, cfg.patience // 4))
     n_state_inputs = sum(w for name, w in emu.input_groups if name not in ("controls", "forces"))
     gen = torch.Generator().manual_seed(cfg.seed)
     best, best_state, stale = math.inf, None, 0
@@ -262,7 +288,14 @@ def train_core(
             raise TrainingDiverged(
                 f"training diverged: the validation loss became {val} at epoch {epoch}; lower the learning rate"
             )
-        sched.step(val)
+        if cfg.schedule == "cosine":
+            # anneal over the budget, whichever of epochs or seconds runs out first: a time-capped run
+            # still ends at a small learning rate, where the last digits of the error are won
+            done = max((epoch + 1) / cfg.max_epochs, (time.perf_counter() - t0) / cfg.max_seconds)
+            for group in opt.param_groups:
+                group["lr"] = cfg.lr * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(1.0, done))))
+        else:
+            plateau.step(val)
         if val < best * (1 - 1e-4):
             best, stale = val, 0
             best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}

@@ -38,6 +38,26 @@ ARM_XML = """<mujoco model="myarm">
 """
 
 
+RAIL_XML = """<mujoco model="rail">
+  <option timestep="0.01"/>
+  <worldbody>
+    <body name="cart">
+      <joint name="slider" type="slide" axis="1 0 0" limited="true" range="-0.5 0.5" solreflimit="0.02 1"/>
+      <geom name="cart_geom" type="box" size="0.1 0.05 0.05" mass="1"/>
+      <body name="pole">
+        <joint name="hinge" type="hinge" axis="0 1 0" damping="0.01"/>
+        <geom name="pole_geom" type="capsule" fromto="0 0 0 0 0 0.6" size="0.03" mass="0.2"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor name="push" joint="slider" gear="10" ctrlrange="-1 1"/>
+  </actuator>
+</mujoco>
+"""
+"""A cart on a rail with hard ends (a limited slider) carrying a free pole: the cart hits its limits."""
+
+
 @dataclass
 class Trained:
     model: PhysicalModel

@@ -60,6 +60,7 @@ def user_train(tmp_path_factory: pytest.TempPathFactory) -> CliRun:
             "16",
             "--quiet",
             "--json",
+            "--force",  # a tiny training: the plumbing is under test, not the accuracy
         ]
     )
     return CliRun(rc, out, root)
@@ -325,7 +326,7 @@ def test_train_zero_substeps_is_refused(tmp_path: Path, capsys: pytest.CaptureFi
 def test_train_frame_skip_and_rollout_options_reach_the_manifest(tmp_path: Path) -> None:
     """--frame heading --no-skip --rollout-steps 0 trains the older form of the emulator (the default,
     the body frame with the linear path, is checked in tests/test_body_frame.py)."""
-    small = ["--substeps", "10", "--examples", "300", "--epochs", "2", "--hidden", "8", "--quiet"]
+    small = ["--substeps", "10", "--examples", "300", "--epochs", "2", "--hidden", "8", "--quiet", "--force"]
     options = ["--frame", "heading", "--no-skip", "--rollout-steps", "0"]
     assert main(["train", "lander", *small, *options, "--out", str(tmp_path)]) == 0
     older = registry.read_manifest(registry.resolve(tmp_path, "lander"))
@@ -335,3 +336,71 @@ def test_train_frame_skip_and_rollout_options_reach_the_manifest(tmp_path: Path)
         False,
         0,
     )
+
+
+def test_an_emulator_that_misses_the_bar_is_refused_and_nothing_written(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    mjcf = tmp_path / "arm.xml"
+    mjcf.write_text(ARM_XML)
+    out = tmp_path / "out"
+    tiny = ["--substeps", "10", "--examples", "300", "--epochs", "2", "--hidden", "8", "--quiet"]
+    with caplog.at_level(logging.ERROR):
+        rc, _ = _run(["train", "--mjcf", str(mjcf), *tiny, "--out", str(out)])
+    assert rc == 2
+    assert "misses the bar" in caplog.text and "--force" in caplog.text
+    assert not (out / "myarm").exists()
+
+
+def test_auto_super_step_takes_50_for_a_model_without_contacts_or_limits(tmp_path: Path) -> None:
+    mjcf = tmp_path / "arm.xml"
+    mjcf.write_text(ARM_XML)
+    tiny = [
+        "--examples",
+        "300",
+        "--epochs",
+        "2",
+        "--hidden",
+        "8",
+        "--rollout-steps",
+        "0",
+        "--quiet",
+        "--force",
+        "--json",
+    ]
+    rc, stdout = _run(["train", "--mjcf", str(mjcf), "--substeps", "auto", *tiny, "--out", str(tmp_path)])
+    assert rc == 0
+    summary = _last_json(stdout)
+    assert summary["substeps"] == 50
+    assert summary["substeps_reason"].startswith("n=50: no contact or limit engages")
+    manifest = registry.read_manifest(registry.resolve(tmp_path, "myarm"))
+    assert (
+        manifest.substeps == 50
+        and manifest.metrics.model_dump()["substeps_reason"] == summary["substeps_reason"]
+    )
+
+
+def test_auto_super_step_probes_a_model_whose_limits_engage(tmp_path: Path) -> None:
+    from tests.helpers import RAIL_XML
+
+    mjcf = tmp_path / "rail.xml"
+    mjcf.write_text(RAIL_XML)
+    tiny = [
+        "--examples",
+        "300",
+        "--epochs",
+        "2",
+        "--hidden",
+        "8",
+        "--rollout-steps",
+        "0",
+        "--quiet",
+        "--force",
+        "--json",
+    ]
+    rc, stdout = _run(["train", "--mjcf", str(mjcf), *tiny, "--out", str(tmp_path)])  # --mjcf: auto
+    assert rc == 0
+    summary = _last_json(stdout)
+    reason = summary["substeps_reason"]
+    assert "limits engaged in" in reason and "probe one-step errors n=50:" in reason
+    assert summary["substeps"] in (50, 25, 10)

@@ -1,0 +1,143 @@
+"""Choosing the super-step n for a model the user did not give one for, and refusing a useless emulator.
+
+A smooth model (no contact, no limit that engages) is learned well at the thesis' n = 50. A contact
+or a joint limit that switches on inside a super-step makes the map from state to next state a kink,
+and the longer the super-step, the more of its examples hold one: such a model may only be learnable
+at a shorter super-step. So: measure how often constraints engage in typical motion; if they never do,
+take 50; else train short probes at n = 50, 25, 10 and take the longest n whose probe reaches the
+target, saying why. After the real training, an emulator that is no better than a linear fit, or far
+off the target, is refused rather than written.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field, replace
+
+import mujoco
+import numpy as np
+
+from neuroanimator.physics.model import ModelError, PhysicalModel
+from neuroanimator.train_config import TrainConfig
+
+log = logging.getLogger(__name__)
+
+CANDIDATES = (50, 25, 10)  # longest first; never below 10 physical steps per super-step
+TARGET = 0.01  # held-out one-step relative error a chosen n should reach
+PROBE_SLACK = 2.0  # a short probe overstates the error of a full training about this much
+REFUSE_ERROR = 0.05  # above this one-step error, an emulator is refused ...
+REFUSE_GAIN = 2.0  # ... as it is when it is not this many times below the linear baseline
+
+_LIMIT_TYPES = (int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT), int(mujoco.mjtConstraint.mjCNSTR_LIMIT_TENDON))
+
+
+class ModelOutOfReach(ModelError):
+    """The trained emulator misses the acceptance bar: nothing is written."""
+
+
+@dataclass(frozen=True)
+class ConstraintActivity:
+    """How often, over sampled states of typical motion, a contact or a limit is engaged (0..1)."""
+
+    contact: float
+    limit: float
+    states: int
+
+    @property
+    def any(self) -> bool:
+        return self.contact > 0 or self.limit > 0
+
+    def describe(self) -> str:
+        return f"contacts in {self.contact:.0%} and limits engaged in {self.limit:.0%} of {self.states} sampled states"
+
+
+@dataclass
+class SuperStepChoice:
+    """The chosen n, why, and the probe errors it was chosen from (n -> one-step relative error)."""
+
+    substeps: int
+    reason: str
+    activity: ConstraintActivity
+    probes: dict[int, float] = field(default_factory=dict)
+
+
+def constraint_activity(
+    model: PhysicalModel, *, seconds: float = 10.0, runs: int = 8, seed: int = 0
+) -> ConstraintActivity:
+    """Simulate ``runs`` typical motions of ``seconds`` and count, at about 200 states, whether a
+    contact or a joint/tendon limit is engaged (``mj_forward`` at each)."""
+    rng = np.random.default_rng(seed)
+    steps = max(1, round(seconds / model.dt))
+    times = np.arange(steps, dtype=np.float64) * model.dt
+    s0 = model.initial_states(rng, runs)
+    u = model.typical_controls(rng, runs, times)
+    f = model.typical_forces(rng, runs, times)
+    traj = model.simulate(s0, u, f if model.num_forces else None)  # (R, T, S)
+    every = max(1, steps // 25)
+    picked = traj[:, ::every].reshape(-1, model.state_size)
+    full = model.to_physics(picked)
+    m = model.mj_model
+    d = mujoco.MjData(m)
+    contact = limit = 0
+    for row in full:
+        mujoco.mj_setState(m, d, row, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        mujoco.mj_forward(m, d)
+        contact += d.ncon > 0
+        limit += bool(np.isin(d.efc_type[: d.nefc], _LIMIT_TYPES).any())
+    n = len(full)
+    return ConstraintActivity(contact=contact / n, limit=limit / n, states=n)
+
+
+def probe_config(cfg: TrainConfig, substeps: int) -> TrainConfig:
+    """A short training at ``substeps``: at most 6,000 examples and 20 s, no rollout phase, no bars."""
+    return replace(
+        cfg,
+        substeps=substeps,
+        examples=min(cfg.examples or 6000, 6000),
+        test_examples=1000,
+        max_seconds=min(cfg.max_seconds, 20.0),
+        rollout_steps=0,
+        progress=False,
+    )
+
+
+def choose_substeps(
+    model: PhysicalModel, cfg: TrainConfig, *, candidates: tuple[int, ...] = CANDIDATES
+) -> SuperStepChoice:
+    """The longest super-step in ``candidates`` that the model can be learned at (see the module doc)."""
+    from neuroanimator.training import train  # torch: only when probes are needed
+
+    activity = constraint_activity(model, seed=cfg.seed)
+    if not activity.any:
+        return SuperStepChoice(
+            candidates[0], f"n={candidates[0]}: no contact or limit engages ({activity.describe()})", activity
+        )
+    probes: dict[int, float] = {}
+    for n in candidates:
+        err = float(train(model, probe_config(cfg, n)).metrics["one_step_rel_error"])
+        probes[n] = err
+        log.info("%s: probe at n=%d: one-step relative error %.3g", model.name, n, err)
+        if err <= PROBE_SLACK * TARGET:
+            break
+    fits = [n for n, e in probes.items() if e <= PROBE_SLACK * TARGET]
+    chosen = fits[0] if fits else min(probes, key=lambda k: probes[k])
+    tried = ", ".join(f"n={n}: {e:.3g}" for n, e in probes.items())
+    verdict = (
+        f"the longest whose short probe reached {PROBE_SLACK * TARGET:g}"
+        if fits
+        else f"no probe reached {PROBE_SLACK * TARGET:g}; the best one"
+    )
+    reason = f"n={chosen}: {activity.describe()}; probe one-step errors {tried}; {verdict}"
+    return SuperStepChoice(chosen, reason, activity, probes)
+
+
+def check_useful(name: str, substeps: int, one_step: float, linear: float) -> None:
+    """Refuse an emulator far off the target or hardly better than a linear fit (``ModelOutOfReach``)."""
+    if not math.isfinite(one_step) or one_step > REFUSE_ERROR or linear < REFUSE_GAIN * one_step:
+        raise ModelOutOfReach(
+            f"{name} n={substeps}: one-step relative error {one_step:.3g} (linear baseline {linear:.3g}) misses "
+            f"the bar (≤ {REFUSE_ERROR:g} and ≥ {REFUSE_GAIN:g}× below linear): nothing written. Try a shorter "
+            f"super-step (--substeps), more examples (--examples) or a wider network (--hidden); --force writes "
+            f"it anyway"
+        )

@@ -1,0 +1,119 @@
+"""Joint limits: a limited joint enters the network as ramps past its limits (structured.JointLimit)."""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from neuroanimator import artifacts, registry, sampling
+from neuroanimator.export import OnnxEmulator, to_onnx
+from neuroanimator.physics.mjcf import load_mjcf
+from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.structured import LIMIT_FRACTIONS, StructuredEmulator
+from neuroanimator.train_config import TrainConfig
+from neuroanimator.training import build_emulator, joint_limits, train
+from tests.helpers import ARM_XML, RAIL_XML
+
+MakeEmulator = Callable[..., StructuredEmulator]
+
+
+def _model(xml: str, substeps: int = 10) -> PhysicalModel:
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "model.xml"
+        path.write_text(xml)
+        return load_mjcf(path, substeps=substeps)
+
+
+def _rail(substeps: int = 10) -> PhysicalModel:
+    return _model(RAIL_XML, substeps)
+
+
+def test_limited_joints_are_found_with_their_columns_and_range() -> None:
+    model = _rail()
+    (lim,) = joint_limits(model)  # the slider; the pole's hinge is not limited
+    labels = model.layout.labels()
+    assert labels[lim.position] == "slider.pos"
+    assert lim.velocity is not None and labels[lim.velocity] == "slider.vel"
+    assert (lim.low, lim.high) == (-0.5, 0.5)
+
+
+def test_a_model_without_limits_reads_no_ramps() -> None:
+    model = _model(ARM_XML)
+    assert joint_limits(model) == []
+    emu = build_emulator(model, TrainConfig(hidden=(8,), progress=False))
+    assert "limits" not in dict(emu.input_groups)
+
+
+def test_ramps_are_zero_inside_and_grow_past_each_limit() -> None:
+    model = _rail(substeps=10)
+    emu = build_emulator(model, TrainConfig(substeps=10, hidden=(8,), progress=False))  # horizon 0.1 s
+    width = dict(emu.input_groups)["limits"]
+    assert width == 2 * len(LIMIT_FRACTIONS)
+    s = torch.zeros(4, model.state_size)
+    labels = model.layout.labels()
+    pos, vel = labels.index("slider.pos"), labels.index("slider.vel")
+    s[1, pos] = 0.45  # inside, moving out fast enough to pass the limit within the super-step
+    s[1, vel] = 1.0
+    s[2, pos] = 0.55  # already past the high limit
+    s[3, pos] = -0.45  # inside, moving away from the low limit
+    s[3, vel] = 2.0
+    u = torch.zeros(4, 1)
+    ramps = emu.local_inputs(s, u, None)[:, -width:]
+    k = len(LIMIT_FRACTIONS)
+    past_high, past_low = ramps[:, :k], ramps[:, k:]
+    assert torch.all(ramps[0] == 0) and torch.all(ramps[3] == 0)
+    torch.testing.assert_close(past_high[1], torch.tensor([0.0, 0.0, 0.05]))  # 0.45 + 1.0·0.1 − 0.5
+    torch.testing.assert_close(past_high[2], torch.full((k,), 0.05))
+    assert torch.all(past_low == 0)
+
+
+def test_onnx_graph_computes_the_same_ramps(make_emulator: MakeEmulator) -> None:
+    model = _rail()
+    emu = make_emulator(model, seed=3)
+    assert emu.limits
+    rng = np.random.default_rng(0)
+    s = model.initial_states(rng, 32)
+    s[:, model.layout.labels().index("slider.pos")] = rng.uniform(-0.6, 0.6, 32)  # both sides of each limit
+    u = rng.uniform(-1, 1, (32, 1))
+    with torch.no_grad():
+        expected = emu(torch.from_numpy(s).float(), torch.from_numpy(u).float()).numpy()
+    got = OnnxEmulator(to_onnx(emu)).step(s, u)
+    np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-5)
+
+
+def test_limits_travel_through_the_manifest(tmp_path: Path) -> None:
+    model = _rail()
+    cfg = TrainConfig(substeps=10, examples=300, test_examples=50, hidden=(8,), max_epochs=2, progress=False)
+    cfg.rollout_steps = 0
+    path = artifacts.save(tmp_path, model, train(model, cfg))
+    (net,) = registry.read_manifest(path).emulator.networks
+    assert [(lim.low, lim.high, lim.horizon) for lim in net.limits] == [(-0.5, 0.5, pytest.approx(0.1))]
+    back = artifacts.load_torch(path)
+    assert back.limits == build_emulator(model, cfg).limits and back.horizon == pytest.approx(0.1)
+
+
+def test_the_ramps_learn_a_cart_hitting_its_limit() -> None:
+    """Trained the same way with and without the ramps, the emulator with them predicts the super-steps
+    in which the cart hits the end of its rail better: the kink is given, not rounded off."""
+    model = _rail(substeps=20)
+    test = sampling.generate(model, 20, 1000, seed=99, progress=False)
+    pos = model.layout.labels().index("slider.pos")
+    hits = np.abs(test.next_states[:, pos]) > 0.45  # ended at (or pushed into) a limit
+    assert hits.mean() > 0.05, "the typical motions must reach the limits for this test to say anything"
+    errors = {}
+    for limits in (True, False):
+        cfg = TrainConfig(substeps=20, examples=4000, hidden=(32, 32), max_epochs=40, test_examples=200)
+        cfg.progress, cfg.max_seconds = False, 600.0  # the same epochs for both, whatever the load
+        cfg.limits, cfg.rollout_steps = limits, 0
+        emu = train(model, cfg).emulator
+        s = torch.from_numpy(test.states).float()
+        u = torch.from_numpy(test.controls).float()
+        with torch.no_grad():
+            pred = emu(s, u).numpy()
+        errors[limits] = float(np.abs(pred - test.next_states)[hits][:, pos].mean())
+    assert errors[True] < 0.85 * errors[False], errors
