@@ -94,6 +94,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         return 2
     if auto:
         result.metrics["substeps_reason"] = choice.reason
+        result.metrics["contact_fraction"] = choice.activity.contact
+        result.metrics["limit_fraction"] = choice.activity.limit
     m = result.metrics
     if not args.force:
         super_step.check_useful(
@@ -106,7 +108,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         f"{m['examples']} examples, {m['total_seconds']:.0f} s\nwrote {path}"
     )
     if args.json:
-        _out(json.dumps({"model": model.name, "substeps": cfg.substeps, "artifact": str(path), **m}))
+        summary = {"model": model.name, "substeps": cfg.substeps, "state_size": model.state_size}
+        _out(json.dumps({**summary, "artifact": str(path), **m}))
     return 0
 
 

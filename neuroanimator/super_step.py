@@ -90,13 +90,17 @@ def constraint_activity(
 
 
 def probe_config(cfg: TrainConfig, substeps: int) -> TrainConfig:
-    """A short training at ``substeps``: at most 6,000 examples and 20 s, no rollout phase, no bars."""
+    """A short training at ``substeps``: at most 6,000 examples and 40 epochs, no rollout phase, no bars.
+
+    Bounded by epochs rather than seconds, so that a busy machine does not change the choice (a 60 s
+    cap only guards against a very slow one)."""
     return replace(
         cfg,
         substeps=substeps,
         examples=min(cfg.examples or 6000, 6000),
         test_examples=1000,
-        max_seconds=min(cfg.max_seconds, 20.0),
+        max_epochs=min(cfg.max_epochs, 40),
+        max_seconds=min(cfg.max_seconds, 60.0),
         rollout_steps=0,
         progress=False,
     )

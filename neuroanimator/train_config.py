@@ -29,7 +29,7 @@ class TrainConfig:
     optimizer: str = "adam"  # "adam" or "sgd" (mini-batch gradient descent with momentum, thesis 4.5.3)
     lr: float = 3e-3
     momentum: float = 0.9
-    schedule: str = "cosine"  # "cosine" over the epoch/time budget, or "plateau" (halve when stuck)
+    schedule: str = "plateau"  # "plateau" (halve when stuck) or "cosine" over the epoch/time budget
     batch_size: int = 256
     max_epochs: int = 300
     patience: int = 30  # epochs without a better validation loss before stopping
