@@ -4,7 +4,8 @@
 //   node tests/e2e/dashboard.mjs <phase>     phase: models | playground | controllers | worker-down
 //
 // Environment: DASHBOARD_URL (required), SCREENSHOT_DIR (default tests/e2e/screenshots), CHROMIUM
-// (default /usr/bin/chromium), TRUCK_TASK (the truck-parking task's name, optional).
+// (default /usr/bin/chromium), TRUCK_TASK (the truck-parking task's name, optional), DOCS=1 (draw at
+// full resolution for the screenshots under docs/).
 // Every phase prints progress lines and, last, one JSON object {"phase", "ok", ...measurements}; it
 // exits 1 on a failed check (the message says which) or on a console error on the happy path.
 // Whether a model or a goal is on screen is read from the view's projection of it (data-screen-<name>
@@ -25,6 +26,10 @@ if (!base) throw new Error('DASHBOARD_URL is not set');
 const shots = process.env.SCREENSHOT_DIR ?? join(root, 'tests', 'e2e', 'screenshots');
 mkdirSync(shots, { recursive: true });
 const out = { phase, ok: false };
+// DOCS=1 (E2E_UPDATE_DOCS=1 in the test): views drawn at full resolution whatever the frame rate, for
+// the screenshots under docs/
+const full = process.env.DOCS === '1' ? 'resolution=full' : '';
+const url = (page, query = '') => `${base}/#/${page}${query || full ? '?' : ''}${[query, full].filter(Boolean).join('&')}`;
 
 function check(cond, message) {
   if (!cond) throw new Error(`check failed: ${message}`);
@@ -109,7 +114,7 @@ async function shot(page, name, opts = {}) {
 }
 
 async function models(page) {
-  await page.goto(`${base}/#/models`);
+  await page.goto(url('models'));
   await page.waitForSelector('.model-card .facts', { timeout: 30000 });
   await page.waitForFunction(() => document.querySelectorAll('.model-card .facts').length >= 5, null, { timeout: 30000 });
   const names = await page.$$eval('.model-card', (els) => els.map((e) => e.dataset.model));
@@ -162,7 +167,7 @@ async function startSession(page, model) {
 
 async function playground(page) {
   // the lander at rest 20 m above its pad, as its MJCF puts it
-  await page.goto(`${base}/#/playground?model=lander&start=rest`);
+  await page.goto(url('playground', 'model=lander&start=rest'));
   await page.waitForFunction(() => document.querySelector('#pg-model')?.value === 'lander', null, { timeout: 20000 });
   // hover thrust on the slider (mass 100 under lunar gravity: 16.2) and full thrust from the key for a
   // second and a half, as soon as the sliders are there
@@ -186,9 +191,14 @@ async function playground(page) {
   const moved = changed(a, b);
   log(`${moved} of ${a.total} cells changed`);
   check(moved > 20, 'the picture changes as the lander moves');
+  // 20 m up the lander is framed alone, big enough to see, with the sky above the horizon
   const m0 = await onScreen(page, '#pg-view', 'model');
-  const g0 = await onScreen(page, '#pg-view', 'ground');
-  log(`lander at ${m0.x},${m0.y}; the ground below it at ${g0.x},${g0.y}`);
+  const vbox = await page.$eval('#pg-view', (el) => ({ w: el.clientWidth, h: el.clientHeight }));
+  const sky = await canvasStats(page, '#pg-view canvas', [[vbox.w * 0.1, 4]]);
+  const [sr, , sb] = sky.colours[0];
+  const framing = await page.$eval('#pg-view', (el) => el.dataset.framing);
+  log(`lander at ${m0.x},${m0.y}; framing: ${framing}; sky colour at the top: ${sky.colours[0]}`);
+  check(sb > sr + 15, 'the sky (blue) is at the top of the view');
   // the MuJoCo ghost, and how far it is from the emulator, as a number and a curve
   await page.check('#pg-ghost');
   await page.waitForFunction(() => document.querySelector('#pg-divergence')?.dataset.position !== undefined, null, { timeout: 10000 });
@@ -255,7 +265,7 @@ async function submitAndReplay(page) {
 
 async function controllers(page) {
   const task = process.env.TRUCK_TASK;
-  await page.goto(`${base}/#/controllers${task ? `?task=${encodeURIComponent(task)}` : ''}`);
+  await page.goto(url('controllers', task ? `task=${encodeURIComponent(task)}` : ''));
   await page.waitForFunction(() => document.querySelector('#ct-view')?.dataset.screenGoal && !document.querySelector('#ct-submit')?.disabled, null, { timeout: 30000 });
   const chosen = await page.$eval('#ct-task', (el) => el.value);
   log(`task: ${chosen}`);
@@ -345,7 +355,7 @@ async function controllers(page) {
 
 async function workerDown(page) {
   const task = process.env.TRUCK_TASK;
-  await page.goto(`${base}/#/controllers${task ? `?task=${encodeURIComponent(task)}` : ''}`);
+  await page.goto(url('controllers', task ? `task=${encodeURIComponent(task)}` : ''));
   await page.waitForFunction(() => !document.querySelector('#ct-submit')?.disabled, null, { timeout: 30000 });
   await page.click('#ct-submit');
   await page.waitForFunction(

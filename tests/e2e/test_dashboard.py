@@ -93,7 +93,13 @@ def _phase(stack: Stack, phase: str, timeout: float, **env: str) -> dict[str, An
     r = subprocess.run(
         ["node", str(SCRIPT), phase],
         cwd=ROOT,
-        env={**os.environ, "DASHBOARD_URL": stack.urls["web"], "SCREENSHOT_DIR": str(SHOTS), **env},
+        env={
+            **os.environ,
+            "DASHBOARD_URL": stack.urls["web"],
+            "SCREENSHOT_DIR": str(SHOTS),
+            "DOCS": os.environ.get("E2E_UPDATE_DOCS", "0"),
+            **env,
+        },
         capture_output=True,
         text=True,
         timeout=timeout,

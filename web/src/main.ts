@@ -9,6 +9,7 @@ import type { Ctx, Page } from './pages/context';
 import { controllersPage } from './pages/controllers';
 import { modelsPage } from './pages/models';
 import { playgroundPage } from './pages/playground';
+import { pinFullResolution } from './scene/loop';
 import { h } from './ui/dom';
 import { clearNotice, initNotices, notify } from './ui/notices';
 
@@ -71,6 +72,7 @@ async function main(): Promise<void> {
   let teardown: (() => void) | null = null;
   const show = (): void => {
     teardown?.();
+    pinFullResolution(new URLSearchParams(location.hash.split('?')[1] ?? '').get('resolution') === 'full');
     pageHost.textContent = '';
     const name = route();
     links.forEach((a) => a.classList.toggle('active', a.dataset.page === name));

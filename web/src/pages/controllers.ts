@@ -84,6 +84,7 @@ export const controllersPage: Page = (root, ctx) => {
       if (scene !== s) return;
       s.goal.group.position.set(0, 0, 0);
       s.goal.setPoses(r.poses[0] ?? []);
+      viewer?.keepInView([s.model.group, s.goal.group]);
     } catch (e) {
       notify(`Cannot place the goal. ${errorText(e)}`, 'error', 'goal');
     }

@@ -30,15 +30,23 @@ function frame(now: number): void {
   last = now;
   governor.frame(now);
   stats.fps = governor.fps;
-  stats.scale = governor.scale;
+  stats.scale = resolutionScale();
   for (const t of ticks) t(now);
   if (ticks.size) requestAnimationFrame(frame);
   else running = false;
 }
 
+let pinned = false;
+
 /** The resolution scale the views should draw at now (1: every device pixel). */
 export function resolutionScale(): number {
-  return governor.scale;
+  return pinned ? 1 : governor.scale;
+}
+
+/** Draw at full resolution whatever the frame rate (`?resolution=full` in the page's address: for
+ * screenshots and recordings), or let the governor choose again. */
+export function pinFullResolution(on: boolean): void {
+  pinned = on;
 }
 
 export function onFrame(t: Tick): () => void {

@@ -254,6 +254,23 @@ export class Viewer {
     this.frameFit(pts, viewDirection(opts.azimuth ?? -62, opts.elevation ?? 15));
   }
 
+  /** Frame `objects` again, from where the camera looks now, if any part of them is out of view (a
+   * goal dragged or typed past the edge). */
+  keepInView(objects: THREE.Object3D[]): void {
+    const box = this.boxOf(...objects);
+    if (box.isEmpty()) return;
+    this.camera.updateMatrixWorld();
+    const out = corners(box).some((p) => {
+      const n = p.clone().project(this.camera);
+      return Math.abs(n.x) > 0.98 || Math.abs(n.y) > 0.98 || n.z > 1;
+    });
+    if (!out) return;
+    const pts = corners(box);
+    const c = box.getCenter(new THREE.Vector3());
+    pts.push(new THREE.Vector3(c.x, this.groundZ, c.z));
+    this.frameFit(pts, this.direction());
+  }
+
   /** Keep `box()` (three's world frame) framed as it moves, with the ground below it while it is near;
    * the person may still orbit and zoom. null stops following. */
   follow(box: (() => THREE.Box3 | null) | null): void {
@@ -273,11 +290,12 @@ export class Viewer {
     return dir.lengthSq() > 1e-12 ? dir.normalize() : viewDirection(-62, 15);
   }
 
-  /** What a followed box is framed with: itself, and the ground below it while near, never less than
-   * a couple of metres across (a small model does not fill the view). */
+  /** What a followed box is framed with: itself, and the ground below it while it is within a few of
+   * its sizes of it (higher up the model alone, big enough to see, with the horizon for up and down),
+   * never less than a couple of metres across (a small model does not fill the view). */
   private followPoints(b: THREE.Box3): THREE.Vector3[] {
     const size = b.getSize(new THREE.Vector3()).length();
-    const pts = followPoints(b, this.groundZ, Math.max(60, 20 * size));
+    const pts = followPoints(b, this.groundZ, Math.max(12, 6 * size));
     this.host.dataset.framing = `${pts.length > 8 ? 'model and ground' : 'model'} (${(b.min.y - this.groundZ).toFixed(1)} m above it)`;
     const c = b.getCenter(new THREE.Vector3());
     const r = Math.max(1, size * 0.5);
