@@ -65,6 +65,7 @@ def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -
             translate=list(fr.translate),
             rotate=fr.rotate,
             force_pairs=[list(p) for p in fr.force_pairs],
+            control_pairs=[list(p) for p in fr.control_pairs],
             body=emu.architecture()["frame"]["body"],  # type: ignore[index]
         ),
         reads=NetworkReads(
@@ -239,10 +240,11 @@ def load_torch(path: Path) -> StructuredEmulator:
         model.num_controls,
         model.num_forces,
         FrameConfig(
-            tuple(fr.translate),
-            fr.rotate,
-            tuple(tuple(p) for p in fr.force_pairs),
-            fr.body,
+            translate=tuple(fr.translate),
+            rotate=fr.rotate,
+            force_pairs=tuple(tuple(p) for p in fr.force_pairs),
+            body=fr.body,
+            control_pairs=tuple(tuple(p) for p in fr.control_pairs),
         ),
         tuple(net.hidden),
         net.activation,

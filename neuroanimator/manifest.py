@@ -128,6 +128,7 @@ class NetworkFrame(_Strict):
     translate: list[bool] = []
     rotate: bool = False
     force_pairs: list[list[int]] = []
+    control_pairs: list[list[int]] = []  # controls along world axes (indices), turned with the frame
     body: bool = False
 
 

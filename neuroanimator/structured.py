@@ -84,6 +84,7 @@ class FrameConfig:
     rotate: bool = False
     # (x, y) or (x, y, z) indices of force inputs acting on one body, rotated together
     force_pairs: tuple[tuple[int, ...], ...] = ()
+    control_pairs: tuple[tuple[int, ...], ...] = ()  # controls along world axes, turned like force_pairs
     body: bool = False
 
 
@@ -299,6 +300,8 @@ class StructuredEmulator(nn.Module):
                     in_pairs.append((a, a + 1, 0))
                 elif g.kind == "quaternion":
                     in_pairs += [(a, a + 3, 1), (a + 1, a + 2, 1)]  # (w, z) and (x, y)
+            for pair in fr.control_pairs:
+                in_pairs.append((S + pair[0], S + pair[1], 0))
             for pair in fr.force_pairs:
                 in_pairs.append((S + U + pair[0], S + U + pair[1], 0))
         vec_of: dict[int, int] = {}  # first column of a body-rotated vector -> its index
@@ -308,6 +311,9 @@ class StructuredEmulator(nn.Module):
                 if (g.kind == "position" and rotated_root(g.size)) or g.kind == "world_vector":
                     vec_of[a] = len(in_vecs)
                     in_vecs.append((a, a + 1, a + 2 if g.size == 3 else -1))
+            for vec in fr.control_pairs:
+                vec_of[S + vec[0]] = len(in_vecs)
+                in_vecs.append(tuple(S + c for c in vec) + ((-1,) if len(vec) == 2 else ()))  # type: ignore[arg-type]
             for vec in fr.force_pairs:
                 vec_of[S + U + vec[0]] = len(in_vecs)
                 in_vecs.append(tuple(S + U + c for c in vec) + ((-1,) if len(vec) == 2 else ()))  # type: ignore[arg-type]
@@ -355,8 +361,12 @@ class StructuredEmulator(nn.Module):
                 gather += cols
                 groups.append((g.name, len(cols)))
         if U:
-            gather += list(range(S, S + U))
-            groups.append(("controls", U))
+            in_a_vec = {c for v in in_vecs for c in v if S <= c < S + U}
+            control_cols = [col(c) for c in range(S, S + U) if c not in in_a_vec]
+            for first in sorted(f for f in vec_of if S <= f < S + U):
+                control_cols += vec_cols(first)
+            gather += control_cols
+            groups.append(("controls", len(control_cols)))
         if F:
             in_a_vec = {c for v in in_vecs for c in v if c >= S + U}
             force_cols = [col(c) for c in range(S + U, S + U + F) if c not in in_a_vec]
@@ -648,6 +658,7 @@ class StructuredEmulator(nn.Module):
                 "translate": list(self.frame.translate),
                 "rotate": self.frame.rotate,
                 "force_pairs": [list(p) for p in self.frame.force_pairs],
+                "control_pairs": [list(p) for p in self.frame.control_pairs],
                 "body": self._body,
             },
         }

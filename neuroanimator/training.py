@@ -74,11 +74,13 @@ def frame_config(model: PhysicalModel, frame: str = "auto") -> FrameConfig:
                 pairs.append((comps[0], comps[1], comps[2]) if body and 2 in comps else (comps[0], comps[1]))
             elif 0 in comps or 1 in comps:
                 rotate = False  # a lone horizontal component is not rotation-invariant: keep world frame
+    controls = [v if body else v[:2] for v in (model.world_control_vectors or ())]
     return FrameConfig(
         translate=fr.translate,
         rotate=rotate,
         force_pairs=tuple(pairs) if rotate else (),
         body=body and rotate,
+        control_pairs=tuple(controls) if rotate else (),
     )
 
 

@@ -238,8 +238,45 @@ class PhysicalModel:
         g = np.asarray(m.opt.gravity)
         gravity_vertical = bool(np.allclose(g[:2], 0.0))
         has_orientation = self.layout.find("quaternion", "heading") is not None
-        rotate = bool(self.spec.rotation_invariant and gravity_vertical and has_orientation)
+        rotate = bool(
+            self.spec.rotation_invariant
+            and gravity_vertical
+            and has_orientation
+            and self.world_control_vectors is not None
+        )
         return Frame(translate=translate, rotate=rotate)
+
+    @cached_property
+    def world_control_vectors(self) -> tuple[tuple[int, ...], ...] | None:
+        """Controls that push along axes fixed in the world (a site actuator whose ``refsite`` is on the
+        world body), as vectors of control indices (x, y) or (x, y, z), one per site; the emulator turns
+        them with the frame, so the rotation about gravity stays a symmetry. ``None`` when such a control
+        is not a force along one world axis, or lacks its horizontal partner: then the rotation is no
+        symmetry of the model under its controls."""
+        m = self.mj_model
+        by_site: dict[int, dict[int, int]] = {}
+        for k, i in enumerate(self._control_ids):
+            if m.actuator_trntype[i] != mujoco.mjtTrn.mjTRN_SITE:
+                continue
+            ref = int(m.actuator_trnid[i, 1])
+            if ref < 0 or int(m.site_bodyid[ref]) != 0:
+                continue
+            gear = np.asarray(m.actuator_gear[i])
+            axes = np.flatnonzero(gear[:3])
+            if (
+                gear[3:].any()
+                or axes.size != 1
+                or gear[axes[0]] != 1.0
+                or axes[0] in by_site.get(int(m.actuator_trnid[i, 0]), {})
+            ):
+                return None
+            by_site.setdefault(int(m.actuator_trnid[i, 0]), {})[int(axes[0])] = k
+        vectors = []
+        for axes_of in by_site.values():
+            if 0 not in axes_of or 1 not in axes_of:
+                return None
+            vectors.append(tuple(axes_of[a] for a in (0, 1, 2) if a in axes_of))
+        return tuple(vectors)
 
     def mjcf_sha256(self) -> str:
         return hashlib.sha256(self.xml.encode()).hexdigest()
