@@ -263,6 +263,41 @@ async function submitAndReplay(page) {
   out.job_s = (Date.now() - t0) / 1000;
 }
 
+/** The outcome shown is the job result's, check by check, on both sides; the status line agrees. */
+async function outcomeMatchesResult(page) {
+  const job = await page.$eval('#job-status', (el) => el.dataset.job);
+  const controller = await page.evaluate(async () => (await (await fetch('config.json')).json()).controller_url);
+  const result = await page.evaluate(async (u) => (await fetch(u)).json(), `${controller}/jobs/${job}/result`);
+  const shown = await page.$eval('#outcome', (el) => ({
+    emulator: el.dataset.successEmulator,
+    physics: el.dataset.successPhysics,
+    criterion: el.querySelector('.criterion').textContent,
+    rows: [...el.querySelectorAll('tr.check')].map((tr) => [tr.children[0].textContent, tr.children[1].dataset.passed, tr.children[2].dataset.passed]),
+  }));
+  const status = await page.$eval('#job-status', (el) => el.textContent);
+  log(`status: ${status}`);
+  log(`criterion: ${shown.criterion}; checks ${JSON.stringify(shown.rows)}`);
+  check(shown.physics === String(result.success_physics) && shown.emulator === String(result.success_emulator), "the verdicts shown are the result's");
+  check(shown.criterion.includes(result.success_criterion), "the criterion shown is the job's");
+  check(shown.rows.length === result.checks_physics.length, 'one row per check');
+  shown.rows.forEach(([text, emu, phys], i) => {
+    check(text === result.checks_physics[i].check, `check ${i} is named as the service names it`);
+    check(emu === String(result.checks_emulator[i].passed) && phys === String(result.checks_physics[i].passed), `check ${i}: passed as the service says`);
+  });
+  check(/meets the success criterion on MuJoCo/.test(status) === (result.success_physics === true), 'the status line agrees with the result on MuJoCo');
+  check(!/succeeded/.test(status), 'the status line does not call a job "succeeded" (that is its run, not the criterion)');
+  return result.success_physics;
+}
+
+/** In each replay view, the model and its goal are on screen. */
+async function replayFramesModelAndGoal(page) {
+  for (const side of ['Emulator', 'MuJoCo (physics)']) {
+    const view = `#replay .replay-view[data-side="${side}"]`;
+    await onScreen(page, view, 'model');
+    await onScreen(page, view, 'goal');
+  }
+}
+
 async function controllers(page) {
   const task = process.env.TRUCK_TASK;
   await page.goto(url('controllers', task ? `task=${encodeURIComponent(task)}` : ''));
@@ -287,40 +322,14 @@ async function controllers(page) {
   log(`objective: ${objectives[0]} -> ${objectives[objectives.length - 1]} over ${objectives.length} iterations`);
   check(objectives.length >= 3 && Math.min(...objectives.slice(1)) < objectives[0], 'the objective goes down');
 
-  // success is the result's own, per check, on both sides, and the status line says the same
-  const job = await page.$eval('#job-status', (el) => el.dataset.job);
-  const controller = await page.evaluate(async () => (await (await fetch('config.json')).json()).controller_url);
-  const result = await page.evaluate(async (url) => (await fetch(url)).json(), `${controller}/jobs/${job}/result`);
-  const shown = await page.$eval('#outcome', (el) => ({
-    emulator: el.dataset.successEmulator,
-    physics: el.dataset.successPhysics,
-    criterion: el.querySelector('.criterion').textContent,
-    rows: [...el.querySelectorAll('tr.check')].map((tr) => [tr.children[0].textContent, tr.children[1].dataset.passed, tr.children[2].dataset.passed]),
-  }));
-  const status = await page.$eval('#job-status', (el) => el.textContent);
-  log(`status: ${status}`);
-  log(`criterion: ${shown.criterion}; checks ${JSON.stringify(shown.rows)}`);
-  check(shown.physics === String(result.success_physics) && shown.emulator === String(result.success_emulator), 'the verdicts shown are the result\'s');
-  check(shown.criterion.includes(result.success_criterion), 'the criterion shown is the job\'s');
-  check(shown.rows.length === result.checks_physics.length, 'one row per check');
-  shown.rows.forEach(([text, emu, phys], i) => {
-    check(text === result.checks_physics[i].check, `check ${i} is named as the service names it`);
-    check(emu === String(result.checks_emulator[i].passed) && phys === String(result.checks_physics[i].passed), `check ${i}: passed as the service says`);
-  });
-  check(/meets the success criterion on MuJoCo/.test(status) === (result.success_physics === true), 'the status line agrees with the result on MuJoCo');
-  check(!/succeeded/.test(status), 'the status line does not call a job "succeeded" (that is its run, not the criterion)');
-  out.success_physics = result.success_physics;
+  out.success_physics = await outcomeMatchesResult(page);
 
   const t1 = Number(await page.$eval('#replay', (el) => el.dataset.t ?? '0'));
   await page.waitForTimeout(1500);
   const t2 = Number(await page.$eval('#replay', (el) => el.dataset.t ?? '0'));
   log(`replay clock ${t1} -> ${t2}`);
   check(t2 > t1, 'the replay plays');
-  for (const side of ['Emulator', 'MuJoCo (physics)']) {
-    const view = `#replay .replay-view[data-side="${side}"]`;
-    await onScreen(page, view, 'model');
-    await onScreen(page, view, 'goal');
-  }
+  await replayFramesModelAndGoal(page);
   const gap = await page.$eval('#replay-divergence', (el) => Number(el.querySelector('.plot').dataset.points));
   check(gap >= 10, `the replay plots the gap between the emulator and MuJoCo over time (${gap} points)`);
   await page.locator('#replay').scrollIntoViewIfNeeded();
@@ -347,6 +356,13 @@ async function controllers(page) {
   log(`lander at ${lander.x},${lander.y}; its goal at ${pad.x},${pad.y}`);
   check(Math.hypot(lander.x - pad.x, lander.y - pad.y) > 60, 'the lander and its goal are apart on screen, both visible');
   await shot(page, 'controllers-lander');
+  // the lander's job: its outcome as the result states it, its replay with the lander and the pad in view
+  await submitAndReplay(page);
+  out.lander_success_physics = await outcomeMatchesResult(page);
+  await replayFramesModelAndGoal(page);
+  await page.locator('#replay').scrollIntoViewIfNeeded();
+  await shot(page, 'replay-lander');
+  await page.evaluate(() => window.scrollTo(0, 0));
   // a task whose model has no heading shows no heading control
   await page.selectOption('#ct-task', 'pendulum-swing');
   await page.waitForFunction(() => !document.querySelector('#ct-submit')?.disabled, null, { timeout: 20000 });

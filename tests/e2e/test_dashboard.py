@@ -9,7 +9,8 @@ the browser phase by phase at 1280×800:
   pendulum-force session framed with its ground and driven through its force sliders;
 - Controllers: a truck-parking job (goal dragged, objective curve live and falling), its outcome
   checked against the job's result check by check, the replay with model and goal on screen and the
-  gap plotted; switching to lander-landing clears the job and frames the lander and its goal;
+  gap plotted; switching to lander-landing clears the job and frames the lander and its goal, and its
+  job's outcome and replay are checked the same way;
 - with the worker stopped, the message that no worker is taking jobs.
 
 Screenshots go to ``tests/e2e/screenshots/`` (ignored by git); ``E2E_UPDATE_DOCS=1`` copies those the
@@ -46,6 +47,7 @@ DOC_SHOTS = {
     "controllers.png": "controllers.png",
     "controllers-lander.png": "controllers-lander.png",
     "replay.png": "replay.png",
+    "replay-lander.png": "replay-lander.png",
 }
 log = logging.getLogger(__name__)
 

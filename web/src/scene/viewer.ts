@@ -170,7 +170,8 @@ export class Viewer {
     this.scene.add(new THREE.HemisphereLight(0xcfe0ff, 0x3a3430, 1.4));
     this.sun = new THREE.DirectionalLight(0xfff1dc, 2.6);
     this.sun.castShadow = true;
-    const size = soft ? 1024 : 2048;
+    // software WebGL clears and draws the shadow map on the CPU every frame: a quarter of the texels
+    const size = soft ? 512 : 2048;
     this.sun.shadow.mapSize.set(size, size);
     this.sun.shadow.bias = -0.0004;
     this.sun.shadow.normalBias = 0.02;
