@@ -42,7 +42,7 @@ lint: install
 	$(BIN)/mypy
 
 # The whole stack (services/stack.py): Redis found or started, emulator :8000, controller API :8001 and a
-# worker, dashboard :8080. Ctrl-C stops everything it started.
+# worker, trainer API :8002 and a training worker, dashboard :8080. Ctrl-C stops everything it started.
 up: install web
 	$(BIN)/python -m services.stack
 
@@ -72,7 +72,8 @@ bench: install
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache web/node_modules web/dist
 
-# Regenerate proto/ (JSON Schemas of the wire models, the emulator's and the controller's OpenAPI documents).
+# Regenerate proto/ (JSON Schemas of the wire models, the emulator's, controller's and trainer's OpenAPI
+# documents).
 .PHONY: proto
 proto: install
 	$(BIN)/python -m services.export_proto

@@ -1,4 +1,5 @@
-"""Time from `make up` to a usable stack: the dashboard answers and the emulator and controller are ready.
+"""Time from `make up` to a usable stack: the dashboard answers and the emulator, controller and trainer
+are ready.
 
     python bench/stack_startup.py                 # one run of `make up` on free ports
     python bench/stack_startup.py --runs 3 --json
@@ -6,8 +7,8 @@
 
 On a warm machine (venv installed, web/dist built) `make up` only checks that and starts the services.
 Each run launches the command in its own process group on free ports (EMULATOR_PORT, CONTROLLER_PORT,
-WEB_PORT), polls until every part answers, then sends Ctrl-C (SIGINT) as a person would and times
-the shutdown. Prints a table and, with --json, one JSON object as the last line.
+TRAINER_PORT, WEB_PORT), polls until every part answers, then sends Ctrl-C (SIGINT) as a person would
+and times the shutdown. Prints a table and, with --json, one JSON object as the last line.
 """
 
 from __future__ import annotations
@@ -47,11 +48,17 @@ def answers(url: str) -> bool:
 
 
 def one_run(command: str, timeout: float) -> dict[str, Any]:
-    ports = {"EMULATOR_PORT": free_port(), "CONTROLLER_PORT": free_port(), "WEB_PORT": free_port()}
+    ports = {
+        "EMULATOR_PORT": free_port(),
+        "CONTROLLER_PORT": free_port(),
+        "TRAINER_PORT": free_port(),
+        "WEB_PORT": free_port(),
+    }
     urls = {
         "dashboard": f"http://127.0.0.1:{ports['WEB_PORT']}/",
         "emulator": f"http://127.0.0.1:{ports['EMULATOR_PORT']}/readyz",
         "controller": f"http://127.0.0.1:{ports['CONTROLLER_PORT']}/readyz",
+        "trainer": f"http://127.0.0.1:{ports['TRAINER_PORT']}/readyz",
     }
     env = {**os.environ, **{k: str(v) for k, v in ports.items()}}
     with tempfile.TemporaryFile() as out:

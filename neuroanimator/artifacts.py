@@ -47,13 +47,6 @@ from neuroanimator.training import TrainResult
 CORE = "core"  # the network of a one-network emulator (StructuredEmulator.core)
 
 
-def _write_pointer(path: Path, version: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-ptr-")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(version + "\n")
-    os.replace(tmp, path)
-
-
 def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -> Network:
     """The manifest's description of a one-network emulator: ``core`` in the root frame, writing every
     state group; ``mode`` is the normalisation mode it was fitted with."""
@@ -223,9 +216,9 @@ def save(root: Path, model: PhysicalModel, result: TrainResult) -> Path:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    _write_pointer(model_dir / registry.pointer_name(substeps), version)
+    registry.write_pointer(model_dir, registry.pointer_name(substeps), version)
     if substeps == model.spec.substeps or not (model_dir / registry.pointer_name()).exists():
-        _write_pointer(model_dir / registry.pointer_name(), version)
+        registry.write_pointer(model_dir, registry.pointer_name(), version)
     return model_dir / version
 
 

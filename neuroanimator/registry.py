@@ -86,6 +86,15 @@ def version_name(substeps: int, when: dt.datetime, repeat: int = 1) -> str:
     return f"n{substeps}-{stamp}" if repeat == 1 else f"n{substeps}-{stamp}-{repeat}"
 
 
+def write_pointer(model_dir: Path, name: str, version: str) -> None:
+    """Make pointer ``name`` (``pointer_name``) of a model's folder name ``version``, atomically."""
+    fd, tmp = tempfile.mkstemp(dir=model_dir, prefix=".tmp-ptr-")
+    os.fchmod(fd, 0o644)  # readable by the services, whichever user they run as
+    with os.fdopen(fd, "w") as fh:
+        fh.write(version + "\n")
+    os.replace(tmp, model_dir / name)
+
+
 # ---------------------------------------------------------------------------- listing
 def list_models(root: Path) -> list[str]:
     """The models with a ``latest`` version, sorted."""

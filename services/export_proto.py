@@ -3,7 +3,8 @@
 (``proto/emulator.openapi.json``); the controller service's models (``neuroanimator.controller_schemas``,
 ``proto/schemas/controller/<Name>.json``) and OpenAPI document (``proto/controller.openapi.json``); the
 evaluation and benchmark results the dashboard shows (``neuroanimator.results``,
-``proto/schemas/results/<Name>.json``).
+``proto/schemas/results/<Name>.json``); the trainer service's models (``neuroanimator.trainer_schemas``,
+``proto/schemas/trainer/<Name>.json``) and OpenAPI document (``proto/trainer.openapi.json``).
 ``proto/frames.md`` (the binary layouts) is written by hand.
 
     python -m services.export_proto            # (re)write proto/
@@ -27,7 +28,7 @@ from typing import Any
 
 from pydantic import BaseModel, TypeAdapter
 
-from neuroanimator import controller_schemas, emulator_schemas, results
+from neuroanimator import controller_schemas, emulator_schemas, results, trainer_schemas
 
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[1] / "proto"
@@ -35,6 +36,7 @@ COMMAND = "python -m services.export_proto  (or: make proto)"
 UNIONS = ("ClientMessage", "ServerMessage")
 CONTROLLER = "schemas/controller"  # the controller's schemas, beside (not among) the emulator's
 RESULTS = "schemas/results"  # evaluation and benchmark results (served by the dashboard's server)
+TRAINER = "schemas/trainer"  # the trainer's schemas
 
 
 def _dump(obj: Any) -> str:
@@ -63,6 +65,11 @@ def wire_schemas() -> dict[str, dict[str, Any]]:
 def controller_wire_schemas() -> dict[str, dict[str, Any]]:
     """Every pydantic model defined in ``neuroanimator.controller_schemas``."""
     return _module_schemas(controller_schemas)
+
+
+def trainer_wire_schemas() -> dict[str, dict[str, Any]]:
+    """Every pydantic model defined in ``neuroanimator.trainer_schemas``."""
+    return _module_schemas(trainer_schemas)
 
 
 def results_wire_schemas() -> dict[str, dict[str, Any]]:
@@ -94,6 +101,19 @@ def controller_openapi() -> dict[str, Any]:
     return doc
 
 
+def trainer_openapi() -> dict[str, Any]:
+    """The trainer API's document (its Redis is not contacted: connections are lazy)."""
+    from services.trainer.app import create_app
+    from services.trainer.settings import Settings
+
+    with tempfile.TemporaryDirectory() as empty:
+        settings = Settings(
+            artifacts_dir=Path(empty), api_keys="", cors_origins="", redis_url="redis://127.0.0.1:1/0"
+        )
+        doc: dict[str, Any] = create_app(settings).openapi()
+    return doc
+
+
 def emulator_openapi() -> dict[str, Any]:
     """The emulator service's document (no Redis: persistence off)."""
     from services.emulator.app import create_app
@@ -112,13 +132,17 @@ def render() -> dict[str, str]:
     files |= {f"{CONTROLLER}/{name}.json": _dump(s) for name, s in controller_wire_schemas().items()}
     files |= {f"{RESULTS}/{name}.json": _dump(s) for name, s in results_wire_schemas().items()}
     files["controller.openapi.json"] = _dump(controller_openapi())
+    files |= {f"{TRAINER}/{name}.json": _dump(s) for name, s in trainer_wire_schemas().items()}
+    files["trainer.openapi.json"] = _dump(trainer_openapi())
     return files
 
 
 def _schema_files(root: Path) -> list[str]:
     """The schema files now in ``root`` (both folders), relative to it."""
     return [
-        f"{d}/{p.name}" for d in ("schemas", CONTROLLER, RESULTS) for p in sorted((root / d).glob("*.json"))
+        f"{d}/{p.name}"
+        for d in ("schemas", CONTROLLER, RESULTS, TRAINER)
+        for p in sorted((root / d).glob("*.json"))
     ]
 
 
@@ -136,6 +160,7 @@ def write(root: Path = ROOT) -> list[str]:
     files = render()
     (root / CONTROLLER).mkdir(parents=True, exist_ok=True)
     (root / RESULTS).mkdir(parents=True, exist_ok=True)
+    (root / TRAINER).mkdir(parents=True, exist_ok=True)
     for p in _schema_files(root):
         if p not in files:
             (root / p).unlink()

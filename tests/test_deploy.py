@@ -95,6 +95,48 @@ def test_controller_services_match_their_settings(compose: dict[str, Any]) -> No
     assert f"controller-api:{api['environment']['PORT']}" in conf  # the proxy reaches the API
 
 
+def test_trainer_services_match_their_settings(compose: dict[str, Any]) -> None:
+    from services.trainer.settings import Settings
+
+    known = {name.upper() for name in Settings.model_fields}
+    services = compose["services"]
+    api, worker = services["trainer-api"], services["trainer-worker"]
+    for name, svc in (("trainer-api", api), ("trainer-worker", worker)):
+        env = svc["environment"]
+        assert set(env) <= known, (name, set(env) - known)  # every variable is a trainer setting
+        assert env["REDIS_URL"].startswith("redis://redis:"), name
+        assert "redis" in svc["depends_on"], name
+        # both write the registry (uploads, claimed names, exported emulators): mounted read-write
+        assert f"./artifacts:{env['ARTIFACTS_DIR']}" in svc["volumes"], name
+    assert api["build"]["target"] == "emulator"  # the API needs no PyTorch
+    assert api["command"] == ["python", "-m", "services.trainer"]
+    assert api["environment"]["PORT"] == str(Settings.model_fields["port"].default)
+    assert "8002" in api["healthcheck"]["test"][-1]
+    assert worker["build"]["target"] == "trainer"
+    assert worker["entrypoint"] == ["python", "-m", "services.trainer.worker"]
+    assert float(worker["cpus"]) <= 1.0 and int(worker["environment"]["WORKER_NICE"]) > 0  # serving first
+    assert compose["services"]["web"]["environment"]["TRAINER_URL"] == "/api/trainer"
+    conf = (ROOT / "deploy" / "nginx" / "emulator.conf").read_text()
+    assert f"trainer-api:{api['environment']['PORT']}" in conf and "location /api/trainer/" in conf
+
+
+def test_the_trainer_api_imports_no_torch() -> None:
+    """The trainer API runs from the emulator image (no PyTorch): it checks uploads with MuJoCo alone."""
+    code = (
+        "import sys\n"
+        "class Block:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name.split('.')[0] in ('torch', 'tqdm', 'matplotlib', 'onnx'):\n"
+        "            raise ImportError(f'{name} is not in the emulator image')\n"
+        "sys.meta_path.insert(0, Block())\n"
+        "import services.trainer.__main__\n"
+        "from services.trainer.app import create_app\n"
+        "from services.trainer.settings import Settings\n"
+        "create_app(Settings(redis_url='redis://127.0.0.1:1/0'))\n"
+    )
+    subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True, timeout=60)
+
+
 def test_replicas_have_distinct_ids_and_use_redis(compose: dict[str, Any]) -> None:
     ids = []
     for name, svc in _emulators(compose).items():

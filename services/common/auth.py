@@ -14,6 +14,10 @@ an id read from a checkpoint or a log cannot be turned back into a short key by 
 Without ``API_KEY_SECRET`` a service draws a random secret at start: ids then change at each restart
 (restored sessions and earlier jobs lose their owners), which it warns about. ``OwnerDep`` is the
 owner as a FastAPI dependency, ``public`` while keys are off.
+
+``OPERATOR_KEYS`` are API keys with an operator's rights (they need not be repeated in ``API_KEYS``):
+``OPERATOR`` says, for the rest of the request, that the caller holds one. An operator sees every
+uploaded model, and publishes and deletes them (``services.common.tenancy``).
 """
 
 from __future__ import annotations
@@ -32,12 +36,15 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from starlette.websockets import WebSocket
 
 from neuroanimator.emulator_schemas import ErrorBody
+from services.common.settings import ApiSettings
 
 log = logging.getLogger(__name__)
 
 OPEN_PATHS = frozenset({"/healthz", "/readyz", "/metrics"})
 CALLER: ContextVar[str | None] = ContextVar("caller", default=None)
 """The key id of the current request's caller; None when auth is off (or outside a request)."""
+OPERATOR: ContextVar[bool] = ContextVar("operator", default=False)
+"""Whether the current request's caller holds an operator key (``OPERATOR_KEYS``)."""
 PUBLIC = "public"
 """The owner of what is made while API keys are off (``OwnerDep``)."""
 
@@ -48,20 +55,31 @@ def key_id(key: str, secret: bytes) -> str:
     return "k-" + hmac.new(secret, key.encode(), hashlib.sha256).hexdigest()[:16]
 
 
-class ApiKeys:
-    """The configured keys, from the comma-separated ``API_KEYS`` (blanks around keys are ignored), and
-    the secret of their ids (``API_KEY_SECRET``; a random one when it is empty)."""
+def _split(spec: str) -> set[str]:
+    return {k.strip() for k in spec.split(",") if k.strip()}
 
-    def __init__(self, spec: str, secret: str = "") -> None:
-        keys = {k.strip() for k in spec.split(",") if k.strip()}
+
+class ApiKeys:
+    """The configured keys, from the comma-separated ``API_KEYS`` and ``OPERATOR_KEYS`` (blanks around
+    keys are ignored), and the secret of their ids (``API_KEY_SECRET``; a random one when it is empty)."""
+
+    def __init__(self, spec: str, secret: str = "", operators: str = "") -> None:
+        ops = _split(operators)
+        keys = _split(spec) | ops
         self.secret_given = bool(secret)
         self._secret = secret.encode() if secret else secrets.token_bytes(32)
         self._ids = {hashlib.sha256(k.encode()).digest(): key_id(k, self._secret) for k in keys}
+        self.operators = frozenset(key_id(k, self._secret) for k in ops)
         if keys and not secret:
             log.warning(
                 "API_KEY_SECRET is not set: the ids of API keys (the owners of sessions and jobs) are "
                 "drawn afresh at each start, so what a restart restores loses its owner; set it"
             )
+
+    @classmethod
+    def of(cls, settings: ApiSettings) -> ApiKeys:
+        """The keys of a service's settings (``API_KEYS``, ``API_KEY_SECRET``, ``OPERATOR_KEYS``)."""
+        return cls(settings.api_keys, settings.api_key_secret, settings.operator_keys)
 
     def id_of(self, key: str) -> str:
         """The id ``key`` has here (configured or not)."""
@@ -112,9 +130,11 @@ class ApiKeyMiddleware:
             await self._deny(scope, receive, send, missing=key is None)
             return
         token = CALLER.set(owner)
+        operator = OPERATOR.set(owner in self.keys.operators)
         try:
             await self.app(scope, receive, send)
         finally:
+            OPERATOR.reset(operator)
             CALLER.reset(token)
 
     async def _deny(self, scope: Scope, receive: Receive, send: Send, missing: bool) -> None:

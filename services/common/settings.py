@@ -41,6 +41,11 @@ class ApiSettings(ServiceSettings):
     api_keys: str = Field(
         "", description="comma-separated API keys; empty: no auth (every endpoint but ops then needs one)"
     )
+    operator_keys: str = Field(
+        "",
+        description="comma-separated API keys with an operator's rights (keys too, beside API_KEYS): they see "
+        "every uploaded model, and publish and delete them",
+    )
     api_key_secret: str = Field(
         "",
         description="the server secret of API key ids (HMAC-SHA256): the same on every replica and across "

@@ -2,153 +2,46 @@
 
 The API validates and queues jobs and reads their progress from Redis; it runs none itself (see
 ``worker.py``). It never imports PyTorch. When Redis is down it still starts: calls that need Redis
-answer 503 with a message, and ``/readyz`` says why it is not ready.
+answer 503 with a message, and ``/readyz`` says why it is not ready (``services.common.queue_app``).
 """
 
 from __future__ import annotations
 
-import contextlib
-import logging
-from collections.abc import AsyncIterator
-from urllib.parse import urlsplit, urlunsplit
+from typing import Any
 
-import redis
-import redis.asyncio as aioredis
-from fastapi import FastAPI, Request, Response
-from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import JSONResponse, PlainTextResponse
+from fastapi import FastAPI
 
-from neuroanimator import registry
-from neuroanimator.emulator_schemas import ErrorBody
-from services.common.auth import ApiKeyMiddleware, ApiKeys
-from services.common.docs import add_offline_docs
-from services.common.errors import add_error_handlers
-from services.common.job_events import QueryKeyMiddleware
-from services.common.limits import limit_bodies
-from services.common.openapi import METRICS_RESPONSES, METRICS_TYPE, document_errors, readiness_responses
+from services.common import tenancy
+from services.common.queue_app import connect, queue_app
 from services.controller.metrics import Metrics
 from services.controller.routes import events, jobs, tasks
 from services.controller.settings import Settings
 from services.controller.store import JobStore
 
-log = logging.getLogger(__name__)
-
-
-def redacted(url: str) -> str:
-    """A Redis URL without its password, for messages."""
-    parts = urlsplit(url)
-    if parts.password:
-        host = parts.hostname or ""
-        netloc = f"{parts.username or ''}:***@{host}" + (f":{parts.port}" if parts.port else "")
-        return urlunsplit(parts._replace(netloc=netloc))
-    return url
-
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The app for these settings. Connecting to Redis is lazy, so this works while Redis is down."""
     settings = settings or Settings()
-    conn = redis.Redis.from_url(
-        settings.redis_url,
-        socket_connect_timeout=settings.redis_timeout_s,
-        socket_timeout=settings.redis_timeout_s,
-    )
-    store = JobStore(conn, settings)
-    keys = ApiKeys(settings.api_keys, settings.api_key_secret)
-    metrics = Metrics(store)
-    where = redacted(settings.redis_url)
+    store = JobStore(connect(settings), settings)
 
-    @contextlib.asynccontextmanager
-    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        # Blocking XREADs wait up to SSE_KEEPALIVE_S: the socket timeout must be longer.
-        app.state.aredis = aioredis.Redis.from_url(
-            settings.redis_url,
-            socket_connect_timeout=settings.redis_timeout_s,
-            socket_timeout=settings.sse_keepalive_s + 10.0,
-        )
-        log.info(
-            "controller API up",
-            extra={"redis": where, "queue": settings.queue_name, "api_keys": len(keys)},
-        )
-        try:
-            yield
-        finally:
-            await app.state.aredis.aclose()
-            conn.close()
-
-    app = FastAPI(
-        title="NeuroAnimator controller service",
-        version="0.1.0",
-        lifespan=lifespan,
-        docs_url=None,
-        redoc_url=None,
-    )
-    add_offline_docs(app)  # /docs and /redoc with packaged assets: they work offline
-    app.state.settings = settings
-    app.state.store = store
-    app.state.metrics = metrics
-    if keys.enabled:
-        app.add_middleware(ApiKeyMiddleware, keys=keys)
-        app.add_middleware(QueryKeyMiddleware)
-    limit_bodies(app, settings.max_body_bytes)  # before the key check: nobody sends an unbounded body
-    origins = settings.cors_list()
-    if origins:  # outermost, so that preflight requests are answered before the API-key check
-        app.add_middleware(
-            CORSMiddleware,
-            allow_origins=origins,
-            allow_methods=["GET", "POST", "DELETE", "OPTIONS"],
-            allow_headers=["Authorization", "X-API-Key", "Content-Type", "Last-Event-ID"],
-            expose_headers=["Location"],
-        )
-    add_error_handlers(app)
-
-    async def redis_down(request: Request, exc: Exception) -> JSONResponse:
-        if request.url.path == "/jobs" and request.method == "POST":
-            metrics.rejected.labels("redis_unavailable").inc()
-        # where Redis is, and the driver's text (which names host and port), go to the log only
-        log.warning("Redis unreachable", extra={"path": request.url.path, "redis": where, "error": str(exc)})
-        body = ErrorBody(
-            error="redis_unavailable",
-            message=f"the job queue is unavailable: Redis does not answer ({type(exc).__name__}); "
-            "try again later",
-        )
-        return JSONResponse(body.model_dump(), status_code=503, headers={"Retry-After": "5"})
-
-    app.add_exception_handler(redis.ConnectionError, redis_down)
-    app.add_exception_handler(redis.TimeoutError, redis_down)
-
-    for r in (jobs.router, events.router, tasks.router):
-        app.include_router(r)
-
-    @app.get("/healthz", tags=["ops"])
-    def healthz() -> dict[str, str]:
-        return {"status": "ok"}
-
-    @app.get(
-        "/readyz",
-        tags=["ops"],
-        response_class=JSONResponse,
-        responses=readiness_responses("Redis does not answer, or there is no trained model"),
-    )
-    def readyz() -> Response:
-        """Ready when Redis answers and the artifact registry has a model (503 with the reason if not).
-        ``workers`` counts the workers heard from lately (``WORKER_ALIVE_S``)."""
-        models = registry.list_models(settings.artifacts_dir)
-        try:
-            conn.ping()
-            workers = store.worker_count()
-            depth = store.queue_depth()
-        except redis.RedisError as exc:
-            log.warning("readyz: Redis unreachable", extra={"redis": where, "error": str(exc)})
-            msg = f"Redis does not answer ({type(exc).__name__})"
-            return JSONResponse({"status": "redis unavailable", "message": msg}, status_code=503)
+    def ready() -> tuple[dict[str, Any], tuple[str, str] | None]:
+        # an open endpoint: the models everybody sees (uploaded ones only once published)
+        models = tenancy.public_models(settings.artifacts_dir)
         if not models:
-            msg = f"no trained models in {str(settings.artifacts_dir)!r} (train one: neuro train pendulum-active)"
-            return JSONResponse({"status": "no artifacts", "message": msg}, status_code=503)
-        return JSONResponse({"status": "ready", "models": models, "workers": workers, "queue_depth": depth})
+            root = str(settings.artifacts_dir)
+            return {}, (
+                "no artifacts",
+                f"no trained models in {root!r} (train one: neuro train pendulum-active)",
+            )
+        return {"models": models}, None
 
-    @app.get("/metrics", tags=["ops"], response_class=PlainTextResponse, responses=METRICS_RESPONSES)
-    def metrics_endpoint() -> Response:
-        return Response(metrics.render(), media_type=METRICS_TYPE)
-
-    document_errors(app, everywhere={"503": "Redis (the job queue) does not answer; try again later"})
-    return app
+    return queue_app(
+        settings,
+        title="NeuroAnimator controller service",
+        store=store,
+        metrics=Metrics(store),
+        routers=(jobs.router, events.router, tasks.router),
+        submit_path="/jobs",
+        ready=ready,
+        not_ready="there is no trained model",
+    )

@@ -32,7 +32,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """The app for these settings; artifacts are loaded now, so it is ready when this returns."""
     settings = settings or Settings()
     engine = Engine(settings)
-    keys = ApiKeys(settings.api_keys, settings.api_key_secret)
+    keys = ApiKeys.of(settings)
     persistence = Persistence(engine)
 
     @contextlib.asynccontextmanager

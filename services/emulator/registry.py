@@ -1,9 +1,11 @@
 """The emulators this service serves, loaded from the artifact registry (``neuroanimator.registry``).
 
 It loads every model's ``latest`` version into an ``OnnxEmulator`` and re-reads the pointer files at
-most every ``poll_s`` seconds, so a new version is served without a restart. Versions already loaded
-stay loaded: a session keeps the version it started with. An older version named explicitly is
-loaded on demand. Nothing here imports torch.
+most every ``poll_s`` seconds, so a new version (or a new model, e.g. one the trainer service just
+exported) is served without a restart, and a deleted model is no longer listed. Versions already
+loaded stay loaded: a session keeps the version it started with. An older version named explicitly
+is loaded on demand. A model uploaded with an API key is listed and served to that key (and
+operators) only, until it is published (``services.common.tenancy``). Nothing here imports torch.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from neuroanimator.export import OnnxEmulator
 from neuroanimator.manifest import Manifest
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.state import QUATERNION_KINDS, heading_columns
+from services.common import tenancy
 from services.common.errors import ApiError
 from services.emulator.scene import Kinematics
 
@@ -125,7 +128,10 @@ class Registry:
         logged and skipped (the previous latest keeps serving)."""
         with self._lock:
             self._checked = time.monotonic()
-            for model in registry.list_models(self.root):
+            models = registry.list_models(self.root)
+            for gone in set(self.latest) - set(models):  # deleted: no longer listed (sessions keep theirs)
+                del self.latest[gone]
+            for model in models:
                 try:
                     version = registry.latest_version(self.root, model)
                     if self.latest.get(model) != version:
@@ -139,8 +145,9 @@ class Registry:
             self.refresh()
 
     def models(self) -> list[str]:
+        """The models the current request's caller sees."""
         self.maybe_refresh()
-        return sorted(self.latest)
+        return sorted(m for m in self.latest if tenancy.can_see(self.root, m))
 
     def versions(self, model: str) -> list[str]:
         return sorted(v for m, v in self.loaded if m == model)
@@ -148,13 +155,14 @@ class Registry:
     def get(self, model: str, version: str | None = None) -> Loaded:
         """The named version (loaded on demand) or the latest; 404 ``ApiError`` when there is none."""
         self.maybe_refresh()
-        if model not in self.latest:
+        if model not in self.latest or not tenancy.can_see(self.root, model):
+            known = self.models()
             raise ApiError(
                 404,
                 "unknown_model",
-                f"unknown model {model!r}; loaded models are {sorted(self.latest)}",
+                f"unknown model {model!r}; loaded models are {known}",
                 field="model",
-                expected=sorted(self.latest),
+                expected=known,
                 got=model,
             )
         if version is None:

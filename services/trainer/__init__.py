@@ -1,1 +1,2 @@
-"""Trainer service: turns MuJoCo models into exported emulators (see ``neuroanimator.cli``)."""
+"""Trainer service: MuJoCo models uploaded over HTTP become emulators in the artifact registry (``app``,
+``worker``); ``neuro train`` (``neuroanimator.cli``) does the same on the command line."""

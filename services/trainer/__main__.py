@@ -1,14 +1,19 @@
-"""The trainer service's entry point: ``python -m services.trainer train|eval|bench|models ...``.
+"""``python -m services.trainer``: serve the trainer API on HOST:PORT (default 8002) with uvicorn.
 
-It is the ``neuro`` command; the trainer runs as a batch job that writes the artifact registry
-that the emulator and controller services read.
+Training workers run apart: ``python -m services.trainer.worker``. The ``neuro`` command
+(``neuroanimator.cli``) trains on the command line without either.
 """
 
 from __future__ import annotations
 
-import sys
+from services.common.server import serve
+from services.trainer.app import create_app
+from services.trainer.settings import Settings
 
-from neuroanimator.cli import main
+
+def main() -> None:
+    serve(create_app, Settings())
+
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

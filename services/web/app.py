@@ -34,12 +34,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
     app = FastAPI(title="NeuroAnimator dashboard", version="0.1.0", docs_url=None, redoc_url=None)
     add_offline_docs(app)  # /docs and /redoc with packaged assets, before the dashboard's mount at /
-    config = {"emulator_url": settings.emulator_url, "controller_url": settings.controller_url}
+    config = {
+        "emulator_url": settings.emulator_url,
+        "controller_url": settings.controller_url,
+        "trainer_url": settings.trainer_url or None,
+    }
     limit_bodies(app, settings.max_body_bytes)  # the dashboard takes no bodies: any is small
 
     @app.get("/config.json")
     def get_config() -> JSONResponse:
-        """Where the browser finds the emulator and the controller services."""
+        """Where the browser finds the emulator, controller and trainer services (the trainer: null
+        when there is none)."""
         return JSONResponse(config, headers={"Cache-Control": "no-store"})
 
     @app.get("/healthz")
@@ -52,7 +57,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if found is None:
             return JSONResponse({"error": "not_measured", "message": f"no {what}"}, status_code=404)
         # JSON text from pydantic: a non-finite number is null there (JSON has no NaN)
-        return Response(found.model_dump_json(), media_type="application/json", headers={"Cache-Control": "no-cache"})
+        return Response(
+            found.model_dump_json(), media_type="application/json", headers={"Cache-Control": "no-cache"}
+        )
 
     def unreadable(exc: registry.ArtifactError, what: str) -> Response:
         if exc.what in ("model", "version", "substeps"):
@@ -68,7 +75,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if name not in MEASUREMENTS:
             return answer(None, what)
         try:
-            found = registry.model_eval(root, model) if name == registry.EVAL_FILE else registry.model_bench(root, model)
+            found = (
+                registry.model_eval(root, model)
+                if name == registry.EVAL_FILE
+                else registry.model_bench(root, model)
+            )
         except registry.ArtifactError as exc:
             return unreadable(exc, what)
         return answer(found, what)

@@ -12,17 +12,22 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 class Settings(ServiceSettings):
-    """``EMULATOR_URL`` and ``CONTROLLER_URL`` are what the *browser* calls: absolute URLs, or paths
-    on this server's origin when a proxy serves everything from one place (``/api/emulator``)."""
+    """``EMULATOR_URL``, ``CONTROLLER_URL`` and ``TRAINER_URL`` are what the *browser* calls: absolute
+    URLs, or paths on this server's origin when a proxy serves everything from one place
+    (``/api/emulator``)."""
 
     web_dist: Path = Field(ROOT / "web" / "dist", description="the built dashboard (npm run build)")
     artifacts_dir: Path = Field(
-        Path("artifacts"), description="the artifact registry whose evaluation and benchmark results are served"
+        Path("artifacts"),
+        description="the artifact registry whose evaluation and benchmark results are served",
     )
     emulator_url: str = Field(
         "http://127.0.0.1:8000", description="the emulator service, as the browser sees it"
     )
     controller_url: str = Field(
         "http://127.0.0.1:8001", description="the controller API, as the browser sees it"
+    )
+    trainer_url: str = Field(
+        "http://127.0.0.1:8002", description="the trainer API, as the browser sees it (empty: none)"
     )
     port: Port = 8080

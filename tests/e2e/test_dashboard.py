@@ -72,6 +72,7 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
     cfg = StackConfig(
         emulator_port=free_port(),
         controller_port=free_port(),
+        trainer_port=free_port(),
         web_port=free_port(),
         log_dir=tmp_path_factory.mktemp("stack-logs"),
         train_missing=False,

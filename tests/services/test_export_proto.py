@@ -52,3 +52,25 @@ def test_proto_has_the_results_contract() -> None:
     assert "schemas/results/ModelEval.json" in files
     layout = export_proto.wire_schemas()["LayoutGroup"]
     assert "enum" in layout["properties"]["kind"]  # a closed set of kinds on the wire too
+
+
+def test_proto_has_the_trainer_contract() -> None:
+    names = set(export_proto.trainer_wire_schemas())
+    assert {
+        "TrainingUpload",
+        "TrainingAccepted",
+        "TrainingStatus",
+        "TrainingResult",
+        "StoredModelList",
+    } <= names
+    files = export_proto.render()
+    assert "schemas/trainer/TrainingStatus.json" in files and "trainer.openapi.json" in files
+    doc = export_proto.trainer_openapi()
+    paths = doc["paths"]
+    assert {"/trainings", "/trainings/{training_id}", "/trainings/{training_id}/events", "/models"} <= set(
+        paths
+    )
+    post = paths["/trainings"]["post"]
+    form = post["requestBody"]["content"]["multipart/form-data"]["schema"]
+    assert form["properties"]["file"]["format"] == "binary" and "super_step" in form["properties"]
+    assert {"413", "415", "422", "429", "409"} <= set(post["responses"])

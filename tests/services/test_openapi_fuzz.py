@@ -1,5 +1,5 @@
-"""Schemathesis over both services' OpenAPI documents, against the real processes (uvicorn, the
-committed artifacts, the session's Redis): every generated request, valid or not, must be answered
+"""Schemathesis over the services' OpenAPI documents, against the real processes (uvicorn, the
+committed artifacts (the trainer: a registry of its own), the session's Redis): every generated request, valid or not, must be answered
 without a 5xx and with a body that conforms to the document (``not_a_server_error``,
 ``response_schema_conformance``).
 
@@ -32,7 +32,7 @@ from _server import serve  # noqa: E402
 
 EXAMPLES = int(os.environ.get("FUZZ_EXAMPLES", "8"))
 CHECKS = [not_a_server_error, response_schema_conformance]
-SEEN: dict[str, Counter[int]] = {"emulator": Counter(), "controller": Counter()}
+SEEN: dict[str, Counter[int]] = {"emulator": Counter(), "controller": Counter(), "trainer": Counter()}
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -61,14 +61,37 @@ def controller_url(redis_url: str) -> Iterator[str]:
         with serve(str(ROOT / "artifacts"), "services.controller", **env) as (url, _pid):
             yield url
     finally:  # no worker ever takes the queued jobs: remove them with their records
-        client = redis.Redis.from_url(redis_url)
-        keys = list(client.scan_iter(match=f"{prefix}:*", count=1000))
-        jobs = {k.decode().rsplit(":", 1)[1] for k in keys if b":job:" in k}
-        keys += [f"rq:job:{j}-1".encode() for j in jobs]
-        keys += list(client.scan_iter(match=f"rq:*{queue}", count=1000))
-        for i in range(0, len(keys), 1000):
-            client.delete(*keys[i : i + 1000])
-        client.close()
+        _drop(redis_url, prefix, queue)
+
+
+def _drop(redis_url: str, prefix: str, queue: str) -> None:
+    """Remove a deployment's records and queued deliveries (no worker ever takes them)."""
+    client = redis.Redis.from_url(redis_url)
+    keys = list(client.scan_iter(match=f"{prefix}:*", count=1000))
+    jobs = {k.decode().rsplit(":", 1)[1] for k in keys if b":job:" in k}
+    keys += [f"rq:job:{j}-1".encode() for j in jobs]
+    keys += list(client.scan_iter(match=f"rq:*{queue}", count=1000))
+    for i in range(0, len(keys), 1000):
+        client.delete(*keys[i : i + 1000])
+    client.close()
+
+
+@pytest.fixture(scope="module")
+def trainer_url(redis_url: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    tag = uuid.uuid4().hex[:10]
+    prefix, queue = f"test-fuzz-trainer:{tag}", f"test-fuzz-trainer-{tag}"
+    env = {"REDIS_URL": redis_url, "REDIS_PREFIX": prefix, "QUEUE_NAME": queue, "MAX_QUEUE": "1000000"}
+    env |= {"MAX_TRAININGS_PER_KEY": "1000000"}
+    try:
+        with serve(str(tmp_path_factory.mktemp("registry")), "services.trainer", **env) as (url, _pid):
+            yield url
+    finally:
+        _drop(redis_url, prefix, queue)
+
+
+@pytest.fixture
+def trainer_schema(trainer_url: str) -> Any:
+    return schemathesis.openapi.from_url(f"{trainer_url}/openapi.json")
 
 
 @pytest.fixture
@@ -83,6 +106,7 @@ def controller_schema(controller_url: str) -> Any:
 
 emulator = schemathesis.pytest.from_fixture("emulator_schema")
 controller = schemathesis.pytest.from_fixture("controller_schema")
+trainer = schemathesis.pytest.from_fixture("trainer_schema")
 FUZZ = settings(
     max_examples=EXAMPLES,
     deadline=None,
@@ -104,3 +128,10 @@ def test_emulator_api(case: Any) -> None:
 def test_controller_api(case: Any) -> None:
     response = case.call_and_validate(checks=CHECKS, timeout=30)
     SEEN["controller"][response.status_code] += 1
+
+
+@trainer.parametrize()
+@FUZZ
+def test_trainer_api(case: Any) -> None:
+    response = case.call_and_validate(checks=CHECKS, timeout=30)
+    SEEN["trainer"][response.status_code] += 1

@@ -1,7 +1,8 @@
 // Generates the TypeScript types of the services' wire models from the JSON Schemas in ../proto
 // (written by `make proto`): src/api/emulator.gen.ts from proto/schemas/*.json,
-// src/api/controller.gen.ts from proto/schemas/controller/*.json and src/api/results.gen.ts (evaluation
-// and benchmark results) from proto/schemas/results/*.json.
+// src/api/controller.gen.ts from proto/schemas/controller/*.json, src/api/results.gen.ts (evaluation
+// and benchmark results) from proto/schemas/results/*.json and src/api/trainer.gen.ts from
+// proto/schemas/trainer/*.json.
 //   node scripts/gen-api.mjs          write the file
 //   node scripts/gen-api.mjs --check  exit 1 when the committed file differs from what proto/ gives
 import { readFileSync, readdirSync, writeFileSync, existsSync } from 'node:fs';
@@ -15,6 +16,7 @@ const TARGETS = [
   { dir: schemas, out: resolve(here, '..', 'src', 'api', 'emulator.gen.ts'), title: 'EmulatorWire' },
   { dir: join(schemas, 'controller'), out: resolve(here, '..', 'src', 'api', 'controller.gen.ts'), title: 'ControllerWire' },
   { dir: join(schemas, 'results'), out: resolve(here, '..', 'src', 'api', 'results.gen.ts'), title: 'ResultsWire' },
+  { dir: join(schemas, 'trainer'), out: resolve(here, '..', 'src', 'api', 'trainer.gen.ts'), title: 'TrainerWire' },
 ];
 
 // Pydantic titles every property; without the titles the generator inlines property types instead of

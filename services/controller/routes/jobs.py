@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response
 
-from neuroanimator.control import JobSpecError, validate_job
+from neuroanimator.control import TASKS, JobSpecError, validate_job
 from neuroanimator.controller_schemas import (
     FINAL_STATES,
     BestSoFar,
@@ -23,7 +24,8 @@ from neuroanimator.controller_schemas import (
     JobSummary,
 )
 from neuroanimator.emulator_schemas import ErrorBody
-from services.common.auth import OwnerDep
+from services.common import tenancy
+from services.common.auth import CALLER, OwnerDep
 from services.common.errors import ApiError
 from services.controller.deps import SettingsDep, StoreDep
 from services.controller.metrics import Metrics
@@ -114,6 +116,17 @@ def _summary(rec: dict[str, Any]) -> JobSummary:
     )
 
 
+def hidden(req: JobCreate, root: Path) -> None:
+    """A ``JobSpecError`` on ``model`` when the job names a model the caller does not see (another key's
+    upload, not published): as for a model that does not exist, listing only the models it sees."""
+    model = req.model or (TASKS[req.task].model if req.task in TASKS else None)
+    if model is None or CALLER.get() is None:  # keys off: every model is everybody's
+        return
+    seen = tenancy.visible_models(root)
+    if model not in seen:
+        raise JobSpecError("model", f"unknown model {model!r}; trained models are {seen}")
+
+
 def owned(store: JobStore, job_id: str, owner: str) -> dict[str, Any]:
     """The caller's job, else 404 (also for another key's job)."""
     rec = store.record(job_id, owner)
@@ -134,6 +147,7 @@ def create_job(
     """Queue a controller-synthesis job; the same ``idempotency_key`` returns the same job."""
     metrics: Metrics = request.app.state.metrics
     try:
+        hidden(req, settings.artifacts_dir)
         spec = validate_job(req, settings.artifacts_dir)
     except JobSpecError as exc:
         metrics.rejected.labels("invalid").inc()

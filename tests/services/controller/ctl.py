@@ -10,20 +10,30 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import subprocess
-import sys
-import time
-import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-import redis
+from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from services.controller.app import create_app
 from services.controller.settings import Settings
+from tests.services.queues import Deployment, wait_for
+
+__all__ = [
+    "ARTIFACTS",
+    "QUICK",
+    "Controller",
+    "ctl_fixture",
+    "ended",
+    "job",
+    "kill",
+    "long_job",
+    "maps_torch",
+    "wait_for",
+]
 
 ROOT = Path(__file__).resolve().parents[3]
 ARTIFACTS = ROOT / "artifacts"
@@ -48,98 +58,31 @@ def long_job(iterations: int = 10_000) -> dict[str, Any]:
     }
 
 
-def wait_for(what: str, check: Callable[[], Any], timeout: float = 60.0, every: float = 0.05) -> Any:
-    """Poll ``check`` until it returns something truthy; fail after ``timeout`` seconds."""
-    end = time.monotonic() + timeout
-    while True:
-        got = check()
-        if got:
-            return got
-        if time.monotonic() > end:
-            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
-        time.sleep(every)
-
-
-class Controller:
+class Controller(Deployment):
     """One test's controller deployment: settings, API clients and worker processes."""
 
+    service = "controller"
+    worker_module = "services.controller.worker"
+
     def __init__(self, redis_url: str, tmp: Path) -> None:
-        tag = uuid.uuid4().hex[:10]
-        self.tag = tag
-        self.redis_url = redis_url
-        self.tmp = tmp
-        self.env: dict[str, str] = {
-            "REDIS_URL": redis_url,
-            "REDIS_PREFIX": f"test-controller:{tag}",
-            "QUEUE_NAME": f"test-controller-{tag}",
-            "ARTIFACTS_DIR": str(ARTIFACTS),
-            "API_KEYS": "",
-            "API_KEY_SECRET": "test-secret",
-            "RESULT_TTL_S": "600",
-            "QUEUED_TTL_S": "600",
-            "LEASE_TTL_S": "1.5",
-            "REAP_INTERVAL_S": "0.5",
-            "JOB_RETRIES": "2",
-            "WORKER_THREADS": "1",
-            "LOG_LEVEL": "info",
-        }
-        self.workers: list[subprocess.Popen[bytes]] = []
-        self.clients: list[TestClient] = []
-        self.r = redis.Redis.from_url(redis_url)
+        super().__init__(
+            redis_url,
+            tmp,
+            {
+                "ARTIFACTS_DIR": str(ARTIFACTS),
+                "LEASE_TTL_S": "1.5",
+                "REAP_INTERVAL_S": "0.5",
+                "JOB_RETRIES": "2",
+                "WORKER_THREADS": "1",
+            },
+        )
 
     def settings(self, **kw: Any) -> Settings:
         base = {k.lower(): v for k, v in self.env.items()}
         return Settings(**{**base, **kw})
 
-    def client(self, **kw: Any) -> TestClient:
-        c = TestClient(create_app(self.settings(**kw)))
-        c.__enter__()
-        self.clients.append(c)
-        return c
-
-    def name(self, short: str) -> str:
-        """A worker name unique to this test: RQ refuses a name whose earlier holder died by SIGKILL
-        until its registration expires."""
-        return f"{short}-{self.tag}"
-
-    def worker(self, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
-        """A worker process (``python -m services.controller.worker``); its log goes to a file."""
-        log = open(self.tmp / f"worker-{len(self.workers)}.log", "wb")  # noqa: SIM115
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "services.controller.worker", *args],
-            env={**os.environ, **self.env, **(env or {})},
-            cwd=self.tmp,  # MuJoCo writes MUJOCO_LOG.TXT into the working directory on warnings
-            stdout=log,
-            stderr=subprocess.STDOUT,
-        )
-        self.workers.append(proc)
-        return proc
-
-    def logs(self) -> str:
-        return "\n".join(p.read_text(errors="replace") for p in sorted(self.tmp.glob("worker-*.log")))
-
-    def close(self) -> None:
-        for c in self.clients:
-            c.__exit__(None, None, None)
-        for p in self.workers:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        for p in self.workers:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-        # the job processes of killed workers (tests kill them with SIGKILL, and clean up here)
-        prefix, queue = self.env["REDIS_PREFIX"], self.env["QUEUE_NAME"]
-        keys = list(self.r.scan_iter(match=f"{prefix}:*"))
-        job_ids = {k.decode().rsplit(":", 1)[1] for k in keys if b":job:" in k}
-        for job_id in job_ids:
-            keys += list(self.r.scan_iter(match=f"rq:*{job_id}-*"))
-        keys += list(self.r.scan_iter(match=f"rq:*{queue}"))
-        if keys:
-            self.r.delete(*keys)
-        self.r.close()
+    def app(self, **kw: Any) -> FastAPI:
+        return create_app(self.settings(**kw))
 
 
 @pytest.fixture(name="ctl")

@@ -3,7 +3,6 @@ the SSE and websocket streams, the job list, and no PyTorch in the worker's pare
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 from services.controller.settings import Settings
@@ -17,16 +16,7 @@ from tests.services.controller.ctl import (  # noqa: F401
     maps_torch,
     wait_for,
 )
-
-
-def _sse(text: str) -> list[tuple[str, dict[str, Any]]]:
-    """(event, data) of a text/event-stream body."""
-    out = []
-    for block in text.split("\n\n"):
-        fields = dict(line.split(": ", 1) for line in block.splitlines() if ": " in line and line[0] != ":")
-        if "event" in fields:
-            out.append((fields["event"], json.loads(fields["data"])))
-    return out
+from tests.services.queues import sse
 
 
 def test_submit_progress_result_through_a_worker(ctl: Controller) -> None:
@@ -80,7 +70,7 @@ def test_submit_progress_result_through_a_worker(ctl: Controller) -> None:
     # the event stream replays everything: queued, running, five progress events, end
     body = api.get(f"/jobs/{job_id}/events")
     assert body.headers["content-type"].startswith("text/event-stream")
-    events = _sse(body.text)
+    events = sse(body.text)
     names = [e for e, _ in events]
     assert names[:2] == ["status", "status"] and names[-1] == "end", names
     progress = [d for e, d in events if e == "progress"]
@@ -90,7 +80,7 @@ def test_submit_progress_result_through_a_worker(ctl: Controller) -> None:
     assert events[-1][1]["status"] == "succeeded" and events[-1][1]["iterations"] == 4
     # ... and resumes after Last-Event-ID
     ids = [line[4:] for line in body.text.splitlines() if line.startswith("id: ")]
-    tail = _sse(api.get(f"/jobs/{job_id}/events", headers={"Last-Event-ID": ids[-2]}).text)
+    tail = sse(api.get(f"/jobs/{job_id}/events", headers={"Last-Event-ID": ids[-2]}).text)
     assert [e for e, _ in tail] == ["end"]
 
     with api.websocket_connect(f"/ws/jobs/{job_id}") as ws:

@@ -1,0 +1,49 @@
+"""``create_app(settings)``: the trainer API as a FastAPI app, plus health, readiness and metrics.
+
+The API checks uploaded models, queues their trainings and reads their progress from Redis; training
+workers (``worker.py``) run them. It never imports PyTorch. When Redis is down it still starts: calls
+that need Redis answer 503 with a message, and ``/readyz`` says why it is not ready
+(``services.common.queue_app``). Uploads go to ``WORK_DIR`` (shared with the workers), trained
+emulators into ``ARTIFACTS_DIR``, where the emulator and controller services find them.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+from fastapi import FastAPI
+
+from services.common.queue_app import connect, queue_app
+from services.trainer.metrics import Metrics
+from services.trainer.routes import models, trainings
+from services.trainer.settings import Settings
+from services.trainer.store import TrainingStore
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The app for these settings. Connecting to Redis is lazy, so this works while Redis is down."""
+    settings = settings or Settings()
+    store = TrainingStore(connect(settings), settings)
+
+    def ready() -> tuple[dict[str, Any], tuple[str, str] | None]:
+        for folder in (settings.artifacts_dir, settings.uploads()):
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                return {}, ("not writable", f"cannot write to {str(folder)!r}: {exc.strerror}")
+            if not os.access(folder, os.W_OK):
+                return {}, ("not writable", f"cannot write to {str(folder)!r}")
+        return {}, None
+
+    return queue_app(
+        settings,
+        title="NeuroAnimator trainer service",
+        store=store,
+        metrics=Metrics(store),
+        routers=(trainings.router, models.router),
+        submit_path="/trainings",
+        ready=ready,
+        not_ready="the artifact registry or the uploads folder cannot be written",
+        per_path_limits=[(r"/trainings", settings.max_upload_bytes)],
+    )

@@ -1,0 +1,280 @@
+"""``perform(job_id, delivery)``: one run of a training, inside the training worker's forked job process.
+
+The training itself runs in a child process (``python -m services.trainer.run``), at the worker's low
+CPU priority (``WORKER_NICE``, set by the worker and inherited), so that it can be stopped at once,
+whatever it is doing: this process reads its progress (JSON lines), writes it to Redis, and keeps the
+job's lease (``Watch``). When the child has made the emulator (in a staging registry), this process
+exports it into the artifact registry (``models.export``) and ends the training with its result.
+
+How a run ends:
+- the child's result, exported: succeeded;
+- the child said why the training cannot succeed (a model that diverges, samples too slowly, misses
+  the acceptance bar, ...): failed with that reason, not retried (it would fail the same way);
+- cancelled by DELETE: the child is stopped; cancelled;
+- past ``JOB_TIMEOUT_S``: the child is stopped; failed, naming the phase it was in;
+- its worker is shutting down: the child is stopped; back on the queue, not counted as a failure;
+- the child crashed (killed, out of memory) or this process raised: back on the queue while
+  ``JOB_RETRIES`` allows, else failed.
+A training that ends for good removes its upload and staging folder, and gives back a name whose
+first training made nothing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import queue
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import IO, Any
+
+import redis
+
+from services.common.job_worker import Watch, connect_job
+from services.common.jobs import FINAL
+from services.trainer import models
+from services.trainer.settings import Settings
+from services.trainer.store import TrainingStore
+
+log = logging.getLogger(__name__)
+ROOT = Path(__file__).resolve().parents[2]
+STOP_GRACE_S = 5.0
+_settings: Settings | None = None
+
+
+def configure(settings: Settings) -> None:
+    """Set the settings of the trainings this process (and the job processes it forks) will run."""
+    global _settings
+    _settings = settings
+
+
+def settings() -> Settings:
+    return _settings if _settings is not None else Settings()
+
+
+def _read_lines(stream: IO[bytes], out: queue.Queue[dict[str, Any] | None]) -> None:
+    for raw in stream:
+        try:
+            out.put(json.loads(raw))
+        except ValueError:
+            log.warning(
+                "unreadable line from the training", extra={"line": raw[:200].decode(errors="replace")}
+            )
+    out.put(None)
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    """Stop the training's process group: SIGTERM, then SIGKILL after ``STOP_GRACE_S``."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(STOP_GRACE_S)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+class Progress:
+    """The training's last report, with the time left estimated from the percent."""
+
+    def __init__(self, store: TrainingStore, job_id: str, attempt: int) -> None:
+        self.store, self.job_id, self.attempt = store, job_id, attempt
+        self.t0 = time.monotonic()
+        self.phase = "validating"
+        self.percent = 0.0
+
+    def report(self, phase: str, percent: float, detail: str, losses: Sequence[Any] = ()) -> None:
+        self.phase, self.percent = phase, percent
+        elapsed = time.monotonic() - self.t0
+        eta = elapsed * (100.0 - percent) / percent if percent >= 3.0 else None
+        p = {"phase": phase, "percent": percent, "detail": detail, "elapsed_s": round(elapsed, 1)}
+        p["eta_s"] = None if eta is None else round(eta, 1)
+        try:
+            self.store.progress(self.job_id, self.attempt, p, losses)
+        except redis.RedisError as exc:  # progress is best effort; the result is what counts
+            log.warning("progress not recorded", extra={"job": self.job_id, "error": str(exc)})
+
+
+def perform(job_id: str, delivery: int) -> str:
+    """Run delivery ``n`` of a training; returns how it ended (for RQ's log)."""
+    s = settings()
+    store = TrainingStore(connect_job(s), s)
+    worker = os.environ.get("RQ_WORKER_ID", f"pid-{os.getpid()}")
+    rec, why = store.start(job_id, delivery, worker, os.getpid())
+    if rec is None:
+        log.info("training not run", extra={"job": job_id, "delivery": delivery, "reason": why})
+        ended = store.record(job_id)
+        if ended is not None and ended["status"] in FINAL:  # cancelled before it started
+            _cleanup(s, store, job_id, json.loads(ended["spec"]), ended)
+        return why
+    spec: dict[str, Any] = json.loads(rec["spec"])
+    owner = rec["owner"]
+    progress = Progress(store, job_id, int(rec["attempt"]))
+    watch = Watch(store, job_id, delivery, worker)
+    watch.start()
+    deadline = time.monotonic() + s.job_timeout_s
+    staging = s.staging() / job_id
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    child = {
+        **spec,
+        "source": str(s.uploads() / spec["source"]),
+        "staging": str(staging),
+        "limits": asdict(s.limits()),
+        "time_limit_s": s.job_timeout_s,
+        "eval_trials": s.eval_trials,
+        "eval_seconds": s.eval_seconds,
+    }
+    log.info("training started", extra={"job": job_id, "model": spec["model"], "attempt": rec["attempt"]})
+    progress.report("validating", 0.0, "starting")
+    try:
+        outcome, detail = _run_child(child, staging, watch, deadline, progress)
+    except Exception as exc:
+        watch.stop()
+        state = store.requeue_or_fail(job_id, delivery, f"{type(exc).__name__}: {exc}", count_failure=True)
+        log.exception("training raised", extra={"job": job_id, "outcome": state})
+        if state in ("failed", "cancelled"):
+            _cleanup(s, store, job_id, spec, rec)
+        raise
+    watch.stop()
+    if watch.superseded:  # another run of this training took over (this worker had seemed dead)
+        return "superseded"
+    if outcome == "result":
+        return _export(s, store, job_id, delivery, spec, owner, detail, progress, rec)
+    if outcome == "cancelled":
+        state = store.requeue_or_fail(
+            job_id, delivery, f"stopped in phase {progress.phase}", count_failure=False
+        )
+    elif outcome == "yield":
+        state = store.requeue_or_fail(job_id, delivery, f"worker {worker} shut down", count_failure=False)
+    elif outcome == "timeout":
+        reason = (
+            f"time limit of {s.job_timeout_s:g} s (JOB_TIMEOUT_S) reached in phase {progress.phase} "
+            f"({progress.percent:.0f}%); try a smaller sample budget (examples) or fewer epochs"
+        )
+        state = "failed" if store.end(job_id, delivery, "failed", reason, {}) else "stale"
+    elif outcome == "failed":
+        state = "failed" if store.end(job_id, delivery, "failed", str(detail), {}) else "stale"
+    else:  # crashed
+        state = store.requeue_or_fail(job_id, delivery, str(detail), count_failure=True)
+    if state in ("failed", "cancelled"):
+        _cleanup(s, store, job_id, spec, rec)
+    else:
+        shutil.rmtree(staging, ignore_errors=True)
+    return state
+
+
+def _run_child(
+    child: dict[str, Any], staging: Path, watch: Watch, deadline: float, progress: Progress
+) -> tuple[str, Any]:
+    """Run the training's process until it ends or must stop: (outcome, its result or reason)."""
+    log_path = staging / "training.log"
+    with log_path.open("wb") as log_file:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "services.trainer.run"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=log_file,
+            cwd=staging,  # MuJoCo writes MUJOCO_LOG.TXT into the working directory on warnings
+            env={
+                **os.environ,
+                "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+            },
+            start_new_session=True,  # its own process group: stopped with everything it started
+        )
+    assert proc.stdin is not None and proc.stdout is not None
+    proc.stdin.write(json.dumps(child).encode())
+    proc.stdin.close()
+    lines: queue.Queue[dict[str, Any] | None] = queue.Queue()
+    reader = threading.Thread(target=_read_lines, args=(proc.stdout, lines), daemon=True)
+    reader.start()
+    result: dict[str, Any] | None = None
+    error: str | None = None
+    try:
+        while True:
+            if watch.stop_requested or time.monotonic() > deadline:
+                _stop(proc)
+                if watch.cancelled:
+                    return "cancelled", None
+                if watch.yielding or watch.superseded:
+                    return "yield", None
+                return "timeout", None
+            try:
+                msg = lines.get(timeout=0.25)
+            except queue.Empty:
+                continue
+            if msg is None:
+                break
+            if "result" in msg:
+                result = msg["result"]
+            elif "error" in msg:
+                error = str(msg["error"])
+            else:
+                progress.report(
+                    msg["phase"], float(msg["percent"]), str(msg.get("detail", "")), msg.get("losses", [])
+                )
+        rc = proc.wait()
+    finally:
+        if proc.poll() is None:
+            _stop(proc)
+    if rc == 0 and result is not None:
+        return "result", result
+    if error is not None:
+        return "failed", error
+    tail = log_path.read_text(errors="replace").strip().splitlines()[-3:]
+    return "crashed", f"the training process ended with status {rc}: {' / '.join(tail)[-500:]}"
+
+
+def _export(
+    s: Settings,
+    store: TrainingStore,
+    job_id: str,
+    delivery: int,
+    spec: dict[str, Any],
+    owner: str,
+    result: dict[str, Any],
+    progress: Progress,
+    rec: dict[str, str],
+) -> str:
+    progress.report("exporting", 95.0, "exporting into the artifact registry")
+    t0 = time.monotonic()
+    staging = s.staging() / job_id
+    try:
+        version = models.export(staging, s.artifacts_dir, spec["model"], owner)
+    except models.ExportError as exc:
+        store.end(job_id, delivery, "failed", str(exc), {})
+        _cleanup(s, store, job_id, spec, rec)
+        return "failed"
+    seconds = {**result.get("phase_seconds", {}), "exporting": round(time.monotonic() - t0, 2)}
+    body = {**result, "version": version, "artifact": f"{spec['model']}/{version}", "phase_seconds": seconds}
+    done = store.end(job_id, delivery, "succeeded", None, body)
+    _cleanup(s, store, job_id, spec, rec, release=False)
+    return "succeeded" if done else "stale"
+
+
+def _cleanup(
+    s: Settings,
+    store: TrainingStore,
+    job_id: str,
+    spec: dict[str, Any] | None,
+    rec: dict[str, str] | None,
+    release: bool = True,
+) -> None:
+    """A training that ended for good: remove its upload and staging, give back an unused name."""
+    shutil.rmtree(s.staging() / job_id, ignore_errors=True)
+    shutil.rmtree(s.uploads() / job_id, ignore_errors=True)
+    if release and spec and rec:
+        owner = rec.get("owner", "")
+        with contextlib.suppress(OSError, redis.RedisError):
+            if not store.active(owner, spec["model"], but=job_id):
+                models.release(s.artifacts_dir, spec["model"], owner)

@@ -1,0 +1,1 @@
+"""The trainer API's routers: ``trainings`` (uploads, progress, events, cancel) and ``models`` (uploaded models)."""

@@ -1,0 +1,398 @@
+"""One training, in a process of its own: ``python -m services.trainer.run < spec.json``.
+
+A training job's process (``execution.perform``) starts this and reads what it says; it is killed when
+the training is cancelled, runs past its time limit or its worker shuts down. It reads the training's
+spec (JSON) on stdin and goes through the phases:
+
+- **validating**: the model is read from the upload (``mjcf.load_mjcf``: includes, assets, archives,
+  with the service's caps) and checked as the API checked it; then a short probe simulates typical
+  motion, so that a model that diverges fails now (naming the time and the joint, and what to try), and
+  one that would sample too slowly for the time limit fails now too (with the estimate);
+- **sampling** and **training**: ``neuro train`` (the command's own code: the same choices of super-step,
+  network and acceptance bar) into a staging registry;
+- **evaluating**: ``neuro eval --save`` of that version: one-step errors on fresh held-out data and
+  rollouts against MuJoCo in physical units (``eval.json`` beside the version).
+
+It writes one JSON object per line on stdout: ``{"phase", "percent", "detail", "losses"}`` as it goes
+(``losses``: new ``[epoch, validation loss]`` points), then ``{"result": {...}}``, or ``{"error":
+"..."}`` when the training cannot succeed (then exit status 2). Everything else (logs) goes to stderr.
+Progress is read from the progress bars of ``neuroanimator`` (``tqdm``, replaced here by ``Bar``
+before anything imports it), so training code needs no hooks for it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import logging
+import math
+import os
+import sys
+import threading
+import time
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import IO, Any
+
+# Phases' share of the percent: validating up to 2, sampling up to 30, training up to 85, evaluating up
+# to 95; the job's process exports the artifact (95 to 100).
+SHARES = {
+    "validating": (0.0, 2.0),
+    "sampling": (2.0, 30.0),
+    "training": (30.0, 85.0),
+    "evaluating": (85.0, 95.0),
+}
+EPOCHS_SHARE = 0.85  # of the training phase, the one-step epochs; the rest for the rollout phase
+REPORT_EVERY_S = 0.5
+PROBE_RUNS = 16
+PROBE_SECONDS = 2.0
+SAMPLING_SHARE_OF_LIMIT = 0.6  # sampling may take at most this part of the time limit
+TEST_EXAMPLES = 4000  # TrainConfig's held-out examples (read from it in main)
+
+
+class Channel:
+    """The JSON lines to the job's process, and the state they describe."""
+
+    def __init__(self, out: IO[str]) -> None:
+        self.out = out
+        self.lock = threading.Lock()
+        self.phase = "validating"
+        self.percent = 0.0
+        self.detail = ""
+        self.losses: list[list[float | None]] = []
+        self.sent_at = 0.0
+        self.stage = "validating"  # validating, train or evaluating: what the bars belong to
+        self.sampled_before = 0  # examples of earlier sampling bars (the training set, then the test set)
+        self.sampling_total = 1
+
+    def send(self, obj: dict[str, Any]) -> None:
+        with self.lock:
+            self.out.write(json.dumps(obj, allow_nan=False, default=str) + "\n")
+            self.out.flush()
+
+    def progress(self, phase: str, fraction: float, detail: str, force: bool = False) -> None:
+        """Report ``fraction`` (0..1) of ``phase`` done; at most every ``REPORT_EVERY_S`` unless the
+        phase changed, ``force`` or new loss points wait."""
+        lo, hi = SHARES[phase]
+        percent = max(self.percent, lo + (hi - lo) * min(1.0, max(0.0, fraction)))
+        changed = phase != self.phase
+        self.phase, self.percent, self.detail = phase, percent, detail
+        now = time.monotonic()
+        if not (changed or force or now - self.sent_at >= REPORT_EVERY_S):
+            return
+        self.sent_at = now
+        losses, self.losses = self.losses, []
+        self.send({"phase": phase, "percent": round(percent, 2), "detail": detail, "losses": losses})
+
+
+CHANNEL: Channel | None = None
+
+
+def _number(text: Any) -> float | None:
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        return None
+    return value if math.isfinite(value) else None
+
+
+class Bar:
+    """Stands in for ``tqdm.tqdm``: draws nothing, tells ``CHANNEL`` how far a bar got (sampling
+    examples, training epochs and their validation loss). Takes what tqdm takes; shown or not."""
+
+    def __init__(
+        self,
+        iterable: Iterable[Any] | None = None,
+        desc: str | None = None,
+        total: float | None = None,
+        **_: Any,
+    ) -> None:
+        self.iterable = iterable
+        self.desc = desc or ""
+        if total is None and iterable is not None and hasattr(iterable, "__len__"):
+            total = len(iterable)  # type: ignore[arg-type]
+        self.total = float(total or 0)
+        self.n = 0
+        self._report()
+
+    def __iter__(self) -> Iterator[Any]:
+        for item in self.iterable or ():
+            yield item
+            self.n += 1
+            self._report()
+
+    def __enter__(self) -> Bar:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __len__(self) -> int:
+        return int(self.total)
+
+    def update(self, n: float = 1) -> None:
+        self.n += int(n)
+        self._report()
+
+    def set_postfix(
+        self, ordered_dict: dict[str, Any] | None = None, refresh: bool = True, **kw: Any
+    ) -> None:
+        values = {**(ordered_dict or {}), **kw}
+        c = CHANNEL
+        if c is not None and self.desc == "training" and "val" in values:
+            c.losses.append([self.n + 1, _number(values["val"])])
+        self._report()
+
+    def set_description(self, desc: str | None = None, refresh: bool = True) -> None:
+        self.desc = desc or ""
+
+    def close(self) -> None:
+        c = CHANNEL
+        if c is not None and self.desc.startswith("sampling") and c.stage == "train":
+            c.sampled_before += self.n  # the next sampling bar (the held-out set) counts on from here
+            self.n = 0
+        self._report(force=True)
+
+    def refresh(self, *args: Any, **kw: Any) -> None:
+        """Nothing to draw."""
+
+    def clear(self, *args: Any, **kw: Any) -> None:
+        """Nothing to clear."""
+
+    @classmethod
+    def write(cls, s: str, *args: Any, **kw: Any) -> None:
+        sys.stderr.write(s + "\n")
+
+    def _report(self, force: bool = False) -> None:
+        c = CHANNEL
+        if c is None:
+            return
+        with contextlib.suppress(Exception):  # progress is best effort: it never breaks a training
+            if c.stage == "train" and self.desc.startswith("sampling"):
+                done = c.sampled_before + self.n
+                c.progress(
+                    "sampling",
+                    done / c.sampling_total,
+                    f"sampling: {done:,} of {c.sampling_total:,} examples",
+                    force,
+                )
+            elif c.stage == "train" and self.desc.startswith("sequences"):
+                c.progress(
+                    "training", EPOCHS_SHARE, f"sampling rollouts: {self.n:,} of {int(self.total):,}", force
+                )
+            elif c.stage == "train" and self.desc == "training" and self.total:
+                c.progress(
+                    "training",
+                    EPOCHS_SHARE * self.n / self.total,
+                    f"epoch {self.n} of at most {int(self.total)}",
+                    force,
+                )
+
+
+def install_bars() -> None:
+    """Replace ``tqdm.tqdm`` by ``Bar`` before ``neuroanimator`` imports it."""
+    import tqdm
+
+    tqdm.tqdm = Bar
+
+
+class LastError(logging.Handler):
+    """Keeps the last error logged (``neuro`` logs why a training stopped, e.g. it diverged)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.ERROR)
+        self.message: str | None = None
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.message = record.getMessage()
+
+
+class Failed(Exception):
+    """The training cannot succeed; the message says why and what to try."""
+
+
+# ---------------------------------------------------------------------------- the phases
+def probe(model: Any, spec: dict[str, Any], substeps: int) -> None:
+    """Simulate a few runs of typical motion: ``SimulationDiverged`` (the time and the joint) when the
+    model is unstable; ``Failed`` when sampling the budget would take too much of the time limit."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    steps = max(10, round(PROBE_SECONDS / model.dt))
+    times = np.arange(steps, dtype=np.float64) * model.dt
+    s0 = model.initial_states(rng, PROBE_RUNS)
+    u = model.typical_controls(rng, PROBE_RUNS, times)
+    f = model.typical_forces(rng, PROBE_RUNS, times)
+    model.simulate(s0[:1], u[:1, :10], f[:1, :10] if model.num_forces else None, check=True)  # warm up
+    t0 = time.perf_counter()
+    model.simulate(s0, u, f if model.num_forces else None, check=True)
+    rate = PROBE_RUNS * steps / max(time.perf_counter() - t0, 1e-6)
+    # a sample is held for 1 to 5 super-steps (3 on average); then the held-out set, then rollouts
+    examples = int(spec["examples"])
+    needed = 3 * substeps * (examples + TEST_EXAMPLES) + substeps * max(64, examples // 16) * 10
+    estimate = needed / rate
+    allowed = SAMPLING_SHARE_OF_LIMIT * float(spec["time_limit_s"])
+    if estimate > allowed:
+        raise Failed(
+            f"model {model.name} samples too slowly for the time limit: {examples:,} examples at super-step "
+            f"{substeps} need about {needed:,} physical steps, about {estimate:,.0f} s at the {rate:,.0f} "
+            f"steps/s it simulates here, and sampling may take {allowed:,.0f} s of the {spec['time_limit_s']:,.0f} s "
+            "limit (JOB_TIMEOUT_S). Try a smaller sample budget (examples), a shorter super-step, a larger "
+            "timestep in the MJCF, or fewer contacts"
+        )
+
+
+def train_options() -> dict[str, argparse.Action]:
+    """The options of ``neuro train`` (what this version of the command takes)."""
+    from neuroanimator import cli
+
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return {s: a for a in sub.choices["train"]._actions for s in a.option_strings}
+
+
+def takes_auto(options: dict[str, argparse.Action]) -> bool:
+    """Whether ``neuro train --substeps auto`` is known to this version of the command."""
+    kind = options["--substeps"].type
+    try:
+        kind("auto")  # type: ignore[misc,operator]
+    except (ValueError, TypeError, argparse.ArgumentTypeError):
+        return False
+    return True
+
+
+def train_argv(spec: dict[str, Any], staging: Path) -> tuple[list[str], list[str]]:
+    """``neuro train``'s arguments for the spec, and notes on what this version of the command lacks."""
+    options = train_options()
+    notes: list[str] = []
+    argv = ["train", "--mjcf", spec["source"], "--name", spec["model"], "--out", str(staging), "--json"]
+    argv += ["--examples", str(spec["examples"])]
+    if spec.get("entry"):
+        argv += ["--entry", spec["entry"]]
+    if spec["super_step"] != "auto":
+        argv += ["--substeps", str(spec["super_step"])]
+    elif takes_auto(options):
+        argv += ["--substeps", "auto"]
+    else:
+        notes.append("super-step auto: this trainer picks the model's default, 50")
+    for key, flag in (("epochs", "--epochs"), ("hidden", "--hidden"), ("rollout_steps", "--rollout-steps")):
+        if spec.get(key) is not None:
+            argv += [flag, str(spec[key])]
+    if spec.get("force"):
+        if "--force" in options:
+            argv.append("--force")
+        else:
+            notes.append("force: this trainer keeps every emulator anyway")
+    return argv, notes
+
+
+def run_command(argv: list[str], errors: LastError) -> str:
+    """Run a ``neuro`` command in this process; its standard output. ``Failed`` with its reason."""
+    from neuroanimator import cli, registry
+    from neuroanimator.physics.model import ModelError
+
+    args = cli.build_parser().parse_args(argv)
+    buffer = io.StringIO()
+    errors.message = None
+    try:
+        with contextlib.redirect_stdout(buffer):
+            rc = int(args.func(args))
+    except (ModelError, registry.ArtifactError, ValueError) as exc:
+        raise Failed(str(exc)) from exc
+    if rc != 0:
+        raise Failed(errors.message or f"neuro {argv[0]} ended with status {rc}")
+    return buffer.getvalue()
+
+
+def last_json(text: str) -> dict[str, Any]:
+    for line in reversed(text.splitlines()):
+        if line.startswith("{"):
+            out: dict[str, Any] = json.loads(line)
+            return out
+    raise Failed("neuro printed no result")
+
+
+def run(spec: dict[str, Any], channel: Channel, errors: LastError) -> dict[str, Any]:
+    """The phases (see the module's text); the result."""
+    from neuroanimator import registry
+    from neuroanimator.physics.bundle import Limits
+    from neuroanimator.physics.mjcf import load_mjcf
+    from services.trainer.validation import check_trainable
+
+    seconds: dict[str, float] = {}
+    t0 = time.monotonic()
+    channel.progress("validating", 0.0, "reading the model", force=True)
+    model = load_mjcf(
+        spec["source"], entry=spec.get("entry"), name=spec["model"], limits=Limits(**spec["limits"])
+    )
+    check_trainable(model)
+    channel.progress("validating", 0.3, "simulating typical motion", force=True)
+    n = spec["super_step"] if isinstance(spec["super_step"], int) else 50
+    probe(model, spec, n)
+    seconds["validating"] = time.monotonic() - t0
+
+    staging = Path(spec["staging"])
+    argv, notes = train_argv(spec, staging)
+    channel.stage = "train"
+    channel.sampling_total = int(spec["examples"]) + TEST_EXAMPLES
+    channel.progress("sampling", 0.0, "sampling", force=True)
+    t1 = time.monotonic()
+    trained = last_json(run_command(argv, errors))
+    train_s = time.monotonic() - t1
+    data_s = float(trained.get("data_seconds") or 0.0)
+    seconds["sampling"], seconds["training"] = data_s, max(0.0, train_s - data_s)
+
+    channel.stage = "evaluating"
+    channel.progress("evaluating", 0.0, "rollouts against MuJoCo", force=True)
+    t2 = time.monotonic()
+    version_dir = Path(trained["artifact"])
+    manifest = registry.read_manifest(version_dir)
+    steps = max(1, round(float(spec["eval_seconds"]) / manifest.timestep))
+    evaluate = ["eval", spec["model"], "--artifacts", str(staging), "--substeps", str(manifest.substeps)]
+    evaluate += ["--trials", str(spec["eval_trials"]), "--steps", str(steps), "--save"]
+    run_command(evaluate, errors)
+    seconds["evaluating"] = time.monotonic() - t2
+    found = registry.read_eval(version_dir)
+    return {
+        "model": manifest.model,
+        "version": manifest.version,
+        "substeps": manifest.substeps,
+        "one_step_rel_error": found.one_step_rel_error if found else trained.get("one_step_rel_error"),
+        "linear_baseline_rel_error": (
+            found.linear_baseline_rel_error if found else trained.get("linear_baseline_rel_error")
+        ),
+        "physical_errors": found.physical_errors.model_dump() if found and found.physical_errors else None,
+        "weights": trained.get("weights"),
+        "examples": trained.get("examples"),
+        "phase_seconds": {k: round(v, 2) for k, v in seconds.items()},
+        "notes": notes,
+    }
+
+
+def main() -> int:
+    global CHANNEL, TEST_EXAMPLES
+    events = os.fdopen(os.dup(sys.stdout.fileno()), "w", buffering=1)
+    sys.stdout = sys.stderr  # whatever prints goes to the log, never into the events
+    install_bars()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    errors = LastError()
+    logging.getLogger().addHandler(errors)
+    spec = json.load(sys.stdin)
+    from neuroanimator.physics.model import ModelError
+    from neuroanimator.train_config import TrainConfig
+
+    TEST_EXAMPLES = TrainConfig().test_examples
+    CHANNEL = channel = Channel(events)
+    try:
+        result = run(spec, channel, errors)
+    except (Failed, ModelError) as exc:
+        channel.send({"error": str(exc)})
+        return 2
+    channel.send({"result": result})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

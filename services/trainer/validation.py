@@ -1,0 +1,100 @@
+"""Checking an uploaded model before it is queued: what ``POST /trainings`` answers at once.
+
+The model is read as ``neuro train --mjcf`` reads it (``mjcf.load_mjcf``: the includes and assets of an
+MJCF file, or a .zip / .tar.gz of a model folder, under the service's caps), so every refusal of
+``neuroanimator.physics.bundle`` comes back as a 4xx naming the problem (``STATUS`` maps each kind),
+and so does a model the trainer could not make an emulator of: no degrees of freedom, no actuators,
+or actuators without a ``ctrlrange`` (the emulator is trained over the range of each control; the
+command line would guess one, a service asks). Nothing is written: the caller removes the upload.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+
+from neuroanimator.physics.bundle import Limits, SourceError, SourceProblem
+from neuroanimator.physics.mjcf import load_mjcf
+from neuroanimator.physics.model import ModelError, PhysicalModel
+
+STATUS: dict[SourceProblem, int] = {
+    "not_found": 422,
+    "not_xml": 422,
+    "compile_error": 422,
+    "missing_file": 422,
+    "outside_model": 422,
+    "unsafe_archive": 422,
+    "archive_too_large": 413,
+    "file_too_large": 413,
+    "mesh_too_large": 422,
+    "plugin_refused": 422,
+    "entry": 422,
+}
+"""The HTTP status of each kind of refusal of a model's files: 413 for what is too large, else 422."""
+
+
+class Refused(Exception):
+    """A model that cannot be trained: the HTTP status, an error code and the message naming why."""
+
+    def __init__(self, status: int, error: str, message: str, field: str = "file") -> None:
+        super().__init__(message)
+        self.status, self.error, self.field = status, error, field
+
+
+@dataclass(frozen=True)
+class Checked:
+    """What the check found: the model's name (from the MJCF unless given) and its size."""
+
+    model: str
+    dofs: int
+    controls: list[str]
+    assets: int
+
+
+def check_trainable(model: PhysicalModel) -> None:
+    """``Refused`` for a model with no degrees of freedom, no actuators, or actuators without a
+    ``ctrlrange``, naming them."""
+    m = model.mj_model
+    if m.nv == 0:
+        raise Refused(
+            422, "no_joints", f"model {model.name} has no degrees of freedom: nothing moves to emulate"
+        )
+    if model.num_controls == 0:
+        raise Refused(
+            422,
+            "no_actuators",
+            f"model {model.name} has no actuators: an emulator maps a state and controls to the next state; "
+            'add an <actuator> (e.g. <motor joint=... ctrlrange="-1 1"/>)',
+        )
+    unlimited = [
+        mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, int(i)) or f"actuator {int(i)}"
+        for i in model.control_ids
+        if not m.actuator_ctrllimited[int(i)]
+    ]
+    if unlimited:
+        names = ", ".join(repr(n) for n in unlimited)
+        raise Refused(
+            422,
+            "no_ctrlrange",
+            f"model {model.name}: actuator{'s' if len(unlimited) > 1 else ''} {names} "
+            f"{'have' if len(unlimited) > 1 else 'has'} no ctrlrange: the emulator is trained over each "
+            'control\'s range; give each one, e.g. ctrlrange="-1 1" (and ctrllimited="true" where the '
+            "compiler's autolimits is off)",
+        )
+
+
+def check_model(path: Path, entry: str | None, name: str | None, limits: Limits) -> Checked:
+    """Read and check an uploaded model (see the module's text); ``Refused`` with the status."""
+    try:
+        model = load_mjcf(path, entry=entry, name=name, limits=limits)
+    except SourceError as exc:
+        raise Refused(
+            STATUS[exc.kind], exc.kind, str(exc), "entry" if exc.kind == "entry" else "file"
+        ) from exc
+    except ModelError as exc:  # e.g. no joints: no state to emulate
+        error = "no_joints" if "no joints" in str(exc) else "invalid_model"
+        raise Refused(422, error, str(exc)) from exc
+    check_trainable(model)
+    return Checked(model.name, int(model.mj_model.nv), list(model.control_names), len(model.assets))
