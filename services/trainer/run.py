@@ -22,7 +22,6 @@ before anything imports it), so training code needs no hooks for it.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import json
@@ -100,15 +99,19 @@ def _number(text: Any) -> float | None:
 
 class Bar:
     """Stands in for ``tqdm.tqdm``: draws nothing, tells ``CHANNEL`` how far a bar got (sampling
-    examples, training epochs and their validation loss). Takes what tqdm takes; shown or not."""
+    examples, training epochs and their validation loss). Takes what tqdm takes. A bar tqdm would not
+    show (``disable``) belongs to a side computation, e.g. the short probe trainings that choose the
+    super-step: it counts for nothing but says what is going on."""
 
     def __init__(
         self,
         iterable: Iterable[Any] | None = None,
         desc: str | None = None,
         total: float | None = None,
+        disable: bool | None = False,
         **_: Any,
     ) -> None:
+        self.quiet = bool(disable)
         self.iterable = iterable
         self.desc = desc or ""
         if total is None and iterable is not None and hasattr(iterable, "__len__"):
@@ -141,7 +144,7 @@ class Bar:
     ) -> None:
         values = {**(ordered_dict or {}), **kw}
         c = CHANNEL
-        if c is not None and self.desc == "training" and "val" in values:
+        if c is not None and self.desc == "training" and "val" in values and not self.quiet:
             c.losses.append([self.n + 1, _number(values["val"])])
         self._report()
 
@@ -150,7 +153,7 @@ class Bar:
 
     def close(self) -> None:
         c = CHANNEL
-        if c is not None and self.desc.startswith("sampling") and c.stage == "train":
+        if c is not None and self.desc.startswith("sampling") and c.stage == "train" and not self.quiet:
             c.sampled_before += self.n  # the next sampling bar (the held-out set) counts on from here
             self.n = 0
         self._report(force=True)
@@ -170,7 +173,10 @@ class Bar:
         if c is None:
             return
         with contextlib.suppress(Exception):  # progress is best effort: it never breaks a training
-            if c.stage == "train" and self.desc.startswith("sampling"):
+            if self.quiet:
+                if c.stage == "train" and c.phase != "training":
+                    c.progress("sampling", 0.0, "choosing the super-step: short probe trainings", force)
+            elif c.stage == "train" and self.desc.startswith("sampling"):
                 done = c.sampled_before + self.n
                 c.progress(
                     "sampling",
@@ -244,48 +250,18 @@ def probe(model: Any, spec: dict[str, Any], substeps: int) -> None:
         )
 
 
-def train_options() -> dict[str, argparse.Action]:
-    """The options of ``neuro train`` (what this version of the command takes)."""
-    from neuroanimator import cli
-
-    parser = cli.build_parser()
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    return {s: a for a in sub.choices["train"]._actions for s in a.option_strings}
-
-
-def takes_auto(options: dict[str, argparse.Action]) -> bool:
-    """Whether ``neuro train --substeps auto`` is known to this version of the command."""
-    kind = options["--substeps"].type
-    try:
-        kind("auto")  # type: ignore[misc,operator]
-    except (ValueError, TypeError, argparse.ArgumentTypeError):
-        return False
-    return True
-
-
-def train_argv(spec: dict[str, Any], staging: Path) -> tuple[list[str], list[str]]:
-    """``neuro train``'s arguments for the spec, and notes on what this version of the command lacks."""
-    options = train_options()
-    notes: list[str] = []
+def train_argv(spec: dict[str, Any], staging: Path) -> list[str]:
+    """``neuro train``'s arguments for the spec."""
     argv = ["train", "--mjcf", spec["source"], "--name", spec["model"], "--out", str(staging), "--json"]
-    argv += ["--examples", str(spec["examples"])]
+    argv += ["--examples", str(spec["examples"]), "--substeps", str(spec["super_step"])]
     if spec.get("entry"):
         argv += ["--entry", spec["entry"]]
-    if spec["super_step"] != "auto":
-        argv += ["--substeps", str(spec["super_step"])]
-    elif takes_auto(options):
-        argv += ["--substeps", "auto"]
-    else:
-        notes.append("super-step auto: this trainer picks the model's default, 50")
     for key, flag in (("epochs", "--epochs"), ("hidden", "--hidden"), ("rollout_steps", "--rollout-steps")):
         if spec.get(key) is not None:
             argv += [flag, str(spec[key])]
     if spec.get("force"):
-        if "--force" in options:
-            argv.append("--force")
-        else:
-            notes.append("force: this trainer keeps every emulator anyway")
-    return argv, notes
+        argv.append("--force")
+    return argv
 
 
 def run_command(argv: list[str], errors: LastError) -> str:
@@ -334,7 +310,7 @@ def run(spec: dict[str, Any], channel: Channel, errors: LastError) -> dict[str, 
     seconds["validating"] = time.monotonic() - t0
 
     staging = Path(spec["staging"])
-    argv, notes = train_argv(spec, staging)
+    argv = train_argv(spec, staging)
     channel.stage = "train"
     channel.sampling_total = int(spec["examples"]) + TEST_EXAMPLES
     channel.progress("sampling", 0.0, "sampling", force=True)
@@ -367,7 +343,9 @@ def run(spec: dict[str, Any], channel: Channel, errors: LastError) -> dict[str, 
         "weights": trained.get("weights"),
         "examples": trained.get("examples"),
         "phase_seconds": {k: round(v, 2) for k, v in seconds.items()},
-        "notes": notes,
+        "notes": [f"super-step {manifest.substeps}: {trained['substeps_reason']}"]
+        if trained.get("substeps_reason")
+        else [],
     }
 
 
