@@ -23,7 +23,20 @@ from neuroanimator.export import OnnxEmulator
 
 ROOT = Path(__file__).resolve().parents[1]
 TINYBOT = ROOT / "tests" / "data" / "tinybot"
-BUDGET = ["--substeps", "10", "--examples", "200", "--epochs", "3", "--hidden", "8", "--rollout-steps", "0"]
+# a tiny budget: its emulator misses the acceptance bar, and is kept anyway (--force)
+BUDGET = [
+    "--substeps",
+    "10",
+    "--examples",
+    "200",
+    "--epochs",
+    "3",
+    "--hidden",
+    "8",
+    "--rollout-steps",
+    "0",
+    "--force",
+]
 
 
 @dataclass
