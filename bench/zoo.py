@@ -235,11 +235,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    only = set(args.models.split(",")) if args.models else None
+    order = args.models.split(",") if args.models else None
+    only = set(order) if order else None
     with tempfile.TemporaryDirectory(prefix="zoo-") as tmp:
         root = Path(args.out) if args.out else Path(tmp) / "registry"
         rows: list[ZooRow] = []
         models = suite_models(only, Path(tmp))
+        if order:  # in the order given: the first ones first on a long run
+            models = {k: models[k] for k in order if k in models}
         for name, xml in tqdm(models.items(), desc="zoo", unit="model"):
             row = train_suite_model(name, xml, root, args.quick, args.timeout)
             if row.accepted:
@@ -247,6 +250,7 @@ def main(argv: list[str] | None = None) -> int:
                 _physical(row, root, row.emulator, 3 if args.quick else args.trials)
                 row.meets_bar = bar(row)
             log.info("%s: %s", name, "accepted" if row.accepted else f"refused: {row.reason}")
+            log.info("row %s", json.dumps(asdict(row)))  # a partial run keeps what it measured
             rows.append(row)
         if not args.no_catalog:
             for row in catalog_rows(Path(args.artifacts), 3 if args.quick else args.trials):
