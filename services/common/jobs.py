@@ -517,8 +517,16 @@ class JobStore:
         cancel, yld, current = out[-3:]
         return bool(cancel), bool(yld), None if current is None else text_of(current)
 
-    def record_progress(self, job_id: str, attempt: int, p: dict[str, Any], history: Iterable[Any]) -> None:
-        """Record progress: the progress hash, values appended to the history and a ``progress`` event."""
+    def record_progress(
+        self,
+        job_id: str,
+        attempt: int,
+        p: dict[str, Any],
+        history: Iterable[Any],
+        event_extra: dict[str, Any] | None = None,
+    ) -> None:
+        """Record progress: the progress hash, values appended to the history and a ``progress`` event
+        (``p``, plus ``event_extra``: what the event carries but the progress hash does not keep)."""
         k = self.keys
         data = {**clean(p), "attempt": attempt}
         fields = {key: json.dumps(v) for key, v in data.items()}
@@ -527,7 +535,7 @@ class JobStore:
             pipe.hset(k.progress(job_id), mapping=fields)
             if points:
                 pipe.rpush(k.history(job_id), *points)
-            self._event(pipe, job_id, "progress", data)
+            self._event(pipe, job_id, "progress", {**data, **clean(event_extra or {})})
             # so that a job nobody ever ends (every worker gone for good) leaves nothing forever
             for key in (k.progress(job_id), k.history(job_id)):
                 pipe.expire(key, self.settings.queued_ttl_s)

@@ -36,8 +36,9 @@ class TrainingStore(BaseStore):
         return out
 
     def progress(self, job_id: str, attempt: int, p: dict[str, Any], losses: Sequence[Any] = ()) -> None:
-        """Record the phase, percent and detail, and new points of the loss curve."""
-        self.record_progress(job_id, attempt, p, losses)
+        """Record the phase, percent and detail, and new points of the loss curve (``[epoch, loss]``,
+        also in the ``progress`` event as ``losses``)."""
+        self.record_progress(job_id, attempt, p, losses, {"losses": list(losses)})
 
     def active(self, owner: str, model: str | None = None, but: str | None = None) -> int:
         """The owner's trainings that are queued or running (of ``model`` only, other than ``but``)."""

@@ -352,8 +352,8 @@ async def training_events(
     last_event_id: Annotated[str | None, Header(description="resume after this event id")] = None,
 ) -> StreamingResponse:
     """Server-sent events of a training: ``status`` (queued, running), ``progress`` (phase, percent,
-    detail, time left, and in ``losses`` nothing: the curve is in ``GET /trainings/{id}``), then one
-    ``end`` (the result when it succeeded). With API keys on, ``?api_key=`` works too (EventSource)."""
+    detail, time left, and ``losses``: the loss curve's new ``[epoch, loss]`` points), then one ``end``
+    (the result when it succeeded). With API keys on, ``?api_key=`` works too (EventSource)."""
     await run_in_threadpool(owned, store, training_id, owner)
     aredis: aioredis.Redis = request.app.state.aredis
     keepalive = request.app.state.settings.sse_keepalive_s

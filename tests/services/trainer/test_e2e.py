@@ -80,6 +80,8 @@ def test_upload_train_drive_control_publish_delete(trn: Trainer, tmp_path: Path)
         "exporting",
     ]
     assert events[-1][0] == "end" and events[-1][1]["result"]["version"] == res["version"]
+    streamed = [p for e, d in events if e == "progress" for p in d["losses"]]
+    assert streamed == [[p["epoch"], p["loss"]] for p in done["loss_curve"]]  # the curve, live
     assert not any((trn.settings().uploads()).iterdir())  # the upload is gone once trained
 
     # the emulator service serves it without a restart, to the key that uploaded it
