@@ -148,7 +148,7 @@ def test_trainings_that_cannot_succeed_fail_naming_why(trn: Trainer) -> None:
     api = trn.client()
     diverges = upload(api, "wobbly.xml", WOBBLY, key="key-a", **TINY)
     slow = upload(
-        api, "tinybot.zip", zipped(TINYBOT), key="key-b", name="slowbot", super_step="100", examples="1000000"
+        api, "tinybot.zip", zipped(TINYBOT), key="key-b", name="slowbot", super_step="1000", examples="1000000"
     )
     assert diverges.status_code == 202 and slow.status_code == 202, (diverges.text, slow.text)
     failed = ended(api, diverges.json()["id"], key="key-a")
