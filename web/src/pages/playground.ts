@@ -282,7 +282,6 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
   drop.group.visible = rooted; // a free model's height above the ground; a fixed one stands on it
   viewer.world.add(model.group, ghost.group, trail.line, ghostTrail.line, drop.group);
   viewer.setGroundHeight(groundHeight(model, [geometry.rest_poses]));
-  viewer.groundVisible = true;
   viewer.animating = true;
   // frame the moving bodies (a free model) or the whole model with its stand (a fixed one), with the
   // ghost while it is shown, and the ground below them while they are near it

@@ -63,7 +63,12 @@ function gridTexture(anisotropy: number): THREE.Texture {
   return t;
 }
 
-/** A sky dome: a gradient from the zenith to the horizon, darker below it, following the camera. */
+/**
+ * A sky dome: a gradient from the zenith to the horizon, darker below it, following the camera. The
+ * colour is worked out per vertex (the fragment shader only passes it on), and the dome is drawn after
+ * the opaque scene at the far plane with the depth test on, so only the pixels where the sky shows are
+ * shaded (in software WebGL a full-screen pass costs as much as the rest of the frame).
+ */
 function skyDome(): THREE.Mesh {
   const material = new THREE.ShaderMaterial({
     uniforms: {
@@ -71,22 +76,27 @@ function skyDome(): THREE.Mesh {
       horizon: { value: new THREE.Color(SKY.horizon) },
       below: { value: new THREE.Color(SKY.below) },
     },
-    vertexShader: `varying vec3 vDir;
-      void main() { vDir = normalize(position); gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0); gl_Position.z = gl_Position.w; }`,
-    fragmentShader: `uniform vec3 top; uniform vec3 horizon; uniform vec3 below; varying vec3 vDir;
+    vertexShader: `uniform vec3 top; uniform vec3 horizon; uniform vec3 below; varying vec3 vColor;
       void main() {
-        float h = normalize(vDir).y;
-        vec3 c = h > 0.0 ? mix(horizon, top, pow(min(h * 1.6, 1.0), 0.7)) : mix(horizon, below, min(-h * 6.0, 1.0));
-        gl_FragColor = vec4(c, 1.0);
+        float h = normalize(position).y;
+        vColor = h > 0.0 ? mix(horizon, top, pow(min(h * 1.6, 1.0), 0.7)) : mix(horizon, below, min(-h * 6.0, 1.0));
+        gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0);
+        gl_Position.z = gl_Position.w; // at the far plane: behind everything
+      }`,
+    fragmentShader: `varying vec3 vColor;
+      void main() {
+        gl_FragColor = vec4(vColor, 1.0);
         #include <colorspace_fragment>
       }`,
     side: THREE.BackSide,
     depthWrite: false,
-    depthTest: false,
+    depthTest: true,
+    depthFunc: THREE.LessEqualDepth,
     fog: false,
   });
-  const dome = new THREE.Mesh(new THREE.SphereGeometry(1, 24, 12), material);
-  dome.renderOrder = -10;
+  // rows close to the horizon, where the gradient changes fastest
+  const dome = new THREE.Mesh(new THREE.SphereGeometry(1, 32, 48), material);
+  dome.renderOrder = 10; // after the opaque scene (the ground, the models), before anything transparent
   dome.frustumCulled = false;
   return dome;
 }
@@ -139,6 +149,7 @@ export class Viewer {
   private readonly beforeRender = new Set<(now: number) => void>();
   private readonly marks = new Map<string, () => THREE.Object3D | null>();
   private lastMarks = 0;
+  private framing = ''; // what the following camera frames, in words (data-framing on the host)
   private readonly stopLoop: () => void;
   private readonly resize: ResizeObserver;
   private readonly seen: IntersectionObserver;
@@ -219,7 +230,7 @@ export class Viewer {
     return new THREE.Vector3(x, y, z).applyMatrix4(this.world.matrixWorld);
   }
 
-  /** The world box of objects in the view (three's frame), their invisible parts left out. */
+  /** The world box of objects in the view (three's frame); hidden objects are left out. */
   boxOf(...objects: THREE.Object3D[]): THREE.Box3 {
     this.world.updateMatrixWorld(true);
     const box = new THREE.Box3();
@@ -231,11 +242,6 @@ export class Viewer {
     this.groundZ = z;
     this.ground.position.z = z;
     this.dirty = true;
-  }
-
-  /** Show the ground, or not (a model with a floor of its own draws that instead). */
-  set groundVisible(v: boolean) {
-    this.ground.visible = v;
   }
 
   /** Frame `objects` and `points` (three's world frame), and the ground below them, once, from the
@@ -277,6 +283,8 @@ export class Viewer {
   follow(box: (() => THREE.Box3 | null) | null): void {
     if (!box) {
       this.following = null;
+      this.framing = '';
+      delete this.host.dataset.framing;
       return;
     }
     this.following = { box, zoom: 1 };
@@ -297,7 +305,7 @@ export class Viewer {
   private followPoints(b: THREE.Box3): THREE.Vector3[] {
     const size = b.getSize(new THREE.Vector3()).length();
     const pts = followPoints(b, this.groundZ, Math.max(12, 6 * size));
-    this.host.dataset.framing = `${pts.length > 8 ? 'model and ground' : 'model'} (${(b.min.y - this.groundZ).toFixed(1)} m above it)`;
+    this.framing = `${pts.length > 8 ? 'model and ground' : 'model'} (${(b.min.y - this.groundZ).toFixed(1)} m above the ground)`;
     const c = b.getCenter(new THREE.Vector3());
     const r = Math.max(1, size * 0.5);
     pts.push(c.clone().addScalar(r), c.clone().subScalar(r));
@@ -370,8 +378,9 @@ export class Viewer {
   }
 
   private writeMarks(now: number): void {
-    if (!this.marks.size || now - this.lastMarks < 250) return;
+    if (now - this.lastMarks < 250) return;
     this.lastMarks = now;
+    if (this.framing) this.host.dataset.framing = this.framing;
     for (const [name, get] of this.marks) {
       const o = get();
       const key = `screen${name[0]!.toUpperCase()}${name.slice(1)}`;
