@@ -24,7 +24,10 @@ from numpy.typing import NDArray
 from neuroanimator.quaternion import wrap_angle
 
 if TYPE_CHECKING:
+    from neuroanimator.hierarchy import HierarchicalEmulator
     from neuroanimator.structured import StructuredEmulator
+
+    Emulator = StructuredEmulator | HierarchicalEmulator
 
 OPSET = 17
 
@@ -96,7 +99,7 @@ def _step_module(emu: StructuredEmulator) -> Any:
     return Step()
 
 
-def input_names(emu: StructuredEmulator) -> list[str]:
+def input_names(emu: Emulator) -> list[str]:
     names = ["state"]
     if emu.num_controls:
         names.append("controls")
@@ -105,10 +108,13 @@ def input_names(emu: StructuredEmulator) -> list[str]:
     return names
 
 
-def to_onnx(emu: StructuredEmulator) -> bytes:
-    """Serialise the emulator's full step as an ONNX model (bytes)."""
+def to_onnx(emu: Emulator) -> bytes:
+    """Serialise the emulator's full step as an ONNX model (bytes). A hierarchical emulator is one graph
+    too (global network, local networks, back to world values), with the same inputs and output."""
     import torch
     from torch import Tensor
+
+    from neuroanimator.hierarchy import HierarchicalEmulator
 
     emu = emu.eval()
     b = 2
@@ -124,7 +130,7 @@ def to_onnx(emu: StructuredEmulator) -> bytes:
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")
         torch.onnx.export(
-            _step_module(emu),
+            emu if isinstance(emu, HierarchicalEmulator) else _step_module(emu),
             tuple(args),
             buf,  # type: ignore[arg-type]  # a file-like object is accepted
             input_names=names,

@@ -60,6 +60,28 @@ class InitialStates(BaseModel):
     max_tilt: float = 0.0
 
 
+class HierarchyPart(BaseModel):
+    """One part of a hierarchical emulator (thesis 4.4): a set of state groups that one network predicts
+    in the part's own frame.
+
+    ``points`` are the part's material points, each a position group and a velocity group of 3 world
+    values. The part's frame is fixed linear maps of the model's points (any part's): its centre is
+    ``centre`` (weights of this part's points, summing to 1), and two axes ``axis1``, ``axis2``
+    (weights of any points' positions, by position group, summing to 0) give its orientation by
+    Gram-Schmidt. Groups of the part that are not points (e.g. a plate's orientation) are predicted
+    as they are. The velocities of the centre and of the axes are the same maps of the velocities.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str
+    groups: list[str] = Field(min_length=1, description="state groups the part's network writes")
+    points: list[tuple[str, str]] = Field(min_length=1, description="(position group, velocity group)")
+    centre: list[float] = Field(description="weight of each point in the centre, summing to 1")
+    axis1: list[tuple[str, float]] = Field(min_length=1, description="(position group, weight)")
+    axis2: list[tuple[str, float]] = Field(min_length=1, description="(position group, weight)")
+
+
 class ModelSpec(BaseModel):
     """What the trainer needs beyond the MJCF to build an emulator of a model."""
 
@@ -92,6 +114,11 @@ class ModelSpec(BaseModel):
     rotation_invariant: bool = Field(True, description="use the rotation about gravity as a symmetry")
     translation_invariant: bool = Field(True, description="use translations of the root as a symmetry")
     thesis_hidden: int | None = Field(None, description="hidden units of the thesis' network (Table 6.1)")
+    parts: list[HierarchyPart] = Field(
+        default_factory=list,
+        description="a hierarchical emulator's parts (thesis 4.4): a global network predicts the motion of "
+        "their frames, then one network per part its groups in its frame; empty: one network",
+    )
     train_at_start: bool = Field(
         True,
         description="the stack trains this model's emulator at start when none is stored; off for a model "

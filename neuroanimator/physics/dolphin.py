@@ -61,7 +61,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.model_spec import ControlInfo, InitialStates, ModelSpec
+from neuroanimator.model_spec import ControlInfo, HierarchyPart, InitialStates, ModelSpec
 from neuroanimator.state import StateGroup
 
 if TYPE_CHECKING:
@@ -458,6 +458,46 @@ def travelling_wave(
     return out
 
 
+SEGMENTS = (
+    ("head", ["nose", *(f"s1{c}" for c in CORNERS)], 1),
+    *((f"segment{k}", [f"s{k}{c}" for c in CORNERS], k) for k in range(2, 6)),
+    ("fluke", ["fluke_l", "fluke_r"], 5),
+)
+"""The six body segments of the hierarchical emulator (thesis Fig. 4.9): name, nodes, and the
+cross-section whose top and bottom give the segment's up axis."""
+
+
+def hierarchy_parts() -> list[HierarchyPart]:
+    """The segments as parts of a hierarchical emulator: each its nodes and the plates hung from them;
+    centre: the nodes' centre of mass; axes: left (left minus right nodes; the fluke's tips) and up
+    (top minus bottom of the segment's cross-section)."""
+    mass = node_masses()
+    owner = {n: name for name, nodes, _ in SEGMENTS for n in nodes}
+    plates_of: dict[str, list[str]] = {}
+    for plate in PLATES:
+        plates_of.setdefault(owner[NODES[plate.anchor]], []).append(plate.name)
+    parts = []
+    for name, nodes, section in SEGMENTS:
+        mine = set(nodes) | set(plates_of.get(name, []))
+        groups = [g.name for g in LAYOUT if g.name.split(".")[0] in mine]
+        weights = [float(mass[_idx(n)]) for n in nodes]
+        left = [f"s{section}tl", f"s{section}bl"] if name != "fluke" else ["fluke_l"]
+        right = [f"s{section}tr", f"s{section}br"] if name != "fluke" else ["fluke_r"]
+        top, bottom = [f"s{section}tl", f"s{section}tr"], [f"s{section}bl", f"s{section}br"]
+        parts.append(
+            HierarchyPart(
+                name=name,
+                groups=groups,
+                points=[(f"{n}.pos", f"{n}.vel") for n in nodes],
+                centre=[w / sum(weights) for w in weights],
+                axis1=[(f"{n}.pos", 1.0 / len(left)) for n in left]
+                + [(f"{n}.pos", -1.0 / len(right)) for n in right],
+                axis2=[(f"{n}.pos", 0.5) for n in top] + [(f"{n}.pos", -0.5) for n in bottom],
+            )
+        )
+    return parts
+
+
 def dolphin() -> PhysicalModel:
     from neuroanimator.physics.model import PhysicalModel  # MuJoCo loads when a model is built
 
@@ -483,6 +523,7 @@ def dolphin() -> PhysicalModel:
         translation_invariant=False,
         rotation_invariant=False,
         thesis_hidden=50,
+        parts=hierarchy_parts(),
     )
     return PhysicalModel(mjcf(), spec)
 
