@@ -23,6 +23,8 @@ import torch
 
 from neuroanimator import registry
 from neuroanimator.export import to_onnx
+from neuroanimator.hierarchy import GLOBAL, VECTORS, HierarchicalEmulator
+from neuroanimator.hierarchy_training import HierarchyResult
 from neuroanimator.manifest import (
     ControlInput,
     EmulatorGraph,
@@ -52,7 +54,9 @@ def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -
     state group; ``mode`` is the normalisation mode it was fitted with."""
     read = {name for name, _ in emu.input_groups}
     fr = emu.frame
-    return Network(
+    return _describe(
+        emu,
+        mode,
         name=CORE,
         frame=NetworkFrame(
             translate=list(fr.translate),
@@ -67,6 +71,51 @@ def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -
             forces=list(model.force_names) if "forces" in read else [],
         ),
         writes=[g.name for g in model.layout],
+    )
+
+
+def describe_hierarchy(emu: HierarchicalEmulator, model: PhysicalModel, mode: str) -> EmulatorGraph:
+    """The manifest's description of a hierarchical emulator: ``global`` writing every part's frame
+    quantities, then one network per part, in its frame, reading its predicted frame."""
+    controls = list(model.control_names)
+    points = {g for p in emu.parts for pt in p.points for g in pt}
+    networks = [
+        _describe(
+            emu.glob,
+            mode,
+            name=GLOBAL,
+            frame=NetworkFrame(),
+            reads=NetworkReads(state=[g.name for g in model.layout if g.name in points], controls=controls),
+            writes=[g.name for g in emu.glob.layout],
+        )
+    ]
+    for part, (name, net) in zip(emu.parts, emu.networks[1:], strict=True):
+        networks.append(
+            _describe(
+                net,
+                mode,
+                name=name,
+                frame=NetworkFrame(part=name),
+                reads=NetworkReads(
+                    state=list(part.groups), predicted=[f"{name}.{q}" for q in VECTORS], controls=controls
+                ),
+                writes=list(part.groups),
+            )
+        )
+    return EmulatorGraph(
+        networks=networks, stages=[[GLOBAL], [p.name for p in emu.parts]], parts=list(emu.parts)
+    )
+
+
+def _describe(
+    emu: StructuredEmulator, mode: str, name: str, frame: NetworkFrame, reads: NetworkReads, writes: list[str]
+) -> Network:
+    """One network of an emulator as the manifest lists it (sizes, normalisation, limits from ``emu``)."""
+    return Network(
+        name=name,
+        frame=frame,
+        reads=reads,
+        writes=writes,
         hidden=list(emu.hidden),
         activation=emu.activation,  # checked by the manifest
         normalization=Normalization(
@@ -78,7 +127,7 @@ def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -
             y_std=emu.y_std.tolist(),
         ),
         input_size=emu.input_size,
-        output_size=model.state_size,
+        output_size=emu.layout.size,
         weights=sum(p.numel() for p in emu.parameters()),
         skip=emu.skip is not None,
         limits=[
@@ -135,7 +184,11 @@ def write_assets(model_dir: Path, model: PhysicalModel) -> None:
 
 
 def build_manifest(
-    model: PhysicalModel, result: TrainResult, version: str, onnx_sha256: str, created: dt.datetime
+    model: PhysicalModel,
+    result: TrainResult | HierarchyResult,
+    version: str,
+    onnx_sha256: str,
+    created: dt.datetime,
 ) -> Manifest:
     """The manifest of a trained emulator of ``model`` saved as ``version``."""
     cfg = result.config
@@ -173,7 +226,9 @@ def build_manifest(
         forces=list(model.spec.forces),
         frame=Symmetries(translate=list(model.frame.translate), rotate=model.frame.rotate),
         io=GraphIO(inputs=inputs),
-        emulator=EmulatorGraph(
+        emulator=describe_hierarchy(result.emulator, model, cfg.normalization)
+        if isinstance(result.emulator, HierarchicalEmulator)
+        else EmulatorGraph(
             networks=[describe_network(result.emulator, model, cfg.normalization)], stages=[[CORE]]
         ),
         train_config=cfg,
@@ -188,7 +243,7 @@ def build_manifest(
     )
 
 
-def save(root: Path, model: PhysicalModel, result: TrainResult) -> Path:
+def save(root: Path, model: PhysicalModel, result: TrainResult | HierarchyResult) -> Path:
     """Write a trained emulator as a new version of ``model``; returns the version folder."""
     if not registry.is_name(model.name):
         raise ModelError(
@@ -223,7 +278,8 @@ def save(root: Path, model: PhysicalModel, result: TrainResult) -> Path:
 
 
 def load_torch(path: Path) -> StructuredEmulator:
-    """The torch emulator of an artifact (same weights as its ONNX graph); one-network emulators only."""
+    """The torch emulator of an artifact (same weights as its ONNX graph); one-network emulators only
+    (``load_hierarchy`` builds a hierarchical one)."""
     manifest = registry.read_manifest(path)
     model = registry.load_physical_model(path, manifest)
     net = manifest.emulator.only()
@@ -247,3 +303,30 @@ def load_torch(path: Path) -> StructuredEmulator:
     )
     emu.load_state_dict(torch.load(path / registry.WEIGHTS_FILE, weights_only=True))
     return emu.eval()
+
+
+def load_hierarchy(path: Path) -> HierarchicalEmulator:
+    """The torch emulator of an artifact whose emulator is a hierarchy over parts (``describe_hierarchy``)."""
+    manifest = registry.read_manifest(path)
+    graph = manifest.emulator
+    if not graph.parts:
+        raise ValueError(f"{path}: this emulator is not a hierarchy over parts")
+    model = registry.load_physical_model(path, manifest)
+    by_name = {n.name: n for n in graph.networks}
+    glob, local = by_name[GLOBAL], by_name[graph.parts[0].name]
+    emu = HierarchicalEmulator(
+        model.layout,
+        model.num_controls,
+        graph.parts,
+        tuple(glob.hidden),
+        tuple(local.hidden),
+        glob.activation,
+        skip=glob.skip,
+    )
+    emu.load_state_dict(torch.load(path / registry.WEIGHTS_FILE, weights_only=True))
+    return emu.eval()
+
+
+def load_emulator(path: Path) -> StructuredEmulator | HierarchicalEmulator:
+    """The torch emulator of an artifact, whichever its structure."""
+    return load_hierarchy(path) if registry.read_manifest(path).emulator.parts else load_torch(path)

@@ -80,6 +80,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.rollout_steps = args.rollout_steps
     # torch loads only for the commands that need it
     from neuroanimator import artifacts, super_step
+    from neuroanimator.hierarchy_training import train_hierarchy
     from neuroanimator.training import TrainingDiverged, train
 
     try:
@@ -88,7 +89,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             log.info("%s: super-step %s", model.name, choice.reason)
             cfg.substeps = choice.substeps
             model.spec = model.spec.model_copy(update={"substeps": choice.substeps})
-        result = train(model, cfg)
+        result = train_hierarchy(model, cfg) if model.spec.parts else train(model, cfg)
     except TrainingDiverged as exc:
         log.error("%s", exc)
         return 2

@@ -29,13 +29,12 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
-from neuroanimator.model_spec import HierarchyPart
+from neuroanimator.model_spec import FRAME_QUANTITIES, HierarchyPart
 from neuroanimator.state import StateGroup, StateLayout
 from neuroanimator.structured import FrameConfig, StructuredEmulator
 
 GLOBAL = "global"
-VECTORS = ("centre", "axis1", "axis2", "centre_vel", "axis1_rate", "axis2_rate")
-"""The frame quantities of a part, 3 values each, in this order."""
+VECTORS = FRAME_QUANTITIES
 FRAME_SIZE = 3 * len(VECTORS)
 # what a local network reads besides its part's groups: its frame now (the centre is its origin, so
 # left out) and the predicted next frame, both in its current axes

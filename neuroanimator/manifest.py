@@ -13,7 +13,11 @@ made of several networks is a manifest of the same shape as today's one-network 
   ``stages = [["core"]]``;
 - a hierarchy: a network ``body`` in the root frame writing the root's groups, then one network per
   body part in that part's frame (``frame.part``: an MJCF body), each reading the root's new state
-  (``reads.predicted``) and its own part's groups; ``stages = [["body"], ["arm_l", "arm_r", ...]]``.
+  (``reads.predicted``) and its own part's groups; ``stages = [["body"], ["arm_l", "arm_r", ...]]``;
+- a hierarchy over ``parts`` (thesis 4.4, ``neuroanimator.hierarchy``): a network ``global`` writing
+  every part's frame quantities (derived groups ``<part>.<quantity>``, not state groups), then one
+  network per part in that part's frame (``frame.part``: a name in ``parts``), reading its predicted
+  frame and writing its part's state groups; ``stages = [["global"], [part, ...]]``.
 
 The file carries a schema version, ``format``. Older formats are upgraded when read
 (``parse_manifest``); a format this code does not know is refused, naming the versions it reads.
@@ -27,7 +31,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from neuroanimator.model_spec import ForceInput, ModelSpec
+from neuroanimator.model_spec import FRAME_QUANTITIES, ForceInput, HierarchyPart, ModelSpec
 from neuroanimator.state import LayoutGroup, StateLayout
 from neuroanimator.train_config import TrainConfig
 
@@ -118,7 +122,7 @@ class NetworkFrame(_Strict):
     """The frame a network's inputs and outputs are expressed in.
 
     ``part`` is ``None`` for the model's root frame, else the MJCF body whose frame it is (a body
-    part of a hierarchy). ``translate`` (one flag per root-position axis) and ``rotate`` (about the
+    part of a hierarchy), or the name of one of ``EmulatorGraph.parts``. ``translate`` (one flag per root-position axis) and ``rotate`` (about the
     vertical axis) are the symmetries removed; ``force_pairs`` lists force inputs (indices into the
     forces) that are rotated together as one vector. ``body``: the frame turns with the whole attitude
     of the root (the body frame, gravity entering as the body-frame up vector), not only its heading.
@@ -194,10 +198,14 @@ class EmulatorGraph(_Strict):
     (they may read what those wrote, ``reads.predicted``) and are independent of each other. Every
     state group is written by exactly one network; the next state is the state plus every network's
     change, back in world axes. A one-network emulator is ``stages = [[name]]``.
+
+    ``parts`` (a hierarchy of ``neuroanimator.hierarchy``): the parts whose frames are derived groups
+    ``<part>.<quantity>`` (3 values each), which networks may write and read like state groups.
     """
 
     networks: list[Network] = Field(min_length=1)
     stages: list[list[str]] = Field(min_length=1)
+    parts: list[HierarchyPart] = []
 
     @model_validator(mode="after")
     def _composition_is_sound(self) -> EmulatorGraph:
@@ -227,9 +235,15 @@ class EmulatorGraph(_Strict):
         return self
 
     @property
+    def derived(self) -> dict[str, int]:
+        """The derived groups (the parts' frame quantities) by name, with their sizes."""
+        return {f"{p.name}.{q}": 3 for p in self.parts for q in FRAME_QUANTITIES}
+
+    @property
     def written(self) -> list[str]:
         """Every state group some network writes."""
-        return [g for n in self.networks for g in n.writes]
+        derived = self.derived
+        return [g for n in self.networks for g in n.writes if g not in derived]
 
     @property
     def weights(self) -> int:
@@ -325,7 +339,11 @@ class Manifest(_Strict):
             raise ValueError(
                 f"the networks must write every state group once: groups {groups}, written {self.emulator.written}"
             )
-        sizes = {g.name: g.size for g in self.layout}
+        derived = self.emulator.derived
+        clash = sorted(set(derived) & set(groups))
+        if clash:
+            raise ValueError(f"the parts' frame quantities {clash} have the names of state groups")
+        sizes = {g.name: g.size for g in self.layout} | derived
         controls, forces = {c.name for c in self.controls}, {f.name for f in self.forces}
         for net in self.emulator.networks:
             written = sum(sizes[g] for g in net.writes)
@@ -335,7 +353,7 @@ class Manifest(_Strict):
                 )
             r = net.reads
             for kind, read, known in (
-                ("state group", r.state + r.predicted, set(groups)),
+                ("state group", r.state + r.predicted, set(groups) | set(derived)),
                 ("control", r.controls, controls),
                 ("force", r.forces, forces),
             ):

@@ -60,6 +60,11 @@ class InitialStates(BaseModel):
     max_tilt: float = 0.0
 
 
+FRAME_QUANTITIES = ("centre", "axis1", "axis2", "centre_vel", "axis1_rate", "axis2_rate")
+"""The frame quantities of a hierarchy's part, 3 world values each, in this order: the global network
+predicts them as groups ``<part>.<quantity>``."""
+
+
 class HierarchyPart(BaseModel):
     """One part of a hierarchical emulator (thesis 4.4): a set of state groups that one network predicts
     in the part's own frame.

@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 
-from neuroanimator import physics, sampling
+from neuroanimator import artifacts, physics, registry, sampling
 from neuroanimator.export import OnnxEmulator, to_onnx
-from neuroanimator.hierarchy import HierarchicalEmulator, check_parts
+from neuroanimator.hierarchy import VECTORS, HierarchicalEmulator, check_parts
+from neuroanimator.hierarchy_training import HierarchyResult, train_hierarchy
+from neuroanimator.manifest import ManifestError, parse_manifest
 from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.train_config import TrainConfig
+from services.emulator.registry import Registry as ServiceRegistry
 
 
 @pytest.fixture(scope="module")
@@ -125,3 +132,65 @@ def test_parts_must_partition_the_state(dolphin: PhysicalModel) -> None:
     bad = parts[0].model_copy(update={"centre": [1.0] * len(parts[0].points)})
     with pytest.raises(ValueError, match="summing to 1"):
         check_parts(dolphin.layout, [bad, *parts[1:]])
+
+
+TINY = TrainConfig(
+    substeps=50,
+    hidden=(8,),
+    examples=160,
+    test_examples=64,
+    max_epochs=3,
+    max_seconds=5.0,
+    rollout_steps=0,
+    progress=False,
+    threads=1,
+)
+
+
+@pytest.fixture(scope="module")
+def trained(dolphin: PhysicalModel) -> HierarchyResult:
+    return train_hierarchy(dolphin, TINY)
+
+
+def test_each_network_is_trained_on_its_own_targets(trained: HierarchyResult) -> None:
+    m = trained.metrics
+    names = [name for name, _ in trained.emulator.networks]
+    assert names == ["global", "head", "segment2", "segment3", "segment4", "segment5", "fluke"]
+    assert sorted(m["network_errors"]) == sorted(names)
+    worst = max(e["one_step_rel_error"] for e in m["network_errors"].values())
+    assert m["one_step_rel_error"] == worst
+    # a budget of seconds proves the mechanics, not the accuracy (that is bench work)
+    assert all(np.isfinite(e["linear_baseline_rel_error"]) for e in m["network_errors"].values())
+    assert np.isfinite(worst) and np.isfinite(m["composed_rel_error"])
+
+
+def test_a_saved_hierarchy_is_described_loaded_and_served(
+    tmp_path: Path, dolphin: PhysicalModel, trained: HierarchyResult, examples: sampling.Examples
+) -> None:
+    path = artifacts.save(tmp_path, dolphin, trained)
+    manifest = registry.read_manifest(path)
+    graph = manifest.emulator
+    assert graph.stages == [["global"], [p.name for p in dolphin.spec.parts]]
+    assert [p.name for p in graph.parts] == [p.name for p in dolphin.spec.parts]
+    glob, head = graph.networks[0], graph.networks[1]
+    assert glob.frame.part is None and len(glob.writes) == 6 * len(graph.parts)
+    assert head.frame.part == "head" and head.reads.predicted == [f"head.{q}" for q in VECTORS]
+    assert head.writes == list(dolphin.spec.parts[0].groups)
+    assert sorted(graph.written) == sorted(g.name for g in manifest.layout)
+    assert manifest.io.inputs == ["state", "controls"]
+    with pytest.raises(ManifestError, match="composed of 7 networks"):
+        graph.only()
+    data = json.loads((path / registry.MANIFEST_FILE).read_text())
+    data["emulator"]["stages"].reverse()  # the parts before the frames they read
+    with pytest.raises(ManifestError, match="which no earlier stage writes"):
+        parse_manifest(data)
+
+    loaded = artifacts.load_emulator(path)
+    s, u = examples.states.astype(np.float32), examples.controls.astype(np.float32)
+    with torch.no_grad():
+        expected = trained.emulator(torch.from_numpy(s), torch.from_numpy(u)).numpy()
+        torch.testing.assert_close(loaded(torch.from_numpy(s), torch.from_numpy(u)).numpy(), expected)
+    # the emulator service loads it by the registry and ONNX only, as any model
+    served = ServiceRegistry(tmp_path).get("dolphin")
+    assert served.manifest.version == path.name
+    np.testing.assert_allclose(served.emulator.step(s, u), expected, atol=2e-5, rtol=1e-4)

@@ -1,0 +1,203 @@
+"""Training a hierarchical emulator (thesis 4.4): each network on its own targets.
+
+The global network learns the motion of the parts' frames (their change over a super-step); each
+local network learns its part's next groups in the part's *true* next frame, so the local networks
+do not depend on the global one's errors while they train. Every network is fitted like a
+one-network emulator (``training``: normalisation, the linear baseline that starts its linear path,
+mini-batch training with early stopping), from the same simulated examples.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from neuroanimator import sampling
+from neuroanimator.hierarchy import GLOBAL, HierarchicalEmulator
+from neuroanimator.physics.model import ModelError, PhysicalModel
+from neuroanimator.structured import StructuredEmulator
+from neuroanimator.train_config import TrainConfig
+from neuroanimator.training import (
+    apply_linear,
+    held_out_seed,
+    relative_error,
+    start_from_linear,
+    to_tensors,
+    train_core,
+)
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class HierarchyResult:
+    """A trained hierarchy, saved like a ``training.TrainResult``; ``linear`` is the global network's
+    least-squares baseline."""
+
+    emulator: HierarchicalEmulator
+    config: TrainConfig
+    metrics: dict[str, Any]
+    linear: np.ndarray
+    data_sha256: str
+
+
+def build_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchicalEmulator:
+    """The hierarchy of ``model.spec.parts``, every network of the config's width."""
+    if not model.spec.parts:
+        raise ModelError(f"model {model.name} has no parts: its emulator is one network")
+    return HierarchicalEmulator(
+        model.layout,
+        model.num_controls,
+        model.spec.parts,
+        cfg.hidden,
+        cfg.hidden,
+        cfg.activation,
+        skip=cfg.skip and cfg.preset != "thesis",
+        num_forces=model.num_forces,
+    )
+
+
+@dataclass
+class _Targets:
+    """One network's training data: its state, controls, extra inputs and next state, (N, ·) each."""
+
+    state: Tensor
+    controls: Tensor | None
+    extra: Tensor | None
+    next_state: Tensor
+
+    def rows(self, sl: slice) -> _Targets:
+        return _Targets(
+            self.state[sl],
+            None if self.controls is None else self.controls[sl],
+            None if self.extra is None else self.extra[sl],
+            self.next_state[sl],
+        )
+
+
+def network_data(emu: HierarchicalEmulator, s: Tensor, u: Tensor | None, nxt: Tensor) -> list[_Targets]:
+    """Every network's data for transitions s -> nxt: the global network's frames, then each part's
+    groups in its frame, given the true next frames."""
+    with torch.no_grad():
+        g_state, g_next = emu.global_inputs(s, nxt)
+        out = [_Targets(g_state, u, None, g_next)]
+        frames, next_frames = emu.frames_of(s), emu.frames_of(nxt)
+        for k in range(len(emu.parts)):
+            part, frame_in = emu.local_inputs(k, s, next_frames, frames)
+            out.append(_Targets(part, u, frame_in, emu.local_target(k, nxt)))
+    return out
+
+
+def fit_linear(x: Tensor, y: Tensor, rcond: float = 1e-5) -> np.ndarray:
+    """Least-squares affine map (D+1, S), the minimum-norm solution with singular values below ``rcond``
+    of the largest dropped: a local network's inputs are linearly dependent (its points' offsets from
+    their centre sum to zero, its axes are sums of them), and a plain solve blows up along those
+    directions."""
+    xa = torch.cat([x, torch.ones(x.shape[0], 1)], dim=1).double()
+    sol = torch.linalg.lstsq(xa, y.double(), rcond=rcond, driver="gelsd").solution
+    return sol.numpy()
+
+
+def _normalised(net: StructuredEmulator, d: _Targets) -> tuple[Tensor, Tensor]:
+    with torch.no_grad():
+        return net.network_inputs(d.state, d.controls, d.extra), net.network_targets(d.state, d.next_state)
+
+
+def fit_network(net: StructuredEmulator, d: _Targets, cfg: TrainConfig) -> tuple[np.ndarray, float]:
+    """Fit one network's normalisation, its linear baseline (which starts its linear path) and train
+    it; returns the baseline (D+1, S) and the relative error on the validation rows."""
+    with torch.no_grad():
+        x_local = net.local_inputs(d.state, d.controls, d.extra)
+        net.set_normalization(x_local, net.delta_to_local(d.state, d.next_state - d.state), cfg.normalization)
+    x, y = _normalised(net, d)
+    n_val = max(1, int(x.shape[0] * cfg.val_fraction))
+    linear = fit_linear(x[n_val:], y[n_val:])
+    if net.skip is not None:
+        start_from_linear(net, linear)
+    train_core(net, x[n_val:], y[n_val:], x[:n_val], y[:n_val], cfg)
+    net.eval()
+    with torch.no_grad():
+        return linear, relative_error(net.network(x[:n_val]), y[:n_val])
+
+
+def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
+    """Simulate data, then train the global network and every local network on their own targets
+    (the time budget ``max_seconds`` shared between them); evaluate each and the composed step on
+    held-out data."""
+    cfg = cfg.resolved()
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    t_start = time.perf_counter()
+    emu = build_hierarchy(model, cfg)
+    networks = emu.networks
+    weights = sum(p.numel() for p in emu.parameters())
+    largest = max(sum(p.numel() for p in net.parameters()) for _, net in networks)
+    count = cfg.examples or math.ceil(cfg.examples_per_weight * largest)  # every network sees every example
+    log.info(
+        "%s n=%d: %d networks, %d weights, %d examples",
+        model.name,
+        cfg.substeps,
+        len(networks),
+        weights,
+        count,
+    )
+    data = sampling.generate(model, cfg.substeps, count, cfg.seed, progress=cfg.progress)
+    test = sampling.generate(
+        model, cfg.substeps, cfg.test_examples, held_out_seed(cfg.seed), progress=cfg.progress
+    )
+    t_data = time.perf_counter() - t_start
+
+    s, u, _, nxt = to_tensors(data)
+    each = dataclasses.replace(cfg, max_seconds=cfg.max_seconds / len(networks))
+    fitted = {
+        name: fit_network(net, d, each)
+        for (name, net), d in zip(networks, network_data(emu, s, u, nxt), strict=True)
+    }
+    linears = {name: lin for name, (lin, _) in fitted.items()}
+
+    ts, tu, _, tn = to_tensors(test)
+    errors: dict[str, dict[str, float]] = {}
+    with torch.no_grad():
+        for (name, net), d in zip(networks, network_data(emu, ts, tu, tn), strict=True):
+            x, y = _normalised(net, d)
+            errors[name] = {
+                "one_step_rel_error": relative_error(net.network(x), y),
+                "linear_baseline_rel_error": relative_error(apply_linear(linears[name], x), y),
+            }
+        change = tn - ts
+        scale = change.std(dim=0).clamp_min(1e-8)
+        composed = relative_error((emu(ts, tu) - ts) / scale, change / scale)
+    worst = max(errors, key=lambda n: errors[n]["one_step_rel_error"])
+    metrics = {
+        "weights": weights,
+        "examples": count,
+        "test_examples": len(test),
+        # the worst network's held-out errors: every network must be accurate
+        "one_step_rel_error": errors[worst]["one_step_rel_error"],
+        "linear_baseline_rel_error": errors[worst]["linear_baseline_rel_error"],
+        "validation_rel_error": max(val for _, val in fitted.values()),
+        "network_errors": errors,
+        "composed_rel_error": composed,
+        "data_seconds": round(t_data, 2),
+        "train_seconds": round(time.perf_counter() - t_start - t_data, 2),
+        "total_seconds": round(time.perf_counter() - t_start, 2),
+    }
+    log.info(
+        "%s n=%d: worst network %s one-step relative error %.3g (linear %.3g), composed %.3g, %.0f s",
+        model.name,
+        cfg.substeps,
+        worst,
+        metrics["one_step_rel_error"],
+        metrics["linear_baseline_rel_error"],
+        composed,
+        metrics["total_seconds"],
+    )
+    return HierarchyResult(emu.eval(), cfg, metrics, linears[GLOBAL], data.sha256())
