@@ -141,14 +141,14 @@ def train_suite_model(name: str, xml: Path, root: Path, quick: bool, timeout: fl
     try:
         done = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
-        return ZooRow(name, "dm_control", False, f"training ran past {timeout:.0f} s")
+        return ZooRow(name, "dm_control", False, reason=f"training ran past {timeout:.0f} s")
     summary = _last_json(done.stdout)
     if done.returncode != 0 or summary is None:
         return ZooRow(
             name,
             "dm_control",
             False,
-            _error_line(done.stderr + done.stdout),
+            reason=_error_line(done.stderr + done.stdout),
             train_s=time.perf_counter() - t0,
         )
     return ZooRow(
@@ -176,7 +176,7 @@ def catalog_rows(artifacts: Path, trials: int) -> list[ZooRow]:
         try:
             path = registry.resolve(artifacts, name)
         except registry.ArtifactError as exc:
-            rows.append(ZooRow(name, "catalog", False, str(exc)))
+            rows.append(ZooRow(name, "catalog", False, reason=str(exc)))
             continue
         m = registry.read_manifest(path)
         activity = constraint_activity(physics.get(name))
