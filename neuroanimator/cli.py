@@ -80,8 +80,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.rollout_steps = args.rollout_steps
     # torch loads only for the commands that need it
     from neuroanimator import artifacts, super_step
-    from neuroanimator.hierarchy_training import train_hierarchy
-    from neuroanimator.training import TrainingDiverged, train
+    from neuroanimator.hierarchy_training import HierarchyResult, small_defaults, train_hierarchy
+    from neuroanimator.training import TrainingDiverged, TrainResult, train
 
     try:
         if auto:
@@ -89,7 +89,13 @@ def cmd_train(args: argparse.Namespace) -> int:
             log.info("%s: super-step %s", model.name, choice.reason)
             cfg.substeps = choice.substeps
             model.spec = model.spec.model_copy(update={"substeps": choice.substeps})
-        result = train_hierarchy(model, cfg) if model.spec.parts else train(model, cfg)
+        if model.spec.parts:  # a hierarchy of networks (thesis 4.4)
+            cfg = small_defaults(
+                cfg, hidden_given=args.hidden is not None, examples_given=args.examples is not None
+            )
+            result: TrainResult | HierarchyResult = train_hierarchy(model, cfg)
+        else:
+            result = train(model, cfg)
     except TrainingDiverged as exc:
         log.error("%s", exc)
         return 2

@@ -37,6 +37,23 @@ from neuroanimator.training import (
 log = logging.getLogger(__name__)
 
 
+SMALL_HIDDEN = (16,)
+SMALL_EXAMPLES = 5_000
+SMALL_TEST_EXAMPLES = 1_000
+
+
+def small_defaults(cfg: TrainConfig, *, hidden_given: bool, examples_given: bool) -> TrainConfig:
+    """The config with a hierarchy's small defaults where the user chose nothing: one hidden layer of
+    16 units per network, 5,000 examples, 1,000 held out (minutes of simulation for the dolphin; the
+    thesis-sized training is a benchmark)."""
+    return dataclasses.replace(
+        cfg,
+        hidden=cfg.hidden if hidden_given else SMALL_HIDDEN,
+        examples=cfg.examples if examples_given else SMALL_EXAMPLES,
+        test_examples=min(cfg.test_examples, SMALL_TEST_EXAMPLES),
+    )
+
+
 @dataclass
 class HierarchyResult:
     """A trained hierarchy, saved like a ``training.TrainResult``; ``linear`` is the global network's

@@ -12,7 +12,7 @@ import torch
 from neuroanimator import artifacts, physics, registry, sampling
 from neuroanimator.export import OnnxEmulator, to_onnx
 from neuroanimator.hierarchy import VECTORS, HierarchicalEmulator, check_parts
-from neuroanimator.hierarchy_training import HierarchyResult, train_hierarchy
+from neuroanimator.hierarchy_training import HierarchyResult, small_defaults, train_hierarchy
 from neuroanimator.manifest import ManifestError, parse_manifest
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.train_config import TrainConfig
@@ -194,3 +194,11 @@ def test_a_saved_hierarchy_is_described_loaded_and_served(
     served = ServiceRegistry(tmp_path).get("dolphin")
     assert served.manifest.version == path.name
     np.testing.assert_allclose(served.emulator.step(s, u), expected, atol=2e-5, rtol=1e-4)
+
+
+def test_a_hierarchy_trains_small_unless_told_otherwise() -> None:
+    cfg = small_defaults(TrainConfig(), hidden_given=False, examples_given=False)
+    assert (cfg.hidden, cfg.examples, cfg.test_examples) == ((16,), 5_000, 1_000)
+    mine = TrainConfig(hidden=(50,), examples=123, test_examples=77)
+    cfg = small_defaults(mine, hidden_given=True, examples_given=True)
+    assert (cfg.hidden, cfg.examples, cfg.test_examples) == ((50,), 123, 77)
