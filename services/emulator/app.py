@@ -14,14 +14,14 @@ from fastapi.responses import JSONResponse, PlainTextResponse
 
 from services.common.auth import ApiKeyMiddleware, ApiKeys
 from services.common.docs import add_offline_docs
-from services.common.errors import add_error_handlers
 from services.common.limits import limit_bodies
 from services.common.openapi import METRICS_RESPONSES, METRICS_TYPE, document_errors, readiness_responses
-from services.emulator.deps import EngineDep
-from services.emulator.engine import Engine
+from services.emulator.deps import ServiceDep
+from services.emulator.error_mapping import add_http_handlers
 from services.emulator.fastpath import BinaryStepRoute
 from services.emulator.persistence import Persistence
 from services.emulator.routes import models, sessions, step
+from services.emulator.service import EmulatorService
 from services.emulator.settings import Settings
 from services.emulator.ws import SessionSocketRoute
 
@@ -31,9 +31,9 @@ log = logging.getLogger(__name__)
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The app for these settings; artifacts are loaded now, so it is ready when this returns."""
     settings = settings or Settings()
-    engine = Engine(settings)
+    service = EmulatorService(settings)
     keys = ApiKeys.of(settings)
-    persistence = Persistence(engine)
+    persistence = Persistence(service)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -44,14 +44,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         gc.collect()
         gc.freeze()
         gc.set_threshold(*settings.gc_thresholds)
-        sweeper = asyncio.create_task(engine.sweep_forever(), name="session-sweeper")
+        sweeper = asyncio.create_task(service.sweep_forever(), name="session-sweeper")
         checkpointer = None
         if persistence.enabled:
             checkpointer = asyncio.create_task(persistence.run_forever(), name="session-checkpoints")
         log.info(
             "emulator service up",
             extra={
-                "models": engine.registry.models(),
+                "models": service.registry.models(),
                 "api_keys": len(keys),
                 "persistence": persistence.status,
             },
@@ -65,7 +65,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     with contextlib.suppress(asyncio.CancelledError):
                         await task
             await persistence.close()
-            await engine.close()
+            await service.close()
 
     app = FastAPI(
         title="NeuroAnimator emulator service",
@@ -75,11 +75,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         redoc_url=None,
     )
     add_offline_docs(app)  # /docs and /redoc with packaged assets: they work offline
-    app.state.engine = engine
+    app.state.service = service
     app.state.persistence = persistence
     # innermost first: the binary POST /step and websocket fast paths see the caller the key check set
-    app.add_middleware(BinaryStepRoute, engine=engine)
-    app.add_middleware(SessionSocketRoute, engine=engine)
+    app.add_middleware(BinaryStepRoute, service=service)
+    app.add_middleware(SessionSocketRoute, service=service)
     if keys.enabled:
         app.add_middleware(ApiKeyMiddleware, keys=keys)
     # every body bounded before it is read (even by a caller without a key): large ones on the stepping
@@ -95,12 +95,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_headers=["*"],
             max_age=600,
         )
-    add_error_handlers(app)
+    add_http_handlers(app)
     for r in (models.router, sessions.router, step.router):
         app.include_router(r)
 
     @app.get("/healthz", tags=["ops"])
     async def healthz() -> dict[str, str]:
+        """Liveness: the process answers."""
         return {"status": "ok"}
 
     @app.get(
@@ -109,8 +110,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         response_class=JSONResponse,
         responses=readiness_responses("no models loaded"),
     )
-    async def readyz(engine: EngineDep) -> Response:
-        names = engine.registry.models()
+    async def readyz(service: ServiceDep) -> Response:
+        """Readiness: at least one emulator is loaded (503 otherwise); says whether sessions persist."""
+        names = service.registry.models()
         # "off", "ok" or "degraded" (Redis unreachable: serving, not persisting), asked of Redis now
         p = await persistence.check()
         if not names:
@@ -118,9 +120,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return JSONResponse({"status": "ready", "persistence": p})
 
     @app.get("/metrics", tags=["ops"], response_class=PlainTextResponse, responses=METRICS_RESPONSES)
-    async def metrics(engine: EngineDep) -> Response:
-        engine.update_gauges()
-        return Response(engine.metrics.render(), media_type=METRICS_TYPE)
+    async def metrics(service: ServiceDep) -> Response:
+        """Prometheus metrics: step latency, batch sizes, ORT time, sessions, divergences."""
+        service.update_gauges()
+        return Response(service.metrics.render(), media_type=METRICS_TYPE)
 
     document_errors(app)
     return app

@@ -18,30 +18,24 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from services.common.errors import ApiError
+from services.emulator.errors import Diverged, StepFailed, UnknownSession
 from services.emulator.metrics import Metrics
-from services.emulator.registry import Loaded
+from services.emulator.registry import LoadedEmulator
 from services.emulator.sessions import Session, StatePool
 
 log = logging.getLogger(__name__)
 
 
-class DivergedError(ApiError):
-    def __init__(self, session: Session) -> None:
-        super().__init__(
-            409,
-            "diverged",
-            f"session {session.id!r} diverged: its step {session.steps + 1} produced a non-finite state; "
-            "its last finite state is kept, create a new session to continue",
-        )
+def _diverged(session: Session) -> Diverged:
+    return Diverged.at_step(session.id, session.steps + 1)
 
 
-def _deleted(session: Session) -> ApiError:
-    return ApiError(404, "unknown_session", f"session {session.id!r} was deleted while stepping")
+def _deleted(session: Session) -> UnknownSession:
+    return UnknownSession(f"session {session.id!r} was deleted while stepping")
 
 
 @dataclass(slots=True)
-class _Request:
+class _SessionEntry:
     """One session's step: its (U+F,) inputs, controls then forces (an array, or a tuple of floats
     as a binary websocket frame unpacks to)."""
 
@@ -55,15 +49,14 @@ class _Request:
 
 
 @dataclass
-class _Bulk:
+class _BlockEntry:
     """Many sessions in one queue entry (binary ``POST /step``): their (K,) slots of ``pool`` with
-    the (K,) ``gen`` of each slot when they were locked, and inputs (K, U), (K, F)."""
+    the (K,) ``gen`` of each slot when they were locked, and their inputs (K, U+F)."""
 
     pool: StatePool
     slots: NDArray[np.intp]
     gens: NDArray[np.uint32]
-    controls: NDArray[np.float32]
-    forces: NDArray[np.float32]
+    inputs: NDArray[np.float32]
     future: asyncio.Future[tuple[NDArray[np.float32], NDArray[np.uint8]]]
 
     @property
@@ -76,60 +69,54 @@ class _Bulk:
 # machine (0.5-1 ms measured); larger batches run in a worker thread so the loop keeps serving.
 INLINE_ROWS = 4096
 
-# Row outcomes of ``Batcher.step_many`` (the binary format's status bytes, see services/emulator/binary.py).
+# Row outcomes of ``Batcher.step_block`` (the binary format's status bytes, see services/emulator/binary.py).
 ROW_OK, ROW_DIVERGED, ROW_GONE = 0, 2, 3
 
 
 class Batcher:
     """The batching queue of one (model, version); its worker task lives on the running loop."""
 
-    def __init__(self, emu: Loaded, max_batch: int, max_wait_s: float, metrics: Metrics) -> None:
+    def __init__(self, emu: LoadedEmulator, max_batch: int, max_wait_s: float, metrics: Metrics) -> None:
         self.emu = emu
         self.max_batch = max_batch
         self.max_wait_s = max_wait_s
         self.metrics = metrics
         self.ort_calls = 0
         self.rows = 0
-        self._pending: list[_Request | _Bulk] = []
+        self._pending: list[_SessionEntry | _BlockEntry] = []
         self._pending_rows = 0  # rows waiting in _pending, kept so that enqueueing is O(1)
         self._ready = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
 
     async def step(
-        self, session: Session, controls: NDArray[np.float32], forces: NDArray[np.float32]
-    ) -> NDArray[np.float32]:
-        """One super-step of one session, batched with whatever else arrives now: returns (S,)."""
-        return await self.step_row(session, np.concatenate([controls, forces]))
-
-    async def step_row(
         self, session: Session, inputs: NDArray[np.float32] | tuple[float, ...]
     ) -> NDArray[np.float32]:
-        """``step`` with the inputs as one (U+F,) row, controls then forces (validated and clipped)."""
+        """One super-step of one session under (U+F,) inputs, controls then forces (checked and
+        clipped), batched with whatever else arrives now: returns its (S,) new state, written back."""
         if session.diverged:
-            raise DivergedError(session)
+            raise _diverged(session)
         fut: asyncio.Future[NDArray[np.float32]] = asyncio.get_running_loop().create_future()
-        self._enqueue(_Request(session, inputs, fut))
+        self._enqueue(_SessionEntry(session, inputs, fut))
         return await fut
 
-    async def step_many(
+    async def step_block(
         self,
         pool: StatePool,
         slots: NDArray[np.intp],
         gens: NDArray[np.uint32],
-        controls: NDArray[np.float32],
-        forces: NDArray[np.float32],
+        inputs: NDArray[np.float32],
     ) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
         """One super-step of the K sessions in ``slots`` of ``pool`` (K,) (whose ``gen`` was ``gens``
-        (K,) when the caller locked them) under inputs (K, U), (K, F), in one queue entry: returns
+        (K,) when the caller locked them) under inputs (K, U+F), in one queue entry: returns
         (K, S) new states and (K,) row outcomes ``ROW_*``. A diverged session keeps (and returns) its
         last finite state; a session deleted meanwhile returns NaN."""
         fut: asyncio.Future[tuple[NDArray[np.float32], NDArray[np.uint8]]] = (
             asyncio.get_running_loop().create_future()
         )
-        self._enqueue(_Bulk(pool, slots, gens, controls, forces, fut))
+        self._enqueue(_BlockEntry(pool, slots, gens, inputs, fut))
         return await fut
 
-    def _enqueue(self, req: _Request | _Bulk) -> None:
+    def _enqueue(self, req: _SessionEntry | _BlockEntry) -> None:
         if self._task is None or self._task.done():
             self._task = asyncio.get_running_loop().create_task(
                 self._worker(), name=f"batcher-{self.emu.model}"
@@ -151,7 +138,7 @@ class Batcher:
         while True:
             await self._ready.wait()
             await self._gather()
-            take, rows = 0, 0  # whole entries up to max_batch rows (a bulk entry is never split)
+            take, rows = 0, 0  # whole entries up to max_batch rows (a block entry is never split)
             while take < len(self._pending) and (
                 take == 0 or rows + self._pending[take].rows <= self.max_batch
             ):
@@ -165,7 +152,7 @@ class Batcher:
                 await self._run(batch)
             except Exception as exc:  # ORT failed: every request of this batch gets the error
                 log.exception("ORT call failed for %s/%s", self.emu.model, self.emu.version)
-                err = ApiError(500, "step_failed", f"the emulator step failed: {exc}")
+                err = StepFailed(f"the emulator step failed: {exc}")
                 for req in batch:
                     if not req.future.done():
                         req.future.set_exception(err)
@@ -185,29 +172,29 @@ class Batcher:
                 return
             quiet = quiet + 1 if self._pending_rows == before else 0
 
-    async def _run(self, batch: list[_Request | _Bulk]) -> None:
-        single: list[_Request] = []
-        bulks: list[_Bulk] = []
+    async def _run(self, batch: list[_SessionEntry | _BlockEntry]) -> None:
+        single: list[_SessionEntry] = []
+        blocks: list[_BlockEntry] = []
         for r in batch:
             if r.future.done():
                 continue
-            if isinstance(r, _Bulk):
-                bulks.append(r)
+            if isinstance(r, _BlockEntry):
+                blocks.append(r)
             elif r.session.alive:
                 single.append(r)
             else:  # deleted or expired while queued
                 r.future.set_exception(_deleted(r.session))
         ns = len(single)
         parts = [np.fromiter((r.session.slot for r in single), np.intp, ns)]
-        parts += [b.slots for b in bulks]
+        parts += [b.slots for b in blocks]
         slots = np.concatenate(parts)
         if not slots.size:
             return
-        pool = single[0].session.pool if single else bulks[0].pool
+        pool = single[0].session.pool if single else blocks[0].pool
         x = np.take(pool.states, slots, axis=0)  # (B, S) copy
         nu = self.emu.num_controls
         parts_in = [np.array([r.inputs for r in single], np.float32)] if ns else []
-        parts_in += [np.concatenate([b.controls, b.forces], axis=1) for b in bulks]
+        parts_in += [b.inputs for b in blocks]
         inputs = np.concatenate(parts_in) if len(parts_in) > 1 else parts_in[0]  # (B, U+F)
         u = inputs[:, :nu] if nu else None
         f = inputs[:, nu:] if self.emu.num_forces else None
@@ -240,11 +227,11 @@ class Batcher:
                     req.future.set_result(out[i])
                 elif req.session.alive:
                     self._diverge(req.session)
-                    req.future.set_exception(DivergedError(req.session))
+                    req.future.set_exception(_diverged(req.session))
                 else:
                     req.future.set_exception(_deleted(req.session))
         start = ns
-        for b in bulks:
+        for b in blocks:
             k = len(b.slots)
             rows, ok = out[start : start + k], finite[start : start + k]
             start += k

@@ -8,7 +8,7 @@
 * Websocket frames: a client frame is magic ``NAWC``, u32 seq, then U + F float32; a state frame is
   magic ``NAWS``, u32 seq, u32 steps, u8 status, 3 zero bytes, then S float32.
 
-Parsing raises ``ApiError`` (422, or 413 for a batch over MAX_BATCH) naming the problem.
+Parsing raises ``BadInput`` (or ``TooLarge`` for a batch over MAX_BATCH) naming the problem.
 """
 
 from __future__ import annotations
@@ -20,9 +20,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from services.common.errors import ApiError
+from services.emulator.errors import BadInput, TooLarge
 
 VERSION = 1
+MEDIA_TYPE = "application/octet-stream"
 REQUEST_MAGIC = b"NAST"
 RESPONSE_MAGIC = b"NASR"
 WS_CLIENT_MAGIC = b"NAWC"
@@ -45,8 +46,8 @@ UNKNOWN = 3  # not stepped: no such session (never created, deleted, expired or 
 
 def _bad(
     error: str, message: str, *, field: str | None = None, expected: Any = None, got: Any = None
-) -> ApiError:
-    return ApiError(422, error, message, field=field, expected=expected, got=got)
+) -> BadInput:
+    return BadInput(message, code=error, field=field, expected=expected, got=got)
 
 
 @dataclass
@@ -65,7 +66,7 @@ class BatchRequest:
         return decode_ids(self.id_block, self.width)
 
     def rows(self, width: int, what: str) -> NDArray[np.float32]:
-        """(N, width) float32 rows; 422 when the body's length does not fit ``width`` per session."""
+        """(N, width) float32 rows; ``BadInput`` when the body's length does not fit ``width`` per session."""
         n = self.count
         want = self.offset + 4 * n * width
         if len(self.body) != want:
@@ -79,13 +80,19 @@ class BatchRequest:
             )
         return np.frombuffer(self.body, dtype="<f4", count=n * width, offset=self.offset).reshape(n, width)
 
-    def row_width(self) -> int | None:
-        """The per-session width the body's length implies, or None if it fits no whole width."""
+    def check_whole_rows(self) -> None:
+        """``BadInput`` unless the body's length fits a whole number of float32 per session (checked
+        when no session is known, so no model says the width)."""
         n = self.count
         rest = len(self.body) - self.offset
-        if n == 0 or rest < 0 or rest % (4 * n):
-            return None
-        return rest // (4 * n)
+        if n and (rest < 0 or rest % (4 * n)):
+            raise _bad(
+                "wrong_length",
+                f"binary body is {len(self.body)} bytes, which fits no whole number of float32 per session "
+                f"for the {n} sessions the header announces",
+                field="body",
+                got=len(self.body),
+            )
 
 
 def parse_batch_request(body: bytes, max_batch: int) -> BatchRequest:
@@ -117,9 +124,7 @@ def parse_batch_request(body: bytes, max_batch: int) -> BatchRequest:
             got=version,
         )
     if count > max_batch:
-        raise ApiError(
-            413,
-            "batch_too_large",
+        raise TooLarge(
             f"a batch may hold at most {max_batch} items (MAX_BATCH), got {count}",
             field="count",
             expected=f"<= {max_batch}",
@@ -184,21 +189,6 @@ def decode_batch_response(body: bytes) -> tuple[NDArray[np.uint8], NDArray[np.fl
     return status, states
 
 
-def check_rows(rows: NDArray[np.float32], num_controls: int, request: BatchRequest) -> None:
-    """422 naming the first NaN or Inf among the input rows (controls then forces per session)."""
-    bad = ~np.isfinite(rows)
-    if bad.any():
-        i, j = (int(v) for v in np.argwhere(bad)[0])
-        name = f"controls[{j}]" if j < num_controls else f"forces[{j - num_controls}]"
-        raise _bad(
-            "not_finite",
-            f"items[{i}].{name} of session {request.ids[i]!r} is {float(rows[i, j])!r}; inputs must be finite float32",
-            field=f"items[{i}].{name}",
-            expected="a finite float32",
-            got=float(rows[i, j]),
-        )
-
-
 # ---------------------------------------------------------------- websocket frames
 def parse_ws_frame(data: bytes, width: int, what: str) -> tuple[int | None, NDArray[np.float32]]:
     """A client binary frame -> (seq or None, (width,) float32 controls then forces)."""
@@ -248,8 +238,8 @@ def decode_ws_state(data: bytes) -> tuple[int | None, int, int, NDArray[np.float
 
 
 def decode_ids(block: bytes, width: int) -> list[str]:
-    """The ids of a block of NUL-padded ASCII slots of ``width`` bytes; 422 naming the first slot that
-    is not ASCII."""
+    """The ids of a block of NUL-padded ASCII slots of ``width`` bytes; ``BadInput`` naming the first
+    slot that is not ASCII."""
     raw = np.frombuffer(block, np.uint8)
     if raw.size and raw.max() >= 0x80:
         i = int(np.flatnonzero(raw >= 0x80)[0]) // width

@@ -1,4 +1,4 @@
-"""FastAPI dependencies: the app's ``Engine``."""
+"""FastAPI dependencies: the app's ``EmulatorService``."""
 
 from __future__ import annotations
 
@@ -6,13 +6,13 @@ from typing import Annotated
 
 from fastapi import Depends, Request
 
-from services.emulator.engine import Engine
+from services.emulator.service import EmulatorService
 
 
-async def get_engine(request: Request) -> Engine:
+async def get_service(request: Request) -> EmulatorService:
     # async: FastAPI runs a plain ``def`` dependency in a worker thread, a thread hop per request
-    engine: Engine = request.app.state.engine
-    return engine
+    service: EmulatorService = request.app.state.service
+    return service
 
 
-EngineDep = Annotated[Engine, Depends(get_engine)]
+ServiceDep = Annotated[EmulatorService, Depends(get_service)]

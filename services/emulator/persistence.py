@@ -37,8 +37,8 @@ from redis.asyncio.retry import Retry
 from redis.backoff import ExponentialBackoff
 from redis.exceptions import RedisError, ResponseError
 
-from services.common.errors import ApiError
-from services.emulator.engine import Engine
+from services.emulator.errors import EmulatorError
+from services.emulator.service import EmulatorService
 from services.emulator.sessions import Session
 
 log = logging.getLogger(__name__)
@@ -94,11 +94,11 @@ def decode(raw: bytes) -> Record:
 
 
 class Persistence:
-    """Checkpoints ``engine.store`` to Redis (when REDIS_URL is set) and restores it at startup."""
+    """Checkpoints ``service.store`` to Redis (when REDIS_URL is set) and restores it at startup."""
 
-    def __init__(self, engine: Engine) -> None:
-        s = engine.settings
-        self.engine = engine
+    def __init__(self, service: EmulatorService) -> None:
+        s = service.settings
+        self.service = service
         self.interval_s = s.checkpoint_interval_s
         self.key = f"{s.redis_prefix}:sessions:{s.replica_id}"
         self.client: aioredis.Redis | None = None
@@ -117,7 +117,7 @@ class Persistence:
         self._run_id: str | None = None  # the Redis server written to (INFO's run_id): new after a restart
         self.rewrites = 0  # times Redis was found to have lost data and every session was written again
         self._lock = asyncio.Lock()  # one checkpoint at a time (the timer, a forced one, the last one)
-        r = engine.metrics.registry
+        r = service.metrics.registry
         self._seconds = Histogram(
             "emulator_checkpoint_seconds", "duration of one checkpoint to Redis", registry=r
         )
@@ -190,7 +190,7 @@ class Persistence:
         assert self.client is not None
         self._run_id = await self._server_id(self.client)
         raw = cast(dict[bytes, bytes], await self.client.hgetall(self.key))  # decode_responses is off
-        store = self.engine.store
+        store = self.service.store
         now_wall, now_mono = time.time(), time.monotonic()
         n = 0
         for field, value in raw.items():
@@ -207,11 +207,11 @@ class Persistence:
                 self._saved[sid] = (-1, False)  # expired while down: the next checkpoint removes it
                 continue
             try:
-                emu = self.engine.registry.get(rec.model, rec.version)
+                emu = self.service.registry.get(rec.model, rec.version)
                 if rec.state.shape != (emu.state_size,):
                     raise ValueError(f"state of {rec.state.size} values, the model has {emu.state_size}")
                 sess = store.create(emu, rec.state, rec.seed, owner=rec.owner, sid=sid)
-            except (ApiError, ValueError) as exc:
+            except (EmulatorError, ValueError) as exc:
                 log.warning("cannot restore session %s (%s/%s): %s", sid, rec.model, rec.version, exc)
                 continue
             sess.steps, sess.diverged = rec.steps, rec.diverged
@@ -220,7 +220,7 @@ class Persistence:
             n += 1
         self.restored = True
         if n:
-            self.engine.update_gauges()
+            self.service.update_gauges()
             log.info("restored %d sessions from Redis", n, extra={"key": self.key})
         return n
 
@@ -244,10 +244,10 @@ class Persistence:
             log.warning(
                 "Redis lost session checkpoints (%s): writing all %d sessions again",
                 why,
-                len(self.engine.store.sessions),
+                len(self.service.store.sessions),
                 extra={"key": self.key},
             )
-        sessions = self.engine.store.sessions
+        sessions = self.service.store.sessions
         now_wall, now_mono = time.time(), time.monotonic()
         records: dict[str, bytes] = {}
         marks: dict[str, tuple[int, bool]] = {}

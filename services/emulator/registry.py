@@ -26,33 +26,28 @@ from neuroanimator.manifest import Manifest
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.state import QUATERNION_KINDS, heading_columns
 from services.common import tenancy
-from services.common.errors import ApiError
+from services.emulator.errors import UnknownModel
+from services.emulator.inputs import InputRange
 from services.emulator.scene import Kinematics
 
 log = logging.getLogger(__name__)
 
 
 @dataclass
-class Loaded:
-    """One loaded version: its manifest, the ORT emulator and the input ranges (U, 2) / (F, 2)."""
+class LoadedEmulator:
+    """One loaded version: its manifest, the ORT emulator and the trained range of its inputs."""
 
     model: str
     version: str
     path: Path
     manifest: Manifest
     emulator: OnnxEmulator
-    control_range: NDArray[np.float64] = field(init=False)
-    force_range: NDArray[np.float64] = field(init=False)
+    inputs: InputRange = field(init=False)
     quaternion_slices: list[slice] = field(init=False)
-    input_low: NDArray[np.float32] = field(init=False)  # (U+F,) controls then forces, as binary frames
-    input_high: NDArray[np.float32] = field(init=False)
 
     def __post_init__(self) -> None:
         m = self.manifest
-        self.control_range = np.array([[c.low, c.high] for c in m.controls], float).reshape(-1, 2)
-        self.force_range = np.array([[f.low, f.high] for f in m.forces], float).reshape(-1, 2)
-        both = np.concatenate([self.control_range, self.force_range])
-        self.input_low, self.input_high = both[:, 0].astype(np.float32), both[:, 1].astype(np.float32)
+        self.inputs = InputRange(m.controls, m.forces)
         self.quaternion_slices = [
             slice(g.offset, g.offset + g.size) for g in m.layout if g.kind in QUATERNION_KINDS
         ]
@@ -107,19 +102,19 @@ class Registry:
         self.root = Path(root)
         self.threads = threads
         self.poll_s = poll_s
-        self.loaded: dict[tuple[str, str], Loaded] = {}
+        self.loaded: dict[tuple[str, str], LoadedEmulator] = {}
         self.latest: dict[str, str] = {}
         self._checked = 0.0
         self._lock = threading.Lock()
 
-    def _load(self, model: str, version: str) -> Loaded:
+    def _load(self, model: str, version: str) -> LoadedEmulator:
         key = (model, version)
         if key not in self.loaded:
             path = self.root / model / version
             manifest = registry.read_manifest(path)
             # a heading is reported wrapped to [-π, π) (frames interpolate it along the shorter arc)
             emu = OnnxEmulator(path / registry.ONNX_FILE, self.threads, wrap=heading_columns(manifest.layout))
-            self.loaded[key] = Loaded(model, version, path, manifest, emu)
+            self.loaded[key] = LoadedEmulator(model, version, path, manifest, emu)
             log.info("loaded emulator", extra={"model": model, "version": version})
         return self.loaded[key]
 
@@ -152,14 +147,12 @@ class Registry:
     def versions(self, model: str) -> list[str]:
         return sorted(v for m, v in self.loaded if m == model)
 
-    def get(self, model: str, version: str | None = None) -> Loaded:
-        """The named version (loaded on demand) or the latest; 404 ``ApiError`` when there is none."""
+    def get(self, model: str, version: str | None = None) -> LoadedEmulator:
+        """The named version (loaded on demand) or the latest; ``UnknownModel`` when there is none."""
         self.maybe_refresh()
         if model not in self.latest or not tenancy.can_see(self.root, model):
             known = self.models()
-            raise ApiError(
-                404,
-                "unknown_model",
+            raise UnknownModel(
                 f"unknown model {model!r}; loaded models are {known}",
                 field="model",
                 expected=known,
@@ -175,10 +168,9 @@ class Registry:
                     return self._load(model, version)
                 except (OSError, ValueError, registry.ArtifactError) as exc:
                     log.error("cannot load %s: %s", self.root / model / version, exc)
-        raise ApiError(
-            404,
-            "unknown_version",
+        raise UnknownModel(
             f"model {model!r} has no version {version!r}; loaded versions are {self.versions(model)}",
+            code="unknown_version",
             field="version",
             expected=self.versions(model),
             got=version,

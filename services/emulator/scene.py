@@ -2,8 +2,8 @@
 
 ``geometry(emu)``: the bodies (with parents) and their geoms, as ``GET /models/{model}/geometry``
 answers. ``Kinematics.poses(states)``: every body's world pose for states (K, S), by MuJoCo's forward
-kinematics (``mj_kinematics``). ``Twin``: a MuJoCo copy of one session stepped with the same held
-inputs, for the websocket's ``shadow`` option. Torch-free, like the rest of the service.
+kinematics (``mj_kinematics``). ``MujocoShadow``: a MuJoCo copy of one session stepped with the same
+held inputs, for the websocket's ``shadow`` option. Torch-free, like the rest of the service.
 
 A pose is ``[x, y, z, qw, qx, qy, qz]`` in the world frame; bodies are MuJoCo's bodies 1..nbody-1
 (the world body 0 is left out: its geoms are ``ModelGeometry.world``).
@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from neuroanimator.emulator_schemas import BodyInfo, GeomInfo, ModelGeometry
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.quaternion import wrap_angle
-from services.common.errors import ApiError
+from services.emulator.errors import BadInput
 
 _PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -118,22 +118,20 @@ def geometry(model: str, version: str, kin: Kinematics) -> ModelGeometry:
 
 
 def check_states(states: Sequence[Sequence[float]], width: int, what: str, limit: int) -> NDArray[np.float64]:
-    """(K, S) finite float64 states from JSON lists; 422 naming the first bad row or value."""
+    """(K, S) finite float64 states from JSON lists; ``BadInput`` naming the first bad row or value."""
     if len(states) > limit:
-        raise ApiError(
-            422,
-            "too_many_states",
+        raise BadInput(
             f"states may hold at most {limit} states (MAX_FRAMES_PER_REQUEST), got {len(states)}",
+            code="too_many_states",
             field="states",
             expected=f"<= {limit}",
             got=len(states),
         )
     for i, row in enumerate(states):
         if len(row) != width:
-            raise ApiError(
-                422,
-                "wrong_length",
+            raise BadInput(
                 f"states[{i}] must have {width} values for {what}, got {len(row)}",
+                code="wrong_length",
                 field=f"states[{i}]",
                 expected=width,
                 got=len(row),
@@ -142,10 +140,9 @@ def check_states(states: Sequence[Sequence[float]], width: int, what: str, limit
     bad = np.argwhere(~np.isfinite(arr))
     if bad.size:
         i, j = (int(v) for v in bad[0])
-        raise ApiError(
-            422,
-            "not_finite",
+        raise BadInput(
             f"states[{i}][{j}] is not a finite number",
+            code="not_finite",
             field=f"states[{i}][{j}]",
             expected="a finite number",
             got=str(arr[i, j]),
@@ -153,7 +150,7 @@ def check_states(states: Sequence[Sequence[float]], width: int, what: str, limit
     return arr
 
 
-class Twin:
+class MujocoShadow:
     """A MuJoCo copy of a session: started from a state, stepped one super-step (``substeps`` physical
     steps under held inputs, the emulator's contract) at a time. Stops when its state stops being
     finite."""

@@ -24,9 +24,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.common.auth import CALLER
-from services.common.errors import ApiError
 from services.emulator.binary import decode_ids
-from services.emulator.registry import Loaded
+from services.emulator.errors import BadInput, QuotaExceeded, UnknownSession
+from services.emulator.registry import LoadedEmulator
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +130,7 @@ class SessionLock:
             fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
             s.pool.waiters.setdefault(s.slot, []).append(fut)
             await fut
-        if s.alive:  # a session deleted meanwhile needs no lock: its next step fails with 404
+        if s.alive:  # a session deleted meanwhile needs no lock: its next step finds it unknown
             s.pool.busy[s.slot] = True
 
     def release(self) -> None:
@@ -148,7 +148,7 @@ class Session:
     """One client's emulated system: a handle on row ``slot`` of ``pool`` (-1 once deleted)."""
 
     id: str
-    emu: Loaded
+    emu: LoadedEmulator
     pool: StatePool
     slot: int = -1
     seed: int | None = None
@@ -204,7 +204,7 @@ class Session:
         """Take the lock if it is free (without waiting); False if another step holds it."""
         pool, slot = self.pool, self.slot
         if slot < 0 or pool.owner[slot] is not self:
-            return True  # deleted: nothing to guard (its next step fails with 404)
+            return True  # deleted: nothing to guard (its next step finds it unknown)
         if pool.busy[slot]:
             return False
         pool.busy[slot] = True
@@ -227,7 +227,7 @@ class Resolved:
     """N session ids resolved at once: the pool of the known ones, their (N,) slots (-1: unknown)
     and the (N,) ``gen`` of each slot at resolution (a slot whose ``gen`` moved changed hands)."""
 
-    emu: Loaded | None
+    emu: LoadedEmulator | None
     pool: StatePool | None
     slots: NDArray[np.intp]
     gens: NDArray[np.uint32]
@@ -260,31 +260,29 @@ class SessionStore:
 
     def create(
         self,
-        emu: Loaded,
+        emu: LoadedEmulator,
         state: NDArray[np.float32],
         seed: int | None = None,
         owner: str | None = None,
         sid: str | None = None,
     ) -> Session:
         """A new session at ``state`` (S,), owned by the API key id ``owner``; ``sid`` is given only when
-        a checkpoint is restored. 429 beyond MAX_SESSIONS, or beyond MAX_SESSIONS_PER_KEY for the owner."""
+        a checkpoint is restored. ``QuotaExceeded`` beyond MAX_SESSIONS, or beyond MAX_SESSIONS_PER_KEY for
+        the owner."""
         if owner is not None and self.max_per_key is not None:
             held = self.per_owner.get(owner, 0)
             if held >= self.max_per_key:
-                raise ApiError(
-                    429,
-                    "key_quota_exceeded",
+                raise QuotaExceeded(
                     f"this API key holds its maximum of {self.max_per_key} sessions "
                     "(MAX_SESSIONS_PER_KEY); delete some or wait for idle ones to expire",
+                    code="key_quota_exceeded",
                     expected=self.max_per_key,
                     got=held + 1,
                 )
         if len(self.sessions) >= self.max_sessions:
             self.expire()
         if len(self.sessions) >= self.max_sessions:
-            raise ApiError(
-                429,
-                "too_many_sessions",
+            raise QuotaExceeded(
                 f"this replica holds its maximum of {self.max_sessions} sessions; delete some or retry later",
                 expected=self.max_sessions,
                 got=len(self.sessions) + 1,
@@ -307,8 +305,8 @@ class SessionStore:
         return self.owner_codes.setdefault(owner, len(self.owner_codes))
 
     def get(self, sid: str) -> Session:
-        """The live session (its idle clock restarts); 404 when unknown or expired, or when API keys
-        are on and the caller's key (``auth.CALLER``) does not own it."""
+        """The live session (its idle clock restarts); ``UnknownSession`` when unknown or expired, or when
+        API keys are on and the caller's key (``auth.CALLER``) does not own it."""
         sess = self.sessions.get(sid)
         now = time.monotonic()
         if sess is not None and now - sess.pool.last_used[sess.slot] > self.ttl_s:
@@ -318,15 +316,15 @@ class SessionStore:
         if sess is not None and caller is not None and sess.owner != caller:
             sess = None
         if sess is None:
-            raise ApiError(404, "unknown_session", f"no session {sid!r} (never created, deleted or expired)")
+            raise UnknownSession.named(sid)
         sess.pool.last_used[sess.slot] = now
         return sess
 
     def resolve(self, ids: list[str]) -> tuple[list[Session | None], Resolved]:
         """Many ids at once, with the checks of ``get`` (unknown, expired or another key's: None and
-        slot -1). 422 ``mixed_models`` unless the known ones are all of one (model, version)."""
+        slot -1). ``BadInput`` (``mixed_models``) unless the known ones are all of one (model, version)."""
         found = list(map(self.sessions.get, ids))
-        emu: Loaded | None = None
+        emu: LoadedEmulator | None = None
         first = -1
         caller = CALLER.get()
         cutoff = time.monotonic() - self.ttl_s
@@ -345,12 +343,11 @@ class SessionStore:
             if emu is None:
                 emu, first = sess.emu, i
             elif sess.emu is not emu:
-                raise ApiError(
-                    422,
-                    "mixed_models",
+                raise BadInput(
                     f"session {i} ({ids[i]!r}) is of {sess.emu.model}/{sess.emu.version} but session "
                     f"{first} is of {emu.model}/{emu.version}; one binary request steps sessions of one "
                     "model version",
+                    code="mixed_models",
                     field=f"ids[{i}]",
                     expected=f"{emu.model}/{emu.version}",
                     got=f"{sess.emu.model}/{sess.emu.version}",
@@ -380,10 +377,9 @@ class SessionStore:
             seen: set[str] = set()
             for i, sid in enumerate(ids):
                 if sid in seen:
-                    raise ApiError(
-                        422,
-                        "duplicate_session",
+                    raise BadInput(
                         f"ids[{i}]: session {sid!r} appears more than once in the batch",
+                        code="duplicate_session",
                         field=f"ids[{i}]",
                         expected="each session at most once",
                         got=sid,

@@ -16,14 +16,14 @@ from neuroanimator.emulator_schemas import (
     PosesRequest,
     PosesResponse,
 )
-from services.emulator.deps import EngineDep
-from services.emulator.registry import Loaded
+from services.emulator.deps import ServiceDep
+from services.emulator.registry import LoadedEmulator
 from services.emulator.scene import check_states, geometry
 
 router = APIRouter(tags=["models"])
 
 
-def summary(emu: Loaded, versions: list[str]) -> ModelSummary:
+def summary(emu: LoadedEmulator, versions: list[str]) -> ModelSummary:
     m = emu.manifest
     return ModelSummary(
         model=emu.model,
@@ -39,14 +39,18 @@ def summary(emu: Loaded, versions: list[str]) -> ModelSummary:
 
 
 @router.get("/models", response_model=ModelList)
-async def list_models(engine: EngineDep) -> ModelList:
-    reg = engine.registry
+async def list_models(service: ServiceDep) -> ModelList:
+    """The models served: each one's latest version, time steps, sizes and the versions loaded beside it
+    (``GET /models/{model}`` has the whole manifest)."""
+    reg = service.registry
     return ModelList(models=[summary(reg.get(name), reg.versions(name)) for name in reg.models()])
 
 
 @router.get("/models/{model}", response_model=ModelDetail, responses={404: {"model": ErrorBody}})
-async def get_model(model: str, engine: EngineDep, version: str | None = None) -> ModelDetail:
-    reg = engine.registry
+async def get_model(model: str, service: ServiceDep, version: str | None = None) -> ModelDetail:
+    """A model version's manifest: state layout and labels, controls and forces with their trained
+    ranges, training metrics."""
+    reg = service.registry
     emu = reg.get(model, version)
     m = emu.manifest
     return ModelDetail(
@@ -61,9 +65,9 @@ async def get_model(model: str, engine: EngineDep, version: str | None = None) -
 
 
 @router.get("/models/{model}/geometry", response_model=ModelGeometry, responses={404: {"model": ErrorBody}})
-async def get_geometry(model: str, engine: EngineDep, version: str | None = None) -> ModelGeometry:
+async def get_geometry(model: str, service: ServiceDep, version: str | None = None) -> ModelGeometry:
     """The model's bodies and geoms (from its MJCF) and their rest poses, for drawing it."""
-    emu = engine.registry.get(model, version)
+    emu = service.registry.get(model, version)
     return geometry(emu.model, emu.version, emu.kinematics)
 
 
@@ -72,11 +76,11 @@ async def get_geometry(model: str, engine: EngineDep, version: str | None = None
     response_model=PosesResponse,
     responses={404: {"model": ErrorBody}, 422: {"model": ErrorBody}},
 )
-def post_poses(model: str, req: PosesRequest, engine: EngineDep) -> PosesResponse:
+def post_poses(model: str, req: PosesRequest, service: ServiceDep) -> PosesResponse:
     """Every body's world pose in each of the given states (forward kinematics in MuJoCo)."""
-    emu = engine.registry.get(model, req.version)
+    emu = service.registry.get(model, req.version)
     states = check_states(
-        req.states, emu.state_size, f"model {emu.model!r}", engine.settings.max_frames_per_request
+        req.states, emu.state_size, f"model {emu.model!r}", service.settings.max_frames_per_request
     )
     kin = emu.kinematics
     return PosesResponse(

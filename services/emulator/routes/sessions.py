@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import numpy as np
 from fastapi import APIRouter, Response
 
 from neuroanimator.emulator_schemas import ErrorBody, SessionCreate, SessionInfo, StepRequest, StepResponse
-from services.emulator.deps import EngineDep
+from services.emulator.deps import ServiceDep
+from services.emulator.interpolation import frames
+from services.emulator.service import EmulatorService
+from services.emulator.sessions import Session
 
 router = APIRouter(tags=["sessions"])
 _ERRORS: dict[int | str, dict[str, object]] = {
@@ -16,23 +20,64 @@ _ERRORS: dict[int | str, dict[str, object]] = {
 }
 
 
+def session_info(service: EmulatorService, sess: Session) -> SessionInfo:
+    return SessionInfo(
+        id=sess.id,
+        model=sess.emu.model,
+        version=sess.emu.version,
+        state=sess.state.tolist(),
+        t=sess.t,
+        steps=sess.steps,
+        diverged=sess.diverged,
+        seed=sess.seed,
+        ttl_s=service.settings.session_ttl_s,
+    )
+
+
 @router.post("/sessions", response_model=SessionInfo, status_code=201, responses=_ERRORS)
-async def create_session(req: SessionCreate, engine: EngineDep) -> SessionInfo:
-    return engine.info(engine.create_session(req))
+async def create_session(req: SessionCreate, service: ServiceDep) -> SessionInfo:
+    """Start a session of a model (its latest version unless named) at a given or a seeded typical state."""
+    return session_info(service, service.create_session(req))
 
 
 @router.get("/sessions/{sid}", response_model=SessionInfo, responses=_ERRORS)
-async def get_session(sid: str, engine: EngineDep) -> SessionInfo:
-    return engine.info(engine.store.get(sid))
+async def get_session(sid: str, service: ServiceDep) -> SessionInfo:
+    """A session's current state, simulated time, step count and divergence flag."""
+    return session_info(service, service.store.get(sid))
 
 
 @router.delete("/sessions/{sid}", status_code=204, responses=_ERRORS)
-async def delete_session(sid: str, engine: EngineDep) -> Response:
-    engine.delete(sid)
+async def delete_session(sid: str, service: ServiceDep) -> Response:
+    """End a session now (idle sessions also expire after SESSION_TTL_S)."""
+    service.delete(sid)
     return Response(status_code=204)
 
 
 @router.post("/sessions/{sid}/step", response_model=StepResponse, responses=_ERRORS)
-async def step_session(sid: str, req: StepRequest, engine: EngineDep) -> StepResponse:
-    sess = engine.store.get(sid)
-    return await engine.step(sess, req.controls, req.forces, req.steps, req.frames_per_step)
+async def step_session(sid: str, req: StepRequest, service: ServiceDep) -> StepResponse:
+    """Advance a session by ``steps`` super-steps under held controls and forces (clipped to the trained
+    range), optionally with interpolated frames between the states."""
+    stepper = service.stepper
+    sess = service.store.get(sid)
+    stepper.check_steps(req.steps, req.frames_per_step)
+    stepped = await stepper.step(sess, stepper.check(sess.emu, req.controls, req.forces), req.steps)
+    states, inputs = stepped.states, stepped.inputs
+    fr = None
+    if req.frames_per_step is not None and stepped.start is not None:
+        fr = frames(
+            np.concatenate([stepped.start[None], states]),
+            req.frames_per_step,
+            sess.emu.quaternion_slices,
+            sess.emu.emulator.wrap,  # a heading: the shorter arc
+        )
+    return StepResponse(
+        id=sess.id,
+        state=states[-1].tolist(),
+        states=states.tolist(),
+        frames=None if fr is None else fr.tolist(),
+        t=sess.t,
+        steps=sess.steps,
+        clipped=inputs.clipped,
+        clipped_controls=inputs.clipped_controls,
+        clipped_forces=inputs.clipped_forces,
+    )

@@ -6,28 +6,26 @@ float32, every session of one (model, version)); the answer is binary too. Error
 
 The endpoint reads the body itself (FastAPI would parse every body as JSON). Binary requests are
 normally answered before routing by ``services/emulator/fastpath.py`` (the same ``binary_step``,
-without FastAPI's per-request cost); the route documents both forms in the OpenAPI document.
+without FastAPI's per-request cost); the route documents both forms in the OpenAPI document. Both
+are thin transports over the stepping core (``stepping.py``).
 """
 
 from __future__ import annotations
 
 import json
-import time
 from typing import Any
 
-import numpy as np
 from fastapi import APIRouter, Request, Response
 from pydantic import ValidationError
 
-from neuroanimator.emulator_schemas import BatchStepRequest, BatchStepResponse, ErrorBody
-from services.common.errors import ApiError, from_validation
-from services.emulator import binary
-from services.emulator.batcher import ROW_DIVERGED, ROW_GONE
-from services.emulator.deps import EngineDep
-from services.emulator.engine import Engine
+from neuroanimator.emulator_schemas import BatchStepRequest, BatchStepResponse, BatchStepResult, ErrorBody
+from services.emulator.binary import MEDIA_TYPE as OCTET
+from services.emulator.deps import ServiceDep
+from services.emulator.error_mapping import error_body, invalid
+from services.emulator.errors import BadInput, EmulatorError, UnsupportedMediaType
+from services.emulator.fastpath import binary_step
 
 router = APIRouter(tags=["step"])
-OCTET = "application/octet-stream"
 
 
 def _inline(schema: dict[str, Any]) -> dict[str, Any]:
@@ -71,15 +69,15 @@ _OPENAPI: dict[str, Any] = {
     responses={413: {"model": ErrorBody}, 415: {"model": ErrorBody}, 422: {"model": ErrorBody}},
     openapi_extra=_OPENAPI,
 )
-async def batch_step(request: Request, engine: EngineDep) -> Response:
+async def batch_step(request: Request, service: ServiceDep) -> Response:
+    """One super-step of many sessions in one request: JSON (sessions of any models, a result per item)
+    or binary (proto/frames.md: sessions of one model version, a status byte and a state per session)."""
     body = await request.body()
     ctype = request.headers.get("content-type", "application/json").split(";")[0].strip().lower()
     if ctype == OCTET:  # normally answered before routing, by services/emulator/fastpath.py
-        return Response(await binary_step(engine, body), media_type=OCTET)
+        return Response(await binary_step(service, body), media_type=OCTET)
     if ctype != "application/json" and not ctype.endswith("+json"):
-        raise ApiError(
-            415,
-            "unsupported_media_type",
+        raise UnsupportedMediaType(
             f"POST /step takes application/json or {OCTET}, got {ctype!r}",
             field="content-type",
             expected=["application/json", OCTET],
@@ -88,88 +86,26 @@ async def batch_step(request: Request, engine: EngineDep) -> Response:
     try:
         raw = json.loads(body)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ApiError(422, "malformed_json", f"the body is not JSON: {exc}", field="body") from exc
+        raise BadInput(f"the body is not JSON: {exc}", code="malformed_json", field="body") from exc
     try:
         req = BatchStepRequest.model_validate(raw)
     except ValidationError as exc:
-        raise from_validation([dict(e) for e in exc.errors()]) from exc
-    out = await engine.batch_step(req)
-    return Response(out.model_dump_json(), media_type="application/json")
-
-
-async def binary_step(engine: Engine, body: bytes) -> bytes:
-    """Parse, validate (the whole request fails on a problem and steps nothing), step every known
-    session in ONE batcher entry, and encode the answer. The sessions are resolved, checked, locked
-    and stepped as arrays (``SessionStore.resolve_block``, ``StatePool``): no per-session Python."""
-    parsed = binary.parse_batch_request(body, engine.settings.max_batch)
-    n = parsed.count
-    res = engine.store.resolve_block(parsed.id_block, parsed.width)
-    emu, pool = res.emu, res.pool
-    if emu is None or pool is None:  # no known session: nothing to step, every status says so
-        if parsed.row_width() is None and n:
-            raise ApiError(
-                422,
-                "wrong_length",
-                f"binary body is {len(body)} bytes, which fits no whole number of float32 per session "
-                f"for the {n} sessions the header announces",
-                field="body",
-                got=len(body),
-            )
-        return binary.encode_batch_response(
-            np.full(n, binary.UNKNOWN, np.uint8), np.zeros((n, 0), np.float32)
-        )
-    nu, nf = emu.num_controls, emu.num_forces
-    rows = parsed.rows(nu + nf, f"model {emu.model!r} ({nu} controls, {nf} forces)")
-    # the common case in two comparisons: every input in range (NaN fails them too, and is then named)
-    if (rows >= emu.input_low).all() and (rows <= emu.input_high).all():
-        inputs, status = rows, np.zeros(n, np.uint8)
-    else:
-        binary.check_rows(rows, nu, parsed)
-        clipped = ((rows < emu.input_low) | (rows > emu.input_high)).any(axis=1)
-        inputs = np.clip(rows, emu.input_low, emu.input_high).astype(np.float32)
-        status = np.where(clipped, binary.CLIPPED, binary.OK).astype(np.uint8)
-
-    slots, known = res.slots, res.known
-    states = np.full((n, emu.state_size), np.nan, np.float32)
-    status[~known] = binary.UNKNOWN
-    safe = np.where(known, slots, 0)
-    diverged = known & pool.diverged[safe]
-    status[diverged] = binary.DIVERGED
-    states[diverged] = pool.states[slots[diverged]]
-    # Sessions no other request is stepping are locked now (no await in between) and stepped as one
-    # entry; one another request is stepping is stepped after it, one by one, holding only its lock.
-    runnable = known & ~diverged
-    busy = runnable & pool.busy[safe]
-    free = np.flatnonzero(runnable & ~busy)
-    batcher = engine.batcher(emu)
-    t0 = time.perf_counter()
-    if free.size:
-        everyone = free.size == n  # the usual request: every session known, none busy or diverged
-        mine = slots if everyone else slots[free]
-        gens = pool.gen[mine]
-        mine_in = inputs if everyone else inputs[free]
-        pool.lock_rows(mine)
-        try:
-            new, rowst = await batcher.step_many(pool, mine, gens, mine_in[:, :nu], mine_in[:, nu:])
-        finally:
-            pool.unlock_rows(mine, gens)
-        if everyone:
-            states = new
-        else:
-            states[free] = new
-        status[free[rowst == ROW_DIVERGED]] = binary.DIVERGED
-        status[free[rowst == ROW_GONE]] = binary.UNKNOWN
-    for i in np.flatnonzero(busy).tolist():
-        one = pool.owner[int(slots[i])]
-        if one is None or pool.gen[slots[i]] != res.gens[i]:
-            status[i] = binary.UNKNOWN
+        raise invalid(exc) from exc
+    outcomes = await service.stepper.step_items(req.items)
+    results = []
+    for it, out in zip(req.items, outcomes, strict=True):
+        if isinstance(out, EmulatorError):
+            results.append(BatchStepResult(session=it.session, error=error_body(out)))
             continue
-        try:
-            async with one.lock:
-                states[i] = await batcher.step(one, inputs[i, :nu], inputs[i, nu:])
-        except ApiError as exc:
-            status[i] = binary.DIVERGED if exc.body.error == "diverged" else binary.UNKNOWN
-            if one.alive:
-                states[i] = one.state
-    engine.metrics.latency(emu.model, "rest-binary").observe(time.perf_counter() - t0)
-    return binary.encode_batch_response(status, states)
+        inputs = out.inputs
+        results.append(
+            BatchStepResult(
+                session=it.session,
+                state=out.states[-1].tolist(),
+                t=out.session.t,
+                clipped=inputs.clipped,
+                clipped_controls=inputs.clipped_controls,
+                clipped_forces=inputs.clipped_forces,
+            )
+        )
+    return Response(BatchStepResponse(results=results).model_dump_json(), media_type="application/json")

@@ -23,7 +23,7 @@ def _controls(n: int, seed: int = 0) -> np.ndarray:
 
 def test_concurrent_requests_share_ort_calls(make_settings: Callable[..., Settings]) -> None:
     app = create_app(make_settings(max_wait_ms=20.0))
-    engine = app.state.engine
+    service = app.state.service
     n = 48
     u = _controls(n)
 
@@ -34,7 +34,7 @@ def test_concurrent_requests_share_ort_calls(make_settings: Callable[..., Settin
                 (await c.post("/sessions", json={"model": "pendulum-active", "seed": i})).json()
                 for i in range(n)
             ]
-            calls0 = engine.ort_calls
+            calls0 = service.stepper.ort_calls
             rs = await asyncio.gather(
                 *(
                     c.post(f"/sessions/{s['id']}/step", json={"controls": u[i].tolist()})
@@ -42,13 +42,13 @@ def test_concurrent_requests_share_ort_calls(make_settings: Callable[..., Settin
                 )
             )
             assert all(r.status_code == 200 for r in rs)
-            assert engine.ort_calls - calls0 < n / 4, (
-                f"{engine.ort_calls - calls0} ORT calls for {n} requests"
+            assert service.stepper.ort_calls - calls0 < n / 4, (
+                f"{service.stepper.ort_calls - calls0} ORT calls for {n} requests"
             )
             return created, [r.json() for r in rs]
 
     created, outs = asyncio.run(run())
-    emu: OnnxEmulator = engine.registry.get("pendulum-active").emulator
+    emu: OnnxEmulator = service.registry.get("pendulum-active").emulator
     x = np.asarray([s["state"] for s in created], np.float32)
     one_by_one = np.stack([emu.step(x[i : i + 1], u[i : i + 1])[0] for i in range(n)])
     got = np.asarray([o["state"] for o in outs], np.float32)
@@ -58,29 +58,29 @@ def test_concurrent_requests_share_ort_calls(make_settings: Callable[..., Settin
 
 
 def test_batch_endpoint_mixed_models_one_call_per_model(client: TestClient) -> None:
-    engine = client.app.state.engine  # type: ignore[attr-defined]
+    service = client.app.state.service  # type: ignore[attr-defined]
     pend = [client.post("/sessions", json={"model": "pendulum-active", "seed": i}).json() for i in range(5)]
     land = [client.post("/sessions", json={"model": "lander", "seed": i}).json() for i in range(3)]
     u = _controls(5, 1)
     items = [{"session": s["id"], "controls": u[i].tolist()} for i, s in enumerate(pend)]
     items += [{"session": s["id"], "controls": [0, 0, 0, 0]} for s in land]
     items.append({"session": "r0-gone", "controls": [0, 0, 0]})
-    calls0 = engine.ort_calls
+    calls0 = service.stepper.ort_calls
     r = client.post("/step", json={"items": items})
     assert r.status_code == 200
     res = r.json()["results"]
-    assert engine.ort_calls - calls0 == 2  # one per model
+    assert service.stepper.ort_calls - calls0 == 2  # one per model
     assert [x["session"] for x in res] == [it["session"] for it in items]
     assert res[-1]["state"] is None and res[-1]["error"]["error"] == "unknown_session"
-    emu = engine.registry.get("pendulum-active").emulator
+    emu = service.registry.get("pendulum-active").emulator
     want = emu.step(np.asarray([s["state"] for s in pend], np.float32), u)
     np.testing.assert_allclose(np.asarray([x["state"] for x in res[:5]], np.float32), want, atol=1e-6)
     assert all(x["error"] is None and len(x["state"]) == 13 for x in res[5:8])
 
 
 def test_divergence_marks_only_that_session(client: TestClient, monkeypatch: pytest.MonkeyPatch) -> None:
-    engine = client.app.state.engine  # type: ignore[attr-defined]
-    loaded = engine.registry.get("pendulum-active")
+    service = client.app.state.service  # type: ignore[attr-defined]
+    loaded = service.registry.get("pendulum-active")
     real = loaded.emulator.step
 
     def poisoned(state: np.ndarray, *args: Any, **kw: Any) -> np.ndarray:

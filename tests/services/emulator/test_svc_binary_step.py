@@ -44,24 +44,24 @@ def test_binary_and_json_give_identical_states(client: TestClient) -> None:
 
 
 def test_status_bytes_clipped_unknown_and_one_ort_call(client: TestClient) -> None:
-    engine = client.app.state.engine  # type: ignore[attr-defined]
+    service = client.app.state.service  # type: ignore[attr-defined]
     ids = _sessions(client, 3)
     before = np.asarray([client.get(f"/sessions/{s}").json()["state"] for s in ids], np.float32)
     u = np.array([[0, 0, 0], [5, 0, 0], [0, 0, 0]], np.float32)  # row 1 is out of range: clipped
-    calls0 = engine.ort_calls
+    calls0 = service.stepper.ort_calls
     r = _post(client, binary.encode_batch_request([*ids[:2], "r0-gone", ids[2]], np.insert(u, 2, 0, axis=0)))
     status, states = binary.decode_batch_response(r.content)
-    assert engine.ort_calls - calls0 == 1
+    assert service.stepper.ort_calls - calls0 == 1
     assert status.tolist() == [binary.OK, binary.CLIPPED, binary.UNKNOWN, binary.OK]
     assert np.isnan(states[2]).all()
-    emu = engine.registry.get("pendulum-active").emulator
+    emu = service.registry.get("pendulum-active").emulator
     want = emu.step(before, np.array([[0, 0, 0], [2, 0, 0], [0, 0, 0]], np.float32))
     np.testing.assert_allclose(states[[0, 1, 3]], want, rtol=0, atol=1e-6)
 
 
 def test_diverged_session_status(client: TestClient, monkeypatch: pytest.MonkeyPatch) -> None:
-    engine = client.app.state.engine  # type: ignore[attr-defined]
-    loaded = engine.registry.get("pendulum-active")
+    service = client.app.state.service  # type: ignore[attr-defined]
+    loaded = service.registry.get("pendulum-active")
     real = loaded.emulator.step
 
     def poisoned(state: np.ndarray, *args: Any, **kw: Any) -> np.ndarray:

@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 
 from neuroanimator.state import heading_columns
 from services.emulator.app import create_app
-from services.emulator.scene import Twin
+from services.emulator.scene import MujocoShadow
 from services.emulator.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -29,7 +29,7 @@ def test_truck_heading_is_wrapped_in_steps_and_frames() -> None:
         )
         assert r.status_code == 200, r.text
         body = r.json()
-    detail_layout = app.state.engine.registry.get("truck", None).manifest.layout
+    detail_layout = app.state.service.registry.get("truck", None).manifest.layout
     (col,) = heading_columns(detail_layout)
     headings = np.array([s[col] for s in body["states"]])
     frames = np.array([f[col] for f in body["frames"]])
@@ -42,7 +42,7 @@ def test_the_mujoco_shadow_reports_its_heading_wrapped() -> None:
     from neuroanimator import physics
 
     truck = physics.get("truck")
-    twin = Twin(truck, 50, np.array([0.0, 0.0, 3.0, 0.0, 0.0, 0.0]))
+    twin = MujocoShadow(truck, 50, np.array([0.0, 0.0, 3.0, 0.0, 0.0, 0.0]))
     seen = [twin.step(np.array([10.0, 5.0], np.float32), np.zeros(0, np.float32))[2] for _ in range(40)]
     assert all(-np.pi <= h < np.pi for h in seen)
     assert np.unwrap(np.r_[3.0, seen])[-1] > np.pi + 1.0

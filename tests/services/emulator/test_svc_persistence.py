@@ -44,7 +44,7 @@ def _hash(url: str, prefix: str, replica: str = "p1") -> dict[bytes, bytes]:
 
 def test_record_round_trip(client: TestClient) -> None:
     s = client.post("/sessions", json={"model": "lander", "seed": 4}).json()
-    sess = client.app.state.engine.store.sessions[s["id"]]  # type: ignore[attr-defined]
+    sess = client.app.state.service.store.sessions[s["id"]]  # type: ignore[attr-defined]
     sess.steps, sess.diverged = 17, True
     raw = encode(sess, 1234.5)
     rec = decode(raw)
@@ -104,7 +104,7 @@ def test_clean_shutdown_loses_nothing_and_replicas_are_separate(
     with TestClient(create_app(settings)) as a:
         s = a.post("/sessions", json={"model": "lander", "seed": 8}).json()
         a.post(f"/sessions/{s['id']}/step", json={"controls": [0, 0, 0, 0], "steps": 5})
-        a.app.state.engine.store.sessions[s["id"]].diverged = True  # type: ignore[attr-defined]
+        a.app.state.service.store.sessions[s["id"]].diverged = True  # type: ignore[attr-defined]
         want = a.get(f"/sessions/{s['id']}").json()
     # closing wrote a final checkpoint
     with TestClient(create_app(settings)) as b:
@@ -114,7 +114,7 @@ def test_clean_shutdown_loses_nothing_and_replicas_are_separate(
         assert r.status_code == 409 and r.json()["error"] == "diverged"
     with TestClient(create_app(_settings(make_settings, redis_url, redis_prefix, replica_id="p2"))) as other:
         assert other.get(f"/sessions/{s['id']}").status_code == 404
-        assert other.app.state.engine.store.sessions == {}  # type: ignore[attr-defined]
+        assert other.app.state.service.store.sessions == {}  # type: ignore[attr-defined]
 
 
 def test_background_checkpoints(
@@ -153,7 +153,7 @@ def test_owner_survives_restart(
     with TestClient(create_app(settings)) as b:
         assert b.get(f"/sessions/{sid}", headers=alpha).status_code == 200
         assert b.get(f"/sessions/{sid}", headers=beta).status_code == 404
-        assert b.app.state.engine.store.per_owner == {decode(raw).owner: 1}  # type: ignore[attr-defined]
+        assert b.app.state.service.store.per_owner == {decode(raw).owner: 1}  # type: ignore[attr-defined]
 
 
 def test_redis_down_at_startup(make_settings: Callable[..., Settings], redis_prefix: str) -> None:

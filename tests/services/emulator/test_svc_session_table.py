@@ -14,8 +14,8 @@ from fastapi.testclient import TestClient
 
 from neuroanimator.emulator_schemas import SessionCreate
 from services.emulator import binary
-from services.emulator.engine import Engine
-from services.emulator.routes.step import binary_step
+from services.emulator.fastpath import binary_step
+from services.emulator.service import EmulatorService
 from services.emulator.settings import Settings
 
 OCTET = {"content-type": "application/octet-stream"}
@@ -74,21 +74,21 @@ def test_repeated_id_list_of_another_key_is_unknown(make_client: Callable[..., T
 def test_bulk_and_single_steps_of_one_session_exclude_each_other(
     make_settings: Callable[..., Settings],
 ) -> None:
-    engine = Engine(make_settings(max_wait_ms=5.0))
+    service = EmulatorService(make_settings(max_wait_ms=5.0))
 
     async def run() -> None:
-        ids = [engine.create_session(SessionCreate(model="pendulum-active", seed=i)).id for i in range(8)]
+        ids = [service.create_session(SessionCreate(model="pendulum-active", seed=i)).id for i in range(8)]
         body = binary.encode_batch_request(ids, np.zeros((8, 3), np.float32))
-        one = engine.store.get(ids[3])
+        one = service.store.get(ids[3])
         # a 20-step REST request on session 3 and two bulk requests over all 8, at once
-        single = asyncio.create_task(engine.step(one, ZERO, [], steps=20))
-        bulks = [asyncio.create_task(binary_step(engine, body)) for _ in range(2)]
+        single = asyncio.create_task(service.stepper.step(one, service.stepper.check(one.emu, ZERO, []), steps=20))
+        bulks = [asyncio.create_task(binary_step(service, body)) for _ in range(2)]
         await asyncio.gather(single, *bulks)
         for b in bulks:
             assert binary.decode_batch_response(b.result())[0].tolist() == [binary.OK] * 8
         pool = one.pool
         assert not pool.busy.any() and not pool.waiters
-        steps = [engine.store.get(s).steps for s in ids]
+        steps = [service.store.get(s).steps for s in ids]
         assert steps == [2, 2, 2, 22, 2, 2, 2, 2]
 
     asyncio.run(run())
@@ -97,28 +97,28 @@ def test_bulk_and_single_steps_of_one_session_exclude_each_other(
 def test_session_deleted_while_its_bulk_step_is_in_flight(
     make_settings: Callable[..., Settings], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    engine = Engine(make_settings())
-    loaded = engine.registry.get("pendulum-active")
+    service = EmulatorService(make_settings())
+    loaded = service.registry.get("pendulum-active")
     real = loaded.emulator.step
     newcomers = []
 
     def deleting(*args: Any, **kw: Any) -> np.ndarray:  # the ORT call; the session goes meanwhile
-        assert engine.store.delete(ids[0])
-        newcomers.append(engine.create_session(SessionCreate(model="pendulum-active", seed=9)))
+        assert service.store.delete(ids[0])
+        newcomers.append(service.create_session(SessionCreate(model="pendulum-active", seed=9)))
         return real(*args, **kw)
 
     async def run() -> None:
         monkeypatch.setattr(loaded.emulator, "step", deleting)
         body = binary.encode_batch_request(ids, np.zeros((3, 3), np.float32))
-        status, states = binary.decode_batch_response(await binary_step(engine, body))
+        status, states = binary.decode_batch_response(await binary_step(service, body))
         assert status.tolist() == [binary.UNKNOWN, binary.OK, binary.OK]
         assert np.isnan(states[0]).all()
         newcomer = newcomers[0]
         assert newcomer.slot == 0  # the deleted session's slot, handed out again
         assert newcomer.steps == 0 and not newcomer.lock.locked()
-        assert [engine.store.get(s).steps for s in ids[1:]] == [1, 1]
+        assert [service.store.get(s).steps for s in ids[1:]] == [1, 1]
 
-    ids = [engine.create_session(SessionCreate(model="pendulum-active", seed=i)).id for i in range(3)]
+    ids = [service.create_session(SessionCreate(model="pendulum-active", seed=i)).id for i in range(3)]
     asyncio.run(run())
 
 

@@ -24,9 +24,10 @@ from websockets.sync.client import connect
 from neuroanimator.emulator_schemas import SessionCreate
 from services.emulator import binary
 from services.emulator.app import create_app
-from services.emulator.engine import Engine
+from services.emulator.service import EmulatorService
 from services.emulator.settings import Settings
-from services.emulator.ws import LatestQueue, SessionSocketRoute
+from services.emulator.ws import SessionSocketRoute
+from services.emulator.ws.transport import LatestQueue
 
 
 def _drain_until_started(ws: Any) -> None:
@@ -63,7 +64,7 @@ def test_realtime_pushes_states_at_about_the_period(make_client: Callable[..., T
 
 def test_realtime_latest_controls_win(make_client: Callable[..., TestClient]) -> None:
     client = make_client(ws_realtime_scale=0.1)
-    emu = client.app.state.engine.registry.get("pendulum-active").emulator  # type: ignore[attr-defined]
+    emu = client.app.state.service.registry.get("pendulum-active").emulator  # type: ignore[attr-defined]
     sid = client.post("/sessions", json={"model": "pendulum-active", "seed": 3}).json()["id"]
     c = np.array([0.5, -1.0, 1.5], np.float32)
     with client.websocket_connect(f"/ws/sessions/{sid}?mode=realtime") as ws:
@@ -172,7 +173,7 @@ def test_slow_and_vanished_clients_block_nobody(live: tuple[FastAPI, int]) -> No
     raw = _raw_realtime_client(port, slow_id)  # pushed ~1000 states/s, reads none of them
     try:
         deadline = time.monotonic() + 5
-        while not any(c.sid == slow_id for c in app.state.engine.connections):
+        while not any(c.sid == slow_id for c in app.state.service.connections):
             assert time.monotonic() < deadline, "the raw client's connection never started"
             time.sleep(0.01)
         with connect(f"ws://127.0.0.1:{port}/ws/sessions/{a['id']}") as ws:
@@ -187,7 +188,7 @@ def test_slow_and_vanished_clients_block_nobody(live: tuple[FastAPI, int]) -> No
             np.testing.assert_allclose(got["state"], rest["state"], rtol=0, atol=1e-6)
         # the raw client never answers pings (or reads): the server notices and ends its connection
         deadline = time.monotonic() + 10
-        while any(c.sid == slow_id for c in app.state.engine.connections):
+        while any(c.sid == slow_id for c in app.state.service.connections):
             assert time.monotonic() < deadline, "the vanished client was not noticed"
             time.sleep(0.05)
     finally:
@@ -197,10 +198,10 @@ def test_slow_and_vanished_clients_block_nobody(live: tuple[FastAPI, int]) -> No
 
 
 def test_a_client_gone_before_started_leaves_no_ticker(make_settings: Callable[..., Settings]) -> None:
-    engine = Engine(make_settings(ws_realtime_scale=0.1))  # a tick every 10 ms
+    service = EmulatorService(make_settings(ws_realtime_scale=0.1))  # a tick every 10 ms
 
     async def main() -> None:
-        sess = engine.create_session(SessionCreate(model="pendulum-active", seed=0))
+        sess = service.create_session(SessionCreate(model="pendulum-active", seed=0))
         inbox: list[dict[str, Any]] = [{"type": "websocket.connect"}]
 
         async def receive() -> dict[str, Any]:
@@ -214,11 +215,11 @@ def test_a_client_gone_before_started_leaves_no_ticker(make_settings: Callable[.
                 raise OSError("the client closed right after the handshake")
 
         scope = {"type": "websocket", "path": f"/ws/sessions/{sess.id}", "query_string": b"mode=realtime"}
-        await SessionSocketRoute(None, engine)(scope, receive, send)  # type: ignore[arg-type]
+        await SessionSocketRoute(None, service)(scope, receive, send)  # type: ignore[arg-type]
         steps = sess.steps
         await asyncio.sleep(0.3)  # more than a real-time period of the test settings
         assert sess.steps == steps
         assert not [t for t in asyncio.all_tasks() if t.get_name().startswith(("ws-tick", "ws-push"))]
-        assert not engine.connections
+        assert not service.connections
 
     asyncio.run(main())

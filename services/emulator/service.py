@@ -1,0 +1,92 @@
+"""``EmulatorService``: everything one service process holds, shared by every transport.
+
+The artifact registry (loaded emulators), the session store, the stepping core (``stepping.py``),
+metrics and the open websocket connections; sessions are created and deleted here. Transports reach
+it as ``request.app.state.service`` (``deps.ServiceDep``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import secrets
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from neuroanimator.emulator_schemas import SessionCreate
+from services.common.auth import CALLER
+from services.emulator.errors import BadInput, UnknownSession
+from services.emulator.inputs import check_vector
+from services.emulator.metrics import Metrics
+from services.emulator.registry import Registry
+from services.emulator.sessions import Session, SessionStore
+from services.emulator.settings import Settings
+from services.emulator.stepping import Stepper
+
+if TYPE_CHECKING:
+    from services.emulator.ws.connection import Connection
+
+log = logging.getLogger(__name__)
+
+
+class EmulatorService:
+    """The emulators, sessions, stepping core and metrics of one service process."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self.registry = Registry(settings.artifacts_dir, settings.ort_threads, settings.registry_poll_s)
+        self.store = SessionStore(
+            settings.replica_id, settings.session_ttl_s, settings.max_sessions, settings.max_sessions_per_key
+        )
+        self.metrics = Metrics()
+        self.stepper = Stepper(settings, self.store, self.metrics)
+        self.connections: set[Connection] = set()  # open websocket connections (services/emulator/ws/)
+        self.registry.refresh()
+
+    async def close(self) -> None:
+        await self.stepper.close()
+
+    async def sweep_forever(self) -> None:
+        while True:
+            await asyncio.sleep(self.settings.sweep_interval_s)
+            self.store.expire()
+            self.update_gauges()
+
+    def update_gauges(self) -> None:
+        for (model, version), n in self.store.count_by_model().items():
+            self.metrics.sessions.labels(model, version).set(n)
+
+    # ------------------------------------------------------------------ sessions
+    def create_session(self, req: SessionCreate) -> Session:
+        """A session at the given state (checked; quaternion groups normalised) or at a typical start
+        drawn from the seed, owned by the caller's API key."""
+        emu = self.registry.get(req.model, req.version)
+        seed = None
+        if req.state is not None:
+            state = check_vector("state", req.state, emu.state_size, f"model {emu.model!r}").copy()
+            for sl in emu.quaternion_slices:
+                norm = float(np.linalg.norm(state[sl]))
+                if not norm > 1e-6:
+                    raise BadInput(
+                        f"state[{sl.start}:{sl.stop}] is a quaternion and must not be zero",
+                        code="bad_quaternion",
+                        field=f"state[{sl.start}:{sl.stop}]",
+                        expected="a nonzero quaternion [w, x, y, z]",
+                        got=[float(v) for v in state[sl]],
+                    )
+                state[sl] /= norm
+        else:
+            seed = req.seed if req.seed is not None else secrets.randbits(63)
+            state = emu.initial_state(seed)
+        sess = self.store.create(emu, state, seed, owner=CALLER.get())
+        self.update_gauges()
+        log.info("session created", extra={"session": sess.id, "model": emu.model, "version": emu.version})
+        return sess
+
+    def delete(self, sid: str) -> None:
+        """``UnknownSession`` unless it exists and the caller's key (if any) owns it."""
+        self.store.get(sid)
+        if not self.store.delete(sid):
+            raise UnknownSession.named(sid)
+        self.update_gauges()

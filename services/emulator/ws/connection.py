@@ -1,0 +1,235 @@
+"""One websocket client of one session: its settings (format, poses, MuJoCo shadow), the lock-step
+mode, and the real-time mode (``realtime.py``) when started. Steps go through the stepping core."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neuroanimator.emulator_schemas import WsControls, WsPing, WsStart
+from services.emulator.error_mapping import ws_error
+from services.emulator.errors import BadInput, EmulatorError, WrongMode
+from services.emulator.inputs import CheckedInputs
+from services.emulator.scene import MujocoShadow
+from services.emulator.service import EmulatorService
+from services.emulator.sessions import Session
+from services.emulator.stepping import Lane
+from services.emulator.ws import protocol
+from services.emulator.ws.realtime import Realtime
+from services.emulator.ws.transport import AsgiSocket, ClientGone, Disconnected, Frame, LatestQueue, Sender
+
+log = logging.getLogger(__name__)
+_NO_CLIP: list[int] = []
+
+
+@dataclass(slots=True)
+class HeldInputs:
+    """Checked inputs and the ``seq`` of the message they came with (real-time mode steps with the
+    latest of them; its state messages echo that ``seq``)."""
+
+    inputs: CheckedInputs
+    seq: int | None = None
+
+
+class Connection:
+    """One websocket client of one session."""
+
+    def __init__(self, socket: AsgiSocket, service: EmulatorService, sess: Session) -> None:
+        s = service.settings
+        self.socket = socket
+        self.service = service
+        self.sid = sess.id
+        self.emu = sess.emu
+        self.format = "json"
+        self.poses = False
+        self.shadow: MujocoShadow | None = None
+        self.period_s = self.emu.super_timestep * s.ws_realtime_scale
+        zeros = [0.0] * self.emu.num_controls, [0.0] * self.emu.num_forces
+        self.held = HeldInputs(service.stepper.check(self.emu, *zeros))
+        self.sender = Sender(socket, s.ws_send_timeout_s)
+        self.queue: LatestQueue[Frame] = LatestQueue(s.ws_queue_size)
+        self.realtime: Realtime | None = None
+        self.frames = protocol.InputFrames(self.emu)
+        self.lane = service.stepper.lane(self.emu, "ws")
+        self._main: asyncio.Task[object] | None = None
+        self.gone = False
+
+    @property
+    def mode(self) -> str:
+        return "realtime" if self.realtime is not None and self.realtime.ticking else "lockstep"
+
+    def session(self) -> Session:
+        return self.service.store.get(self.sid)
+
+    def check(self, controls: list[float], forces: list[float], seq: int | None) -> HeldInputs:
+        """Inputs from a JSON message (an unknown session is reported before bad inputs)."""
+        self.session()
+        return HeldInputs(self.service.stepper.check(self.emu, controls, forces), seq)
+
+    # ------------------------------------------------------------------ states out
+    def state_frame(self, sess: Session, state: NDArray[np.float32], held: HeldInputs) -> Frame:
+        inputs = held.inputs
+        if self.format == "binary":
+            return protocol.state_binary(state, held.seq, sess.steps, inputs.clipped)
+        return protocol.state_json(
+            state,
+            held.seq,
+            sess.t,
+            sess.steps,
+            inputs.clipped_controls,
+            inputs.clipped_forces,
+            self.emu.kinematics if self.poses else None,
+            self.shadow,
+        )
+
+    # ------------------------------------------------------------------ lock-step
+    async def advance(self, held: HeldInputs, lane: Lane) -> Frame:
+        """One super-step of the session (and its shadow) under these inputs: the state frame."""
+        sess = self.session()
+        out = await lane.step(sess, held.inputs.row)
+        if self.shadow is not None:
+            self.shadow.step(held.inputs.controls, held.inputs.forces)
+        return self.state_frame(sess, out, held)
+
+    async def lockstep(self, held: HeldInputs) -> Frame:
+        """A lock-step step: the state frame (or the error) answering it."""
+        try:
+            return await self.advance(held, self.lane)
+        except EmulatorError as exc:
+            return ws_error(exc, held.seq)
+
+    async def lockstep_fast(self, seq: int | None, values: tuple[float, ...]) -> Frame:
+        """A binary lock-step frame whose inputs are all in range, without a shadow: ``lockstep`` in
+        fewer operations (no arrays for one session's inputs)."""
+        try:
+            sess = self.session()
+            out = await self.lane.step(sess, values)
+        except EmulatorError as exc:
+            return ws_error(exc, seq)
+        if self.format == "binary":
+            return protocol.state_binary(out, seq, sess.steps, False)
+        return protocol.state_json(
+            out, seq, sess.t, sess.steps, _NO_CLIP, _NO_CLIP, self.emu.kinematics if self.poses else None
+        )
+
+    # ------------------------------------------------------------------ messages in
+    async def on_text(self, text: str) -> Frame | None:
+        seq, msg = protocol.read_text(text)
+        try:
+            if isinstance(msg, EmulatorError):
+                raise msg
+            if isinstance(msg, WsPing):
+                return protocol.pong(msg.seq)
+            if isinstance(msg, WsStart):
+                return await self.start(msg)
+            if isinstance(msg, WsControls):
+                self.held = self.check(msg.controls, msg.forces, msg.seq)
+                return None
+            if self.mode == "realtime":
+                raise WrongMode(
+                    "step messages are for lock-step mode; in real-time mode send controls messages "
+                    '(or {"type": "start", "mode": "lockstep"} first)',
+                    field="type",
+                    expected="controls",
+                    got="step",
+                )
+            held = self.check(msg.controls, msg.forces, msg.seq)
+        except EmulatorError as exc:
+            return ws_error(exc, seq)
+        return await self.lockstep(held)
+
+    async def on_binary(self, data: bytes) -> Frame | None:
+        if self.shadow is None and self.mode == "lockstep":
+            fast = self.frames.unpack(data)
+            # NaN fails the range check too, so it takes the general path below and is named there
+            if fast is not None and self.emu.inputs.fits(fast[1]):
+                return await self.lockstep_fast(*fast)
+        seq = None
+        try:
+            seq, values = self.frames.parse(data)
+            self.session()  # an unknown session is reported before bad inputs
+            held = HeldInputs(self.emu.inputs.check_row(values), seq)
+        except EmulatorError as exc:
+            return ws_error(exc, seq)
+        if self.mode == "realtime":
+            self.held = held
+            return None
+        return await self.lockstep(held)
+
+    # ------------------------------------------------------------------ settings and modes
+    async def start(self, msg: WsStart) -> str:
+        """Apply a ``start`` (its settings, then its mode): the ``started`` message."""
+        want_poses = self.poses if msg.poses is None else msg.poses
+        want_shadow = (self.shadow is not None) if msg.shadow is None else msg.shadow
+        if (msg.format or self.format) == "binary" and (want_poses or want_shadow):
+            raise BadInput(
+                "poses and shadow come in JSON state messages only; ask for format json "
+                "(or leave poses and shadow off for binary frames)",
+                code="needs_json",
+                field="format",
+                expected="json",
+                got="binary",
+            )
+        if msg.format is not None:
+            self.format = msg.format
+        self.poses = want_poses
+        if msg.shadow is True:  # (re)start the shadow from the session's current state
+            sess = self.session()
+            self.shadow = MujocoShadow(sess.emu.physical, sess.emu.substeps, sess.state)
+        elif msg.shadow is False:
+            self.shadow = None
+        if msg.mode == "realtime":
+            if self.realtime is None:
+                self.realtime = Realtime(self)
+            self.realtime.start()
+        else:
+            await self.stop_realtime()
+        return protocol.started(
+            self.emu,
+            msg.seq,
+            self.mode == "realtime",
+            self.format,
+            self.period_s,
+            self.poses,
+            self.shadow is not None,
+        )
+
+    async def stop_realtime(self) -> None:
+        if self.realtime is not None:
+            await self.realtime.stop()
+            self.realtime = None
+        self.queue.clear()
+
+    def end(self) -> None:
+        """The client is gone (noticed by a send of the real-time pusher): end the connection."""
+        self.gone = True
+        if self._main is not None:
+            self._main.cancel()
+
+    # ------------------------------------------------------------------ the connection
+    async def run(self) -> None:
+        """Answer the client's messages until it disconnects."""
+        self._main = asyncio.current_task()
+        try:
+            while True:
+                msg = await self.socket.receive()
+                if msg["type"] == "websocket.disconnect":
+                    break
+                data = msg.get("bytes")
+                reply = await (
+                    self.on_binary(data) if data is not None else self.on_text(msg.get("text") or "")
+                )
+                if reply is not None:
+                    await self.sender.reply(reply)
+        except (Disconnected, ClientGone):
+            pass
+        except asyncio.CancelledError:
+            if not self.gone:
+                raise
+        finally:
+            self._main = None
+            await self.stop_realtime()
