@@ -154,6 +154,25 @@ def client(make_client: Callable[..., Any]) -> Any:
     return make_client()
 
 
+@pytest.fixture
+def diverging_state(client: Any, monkeypatch: pytest.MonkeyPatch) -> list[float]:
+    """A pendulum-active state that ``client``'s emulator steps to NaN (a row that "blows up"): a session
+    started there diverges at its first step; the other rows of its batch are stepped as usual."""
+    from tests.helpers import service_of
+
+    emulator = service_of(client).registry.get("pendulum-active").emulator
+    real = emulator.step
+    marker = 3.0
+
+    def poisoned(state: np.ndarray, *args: Any, **kw: Any) -> np.ndarray:
+        out = real(state, *args, **kw)
+        out[state[:, 0] == marker] = np.nan
+        return out
+
+    monkeypatch.setattr(emulator, "step", poisoned)
+    return [marker, 0.0, 0.0, 0.0, 0.0, 0.0]
+
+
 @pytest.fixture(scope="session")
 def redis_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """A real Redis: REDIS_URL, else one on 127.0.0.1:6379, else a ``redis-server`` started on a free

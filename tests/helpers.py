@@ -1,5 +1,5 @@
 """What several test modules share besides fixtures: a user's MJCF file, the trained-artifact record,
-and running a benchmark script.
+running a benchmark script, and the emulator service behind a test client.
 
 Here rather than in ``conftest.py``, which pytest imports itself and tests should not import.
 """
@@ -11,10 +11,17 @@ import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from fastapi import FastAPI
 
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.training import TrainResult
+
+if TYPE_CHECKING:
+    from fastapi.testclient import TestClient
+
+    from services.emulator.service import EmulatorService
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -79,3 +86,16 @@ def run_bench(*args: str, timeout: float = 300.0) -> tuple[list[str], dict[str, 
     ).stdout
     lines = out.strip().splitlines()
     return lines, json.loads(lines[-1])
+
+
+def app_state(client: TestClient) -> Any:
+    """The ``app.state`` of the FastAPI app behind a test client."""
+    app = client.app
+    assert isinstance(app, FastAPI)
+    return app.state
+
+
+def service_of(client: TestClient) -> EmulatorService:
+    """The ``EmulatorService`` behind a test client of the emulator app."""
+    service: EmulatorService = app_state(client).service
+    return service

@@ -1,5 +1,5 @@
 """What a client draws: geometry from the MJCF, body poses of states (REST and websocket), the MuJoCo
-twin (``shadow``) stepped with the same inputs, and CORS for the dashboard."""
+shadow (``shadow``) stepped with the same inputs."""
 
 from __future__ import annotations
 
@@ -109,19 +109,3 @@ def test_binary_format_refuses_poses(client: TestClient) -> None:
         assert err["type"] == "error" and err["error"] == "needs_json" and err["seq"] == 4
         ws.send_json({"type": "ping", "seq": 5})
         assert ws.receive_json() == {"type": "pong", "seq": 5}  # still open
-
-
-def test_cors_for_the_dashboard(make_client: Callable[..., TestClient]) -> None:
-    client = make_client(cors_origins="http://127.0.0.1:8080")
-    pre = client.options(
-        "/sessions",
-        headers={"Origin": "http://127.0.0.1:8080", "Access-Control-Request-Method": "POST"},
-    )
-    assert pre.status_code == 200
-    assert pre.headers["access-control-allow-origin"] == "http://127.0.0.1:8080"
-    r = client.get("/models", headers={"Origin": "http://127.0.0.1:8080"})
-    assert r.headers["access-control-allow-origin"] == "http://127.0.0.1:8080"
-    other = client.get("/models", headers={"Origin": "http://evil.example"})
-    assert "access-control-allow-origin" not in other.headers
-    plain = make_client().get("/models", headers={"Origin": "http://127.0.0.1:8080"})
-    assert "access-control-allow-origin" not in plain.headers

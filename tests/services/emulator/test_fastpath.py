@@ -12,6 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from services.emulator import binary
+from tests.helpers import service_of
 
 OCTET = {"content-type": "application/octet-stream"}
 
@@ -44,7 +45,7 @@ def test_binary_and_json_give_identical_states(client: TestClient) -> None:
 
 
 def test_status_bytes_clipped_unknown_and_one_ort_call(client: TestClient) -> None:
-    service = client.app.state.service  # type: ignore[attr-defined]
+    service = service_of(client)
     ids = _sessions(client, 3)
     before = np.asarray([client.get(f"/sessions/{s}").json()["state"] for s in ids], np.float32)
     u = np.array([[0, 0, 0], [5, 0, 0], [0, 0, 0]], np.float32)  # row 1 is out of range: clipped
@@ -59,20 +60,8 @@ def test_status_bytes_clipped_unknown_and_one_ort_call(client: TestClient) -> No
     np.testing.assert_allclose(states[[0, 1, 3]], want, rtol=0, atol=1e-6)
 
 
-def test_diverged_session_status(client: TestClient, monkeypatch: pytest.MonkeyPatch) -> None:
-    service = client.app.state.service  # type: ignore[attr-defined]
-    loaded = service.registry.get("pendulum-active")
-    real = loaded.emulator.step
-
-    def poisoned(state: np.ndarray, *args: Any, **kw: Any) -> np.ndarray:
-        out = real(state, *args, **kw)
-        out[state[:, 0] == 3.0] = np.nan
-        return out
-
-    monkeypatch.setattr(loaded.emulator, "step", poisoned)
-    bad = client.post("/sessions", json={"model": "pendulum-active", "state": [3, 0, 0, 0, 0, 0]}).json()[
-        "id"
-    ]
+def test_diverged_session_status(client: TestClient, diverging_state: list[float]) -> None:
+    bad = client.post("/sessions", json={"model": "pendulum-active", "state": diverging_state}).json()["id"]
     good = _sessions(client, 1)[0]
     body = binary.encode_batch_request([bad, good], np.zeros((2, 3), np.float32))
     status, states = binary.decode_batch_response(_post(client, body).content)

@@ -19,6 +19,7 @@ import pytest
 import uvicorn
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
+from starlette.types import Message, Receive, Scope, Send
 from websockets.sync.client import connect
 
 from neuroanimator.emulator_schemas import SessionCreate
@@ -28,6 +29,7 @@ from services.emulator.service import EmulatorService
 from services.emulator.settings import Settings
 from services.emulator.ws import SessionSocketRoute
 from services.emulator.ws.transport import LatestQueue
+from tests.helpers import service_of
 
 
 def _drain_until_started(ws: Any) -> None:
@@ -64,7 +66,7 @@ def test_realtime_pushes_states_at_about_the_period(make_client: Callable[..., T
 
 def test_realtime_latest_controls_win(make_client: Callable[..., TestClient]) -> None:
     client = make_client(ws_realtime_scale=0.1)
-    emu = client.app.state.service.registry.get("pendulum-active").emulator  # type: ignore[attr-defined]
+    emu = service_of(client).registry.get("pendulum-active").emulator
     sid = client.post("/sessions", json={"model": "pendulum-active", "seed": 3}).json()["id"]
     c = np.array([0.5, -1.0, 1.5], np.float32)
     with client.websocket_connect(f"/ws/sessions/{sid}?mode=realtime") as ws:
@@ -210,12 +212,15 @@ def test_a_client_gone_before_started_leaves_no_ticker(make_settings: Callable[.
             await asyncio.sleep(3600)
             raise AssertionError("unreachable")
 
-        async def send(message: dict[str, Any]) -> None:
+        async def send(message: Message) -> None:
             if message["type"] == "websocket.send":
                 raise OSError("the client closed right after the handshake")
 
+        async def app(scope: Scope, receive: Receive, send: Send) -> None:
+            raise AssertionError("the route passed a session's websocket on")
+
         scope = {"type": "websocket", "path": f"/ws/sessions/{sess.id}", "query_string": b"mode=realtime"}
-        await SessionSocketRoute(None, service)(scope, receive, send)  # type: ignore[arg-type]
+        await SessionSocketRoute(app, service)(scope, receive, send)
         steps = sess.steps
         await asyncio.sleep(0.3)  # more than a real-time period of the test settings
         assert sess.steps == steps

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import redis
@@ -15,6 +15,7 @@ from fastapi.testclient import TestClient
 from services.emulator.app import create_app
 from services.emulator.persistence import decode, encode
 from services.emulator.settings import Settings
+from tests.helpers import app_state, service_of
 
 
 def _settings(make_settings: Callable[..., Settings], url: str, prefix: str, **kw: Any) -> Settings:
@@ -28,23 +29,22 @@ def _settings(make_settings: Callable[..., Settings], url: str, prefix: str, **k
 
 
 def _checkpoint(c: TestClient) -> int:
-    persistence = c.app.state.persistence  # type: ignore[attr-defined]
-    n: int = c.portal.call(persistence.checkpoint)  # type: ignore[union-attr]
+    assert c.portal is not None  # the client's lifespan is running
+    n: int = c.portal.call(app_state(c).persistence.checkpoint)
     return n
 
 
 def _hash(url: str, prefix: str, replica: str = "p1") -> dict[bytes, bytes]:
     client = redis.Redis.from_url(url)
     try:
-        out: dict[bytes, bytes] = client.hgetall(f"{prefix}:sessions:{replica}")  # type: ignore[assignment]
-        return out
+        return cast(dict[bytes, bytes], client.hgetall(f"{prefix}:sessions:{replica}"))
     finally:
         client.close()
 
 
 def test_record_round_trip(client: TestClient) -> None:
     s = client.post("/sessions", json={"model": "lander", "seed": 4}).json()
-    sess = client.app.state.service.store.sessions[s["id"]]  # type: ignore[attr-defined]
+    sess = service_of(client).store.sessions[s["id"]]
     sess.steps, sess.diverged = 17, True
     raw = encode(sess, 1234.5)
     rec = decode(raw)
@@ -104,7 +104,7 @@ def test_clean_shutdown_loses_nothing_and_replicas_are_separate(
     with TestClient(create_app(settings)) as a:
         s = a.post("/sessions", json={"model": "lander", "seed": 8}).json()
         a.post(f"/sessions/{s['id']}/step", json={"controls": [0, 0, 0, 0], "steps": 5})
-        a.app.state.service.store.sessions[s["id"]].diverged = True  # type: ignore[attr-defined]
+        service_of(a).store.sessions[s["id"]].diverged = True
         want = a.get(f"/sessions/{s['id']}").json()
     # closing wrote a final checkpoint
     with TestClient(create_app(settings)) as b:
@@ -114,7 +114,7 @@ def test_clean_shutdown_loses_nothing_and_replicas_are_separate(
         assert r.status_code == 409 and r.json()["error"] == "diverged"
     with TestClient(create_app(_settings(make_settings, redis_url, redis_prefix, replica_id="p2"))) as other:
         assert other.get(f"/sessions/{s['id']}").status_code == 404
-        assert other.app.state.service.store.sessions == {}  # type: ignore[attr-defined]
+        assert service_of(other).store.sessions == {}
 
 
 def test_background_checkpoints(
@@ -153,7 +153,7 @@ def test_owner_survives_restart(
     with TestClient(create_app(settings)) as b:
         assert b.get(f"/sessions/{sid}", headers=alpha).status_code == 200
         assert b.get(f"/sessions/{sid}", headers=beta).status_code == 404
-        assert b.app.state.service.store.per_owner == {decode(raw).owner: 1}  # type: ignore[attr-defined]
+        assert service_of(b).store.per_owner == {decode(raw).owner: 1}
 
 
 def test_redis_down_at_startup(make_settings: Callable[..., Settings], redis_prefix: str) -> None:

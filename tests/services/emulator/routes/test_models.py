@@ -1,4 +1,5 @@
-"""Catalog, health, metrics, and new artifact versions picked up without a restart."""
+"""The catalog (``GET /models``, ``GET /models/{model}``), and new artifact versions served without a
+restart."""
 
 from __future__ import annotations
 
@@ -47,16 +48,6 @@ def test_unknown_model_and_version_are_404(client: TestClient) -> None:
     assert r.status_code == 404
     assert r.json()["error"] == "unknown_version"
     assert "'n10-nope'" in r.json()["message"]
-
-
-def test_health_ready_metrics(client: TestClient, tmp_path: Path) -> None:
-    assert client.get("/healthz").json() == {"status": "ok"}
-    assert client.get("/readyz").status_code == 200
-    text = client.get("/metrics").text
-    assert "emulator_step_latency_seconds" in text and "emulator_batch_size" in text
-    with TestClient(create_app(Settings(artifacts_dir=tmp_path))) as empty:
-        assert empty.get("/healthz").status_code == 200
-        assert empty.get("/readyz").status_code == 503
 
 
 def _copy_as_new_version(root: Path, model: str, new: str) -> None:

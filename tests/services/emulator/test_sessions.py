@@ -16,6 +16,7 @@ from neuroanimator.emulator_schemas import SessionCreate
 from services.emulator import binary
 from services.emulator.fastpath import binary_step
 from services.emulator.service import EmulatorService
+from services.emulator.sessions import Session
 from services.emulator.settings import Settings
 
 OCTET = {"content-type": "application/octet-stream"}
@@ -81,7 +82,9 @@ def test_bulk_and_single_steps_of_one_session_exclude_each_other(
         body = binary.encode_batch_request(ids, np.zeros((8, 3), np.float32))
         one = service.store.get(ids[3])
         # a 20-step REST request on session 3 and two bulk requests over all 8, at once
-        single = asyncio.create_task(service.stepper.step(one, service.stepper.check(one.emu, ZERO, []), steps=20))
+        single = asyncio.create_task(
+            service.stepper.step(one, service.stepper.check(one.emu, ZERO, []), steps=20)
+        )
         bulks = [asyncio.create_task(binary_step(service, body)) for _ in range(2)]
         await asyncio.gather(single, *bulks)
         for b in bulks:
@@ -100,7 +103,7 @@ def test_session_deleted_while_its_bulk_step_is_in_flight(
     service = EmulatorService(make_settings())
     loaded = service.registry.get("pendulum-active")
     real = loaded.emulator.step
-    newcomers = []
+    newcomers: list[Session] = []
 
     def deleting(*args: Any, **kw: Any) -> np.ndarray:  # the ORT call; the session goes meanwhile
         assert service.store.delete(ids[0])

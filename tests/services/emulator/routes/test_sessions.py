@@ -10,11 +10,12 @@ import numpy as np
 from fastapi.testclient import TestClient
 
 from neuroanimator.export import OnnxEmulator
+from tests.helpers import service_of
 
 
 def _emulator(client: TestClient, model: str) -> OnnxEmulator:
     version = client.get(f"/models/{model}").json()["version"]
-    root: Path = client.app.state.service.settings.artifacts_dir  # type: ignore[attr-defined]
+    root: Path = service_of(client).settings.artifacts_dir
     return OnnxEmulator(root / model / version / "emulator.onnx")
 
 
@@ -100,14 +101,14 @@ def test_idle_sessions_expire(make_client: Callable[..., TestClient]) -> None:
     assert c.get(f"/sessions/{sid}").status_code == 200  # use restarts the idle clock
     time.sleep(0.25)
     assert c.get(f"/sessions/{sid}").status_code == 404
-    store = c.app.state.service.store  # type: ignore[attr-defined]
+    store = service_of(c).store
     sid2 = c.post("/sessions", json={"model": "pendulum-active", "seed": 1}).json()["id"]
     time.sleep(0.25)
     assert store.expire() == 1 and sid2 not in store.sessions
 
 
 def test_slots_are_reused(client: TestClient) -> None:
-    store = client.app.state.service.store  # type: ignore[attr-defined]
+    store = service_of(client).store
     ids = [
         client.post("/sessions", json={"model": "pendulum-active", "seed": i}).json()["id"] for i in range(70)
     ]

@@ -12,6 +12,7 @@ from fastapi.testclient import TestClient
 
 from services.emulator.app import create_app
 from services.emulator.settings import Settings
+from tests.helpers import app_state
 from tests.services.private_redis import PrivateRedis, private_redis_fixture  # noqa: F401
 
 INTERVAL = 0.5
@@ -53,7 +54,7 @@ def test_every_session_is_written_again_after_redis_lost_its_data(
         private_redis.restart()  # no persistence: Redis comes back empty
         took = _wait("50 records again", lambda: _records(private_redis) == 50, timeout=10)
         assert took <= 2 * INTERVAL, f"{took:.2f} s"
-        assert c.app.state.persistence.rewrites >= 1  # type: ignore[attr-defined]
+        assert app_state(c).persistence.rewrites >= 1
         # a session deleted meanwhile is removed as usual
         assert c.delete(f"/sessions/{ids[0]}").status_code == 204
         _wait("49 records", lambda: _records(private_redis) == 49, timeout=10)

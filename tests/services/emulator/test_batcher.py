@@ -9,12 +9,12 @@ from typing import Any
 
 import httpx
 import numpy as np
-import pytest
 from fastapi.testclient import TestClient
 
 from neuroanimator.export import OnnxEmulator
 from services.emulator.app import create_app
 from services.emulator.settings import Settings
+from tests.helpers import service_of
 
 
 def _controls(n: int, seed: int = 0) -> np.ndarray:
@@ -58,7 +58,7 @@ def test_concurrent_requests_share_ort_calls(make_settings: Callable[..., Settin
 
 
 def test_batch_endpoint_mixed_models_one_call_per_model(client: TestClient) -> None:
-    service = client.app.state.service  # type: ignore[attr-defined]
+    service = service_of(client)
     pend = [client.post("/sessions", json={"model": "pendulum-active", "seed": i}).json() for i in range(5)]
     land = [client.post("/sessions", json={"model": "lander", "seed": i}).json() for i in range(3)]
     u = _controls(5, 1)
@@ -78,18 +78,8 @@ def test_batch_endpoint_mixed_models_one_call_per_model(client: TestClient) -> N
     assert all(x["error"] is None and len(x["state"]) == 13 for x in res[5:8])
 
 
-def test_divergence_marks_only_that_session(client: TestClient, monkeypatch: pytest.MonkeyPatch) -> None:
-    service = client.app.state.service  # type: ignore[attr-defined]
-    loaded = service.registry.get("pendulum-active")
-    real = loaded.emulator.step
-
-    def poisoned(state: np.ndarray, *args: Any, **kw: Any) -> np.ndarray:
-        out = real(state, *args, **kw)
-        out[state[:, 0] == 3.0] = np.nan  # a row that "blows up"
-        return out
-
-    monkeypatch.setattr(loaded.emulator, "step", poisoned)
-    bad = client.post("/sessions", json={"model": "pendulum-active", "state": [3, 0, 0, 0, 0, 0]}).json()
+def test_divergence_marks_only_that_session(client: TestClient, diverging_state: list[float]) -> None:
+    bad = client.post("/sessions", json={"model": "pendulum-active", "state": diverging_state}).json()
     good = client.post("/sessions", json={"model": "pendulum-active", "state": [0.5, 0, 0, 0, 0, 0]}).json()
     r = client.post(
         "/step",
