@@ -240,6 +240,7 @@ def build_manifest(
         ),
         spec=model.spec,
         assets=describe_assets(model),
+        envelope=result.envelope,
     )
 
 

@@ -8,6 +8,10 @@ service, which answers 422 with the field, the expected and the got length.
 Controls and forces outside the manifest's range (``low``..``high`` of each control and force: the
 range the emulator was trained over) are clipped to it; a step's response lists the clipped indices
 in ``clipped_controls`` / ``clipped_forces`` and sets ``clipped: true``.
+
+A new state outside the envelope of the states the emulator was trained on (the manifest's
+``envelope``: per state group, the range of the training data) is still returned, but the step's
+response says so: ``outside_envelope: true`` and the groups that are out in ``outside_groups``.
 """
 
 from __future__ import annotations
@@ -16,9 +20,10 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.state import LayoutGroup
 
-WIRE_MODELS_FROM_ELSEWHERE = (LayoutGroup,)
+WIRE_MODELS_FROM_ELSEWHERE = (LayoutGroup, EnvelopeGroup)
 """Wire models owned by another module (the state layout's), exported to proto/ with these."""
 
 Number = Annotated[float, Field(strict=True, allow_inf_nan=False)]
@@ -83,6 +88,9 @@ class ModelDetail(ModelSummary):
     controls: list[ControlInfo]
     forces: list[ForceInfo]
     metrics: dict[str, Any] = {}
+    envelope: list[EnvelopeGroup] | None = Field(
+        None, description="per state group, the range of the training states (absent for older artifacts)"
+    )
 
 
 class ModelList(BaseModel):
@@ -182,7 +190,9 @@ class StepRequest(_Wire):
 class StepResponse(BaseModel):
     """``states`` (steps, S) after each super-step, ``state`` the last of them. ``frames`` (when
     asked): steps·frames_per_step + 1 frames from the old state to the new one, evenly spaced in
-    time (linear, slerp for quaternion groups)."""
+    time (linear, slerp for quaternion groups). ``outside_envelope``: some new state is outside the
+    states the emulator was trained on (``outside_groups`` names the groups); it is less accurate
+    there."""
 
     id: str
     state: list[float]
@@ -193,6 +203,10 @@ class StepResponse(BaseModel):
     clipped: bool
     clipped_controls: list[int] = []
     clipped_forces: list[int] = []
+    outside_envelope: bool = Field(
+        False, description="a new state is outside the envelope of the states the emulator was trained on"
+    )
+    outside_groups: list[str] = Field([], description="the state groups outside the training envelope")
 
 
 class BatchStepItem(_Wire):
@@ -227,6 +241,10 @@ class BatchStepResult(BaseModel):
     clipped: bool = False
     clipped_controls: list[int] = []
     clipped_forces: list[int] = []
+    outside_envelope: bool = Field(
+        False, description="a new state is outside the envelope of the states the emulator was trained on"
+    )
+    outside_groups: list[str] = Field([], description="the state groups outside the training envelope")
     error: ErrorBody | None = None
 
 
@@ -308,6 +326,10 @@ class WsState(BaseModel):
     clipped: bool = False
     clipped_controls: list[int] = []
     clipped_forces: list[int] = []
+    outside_envelope: bool = Field(
+        False, description="a new state is outside the envelope of the states the emulator was trained on"
+    )
+    outside_groups: list[str] = Field([], description="the state groups outside the training envelope")
     poses: list[list[float]] | None = None
     shadow: ShadowState | None = None
 

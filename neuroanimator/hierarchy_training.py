@@ -21,7 +21,9 @@ import torch
 from torch import Tensor
 
 from neuroanimator import sampling
+from neuroanimator.envelope import examples_envelope
 from neuroanimator.hierarchy import GLOBAL, HierarchicalEmulator
+from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.physics.model import ModelError, PhysicalModel
 from neuroanimator.structured import StructuredEmulator
 from neuroanimator.train_config import TrainConfig
@@ -64,6 +66,7 @@ class HierarchyResult:
     metrics: dict[str, Any]
     linear: np.ndarray
     data_sha256: str
+    envelope: list[EnvelopeGroup] | None = None  # per state group, the range of the training states
 
 
 def build_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchicalEmulator:
@@ -217,4 +220,5 @@ def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
         composed,
         metrics["total_seconds"],
     )
-    return HierarchyResult(emu.eval(), cfg, metrics, linears[GLOBAL], data.sha256())
+    envelope = examples_envelope(model, data)
+    return HierarchyResult(emu.eval(), cfg, metrics, linears[GLOBAL], data.sha256(), envelope)

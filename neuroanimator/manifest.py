@@ -288,6 +288,17 @@ class ModelAsset(_Strict):
     source: str = ""
 
 
+class EnvelopeGroup(_Strict):
+    """The values one state group took in the training data (the states and the next states the emulator
+    learnt from), widened by a margin: ``low[i]``..``high[i]`` for its value i. ``None`` where the
+    emulator is indifferent to the value: a root-position axis it is translation-invariant along, a
+    heading its frame removes, a hinge angle (it enters as sin and cos), an orientation quaternion."""
+
+    group: str
+    low: list[float | None]
+    high: list[float | None]
+
+
 class Hashes(_Strict):
     """SHA-256 of the MJCF, of the training data (``Examples.sha256``) and of ``emulator.onnx``."""
 
@@ -325,6 +336,11 @@ class Manifest(_Strict):
     assets: list[ModelAsset] = Field(
         default_factory=list, description="the files model.xml names, stored by content beside the versions"
     )
+    envelope: list[EnvelopeGroup] | None = Field(
+        None,
+        description="per state group, the range of the training data (absent in older artifacts): a "
+        "state outside it is beyond what the emulator was trained on",
+    )
 
     @model_validator(mode="after")
     def _parts_agree(self) -> Manifest:
@@ -360,6 +376,12 @@ class Manifest(_Strict):
                 unknown = sorted(set(read) - known)
                 if unknown:
                     raise ValueError(f"network {net.name!r} reads unknown {kind}s {unknown}")
+        for env in self.envelope or []:
+            if env.group not in sizes or not len(env.low) == len(env.high) == sizes[env.group]:
+                raise ValueError(
+                    f"envelope of {env.group!r}: one low and one high per value of a state group "
+                    f"({sizes.get(env.group)} values), got {len(env.low)} and {len(env.high)}"
+                )
         return self
 
     @property

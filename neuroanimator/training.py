@@ -19,6 +19,8 @@ from torch import Tensor
 from tqdm import tqdm
 
 from neuroanimator import sampling
+from neuroanimator.envelope import examples_envelope
+from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.structured import FrameConfig, JointLimit, StructuredEmulator
 from neuroanimator.train_config import TrainConfig
@@ -50,6 +52,7 @@ class TrainResult:
     metrics: dict[str, Any]
     linear: np.ndarray  # (D + 1, S) least-squares baseline in the network's normalised space
     data_sha256: str
+    envelope: list[EnvelopeGroup] | None = None  # per state group, the range of the training states
 
 
 def frame_config(model: PhysicalModel, frame: str = "auto") -> FrameConfig:
@@ -228,7 +231,7 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
         lin,
         metrics["total_seconds"],
     )
-    return TrainResult(emu, cfg, metrics, linear, data.sha256())
+    return TrainResult(emu, cfg, metrics, linear, data.sha256(), examples_envelope(model, data))
 
 
 def start_from_linear(emu: StructuredEmulator, linear: np.ndarray) -> None:

@@ -93,6 +93,7 @@ def _hierarchy(stages: list[list[str]] | None = None, **changes: Any) -> dict[st
         "state_labels": layout.labels(),
         "controls": [],
         "emulator": {"networks": networks, "stages": stages or [["body"], ["arm_l", "arm_r"]]},
+        "envelope": None,  # the committed one is of another layout
     }
     return data | changes
 

@@ -212,14 +212,19 @@ class Batcher:
             if not np.isfinite(out).all()
             else np.ones(len(out), bool)
         )
+        env = self.emu.envelope  # (B,) rows beyond the training envelope, kept per session
+        outside = None if env is None else ~env.inside(out)
         if ns:
             # Single requests: write back the rows of sessions still alive (one deleted while in flight
             # may have had its slot reused) in one scatter, then answer each.
             # (a request cancelled meanwhile has let go of its lock: its session is not advanced)
             alive = np.fromiter((r.session.alive and not r.future.done() for r in single), bool, ns)
             keep = alive & finite[:ns]
-            pool.states[slots[:ns][keep]] = out[:ns][keep]
-            pool.steps[slots[:ns][keep]] += 1
+            written = slots[:ns][keep]
+            pool.states[written] = out[:ns][keep]
+            pool.steps[written] += 1
+            if outside is not None:
+                pool.outside[written] = outside[:ns][keep]
             for i, req in enumerate(single):
                 if req.future.done():
                     continue
@@ -233,7 +238,8 @@ class Batcher:
         start = ns
         for b in blocks:
             k = len(b.slots)
-            rows, ok = out[start : start + k], finite[start : start + k]
+            part = slice(start, start + k)
+            rows, ok = out[part], finite[part]
             start += k
             alive = pool.gen[b.slots] == b.gens
             good = ok & alive
@@ -241,6 +247,8 @@ class Batcher:
             moved = b.slots if everyone else b.slots[good]
             pool.states[moved] = rows if everyone else rows[good]
             pool.steps[moved] += 1  # no slot twice in one entry: a request's ids are distinct
+            if outside is not None:
+                pool.outside[moved] = outside[part] if everyone else outside[part][good]
             status = np.zeros(k, np.uint8)
             if not everyone:  # rare: rows of diverged or deleted sessions, one by one
                 for j in np.flatnonzero(~good).tolist():

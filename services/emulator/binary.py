@@ -4,9 +4,11 @@
   ``NAST``, version, flags, count N, id width W), N session-id slots of W bytes (ASCII, NUL-padded),
   then N rows of U controls and F forces as float32. Every session of one binary request is of one
   (model, version), so rows have a fixed width. The response: a 16-byte header (magic ``NASR``,
-  version, flags, N, S), N status bytes padded to a multiple of 4, then N rows of S float32.
+  version, flags, N, S), N status bytes padded to a multiple of 4, N rows of S float32, then (flag
+  ``FLAG_ENVELOPE``) N envelope bytes, 1 where the new state is outside the training envelope.
 * Websocket frames: a client frame is magic ``NAWC``, u32 seq, then U + F float32; a state frame is
-  magic ``NAWS``, u32 seq, u32 steps, u8 status, 3 zero bytes, then S float32.
+  magic ``NAWS``, u32 seq, u32 steps, u8 status, u8 envelope (1: outside the training envelope), 2 zero
+  bytes, then S float32.
 
 Parsing raises ``BadInput`` (or ``TooLarge`` for a batch over MAX_BATCH) naming the problem.
 """
@@ -35,7 +37,9 @@ NO_SEQ = 0xFFFFFFFF
 REQUEST_HEADER = struct.Struct("<4sHHIHH")  # magic, version, flags, count, id width, reserved
 RESPONSE_HEADER = struct.Struct("<4sHHII")  # magic, version, flags, count, state size
 WS_CLIENT_HEADER = struct.Struct("<4sI")  # magic, seq
-WS_STATE_HEADER = struct.Struct("<4sIIB3x")  # magic, seq, steps, status
+WS_STATE_HEADER = struct.Struct("<4sIIBB2x")  # magic, seq, steps, status, envelope
+FLAG_ENVELOPE = 1
+"""Response flag: the states are followed by one envelope byte per session."""
 
 # Status byte of each session in a binary response (and of a websocket state frame).
 OK = 0
@@ -165,15 +169,20 @@ def encode_batch_request(
     return head + b"".join(r.ljust(width, b"\0") for r in raw) + np.ascontiguousarray(rows, "<f4").tobytes()
 
 
-def encode_batch_response(status: NDArray[np.uint8], states: NDArray[np.float32]) -> bytes:
+def encode_batch_response(
+    status: NDArray[np.uint8], states: NDArray[np.float32], outside: NDArray[np.bool_] | None = None
+) -> bytes:
+    """(N,) status bytes, (N, S) states and (N,) outside the training envelope (all False if None)."""
     n = len(status)
     s = states.shape[1] if states.ndim == 2 else 0
     pad = (-n) % 4
+    envelope = np.zeros(n, np.uint8) if outside is None else outside.astype(np.uint8)
     return (
-        RESPONSE_HEADER.pack(RESPONSE_MAGIC, VERSION, 0, n, s)
+        RESPONSE_HEADER.pack(RESPONSE_MAGIC, VERSION, FLAG_ENVELOPE, n, s)
         + status.astype(np.uint8).tobytes()
         + b"\0" * pad
         + np.ascontiguousarray(states, "<f4").tobytes()
+        + envelope.tobytes()
     )
 
 
@@ -187,6 +196,16 @@ def decode_batch_response(body: bytes) -> tuple[NDArray[np.uint8], NDArray[np.fl
     off += n + (-n) % 4
     states = np.frombuffer(body, "<f4", count=n * s, offset=off).reshape(n, s)
     return status, states
+
+
+def decode_batch_outside(body: bytes) -> NDArray[np.bool_] | None:
+    """Client side: (N,) whether each new state of a binary ``POST /step`` response is outside the
+    training envelope (None from a server that does not say)."""
+    _, _, flags, n, s = RESPONSE_HEADER.unpack_from(body)
+    if not flags & FLAG_ENVELOPE:
+        return None
+    off = RESPONSE_HEADER.size + n + (-n) % 4 + 4 * n * s
+    return np.frombuffer(body, np.uint8, count=n, offset=off).astype(bool)
 
 
 # ---------------------------------------------------------------- websocket frames
@@ -221,16 +240,23 @@ def encode_ws_frame(seq: int | None, values: NDArray[np.floating]) -> bytes:
     return WS_CLIENT_HEADER.pack(WS_CLIENT_MAGIC, s) + np.ascontiguousarray(values, "<f4").tobytes()
 
 
-def encode_ws_state(seq: int | None, steps: int, status: int, state: NDArray[np.floating]) -> bytes:
+def encode_ws_state(
+    seq: int | None, steps: int, status: int, state: NDArray[np.floating], outside: bool = False
+) -> bytes:
     s = NO_SEQ if seq is None else seq
-    return (
-        WS_STATE_HEADER.pack(WS_STATE_MAGIC, s, steps, status) + np.ascontiguousarray(state, "<f4").tobytes()
-    )
+    head = WS_STATE_HEADER.pack(WS_STATE_MAGIC, s, steps, status, outside)
+    return head + np.ascontiguousarray(state, "<f4").tobytes()
+
+
+def ws_state_outside(data: bytes) -> bool:
+    """Client side: whether the state of a binary state frame is outside the training envelope."""
+    return bool(WS_STATE_HEADER.unpack_from(data)[4])
 
 
 def decode_ws_state(data: bytes) -> tuple[int | None, int, int, NDArray[np.float32]]:
-    """Client side: (seq or None, steps, status, (S,) state) of a binary state frame."""
-    magic, seq, steps, status = WS_STATE_HEADER.unpack_from(data)
+    """Client side: (seq or None, steps, status, (S,) state) of a binary state frame
+    (``ws_state_outside``: its envelope byte)."""
+    magic, seq, steps, status, _ = WS_STATE_HEADER.unpack_from(data)
     if magic != WS_STATE_MAGIC:
         raise ValueError(f"not a state frame: {bytes(data[:8])!r}")
     state = np.frombuffer(data, "<f4", offset=WS_STATE_HEADER.size)

@@ -43,8 +43,8 @@ async def binary_step(service: EmulatorService, body: bytes) -> bytes:
     def label(i: int) -> tuple[str, str]:
         return f"items[{i}].", f" of session {parsed.ids[i]!r}"
 
-    status, states = await service.stepper.step_block(res, rows, label)
-    return binary.encode_batch_response(status, states)
+    out = await service.stepper.step_block(res, rows, label)
+    return binary.encode_batch_response(out.status, out.states, out.outside)
 
 
 def _content_type(scope: Scope) -> bytes:

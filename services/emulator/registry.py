@@ -26,6 +26,7 @@ from neuroanimator.manifest import Manifest
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.state import QUATERNION_KINDS, heading_columns
 from services.common import tenancy
+from services.emulator.envelope import StateEnvelope
 from services.emulator.errors import UnknownModel
 from services.emulator.inputs import InputRange
 from services.emulator.scene import Kinematics
@@ -35,7 +36,8 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class LoadedEmulator:
-    """One loaded version: its manifest, the ORT emulator and the trained range of its inputs."""
+    """One loaded version: its manifest, the ORT emulator, the trained range of its inputs and the
+    envelope of its training states (None when the manifest has none)."""
 
     model: str
     version: str
@@ -43,11 +45,13 @@ class LoadedEmulator:
     manifest: Manifest
     emulator: OnnxEmulator
     inputs: InputRange = field(init=False)
+    envelope: StateEnvelope | None = field(init=False)
     quaternion_slices: list[slice] = field(init=False)
 
     def __post_init__(self) -> None:
         m = self.manifest
         self.inputs = InputRange(m.controls, m.forces)
+        self.envelope = None if m.envelope is None else StateEnvelope(m.state_layout(), m.envelope)
         self.quaternion_slices = [
             slice(g.offset, g.offset + g.size) for g in m.layout if g.kind in QUATERNION_KINDS
         ]

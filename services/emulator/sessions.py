@@ -1,8 +1,9 @@
 """Sessions: everything about the sessions of one (model, version) lives in contiguous arrays.
 
 ``StatePool`` holds, per *slot* (one row per session): ``states`` (capacity, S) float32, and
-``steps``, ``last_used``, ``diverged``, ``busy`` (a step is in flight), ``taken``, ``gen`` (bumped whenever
-the slot changes hands) and ``owner_code`` (the API key that owns it) as (capacity,) arrays. Freed
+``steps``, ``last_used``, ``diverged``, ``outside`` (the last step left the training envelope), ``busy``
+(a step is in flight), ``taken``, ``gen`` (bumped whenever the slot changes hands) and ``owner_code``
+(the API key that owns it) as (capacity,) arrays. Freed
 slots go on a free list and are reused; the arrays double when full. The batcher gathers the rows
 of a batch with one fancy index and scatters the results back the same way, so stepping N sessions
 costs a few numpy calls, not N Python operations.
@@ -41,6 +42,7 @@ class StatePool:
         self.steps = np.zeros(capacity, dtype=np.int64)
         self.last_used = np.zeros(capacity, dtype=np.float64)  # time.monotonic()
         self.diverged = np.zeros(capacity, dtype=bool)
+        self.outside = np.zeros(capacity, dtype=bool)
         self.busy = np.zeros(capacity, dtype=bool)
         self.taken = np.zeros(capacity, dtype=bool)
         self.gen = np.zeros(capacity, dtype=np.uint32)
@@ -52,7 +54,17 @@ class StatePool:
 
     def _grow(self) -> None:
         old = self.states.shape[0]
-        for name in ("states", "steps", "last_used", "diverged", "busy", "taken", "gen", "owner_code"):
+        for name in (
+            "states",
+            "steps",
+            "last_used",
+            "diverged",
+            "outside",
+            "busy",
+            "taken",
+            "gen",
+            "owner_code",
+        ):
             arr = getattr(self, name)
             grown = np.zeros((old * 2, *arr.shape[1:]), dtype=arr.dtype)
             if name == "owner_code":
@@ -70,6 +82,7 @@ class StatePool:
         self.steps[slot] = 0
         self.last_used[slot] = time.monotonic()
         self.diverged[slot] = False
+        self.outside[slot] = False
         self.busy[slot] = False
         self.taken[slot] = True
         self.owner_code[slot] = owner_code
@@ -186,6 +199,11 @@ class Session:
     def diverged(self, value: bool) -> None:
         if self.slot >= 0:
             self.pool.diverged[self.slot] = value
+
+    @property
+    def outside_envelope(self) -> bool:
+        """Its last step left the envelope of the training states (``envelope.py``)."""
+        return bool(self.pool.outside[self.slot]) if self.slot >= 0 else False
 
     @property
     def last_used(self) -> float:

@@ -22,13 +22,14 @@ import asyncio
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from neuroanimator.emulator_schemas import BatchStepItem
 from services.emulator import binary
-from services.emulator.batcher import ROW_DIVERGED, ROW_GONE, Batcher
+from services.emulator.batcher import ROW_DIVERGED, ROW_GONE, ROW_OK, Batcher
 from services.emulator.errors import BadInput, Diverged, EmulatorError, TooLarge
 from services.emulator.inputs import CheckedInputs, RowLabel
 from services.emulator.metrics import LatencySeries, Metrics
@@ -40,12 +41,31 @@ from services.emulator.settings import Settings
 @dataclass(slots=True)
 class Stepped:
     """A session after a step request: ``states`` (K, S) after each of its K super-steps, the inputs
-    it was stepped with, and ``start`` (S,) its state before them (when the transport needs it)."""
+    it was stepped with, the state groups of those states outside the training envelope, and
+    ``start`` (S,) its state before them (when the transport needs it)."""
 
     session: Session
     states: NDArray[np.float32]
     inputs: CheckedInputs
+    outside: list[str]
     start: NDArray[np.float32] | None = None
+
+
+class BlockStepped(NamedTuple):
+    """A block after its step: (N,) binary status bytes, (N, S) states, (N,) outside the envelope."""
+
+    status: NDArray[np.uint8]
+    states: NDArray[np.float32]
+    outside: NDArray[np.bool_]
+
+
+def outside_groups(sess: Session, state: NDArray[np.float32]) -> list[str]:
+    """The state groups of ``state``, the new state of a step of ``sess`` just taken, that are outside
+    the training envelope (the batcher's flag says whether any is; this names them)."""
+    env = sess.emu.envelope
+    if env is None or not sess.outside_envelope:
+        return []
+    return env.groups_outside(state)
 
 
 class Lane:
@@ -157,7 +177,9 @@ class Stepper:
         """``steps`` super-steps of one session under held inputs, each batched with other requests."""
         self.check_steps(steps)
         start, states = await self.lane(sess.emu, transport).run(sess, inputs.row, steps)
-        return Stepped(sess, states, inputs, start)
+        env = sess.emu.envelope
+        outside = [] if env is None else env.groups_outside(states)
+        return Stepped(sess, states, inputs, outside, start)
 
     # ------------------------------------------------------------------ sessions by id, any models
     async def step_items(self, items: Sequence[BatchStepItem]) -> list[Stepped | EmulatorError]:
@@ -200,7 +222,7 @@ class Stepper:
                 out = await Lane(self.batcher(sess.emu), None).step(sess, inputs.row)
             except EmulatorError as exc:
                 return exc
-            return Stepped(sess, out[None], inputs)
+            return Stepped(sess, out[None], inputs, outside_groups(sess, out))
 
         results = await asyncio.gather(*map(one, prepared))
         if items:
@@ -208,13 +230,12 @@ class Stepper:
         return list(results)
 
     # ------------------------------------------------------------------ a block of one model version
-    async def step_block(
-        self, res: Resolved, rows: NDArray[np.float32], label: RowLabel
-    ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    async def step_block(self, res: Resolved, rows: NDArray[np.float32], label: RowLabel) -> BlockStepped:
         """One super-step of the N sessions ``res`` resolved (one model version; slot -1: unknown)
         under inputs (N, U+F); ``label`` names a row in an error. Returns the (N,) status bytes of the
-        binary format (``binary.OK``, ``CLIPPED``, ``DIVERGED``, ``UNKNOWN``) and (N, S) states: the
-        new state, a diverged session's last finite one, NaN for an unknown session.
+        binary format (``binary.OK``, ``CLIPPED``, ``DIVERGED``, ``UNKNOWN``), (N, S) states (the new
+        state, a diverged session's last finite one, NaN for an unknown session) and (N,) whether
+        each new state is outside the training envelope.
 
         A NaN or Inf input fails the whole block before anything is stepped. The sessions no other
         request is stepping are locked together (no await in between) and stepped as ONE batcher
@@ -229,6 +250,7 @@ class Stepper:
             status[mask.any(axis=1)] = binary.CLIPPED
         slots, known = res.slots, res.known
         states = np.full((n, emu.state_size), np.nan, np.float32)
+        outside = np.zeros(n, bool)
         status[~known] = binary.UNKNOWN
         safe = np.where(known, slots, 0)
         diverged = known & pool.diverged[safe]
@@ -250,10 +272,12 @@ class Stepper:
                 )
             finally:
                 pool.unlock_rows(mine, gens)
+            # (read before the next await: no other request has stepped these sessions since)
+            flags = pool.outside[mine] & (outcome == ROW_OK)
             if everyone:
-                states = new
+                states, outside = new, flags
             else:
-                states[free] = new
+                states[free], outside[free] = new, flags
             status[free[outcome == ROW_DIVERGED]] = binary.DIVERGED
             status[free[outcome == ROW_GONE]] = binary.UNKNOWN
         if busy.any():
@@ -265,9 +289,10 @@ class Stepper:
                     continue
                 try:
                     states[i] = await lane.step(one, inputs[i])
+                    outside[i] = one.outside_envelope
                 except EmulatorError as exc:
                     status[i] = binary.DIVERGED if isinstance(exc, Diverged) else binary.UNKNOWN
                     if one.alive:
                         states[i] = one.state
         self.metrics.latency(emu.model, "rest-binary").observe(time.perf_counter() - t0)
-        return status, states
+        return BlockStepped(status, states, outside)

@@ -61,6 +61,7 @@ async def get_model(model: str, service: ServiceDep, version: str | None = None)
         controls=[ControlInfo(**c.model_dump()) for c in m.controls],
         forces=[ForceInfo(**f.model_dump()) for f in m.forces],
         metrics=m.metrics.model_dump(),
+        envelope=m.envelope,
     )
 
 

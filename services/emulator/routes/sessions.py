@@ -80,4 +80,6 @@ async def step_session(sid: str, req: StepRequest, service: ServiceDep) -> StepR
         clipped=inputs.clipped,
         clipped_controls=inputs.clipped_controls,
         clipped_forces=inputs.clipped_forces,
+        outside_envelope=bool(stepped.outside),
+        outside_groups=stepped.outside,
     )

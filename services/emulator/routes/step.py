@@ -106,6 +106,8 @@ async def batch_step(request: Request, service: ServiceDep) -> Response:
                 clipped=inputs.clipped,
                 clipped_controls=inputs.clipped_controls,
                 clipped_forces=inputs.clipped_forces,
+                outside_envelope=bool(out.outside),
+                outside_groups=out.outside,
             )
         )
     return Response(BatchStepResponse(results=results).model_dump_json(), media_type="application/json")

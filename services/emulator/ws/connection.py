@@ -17,7 +17,7 @@ from services.emulator.inputs import CheckedInputs
 from services.emulator.scene import MujocoShadow
 from services.emulator.service import EmulatorService
 from services.emulator.sessions import Session
-from services.emulator.stepping import Lane
+from services.emulator.stepping import Lane, outside_groups
 from services.emulator.ws import protocol
 from services.emulator.ws.realtime import Realtime
 from services.emulator.ws.transport import AsgiSocket, ClientGone, Disconnected, Frame, LatestQueue, Sender
@@ -74,7 +74,7 @@ class Connection:
     def state_frame(self, sess: Session, state: NDArray[np.float32], held: HeldInputs) -> Frame:
         inputs = held.inputs
         if self.format == "binary":
-            return protocol.state_binary(state, held.seq, sess.steps, inputs.clipped)
+            return protocol.state_binary(state, held.seq, sess.steps, inputs.clipped, sess.outside_envelope)
         return protocol.state_json(
             state,
             held.seq,
@@ -82,6 +82,7 @@ class Connection:
             sess.steps,
             inputs.clipped_controls,
             inputs.clipped_forces,
+            outside_groups(sess, state),
             self.emu.kinematics if self.poses else None,
             self.shadow,
         )
@@ -111,9 +112,10 @@ class Connection:
         except EmulatorError as exc:
             return ws_error(exc, seq)
         if self.format == "binary":
-            return protocol.state_binary(out, seq, sess.steps, False)
+            return protocol.state_binary(out, seq, sess.steps, False, sess.outside_envelope)
+        kin = self.emu.kinematics if self.poses else None
         return protocol.state_json(
-            out, seq, sess.t, sess.steps, _NO_CLIP, _NO_CLIP, self.emu.kinematics if self.poses else None
+            out, seq, sess.t, sess.steps, _NO_CLIP, _NO_CLIP, outside_groups(sess, out), kin
         )
 
     # ------------------------------------------------------------------ messages in

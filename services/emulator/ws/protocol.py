@@ -113,11 +113,13 @@ def state_json(
     steps: int,
     clipped_controls: list[int],
     clipped_forces: list[int],
+    outside_groups: list[str],
     kinematics: Kinematics | None = None,
     shadow: MujocoShadow | None = None,
 ) -> str:
-    """A JSON state message; ``kinematics`` adds body poses (of the shadow's state too), ``shadow`` the
-    MuJoCo shadow's state. Fields not asked for are left out."""
+    """A JSON state message (``outside_groups``: the state's groups outside the training envelope);
+    ``kinematics`` adds body poses (of the shadow's state too), ``shadow`` the MuJoCo shadow's state.
+    Fields not asked for are left out."""
     kin = kinematics
     twin = None
     if shadow is not None:
@@ -134,11 +136,15 @@ def state_json(
         clipped=bool(clipped_controls or clipped_forces),
         clipped_controls=clipped_controls,
         clipped_forces=clipped_forces,
+        outside_envelope=bool(outside_groups),
+        outside_groups=outside_groups,
         poses=None if kin is None else kin.poses(state[None])[0].tolist(),
         shadow=twin,
     )
     return msg.model_dump_json(exclude={k for k in ("poses", "shadow") if getattr(msg, k) is None})
 
 
-def state_binary(state: NDArray[np.float32], seq: int | None, steps: int, clipped: bool) -> bytes:
-    return binary.encode_ws_state(seq, steps, binary.CLIPPED if clipped else binary.OK, state)
+def state_binary(
+    state: NDArray[np.float32], seq: int | None, steps: int, clipped: bool, outside: bool
+) -> bytes:
+    return binary.encode_ws_state(seq, steps, binary.CLIPPED if clipped else binary.OK, state, outside)

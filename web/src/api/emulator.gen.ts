@@ -20,6 +20,7 @@ export interface EmulatorWire {
   BodyInfo?: BodyInfo;
   ClientMessage?: ClientMessage;
   ControlInfo?: ControlInfo;
+  EnvelopeGroup?: EnvelopeGroup;
   ErrorBody?: ErrorBody;
   ForceInfo?: ForceInfo;
   GeomInfo?: GeomInfo;
@@ -83,6 +84,14 @@ export interface BatchStepResult {
   clipped?: boolean;
   clipped_controls?: number[];
   clipped_forces?: number[];
+  /**
+   * a new state is outside the envelope of the states the emulator was trained on
+   */
+  outside_envelope?: boolean;
+  /**
+   * the state groups outside the training envelope
+   */
+  outside_groups?: string[];
   error?: ErrorBody | null;
 }
 /**
@@ -225,6 +234,20 @@ export interface ControlInfo {
   sign?: string | null;
 }
 /**
+ * The values one state group took in the training data (the states and the next states the emulator
+ * learnt from), widened by a margin: ``low[i]``..``high[i]`` for its value i. ``None`` where the
+ * emulator is indifferent to the value: a root-position axis it is translation-invariant along, a
+ * heading its frame removes, a hinge angle (it enters as sin and cos), an orientation quaternion.
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "EnvelopeGroup".
+ */
+export interface EnvelopeGroup {
+  group: string;
+  low: (number | null)[];
+  high: (number | null)[];
+}
+/**
  * One external-force input (a body's force or torque component) and its trained range.
  *
  * This interface was referenced by `EmulatorWire`'s JSON-Schema
@@ -284,6 +307,10 @@ export interface ModelDetail {
   metrics?: {
     [k: string]: unknown;
   };
+  /**
+   * per state group, the range of the training states (absent for older artifacts)
+   */
+  envelope?: EnvelopeGroup[] | null;
 }
 /**
  * What a client draws for a model, from the artifact's MJCF: its bodies and their geoms, the geoms
@@ -368,6 +395,14 @@ export interface WsState {
   clipped?: boolean;
   clipped_controls?: number[];
   clipped_forces?: number[];
+  /**
+   * a new state is outside the envelope of the states the emulator was trained on
+   */
+  outside_envelope?: boolean;
+  /**
+   * the state groups outside the training envelope
+   */
+  outside_groups?: string[];
   poses?: number[][] | null;
   shadow?: ShadowState | null;
 }
@@ -478,7 +513,9 @@ export interface StepRequest {
 /**
  * ``states`` (steps, S) after each super-step, ``state`` the last of them. ``frames`` (when
  * asked): steps·frames_per_step + 1 frames from the old state to the new one, evenly spaced in
- * time (linear, slerp for quaternion groups).
+ * time (linear, slerp for quaternion groups). ``outside_envelope``: some new state is outside the
+ * states the emulator was trained on (``outside_groups`` names the groups); it is less accurate
+ * there.
  *
  * This interface was referenced by `EmulatorWire`'s JSON-Schema
  * via the `definition` "StepResponse".
@@ -493,4 +530,12 @@ export interface StepResponse {
   clipped: boolean;
   clipped_controls?: number[];
   clipped_forces?: number[];
+  /**
+   * a new state is outside the envelope of the states the emulator was trained on
+   */
+  outside_envelope?: boolean;
+  /**
+   * the state groups outside the training envelope
+   */
+  outside_groups?: string[];
 }

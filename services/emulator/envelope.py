@@ -1,0 +1,46 @@
+"""Whether states lie in the envelope a model version was trained on (``Manifest.envelope``).
+
+The batcher checks every new state it writes back (one comparison over the whole batch) and keeps the
+answer per session (``Session.outside_envelope``); step replies carry it as ``outside_envelope`` and
+name the state groups that are out (``outside_groups``). An artifact without an envelope (older ones)
+has no ``StateEnvelope``: its states are never flagged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neuroanimator.manifest import EnvelopeGroup
+from neuroanimator.state import StateLayout
+
+
+class StateEnvelope:
+    """A model version's envelope as (S,) float32 bounds (±inf where a value is unbounded), rounded
+    outwards so that a float32 state on the edge is inside."""
+
+    def __init__(self, layout: StateLayout, groups: list[EnvelopeGroup]) -> None:
+        low = np.full(layout.size, -np.inf, np.float64)
+        high = np.full(layout.size, np.inf, np.float64)
+        self.groups: list[tuple[str, slice]] = []
+        for env in groups:
+            sl = layout.slice_of(env.group)
+            low[sl] = [-np.inf if v is None else v for v in env.low]
+            high[sl] = [np.inf if v is None else v for v in env.high]
+            if np.isfinite(low[sl]).any() or np.isfinite(high[sl]).any():
+                self.groups.append((env.group, sl))
+        lo32, hi32 = low.astype(np.float32), high.astype(np.float32)
+        self.low = np.where(lo32 > low, np.nextafter(lo32, np.float32(-np.inf)), lo32)
+        self.high = np.where(hi32 < high, np.nextafter(hi32, np.float32(np.inf)), hi32)
+
+    def inside(self, states: NDArray[np.float32]) -> NDArray[np.bool_]:
+        """(B,) whether each state of (B, S) is inside (a non-finite one is not)."""
+        return np.asarray(((states >= self.low) & (states <= self.high)).all(axis=1))
+
+    def groups_outside(self, states: NDArray[np.float32]) -> list[str]:
+        """The groups with a value outside the envelope in any of the states (S,) or (K, S)."""
+        x = np.atleast_2d(states)
+        out = np.asarray(((x < self.low) | (x > self.high)).any(axis=0))
+        if not out.any():
+            return []
+        return [name for name, sl in self.groups if out[sl].any()]
