@@ -36,11 +36,11 @@ def _deleted(session: Session) -> UnknownSession:
 
 @dataclass(slots=True)
 class _SessionEntry:
-    """One session's step: its (U+F,) inputs, controls then forces (an array, or a tuple of floats
+    """One session's step: its (U+F,) inputs, controls then forces (an array, or a list of floats
     as a binary websocket frame unpacks to)."""
 
     session: Session
-    inputs: NDArray[np.float32] | tuple[float, ...]
+    inputs: NDArray[np.float32] | list[float]
     future: asyncio.Future[NDArray[np.float32]]
 
     @property
@@ -57,7 +57,7 @@ class _BlockEntry:
     slots: NDArray[np.intp]
     gens: NDArray[np.uint32]
     inputs: NDArray[np.float32]
-    future: asyncio.Future[tuple[NDArray[np.float32], NDArray[np.uint8]]]
+    future: asyncio.Future[BlockResult]
 
     @property
     def rows(self) -> int:
@@ -68,6 +68,9 @@ class _BlockEntry:
 # a millisecond for a small network, less than handing the call to a thread and back costs on a busy
 # machine (0.5-1 ms measured); larger batches run in a worker thread so the loop keeps serving.
 INLINE_ROWS = 4096
+
+BlockResult = tuple[NDArray[np.float32], NDArray[np.uint8], NDArray[np.bool_] | None]
+"""What ``Batcher.step_block`` returns: (K, S) states, (K,) row outcomes, (K,) outside the envelope."""
 
 # Row outcomes of ``Batcher.step_block`` (the binary format's status bytes, see services/emulator/binary.py).
 ROW_OK, ROW_DIVERGED, ROW_GONE = 0, 2, 3
@@ -88,9 +91,7 @@ class Batcher:
         self._ready = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
 
-    async def step(
-        self, session: Session, inputs: NDArray[np.float32] | tuple[float, ...]
-    ) -> NDArray[np.float32]:
+    async def step(self, session: Session, inputs: NDArray[np.float32] | list[float]) -> NDArray[np.float32]:
         """One super-step of one session under (U+F,) inputs, controls then forces (checked and
         clipped), batched with whatever else arrives now: returns its (S,) new state, written back."""
         if session.diverged:
@@ -105,14 +106,13 @@ class Batcher:
         slots: NDArray[np.intp],
         gens: NDArray[np.uint32],
         inputs: NDArray[np.float32],
-    ) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
+    ) -> BlockResult:
         """One super-step of the K sessions in ``slots`` of ``pool`` (K,) (whose ``gen`` was ``gens``
         (K,) when the caller locked them) under inputs (K, U+F), in one queue entry: returns
-        (K, S) new states and (K,) row outcomes ``ROW_*``. A diverged session keeps (and returns) its
-        last finite state; a session deleted meanwhile returns NaN."""
-        fut: asyncio.Future[tuple[NDArray[np.float32], NDArray[np.uint8]]] = (
-            asyncio.get_running_loop().create_future()
-        )
+        (K, S) new states, (K,) row outcomes ``ROW_*`` and (K,) whether each new state is outside
+        the training envelope (None: none is). A diverged session keeps (and returns) its last finite
+        state; a session deleted meanwhile returns NaN."""
+        fut: asyncio.Future[BlockResult] = asyncio.get_running_loop().create_future()
         self._enqueue(_BlockEntry(pool, slots, gens, inputs, fut))
         return await fut
 
@@ -212,8 +212,11 @@ class Batcher:
             if not np.isfinite(out).all()
             else np.ones(len(out), bool)
         )
-        env = self.emu.envelope  # (B,) rows beyond the training envelope, kept per session
-        outside = None if env is None else ~env.inside(out)
+        # (B,) new states beyond the training envelope (None: none is), kept per session
+        env = self.emu.envelope
+        outside = None if env is None else env.outside(out)
+        # (rows written back are all inside: flags of earlier steps are cleared, when there are any)
+        clear = outside is None and env is not None and bool(pool.outside.any())
         if ns:
             # Single requests: write back the rows of sessions still alive (one deleted while in flight
             # may have had its slot reused) in one scatter, then answer each.
@@ -225,6 +228,8 @@ class Batcher:
             pool.steps[written] += 1
             if outside is not None:
                 pool.outside[written] = outside[:ns][keep]
+            elif clear:
+                pool.outside[written] = False
             for i, req in enumerate(single):
                 if req.future.done():
                     continue
@@ -247,8 +252,12 @@ class Batcher:
             moved = b.slots if everyone else b.slots[good]
             pool.states[moved] = rows if everyone else rows[good]
             pool.steps[moved] += 1  # no slot twice in one entry: a request's ids are distinct
+            flags = None
             if outside is not None:
-                pool.outside[moved] = outside[part] if everyone else outside[part][good]
+                flags = outside[part] & good
+                pool.outside[moved] = flags if everyone else flags[good]
+            elif clear:
+                pool.outside[moved] = False
             status = np.zeros(k, np.uint8)
             if not everyone:  # rare: rows of diverged or deleted sessions, one by one
                 for j in np.flatnonzero(~good).tolist():
@@ -261,7 +270,7 @@ class Batcher:
                         status[j] = ROW_DIVERGED
                         rows[j] = pool.states[owner.slot]
             if not b.future.done():
-                b.future.set_result((rows, status))
+                b.future.set_result((rows, status, flags))
 
     def _diverge(self, sess: Session) -> None:
         sess.diverged = True

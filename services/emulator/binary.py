@@ -176,13 +176,14 @@ def encode_batch_response(
     n = len(status)
     s = states.shape[1] if states.ndim == 2 else 0
     pad = (-n) % 4
-    envelope = np.zeros(n, np.uint8) if outside is None else outside.astype(np.uint8)
-    return (
-        RESPONSE_HEADER.pack(RESPONSE_MAGIC, VERSION, FLAG_ENVELOPE, n, s)
-        + status.astype(np.uint8).tobytes()
-        + b"\0" * pad
-        + np.ascontiguousarray(states, "<f4").tobytes()
-        + envelope.tobytes()
+    return b"".join(
+        (
+            RESPONSE_HEADER.pack(RESPONSE_MAGIC, VERSION, FLAG_ENVELOPE, n, s),
+            status.astype(np.uint8).tobytes(),
+            b"\0" * pad,
+            np.ascontiguousarray(states, "<f4").tobytes(),
+            bytes(n) if outside is None else outside.astype(np.uint8).tobytes(),
+        )
     )
 
 

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 
 from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.state import StateLayout
+from services.emulator.bounds import RowBounds
 
 
 class StateEnvelope:
@@ -32,10 +33,12 @@ class StateEnvelope:
         lo32, hi32 = low.astype(np.float32), high.astype(np.float32)
         self.low = np.where(lo32 > low, np.nextafter(lo32, np.float32(-np.inf)), lo32)
         self.high = np.where(hi32 < high, np.nextafter(hi32, np.float32(np.inf)), hi32)
+        self.rows = RowBounds(self.low, self.high)
 
-    def inside(self, states: NDArray[np.float32]) -> NDArray[np.bool_]:
-        """(B,) whether each state of (B, S) is inside (a non-finite one is not)."""
-        return np.asarray(((states >= self.low) & (states <= self.high)).all(axis=1))
+    def outside(self, states: NDArray[np.float32]) -> NDArray[np.bool_] | None:
+        """(B,) whether each state of (B, S) is outside (NaN is not), or None when none is (the usual
+        answer, found in two flat comparisons)."""
+        return self.rows.rows_outside(states)
 
     def groups_outside(self, states: NDArray[np.float32]) -> list[str]:
         """The groups with a value outside the envelope in any of the states (S,) or (K, S)."""

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from neuroanimator.manifest import ControlInput
 from neuroanimator.model_spec import ForceInput
+from services.emulator.bounds import RowBounds
 from services.emulator.errors import BadInput
 
 _F32_MAX = float(np.finfo(np.float32).max)
@@ -90,6 +91,7 @@ class InputRange:
         bounds = np.array(both, np.float64).reshape(-1, 2).astype(np.float32)
         self.low: NDArray[np.float32] = bounds[:, 0].copy()
         self.high: NDArray[np.float32] = bounds[:, 1].copy()
+        self.rows = RowBounds(self.low, self.high)
         # the same float32 bounds as Python floats, for ``fits``
         self.bounds = list(zip(self.low.tolist(), self.high.tolist(), strict=True))
 
@@ -109,7 +111,7 @@ class InputRange:
         were clipped (None when none was). ``BadInput`` naming the first NaN or Inf (``label`` names
         its row)."""
         # the common case in two comparisons: every value in range (NaN fails both, and is named below)
-        if (rows >= self.low).all() and (rows <= self.high).all():
+        if self.rows.contain(rows):
             return rows, None
         bad = ~np.isfinite(rows)
         if bad.any():
@@ -123,8 +125,9 @@ class InputRange:
                 expected="a finite float32",
                 got=float(rows[i, j]),
             )
-        mask = (rows < self.low) | (rows > self.high)
-        return np.clip(rows, self.low, self.high).astype(np.float32), mask
+        low, high = self.rows.repeated(len(rows))
+        mask = (rows < low) | (rows > high)
+        return np.clip(rows, low, high).astype(np.float32), mask
 
     def check_row(self, values: NDArray[np.float32]) -> CheckedInputs:
         """A (U+F,) float32 row (a binary frame's; its length already checked)."""

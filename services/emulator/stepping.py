@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from neuroanimator.emulator_schemas import BatchStepItem
 from services.emulator import binary
-from services.emulator.batcher import ROW_DIVERGED, ROW_GONE, ROW_OK, Batcher
+from services.emulator.batcher import ROW_DIVERGED, ROW_GONE, Batcher
 from services.emulator.errors import BadInput, Diverged, EmulatorError, TooLarge
 from services.emulator.inputs import CheckedInputs, RowLabel
 from services.emulator.metrics import LatencySeries, Metrics
@@ -78,7 +78,7 @@ class Lane:
         self.batcher = batcher
         self.latency = latency
 
-    async def step(self, sess: Session, row: NDArray[np.float32] | tuple[float, ...]) -> NDArray[np.float32]:
+    async def step(self, sess: Session, row: NDArray[np.float32] | list[float]) -> NDArray[np.float32]:
         """One super-step of ``sess`` under a (U+F,) input row (checked and clipped), its slot locked
         meanwhile: the (S,) new state."""
         t0 = time.perf_counter()
@@ -246,8 +246,8 @@ class Stepper:
         n = len(rows)
         inputs, mask = emu.inputs.clip(rows, label)
         status = np.zeros(n, np.uint8)
-        if mask is not None:
-            status[mask.any(axis=1)] = binary.CLIPPED
+        if mask is not None:  # (the rows of the clipped values, without a reduction along the short axis)
+            status[np.flatnonzero(mask) // rows.shape[1]] = binary.CLIPPED
         slots, known = res.slots, res.known
         states = np.full((n, emu.state_size), np.nan, np.float32)
         outside = np.zeros(n, bool)
@@ -267,17 +267,17 @@ class Stepper:
             gens = pool.gen[mine]
             pool.lock_rows(mine)
             try:
-                new, outcome = await batcher.step_block(
+                new, outcome, flags = await batcher.step_block(
                     pool, mine, gens, inputs if everyone else inputs[free]
                 )
             finally:
                 pool.unlock_rows(mine, gens)
-            # (read before the next await: no other request has stepped these sessions since)
-            flags = pool.outside[mine] & (outcome == ROW_OK)
             if everyone:
-                states, outside = new, flags
+                states = new
             else:
-                states[free], outside[free] = new, flags
+                states[free] = new
+            if flags is not None:
+                outside[free] = flags
             status[free[outcome == ROW_DIVERGED]] = binary.DIVERGED
             status[free[outcome == ROW_GONE]] = binary.UNKNOWN
         if busy.any():

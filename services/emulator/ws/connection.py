@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neuroanimator.emulator_schemas import WsControls, WsPing, WsStart
+from services.emulator import binary
 from services.emulator.error_mapping import ws_error
 from services.emulator.errors import BadInput, EmulatorError, WrongMode
 from services.emulator.inputs import CheckedInputs
@@ -103,16 +104,16 @@ class Connection:
         except EmulatorError as exc:
             return ws_error(exc, held.seq)
 
-    async def lockstep_fast(self, seq: int | None, values: tuple[float, ...]) -> Frame:
+    async def lockstep_fast(self, seq: int | None, values: list[float]) -> Frame:
         """A binary lock-step frame whose inputs are all in range, without a shadow: ``lockstep`` in
         fewer operations (no arrays for one session's inputs)."""
         try:
-            sess = self.session()
+            sess = self.service.store.get(self.sid)
             out = await self.lane.step(sess, values)
         except EmulatorError as exc:
             return ws_error(exc, seq)
         if self.format == "binary":
-            return protocol.state_binary(out, seq, sess.steps, False, sess.outside_envelope)
+            return binary.encode_ws_state(seq, sess.steps, binary.OK, out, sess.outside_envelope)
         kin = self.emu.kinematics if self.poses else None
         return protocol.state_json(
             out, seq, sess.t, sess.steps, _NO_CLIP, _NO_CLIP, outside_groups(sess, out), kin
@@ -145,7 +146,8 @@ class Connection:
         return await self.lockstep(held)
 
     async def on_binary(self, data: bytes) -> Frame | None:
-        if self.shadow is None and self.mode == "lockstep":
+        realtime = self.realtime
+        if self.shadow is None and (realtime is None or not realtime.ticking):  # lock-step, no shadow
             fast = self.frames.unpack(data)
             # NaN fails the range check too, so it takes the general path below and is named there
             if fast is not None and self.emu.inputs.fits(fast[1]):

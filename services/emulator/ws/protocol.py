@@ -66,7 +66,7 @@ class InputFrames:
         self._struct = struct.Struct(f"<4sI{self.width}f")
         self.size = self._struct.size
 
-    def unpack(self, data: bytes) -> tuple[int | None, tuple[float, ...]] | None:
+    def unpack(self, data: bytes) -> tuple[int | None, list[float]] | None:
         """Seq and inputs as Python floats of a well-formed frame, else None (``parse`` says why). The
         hot path of binary lock-step: one ``struct`` call, no arrays for a few values."""
         if len(data) != self.size:
@@ -74,7 +74,7 @@ class InputFrames:
         magic, number, *values = self._struct.unpack(data)
         if magic != binary.WS_CLIENT_MAGIC:
             return None
-        return (None if number == binary.NO_SEQ else number), tuple(values)
+        return (None if number == binary.NO_SEQ else number), values
 
     def parse(self, data: bytes) -> tuple[int | None, NDArray[np.float32]]:
         """Seq and (U+F,) float32 inputs of a frame; ``BadInput`` naming what is wrong with it."""
