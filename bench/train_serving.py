@@ -25,6 +25,7 @@ import argparse
 import contextlib
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -34,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import redis
 from _server import serve
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -85,6 +87,14 @@ def training(model: Path, examples: int, redis_url: str, log_dir: Path) -> Any:
             worker.terminate()
             worker.wait(30)
             log.close()
+            shutil.rmtree(registry, ignore_errors=True)
+            conn = redis.Redis.from_url(redis_url)
+            keys = [*conn.scan_iter(match=f"{prefix}:*"), *conn.scan_iter(match=f"rq:*{queue}*")]
+            if tid:
+                keys += conn.scan_iter(match=f"rq:*{tid}-*")
+            if keys:
+                conn.delete(*keys)
+            conn.close()
 
 
 def status(url: str, tid: str) -> dict[str, Any]:
