@@ -62,7 +62,7 @@ def _list(store: TrainingStore, s: Settings, owner: str) -> StoredModelList:
     return StoredModelList(models=[stored(root, n) for n in names], usage=usage)
 
 
-@router.get("/models", response_model=StoredModelList, responses=_ERRORS)
+@router.get("/models", response_model=StoredModelList)
 async def list_models(store: StoreDep, owner: OwnerDep, settings: SettingsDep) -> StoredModelList:
     """The caller's uploaded models (an operator's: every uploaded model), with their owners, versions
     and sizes, and the caller's use of its limits. Names being trained for the first time are listed

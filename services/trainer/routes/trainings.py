@@ -53,9 +53,11 @@ from services.trainer.validation import Refused, check_model
 log = logging.getLogger(__name__)
 router = APIRouter(tags=["trainings"])
 UPLOAD_SUFFIXES = (".xml", ".zip", ".tar.gz", ".tgz")
-_ERRORS: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorBody} for code in (404, 409, 413, 415, 422, 429, 503)
+_UPLOAD_ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorBody} for code in (409, 413, 415, 422, 429, 503)
 }
+_ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorBody} for code in (404, 503)}
+_CANCEL_ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorBody} for code in (404, 409, 503)}
 _UPLOAD_BODY = {
     "requestBody": {
         "required": True,
@@ -267,7 +269,7 @@ def _accept(
     "/trainings",
     response_model=TrainingAccepted,
     status_code=202,
-    responses=_ERRORS,
+    responses=_UPLOAD_ERRORS,
     openapi_extra=_UPLOAD_BODY,
 )
 async def create_training(
@@ -377,7 +379,9 @@ def _cancel(store: TrainingStore, s: Settings, job_id: str, owner: str) -> Train
     return _status(store, job_id, owner)
 
 
-@router.delete("/trainings/{training_id}", response_model=TrainingStatus, status_code=202, responses=_ERRORS)
+@router.delete(
+    "/trainings/{training_id}", response_model=TrainingStatus, status_code=202, responses=_CANCEL_ERRORS
+)
 def cancel_training(
     training_id: str, store: StoreDep, owner: OwnerDep, settings: SettingsDep
 ) -> TrainingStatus:
