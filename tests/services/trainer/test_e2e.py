@@ -82,7 +82,7 @@ def test_upload_train_drive_control_publish_delete(trn: Trainer, tmp_path: Path)
     assert events[-1][0] == "end" and events[-1][1]["result"]["version"] == res["version"]
     streamed = [p for e, d in events if e == "progress" for p in d["losses"]]
     assert streamed == [[p["epoch"], p["loss"]] for p in done["loss_curve"]]  # the curve, live
-    assert not any((trn.settings().uploads()).iterdir())  # the upload is gone once trained
+    wait_for("the upload removed", lambda: not any(trn.settings().uploads().iterdir()), 10)
 
     # the emulator service serves it without a restart, to the key that uploaded it
     wait_for("the emulator to list it", lambda: emulator.get("/models", headers=A).json()["models"], 10)
@@ -148,7 +148,13 @@ def test_trainings_that_cannot_succeed_fail_naming_why(trn: Trainer) -> None:
     api = trn.client()
     diverges = upload(api, "wobbly.xml", WOBBLY, key="key-a", **TINY)
     slow = upload(
-        api, "tinybot.zip", zipped(TINYBOT), key="key-b", name="slowbot", super_step="1000", examples="1000000"
+        api,
+        "tinybot.zip",
+        zipped(TINYBOT),
+        key="key-b",
+        name="slowbot",
+        super_step="1000",
+        examples="1000000",
     )
     assert diverges.status_code == 202 and slow.status_code == 202, (diverges.text, slow.text)
     failed = ended(api, diverges.json()["id"], key="key-a")
@@ -159,7 +165,7 @@ def test_trainings_that_cannot_succeed_fail_naming_why(trn: Trainer) -> None:
     assert failed["status"] == "failed", failed
     assert "samples too slowly" in failed["error"] and "JOB_TIMEOUT_S" in failed["error"]
     assert "smaller sample budget" in failed["error"]
-    assert trn.models() == []  # nothing exported, both names given back
+    wait_for("both names given back", lambda: trn.models() == [], 10)  # nothing exported
     assert failed["attempt"] == 1 and failed["failures"] == 0  # not retried: it would fail the same way
 
 
@@ -178,5 +184,10 @@ def test_a_running_training_is_cancelled_at_once(trn: Trainer) -> None:
     assert api.delete(f"/trainings/{tid}", headers=A).status_code == 202
     done = ended(api, tid, timeout=20, key="key-a")
     assert done["status"] == "cancelled" and done["phase"] == "cancelled", done
-    assert trn.models() == [] and not any(trn.settings().uploads().iterdir())
-    assert not any(trn.settings().staging().iterdir())
+    # the worker cleans up once it has ended the training: nothing exported, nothing left
+    left = [trn.settings().uploads(), trn.settings().staging()]
+    wait_for(
+        "the name and files given back",
+        lambda: trn.models() == [] and not any(any(d.iterdir()) for d in left),
+        10,
+    )
