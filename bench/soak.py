@@ -150,7 +150,9 @@ async def soak(
     warmup: float,
 ) -> dict[str, Any]:
     timeout = httpx.Timeout(30.0)
-    limits = httpx.Limits(max_connections=32)
+    # idle connections dropped after 4 s, before uvicorn's 5 s keep-alive timeout closes them: a request
+    # sent on a connection the server is closing at that moment fails (ReadError) through no fault of it
+    limits = httpx.Limits(max_connections=32, keepalive_expiry=4.0)
     async with (
         httpx.AsyncClient(base_url=emulator, timeout=timeout, limits=limits) as emu,
         httpx.AsyncClient(base_url=controller, timeout=timeout, limits=limits) as ctl,
