@@ -25,9 +25,11 @@ def free_port() -> int:
 
 
 @contextlib.contextmanager
-def serve(artifacts: str, module: str = "services.emulator", **env: str) -> Iterator[tuple[str, int]]:
-    """(base URL, server pid) of a fresh ``python -m <module>`` (a service answering ``/readyz``) with
-    these extra env vars."""
+def serve(
+    artifacts: str, module: str = "services.emulator", ready: str = "/readyz", **env: str
+) -> Iterator[tuple[str, int]]:
+    """(base URL, server pid) of a fresh ``python -m <module>`` with these extra env vars, once it
+    answers 200 on ``ready`` (``/healthz`` for an emulator service whose registry is still empty)."""
     port = free_port()
     full = {
         **os.environ,
@@ -47,7 +49,7 @@ def serve(artifacts: str, module: str = "services.emulator", **env: str) -> Iter
             if proc.poll() is not None:
                 raise RuntimeError(f"{module} exited with code {proc.returncode}")
             with contextlib.suppress(httpx.HTTPError):
-                if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
+                if httpx.get(f"{url}{ready}", timeout=2).status_code == 200:
                     break
             if time.monotonic() > deadline:
                 raise RuntimeError(f"{module} did not become ready in 120 s")

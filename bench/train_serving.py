@@ -25,18 +25,16 @@ import argparse
 import contextlib
 import json
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
 import time
-import uuid
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
-import redis
-from _server import serve
+from _trainer import trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_MODEL = ROOT / "neuroanimator" / "physics" / "lander.xml"
@@ -52,52 +50,15 @@ def ws_load(clients: int, rate: float, duration: float, replicas: int) -> dict[s
 
 
 @contextlib.contextmanager
-def training(model: Path, examples: int, redis_url: str, log_dir: Path) -> Any:
+def training(model: Path, examples: int, redis_url: str, log_dir: Path) -> Iterator[tuple[str, str]]:
     """A trainer API and one training worker on a registry of their own, training ``model``; yields
     (the API's URL, the training's id). Cancels the training and stops both on exit."""
-    tag = uuid.uuid4().hex[:8]
-    prefix, queue = f"bench-train-serving:{tag}", f"bench-train-serving-{tag}"
-    env = {"REDIS_URL": redis_url, "REDIS_PREFIX": prefix, "QUEUE_NAME": queue}
-    registry = Path(tempfile.mkdtemp(prefix="bench-registry-"))
-    with serve(str(registry), "services.trainer", **env) as (url, _pid):
-        log = (log_dir / "training-worker.log").open("wb")
-        worker = subprocess.Popen(
-            [sys.executable, "-m", "services.trainer.worker"],
-            env={**os.environ, **env, "ARTIFACTS_DIR": str(registry)},
-            cwd=log_dir,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-        )
-        tid = ""
-        try:
-            with model.open("rb") as fh:
-                r = httpx.post(
-                    f"{url}/trainings",
-                    files={"file": (model.name, fh.read())},
-                    data={"name": "bench-model", "examples": str(examples), "super_step": "50"},
-                    timeout=30,
-                )
-            r.raise_for_status()
-            tid = r.json()["id"]
-            yield url, tid
-        finally:
-            if tid:
-                with contextlib.suppress(httpx.HTTPError):
-                    httpx.delete(f"{url}/trainings/{tid}", timeout=10)
-            worker.terminate()
-            worker.wait(30)
-            log.close()
-            shutil.rmtree(registry, ignore_errors=True)
-            conn = redis.Redis.from_url(redis_url)
-            keys = [*conn.scan_iter(match=f"{prefix}:*"), *conn.scan_iter(match=f"rq:*{queue}*")]
-            if tid:
-                keys += conn.scan_iter(match=f"rq:*{tid}-*")
-            if keys:
-                conn.delete(*keys)
-            conn.close()
+    with trainer(redis_url, log_dir) as t:
+        answer, _ = t.upload(model, name="bench-model", examples=str(examples), super_step="50")
+        yield t.url, answer["id"]
 
 
-def status(url: str, tid: str) -> dict[str, Any]:
+def _status(url: str, tid: str) -> dict[str, Any]:
     got: dict[str, Any] = httpx.get(f"{url}/trainings/{tid}", timeout=10).json()
     return got
 
@@ -125,13 +86,13 @@ def main() -> int:
         training(args.model, args.examples, redis_url, Path(logs)) as (url, tid),
     ):
         deadline = time.monotonic() + 300
-        while (s := status(url, tid))["phase"] not in ("sampling", "training"):
+        while (s := _status(url, tid))["phase"] not in ("sampling", "training"):
             if s["status"] in ("succeeded", "failed", "cancelled") or time.monotonic() > deadline:
                 raise SystemExit(f"the training did not start sampling: {s}")
             time.sleep(0.5)
         phases.append(s["phase"])
         loaded = ws_load(args.clients, args.rate, args.duration, args.replicas)
-        after = status(url, tid)
+        after = _status(url, tid)
         phases.append(after["phase"])
         if after["status"] != "running":
             print(f"warning: the training ended during the run ({after['status']}): lower --duration")

@@ -9,6 +9,7 @@ emulators into ``ARTIFACTS_DIR``, where the emulator and controller services fin
 
 from __future__ import annotations
 
+import logging
 import os
 from typing import Any
 
@@ -20,6 +21,8 @@ from services.trainer.routes import models, trainings
 from services.trainer.settings import Settings
 from services.trainer.store import TrainingStore
 
+log = logging.getLogger(__name__)
+
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The app for these settings. Connecting to Redis is lazy, so this works while Redis is down."""
@@ -27,13 +30,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     store = TrainingStore(connect(settings), settings)
 
     def ready() -> tuple[dict[str, Any], tuple[str, str] | None]:
-        for folder in (settings.artifacts_dir, settings.uploads()):
+        # /readyz answers anybody: the folders are named by their settings, their paths go to the log
+        for name, folder in (("ARTIFACTS_DIR", settings.artifacts_dir), ("WORK_DIR", settings.uploads())):
             try:
                 folder.mkdir(parents=True, exist_ok=True)
+                writable = os.access(folder, os.W_OK)
+                why = "" if writable else "no write permission"
             except OSError as exc:
-                return {}, ("not writable", f"cannot write to {str(folder)!r}: {exc.strerror}")
-            if not os.access(folder, os.W_OK):
-                return {}, ("not writable", f"cannot write to {str(folder)!r}")
+                writable, why = False, exc.strerror or type(exc).__name__
+            if not writable:
+                log.warning("readyz: a folder cannot be written", extra={"folder": str(folder), "error": why})
+                return {}, ("not writable", f"cannot write to {name}'s folder ({why})")
         return {}, None
 
     return queue_app(

@@ -190,7 +190,10 @@ def _run_child(
                 **os.environ,
                 "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
             },
-            start_new_session=True,  # its own process group: stopped with everything it started
+            # its own process group (stopped with everything it started) in the worker's session: a new
+            # session would be a new scheduler autogroup, where the worker's lower priority no longer
+            # counts against the services (Linux shares the CPU fairly between autogroups first)
+            process_group=0,
         )
     assert proc.stdin is not None and proc.stdout is not None
     proc.stdin.write(json.dumps(child).encode())

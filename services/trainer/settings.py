@@ -76,6 +76,11 @@ class Settings(QueueSettings):
     worker_nice: int = Field(
         10, ge=0, le=19, description="how much lower a training worker's CPU priority is than the services'"
     )
+    worker_idle: bool = Field(
+        True,
+        description="training workers in Linux's idle scheduling class (SCHED_IDLE): they run on the CPU "
+        "the services leave, so a training does not lengthen their latency",
+    )
     port: Port = 8002
 
     def work(self) -> Path:

@@ -16,6 +16,7 @@ import logging
 import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from services.common import job_worker, logs
 from services.trainer import execution
@@ -34,9 +35,30 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def lower_priority(nice: int, idle: bool = False) -> int:
+    """Lower this process's CPU priority by ``nice`` and, with ``idle``, put it in Linux's idle scheduling
+    class (SCHED_IDLE: it runs on what the services leave, a weight of 3 against their 1,024), both
+    inherited by every process and thread forked or started from here; returns the new niceness. Where the worker leads a session of its own (a container, a service
+    manager), Linux first shares the CPU fairly between sessions' autogroups, whatever the niceness inside
+    them, so the autogroup's niceness is lowered too (best effort: /proc/self/autogroup)."""
+    niceness = os.nice(nice)
+    if idle and hasattr(os, "SCHED_IDLE"):
+        try:
+            os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+        except OSError as e:
+            log.info("the worker keeps the normal scheduling class", extra={"reason": str(e)})
+    autogroup = Path("/proc/self/autogroup")
+    if nice and os.getsid(0) == os.getpid() and autogroup.exists():
+        try:
+            autogroup.write_text(str(niceness))
+        except OSError as e:
+            log.info("the worker's autogroup keeps its priority", extra={"reason": str(e)})
+    return niceness
+
+
 def run(args: argparse.Namespace, settings: Settings | None = None) -> int:
     settings = settings or Settings()
-    niceness = os.nice(settings.worker_nice)  # inherited by every process forked or started from here
+    niceness = lower_priority(settings.worker_nice, settings.worker_idle)
     store = TrainingStore(job_worker.connect(settings), settings)
     execution.configure(settings)  # the forked job processes inherit these settings
     return job_worker.work(store, args, "training worker", nice=niceness)

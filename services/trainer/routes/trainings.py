@@ -43,6 +43,7 @@ from services.common import job_events
 from services.common.auth import CALLER, OwnerDep
 from services.common.errors import ApiError, from_validation
 from services.common.jobs import FINAL, QueueFull, new_id
+from services.common.queue_app import queue_full
 from services.trainer import models
 from services.trainer.deps import SettingsDep, StoreDep
 from services.trainer.metrics import Metrics
@@ -298,7 +299,7 @@ async def create_training(
             raise
     except QueueFull as exc:
         metrics.rejected.labels("queue_full").inc()
-        raise ApiError(503, "queue_full", str(exc)) from exc
+        raise queue_full(exc) from exc
     except ApiError as exc:
         metrics.rejected.labels(exc.body.error).inc()
         raise

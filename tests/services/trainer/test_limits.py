@@ -72,6 +72,21 @@ def test_stored_models_and_bytes(trn: Trainer) -> None:
     assert not (trn.artifacts / "big").exists()
 
 
+def test_a_full_queue_is_503_naming_the_limit(trn: Trainer) -> None:
+    api = trn.client(max_queue=1, max_trainings_per_key=10)
+    assert upload(api, "tinybot.zip", ZIP, key="key-a", name="one", **TINY).status_code == 202
+    r = upload(api, "tinybot.zip", ZIP, key="key-a", name="two", **TINY)
+    assert r.status_code == 503, r.text
+    body = r.json()
+    assert (body["error"], body["field"], body["expected"], body["got"]) == (
+        "queue_full",
+        "MAX_QUEUE",
+        "<= 1",
+        2,
+    )
+    assert not (trn.artifacts / "two").exists()  # the name is given back, nothing kept of the upload
+
+
 def test_keys_off_share_one_pool_of_trainings(
     redis_url: str, tmp_path_factory: pytest.TempPathFactory
 ) -> None:
