@@ -98,13 +98,40 @@ class ModelList(BaseModel):
 
 
 # ---------------------------------------------------------------- scene (what a client draws)
+class MaterialInfo(BaseModel):
+    """A geom's MJCF material. MuJoCo draws a geom in its material's ``rgba`` unless the geom has an
+    ``rgba`` of its own (one other than the default ``0.5 0.5 0.5 1``); ``emission``, ``specular``,
+    ``shininess`` and ``reflectance`` are MuJoCo's lighting coefficients in 0..1."""
+
+    name: str
+    rgba: list[float]
+    emission: float = 0.0
+    specular: float = 0.5
+    shininess: float = 0.5
+    reflectance: float = 0.0
+
+
+class MeshInfo(BaseModel):
+    """The file a mesh geom is drawn from, and where its vertices go. ``asset`` is the artifact's file
+    (``GET /models/{model}/assets/{asset}``: STL, OBJ or MuJoCo's MSH), null for a mesh whose vertices
+    are written in the MJCF. MuJoCo scales a mesh, then moves it so that its centre of mass and axes of
+    inertia are the geom's frame: a file's vertex ``v`` is at ``conj(quat) · (scale ∘ v − pos)`` in the
+    geom's frame (``quat`` is ``[w, x, y, z]``)."""
+
+    name: str
+    asset: str | None
+    scale: list[float]
+    pos: list[float]
+    quat: list[float]
+
+
 class GeomInfo(BaseModel):
     """One MuJoCo geom, in its body's frame. ``type``: MuJoCo's geom type (``box``, ``sphere``,
     ``capsule``, ``cylinder``, ``ellipsoid``, ``plane``, ``mesh``...); ``size``: MuJoCo's three size
     numbers (box: half-extents; sphere: radius; capsule and cylinder: radius, half-length along the
     geom's z; ellipsoid: radii; plane: half-extents, 0 meaning infinite; mesh: half-extents of its
-    bounding box). ``quat`` is ``[w, x, y, z]``; ``rgba`` in 0..1; ``group``: MuJoCo's visibility group
-    (0–2 are drawn by default)."""
+    bounding box). ``quat`` is ``[w, x, y, z]``; ``rgba`` in 0..1 (the geom's own; see ``material``);
+    ``group``: MuJoCo's visibility group (0–2 are drawn by default); ``mesh``: a mesh geom's file."""
 
     name: str
     type: str
@@ -113,6 +140,8 @@ class GeomInfo(BaseModel):
     quat: list[float]
     rgba: list[float]
     group: int = 0
+    material: MaterialInfo | None = None
+    mesh: MeshInfo | None = None
 
 
 class BodyInfo(BaseModel):

@@ -148,6 +148,29 @@ def _rotation_from_quaternion() -> tuple[Tensor, Tensor]:
     return a, torch.eye(3).flatten()
 
 
+def _pair_expansions() -> tuple[Tensor, Tensor]:
+    """Constants (E₁, E₂), each (4, 16), with ``(q @ E₁) * (p @ E₂)`` the flattened outer product
+    q pᵀ (B, 16): entry 4i + j is q_i p_j. Two products and a multiplication, where unsqueezing and
+    reshaping would be four graph nodes."""
+    e1, e2 = torch.zeros(4, 16), torch.zeros(4, 16)
+    for i in range(4):
+        for j in range(4):
+            e1[i, 4 * i + j] = e2[j, 4 * i + j] = 1.0
+    return e1, e2
+
+
+def _product_table() -> Tensor:
+    """Constant T (16, 4) with ``outer(q, p) @ T == q ⊗ p`` (the Hamilton product of [w, x, y, z]
+    quaternions), ``outer`` flattened as in ``_pair_expansions``: the product is bilinear."""
+    left = _left_product()  # q @ left = L(q) row-major, L(q)[i][j] = Σ_k q_k left[k, 4i + j]
+    t = torch.zeros(16, 4)
+    for k in range(4):
+        for i in range(4):
+            for j in range(4):
+                t[4 * k + j, i] += left[k, 4 * i + j]
+    return t
+
+
 def _left_product() -> Tensor:
     """Constant C (4, 16) with ``q @ C`` the row-major 4×4 matrix L(q) such that q ⊗ p = L(q) p."""
     signs = [  # L(q)[i][j] = sign * q[k]
@@ -220,6 +243,9 @@ class StructuredEmulator(nn.Module):
     _r_offset: Tensor
     _left: Tensor
     _identity_q: Tensor
+    _pair_first: Tensor
+    _pair_second: Tensor
+    _product: Tensor
     _limit_sel: Tensor
     _limit_low: Tensor
     _limit_high: Tensor
@@ -460,6 +486,10 @@ class StructuredEmulator(nn.Module):
         self.register_buffer("_r_offset", r_offset, persistent=False)  # (9,)
         self.register_buffer("_left", _left_product(), persistent=False)  # (4, 16)
         self.register_buffer("_identity_q", torch.tensor([1.0, 0.0, 0.0, 0.0]), persistent=False)
+        e1, e2 = _pair_expansions()
+        self.register_buffer("_pair_first", e1, persistent=False)  # (4, 16)
+        self.register_buffer("_pair_second", e2, persistent=False)  # (4, 16)
+        self.register_buffer("_product", _product_table(), persistent=False)  # (16, 4)
 
     def _plan_limits(self, S: int) -> None:
         """``state @ _limit_sel`` (S, K·L) is every limited joint extrapolated to each fraction of the
@@ -487,7 +517,7 @@ class StructuredEmulator(nn.Module):
         from the unit root quaternion; else the heading table (B, 4): cos ψ, sin ψ, cos ψ/2, sin ψ/2."""
         if self._body:
             q = self._root_quaternion(state)
-            outer = (q.unsqueeze(2) * q.unsqueeze(1)).reshape(-1, 16)
+            outer = (q @ self._pair_first) * (q @ self._pair_second)  # (B, 16): q qᵀ flattened
             return outer @ self._outer_to_r + self._r_offset
         if self._quat is not None:
             wz = state @ self._frame_sel  # (B, 2)
@@ -499,7 +529,7 @@ class StructuredEmulator(nn.Module):
     def _root_quaternion(self, state: Tensor) -> Tensor:
         """The root quaternion (B, 4), normalised (a client may send one that is not quite unit)."""
         q = state @ self._frame_sel
-        return q / torch.sqrt((q * q).sum(dim=1, keepdim=True) + 1e-12)
+        return q / (torch.linalg.vector_norm(q, dim=1, keepdim=True) + 1e-12)
 
     def local_frame(self, state: Tensor) -> Frame | None:
         """The frame of each state if this emulator uses one, else None; compute once per step."""
@@ -579,12 +609,11 @@ class StructuredEmulator(nn.Module):
             turned = vecs @ r.transpose(1, 2) if inverse else vecs @ r  # rows (R v)^T or (R^T v)^T
             parts.append(turned.reshape(-1, 3 * self._num_out_vecs))
         q = self._root_quaternion(state)
-        left = (q @ self._left).reshape(-1, 4, 4)  # L(q): q ⊗ p = L(q) p
         dq = delta @ self._frame_sel  # (B, 4)
-        if inverse:  # increment -> change of q: q ⊗ (1 + d) − q
-            nxt = (left @ (self._identity_q + dq).unsqueeze(2)).squeeze(2)
-            parts.append(nxt - q)
+        if inverse:  # increment -> change of q: q ⊗ (1 + d) − q = q ⊗ d, bilinear in (q, d)
+            parts.append(((q @ self._pair_first) * (dq @ self._pair_second)) @ self._product)
         else:  # change of q -> increment: L(q)ᵀ q' − 1, with q' on the side of q
+            left = (q @ self._left).reshape(-1, 4, 4)  # L(q): q ⊗ p = L(q) p
             inc = (left.transpose(1, 2) @ (q + dq).unsqueeze(2)).squeeze(2)
             inc = torch.where(inc[:, :1] < 0, -inc, inc)
             parts.append(inc - self._identity_q)
@@ -630,9 +659,13 @@ class StructuredEmulator(nn.Module):
         nxt = state + self._map_delta(state, delta_local, inverse=True, frame=frame)
         if not self._num_quats:
             return nxt
-        q = (nxt @ self._quat_sel).reshape(-1, self._num_quats, 4)
-        q = q / torch.sqrt((q * q).sum(dim=2, keepdim=True))
-        return nxt @ self._keep + q.reshape(-1, 4 * self._num_quats) @ self._quat_place
+        if self._num_quats == 1:  # (B, 4) as it is: two reshapes fewer in the graph
+            q = nxt @ self._quat_sel
+            q = q / torch.linalg.vector_norm(q, dim=1, keepdim=True)
+            return nxt @ self._keep + q @ self._quat_place
+        qs = (nxt @ self._quat_sel).reshape(-1, self._num_quats, 4)
+        qs = qs / torch.linalg.vector_norm(qs, dim=2, keepdim=True)
+        return nxt @ self._keep + qs.reshape(-1, 4 * self._num_quats) @ self._quat_place
 
     def forward(self, state: Tensor, controls: Tensor | None = None, forces: Tensor | None = None) -> Tensor:
         frame = self.local_frame(state)

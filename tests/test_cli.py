@@ -25,6 +25,22 @@ class CliRun:
     root: Path
 
 
+# the smallest training that still runs every phase of ``--substeps auto`` (for tests of its choice)
+TINY_AUTO = [
+    "--examples",
+    "300",
+    "--epochs",
+    "2",
+    "--hidden",
+    "8",
+    "--rollout-steps",
+    "0",
+    "--quiet",
+    "--force",
+    "--json",
+]
+
+
 def _run(argv: list[str]) -> tuple[int, str]:
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
@@ -355,20 +371,9 @@ def test_an_emulator_that_misses_the_bar_is_refused_and_nothing_written(
 def test_auto_super_step_takes_50_for_a_model_without_contacts_or_limits(tmp_path: Path) -> None:
     mjcf = tmp_path / "arm.xml"
     mjcf.write_text(ARM_XML)
-    tiny = [
-        "--examples",
-        "300",
-        "--epochs",
-        "2",
-        "--hidden",
-        "8",
-        "--rollout-steps",
-        "0",
-        "--quiet",
-        "--force",
-        "--json",
-    ]
-    rc, stdout = _run(["train", "--mjcf", str(mjcf), "--substeps", "auto", *tiny, "--out", str(tmp_path)])
+    rc, stdout = _run(
+        ["train", "--mjcf", str(mjcf), "--substeps", "auto", *TINY_AUTO, "--out", str(tmp_path)]
+    )
     assert rc == 0
     summary = _last_json(stdout)
     assert summary["substeps"] == 50
@@ -385,20 +390,7 @@ def test_auto_super_step_probes_a_model_whose_limits_engage(tmp_path: Path) -> N
 
     mjcf = tmp_path / "rail.xml"
     mjcf.write_text(RAIL_XML)
-    tiny = [
-        "--examples",
-        "300",
-        "--epochs",
-        "2",
-        "--hidden",
-        "8",
-        "--rollout-steps",
-        "0",
-        "--quiet",
-        "--force",
-        "--json",
-    ]
-    rc, stdout = _run(["train", "--mjcf", str(mjcf), *tiny, "--out", str(tmp_path)])  # --mjcf: auto
+    rc, stdout = _run(["train", "--mjcf", str(mjcf), *TINY_AUTO, "--out", str(tmp_path)])  # --mjcf: auto
     assert rc == 0
     summary = _last_json(stdout)
     reason = summary["substeps_reason"]

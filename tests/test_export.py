@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -116,6 +117,28 @@ def test_batched_step_equals_loop_of_single_steps(
     for i in range(s.shape[0]):
         one = emu.step(s[i : i + 1], None if u is None else u[i : i + 1], None if f is None else f[i : i + 1])
         np.testing.assert_allclose(one[0], batched[i], rtol=1e-5, atol=1e-5)
+
+
+def test_single_rows_are_kept_and_threads_do_not_share_buffers(
+    export_of: Callable[[str], tuple[StructuredEmulator, bytes]], inputs_of: InputsOf
+) -> None:
+    """One-row steps go through buffers bound once (per thread): a returned state is the caller's to
+    keep after the next step, and threads stepping the same emulator get their own rows."""
+    _, data = export_of("pendulum-force")
+    emu = OnnxEmulator(data)
+    s, u, f = inputs_of(physics.get("pendulum-force"), 8, seed=3)
+    assert u is not None and f is not None
+    expected = emu.step(s, u, f)
+    kept = [emu.step(s[i : i + 1], u[i : i + 1], f[i : i + 1]) for i in range(8)]
+    np.testing.assert_allclose(np.concatenate(kept), expected, rtol=1e-5, atol=1e-5)
+
+    def rows(i: int) -> np.ndarray:
+        return np.concatenate([emu.step(s[i : i + 1], u[i : i + 1], f[i : i + 1]) for _ in range(200)])
+
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(rows, range(8)))
+    for i, got in enumerate(results):
+        np.testing.assert_allclose(got, np.repeat(expected[i : i + 1], 200, axis=0), rtol=1e-5, atol=1e-5)
 
 
 def test_input_sizes_are_read_from_the_graph(

@@ -11,6 +11,7 @@ import tarfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -111,6 +112,47 @@ def test_the_emulator_service_serves_it(trained: Trained) -> None:
         sid = client.post("/sessions", json={"model": "tinybot", "seed": 1}).json()["id"]
         step = client.post(f"/sessions/{sid}/step", json={"controls": [0.5], "steps": 2})
         assert step.status_code == 200 and len(step.json()["state"]) == 2
+
+
+def test_the_emulator_service_serves_its_mesh_file(trained: Trained, tmp_path: Path) -> None:
+    """``/geometry`` names the knob's OBJ among the artifact's assets with its material; ``/assets/{name}``
+    serves that file as stored, to the keys that may see the model only."""
+    from services.common import tenancy
+    from services.common.auth import ApiKeys
+    from services.emulator.app import create_app
+    from services.emulator.settings import Settings
+
+    root = tmp_path / "registry"
+    shutil.copytree(trained.root, root)
+    common: dict[str, Any] = {"artifacts_dir": root, "registry_poll_s": 0.0, "redis_url": ""}
+    with TestClient(create_app(Settings(**common, api_keys=""))) as client:
+        geoms = client.get("/models/tinybot/geometry").json()["bodies"][0]["geoms"]
+        knob = next(g for g in geoms if g["name"] == "knob")
+        assert knob["material"]["name"] == "checker" and knob["material"]["rgba"] == [1, 1, 1, 1]
+        assert knob["mesh"]["name"] == "knob" and knob["mesh"]["scale"] == [1, 1, 1]
+        rod = next(g for g in geoms if g["name"] == "rod")
+        assert rod["mesh"] is None and rod["material"] is None
+        asset = knob["mesh"]["asset"]
+        r = client.get(f"/models/tinybot/assets/{asset}")
+        assert r.status_code == 200 and r.content == (TINYBOT / "assets" / "knob.obj").read_bytes()
+        assert r.headers["content-type"].startswith("model/obj")
+        assert r.headers["etag"] == f'"{asset.split(".")[0]}"' and "immutable" in r.headers["cache-control"]
+        version = trained.versions[0].name
+        assert client.get(f"/models/tinybot/assets/{asset}", params={"version": version}).status_code == 200
+        texture = client.get(f"/models/tinybot/assets/{asset.replace('.obj', '.png')}")
+        assert texture.status_code == 404 and texture.json()["error"] == "unknown_asset"
+        assert "has no asset" in texture.json()["message"]
+        assert client.get(f"/models/nosuch/assets/{asset}").json()["error"] == "unknown_model"
+
+    keys = ApiKeys("alpha,beta", "test-secret")
+    tenancy.write(root, "tinybot", tenancy.Ownership.new(keys.id_of("alpha")))
+    authed = Settings(**common, api_keys="alpha,beta", api_key_secret="test-secret")
+    with TestClient(create_app(authed)) as client:
+        url = f"/models/tinybot/assets/{asset}"
+        assert client.get(url).status_code == 401
+        assert client.get(url, headers={"Authorization": "Bearer alpha"}).status_code == 200
+        other = client.get(url, headers={"Authorization": "Bearer beta"})
+        assert other.status_code == 404 and other.json()["error"] == "unknown_model"  # as if it did not exist
 
 
 def test_neuro_models_shows_the_size(trained: Trained, capsys: pytest.CaptureFixture[str]) -> None:

@@ -55,6 +55,8 @@ from neuroanimator.controller_schemas import (
     Trajectory,
 )
 from neuroanimator.manifest import Manifest
+from neuroanimator.quaternion import wrap_angle
+from neuroanimator.state import LayoutGroup, heading_columns
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +71,17 @@ STATUS = {
     "diverged": "failed",
     "cancelled": "cancelled",
 }
+
+
+def reported(states: np.ndarray, layout: list[LayoutGroup]) -> np.ndarray:
+    """States (K+1, S) as the emulator service reports them: a ``heading`` wrapped to [-π, π)
+    (``state.heading_columns``), whatever turns the rollout made."""
+    cols = heading_columns(layout)
+    if not cols:
+        return states
+    out = np.array(states, dtype=np.float64, copy=True)
+    out[:, cols] = wrap_angle(out[:, cols])
+    return out
 
 
 def load_problem(spec: JobSpec, artifacts_root: Path) -> tuple[ControlProblem, Manifest, Path]:
@@ -295,8 +308,8 @@ def _run(
         super_timestep=problem.super_dt,
         times=problem.spline.times(),
         controls=clean(held),
-        emulated=Trajectory(states=clean(emulated)),
-        physical=Trajectory(states=clean(phys_states)),
+        emulated=Trajectory(states=clean(reported(emulated, layout))),
+        physical=Trajectory(states=clean(reported(phys_states, layout))),
         final_error_emulator=clean(emu.final_error),
         final_error_physics=clean(phys.final_error),
         final_errors_emulator=clean(emu.final_errors),

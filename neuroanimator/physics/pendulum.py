@@ -65,8 +65,8 @@ CONTROL_INFO = {
 }
 
 
-def active() -> PhysicalModel:
-    spec = ModelSpec(
+def _active_spec() -> ModelSpec:
+    return ModelSpec(
         name="pendulum-active",
         description="three-link pendulum with a motor torque at each joint (thesis E.1)",
         control_info=CONTROL_INFO,
@@ -76,22 +76,25 @@ def active() -> PhysicalModel:
         thesis_hidden=20,
         control_spacing_s=1.0,
     )
+
+
+def active() -> PhysicalModel:
+    spec = _active_spec()
     return _model(_xml(True, spec.name), spec)
 
 
 def force() -> PhysicalModel:
-    spec = ModelSpec(
-        name="pendulum-force",
-        description="active three-link pendulum plus horizontal forces applied to each link (thesis 4.2)",
-        control_info=CONTROL_INFO,
-        layout=LAYOUT,
-        initial=INITIAL,
-        episode_s=30.0,
-        thesis_hidden=20,
-        forces=[
-            ForceInput(name=f"push{i}", body=f"link{i}", component=0, low=-2.0, high=2.0) for i in range(3)
-        ],
-        force_spacing_s=1.0,
+    """The active pendulum with a horizontal push on each link."""
+    spec = _active_spec().model_copy(
+        update={
+            "name": "pendulum-force",
+            "description": "active three-link pendulum plus horizontal forces applied to each link (thesis 4.2)",
+            "forces": [
+                ForceInput(name=f"push{i}", body=f"link{i}", component=0, low=-2.0, high=2.0)
+                for i in range(3)
+            ],
+            "force_spacing_s": 1.0,
+        }
     )
     return _model(_xml(True, spec.name), spec)
 

@@ -225,3 +225,23 @@ def test_physics_correction_makes_the_emulator_replay_the_physical_trajectory() 
     np.testing.assert_allclose(corrected, phys, atol=2e-4)
     problem.set_correction(None)
     np.testing.assert_allclose(problem.trajectory(z)[0], plain)
+
+
+def test_result_reports_a_heading_wrapped_as_the_emulator_service_does() -> None:
+    """The truck starts turning left at a heading of 3.05 rad: its trajectories cross π and are
+    reported wrapped to [-π, π), as every step of the emulator service reports a heading."""
+    result = run_job(
+        {
+            "task": "truck-parking",
+            "horizon": 6,
+            "initial_state": [0, 0, 3.05, 3.0, 0, 1.0],
+            "target_state": [-10, 3, -2.5, 0, 0, 0],
+            "optimizer": {"max_iterations": 2},
+        },
+        ARTIFACTS,
+    )
+    assert result.emulated is not None and result.physical is not None
+    for trajectory in (result.emulated, result.physical):
+        heading = np.asarray(trajectory.states, dtype=float)[:, 2]
+        assert np.all((heading >= -np.pi) & (heading < np.pi)), heading
+        assert heading[0] == pytest.approx(3.05, abs=1e-6) and heading[1] < 0  # turned past π
