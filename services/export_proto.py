@@ -18,6 +18,7 @@ the only place that imports both.
 from __future__ import annotations
 
 import argparse
+import importlib
 import inspect
 import json
 import logging
@@ -88,30 +89,27 @@ def _module_schemas(mod: Any) -> dict[str, dict[str, Any]]:
     }
 
 
-def controller_openapi() -> dict[str, Any]:
-    """The controller API's document (its Redis is not contacted: connections are lazy)."""
-    from services.controller.app import create_app
-    from services.controller.settings import Settings
-
+def _job_service_openapi(service: str) -> dict[str, Any]:
+    """A job service's document (``controller`` or ``trainer``); its Redis is not contacted, since
+    connections are lazy."""
+    app_module = importlib.import_module(f"services.{service}.app")
+    settings_module = importlib.import_module(f"services.{service}.settings")
     with tempfile.TemporaryDirectory() as empty:
-        settings = Settings(
+        settings = settings_module.Settings(
             artifacts_dir=Path(empty), api_keys="", cors_origins="", redis_url="redis://127.0.0.1:1/0"
         )
-        doc: dict[str, Any] = create_app(settings).openapi()
+        doc: dict[str, Any] = app_module.create_app(settings).openapi()
     return doc
+
+
+def controller_openapi() -> dict[str, Any]:
+    """The controller API's document."""
+    return _job_service_openapi("controller")
 
 
 def trainer_openapi() -> dict[str, Any]:
-    """The trainer API's document (its Redis is not contacted: connections are lazy)."""
-    from services.trainer.app import create_app
-    from services.trainer.settings import Settings
-
-    with tempfile.TemporaryDirectory() as empty:
-        settings = Settings(
-            artifacts_dir=Path(empty), api_keys="", cors_origins="", redis_url="redis://127.0.0.1:1/0"
-        )
-        doc: dict[str, Any] = create_app(settings).openapi()
-    return doc
+    """The trainer API's document."""
+    return _job_service_openapi("trainer")
 
 
 def emulator_openapi() -> dict[str, Any]:

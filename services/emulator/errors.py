@@ -78,7 +78,8 @@ class WrongMode(EmulatorError):
 
 
 class QuotaExceeded(EmulatorError):
-    """Too many sessions: in this replica (``too_many_sessions``) or for one API key."""
+    """Too many sessions: in this replica (``too_many_sessions``) or for one API key; ``field`` names the
+    limit (``MAX_SESSIONS``, ``MAX_SESSIONS_PER_KEY``)."""
 
     default_code = "too_many_sessions"
 

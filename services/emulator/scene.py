@@ -12,14 +12,14 @@ A pose is ``[x, y, z, qw, qx, qy, qz]`` in the world frame; bodies are MuJoCo's 
 from __future__ import annotations
 
 import threading
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from functools import cached_property
 
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.emulator_schemas import BodyInfo, GeomInfo, ModelGeometry
+from neuroanimator.emulator_schemas import BodyInfo, GeomInfo, MaterialInfo, MeshInfo, ModelGeometry
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.quaternion import wrap_angle
 from services.emulator.errors import BadInput
@@ -35,7 +35,44 @@ def _floats(values: NDArray[np.float64]) -> list[float]:
     return [round(float(v), 6) for v in values]
 
 
-def _geom(m: mujoco.MjModel, g: int) -> GeomInfo:
+def _path(m: mujoco.MjModel, adr: int) -> str | None:
+    """A file name from the model's ``paths`` (``*_pathadr``; -1: none)."""
+    if adr < 0:
+        return None
+    raw: bytes = m.paths[adr:].split(b"\0", 1)[0]
+    return raw.decode() or None
+
+
+def _material(m: mujoco.MjModel, g: int) -> MaterialInfo | None:
+    mat = int(m.geom_matid[g])
+    if mat < 0:
+        return None
+    return MaterialInfo(
+        name=mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_MATERIAL, mat) or f"material{mat}",
+        rgba=_floats(m.mat_rgba[mat]),
+        emission=round(float(m.mat_emission[mat]), 6),
+        specular=round(float(m.mat_specular[mat]), 6),
+        shininess=round(float(m.mat_shininess[mat]), 6),
+        reflectance=round(float(m.mat_reflectance[mat]), 6),
+    )
+
+
+def _mesh(m: mujoco.MjModel, g: int, assets: Collection[str]) -> MeshInfo | None:
+    """A mesh geom's file (when the artifact has it) and MuJoCo's placement of its vertices."""
+    mesh = int(m.geom_dataid[g])
+    if m.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH or mesh < 0:
+        return None
+    file = _path(m, int(m.mesh_pathadr[mesh]))
+    return MeshInfo(
+        name=mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_MESH, mesh) or f"mesh{mesh}",
+        asset=file if file in assets else None,
+        scale=_floats(m.mesh_scale[mesh]),
+        pos=_floats(m.mesh_pos[mesh]),
+        quat=_floats(m.mesh_quat[mesh]),
+    )
+
+
+def _geom(m: mujoco.MjModel, g: int, assets: Collection[str] = ()) -> GeomInfo:
     size = m.geom_size[g]
     if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
         size = m.geom_aabb[g][3:]  # half-extents of the mesh's box; centred at the geom's frame
@@ -47,6 +84,8 @@ def _geom(m: mujoco.MjModel, g: int) -> GeomInfo:
         quat=_floats(m.geom_quat[g]),
         rgba=_floats(m.geom_rgba[g]),
         group=int(m.geom_group[g]),
+        material=_material(m, g),
+        mesh=_mesh(m, g, assets),
     )
 
 
@@ -97,11 +136,13 @@ class Kinematics:
 
 
 def geometry(model: str, version: str, kin: Kinematics) -> ModelGeometry:
-    """The model's bodies, their geoms, the world's geoms and the rest poses."""
+    """The model's bodies, their geoms (a mesh names its file among the artifact's assets), the world's
+    geoms and the rest poses."""
     m = kin.m
+    assets = kin.physical.assets.keys()
     by_body: dict[int, list[GeomInfo]] = {b: [] for b in range(m.nbody)}
     for g in range(m.ngeom):
-        by_body[int(m.geom_bodyid[g])].append(_geom(m, g))
+        by_body[int(m.geom_bodyid[g])].append(_geom(m, g, assets))
     bodies = [
         BodyInfo(name=name, parent=int(m.body_parentid[b]) - 1, geoms=by_body[b])
         for b, name in zip(range(1, m.nbody), kin.body_names, strict=True)

@@ -294,6 +294,7 @@ class SessionStore:
                     f"this API key holds its maximum of {self.max_per_key} sessions "
                     "(MAX_SESSIONS_PER_KEY); delete some or wait for idle ones to expire",
                     code="key_quota_exceeded",
+                    field="MAX_SESSIONS_PER_KEY",
                     expected=self.max_per_key,
                     got=held + 1,
                 )
@@ -301,7 +302,9 @@ class SessionStore:
             self.expire()
         if len(self.sessions) >= self.max_sessions:
             raise QuotaExceeded(
-                f"this replica holds its maximum of {self.max_sessions} sessions; delete some or retry later",
+                f"this replica holds its maximum of {self.max_sessions} sessions (MAX_SESSIONS); delete some "
+                "or retry later",
+                field="MAX_SESSIONS",
                 expected=self.max_sessions,
                 got=len(self.sessions) + 1,
             )

@@ -15,6 +15,7 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel
 
 from neuroanimator import registry
+from services.common import tenancy
 from services.common.docs import add_offline_docs
 from services.common.limits import limit_bodies
 from services.web.settings import Settings
@@ -61,6 +62,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             found.model_dump_json(), media_type="application/json", headers={"Cache-Control": "no-cache"}
         )
 
+    keys_on = bool(settings.api_keys.strip())
+
+    def shown(model: str) -> bool:
+        """The dashboard's server takes no API key: with keys on, it answers only for models everybody
+        sees (no owner file, or published), as the other services do for a key that is not the owner's."""
+        return not keys_on or tenancy.visible(tenancy.read(root, model), caller="", operator=False)
+
     def unreadable(exc: registry.ArtifactError, what: str) -> Response:
         if exc.what in ("model", "version", "substeps"):
             return JSONResponse({"error": "not_measured", "message": f"no {what}: {exc}"}, status_code=404)
@@ -72,7 +80,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         """A model's evaluation or benchmark over its current versions (``eval.json``: ``ModelEval``,
         ``bench.json``: ``ModelBench``), when measured."""
         what = f"{name} for model {model!r}"
-        if name not in MEASUREMENTS:
+        if name not in MEASUREMENTS or not shown(model):
             return answer(None, what)
         try:
             found = (
@@ -88,7 +96,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     def version_measurements(model: str, version: str, name: str) -> Response:
         """One version's evaluation or benchmark (``VersionEval``, ``VersionBench``), when measured."""
         what = f"{name} for version {version!r} of model {model!r}"
-        if name not in MEASUREMENTS:
+        if name not in MEASUREMENTS or not shown(model):
             return answer(None, what)
         try:
             path = registry.resolve(root, model, version)

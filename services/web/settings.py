@@ -30,4 +30,9 @@ class Settings(ServiceSettings):
     trainer_url: str = Field(
         "http://127.0.0.1:8002", description="the trainer API, as the browser sees it (empty: none)"
     )
+    api_keys: str = Field(
+        "",
+        description="the APIs' keys (API_KEYS, read here only to know whether keys are on): with keys on, "
+        "this server, which takes no key, answers results only for models everybody sees",
+    )
     port: Port = 8080

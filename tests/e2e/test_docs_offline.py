@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import socket
 import subprocess
 import threading
@@ -25,24 +24,12 @@ from services.emulator.app import create_app as emulator_app
 from services.emulator.settings import Settings as EmulatorSettings
 from services.web.app import create_app as web_app
 from services.web.settings import Settings as WebSettings
+from tests.e2e.harness import missing
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "tests" / "e2e" / "docs_offline.mjs"
 SHOTS = ROOT / "tests" / "e2e" / "screenshots"
-CHROMIUM = os.environ.get("CHROMIUM", "/usr/bin/chromium")
-
-
-def _missing() -> str | None:
-    if not Path(CHROMIUM).is_file():
-        return f"no Chromium at {CHROMIUM} (make test installs Debian's chromium)"
-    if shutil.which("node") is None:
-        return "no node on PATH"
-    if not (ROOT / "web" / "node_modules" / "playwright-core").is_dir():
-        return "web/node_modules is not installed (make test runs npm ci in web/)"
-    return None
-
-
-pytestmark = pytest.mark.skipif(_missing() is not None, reason=_missing() or "")
+pytestmark = pytest.mark.skipif(missing(dashboard=False) is not None, reason=missing(dashboard=False) or "")
 
 
 def _serve(app: FastAPI) -> tuple[uvicorn.Server, threading.Thread, str]:

@@ -74,3 +74,28 @@ def test_proto_has_the_trainer_contract() -> None:
     form = post["requestBody"]["content"]["multipart/form-data"]["schema"]
     assert form["properties"]["file"]["format"] == "binary" and "super_step" in form["properties"]
     assert {"413", "415", "422", "429", "409"} <= set(post["responses"])
+
+
+def test_ops_endpoints_are_documented_with_their_media_types() -> None:
+    """``/metrics`` is Prometheus's text (never documented as JSON), ``/readyz`` JSON with its 503; and
+    every error of every operation is the project's ``ErrorBody``, on all three services."""
+    documents = {
+        "emulator": export_proto.emulator_openapi(),
+        "controller": export_proto.controller_openapi(),
+        "trainer": export_proto.trainer_openapi(),
+    }
+    for name, doc in documents.items():
+        metrics = doc["paths"]["/metrics"]["get"]["responses"]["200"]["content"]
+        assert "application/json" not in metrics and any(t.startswith("text/plain") for t in metrics), name
+        assert set(doc["paths"]["/readyz"]["get"]["responses"]) == {"200", "503"}, name
+        for path, operations in doc["paths"].items():
+            for method, op in operations.items():
+                for code, response in op["responses"].items():
+                    if code.startswith(("4", "5")) and path != "/readyz":
+                        schema = response["content"]["application/json"]["schema"]
+                        assert schema == {"$ref": "#/components/schemas/ErrorBody"}, (
+                            name,
+                            method,
+                            path,
+                            code,
+                        )

@@ -1,8 +1,10 @@
-// The dashboard: hash routes #/models, #/playground, #/controllers; a health line for the services;
+// The dashboard: hash routes #/models, #/playground, #/controllers; a health line for the services (the
+// trainer's too when there is one);
 // every error reaches the person as a notice in plain words.
 import './style.css';
 import { ControllerApi } from './api/controller';
 import { EmulatorApi } from './api/emulator';
+import { TrainerApi } from './api/trainer';
 import { errorText } from './api/http';
 import { loadConfig } from './config';
 import type { Ctx, Page } from './pages/context';
@@ -31,9 +33,11 @@ function route(): string {
 }
 
 async function watchHealth(ctx: Ctx, el: HTMLElement): Promise<void> {
+  const trainer = ctx.trainer;
   const checks: [string, () => Promise<unknown>, string][] = [
     ['emulator', () => ctx.emulator.ready(), ctx.emulator.base],
     ['controller', () => ctx.controller.ready(), ctx.controller.base],
+    ...(trainer ? [['trainer', () => trainer.ready(), trainer.base] as [string, () => Promise<unknown>, string]] : []),
   ];
   const dots = checks.map(([name]) => h('span', { class: 'dot', 'data-service': name }, name));
   el.append(...dots);
@@ -64,7 +68,11 @@ async function main(): Promise<void> {
   window.addEventListener('unhandledrejection', (ev) => notify(`Something went wrong in the dashboard: ${errorText(ev.reason)}`));
   const { config, warning } = await loadConfig(location.href);
   if (warning) notify(warning, 'warning');
-  const ctx: Ctx = { emulator: new EmulatorApi(config.emulatorUrl), controller: new ControllerApi(config.controllerUrl) };
+  const ctx: Ctx = {
+    emulator: new EmulatorApi(config.emulatorUrl),
+    controller: new ControllerApi(config.controllerUrl),
+    trainer: config.trainerUrl ? new TrainerApi(config.trainerUrl) : null,
+  };
   const nav = byId('nav');
   const links = Object.entries(PAGES).map(([key, p]) => h('a', { href: `#/${key}`, 'data-page': key }, p.title));
   nav.append(...links);

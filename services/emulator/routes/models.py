@@ -1,10 +1,15 @@
-"""``GET /models``, ``GET /models/{model}``: the loaded emulators and their manifests; ``/geometry`` and
-``/poses``: what a client needs to draw a model (bodies, geoms, world poses of states)."""
+"""``GET /models``, ``GET /models/{model}``: the loaded emulators and their manifests; ``/geometry``,
+``/poses`` and ``/assets/{asset}``: what a client needs to draw a model (bodies, geoms, world poses of
+states, the mesh and texture files its MJCF names)."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from typing import Any
 
+from fastapi import APIRouter
+from fastapi.responses import FileResponse
+
+from neuroanimator import registry
 from neuroanimator.emulator_schemas import (
     ControlInfo,
     ErrorBody,
@@ -17,6 +22,7 @@ from neuroanimator.emulator_schemas import (
     PosesResponse,
 )
 from services.emulator.deps import ServiceDep
+from services.emulator.errors import UnknownModel
 from services.emulator.registry import LoadedEmulator
 from services.emulator.scene import check_states, geometry
 
@@ -89,4 +95,53 @@ def post_poses(model: str, req: PosesRequest, service: ServiceDep) -> PosesRespo
         version=emu.version,
         bodies=kin.body_names,
         poses=kin.poses(states).round(6).tolist(),
+    )
+
+
+MEDIA_TYPES = {
+    ".stl": "model/stl",
+    ".obj": "model/obj",
+    ".png": "image/png",
+    ".jpg": "image/jpeg",
+    ".jpeg": "image/jpeg",
+}
+"""The media type of an asset by its extension; any other file is ``application/octet-stream``."""
+_ASSET_RESPONSES: dict[int | str, dict[str, Any]] = {
+    200: {
+        "description": "the file, as the artifact stores it (its ETag is its SHA-256)",
+        "content": {t: {} for t in (*dict.fromkeys(MEDIA_TYPES.values()), "application/octet-stream")},
+    },
+    404: {"model": ErrorBody},
+}
+
+
+@router.get("/models/{model}/assets/{asset}", response_class=FileResponse, responses=_ASSET_RESPONSES)
+async def get_asset(model: str, asset: str, service: ServiceDep, version: str | None = None) -> FileResponse:
+    """A file the model's MJCF names (a mesh, texture, height field or skin), by the name ``/geometry``
+    gives it (``<sha256><extension>``: its content, so it never changes)."""
+    emu = service.registry.get(model, version)
+    found = next((a for a in emu.manifest.assets if a.name == asset), None)
+    if found is None:
+        names = [a.name for a in emu.manifest.assets]
+        raise UnknownModel(
+            f"model {emu.model!r} version {emu.version!r} has no asset {asset!r}; its assets are {names}",
+            code="unknown_asset",
+            field="asset",
+            expected=names,
+            got=asset,
+        )
+    file = registry.assets_dir(emu.path) / found.name
+    if not file.is_file():
+        raise UnknownModel(
+            f"model {emu.model!r} version {emu.version!r}: its {found.kind} {found.source or asset} is "
+            "missing from the artifact registry",
+            code="missing_asset",
+            field="asset",
+            got=asset,
+        )
+    suffix = "." + asset.rsplit(".", 1)[-1].lower() if "." in asset else ""
+    return FileResponse(
+        file,
+        media_type=MEDIA_TYPES.get(suffix, "application/octet-stream"),
+        headers={"ETag": f'"{found.sha256}"', "Cache-Control": "private, max-age=31536000, immutable"},
     )

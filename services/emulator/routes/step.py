@@ -19,6 +19,7 @@ from fastapi import APIRouter, Request, Response
 from pydantic import ValidationError
 
 from neuroanimator.emulator_schemas import BatchStepRequest, BatchStepResponse, BatchStepResult, ErrorBody
+from services.common.errors import json_error
 from services.emulator.binary import MEDIA_TYPE as OCTET
 from services.emulator.deps import ServiceDep
 from services.emulator.error_mapping import error_body, invalid
@@ -85,8 +86,10 @@ async def batch_step(request: Request, service: ServiceDep) -> Response:
         )
     try:
         raw = json.loads(body)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise BadInput(f"the body is not JSON: {exc}", code="malformed_json", field="body") from exc
+    except (ValueError, RecursionError) as exc:  # syntax, encoding, a huge integer, too deep
+        raise BadInput(
+            f"the body is not JSON: {json_error(exc)}", code="malformed_json", field="body"
+        ) from exc
     try:
         req = BatchStepRequest.model_validate(raw)
     except ValidationError as exc:

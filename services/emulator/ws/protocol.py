@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from pydantic import TypeAdapter, ValidationError
 
 from neuroanimator.emulator_schemas import ClientMessage, ShadowState, WsPong, WsStart, WsStarted, WsState
+from services.common.errors import json_error
 from services.emulator import binary
 from services.emulator.error_mapping import invalid
 from services.emulator.errors import BadInput, EmulatorError
@@ -29,8 +30,10 @@ def read_text(text: str) -> tuple[int | None, ClientMessage | EmulatorError]:
     the error echoes it) and the message, or the error saying why it is not one."""
     try:
         raw = json.loads(text)
-    except json.JSONDecodeError as exc:
-        return None, BadInput(f"the message is not JSON: {exc}", code="malformed_json", got=text[:200])
+    except (ValueError, RecursionError) as exc:  # syntax, a huge integer, too deep
+        return None, BadInput(
+            f"the message is not JSON: {json_error(exc)}", code="malformed_json", got=text[:200]
+        )
     seq = raw.get("seq") if isinstance(raw, dict) else None
     seq = seq if isinstance(seq, int) else None
     try:

@@ -98,6 +98,7 @@ def test_per_key_quota(authed: TestClient) -> None:
     ids = [authed.post("/sessions", json=PENDULUM, headers=ALPHA).json()["id"] for _ in range(3)]
     r = authed.post("/sessions", json=PENDULUM, headers=ALPHA)
     assert r.status_code == 429 and r.json()["error"] == "key_quota_exceeded"
+    assert (r.json()["field"], r.json()["expected"], r.json()["got"]) == ("MAX_SESSIONS_PER_KEY", 3, 4)
     assert "MAX_SESSIONS_PER_KEY" in r.json()["message"]
     assert authed.post("/sessions", json=PENDULUM, headers=BETA).status_code == 201  # beta has its own
     authed.delete(f"/sessions/{ids[0]}", headers=ALPHA)

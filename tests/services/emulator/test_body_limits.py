@@ -28,6 +28,28 @@ def test_deep_json_and_non_utf8_are_400_on_every_endpoint(client: Any, path: str
     _error(client.post(path, content=b'{"model": "\xff"}', headers=JSON), 400, "invalid_encoding")
 
 
+@pytest.mark.parametrize(
+    "path", ["/step", "/sessions", "/models/pendulum-active/poses", "/sessions/r0-x/step"]
+)
+def test_a_number_too_long_to_read_is_named(client: Any, path: str) -> None:
+    """Python reads integers of at most 4,300 digits: a longer one is the project's error naming it
+    (POST /step parses its body itself: once a 500)."""
+    body = b'{"items": [{"session": "x", "controls": [1' + b"0" * 5000 + b"]}]}"
+    r = client.post(path, content=body, headers=JSON)
+    assert r.status_code in (400, 422), r.text
+    _error(r, r.status_code, "malformed_json")
+    assert "more digits than can be read" in r.json()["message"] and r.json()["field"] == "body"
+
+
+def test_two_content_types_are_refused(client: Any) -> None:
+    """Checked by one header, parsed by another: a deep JSON body behind a second, non-JSON type once
+    reached POST /step's parser (500)."""
+    for types in (("application/json", "text/plain"), ("application/octet-stream", "application/json")):
+        r = client.post("/step", content=b"[" * 5000, headers=[("content-type", t) for t in types])
+        _error(r, 400, "bad_request")
+        assert r.json()["field"] == "content-type"
+
+
 def test_bodies_are_capped_per_endpoint(make_client: Callable[..., Any]) -> None:
     client = make_client(max_body_bytes=200_000, small_body_bytes=2048)
     big = b'{"items": [' + b" " * 300_000 + b"]}"

@@ -127,6 +127,7 @@ def test_too_many_sessions_is_429(make_client: Callable[..., TestClient]) -> Non
     r = c.post("/sessions", json={"model": "lander", "seed": 3})
     assert r.status_code == 429
     assert r.json()["error"] == "too_many_sessions" and "maximum of 2 sessions" in r.json()["message"]
+    assert (r.json()["field"], r.json()["expected"], r.json()["got"]) == ("MAX_SESSIONS", 2, 3)
 
 
 def test_batch_over_max_is_413_and_steps_nothing(make_client: Callable[..., TestClient]) -> None:

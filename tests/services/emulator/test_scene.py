@@ -109,3 +109,35 @@ def test_binary_format_refuses_poses(client: TestClient) -> None:
         assert err["type"] == "error" and err["error"] == "needs_json" and err["seq"] == 4
         ws.send_json({"type": "ping", "seq": 5})
         assert ws.receive_json() == {"type": "pong", "seq": 5}  # still open
+
+
+def test_mesh_geoms_name_their_file_and_its_placement() -> None:
+    """``MeshInfo``: a file's vertex v is at conj(quat) · (scale ∘ v − pos) in the geom's frame, which is
+    where MuJoCo puts the compiled mesh (an off-centre, scaled, lopsided mesh, so that every part of the
+    placement counts); a material's colour and coefficients come with the geom."""
+    import mujoco
+
+    from services.emulator.scene import _geom
+
+    obj = (
+        b"v 0 0 0\nv 1 0 0\nv 0 2 0\nv 0 0 3\nv 1 2 3\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 5\nf 2 5 4\nf 3 4 5\n"
+    )
+    xml = """<mujoco><asset><mesh name="wedge" file="w.obj" scale="2 1 0.5"/>
+    <material name="red" rgba="0.9 0.1 0.1 1" emission="0.2"/></asset>
+    <worldbody><body><freejoint/><geom type="mesh" mesh="wedge" material="red" pos="1 1 1" euler="10 20 30"/>
+    </body></worldbody></mujoco>"""
+    m = mujoco.MjModel.from_xml_string(xml, {"w.obj": obj})
+    info = _geom(m, 0, {"w.obj"})
+    assert info.mesh is not None and info.mesh.asset == "w.obj" and info.mesh.name == "wedge"
+    assert info.material is not None and info.material.rgba == pytest.approx([0.9, 0.1, 0.1, 1])
+    assert info.material.emission == pytest.approx(0.2)
+    raw = np.array(
+        [[float(x) for x in line.split()[1:]] for line in obj.decode().splitlines() if line[0] == "v"]
+    )
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, np.array(info.mesh.quat))
+    placed = (raw * info.mesh.scale - info.mesh.pos) @ rot.reshape(3, 3)  # R^T (s ∘ v − p), row by row
+    compiled = m.mesh_vert[m.mesh_vertadr[0] : m.mesh_vertadr[0] + m.mesh_vertnum[0]]
+    nearest = np.linalg.norm(placed[:, None] - compiled[None], axis=2).min(axis=1)
+    assert nearest.max() < 1e-4 and len(compiled) == len(raw)
+    assert _geom(m, 0).mesh.asset is None  # type: ignore[union-attr]  # a file the artifact does not have

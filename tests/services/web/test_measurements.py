@@ -68,3 +68,21 @@ def test_an_unreadable_result_is_500_without_details(client: TestClient, root: P
     r = client.get("/artifacts/lander/bench.json")
     assert r.status_code == 500 and r.json()["error"] == "unreadable"
     assert str(root) not in r.text
+
+
+def test_an_uploaded_models_results_are_hidden_while_it_is_private_with_keys_on(root: Path) -> None:
+    """The dashboard's server takes no key: with keys on, an uploaded model's results are answered only
+    once an operator published it (for the others it does not exist, as in every service)."""
+    from services.common import tenancy
+
+    tenancy.write(root, "truck", tenancy.Ownership.new("some-key-id"))
+    version = registry.latest_version(root, "truck", 50)
+    keys_on = TestClient(create_app(Settings(artifacts_dir=root, web_dist=root / "no-dist", api_keys="k1")))
+    keys_off = TestClient(create_app(Settings(artifacts_dir=root, web_dist=root / "no-dist", api_keys="")))
+    for path in ("/artifacts/truck/eval.json", f"/artifacts/truck/{version}/bench.json"):
+        hidden = keys_on.get(path)
+        assert hidden.status_code == 404 and hidden.json()["error"] == "not_measured"
+        assert keys_off.get(path).status_code == 200
+    assert keys_on.get("/artifacts/lander/eval.json").status_code == 200  # not uploaded: everybody's
+    tenancy.write(root, "truck", tenancy.Ownership("some-key-id", published=True))
+    assert keys_on.get("/artifacts/truck/eval.json").status_code == 200

@@ -25,6 +25,8 @@ export interface EmulatorWire {
   ForceInfo?: ForceInfo;
   GeomInfo?: GeomInfo;
   LayoutGroup?: LayoutGroup;
+  MaterialInfo?: MaterialInfo;
+  MeshInfo?: MeshInfo;
   ModelDetail?: ModelDetail;
   ModelGeometry?: ModelGeometry;
   ModelList?: ModelList;
@@ -128,8 +130,8 @@ export interface BodyInfo {
  * ``capsule``, ``cylinder``, ``ellipsoid``, ``plane``, ``mesh``...); ``size``: MuJoCo's three size
  * numbers (box: half-extents; sphere: radius; capsule and cylinder: radius, half-length along the
  * geom's z; ellipsoid: radii; plane: half-extents, 0 meaning infinite; mesh: half-extents of its
- * bounding box). ``quat`` is ``[w, x, y, z]``; ``rgba`` in 0..1; ``group``: MuJoCo's visibility group
- * (0–2 are drawn by default).
+ * bounding box). ``quat`` is ``[w, x, y, z]``; ``rgba`` in 0..1 (the geom's own; see ``material``);
+ * ``group``: MuJoCo's visibility group (0–2 are drawn by default); ``mesh``: a mesh geom's file.
  *
  * This interface was referenced by `EmulatorWire`'s JSON-Schema
  * via the `definition` "GeomInfo".
@@ -142,6 +144,41 @@ export interface GeomInfo {
   quat: number[];
   rgba: number[];
   group?: number;
+  material?: MaterialInfo | null;
+  mesh?: MeshInfo | null;
+}
+/**
+ * A geom's MJCF material. MuJoCo draws a geom in its material's ``rgba`` unless the geom has an
+ * ``rgba`` of its own (one other than the default ``0.5 0.5 0.5 1``); ``emission``, ``specular``,
+ * ``shininess`` and ``reflectance`` are MuJoCo's lighting coefficients in 0..1.
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "MaterialInfo".
+ */
+export interface MaterialInfo {
+  name: string;
+  rgba: number[];
+  emission?: number;
+  specular?: number;
+  shininess?: number;
+  reflectance?: number;
+}
+/**
+ * The file a mesh geom is drawn from, and where its vertices go. ``asset`` is the artifact's file
+ * (``GET /models/{model}/assets/{asset}``: STL, OBJ or MuJoCo's MSH), null for a mesh whose vertices
+ * are written in the MJCF. MuJoCo scales a mesh, then moves it so that its centre of mass and axes of
+ * inertia are the geom's frame: a file's vertex ``v`` is at ``conj(quat) · (scale ∘ v − pos)`` in the
+ * geom's frame (``quat`` is ``[w, x, y, z]``).
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "MeshInfo".
+ */
+export interface MeshInfo {
+  name: string;
+  asset: string | null;
+  scale: number[];
+  pos: number[];
+  quat: number[];
 }
 /**
  * Client → server, lock-step mode: one super-step under these inputs.

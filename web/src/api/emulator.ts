@@ -8,7 +8,7 @@ import type {
   SessionCreate,
   SessionInfo,
 } from './emulator.gen';
-import { requestJson } from './http';
+import { requestBytes, requestJson } from './http';
 
 export class EmulatorApi {
   constructor(readonly base: string) {}
@@ -35,6 +35,12 @@ export class EmulatorApi {
 
   geometry(name: string): Promise<ModelGeometry> {
     return this.get(`/models/${encodeURIComponent(name)}/geometry`);
+  }
+
+  /** A file the model's MJCF names (a mesh: /geometry names it), as stored in its artifact. */
+  asset(name: string, asset: string, version?: string): Promise<ArrayBuffer> {
+    const query = version ? `?version=${encodeURIComponent(version)}` : '';
+    return requestBytes('emulator', this.base, `/models/${encodeURIComponent(name)}/assets/${encodeURIComponent(asset)}${query}`);
   }
 
   poses(name: string, states: number[][], version?: string): Promise<PosesResponse> {

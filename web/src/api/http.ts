@@ -2,11 +2,13 @@
 // service and says what went wrong in plain words.
 
 export class ServiceError extends Error {
+  /** `detail`: the service's own message, when it sent one. */
   constructor(
     message: string,
     readonly service: string,
     readonly status: number | null,
     readonly code: string | null = null,
+    readonly detail: string | null = null,
   ) {
     super(message);
     this.name = 'ServiceError';
@@ -28,7 +30,7 @@ export function describeFailure(service: string, status: number, statusText: str
   const text = detail
     ? `The ${service} service refused the request: ${detail}`
     : `The ${service} service answered ${status}${statusText ? ` ${statusText}` : ''}.`;
-  return new ServiceError(text, service, status, code);
+  return new ServiceError(text, service, status, code, detail);
 }
 
 export function unreachable(service: string, base: string): ServiceError {
@@ -40,25 +42,45 @@ export function unreachable(service: string, base: string): ServiceError {
   );
 }
 
-export async function requestJson<T>(service: string, base: string, path: string, init?: RequestInit): Promise<T> {
-  let r: Response;
+/** A response's body: its JSON, else its text (null when empty). */
+async function bodyOf(r: Response): Promise<unknown> {
+  const text = await r.text();
   try {
-    r = await fetch(base + path, {
-      ...init,
-      headers: { Accept: 'application/json', ...(init?.body ? { 'Content-Type': 'application/json' } : {}) },
-    });
+    return text ? JSON.parse(text) : null;
+  } catch {
+    return text;
+  }
+}
+
+/** fetch, with "not reachable" in plain words when the service does not answer. */
+export async function send(service: string, base: string, path: string, init?: RequestInit): Promise<Response> {
+  try {
+    return await fetch(base + path, init);
   } catch {
     throw unreachable(service, base);
   }
-  const text = await r.text();
-  let body: unknown = null;
-  try {
-    body = text ? JSON.parse(text) : null;
-  } catch {
-    body = text;
-  }
+}
+
+/** The JSON body of a successful response; a `ServiceError` with the service's message otherwise. */
+export async function jsonOf<T>(service: string, r: Response): Promise<T> {
+  const body = await bodyOf(r);
   if (!r.ok) throw describeFailure(service, r.status, r.statusText, body);
   return body as T;
+}
+
+export async function requestJson<T>(service: string, base: string, path: string, init?: RequestInit): Promise<T> {
+  const r = await send(service, base, path, {
+    ...init,
+    headers: { Accept: 'application/json', ...(init?.body ? { 'Content-Type': 'application/json' } : {}) },
+  });
+  return jsonOf<T>(service, r);
+}
+
+/** A file's bytes (a mesh, a texture). */
+export async function requestBytes(service: string, base: string, path: string): Promise<ArrayBuffer> {
+  const r = await send(service, base, path);
+  if (!r.ok) throw describeFailure(service, r.status, r.statusText, await bodyOf(r));
+  return r.arrayBuffer();
 }
 
 export function errorText(e: unknown): string {

@@ -7,7 +7,7 @@ import type { ModelDetail, ModelGeometry } from '../api/emulator.gen';
 import { errorText } from '../api/http';
 import { groundHeight, ModelView } from '../scene/model';
 import { DropLine } from '../scene/trail';
-import { makeViewer } from '../scene/setup';
+import { makeViewer, meshFilesOf } from '../scene/setup';
 import type { Viewer } from '../scene/viewer';
 import { rootMoves } from '../scene/divergence';
 import { headingOf, targetHandles, withHeading, withXY, type TargetHandles } from '../session/target';
@@ -134,14 +134,15 @@ export const controllersPage: Page = (root, ctx) => {
       const [detail, geometry] = await Promise.all([ctx.emulator.model(task.model), ctx.emulator.geometry(task.model)]);
       const init = task.initial_state ?? null;
       const target = [...(task.target_state ?? init ?? [])];
+      const files = meshFilesOf(ctx.emulator, geometry);
       const s: Scene = {
         task,
         detail,
         geometry,
         handles: targetHandles(detail.layout),
         target,
-        model: new ModelView(geometry),
-        goal: new ModelView(geometry, { ghost: true, color: GOAL_COLOR, opacity: 0.3 }),
+        model: new ModelView(geometry, {}, files),
+        goal: new ModelView(geometry, { ghost: true, color: GOAL_COLOR, opacity: 0.3 }, files),
         drops: [new DropLine(MODEL_TRAIL), new DropLine(GOAL_COLOR, 0.9)],
       };
       if (!alive || taskSelect.value !== name) return;
@@ -157,6 +158,7 @@ export const controllersPage: Page = (root, ctx) => {
         viewer.setGroundHeight(groundHeight(s.model, poses.length ? poses : [geometry.rest_poses]));
         // the model where it starts and the goal, whole, with the ground below them
         viewer.frameObjects([s.model.group, s.goal.group]);
+        void Promise.all([s.model.meshes, s.goal.meshes]).then(() => viewer.invalidate()); // drawn from their files
       }
       drawEditor();
       submitBtn.disabled = target.length !== detail.state_size;

@@ -1,7 +1,8 @@
-// Models: every loaded emulator with its manifest (layout, controls, δt and n), training metrics, the
-// rollout error over time (thesis Fig. 6.6), the errors in physical units (metres, degrees, radians)
-// and the speed table (thesis Table 6.2) when measured. Curves and rows of versions the emulator
-// service does not serve are labelled so.
+// Models: "Add a model" (addmodel.ts: upload a MuJoCo model and train it), then every loaded emulator
+// with its manifest (layout, controls, δt and n), training metrics, the rollout error over time (thesis
+// Fig. 6.6), the errors in physical units (metres, degrees, radians) and the speed table (thesis
+// Table 6.2) when measured. Curves and rows of versions the emulator service does not serve are
+// labelled so.
 import type { ModelDetail } from '../api/emulator.gen';
 import { controlMeaning } from '../session/inputs';
 import { errorText } from '../api/http';
@@ -9,6 +10,7 @@ import { curvesOf, loadBench, loadEval, PHYSICAL_QUANTITIES, physicalRows, serve
 import { fmt, h } from '../ui/dom';
 import { notify } from '../ui/notices';
 import { LinePlot } from '../ui/plot';
+import { addModelPanel } from './addmodel';
 import type { Page } from './context';
 
 const COLORS = ['#4fc3f7', '#ffb74d', '#aed581', '#f06292', '#ba68c8'];
@@ -139,23 +141,29 @@ function speedTable(model: string, b: BenchResult | null): HTMLElement {
 
 export const modelsPage: Page = (root, ctx) => {
   let alive = true;
-  const plots: LinePlot[] = [];
+  let plots: LinePlot[] = [];
   const list = h('div', { class: 'models' }, h('p', { class: 'muted' }, 'Loading the emulators…'));
-  root.append(h('h1', {}, 'Models'), list);
-  void (async () => {
+  const add = addModelPanel(ctx.trainer, ctx.emulator, () => void show()); // a new model: list it
+  root.append(h('h1', {}, 'Models'), add.el, list);
+  let shown = 0; // the latest listing wins over one still loading
+  const show = async (): Promise<void> => {
+    const mine = ++shown;
+    const current = (): boolean => alive && mine === shown;
     try {
       const { models } = await ctx.emulator.models();
-      if (!alive) return;
+      if (!current()) return;
+      plots.forEach((p) => p.dispose());
+      plots = [];
       list.textContent = '';
       if (!models.length) {
-        list.append(h('p', { class: 'muted' }, 'The emulator service has no models loaded. Train one with make train MODEL=…'));
+        list.append(h('p', { class: 'muted' }, 'The emulator service has no models loaded. Add one above, or train one with make train MODEL=…'));
         return;
       }
       for (const s of models) {
         const card = h('section', { class: 'card model-card', 'data-model': s.model }, h('h2', {}, s.model));
         list.append(card);
         const [m, ev, bench] = await Promise.all([ctx.emulator.model(s.model), loadEval(s.model), loadBench(s.model)]);
-        if (!alive) return;
+        if (!current()) return;
         card.append(
           h('p', { class: 'desc' }, m.description || ''),
           h(
@@ -167,14 +175,16 @@ export const modelsPage: Page = (root, ctx) => {
         );
       }
     } catch (e) {
-      if (!alive) return;
+      if (!current()) return;
       list.textContent = '';
       list.append(h('p', { class: 'error-text' }, errorText(e)));
       notify(errorText(e));
     }
-  })();
+  };
+  void show();
   return () => {
     alive = false;
+    add.dispose();
     plots.forEach((p) => p.dispose());
   };
 };

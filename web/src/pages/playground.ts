@@ -8,13 +8,13 @@ import type { ControlInfo, ForceInfo, ModelDetail, ModelGeometry, SessionInfo, W
 import { errorText } from '../api/http';
 import { gapLabel, poseGap, rootMoves } from '../scene/divergence';
 import type { Pose } from '../scene/interp';
-import { groundHeight, ModelView } from '../scene/model';
-import { makeViewer } from '../scene/setup';
+import { groundHeight, ModelView, type MeshesDrawn } from '../scene/model';
+import { makeViewer, meshFilesOf } from '../scene/setup';
 import { DropLine, Trail } from '../scene/trail';
 import type { Viewer } from '../scene/viewer';
 import { bindingsFor, controlMeaning, Drive, keyLabel } from '../session/inputs';
 import { envelopeText, RealtimeSession } from '../session/realtime';
-import { restState, startFromQuery } from '../session/start';
+import { driveNow, restState, startFromQuery } from '../session/start';
 import { fmt, h } from '../ui/dom';
 import { clearNotice, notify } from '../ui/notices';
 import { DivergencePanel, GHOST_COLOR, MODEL_TRAIL } from './divergence';
@@ -155,6 +155,8 @@ export const playgroundPage: Page = (root, ctx) => {
       };
       pickStart();
       select.addEventListener('change', pickStart);
+      // "Drive it" (a model just trained): its session starts at once
+      if (driveNow(query) && pick?.model === want && alive) void start();
     } catch (e) {
       notify(`Cannot list the models. ${errorText(e)}`, 'error', 'playground');
     }
@@ -242,11 +244,24 @@ function forceArrows(viewer: Viewer, model: ModelView, forces: ForceInfo[]): (va
   };
 }
 
+/** The mesh geoms drawn from their files, on the view (data-meshes: geom, file, triangles, colour), and
+ * a warning naming those whose files could not be read (they stay boxes). */
+function showMeshes(host: HTMLElement, model: string, m: MeshesDrawn): void {
+  const colour = (o: THREE.Mesh): string | null => (o.material instanceof THREE.MeshStandardMaterial ? `#${o.material.color.getHexString(THREE.SRGBColorSpace)}` : null);
+  host.dataset.meshes = JSON.stringify(
+    m.drawn.map((o) => ({ geom: o.name, file: o.userData.meshFile, triangles: (o.geometry.getAttribute('position')?.count ?? 0) / 3, color: colour(o) })),
+  );
+  if (m.failed.length)
+    notify(`Some meshes of ${model} are drawn as boxes: ${m.failed.map((f) => `${f.geom} (${f.reason})`).join('; ')}`, 'warning', 'meshes');
+  else clearNotice('meshes');
+}
+
 function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): Live {
   const { info, detail, geometry, divergence } = s;
   const drive = new Drive(bindingsFor(detail.controls, detail.forces));
-  const model = new ModelView(geometry);
-  const ghost = new ModelView(geometry, { ghost: true, color: GHOST_COLOR });
+  const files = meshFilesOf(ctx.emulator, geometry);
+  const model = new ModelView(geometry, {}, files);
+  const ghost = new ModelView(geometry, { ghost: true, color: GHOST_COLOR }, files);
   ghost.visible = s.ghostOn;
   const rooted = rootMoves(detail.layout);
   divergence.configure(gapLabel(detail.layout), s.ghostOn);
@@ -291,10 +306,19 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
   // the spot on the ground below the model: data-screen-ground says whether the ground is in view
   const below = new THREE.Object3D();
   viewer.world.add(below);
+  let meshes: MeshesDrawn | null = null;
+  let over = false;
+  void model.meshes.then((m) => {
+    if (over) return;
+    meshes = m;
+    showMeshes(viewer.host, info.model, m);
+    viewer.invalidate();
+  });
   const unmark = [
     viewer.mark('model', () => model.root),
     viewer.mark('ghost', () => (ghost.visible ? ghost.root : null)),
     viewer.mark('ground', () => below),
+    viewer.mark('mesh', () => meshes?.drawn[0] ?? null), // the first geom drawn from its mesh file
   ];
   let lastStatus = 0;
   const tracePoint = (poses: Pose[] | null, t: Trail): void => {
@@ -343,6 +367,7 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
     model,
     ghost,
     dispose: () => {
+      over = true;
       stopFrame();
       socket.close();
       unmark.forEach((u) => u());
@@ -353,6 +378,7 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
       trail.dispose();
       ghostTrail.dispose();
       below.removeFromParent();
+      delete viewer.host.dataset.meshes;
       drop.dispose();
       arrows([]);
       viewer.world.children.filter((c) => c instanceof THREE.ArrowHelper).forEach((c) => c.removeFromParent());

@@ -9,7 +9,8 @@ import type { JobResult } from '../api/controller';
 import { gapLabel, poseGap, rootMoves, type Gap } from '../scene/divergence';
 import { locate, lerpPoses, type Pose } from '../scene/interp';
 import { groundHeight, ModelView } from '../scene/model';
-import { makeViewer } from '../scene/setup';
+import type { MeshFiles } from '../scene/meshes';
+import { makeViewer, meshFilesOf } from '../scene/setup';
 import { DropLine, Trail } from '../scene/trail';
 import type { Viewer } from '../scene/viewer';
 import { h } from '../ui/dom';
@@ -51,6 +52,7 @@ export class Replay {
   private readonly divergence = new DivergencePanel('replay-divergence', { marker: true });
   private stops: (() => void)[] = [];
   private disposables: { dispose(): void }[] = [];
+  private readonly files: MeshFiles;
 
   constructor(
     private readonly api: EmulatorApi,
@@ -59,6 +61,7 @@ export class Replay {
     private readonly result: JobResult,
     private readonly superTimestep: number,
   ) {
+    this.files = meshFilesOf(api, geometry);
     this.playBtn = h('button', { id: 'replay-play' }, 'Pause');
     this.slider = h('input', { type: 'range', min: 0, max: 1, step: 0.001, value: 0, id: 'replay-time', 'aria-label': 'replay time' });
     this.clock = h('span', { class: 'clock', id: 'replay-clock' }, '');
@@ -114,12 +117,12 @@ export class Replay {
       }
       const viewer = makeViewer(host);
       if (!viewer) continue;
-      const view = new ModelView(this.geometry);
+      const view = new ModelView(this.geometry, {}, this.files);
       viewer.world.add(view.group);
       const framed: THREE.Object3D[] = [view.group];
       let goal: ModelView | null = null;
       if (goalPoses) {
-        goal = new ModelView(this.geometry, { ghost: true, color: GOAL_COLOR, opacity: 0.3 });
+        goal = new ModelView(this.geometry, { ghost: true, color: GOAL_COLOR, opacity: 0.3 }, this.files);
         goal.setPoses(goalPoses);
         viewer.world.add(goal.group);
         framed.push(goal.group);
@@ -127,7 +130,7 @@ export class Replay {
       }
       let ghost: Side['ghost'] = null;
       if (ghostPoses?.length) {
-        const g = new ModelView(this.geometry, { ghost: true, color: GHOST_COLOR });
+        const g = new ModelView(this.geometry, { ghost: true, color: GHOST_COLOR }, this.files);
         viewer.world.add(g.group);
         ghost = { view: g, poses: ghostPoses };
         this.disposables.push(g);

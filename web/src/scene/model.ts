@@ -1,11 +1,15 @@
 // A model drawn from its MJCF geometry (GET /models/{model}/geometry): one group per body, placed by
-// world poses [x, y, z, qw, qx, qy, qz]; geoms are boxes, spheres, capsules, cylinders, ellipsoids and
-// planes in their body's frame, with their MJCF colours. Groups 0–2 are drawn (MuJoCo's defaults:
-// collision geoms in group 3 stay hidden, visual-only geoms in group 2 give a model its look).
+// world poses [x, y, z, qw, qx, qy, qz]; geoms are boxes, spheres, capsules, cylinders, ellipsoids,
+// planes and meshes in their body's frame, with their MJCF colours and materials (materials.ts). A mesh
+// is its bounding box until its file (STL, OBJ, MSH: meshes.ts) has loaded, then the file's triangles.
+// Groups 0–2 are drawn (MuJoCo's defaults: collision geoms in group 3 stay hidden, visual-only geoms in
+// group 2 give a model its look).
 // A "ghost" is the same model as a translucent outline in one colour (the MuJoCo twin, a goal).
 import * as THREE from 'three';
 import type { GeomInfo, ModelGeometry } from '../api/emulator.gen';
 import type { Pose } from './interp';
+import { appearance, solidMaterial } from './materials';
+import type { MeshFiles } from './meshes';
 
 export interface Look {
   ghost?: boolean;
@@ -35,21 +39,15 @@ function shape(g: GeomInfo, ghost: boolean): THREE.BufferGeometry | null {
   }
 }
 
-function solidMaterial(g: GeomInfo): THREE.Material {
-  const [r = 0.7, gr = 0.7, b = 0.7, a = 1] = g.rgba;
-  return new THREE.MeshStandardMaterial({
-    color: new THREE.Color().setRGB(r, gr, b, THREE.SRGBColorSpace),
-    roughness: 0.6,
-    metalness: 0.15,
-    transparent: a < 1,
-    opacity: a,
-    depthWrite: a >= 1,
-  });
-}
-
 function setPose(o: THREE.Object3D, p: number[]): void {
   o.position.set(p[0] ?? 0, p[1] ?? 0, p[2] ?? 0);
   o.quaternion.set(p[4] ?? 0, p[5] ?? 0, p[6] ?? 0, p[3] ?? 1); // [w,x,y,z] -> three's (x,y,z,w)
+}
+
+/** Which mesh geoms were drawn from their files, and which files could not be (with why). */
+export interface MeshesDrawn {
+  drawn: THREE.Mesh[];
+  failed: { geom: string; reason: string }[];
 }
 
 export class ModelView {
@@ -57,12 +55,19 @@ export class ModelView {
   readonly bodies: THREE.Group[];
   /** The height of the model's own floor (a plane fixed to the world), if it has one. */
   readonly floorZ: number | null = null;
+  /** Settles once every mesh geom with a file has its file's triangles (or kept its box). */
+  readonly meshes: Promise<MeshesDrawn>;
   private readonly faces: THREE.Material | null = null;
   private readonly edges: THREE.LineBasicMaterial | null = null;
+  private readonly loading: Promise<void>[] = [];
+  private readonly drawn: MeshesDrawn = { drawn: [], failed: [] };
+  private disposed = false;
 
+  /** `files`: where mesh geoms' files come from (without it, a mesh stays its bounding box). */
   constructor(
     readonly geometry: ModelGeometry,
     readonly look: Look = {},
+    private readonly files: MeshFiles | null = null,
   ) {
     if (look.ghost) {
       const color = new THREE.Color(look.color ?? 0x9be7ff);
@@ -90,6 +95,7 @@ export class ModelView {
       }
     }
     this.setPoses(geometry.rest_poses);
+    this.meshes = Promise.all(this.loading).then(() => this.drawn);
   }
 
   private mesh(geom: GeomInfo): THREE.Object3D | null {
@@ -103,14 +109,40 @@ export class ModelView {
       mesh.add(new THREE.LineSegments(new THREE.EdgesGeometry(s, 25), this.edges));
       obj = mesh;
     } else {
-      const mesh = new THREE.Mesh(s, solidMaterial(geom));
+      const mesh = new THREE.Mesh(s, solidMaterial(appearance(geom)));
       mesh.castShadow = true;
       mesh.receiveShadow = true;
       obj = mesh;
     }
     obj.name = geom.name;
     setPose(obj, [...geom.pos, ...geom.quat]);
+    if (geom.mesh?.asset && this.files && obj instanceof THREE.Mesh) this.loading.push(this.fromFile(obj, geom));
     return obj;
+  }
+
+  /** Replaces a mesh geom's box by its file's triangles once they have loaded. */
+  private async fromFile(obj: THREE.Mesh, geom: GeomInfo): Promise<void> {
+    try {
+      const g = await this.files!.geometry(geom.mesh!);
+      if (!g) return;
+      if (this.disposed) {
+        g.dispose();
+        return;
+      }
+      const box = obj.geometry as THREE.BufferGeometry;
+      obj.geometry = g;
+      box.dispose();
+      for (const child of obj.children) {
+        if (child instanceof THREE.LineSegments) {
+          child.geometry.dispose();
+          child.geometry = new THREE.EdgesGeometry(g, 25);
+        }
+      }
+      obj.userData.meshFile = geom.mesh!.asset;
+      this.drawn.drawn.push(obj);
+    } catch (e) {
+      this.drawn.failed.push({ geom: geom.name, reason: e instanceof Error ? e.message : String(e) });
+    }
   }
 
   setPoses(poses: Pose[]): void {
@@ -139,6 +171,7 @@ export class ModelView {
   }
 
   dispose(): void {
+    this.disposed = true;
     this.group.traverse((o) => {
       if (o instanceof THREE.Mesh || o instanceof THREE.LineSegments) {
         o.geometry.dispose();

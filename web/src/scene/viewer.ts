@@ -103,7 +103,8 @@ function skyDome(): THREE.Mesh {
 
 declare global {
   interface Window {
-    /** Draws a view's canvas again now, so that its pixels can be read until the task ends (tests). */
+    /** Draws a view's canvas again now, so that its pixels can be read until the task ends, and writes its
+     * marks (data-screen-*) for that picture (tests). */
     __neuroRedraw?: (canvas: HTMLCanvasElement) => boolean;
   }
 }
@@ -113,7 +114,7 @@ const viewers = new WeakMap<HTMLCanvasElement, Viewer>();
 function redraw(canvas: HTMLCanvasElement): boolean {
   const v = viewers.get(canvas);
   if (!v) return false;
-  v.renderer.render(v.scene, v.camera);
+  v.drawNow();
   return true;
 }
 
@@ -377,8 +378,14 @@ export class Viewer {
     return { x: ((n.x + 1) / 2) * w, y: ((1 - n.y) / 2) * h, on: Math.abs(n.x) <= 1 && Math.abs(n.y) <= 1 && n.z < 1 };
   }
 
-  private writeMarks(now: number): void {
-    if (now - this.lastMarks < 250) return;
+  /** Draws the scene as it is now and writes its marks (data-screen-*) for that very picture. */
+  drawNow(): void {
+    this.renderer.render(this.scene, this.camera);
+    this.writeMarks(performance.now(), true);
+  }
+
+  private writeMarks(now: number, always = false): void {
+    if (!always && now - this.lastMarks < 250) return;
     this.lastMarks = now;
     if (this.framing) this.host.dataset.framing = this.framing;
     for (const [name, get] of this.marks) {

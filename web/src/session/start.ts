@@ -31,3 +31,13 @@ export function startFromQuery(query: string): { from: StartFrom | null; seed: n
   const from: StartFrom | null = start === 'rest' || start === 'random' ? start : seed !== null ? 'random' : null;
   return { from, seed };
 }
+
+/** The Playground's address for a model, asking it to start a session at rest as soon as it opens. */
+export function driveHash(model: string): string {
+  return `#/playground?${new URLSearchParams({ model, start: 'rest', drive: '1' }).toString()}`;
+}
+
+/** Whether the page's address asks the Playground to start a session at once (`drive=1`). */
+export function driveNow(query: string): boolean {
+  return new URLSearchParams(query).get('drive') === '1';
+}

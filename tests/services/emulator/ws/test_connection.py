@@ -41,7 +41,10 @@ def test_lock_step_equals_rest(client: TestClient) -> None:
         ),
         ('{"type": "step", "controls": ["a", 0, 0]}', "invalid_request", "controls[0]"),
         ("[1, 2]", "invalid_request", "body"),
+        ("[" * 5000, "malformed_json", "nests arrays and objects too deep"),
+        ('{"type": "step", "controls": [1' + "0" * 5000 + ", 0, 0]}", "malformed_json", "more digits"),
     ],
+    ids=lambda v: v if len(v) < 60 else f"{v[:20]}...({len(v)} characters)",
 )
 def test_malformed_message_gets_typed_error_and_connection_survives(
     client: TestClient, send: str, error: str, needle: str
