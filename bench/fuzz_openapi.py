@@ -1,4 +1,4 @@
-"""Schemathesis over both services' OpenAPI documents at length: the suite's fuzz test
+"""Schemathesis over the three services' OpenAPI documents at length: the suite's fuzz test
 (``tests/services/test_openapi_fuzz.py``: real processes, committed artifacts, a real Redis; checks
 ``not_a_server_error`` and ``response_schema_conformance``) with more examples per operation.
 

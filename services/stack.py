@@ -267,6 +267,7 @@ class Stack:
                 {
                     "HOST": c.host,
                     "PORT": str(c.web_port),
+                    "ARTIFACTS_DIR": str(c.artifacts_dir),  # whose evaluation and benchmark results it serves
                     "EMULATOR_URL": u["emulator"],
                     "CONTROLLER_URL": u["controller"],
                     "TRAINER_URL": u["trainer"] if c.trainer else "",

@@ -9,6 +9,7 @@ that could not be read) and, as 500 ``internal_error``, anything a route did not
 from __future__ import annotations
 
 import math
+import sys
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -79,6 +80,23 @@ def jsonable(value: Any, depth: int = 0) -> Any:
     return _cut(repr(value))
 
 
+PARSE_FAILED = "There was an error parsing the body"
+"""FastAPI's 400 for a body its JSON parser raised on with anything but a syntax error (the cause is
+the exception's ``__cause__``)."""
+
+
+def json_error(exc: BaseException) -> str:
+    """Why a text is not JSON that Python can read, in words for the client: the parser's own for a
+    syntax error, and for what is not one (an integer of more than 4,300 digits: ``ValueError``;
+    nesting past the recursion limit: ``RecursionError``) what the text has that cannot be read."""
+    if isinstance(exc, RecursionError):
+        return "it nests arrays and objects too deep"
+    text = str(exc)
+    if "integer string conversion" in text:
+        return f"a number has more digits than can be read ({sys.get_int_max_str_digits()} at most)"
+    return _cut(text)
+
+
 def field_name(loc: tuple[Any, ...]) -> str:
     """('body', 'items', 2, 'controls', 0) -> 'items[2].controls[0]'."""
     out = ""
@@ -146,6 +164,8 @@ async def http_error_handler(request: Request, exc: Exception) -> JSONResponse:
         detail = f"no such path: {request.url.path}"
     elif exc.status_code == 405:
         detail = f"{request.method} is not a method of {request.url.path}"
+    elif exc.status_code == 400 and detail == PARSE_FAILED and exc.__cause__ is not None:
+        error, detail = "malformed_json", f"the body cannot be read as JSON: {json_error(exc.__cause__)}"
     field = "body" if exc.status_code in (400, 413, 415) else None
     body = ErrorBody(error=error, message=detail, field=field)
     return JSONResponse(body.model_dump(), status_code=exc.status_code, headers=exc.headers)

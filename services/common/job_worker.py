@@ -14,6 +14,13 @@ Beyond RQ a ``JobWorker``:
   of ``/readyz`` and the metrics drops a killed worker within ``WORKER_ALIVE_S`` and finds every
   worker again after Redis lost its data (RQ's own registry only knows workers from their start,
   and keeps a killed one for minutes).
+- **Outlives a Redis outage**: RQ's worker quits on a Redis error outside its wait for a job (a
+  heartbeat while a job runs, the suspension check, its maintenance, the bookkeeping of a job's end,
+  its records of what the worker does), so a worker busy when Redis went away for longer than a
+  heartbeat interval was gone for good (its job ran on, unwatched, and the worker count dropped). Here
+  those errors are logged once per outage and the worker goes on: it keeps waiting for its job, then
+  waits for Redis as RQ does while idle, retrying at least every ``REAP_INTERVAL_S`` (RQ's back-off
+  grows to a minute), so that it takes jobs and is counted again within seconds of Redis coming back.
 - **Runs only its service's deliveries**: the queue's messages are JSON (not RQ's default pickle), and
   a job that names any function but the store's ``perform`` is refused, not run, so that whoever can
   write to Redis cannot make a worker run code of their choosing.
@@ -31,7 +38,7 @@ import sys
 import threading
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import redis
@@ -45,15 +52,31 @@ from services.common.jobs import JobStore, QueueSettings, rq_id
 log = logging.getLogger("services.common.job_worker")
 
 
+REDIS_DOWN = (redis.ConnectionError, redis.TimeoutError)
+"""What a Redis that went away raises (refused, reset, or not answering in time)."""
+
+
 class JobWorker(Worker):
-    """RQ's forking worker plus the lease reaper and the job-yielding shutdown."""
+    """RQ's forking worker plus the lease reaper, the job-yielding shutdown and surviving Redis outages."""
 
     def __init__(self, queues: Sequence[Queue], *, store: JobStore, **kw: Any) -> None:
         # before RQ's __init__, which reads dequeue_timeout
         self.store = store
         self.reap_every = store.settings.reap_interval_s
         self._reaped_at = 0.0
+        self._redis_down = False
         super().__init__(list(queues), **kw)
+        # RQ doubles its wait for a Redis that does not answer up to this; capped at the reap interval
+        self.max_connection_wait_time = float(self.dequeue_timeout)
+
+    def _unreachable(self, what: str, exc: Exception) -> None:
+        """Log (once per outage) that Redis failed ``what``; the worker carries on."""
+        if not self._redis_down:
+            log.warning(
+                f"Redis unreachable ({what}): carrying on, retrying",
+                extra={"worker": self.name, "error": str(exc)},
+            )
+        self._redis_down = True
 
     @property
     def dequeue_timeout(self) -> int:
@@ -79,11 +102,69 @@ class JobWorker(Worker):
                 if reaped:
                     log.warning("re-queued abandoned jobs", extra={"jobs": reaped, "worker": self.name})
         if BaseWorker.should_run_maintenance_tasks.fget(self):  # type: ignore[attr-defined]
-            super().run_maintenance_tasks()
+            try:
+                super().run_maintenance_tasks()
+            except REDIS_DOWN as exc:  # RQ's registry clean-up: again at the next maintenance
+                self._unreachable("maintenance", exc)
 
     def heartbeat(self, timeout: int | None = None, pipeline: Any = None) -> None:
-        super().heartbeat(timeout, pipeline)
-        self.store.worker_seen(self.name, pipeline)
+        if pipeline is not None:  # queued on the caller's pipeline: it talks to Redis, not this
+            super().heartbeat(timeout, pipeline)
+            self.store.worker_seen(self.name, pipeline)
+            return
+        try:
+            super().heartbeat(timeout)
+            self.store.worker_seen(self.name)
+        except REDIS_DOWN as exc:  # idle: the wait for a job that follows waits for Redis too
+            self._unreachable("heartbeat", exc)
+        else:
+            if self._redis_down:
+                log.info("Redis answers again", extra={"worker": self.name})
+            self._redis_down = False
+
+    def _record(self, what: str, write: Callable[..., None], value: Any, pipeline: Any) -> None:
+        """One of RQ's records of what the worker does: bookkeeping, which waits for Redis (queued on
+        a caller's pipeline, it is the caller's to send)."""
+        if pipeline is not None:
+            write(value, pipeline)
+            return
+        try:
+            write(value)
+        except REDIS_DOWN as exc:
+            self._unreachable(what, exc)
+
+    def set_state(self, state: str, pipeline: Any = None) -> None:
+        self._record("worker state", super().set_state, state, pipeline)
+
+    def set_current_job_working_time(self, current_job_working_time: float, pipeline: Any = None) -> None:
+        self._record(
+            "job working time", super().set_current_job_working_time, current_job_working_time, pipeline
+        )
+
+    def maintain_heartbeats(self, job: Job) -> None:
+        """RQ's heartbeats while a job runs; without Redis the worker keeps waiting for the job."""
+        try:
+            super().maintain_heartbeats(job)
+        except REDIS_DOWN as exc:
+            self._unreachable("heartbeat while a job runs", exc)
+        else:
+            self._redis_down = False
+
+    def dequeue_job_and_maintain_ttl(self, timeout: int | None, max_idle_time: int | None = None) -> Any:
+        """RQ's wait for a job, which waits out a Redis that refuses connections but quits the worker
+        on one that times out (a host that no longer answers): that is waited out too."""
+        while True:
+            try:
+                return super().dequeue_job_and_maintain_ttl(timeout, max_idle_time)
+            except redis.TimeoutError as exc:
+                self._unreachable("waiting for a job", exc)
+                time.sleep(self.max_connection_wait_time)
+
+    def check_for_suspension(self, burst: bool) -> None:
+        try:
+            super().check_for_suspension(burst)
+        except REDIS_DOWN as exc:  # not suspended, as far as is known: the wait for a job waits for Redis
+            self._unreachable("suspension check", exc)
 
     def execute_job(self, job: Job, queue: Queue) -> None:
         """Run one of the store's deliveries; refuse (fail in RQ, run nothing) a job naming another
@@ -100,7 +181,23 @@ class JobWorker(Worker):
             )
             self.handle_job_failure(job, queue=queue, exc_string=f"refused: {func} is not {perform}")
             return
-        super().execute_job(job, queue)
+        try:
+            super().execute_job(job, queue)
+        except REDIS_DOWN as exc:
+            # RQ's own records of the job (before it starts, or after its process ended); the job's
+            # state is the store's, which its lease and the reaper keep right
+            self._unreachable(f"RQ's records of {job.id}", exc)
+        while self._horse_pid:  # RQ's monitoring raised while the job's process still ran: wait for it
+            try:
+                self.monitor_work_horse(job, queue)
+            except REDIS_DOWN as exc:
+                self._unreachable(f"RQ's records of {job.id}", exc)
+
+    def teardown(self) -> None:
+        try:
+            super().teardown()
+        except REDIS_DOWN as exc:  # stopping while Redis is away: its record of this worker expires
+            self._unreachable("deregistering", exc)
 
     def request_stop(self, signum: Any, frame: Any) -> None:
         """Warm shutdown that does not wait for a long job: the job yields and is re-queued."""
@@ -174,13 +271,19 @@ class Watch(threading.Thread):
 
     def run(self) -> None:
         renewed = time.monotonic()
+        failing = False
         while not self._done.wait(self.poll_s):
             renew = time.monotonic() - renewed >= self.renew_every
             try:
                 cancel, yld, current = self.store.heartbeat(self.job_id, self.worker, renew)
             except redis.RedisError as exc:  # the lease may lapse: the job then runs again elsewhere
-                log.warning("job heartbeat failed", extra={"job": self.job_id, "error": str(exc)})
+                if not failing:  # once per outage, not at every poll
+                    log.warning("job heartbeat failed", extra={"job": self.job_id, "error": str(exc)})
+                failing = True
                 continue
+            if failing:
+                log.info("job heartbeat recovered", extra={"job": self.job_id})
+                failing = False
             if renew:
                 renewed = time.monotonic()
             self.cancelled |= cancel

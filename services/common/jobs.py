@@ -124,7 +124,12 @@ class QueueSettings(ApiSettings):
 
 
 class QueueFull(Exception):
-    """The queue holds ``MAX_QUEUE`` jobs already."""
+    """The queue holds ``MAX_QUEUE`` jobs already (``limit``; ``depth`` were waiting)."""
+
+    def __init__(self, message: str, limit: int, depth: int) -> None:
+        super().__init__(message)
+        self.limit = limit
+        self.depth = depth
 
 
 class IdempotencyConflict(Exception):
@@ -337,7 +342,9 @@ class JobStore:
         depth = self.queue_depth()
         if depth >= s.max_queue:
             raise QueueFull(
-                f"the queue is full: {depth} {self.noun}s wait (MAX_QUEUE={s.max_queue}); try again later"
+                f"the queue is full: {depth} {self.noun}s wait (MAX_QUEUE={s.max_queue}); try again later",
+                s.max_queue,
+                depth,
             )
         job_id = job_id or new_id()
         keep = s.queued_ttl_s + s.result_ttl_s

@@ -9,7 +9,9 @@ a service (its fast paths included):
 - a JSON body (``application/json``, ``+json``, or no content type) is read whole (it is bounded)
   and refused with 400 when it is not UTF-8 or nests arrays and objects deeper than ``max_depth``
   (Python's parser would recurse once per level: 1,000 ``[`` raise RecursionError), so that what
-  reaches a route is text a parser can read in bounded time and stack.
+  reaches a route is text a parser can read in bounded time and stack;
+- a body sent with more than one ``Content-Type`` is refused with 400: what is checked here (the
+  last header) and what a route parses by (Starlette reads the first) must be the same body type.
 
 Errors are the project's JSON error (``{"error", "message", "field", "expected", "got"}``), written here
 without the wire types so that the dashboard's server can use this module too.
@@ -49,9 +51,11 @@ def too_large_message(limit: int, path: str) -> str:
     return f"the body of a request to {path} may be at most {limit} bytes"
 
 
-def error_json(status: int, error: str, message: str, expected: Any = None, got: Any = None) -> bytes:
+def error_json(
+    status: int, error: str, message: str, expected: Any = None, got: Any = None, field: str = "body"
+) -> bytes:
     """The project's JSON error about the body (``ErrorBody``'s fields)."""
-    body = {"error": error, "message": message, "field": "body", "expected": expected, "got": got}
+    body = {"error": error, "message": message, "field": field, "expected": expected, "got": got}
     return json.dumps(body, separators=(",", ":")).encode()
 
 
@@ -159,12 +163,14 @@ class BodyLimitMiddleware:
             return
         length: bytes | None = None
         ctype: bytes | None = None
+        ctypes = 0
         chunked = False
         for name, value in scope["headers"]:
             if name == b"content-length":
                 length = value
             elif name == b"content-type":
                 ctype = value
+                ctypes += 1
             elif name == b"transfer-encoding":
                 chunked = True
         if length is None and not chunked:  # HTTP/1.1: no body at all
@@ -174,6 +180,11 @@ class BodyLimitMiddleware:
         limit = self.limit(path)
         if length is not None and length.isdigit() and int(length) > limit:
             await self._too_large(send, limit, path, got=f"Content-Length: {int(length)}")
+            return
+        if ctypes > 1:
+            msg = f"the request has {ctypes} Content-Type headers; send one, naming the body's type"
+            body = error_json(400, "bad_request", msg, "one Content-Type header", ctypes, "content-type")
+            await respond(send, 400, body)
             return
         if _is_json(ctype):
             await self._json(scope, receive, send, limit)

@@ -17,9 +17,21 @@ from typing import Any
 _STANDARD = set(vars(logging.makeLogRecord({}))) | {"message", "asctime", "taskName", "color_message"}
 
 
-SECRET_PARAM = re.compile(r"((?:api_key|apikey|access_token|token)=)[^&\s\"']*", re.IGNORECASE)
+SECRET_NAMES = ("api_key", "apikey", "access_token", "token")
+
+
+def _spelled(name: str) -> str:
+    """A pattern of ``name`` with any of its characters percent-encoded (``api%5Fkey`` is ``api_key``
+    to the query parser, which takes the key from it all the same)."""
+    return "".join(f"(?:{re.escape(c)}|%{ord(c):02x})" for c in name)
+
+
+SECRET_PARAM = re.compile(
+    "((?:" + "|".join(_spelled(n) for n in SECRET_NAMES) + r")=)[^&\s\"']*", re.IGNORECASE
+)
 """A query parameter that carries a secret (browsers send API keys as ``?api_key=`` on websockets and
-event streams), as uvicorn's access log would write it with the request's path."""
+event streams), as uvicorn's access log would write it with the request's path: the raw query string,
+where the name may be percent-encoded."""
 
 
 def redact(text: str) -> str:

@@ -21,7 +21,8 @@ from services.common.auth import OPEN_PATHS
 
 ERROR_REF = {"$ref": "#/components/schemas/ErrorBody"}
 BODY_ERRORS = {
-    "400": "the body cannot be read: JSON that is not UTF-8, or nests arrays and objects too deep",
+    "400": "the body cannot be read: JSON that is not UTF-8, nests arrays and objects too deep or has a "
+    "number too long to read, or a request with more than one Content-Type",
     "413": "the body is larger than this endpoint takes (refused before it is read)",
 }
 AUTH_ERROR = {"401": "no API key, or one that is not valid (when the service has API_KEYS)"}

@@ -22,13 +22,15 @@ import redis.asyncio as aioredis
 from fastapi import APIRouter, FastAPI, Request, Response
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse, PlainTextResponse
+from redis.asyncio.retry import Retry
+from redis.backoff import ExponentialBackoff
 
 from neuroanimator.emulator_schemas import ErrorBody
 from services.common.auth import ApiKeyMiddleware, ApiKeys
 from services.common.docs import add_offline_docs
-from services.common.errors import add_error_handlers
+from services.common.errors import ApiError, add_error_handlers
 from services.common.job_events import QueryKeyMiddleware
-from services.common.jobs import JobStore, QueueSettings
+from services.common.jobs import JobStore, QueueFull, QueueSettings
 from services.common.limits import limit_bodies
 from services.common.openapi import METRICS_RESPONSES, METRICS_TYPE, document_errors, readiness_responses
 
@@ -45,6 +47,13 @@ class QueueMetrics(Protocol):
 
 Ready = Callable[[], tuple[dict[str, Any], tuple[str, str] | None]]
 """The service's own readiness: (fields for ``/readyz``, and when it is not ready (status, why))."""
+
+
+def queue_full(exc: QueueFull) -> ApiError:
+    """The 503 of a submission to a full queue, naming the limit (``MAX_QUEUE``) as its field."""
+    return ApiError(
+        503, "queue_full", str(exc), field="MAX_QUEUE", expected=f"<= {exc.limit}", got=exc.depth + 1
+    )
 
 
 def redacted(url: str) -> str:
@@ -86,11 +95,14 @@ def queue_app(
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        # Blocking XREADs wait up to SSE_KEEPALIVE_S: the socket timeout must be longer.
+        # Blocking XREADs wait up to SSE_KEEPALIVE_S: the socket timeout must be longer. One quick retry:
+        # a pooled connection to a Redis that restarted fails its first command, and without it the
+        # first event stream after the restart would end at once with an error event.
         app.state.aredis = aioredis.Redis.from_url(
             settings.redis_url,
             socket_connect_timeout=settings.redis_timeout_s,
             socket_timeout=settings.sse_keepalive_s + 10.0,
+            retry=Retry(ExponentialBackoff(cap=0.2, base=0.05), retries=1),
         )
         log.info(f"{title} up", extra={"redis": where, "queue": settings.queue_name, "api_keys": len(keys)})
         try:

@@ -7,6 +7,7 @@ answer 503 with a message, and ``/readyz`` says why it is not ready (``services.
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from fastapi import FastAPI
@@ -18,6 +19,8 @@ from services.controller.routes import events, jobs, tasks
 from services.controller.settings import Settings
 from services.controller.store import JobStore
 
+log = logging.getLogger(__name__)
+
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The app for these settings. Connecting to Redis is lazy, so this works while Redis is down."""
@@ -27,11 +30,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     def ready() -> tuple[dict[str, Any], tuple[str, str] | None]:
         # an open endpoint: the models everybody sees (uploaded ones only once published)
         models = tenancy.public_models(settings.artifacts_dir)
-        if not models:
-            root = str(settings.artifacts_dir)
+        if not models:  # the folder is named by its setting: its path goes to the log, not to anybody
+            log.warning("readyz: no trained models", extra={"artifacts_dir": str(settings.artifacts_dir)})
             return {}, (
                 "no artifacts",
-                f"no trained models in {root!r} (train one: neuro train pendulum-active)",
+                "no trained models in ARTIFACTS_DIR (train one: neuro train pendulum-active)",
             )
         return {"models": models}, None
 

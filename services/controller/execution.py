@@ -71,15 +71,23 @@ def perform(job_id: str, delivery: int) -> str:
         return timed_out or watch.stop_requested
 
     best_at: dict[str, Any] = {}
+    unrecorded = 0  # iterations in a row whose progress Redis did not take
 
     def on_progress(p: dict[str, Any]) -> None:
+        nonlocal unrecorded
         # the iteration of the best objective so far: where "the best controller so far" comes from
         if p.get("objective") is not None and p.get("objective") == p.get("best_objective"):
             best_at["best_iteration"] = p.get("iteration")
         try:
             store.progress(job_id, attempt, {**p, **best_at})
         except redis.RedisError as exc:  # progress is best effort; the result is what counts
-            log.warning("progress not recorded", extra={"job": job_id, "error": str(exc)})
+            if not unrecorded:  # once while Redis is away, not at every iteration
+                log.warning("progress not recorded", extra={"job": job_id, "error": str(exc)})
+            unrecorded += 1
+        else:
+            if unrecorded:
+                log.info("progress recorded again", extra={"job": job_id, "missed": unrecorded})
+            unrecorded = 0
 
     log.info("job started", extra={"job": job_id, "attempt": attempt, "task": spec.get("task")})
     try:

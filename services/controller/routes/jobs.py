@@ -27,6 +27,7 @@ from neuroanimator.emulator_schemas import ErrorBody
 from services.common import tenancy
 from services.common.auth import CALLER, OwnerDep
 from services.common.errors import ApiError
+from services.common.queue_app import queue_full
 from services.controller.deps import SettingsDep, StoreDep
 from services.controller.metrics import Metrics
 from services.controller.store import IdempotencyConflict, JobStore, QueueFull
@@ -157,7 +158,7 @@ def create_job(
         job_id, status, created = store.submit(spec, owner, req.idempotency_key)
     except QueueFull as exc:
         metrics.rejected.labels("queue_full").inc()
-        raise ApiError(503, "queue_full", str(exc)) from exc
+        raise queue_full(exc) from exc
     except IdempotencyConflict as exc:
         metrics.rejected.labels("conflict").inc()
         raise ApiError(409, "idempotency_conflict", str(exc), field="idempotency_key") from exc

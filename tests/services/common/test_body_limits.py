@@ -99,6 +99,19 @@ def test_deep_nesting_is_refused_and_the_limit_is_exact() -> None:
     assert client.post("/raw", content=deep, headers={"content-type": "text/plain"}).json() == 1000
 
 
+def test_more_than_one_content_type_is_refused() -> None:
+    """The check here reads one header, a route another (Starlette's first): a JSON body announced as
+    text behind a JSON header would reach the parser unchecked."""
+    client = TestClient(_app(max_bytes=100_000))
+    for types in (("application/json", "text/plain"), ("text/plain", "application/json")):
+        r = client.post("/things", content=b"[" * 1000, headers=[("content-type", t) for t in types])
+        assert r.status_code == 400, r.text
+        body = r.json()
+        assert set(body) == KEYS and body["error"] == "bad_request" and body["field"] == "content-type"
+        assert "2 Content-Type headers" in body["message"]
+    assert client.post("/things", json={"name": "a"}).json() == "a"
+
+
 def test_too_deep_against_a_plain_walk() -> None:
     def walk(text: bytes, limit: int) -> bool:
         depth = 0

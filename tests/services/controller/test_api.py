@@ -131,6 +131,7 @@ def test_full_queue_is_503(ctl: Controller) -> None:
     r = api.post("/jobs", json=QUICK)
     assert r.status_code == 503 and r.json()["error"] == "queue_full"
     assert "MAX_QUEUE=2" in r.json()["message"]
+    assert (r.json()["field"], r.json()["expected"], r.json()["got"]) == ("MAX_QUEUE", "<= 2", 3)
     text = api.get("/metrics").text
     assert "controller_queue_depth 2.0" in text
     assert 'controller_jobs_rejected_total{reason="queue_full"} 1.0' in text
@@ -206,4 +207,5 @@ def test_readyz_and_metrics(ctl: Controller, tmp_path: Path) -> None:
         assert name in text, name
     empty = ctl.client(artifacts_dir=tmp_path / "nothing")
     r = empty.get("/readyz")
-    assert r.status_code == 503 and r.json()["status"] == "no artifacts" and "nothing" in r.json()["message"]
+    assert r.status_code == 503 and r.json()["status"] == "no artifacts", r.text
+    assert "ARTIFACTS_DIR" in r.json()["message"] and str(tmp_path) not in r.text  # no path to anybody

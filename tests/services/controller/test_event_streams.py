@@ -1,5 +1,6 @@
 """The live event streams at their edges: a stream whose Redis goes away ends with an ``error`` event
-(SSE and websocket), and the job websocket of another key's job is closed with 4404, not refused."""
+(SSE and websocket), the first stream after Redis restarted does not, and the job websocket of another
+key's job is closed with 4404, not refused."""
 
 from __future__ import annotations
 
@@ -60,3 +61,29 @@ def test_the_job_websocket_ends_with_an_error_event_when_redis_goes_away(
         with pytest.raises(WebSocketDisconnect) as info:
             ws.receive_json()
         assert info.value.code == 1011
+
+
+def _events(api: object, job_id: str) -> list[str]:
+    with api.stream("GET", f"/jobs/{job_id}/events") as r:  # type: ignore[attr-defined]
+        assert r.status_code == 200
+        return [line.removeprefix("event: ") for line in r.iter_lines() if line.startswith("event: ")]
+
+
+def test_the_first_streams_after_a_redis_restart_are_whole(
+    ctl: Controller, private_redis: PrivateRedis
+) -> None:
+    """The API's pooled connections to the Redis before its restart are dead: the stream's reads
+    reconnect rather than end with ``redis_unavailable``."""
+    ctl.env["REDIS_URL"] = private_redis.url
+    api = ctl.client()
+
+    def cancelled_job() -> str:  # no worker: cancelled while queued, it has its end event at once
+        job_id: str = api.post("/jobs", json=QUICK).json()["id"]
+        assert api.delete(f"/jobs/{job_id}").status_code == 202
+        return job_id
+
+    assert _events(api, cancelled_job()) == ["status", "end"]
+    private_redis.restart()
+    assert _events(api, cancelled_job()) == ["status", "end"]
+    with api.websocket_connect(f"/ws/jobs/{cancelled_job()}") as ws:
+        assert [ws.receive_json()["event"] for _ in range(2)] == ["status", "end"]

@@ -59,6 +59,7 @@ CASES: list[tuple[bytes, int, str]] = [
     (b'{"task":' + b'{"a":' * 200 + b"1" + b"}" * 201, 400, "body"),
     (b'{"task":"\xff\xfe"}', 400, "body"),
     (b'{"task":"truck-parking"', 422, "body"),
+    (b'{"task":"truck-parking","horizon":1' + b"0" * 5000 + b"}", 400, "body"),  # no int that long is read
 ]
 
 

@@ -5,14 +5,26 @@ JSON, and a worker runs nothing but controller deliveries."""
 from __future__ import annotations
 
 import json
+import time
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
+import pytest
 from rq import Queue
 from rq.registry import FailedJobRegistry
 from rq.serializers import JSONSerializer
 
-from tests.services.controller.ctl import QUICK, Controller, ctl_fixture, ended, kill, wait_for  # noqa: F401
+from tests.services.controller.ctl import (  # noqa: F401
+    QUICK,
+    Controller,
+    ctl_fixture,
+    ended,
+    kill,
+    long_job,
+    wait_for,
+)
 from tests.services.private_redis import PrivateRedis, private_redis_fixture  # noqa: F401
 
 
@@ -20,6 +32,27 @@ def _workers(api: object) -> int:
     r = api.get("/readyz")  # type: ignore[attr-defined]
     assert r.status_code == 200, r.text
     return int(r.json()["workers"])
+
+
+def _answered(api: Any, path: str) -> Any:
+    """The JSON of a GET that succeeded, else None (the API's first call after a Redis restart may
+    find its connection gone)."""
+    r = api.get(path)
+    return r.json() if r.status_code == 200 else None
+
+
+@pytest.fixture
+def aof_redis(tmp_path: Path) -> Iterator[PrivateRedis]:
+    """A private Redis that keeps its data across a restart (AOF); requested before ``ctl``, it stops
+    after the deployment's workers."""
+    folder = tmp_path / "aof-redis"
+    folder.mkdir()
+    server = PrivateRedis(folder, aof=True)
+    server.start()
+    try:
+        yield server
+    finally:
+        server.stop(kill=True)
 
 
 def test_sigkilled_workers_drop_out_of_the_count(ctl: Controller) -> None:
@@ -61,8 +94,37 @@ def test_the_queue_is_json_and_a_foreign_function_is_not_run(ctl: Controller, tm
     target = tmp_path / "made-by-a-queued-job"
     queue = Queue(ctl.env["QUEUE_NAME"], connection=ctl.r, serializer=JSONSerializer)
     foreign = queue.enqueue("os.mkdir", str(target))
+    # a pickle, as RQ writes by default: the worker's JSON cannot read it, and nothing is unpickled
+    pickled = Queue(ctl.env["QUEUE_NAME"], connection=ctl.r).enqueue("os.mkdir", str(target))
     ctl.worker("--burst").wait(120)
     assert not target.exists(), "the worker ran a function it was not made for"
-    assert foreign.id in FailedJobRegistry(queue=queue).get_job_ids()
+    assert {foreign.id, pickled.id} <= set(FailedJobRegistry(queue=queue).get_job_ids())
+    assert "<unreadable: DeserializationError>" in ctl.logs()
     assert "refused" in ctl.logs()
     assert ended(api, job_id)["status"] == "succeeded"  # the controller's own job ran
+
+
+def test_a_busy_worker_outlives_a_redis_outage(aof_redis: PrivateRedis, ctl: Controller) -> None:
+    """Redis away for several heartbeats while the only worker runs a job: the worker stays (RQ's own
+    loop quit on the failed heartbeat), is counted again and takes jobs as soon as Redis is back, and
+    the job, kept by the AOF, goes on."""
+    ctl.env["REDIS_URL"] = aof_redis.url
+    api = ctl.client()
+    proc = ctl.worker("--name", ctl.name("w"))
+    wait_for("the worker", lambda: _workers(api) == 1, timeout=60)
+    job_id = api.post("/jobs", json=long_job()).json()["id"]
+    wait_for("the job to run", lambda: api.get(f"/jobs/{job_id}").json()["iteration"] > 0, timeout=60)
+    aof_redis.stop()
+    time.sleep(3 * ctl.settings().heartbeat_s())
+    assert proc.poll() is None, ctl.logs()[-3000:]
+    aof_redis.start()
+    back = time.monotonic()
+    wait_for("the worker again", lambda: (_answered(api, "/readyz") or {}).get("workers") == 1, timeout=30)
+    assert proc.poll() is None, ctl.logs()[-3000:]
+    running = _answered(api, f"/jobs/{job_id}")
+    assert running is not None and running["status"] == "running" and running["attempt"] == 1, running
+    assert api.delete(f"/jobs/{job_id}").status_code == 202
+    assert ended(api, job_id)["status"] == "cancelled"
+    quick = api.post("/jobs", json=QUICK).json()["id"]
+    assert ended(api, quick)["status"] == "succeeded"
+    assert time.monotonic() - back < 60
