@@ -55,6 +55,8 @@ class ZooRow:
     attitude_deg_20s: float | None = None
     joint_rad_5s: float | None = None
     joint_rad_20s: float | None = None
+    joint_m_5s: float | None = None
+    joint_m_20s: float | None = None
     finite: bool | None = None  # every evaluated rollout stayed finite
     meets_bar: bool | None = None
 
@@ -119,6 +121,7 @@ def _physical(row: ZooRow, root: Path, name: str, trials: int) -> None:
         ("root_position_m", "root_m"),
         ("attitude_deg", "attitude_deg"),
         ("joint_angle_rad", "joint_rad"),
+        ("joint_position_m", "joint_m"),
     ):
         for t in (5, 20):
             at = phys.at(quantity, float(t))
@@ -204,9 +207,9 @@ def _fmt(v: Any, spec: str) -> str:
 
 def print_table(rows: list[ZooRow]) -> None:
     print(
-        "| model | source | accepted | S | n | contact | train s | one-step | linear | root m @5/20 s | attitude ° @5/20 s | joints rad @5/20 s | meets bar |"
+        "| model | source | accepted | S | n | contact | train s | one-step | linear | root m @5/20 s | attitude ° @5/20 s | joints rad @5/20 s | slides m @5/20 s | meets bar |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         acc = "yes" if r.accepted else f"no: {r.reason}"
         pair = lambda a, b, f: f"{_fmt(a, f)} / {_fmt(b, f)}"  # noqa: E731
@@ -215,6 +218,7 @@ def print_table(rows: list[ZooRow]) -> None:
             f"{'-' if r.contact is None else ('yes' if r.contact else 'no')} | {_fmt(r.train_s, '.0f')} | "
             f"{_fmt(r.one_step, '.4f')} | {_fmt(r.linear, '.3f')} | {pair(r.root_m_5s, r.root_m_20s, '.3g')} | "
             f"{pair(r.attitude_deg_5s, r.attitude_deg_20s, '.3g')} | {pair(r.joint_rad_5s, r.joint_rad_20s, '.3g')} | "
+            f"{pair(r.joint_m_5s, r.joint_m_20s, '.3g')} | "
             f"{'-' if r.meets_bar is None else ('yes' if r.meets_bar else 'no')} |"
         )
     print()

@@ -1,4 +1,5 @@
-"""Rollout errors in physical units: root position in metres, attitude in degrees, joints in radians.
+"""Rollout errors in physical units: root position in metres, attitude in degrees, hinge and ball joints
+in radians, slide joints in metres.
 
 A normalised rollout error divides by the spread of each variable over the data, so a lander that
 flies tens of metres hides metres of drift behind a small number. These are the errors a user sees:
@@ -40,7 +41,9 @@ def error_series(layout: StateLayout, pred: FloatArray, truth: FloatArray) -> di
     - ``root_position_m``: distance between the root positions (a ``position`` group);
     - ``attitude_deg``: the angle between root orientations (``quaternion``) or headings (``heading``);
     - ``joint_angle_rad``: mean absolute wrapped difference over hinge angles (``angle`` groups) and
-      ball joints (``local_quaternion``, the angle between them).
+      ball joints (``local_quaternion``, the angle between them);
+    - ``joint_position_m``: mean absolute difference over the lengths of ``qpos`` (``scalar`` groups:
+      slide joints, and the positions of free bodies other than the root).
     """
     out: dict[str, FloatArray] = {}
     pos = layout.find("position")
@@ -63,6 +66,15 @@ def error_series(layout: StateLayout, pred: FloatArray, truth: FloatArray) -> di
             joints.append(_quaternion_angle(pred[..., sl], truth[..., sl]))
     if joints:
         out["joint_angle_rad"] = np.mean(np.stack(joints, axis=0), axis=0)
+    # qpos holds lengths (metres) or angles; the angles have their own kinds, so a qpos scalar is a length.
+    lengths = [
+        c
+        for g, sl in layout.group_slices()
+        if g.kind == "scalar" and g.source == "qpos"
+        for c in range(sl.start, sl.stop)
+    ]
+    if lengths:
+        out["joint_position_m"] = np.mean(np.abs(pred[..., lengths] - truth[..., lengths]), axis=-1)
     return out
 
 
@@ -87,13 +99,13 @@ def summarize(
     return PhysicalErrors(**out)
 
 
-UNITS = {"root_position_m": "m", "attitude_deg": "°", "joint_angle_rad": "rad"}
+UNITS = {"root_position_m": "m", "attitude_deg": "°", "joint_angle_rad": "rad", "joint_position_m": "m"}
 
 
 def format_table(errors: PhysicalErrors) -> list[str]:
     """Readable lines: one per quantity, mean (p90) at each reported time."""
     lines = []
-    for name in ("root_position_m", "attitude_deg", "joint_angle_rad"):
+    for name in UNITS:
         rows = getattr(errors, name)
         if rows:
             cells = "  ".join(f"{e.t_s:g} s: {e.mean:.3g} ({e.p90:.3g})" for e in rows)

@@ -58,11 +58,13 @@ class PhysicalErrorAt(_Result):
 class PhysicalErrors(_Result):
     """Rollout errors against MuJoCo in physical units, for the quantities the model has: the root's
     position (metres), its attitude (degrees: the angle between orientations, or between headings) and
-    the joints (radians: mean absolute difference of hinge angles and ball-joint rotations)."""
+    the joints (radians: mean absolute difference of hinge angles and ball-joint rotations; metres: mean
+    absolute difference of slide joints and of free bodies' positions other than the root's)."""
 
     root_position_m: list[PhysicalErrorAt] | None = None
     attitude_deg: list[PhysicalErrorAt] | None = None
     joint_angle_rad: list[PhysicalErrorAt] | None = None
+    joint_position_m: list[PhysicalErrorAt] | None = None
 
     def at(self, quantity: str, seconds: float) -> PhysicalErrorAt | None:
         """The entry of ``quantity`` at ``seconds``, if measured."""

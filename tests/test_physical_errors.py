@@ -49,3 +49,21 @@ def test_summary_reports_mean_and_p90_at_the_times_reached_and_infinity_for_a_di
     assert math.isinf(rows[2].mean)
     assert summary.at("root_position_m", 5.0) == rows[1] and summary.attitude_deg is None
     assert any("root_position_m" in line for line in physical_errors.format_table(summary))
+
+
+def test_slide_joints_are_compared_in_metres() -> None:
+    cartpole = StateLayout.of(
+        [
+            StateGroup(name="slider.pos", kind="scalar", size=1, source="qpos", address=0),
+            StateGroup(name="hinge.angle", kind="angle", size=1, source="qpos", address=1),
+            StateGroup(name="slider.vel", kind="scalar", size=1, source="qvel", address=0),
+        ]
+    )
+    truth = np.zeros((1, 2, 3))
+    pred = np.array([[[0.25, 0.1, 9.0], [-0.5, 0.0, -9.0]]])  # velocities are not positions
+    series = physical_errors.error_series(cartpole, pred, truth)
+    np.testing.assert_allclose(series["joint_position_m"], [[0.25, 0.5]], atol=1e-12)
+    np.testing.assert_allclose(series["joint_angle_rad"], [[0.1, 0.0]], atol=1e-12)
+    assert "root_position_m" not in series
+    table = physical_errors.format_table(physical_errors.summarize(series, 0.5, (1.0,)))
+    assert any(line.startswith("joint_position_m") and "in m:" in line for line in table)

@@ -27,6 +27,7 @@ export const PHYSICAL_QUANTITIES: Record<PhysicalQuantity, string> = {
   root_position_m: 'root position (m)',
   attitude_deg: 'attitude (°)',
   joint_angle_rad: 'joint angles (rad)',
+  joint_position_m: 'slide joints (m)',
 };
 
 /** One table row per version (in increasing n) and per measured physical quantity. */

@@ -104,12 +104,14 @@ export interface NetworkSize {
 /**
  * Rollout errors against MuJoCo in physical units, for the quantities the model has: the root's
  * position (metres), its attitude (degrees: the angle between orientations, or between headings) and
- * the joints (radians: mean absolute difference of hinge angles and ball-joint rotations).
+ * the joints (radians: mean absolute difference of hinge angles and ball-joint rotations; metres: mean
+ * absolute difference of slide joints and of free bodies' positions other than the root's).
  */
 export interface PhysicalErrors {
   root_position_m?: PhysicalErrorAt[] | null;
   attitude_deg?: PhysicalErrorAt[] | null;
   joint_angle_rad?: PhysicalErrorAt[] | null;
+  joint_position_m?: PhysicalErrorAt[] | null;
 }
 /**
  * An error in physical units at ``t_s`` seconds into the rollouts: mean and 90th percentile over
@@ -159,17 +161,20 @@ export interface VersionEval {
 /**
  * Rollout errors against MuJoCo in physical units, for the quantities the model has: the root's
  * position (metres), its attitude (degrees: the angle between orientations, or between headings) and
- * the joints (radians: mean absolute difference of hinge angles and ball-joint rotations).
+ * the joints (radians: mean absolute difference of hinge angles and ball-joint rotations; metres: mean
+ * absolute difference of slide joints and of free bodies' positions other than the root's).
  */
 export interface PhysicalErrors1 {
   root_position_m?: PhysicalErrorAt[] | null;
   attitude_deg?: PhysicalErrorAt[] | null;
   joint_angle_rad?: PhysicalErrorAt[] | null;
+  joint_position_m?: PhysicalErrorAt[] | null;
 }
 /**
  * Rollout errors against MuJoCo in physical units, for the quantities the model has: the root's
  * position (metres), its attitude (degrees: the angle between orientations, or between headings) and
- * the joints (radians: mean absolute difference of hinge angles and ball-joint rotations).
+ * the joints (radians: mean absolute difference of hinge angles and ball-joint rotations; metres: mean
+ * absolute difference of slide joints and of free bodies' positions other than the root's).
  *
  * This interface was referenced by `ResultsWire`'s JSON-Schema
  * via the `definition` "PhysicalErrors".
@@ -178,6 +183,7 @@ export interface PhysicalErrors2 {
   root_position_m?: PhysicalErrorAt[] | null;
   attitude_deg?: PhysicalErrorAt[] | null;
   joint_angle_rad?: PhysicalErrorAt[] | null;
+  joint_position_m?: PhysicalErrorAt[] | null;
 }
 /**
  * One version's speed against MuJoCo (``<version>/bench.json``): a single client, and batched

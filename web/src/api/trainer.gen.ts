@@ -41,7 +41,8 @@ export interface PhysicalErrorAt {
 /**
  * Rollout errors against MuJoCo in physical units, for the quantities the model has: the root's
  * position (metres), its attitude (degrees: the angle between orientations, or between headings) and
- * the joints (radians: mean absolute difference of hinge angles and ball-joint rotations).
+ * the joints (radians: mean absolute difference of hinge angles and ball-joint rotations; metres: mean
+ * absolute difference of slide joints and of free bodies' positions other than the root's).
  *
  * This interface was referenced by `TrainerWire`'s JSON-Schema
  * via the `definition` "PhysicalErrors".
@@ -50,6 +51,7 @@ export interface PhysicalErrors {
   root_position_m?: PhysicalErrorAt[] | null;
   attitude_deg?: PhysicalErrorAt[] | null;
   joint_angle_rad?: PhysicalErrorAt[] | null;
+  joint_position_m?: PhysicalErrorAt[] | null;
 }
 /**
  * An uploaded model in the registry.
