@@ -88,7 +88,7 @@ def check_trainable(model: PhysicalModel) -> None:
 def check_model(path: Path, entry: str | None, name: str | None, limits: Limits) -> Checked:
     """Read and check an uploaded model (see the module's text); ``Refused`` with the status."""
     try:
-        model = load_mjcf(path, entry=entry, name=name, limits=limits)
+        model = load_mjcf(path, entry=entry, name=name, limits=limits, stabilise=False)
     except SourceError as exc:
         raise Refused(
             STATUS[exc.kind], exc.kind, str(exc), "entry" if exc.kind == "entry" else "file"
