@@ -1,8 +1,8 @@
 """API keys: when ``API_KEYS`` is set, every call but ``/healthz``, ``/readyz`` and ``/metrics`` needs one.
 
-A key is sent as ``Authorization: Bearer <key>`` or ``X-API-Key: <key>`` (websockets may also use the
-``?api_key=<key>`` query parameter, since browsers cannot set headers on them). A missing or wrong key
-gets 401 (a websocket handshake is denied with 401, or closed with code 4401 where the server cannot
+A key is sent as ``Authorization: Bearer <key>`` or ``X-API-Key: <key>`` (websockets and event streams
+may also use the ``?api_key=<key>`` query parameter, since browsers cannot set headers on them). A
+missing or wrong key gets 401 (a websocket handshake is denied with 401, or closed with code 4401 where the server cannot
 send a denial response).
 
 The caller is known for the rest of the request through the ``CALLER`` context variable, set by
@@ -100,14 +100,16 @@ class ApiKeys:
 
 
 def presented_key(conn: HTTPConnection) -> str | None:
-    """The key a request carries: Authorization Bearer, X-API-Key, or (websockets) ``?api_key=``."""
+    """The key a request carries: Authorization Bearer, X-API-Key, or (websockets and event streams,
+    ``.../events``) ``?api_key=``."""
     auth = conn.headers.get("authorization", "")
     scheme, _, value = auth.partition(" ")
     if scheme.lower() == "bearer" and value.strip():
         return value.strip()
     if conn.headers.get("x-api-key"):
         return conn.headers["x-api-key"].strip()
-    if conn.scope["type"] == "websocket":
+    # browsers cannot give websockets or EventSource (server-sent events) headers
+    if conn.scope["type"] == "websocket" or conn.url.path.endswith("/events"):
         return conn.query_params.get("api_key") or None
     return None
 

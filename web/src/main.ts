@@ -13,7 +13,8 @@ import { modelsPage } from './pages/models';
 import { playgroundPage } from './pages/playground';
 import { pinFullResolution } from './scene/loop';
 import { h } from './ui/dom';
-import { clearNotice, initNotices, notify } from './ui/notices';
+import { keyControl } from './ui/keycontrol';
+import { clearAll, clearNotice, initNotices, notify } from './ui/notices';
 
 const PAGES: Record<string, { title: string; page: Page }> = {
   models: { title: 'Models', page: modelsPage },
@@ -91,6 +92,10 @@ async function main(): Promise<void> {
   };
   window.addEventListener('hashchange', show);
   show();
+  keyControl(byId('key'), () => {
+    clearAll();
+    show();
+  });
   void watchHealth(ctx, byId('health'));
 }
 

@@ -24,6 +24,20 @@ def test_another_keys_job_websocket_closes_4404(ctl: Controller) -> None:
         assert ws.receive_json()["event"] == "status"
 
 
+def test_an_event_stream_takes_its_key_in_the_query_and_plain_calls_do_not(ctl: Controller) -> None:
+    """A browser's EventSource cannot send headers: ``?api_key=`` works on ``.../events``, and only there
+    (a plain call with its key in the address would leave it in every proxy's log)."""
+    api = ctl.client(api_keys="alpha,beta", sse_keepalive_s=0.5)
+    job_id = api.post("/jobs", json=QUICK, headers={"X-API-Key": "alpha"}).json()["id"]
+    with api.stream("GET", f"/jobs/{job_id}/events?api_key=alpha") as r:
+        assert r.status_code == 200
+        first = next(line for line in r.iter_lines() if line.startswith("event: "))
+    assert first == "event: status"
+    assert api.get(f"/jobs/{job_id}/events?api_key=wrong").status_code == 401
+    assert api.get(f"/jobs/{job_id}?api_key=alpha").status_code == 401
+    assert api.get(f"/jobs/{job_id}", headers={"Authorization": "Bearer alpha"}).status_code == 200
+
+
 def test_sse_ends_with_an_error_event_when_redis_goes_away(
     ctl: Controller, private_redis: PrivateRedis
 ) -> None:

@@ -1,5 +1,6 @@
 // The controller service's REST calls and job events (types generated from proto/schemas/controller).
 import { requestJson } from './http';
+import { withKeyQuery } from './key';
 
 import type {
   JobAccepted,
@@ -74,6 +75,6 @@ export class ControllerApi {
 
   /** Server-sent events of a job: `progress` per iteration, then one `end`. */
   events(id: string): EventSource {
-    return new EventSource(`${this.base}/jobs/${encodeURIComponent(id)}/events`);
+    return new EventSource(withKeyQuery(`${this.base}/jobs/${encodeURIComponent(id)}/events`));
   }
 }

@@ -9,6 +9,7 @@ import type {
   SessionInfo,
 } from './emulator.gen';
 import { requestBytes, requestJson } from './http';
+import { withKeyQuery } from './key';
 
 export class EmulatorApi {
   constructor(readonly base: string) {}
@@ -56,6 +57,6 @@ export class EmulatorApi {
   }
 
   socketUrl(id: string, query: string): string {
-    return wsUrl(this.base, `/ws/sessions/${encodeURIComponent(id)}?${query}`, location.href);
+    return withKeyQuery(wsUrl(this.base, `/ws/sessions/${encodeURIComponent(id)}?${query}`, location.href));
   }
 }

@@ -1,5 +1,6 @@
 // fetch with errors a person can read: every failure becomes a ServiceError whose message names the
 // service and says what went wrong in plain words.
+import { withKeyHeader } from './key';
 
 export class ServiceError extends Error {
   /** `detail`: the service's own message, when it sent one. */
@@ -27,9 +28,10 @@ export function describeFailure(service: string, status: number, statusText: str
   } else if (typeof body === 'string' && body.trim() && body.length < 300) {
     detail = body.trim();
   }
-  const text = detail
+  let text = detail
     ? `The ${service} service refused the request: ${detail}`
     : `The ${service} service answered ${status}${statusText ? ` ${statusText}` : ''}.`;
+  if (status === 401) text = `${text.replace(/[.\s]*$/, '')}. Enter your API key with the key button at the top right.`;
   return new ServiceError(text, service, status, code, detail);
 }
 
@@ -52,10 +54,11 @@ async function bodyOf(r: Response): Promise<unknown> {
   }
 }
 
-/** fetch, with "not reachable" in plain words when the service does not answer. */
+/** fetch, with the person's API key (key.ts) and "not reachable" in plain words when the service does
+ * not answer. */
 export async function send(service: string, base: string, path: string, init?: RequestInit): Promise<Response> {
   try {
-    return await fetch(base + path, init);
+    return await fetch(base + path, { ...init, headers: withKeyHeader(init?.headers) });
   } catch {
     throw unreachable(service, base);
   }
@@ -69,10 +72,10 @@ export async function jsonOf<T>(service: string, r: Response): Promise<T> {
 }
 
 export async function requestJson<T>(service: string, base: string, path: string, init?: RequestInit): Promise<T> {
-  const r = await send(service, base, path, {
-    ...init,
-    headers: { Accept: 'application/json', ...(init?.body ? { 'Content-Type': 'application/json' } : {}) },
-  });
+  const headers = new Headers(init?.headers);
+  headers.set('Accept', 'application/json');
+  if (init?.body && !headers.has('Content-Type')) headers.set('Content-Type', 'application/json');
+  const r = await send(service, base, path, { ...init, headers });
   return jsonOf<T>(service, r);
 }
 

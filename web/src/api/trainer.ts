@@ -1,6 +1,7 @@
 // The trainer service's calls (types generated from proto/schemas/trainer in trainer.gen.ts): upload a
 // model to train (a multipart form), follow a training (its status, its server-sent events), cancel it.
 import { jsonOf, requestJson, send } from './http';
+import { withKeyQuery } from './key';
 import type { TrainingAccepted, TrainingResult, TrainingStatus } from './trainer.gen';
 
 export type { TrainingAccepted, TrainingResult, TrainingStatus };
@@ -32,6 +33,6 @@ export class TrainerApi {
 
   /** Server-sent events of a training: `status`, `progress` (with new loss points), then one `end`. */
   events(id: string): EventSource {
-    return new EventSource(`${this.base}/trainings/${encodeURIComponent(id)}/events`);
+    return new EventSource(withKeyQuery(`${this.base}/trainings/${encodeURIComponent(id)}/events`));
   }
 }
