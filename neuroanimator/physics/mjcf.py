@@ -21,6 +21,7 @@ from neuroanimator.physics.model import (
     PhysicalModel,
     SimulationDiverged,
     derive_layout,
+    mujoco_warnings_as_debug,
     read_model_name,
 )
 
@@ -107,7 +108,8 @@ def _unstable_runs(model: PhysicalModel, seed: int) -> int:
     u = model.typical_controls(rng, PROBE_RUNS, times)
     f = model.typical_forces(rng, PROBE_RUNS, times) if model.num_forces else None
     try:
-        traj = model.simulate(s0, u, f, nstep=steps, check=True)
+        with mujoco_warnings_as_debug():  # instability is what this looks for; the caller reports it
+            traj = model.simulate(s0, u, f, nstep=steps, check=True)
     except SimulationDiverged:
         return PROBE_RUNS
     huge = ~np.isfinite(traj) | (np.abs(traj) > 1e3 * (1.0 + np.abs(s0[:, None, :])))

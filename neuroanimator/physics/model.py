@@ -16,7 +16,8 @@ import logging
 import os
 import threading
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Literal
@@ -46,9 +47,25 @@ class SimulationDiverged(ModelError):
     """MuJoCo found NaN, Inf or huge accelerations while simulating; the message says when and where."""
 
 
+_quiet_warnings = 0  # > 0 inside ``mujoco_warnings_as_debug``
+
+
+@contextmanager
+def mujoco_warnings_as_debug() -> Iterator[None]:
+    """MuJoCo's warnings are logged at DEBUG inside the block: for probes that expect instability and
+    report what they found themselves (they may come from rollout's worker threads, hence a module
+    counter rather than a thread-local flag)."""
+    global _quiet_warnings
+    _quiet_warnings += 1
+    try:
+        yield
+    finally:
+        _quiet_warnings -= 1
+
+
 def _log_mujoco_warning(text: str) -> None:
     # MuJoCo's default prints to stderr and appends to MUJOCO_LOG.TXT in the working directory
-    log.warning("MuJoCo: %s", text.strip())
+    log.log(logging.DEBUG if _quiet_warnings else logging.WARNING, "MuJoCo: %s", text.strip())
 
 
 mujoco.set_mju_user_warning(_log_mujoco_warning)
