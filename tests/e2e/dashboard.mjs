@@ -9,7 +9,12 @@ import { canvasStats, changed, check, frameRate, log, main, noErrorNotice, onScr
 async function models(page) {
   await page.goto(url('models'));
   await page.waitForSelector('.model-card .facts', { timeout: 30000 });
-  await page.waitForFunction(() => document.querySelectorAll('.model-card .facts').length >= 5, null, { timeout: 30000 });
+  // every card is filled in by its own calls: wait for the ones checked below, whatever their order
+  await page.waitForFunction(
+    () => ['lander', 'truck', 'pendulum-active'].every((m) => document.querySelector(`.model-card[data-model="${m}"] .facts`)),
+    null,
+    { timeout: 30000 },
+  );
   const names = await page.$$eval('.model-card', (els) => els.map((e) => e.dataset.model));
   log(`models: ${names.join(', ')}`);
   check(['lander', 'truck', 'pendulum-active'].every((m) => names.includes(m)), `the default models are listed (got ${names})`);
