@@ -109,7 +109,7 @@ def presented_key(conn: HTTPConnection) -> str | None:
     if conn.headers.get("x-api-key"):
         return conn.headers["x-api-key"].strip()
     # browsers cannot give websockets or EventSource (server-sent events) headers
-    if conn.scope["type"] == "websocket" or conn.url.path.endswith("/events"):
+    if conn.scope["type"] == "websocket" or conn.scope["path"].endswith("/events"):
         return conn.query_params.get("api_key") or None
     return None
 
