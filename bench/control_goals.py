@@ -1,7 +1,8 @@
 """Controllers for goals drawn at random, not only the built-in tasks' own.
 
     python bench/control_goals.py [--seed 0] [--goals 20] [--tasks a,b] [--starts 4]
-                                  [--global-generations 3] [--success-margin W] [--quick]
+                                  [--global-generations 3] [--gauss-newton 20]
+                                  [--success-margin W] [--quick]
                                   [--artifacts artifacts] [--json]
 
 Per task, ``--goals`` goals are drawn with ``--seed`` (numpy's default generator, one stream per
@@ -18,7 +19,8 @@ MuJoCo for the controller found on the emulator alone (``emulator_phase``) and f
 returned after physics refinement; whether the job called the goal reachable; iterations,
 emulator rollouts (every trajectory the emulator scored: global search, every start, line-search
 candidates, gradients), wall time and the final errors on both, with their median and worst.
-``--starts 1 --global-generations 0`` runs the single-start descent alone, for comparison.
+``--starts 1 --global-generations 0`` runs the single-start descent alone, for comparison, and
+``--gauss-newton 0`` leaves out the Levenberg-Marquardt updates after a descent that misses.
 
 Prints a table; with ``--json`` the last line is one JSON object
 ``{"seed", "goals", "settings", "tasks": [{"task", "success_emulator", "success_physics_emulator_only",
@@ -76,9 +78,14 @@ def stats(values: list[Any], worst: str = "max") -> dict[str, float | None]:
 
 def bench_task(task: str, args: argparse.Namespace) -> dict[str, Any]:
     rng = np.random.default_rng([args.seed, list(TASKS).index(task)])
-    optimizer: dict[str, int] = {"starts": args.starts, "global_generations": args.global_generations}
+    optimizer: dict[str, int] = {
+        "starts": args.starts,
+        "global_generations": args.global_generations,
+        "gauss_newton_iterations": args.gauss_newton,
+    }
     if args.quick:
         optimizer |= {"max_iterations": 5, "global_generations": min(1, args.global_generations)}
+        optimizer |= {"gauss_newton_iterations": min(2, args.gauss_newton)}
         optimizer |= {"physics_rounds": 1}
     extra: dict[str, Any] = {}
     if args.success_margin > 0:
@@ -111,6 +118,7 @@ def bench_task(task: str, args: argparse.Namespace) -> dict[str, Any]:
                 "final_error_physics": r.final_error_physics,
                 "final_error_physics_emulator_only": r.emulator_phase.final_error_physics,
                 "chosen_start": r.search.chosen if r.search else None,
+                "gauss_newton_iterations": r.gauss_newton.iterations if r.gauss_newton else 0,
             }
         )
         log.info("%s goal %d: %s", task, i, jobs[-1])
@@ -164,12 +172,22 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--starts", type=int, default=4, help="the jobs' optimizer.starts")
     p.add_argument("--global-generations", type=int, default=3, help="the jobs' optimizer.global_generations")
     p.add_argument(
+        "--gauss-newton",
+        type=int,
+        default=20,
+        help="the jobs' optimizer.gauss_newton_iterations (0: descent alone)",
+    )
+    p.add_argument(
         "--success-margin",
         type=float,
         default=0.0,
         help="add a success_margin term of this weight to every job (0: the task's own terms)",
     )
-    p.add_argument("--quick", action="store_true", help="5 iterations, 1 generation: a smoke test")
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="5 iterations, 1 generation, 2 Levenberg-Marquardt updates: a smoke test",
+    )
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
@@ -186,6 +204,7 @@ def main(argv: list[str] | None = None) -> int:
         settings = {
             "starts": args.starts,
             "global_generations": args.global_generations,
+            "gauss_newton_iterations": args.gauss_newton,
             "success_margin": args.success_margin,
             "quick": args.quick,
         }

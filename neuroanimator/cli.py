@@ -84,8 +84,19 @@ def cmd_train(args: argparse.Namespace) -> int:
     from neuroanimator.training import TrainingDiverged, TrainResult, train
 
     try:
+        activity = None if model.spec.parts else super_step.constraint_activity(model, seed=cfg.seed)
+        network_reason = None
+        if activity is not None:
+            cfg, network_reason = super_step.constrained_defaults(
+                cfg,
+                activity,
+                hidden_given=args.hidden is not None,
+                activation_given=args.activation is not None,
+            )
+            if network_reason:
+                log.info("%s: network %s", model.name, network_reason)
         if auto:
-            choice = super_step.choose_substeps(model, cfg)
+            choice = super_step.choose_substeps(model, cfg, activity=activity)
             log.info("%s: super-step %s", model.name, choice.reason)
             cfg.substeps = choice.substeps
             model.spec = model.spec.model_copy(update={"substeps": choice.substeps})
@@ -99,10 +110,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     except TrainingDiverged as exc:
         log.error("%s", exc)
         return 2
+    if network_reason:
+        result.metrics["network_reason"] = network_reason
+    if activity is not None:
+        result.metrics["contact_fraction"] = activity.contact
+        result.metrics["limit_fraction"] = activity.limit
     if auto:
         result.metrics["substeps_reason"] = choice.reason
-        result.metrics["contact_fraction"] = choice.activity.contact
-        result.metrics["limit_fraction"] = choice.activity.limit
     m = result.metrics
     if not args.force:
         super_step.check_useful(

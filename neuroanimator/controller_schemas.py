@@ -65,7 +65,12 @@ class OptimizerSpec(_Wire):
 
     learning_rate: Number | None = Field(None, gt=0, le=MAX_LEARNING_RATE, description="η")
     momentum: Number | None = Field(None, ge=0, lt=1, description="α")
-    max_iterations: Integer | None = Field(None, ge=1, le=MAX_ITERATIONS, description="iteration cap")
+    max_iterations: Integer | None = Field(
+        None,
+        ge=1,
+        le=MAX_ITERATIONS,
+        description="cap on the gradient-descent updates (the Levenberg-Marquardt ones after them have their own)",
+    )
     tolerance: Number | None = Field(None, ge=0, le=1, description="stop when the objective changes less")
     stop_on_success: Flag | None = Field(None, description="stop once the success criterion holds")
     line_search: Flag | None = Field(
@@ -91,6 +96,15 @@ class OptimizerSpec(_Wire):
         ge=0,
         le=MAX_GLOBAL_GENERATIONS,
         description="generations of the cross-entropy search before gradient descent (0: none)",
+    )
+    gauss_newton_iterations: Integer | None = Field(
+        None,
+        ge=0,
+        le=MAX_ITERATIONS,
+        description=(
+            "Levenberg-Marquardt updates when gradient descent ends without meeting the success "
+            "criterion on the emulator (0: none)"
+        ),
     )
 
 
@@ -259,6 +273,18 @@ class Refinement(BaseModel):
     physics_replays: int = Field(1, description="MuJoCo replays, the first one included")
 
 
+class GaussNewtonInfo(BaseModel):
+    """The Levenberg-Marquardt updates that followed gradient descent when it ended short of the
+    criterion on the emulator (``neuroanimator.control.gauss_newton``), over the whole run."""
+
+    runs: int = Field(0, description="times it ran: after the emulator descent and per refinement round")
+    iterations: int = Field(0, description="updates made, all runs together")
+    rollouts: int = Field(0, description="emulator trajectories it scored (Jacobians and damping candidates)")
+    success: bool = Field(
+        False, description="whether a run reached the criterion that the descent before it missed"
+    )
+
+
 class SearchInfo(BaseModel):
     """The search before single-start descent: a cross-entropy pass and several starts descended at
     once, all batched on the emulator (``neuroanimator.control.search``)."""
@@ -322,6 +348,7 @@ class JobOutcome(BaseModel):
     )
     reachability: str | None = Field(None, description="why the goal counts as reached or unreachable")
     search: SearchInfo | None = None
+    gauss_newton: GaussNewtonInfo | None = None
     emulator_phase: EmulatorPhase | None = None
     refinement: Refinement | None = None
     target_state: list[MaybeFloat] | None = None

@@ -90,6 +90,7 @@ class ControlProblem:
         self.s0 = torch.tensor(spec.initial_state, dtype=dtype)
         # per-step additive correction (K, S) learned from a MuJoCo replay (``set_correction``)
         self.correction: Tensor | None = None
+        self._residuals: int | None = None  # R, the length of ``objective.residuals``
 
     # ------------------------------------------------------------------ parametrisation
     def initial_points(self) -> FloatArray:
@@ -151,6 +152,38 @@ class ControlProblem:
             states.detach().double().numpy(),
             u.detach().double().numpy(),
         )
+
+    def residual_jacobian(
+        self, z: FloatArray
+    ) -> tuple[float, FloatArray, FloatArray, FloatArray, tuple[FloatArray, FloatArray]]:
+        """J, ∇_z J (M, U), the residuals r (R,) of ``Objective.residuals``, their Jacobian (R, M·U)
+        and (states (K+1, S), held controls (K, U)) of one controller ``z`` (M, U).
+
+        One batched rollout of R + 1 copies of ``z`` and one backward pass: the copies are
+        independent, so the gradient of Σᵢ rᵢ(copy i) + J(copy R) holds ∇rᵢ in row i and ∇J in row R.
+        """
+        zs = np.repeat(np.asarray(z, dtype=np.float64)[None], self._residual_count(z) + 1, axis=0)
+        zt = torch.tensor(zs, dtype=self.dtype, requires_grad=True)
+        states, u = self.rollout(zt)
+        r_all = self.objective.residuals(states[:-1].double(), u[:-1].double())  # (R, R)
+        j = self.objective(states[-1:].double(), u[-1:].double())[0]
+        (r_all.diagonal().sum() + j).backward()
+        assert zt.grad is not None
+        grad = zt.grad.double().numpy()
+        return (
+            float(j.detach()),
+            grad[-1],
+            r_all[0].detach().numpy(),
+            grad[:-1].reshape(grad.shape[0] - 1, -1),
+            (states[-1].detach().double().numpy(), u[-1].detach().double().numpy()),
+        )
+
+    def _residual_count(self, z: FloatArray) -> int:
+        if self._residuals is None:
+            with torch.no_grad():
+                states, u = self.rollout(torch.as_tensor(np.asarray(z)[None], dtype=self.dtype))
+                self._residuals = int(self.objective.residuals(states.double(), u.double()).shape[-1])
+        return self._residuals
 
     @torch.no_grad()
     def trajectory(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:

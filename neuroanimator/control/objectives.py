@@ -21,6 +21,7 @@ is differentiable for backpropagation through time.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -83,6 +84,31 @@ class StateDistance:
             total = total + (wq * (1.0 - dot * dot)).sum(-1)
         return total
 
+    def residuals(self, states: Tensor, target: Tensor, weights: Tensor) -> Tensor:
+        """states (..., S) -> (..., R) with ``(r²).sum(-1)`` equal to ``self(states, target, weights)``.
+
+        Smooth everywhere, for Gauss-Newton: a plain variable gives ``w·Δ``, an angle ``w·2 sin(Δ/2)``
+        (its square is 2(1 − cos Δ)), a quaternion the part of q̂ orthogonal to the unit target,
+        ``√w̄·(q̂ − ⟨q̂, q̂_d⟩ q̂_d)`` (its squared length is 1 − ⟨q̂, q̂_d⟩²).
+        """
+        w = weights.to(states.dtype)
+        tgt = target.to(states.dtype)
+        parts: list[Tensor] = []
+        if self.plain.numel():
+            parts.append(w[self.plain] * (states[..., self.plain] - tgt[self.plain]))
+        if self.angles.numel():
+            d = states[..., self.angles] - tgt[self.angles]
+            parts.append(w[self.angles].abs() * 2.0 * torch.sin(0.5 * d))
+        if self.quats.numel():
+            q = states[..., self.quats]
+            q = q / torch.sqrt((q * q).sum(-1, keepdim=True) + 1e-12)
+            qd = tgt[self.quats]
+            qd = qd / qd.norm(dim=-1, keepdim=True)
+            ortho = q - (q * qd).sum(-1, keepdim=True) * qd  # (..., G, 4)
+            wq = torch.sqrt((w[self.quats] ** 2).mean(-1))  # (G,)
+            parts.append((wq[:, None] * ortho).flatten(-2))
+        return torch.cat(parts, dim=-1) if parts else states[..., :0]
+
 
 class CheckPenalty:
     """Σ_checks max(0, r − margin)² on final states (B, S): the success checks (``criteria.py``) as a
@@ -108,7 +134,13 @@ class CheckPenalty:
             self.items.append((c, idx, _tensor(list(tgt))))
 
     def __call__(self, final: Tensor, margin: float) -> Tensor:
-        total = torch.zeros(final.shape[:-1], dtype=final.dtype)
+        r = self.residuals(final, margin)
+        return (r * r).sum(-1)
+
+    def residuals(self, final: Tensor, margin: float) -> Tensor:
+        """final (..., S) -> (..., C): each check's ``max(0, r − margin)`` (a range check's scaled
+        violation per variable), whose squares sum to the penalty."""
+        parts: list[Tensor] = []
         for c, idx, tgt in self.items:
             x = final[..., idx]
             t = tgt.to(final.dtype)
@@ -121,7 +153,7 @@ class CheckPenalty:
                     v = v + torch.clamp(lo + inset - x, min=0.0)
                 if hi is not None:
                     v = v + torch.clamp(x - (hi - inset), min=0.0)
-                total = total + ((v / max(width, 1e-9)) ** 2).sum(-1)
+                parts.append(v / max(width, 1e-9))
                 continue
             b = c.bound
             if c.check == "orientation":
@@ -137,9 +169,9 @@ class CheckPenalty:
                 r = ((x - t) ** 2).sum(-1) / max(b * b, 1e-12)
             else:  # norm
                 r = (x * x).sum(-1) / max(b * b, 1e-12)
-            pen = torch.clamp(r - margin, min=0.0) ** 2
-            total = total + (pen.sum(-1) if pen.dim() == final.dim() else pen)
-        return total
+            excess = torch.clamp(r - margin, min=0.0)
+            parts.append(excess if excess.dim() == final.dim() else excess[..., None])
+        return torch.cat(parts, dim=-1) if parts else final[..., :0]
 
 
 def _tensor(values: list[float]) -> Tensor:
@@ -192,6 +224,48 @@ class Objective:
     def __call__(self, states: Tensor, controls: Tensor) -> Tensor:
         parts = self.parts(states, controls)
         return torch.stack(list(parts.values()), dim=0).sum(dim=0)
+
+    def residuals(self, states: Tensor, controls: Tensor) -> Tensor:
+        """(B, R): J's sum-of-squares parts as residuals, ``½‖r‖²`` = J minus its linear terms.
+
+        Every part but ``forward_distance`` (linear in the final state) is a sum of squares; the
+        Gauss-Newton step (``gauss_newton.py``) takes its curvature from these and its gradient
+        from the whole J.
+        """
+        dt = states.dtype
+        u = controls * self.inv_scale.to(dt)
+        flat = u.flatten(-2)
+        final = states[..., -1, :]
+        parts = [math.sqrt(self.mu_u) * flat]
+        parts.append(math.sqrt(self.mu_s) * self.distance.residuals(final, self.target, self.weights))
+        for t, vectors in zip(self.terms, self._tensors, strict=True):
+            root = math.sqrt(t.weight)
+            if isinstance(t, FinalStateTerm):
+                parts.append(root * self.distance.residuals(final, vectors["target"], vectors["weights"]))
+            elif isinstance(t, ControlEffortTerm):
+                parts.append(root * flat)
+            elif isinstance(t, ControlSmoothnessTerm):
+                parts.append(root * (u[..., 1:, :] - u[..., :-1, :]).flatten(-2))
+            elif isinstance(t, FinalVelocityTerm):
+                parts.append(root * final[..., t.variables])
+            elif isinstance(t, SuccessMarginTerm):
+                parts.append(math.sqrt(2.0) * root * self.checks.residuals(final, t.margin))
+            elif isinstance(t, StayWithinBoundsTerm):
+                x = states[..., 1:, t.variable]
+                if t.low is not None:
+                    parts.append(root * torch.clamp(t.low - x, min=0.0))
+                if t.high is not None:
+                    parts.append(root * torch.clamp(x - t.high, min=0.0))
+            elif isinstance(t, PathTargetTerm):
+                for k, wp in enumerate(t.waypoints):
+                    parts.append(
+                        root
+                        * self.distance.residuals(
+                            states[..., wp.step, :], vectors[f"waypoint{k}"], vectors["weights"]
+                        )
+                    )
+            # ForwardDistanceTerm: linear, no residual (its gradient is in ∇J, its curvature is zero)
+        return torch.cat(parts, dim=-1)
 
     def _term(self, t: Term, vectors: dict[str, Tensor], states: Tensor, u: Tensor) -> Tensor:
         """One unweighted term, (B,); ``u`` is already in units of each control's range."""

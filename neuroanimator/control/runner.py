@@ -41,6 +41,7 @@ import torch
 from neuroanimator import artifacts, registry
 from neuroanimator.control import criteria
 from neuroanimator.control.bptt import ControlProblem
+from neuroanimator.control.gauss_newton import levenberg_marquardt
 from neuroanimator.control.replay import Replay, final_error, simulate_held
 from neuroanimator.control.search import cross_entropy, descend_starts, starting_points
 from neuroanimator.control.spec import JobSpec
@@ -48,6 +49,7 @@ from neuroanimator.control.synthesis import Outcome, Settings, clean, elapsed, o
 from neuroanimator.control.validation import validate_job
 from neuroanimator.controller_schemas import (
     EmulatorPhase,
+    GaussNewtonInfo,
     JobOutcome,
     Refinement,
     RefinementRound,
@@ -172,6 +174,41 @@ def _run(
         return j, g, list(zip(states, held, strict=True))
 
     settings = Settings.from_spec(spec.optimizer)
+    gauss_newton = GaussNewtonInfo()
+
+    def finish(out: Outcome, budget: int) -> Outcome:
+        """Levenberg-Marquardt from a descent that ended short of the criterion on the emulator
+        (``gauss_newton.py``); the better of the two (meets the criterion, else lower J) is kept."""
+        if not spec.success or out.success or out.stop in ("diverged", "cancelled") or budget <= 0:
+            return out
+        done = out.iterations
+        lm = levenberg_marquardt(
+            problem.residual_jacobian,
+            problem.evaluate,
+            out.z,
+            max_iterations=budget,
+            project=problem.project,
+            is_success=is_success,
+            polish_iterations=settings.polish_iterations,
+            on_iteration=lambda i, j, b, ok: report(done + i, j, b, ok),
+            should_stop=should_stop,
+        )
+        gauss_newton.runs += 1
+        gauss_newton.iterations += lm.iterations
+        gauss_newton.rollouts += lm.rollouts
+        gauss_newton.success = gauss_newton.success or lm.success
+        out.iterations += lm.iterations
+        out.rollouts += lm.rollouts
+        out.history = out.history + lm.history[1:]
+        if (lm.success, -lm.objective) > (out.success, -out.objective):
+            out.z, out.objective, out.success, out.extra = lm.z, lm.objective, lm.success, lm.extra
+        if lm.success and lm.iterations_to_success is not None:
+            out.stop, out.reason = "success", None
+            out.iterations_to_success = done + lm.iterations_to_success
+        elif lm.stop == "cancelled":
+            out.stop, out.reason = "cancelled", f"cancelled after {out.iterations} iterations"
+        return out
+
     z0 = problem.initial_points()
     searched = SearchSummary()
     if spec.optimizer.starts > 1 or spec.optimizer.global_generations > 0:
@@ -201,6 +238,7 @@ def _run(
         on_iteration=lambda i, j, b, ok: report(i, j, b, ok) if i > 0 or not searched.ran else None,
         should_stop=should_stop,
     )
+    outcome = finish(outcome, spec.optimizer.gauss_newton_iterations)
     outcome.iterations += searched.iterations
     if outcome.stop == "cancelled":
         outcome.reason = f"cancelled after {outcome.iterations} iterations"
@@ -249,6 +287,7 @@ def _run(
             on_iteration=lambda i, j, b, ok: report(i, j, b, ok) if i > 0 else None,
             should_stop=should_stop,
         )
+        out_r = finish(out_r, min(REFINE_ITERATIONS, spec.optimizer.gauss_newton_iterations))
         problem.set_correction(None)
         refine_iterations += out_r.iterations
         if out_r.stop == "diverged":
@@ -323,6 +362,7 @@ def _run(
         reachable=reachable,
         reachability=reachability,
         search=searched.to_info(),
+        gauss_newton=gauss_newton,
         emulator_phase=EmulatorPhase(
             objective=clean(outcome.objective),
             success_emulator=phase_emu.success if spec.success else None,

@@ -62,6 +62,12 @@ class OptimizerSettings(BaseModel):
     global_generations: int = Field(
         3, ge=0, le=MAX_GLOBAL_GENERATIONS, description="cross-entropy generations before descent"
     )
+    gauss_newton_iterations: int = Field(
+        20,
+        ge=0,
+        le=MAX_ITERATIONS,
+        description="Levenberg-Marquardt updates after a descent that ends short of the criterion",
+    )
 
 
 class JobSpec(BaseModel):

@@ -275,4 +275,7 @@ def _optimizer(given: Any, task: Task | None) -> OptimizerSettings:
         global_generations=_int(
             "optimizer.global_generations", opt["global_generations"], 0, MAX_GLOBAL_GENERATIONS
         ),
+        gauss_newton_iterations=_int(
+            "optimizer.gauss_newton_iterations", opt["gauss_newton_iterations"], 0, MAX_ITERATIONS
+        ),
     )

@@ -173,3 +173,25 @@ def test_success_margin_is_zero_with_room_to_spare_and_grows_past_each_bound(lan
     assert penalty(4, tilt) > 0.05 * (1.5**2 * 1.0 - 0.5) ** 2 * 0.9
     assert penalty(9, -0.9) > 0.0 and penalty(9, 0.2) > penalty(9, -0.1) > 0.0
     assert penalty(7, 0.3) == 0.0 < penalty(7, 0.6)
+
+
+def test_residuals_square_to_the_objective_less_its_linear_term(lander_spec: JobSpec) -> None:
+    """½‖r‖² is J without ``forward_distance`` (the one linear term), for every other term."""
+    objective = Objective(lander_spec, lander_layout(), control_scale(np.array([[0, 32.4]] + [[-1, 1]] * 3)))
+    states, controls = random_trajectory(np.random.default_rng(4), batch=3)
+    states[..., -1, 3:7] = -states[..., -1, 3:7]  # a quaternion's sign changes nothing
+    r = objective.residuals(states, controls)
+    parts = objective.parts(states, controls)
+    linear = sum(v for k, v in parts.items() if k.endswith("forward_distance"))
+    torch.testing.assert_close(0.5 * (r * r).sum(-1), objective(states, controls) - linear)
+
+
+def test_residuals_of_angles_wrap_like_the_distance() -> None:
+    layout = [LayoutGroup(name="angles", kind="angle", size=1, source="qpos", address=0, offset=0)]
+    dist = StateDistance(layout, 1)
+    w = torch.tensor([2.0], dtype=torch.float64)
+    target = torch.tensor([0.5], dtype=torch.float64)
+    for x in (0.6, 0.6 + 2 * math.pi, 0.5 + math.pi, -2.0):
+        s = torch.tensor([x], dtype=torch.float64)
+        r = dist.residuals(s, target, w)
+        assert float((r * r).sum()) == pytest.approx(float(dist(s, target, w)))

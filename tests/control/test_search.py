@@ -138,4 +138,7 @@ def test_bench_control_goals_quick() -> None:
         assert isinstance(job[key], bool) and row[key] == int(job[key])
     for key in ("iterations", "emulator_rollouts", "wall_s", "final_error_physics"):
         assert set(row[key]) == {"median", "worst"}
-    assert job["iterations"] <= 5 and job["emulator_rollouts"] > 0
+    # quick: at most 2 Levenberg-Marquardt updates after the emulator descent and after its one
+    # refinement round's
+    assert 0 <= job["gauss_newton_iterations"] <= 4 and result["settings"]["gauss_newton_iterations"] == 20
+    assert job["iterations"] <= 5 + 2 and job["emulator_rollouts"] > 0

@@ -11,6 +11,7 @@ export interface ControllerWire {
   FinalStateTerm?: FinalStateTerm;
   FinalVelocityTerm?: FinalVelocityTerm;
   ForwardDistanceTerm?: ForwardDistanceTerm;
+  GaussNewtonInfo?: GaussNewtonInfo;
   JobAccepted?: JobAccepted;
   JobCreate?: JobCreate;
   JobList?: JobList;
@@ -150,6 +151,31 @@ export interface ForwardDistanceTerm {
   variables: [number, ...number[]];
 }
 /**
+ * The Levenberg-Marquardt updates that followed gradient descent when it ended short of the
+ * criterion on the emulator (``neuroanimator.control.gauss_newton``), over the whole run.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "GaussNewtonInfo".
+ */
+export interface GaussNewtonInfo {
+  /**
+   * times it ran: after the emulator descent and per refinement round
+   */
+  runs?: number;
+  /**
+   * updates made, all runs together
+   */
+  iterations?: number;
+  /**
+   * emulator trajectories it scored (Jacobians and damping candidates)
+   */
+  rollouts?: number;
+  /**
+   * whether a run reached the criterion that the descent before it missed
+   */
+  success?: boolean;
+}
+/**
  * A job on the queue (or, for a repeated idempotency key, the job it already made).
  *
  * This interface was referenced by `ControllerWire`'s JSON-Schema
@@ -277,7 +303,7 @@ export interface OptimizerSpec {
    */
   momentum?: number | null;
   /**
-   * iteration cap
+   * cap on the gradient-descent updates (the Levenberg-Marquardt ones after them have their own)
    */
   max_iterations?: number | null;
   /**
@@ -308,6 +334,10 @@ export interface OptimizerSpec {
    * generations of the cross-entropy search before gradient descent (0: none)
    */
   global_generations?: number | null;
+  /**
+   * Levenberg-Marquardt updates when gradient descent ends without meeting the success criterion on the emulator (0: none)
+   */
+  gauss_newton_iterations?: number | null;
 }
 /**
  * The caller's jobs, newest first.
@@ -411,6 +441,7 @@ export interface JobOutcome {
    */
   reachability?: string | null;
   search?: SearchInfo | null;
+  gauss_newton?: GaussNewtonInfo | null;
   emulator_phase?: EmulatorPhase | null;
   refinement?: Refinement | null;
   target_state?: (number | null)[] | null;
@@ -640,6 +671,10 @@ export interface OptimizerSettings {
    * cross-entropy generations before descent
    */
   global_generations?: number;
+  /**
+   * Levenberg-Marquardt updates after a descent that ends short of the criterion
+   */
+  gauss_newton_iterations?: number;
 }
 /**
  * A job's result (``GET /jobs/{id}/result``): what its run returned, and the job's id.
@@ -714,6 +749,7 @@ export interface JobResult {
    */
   reachability?: string | null;
   search?: SearchInfo | null;
+  gauss_newton?: GaussNewtonInfo | null;
   emulator_phase?: EmulatorPhase | null;
   refinement?: Refinement | null;
   target_state?: (number | null)[] | null;
