@@ -7,6 +7,13 @@ at a shorter super-step. So: measure how often constraints engage in typical mot
 take 50; else train short probes at n = 50, 25, 10 and take the longest n whose probe reaches the
 target, saying why. After the real training, an emulator that is no better than a linear fit, or far
 off the target, is refused rather than written.
+
+A model whose constraints engage also gets a wider network of units that do not saturate
+(``constrained_defaults``) where the user chose none: a contact or a limit puts kinks into the step,
+which piecewise-linear-like units (SiLU) fit better than tanh, and a kink needs more units and more
+examples to place. Measured on the catalog ball (contacts in 96% of its states, n = 10): tanh with
+two layers of 64 reached 0.0168, SiLU with two layers of 128 (and the 10×-weights examples that go
+with it) 0.0059.
 """
 
 from __future__ import annotations
@@ -28,6 +35,8 @@ TARGET = 0.01  # held-out one-step relative error a chosen n should reach
 PROBE_SLACK = 2.0  # a short probe overstates the error of a full training about this much
 REFUSE_ERROR = 0.05  # above this one-step error, an emulator is refused ...
 REFUSE_GAIN = 2.0  # ... as it is when it is not this many times below the linear baseline
+CONSTRAINED_HIDDEN = (128, 128)  # the network of a model whose contacts or limits engage ...
+CONSTRAINED_ACTIVATION = "silu"  # ... and its units
 
 _LIMIT_TYPES = (int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT), int(mujoco.mjtConstraint.mjCNSTR_LIMIT_TENDON))
 
@@ -106,13 +115,39 @@ def probe_config(cfg: TrainConfig, substeps: int) -> TrainConfig:
     )
 
 
+def constrained_defaults(
+    cfg: TrainConfig, activity: ConstraintActivity, *, hidden_given: bool, activation_given: bool
+) -> tuple[TrainConfig, str | None]:
+    """The config for a model whose contacts or limits engage (``activity.any``): two layers of 128
+    SiLU units where the user gave no width or activation (see the module doc), the learning rate
+    annealed over the budget, and why; unchanged, with None, for a smooth model or when the user
+    chose both."""
+    if not activity.any or (hidden_given and activation_given):
+        return cfg, None
+    changed = replace(
+        cfg,
+        hidden=cfg.hidden if hidden_given else CONSTRAINED_HIDDEN,
+        activation=cfg.activation if activation_given else CONSTRAINED_ACTIVATION,
+        # annealed over the time budget: a wider network does not converge within it, and a run cut
+        # off at a large rate leaves the kinks' last digits unlearned
+        schedule="cosine",
+    )
+    width = "×".join(str(h) for h in changed.hidden)
+    return changed, f"{width} {changed.activation} units, cosine schedule: {activity.describe()}"
+
+
 def choose_substeps(
-    model: PhysicalModel, cfg: TrainConfig, *, candidates: tuple[int, ...] = CANDIDATES
+    model: PhysicalModel,
+    cfg: TrainConfig,
+    *,
+    candidates: tuple[int, ...] = CANDIDATES,
+    activity: ConstraintActivity | None = None,
 ) -> SuperStepChoice:
-    """The longest super-step in ``candidates`` that the model can be learned at (see the module doc)."""
+    """The longest super-step in ``candidates`` that the model can be learned at (see the module doc);
+    ``activity``, when measured already, is not measured again."""
     from neuroanimator.training import train  # torch: only when probes are needed
 
-    activity = constraint_activity(model, seed=cfg.seed)
+    activity = activity or constraint_activity(model, seed=cfg.seed)
     if not activity.any:
         return SuperStepChoice(
             candidates[0], f"n={candidates[0]}: no contact or limit engages ({activity.describe()})", activity

@@ -201,7 +201,9 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
             cfg.seed + 7,
             progress=cfg.progress,
         )
-        rollout_metrics = train_over_rollouts(emu, seqs, cfg, lr=final_lr)
+        rollout_metrics = train_over_rollouts(
+            emu, seqs, cfg, lr=final_lr, one_step=(x_tr, y_tr, x_val, y_val)
+        )
 
     # 6. held-out evaluation
     ts, tu, tf, tn = to_tensors(test)
@@ -341,11 +343,22 @@ def rollout_loss(
 
 
 def train_over_rollouts(
-    emu: StructuredEmulator, seq: sampling.Sequences, cfg: TrainConfig, lr: float | None = None
+    emu: StructuredEmulator,
+    seq: sampling.Sequences,
+    cfg: TrainConfig,
+    lr: float | None = None,
+    one_step: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
 ) -> dict[str, Any]:
     """Fine-tune N^σ on the error of emulated rollouts (``rollout_loss``), early stopping on held-back
     sequences, at ``lr`` (default: a tenth of the config's; the one-step phase's last rate is a good
-    start); returns the validation rollout loss before and after."""
+    start); returns the validation rollout loss before and after.
+
+    With ``one_step`` (the one-step phase's normalised inputs and targets: train x, y, validation x,
+    y), the loss is the rollout loss and the one-step loss, each relative to its value when the phase
+    starts, and so is the validation that picks the state kept: alone, the rollout loss trades the
+    one-step accuracy away where the two pull apart (a ball on a floor: rollout loss 0.43 → 0.09 while
+    the one-step error went from 0.009 on validation before the phase to 0.057 held out after it),
+    and the held-out one-step error is the emulator's bar."""
     s, u, f = _sequence_tensors(seq)
     scale = (s[:, 1:] - s[:, :-1]).reshape(-1, s.shape[2]).std(dim=0)
     scale = torch.where(scale > 1e-8, scale, torch.ones_like(scale))
@@ -360,12 +373,25 @@ def train_over_rollouts(
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr * 0.1 if lr is None else lr)
     gen = torch.Generator().manual_seed(cfg.seed + 11)
 
-    def validate() -> float:
+    def one_step_mse(x: Tensor, y: Tensor) -> Tensor:
+        return torch.mean((net(x) - y) ** 2)
+
+    def validate_parts() -> tuple[float, float]:
         emu.eval()
         with torch.no_grad():
-            return float(rollout_loss(emu, s[val], part(u, val), part(f, val), scale))
+            roll = float(rollout_loss(emu, s[val], part(u, val), part(f, val), scale))
+            step = float(one_step_mse(one_step[2], one_step[3])) if one_step is not None else 0.0
+        return roll, step
 
-    before = best = validate()
+    roll0, step0 = validate_parts()
+    roll0, step0 = max(roll0, 1e-12), max(step0, 1e-12)
+
+    def validate() -> float:
+        roll, step = validate_parts()
+        return roll / roll0 + (step / step0 if one_step is not None else 0.0)
+
+    before_rollout = roll0
+    best = validate()
     best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
     t0, epochs, stale = time.perf_counter(), 0, 0
     batch = max(32, cfg.batch_size // 4)
@@ -374,7 +400,10 @@ def train_over_rollouts(
         perm = torch.randperm(s_tr.shape[0], generator=gen)
         for i in range(0, perm.numel(), batch):
             idx = perm[i : i + batch]
-            loss = rollout_loss(emu, s_tr[idx], part(u_tr, idx), part(f_tr, idx), scale)
+            loss = rollout_loss(emu, s_tr[idx], part(u_tr, idx), part(f_tr, idx), scale) / roll0
+            if one_step is not None:
+                rows = torch.randint(0, one_step[0].shape[0], (4 * batch,), generator=gen)
+                loss = loss + one_step_mse(one_step[0][rows], one_step[1][rows]) / step0
             if not torch.isfinite(loss):
                 raise TrainingDiverged(f"training over rollouts diverged (loss {float(loss.detach())})")
             opt.zero_grad(set_to_none=True)
@@ -388,6 +417,17 @@ def train_over_rollouts(
         else:
             stale += 1
     net.load_state_dict(best_state)
-    emu.eval()
-    log.info("rollout phase: %d epochs, validation rollout loss %.3g -> %.3g", epochs, before, best)
-    return {"rollout_loss_before": before, "rollout_loss_after": best, "rollout_epochs": epochs}
+    after_rollout, after_step = validate_parts()
+    log.info(
+        "rollout phase: %d epochs, validation rollout loss %.3g -> %.3g, one-step mse %.3g -> %.3g",
+        epochs,
+        before_rollout,
+        after_rollout,
+        step0 if one_step is not None else float("nan"),
+        after_step if one_step is not None else float("nan"),
+    )
+    return {
+        "rollout_loss_before": before_rollout,
+        "rollout_loss_after": after_rollout,
+        "rollout_epochs": epochs,
+    }

@@ -202,3 +202,33 @@ def test_training_over_rollouts_lowers_the_rollout_loss() -> None:
     )
     assert out["rollout_loss_after"] < out["rollout_loss_before"]
     assert out["rollout_epochs"] >= 1
+
+
+def test_training_over_rollouts_keeps_the_one_step_accuracy() -> None:
+    """Given the one-step data, the rollout phase keeps a state only where the two losses, each
+    relative to its start, sum lower than they started: the one-step error cannot double."""
+    model = physics.get("pendulum-active")
+    cfg = TrainConfig(
+        substeps=10, hidden=(16,), examples=600, max_epochs=15, rollout_steps=0, progress=False, threads=1
+    )
+    emu = training.train(model, cfg).emulator
+    s, u, f, nxt = training.to_tensors(sampling.generate(model, 10, 600, 5, progress=False))
+    with torch.no_grad():
+        x, y = emu.network_inputs(s, u, f), emu.network_targets(s, nxt)
+
+    def val_mse() -> float:
+        with torch.no_grad():
+            return float(((emu.network(x[:100]) - y[:100]) ** 2).mean())
+
+    step_before = val_mse()
+    seqs = sampling.generate_sequences(model, 10, 96, 6, seed=3, progress=False)
+    out = training.train_over_rollouts(
+        emu,
+        seqs,
+        TrainConfig(substeps=10, rollout_seconds=5.0, threads=1, progress=False),
+        one_step=(x[100:], y[100:], x[:100], y[:100]),
+    )
+    step_after = val_mse()
+    relative = out["rollout_loss_after"] / out["rollout_loss_before"] + step_after / step_before
+    assert relative <= 2.0 + 1e-9 and step_after < 2.0 * step_before
+    assert out["rollout_epochs"] >= 1

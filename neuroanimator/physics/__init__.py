@@ -14,12 +14,12 @@ from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from neuroanimator.model_spec import ForceInput, InitialStates, ModelSpec
-from neuroanimator.physics import dolphin, lander, pendulum, quadrotor, runner, truck
+from neuroanimator.physics import ball, dolphin, lander, pendulum, quadrotor, runner, truck
 
 if TYPE_CHECKING:
     from neuroanimator.physics.model import Frame, ModelError, PhysicalModel
 
-SYSTEMS: tuple[ModuleType, ...] = (pendulum, lander, truck, dolphin, runner, quadrotor)
+SYSTEMS: tuple[ModuleType, ...] = (pendulum, lander, truck, dolphin, runner, quadrotor, ball)
 CATALOG: dict[str, Callable[[], PhysicalModel]] = {
     "pendulum-passive": pendulum.passive,
     "pendulum-active": pendulum.active,
@@ -29,6 +29,7 @@ CATALOG: dict[str, Callable[[], PhysicalModel]] = {
     "dolphin": dolphin.dolphin,
     "runner": runner.runner,
     "quadrotor": quadrotor.quadrotor,
+    "ball": ball.ball,
 }
 _FROM_MODEL = ("Frame", "ModelError", "PhysicalModel")  # names that need MuJoCo, loaded on first use
 

@@ -343,9 +343,14 @@ def run(spec: dict[str, Any], channel: Channel, errors: LastError) -> dict[str, 
         "weights": trained.get("weights"),
         "examples": trained.get("examples"),
         "phase_seconds": {k: round(v, 2) for k, v in seconds.items()},
-        "notes": [f"super-step {manifest.substeps}: {trained['substeps_reason']}"]
-        if trained.get("substeps_reason")
-        else [],
+        "notes": [
+            *(
+                [f"super-step {manifest.substeps}: {trained['substeps_reason']}"]
+                if trained.get("substeps_reason")
+                else []
+            ),
+            *([f"network {trained['network_reason']}"] if trained.get("network_reason") else []),
+        ],
     }
 
 
