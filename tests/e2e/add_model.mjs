@@ -32,7 +32,8 @@ async function watchTraining(page, timeoutMs) {
   const t0 = Date.now();
   for (;;) {
     const s = await statusOf(page);
-    if (s.phase && seen.phases[seen.phases.length - 1] !== s.phase) seen.phases.push(s.phase);
+    // every phase the status line showed, however briefly (a tiny budget trains in a few ms)
+    seen.phases = await page.evaluate(() => window.__amPhases.slice());
     if (s.percent !== undefined) seen.percents.push(Number(s.percent));
     seen.lossPoints.push(Number(await page.$eval('#am-loss', (el) => el.dataset.points ?? '0')));
     if (['succeeded', 'failed', 'cancelled'].includes(s.status)) return { ...seen, last: s };
@@ -51,6 +52,16 @@ async function addModel(page) {
   log(`chosen: ${chosen}`);
   check(chosen.startsWith(basename(zip)), 'the drop zone names the chosen file');
   await fillTinyBudget(page);
+  // a phase can last less than one poll of the page: record the status line's every change
+  await page.evaluate(() => {
+    const el = document.querySelector('#am-status');
+    window.__amPhases = [];
+    const note = () => {
+      const p = el.dataset.phase;
+      if (p && window.__amPhases[window.__amPhases.length - 1] !== p) window.__amPhases.push(p);
+    };
+    new MutationObserver(note).observe(el, { attributes: true, attributeFilter: ['data-phase'] });
+  });
   const t0 = Date.now();
   await page.click('#am-submit');
   const seen = await watchTraining(page, 240000);
