@@ -76,7 +76,8 @@ def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -
 
 def describe_hierarchy(emu: HierarchicalEmulator, model: PhysicalModel, mode: str) -> EmulatorGraph:
     """The manifest's description of a hierarchical emulator: ``global`` writing every part's frame
-    quantities, then one network per part, in its frame, reading its predicted frame."""
+    quantities, then one network per part, in its frame, reading its groups, its neighbours' points
+    and its predicted frame."""
     controls = list(model.control_names)
     points = {g for p in emu.parts for pt in p.points for g in pt}
     networks = [
@@ -97,7 +98,9 @@ def describe_hierarchy(emu: HierarchicalEmulator, model: PhysicalModel, mode: st
                 name=name,
                 frame=NetworkFrame(part=name),
                 reads=NetworkReads(
-                    state=list(part.groups), predicted=[f"{name}.{q}" for q in VECTORS], controls=controls
+                    state=[*part.groups, *(g for pt in part.neighbours for g in pt)],
+                    predicted=[f"{name}.{q}" for q in VECTORS],
+                    controls=controls,
                 ),
                 writes=list(part.groups),
             )

@@ -47,6 +47,11 @@ _LOCAL_KINDS = {
 }
 
 
+def neighbour_inputs(part: HierarchyPart) -> list[str]:
+    """Names of a local network's neighbour inputs, 3 values each: positions, then velocities."""
+    return [f"near.{pos}" for pos, _ in part.neighbours] + [f"near.{vel}" for _, vel in part.neighbours]
+
+
 def frame_layout(parts: Sequence[HierarchyPart]) -> StateLayout:
     """The global network's layout: each part's frame quantities (``<part>.<quantity>``, 3 values)."""
     return StateLayout(
@@ -82,7 +87,14 @@ def check_parts(layout: StateLayout, parts: Sequence[HierarchyPart]) -> None:
             f"the parts must hold every state group once: missing {missing}, twice {twice}, unknown {extra}"
         )
     positions = {pos for p in parts for pos, _ in p.points}
+    points = {pt for p in parts for pt in p.points}
     for p in parts:
+        strangers = sorted(f"{pos}/{vel}" for pos, vel in p.neighbours if (pos, vel) not in points)
+        own = sorted(f"{pos}/{vel}" for pos, vel in p.neighbours if (pos, vel) in p.points)
+        if strangers or own:
+            raise ValueError(
+                f"part {p.name!r}: neighbours must be other parts' points (not points: {strangers}, its own: {own})"
+            )
         if len(p.centre) != len(p.points) or abs(sum(p.centre) - 1.0) > 1e-6:
             raise ValueError(f"part {p.name!r}: centre needs one weight per point, summing to 1")
         for pos, vel in p.points:
@@ -114,6 +126,8 @@ class _PartMap(nn.Module):
     keep: Tensor  # (S_k, S_k) every column but the points'
     pos: Tensor  # (S_k, 3n) the points' positions
     vel: Tensor  # (S_k, 3n) the points' velocities
+    near_pos: Tensor  # (S, 3m) the neighbours' positions
+    near_vel: Tensor  # (S, 3m) the neighbours' velocities
 
     def __init__(self, layout: StateLayout, part: HierarchyPart, index: int) -> None:
         super().__init__()
@@ -133,6 +147,16 @@ class _PartMap(nn.Module):
                 pos[local.slice_of(p).start + axis, 3 * i + axis] = 1.0
                 vel[local.slice_of(v).start + axis, 3 * i + axis] = 1.0
         keep = torch.eye(s_k) - pos @ pos.T - vel @ vel.T
+        m = len(part.neighbours)
+        near_pos = torch.zeros(layout.size, 3 * m)
+        near_vel = torch.zeros(layout.size, 3 * m)
+        for i, (p, v) in enumerate(part.neighbours):
+            for axis in range(3):
+                near_pos[layout.slice_of(p).start + axis, 3 * i + axis] = 1.0
+                near_vel[layout.slice_of(v).start + axis, 3 * i + axis] = 1.0
+        self.neighbours = m
+        self.register_buffer("near_pos", near_pos, persistent=False)
+        self.register_buffer("near_vel", near_vel, persistent=False)
         self.points = len(part.points)
         self.register_buffer("pick", pick, persistent=False)
         self.register_buffer("place", pick.T.contiguous(), persistent=False)
@@ -171,15 +195,20 @@ class _PartMap(nn.Module):
         )
         return part @ self.place
 
-    def frame_inputs(self, frames: Tensor, next_frames: Tensor) -> Tensor:
-        """What the local network reads of the frames (B, 33): this frame's axes and velocities and the
-        next frame's quantities (its centre relative to this one), all in this frame's axes."""
-        c, _, r = self.frame(frames)
+    def frame_inputs(self, state: Tensor, frames: Tensor, next_frames: Tensor) -> Tensor:
+        """What the local network reads besides its groups (B, 33 + 6m): this frame's axes and
+        velocities and the next frame's quantities (its centre relative to this one), then each
+        neighbour's position and velocity relative to the centre's; all in this frame's axes."""
+        c, v, r = self.frame(frames)
         now = frames[:, FRAME_SIZE * self.index : FRAME_SIZE * (self.index + 1)].reshape(-1, len(VECTORS), 3)
         nxt = next_frames[:, FRAME_SIZE * self.index : FRAME_SIZE * (self.index + 1)]
         nxt = torch.cat([nxt[:, :3] - c, nxt[:, 3:]], dim=1).reshape(-1, len(VECTORS), 3)
-        turned = torch.cat([now[:, 1:], nxt], dim=1) @ r  # rows v^T R: each vector in the frame's axes
-        return turned.reshape(-1, 3 * len(LOCAL_FRAME_INPUTS))
+        rows = [now[:, 1:], nxt]
+        if self.neighbours:
+            rows.append((state @ self.near_pos).reshape(-1, self.neighbours, 3) - c.unsqueeze(1))
+            rows.append((state @ self.near_vel).reshape(-1, self.neighbours, 3) - v.unsqueeze(1))
+        turned = torch.cat(rows, dim=1) @ r  # rows v^T R: each vector in the frame's axes
+        return turned.reshape(turned.shape[0], -1)
 
 
 class HierarchicalEmulator(nn.Module):
@@ -220,13 +249,14 @@ class HierarchicalEmulator(nn.Module):
         )
         nets = []
         for p in parts:
+            extra = [*LOCAL_FRAME_INPUTS, *neighbour_inputs(p)]
             net = StructuredEmulator(
-                part_layout(layout, p), num_controls, 3 * len(LOCAL_FRAME_INPUTS), FrameConfig(),
+                part_layout(layout, p), num_controls, 3 * len(extra), FrameConfig(),
                 local_hidden, activation, skip=skip,
             )  # fmt: skip
-            # the frame inputs are normalised per quantity, not as one block of "forces"
+            # the frame and neighbour inputs are normalised per quantity, not as one block of "forces"
             net.input_groups = [g for g in net.input_groups if g[0] != "forces"] + [
-                (name, 3) for name in LOCAL_FRAME_INPUTS
+                (name, 3) for name in extra
             ]
             nets.append(net)
         self.parts_nets = nn.ModuleList(nets)
@@ -281,10 +311,11 @@ class HierarchicalEmulator(nn.Module):
     def local_inputs(
         self, k: int, state: Tensor, next_frames: Tensor, frames: Tensor | None = None
     ) -> tuple[Tensor, Tensor]:
-        """Part k's local network inputs: its groups in its frame (B, S_k) and its frame inputs (B, 33)."""
+        """Part k's local network inputs: its groups in its frame (B, S_k) and its frame and neighbour
+        inputs (B, 33 + 6m)."""
         m = self.part_map(k)
         frames = self.frames_of(state) if frames is None else frames
-        return m.to_local(state, frames), m.frame_inputs(frames, next_frames)
+        return m.to_local(state, frames), m.frame_inputs(state, frames, next_frames)
 
     def local_target(self, k: int, next_state: Tensor) -> Tensor:
         """Part k's next groups in the true next frame (B, S_k): a local network's target."""
@@ -297,7 +328,7 @@ class HierarchicalEmulator(nn.Module):
         out: Tensor | None = None
         for net, m in zip(self.parts_nets, self.maps, strict=True):
             assert isinstance(m, _PartMap)
-            local = net(m.to_local(state, frames), controls, m.frame_inputs(frames, next_frames))
+            local = net(m.to_local(state, frames), controls, m.frame_inputs(state, frames, next_frames))
             world = m.to_world(local, next_frames)
             out = world if out is None else out + world
         assert out is not None

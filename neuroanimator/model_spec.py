@@ -75,6 +75,8 @@ class HierarchyPart(BaseModel):
     (weights of any points' positions, by position group, summing to 0) give its orientation by
     Gram-Schmidt. Groups of the part that are not points (e.g. a plate's orientation) are predicted
     as they are. The velocities of the centre and of the axes are the same maps of the velocities.
+    ``neighbours`` are points of other parts that this part's network reads (not writes), in its frame:
+    the forces on a part depend on what it is attached to, which its own points alone do not say.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -85,6 +87,11 @@ class HierarchyPart(BaseModel):
     centre: list[float] = Field(description="weight of each point in the centre, summing to 1")
     axis1: list[tuple[str, float]] = Field(min_length=1, description="(position group, weight)")
     axis2: list[tuple[str, float]] = Field(min_length=1, description="(position group, weight)")
+    neighbours: list[tuple[str, str]] = Field(
+        default_factory=list,
+        description="other parts' points (position group, velocity group) that this part's network reads, "
+        "in this part's frame: what its springs or joints attach to",
+    )
 
 
 class ModelSpec(BaseModel):
