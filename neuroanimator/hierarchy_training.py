@@ -148,6 +148,16 @@ def fit_network(net: StructuredEmulator, d: _Targets, cfg: TrainConfig) -> tuple
         return linear, relative_error(net.network(x[:n_val]), y[:n_val])
 
 
+def group_scale(model: PhysicalModel, change: Tensor) -> Tensor:
+    """(S,) each column's scale for the composed step's error: the spread of its group's change (all
+    of a group's columns together, as the networks normalise). A per-column scale would divide by
+    nothing where a column never changes (a symmetric body that moves only in its plane)."""
+    scale = torch.empty(change.shape[1], dtype=change.dtype)
+    for _, sl in model.layout.group_slices():
+        scale[sl] = change[:, sl].std(dim=0).pow(2).mean().sqrt()
+    return scale.clamp_min(1e-12)
+
+
 def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
     """Simulate data, then train the global network and every local network on their own targets
     (the time budget ``max_seconds`` shared between them); evaluate each and the composed step on
@@ -193,7 +203,7 @@ def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
                 "linear_baseline_rel_error": relative_error(apply_linear(linears[name], x), y),
             }
         change = tn - ts
-        scale = change.std(dim=0).clamp_min(1e-8)
+        scale = group_scale(model, change)
         composed = relative_error((emu(ts, tu) - ts) / scale, change / scale)
     worst = max(errors, key=lambda n: errors[n]["one_step_rel_error"])
     metrics = {

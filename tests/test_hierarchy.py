@@ -11,8 +11,14 @@ import torch
 
 from neuroanimator import artifacts, physics, registry, sampling
 from neuroanimator.export import OnnxEmulator, to_onnx
-from neuroanimator.hierarchy import VECTORS, HierarchicalEmulator, check_parts
-from neuroanimator.hierarchy_training import HierarchyResult, small_defaults, train_hierarchy
+from neuroanimator.hierarchy import (
+    LOCAL_FRAME_INPUTS,
+    VECTORS,
+    HierarchicalEmulator,
+    check_parts,
+    neighbour_inputs,
+)
+from neuroanimator.hierarchy_training import HierarchyResult, group_scale, small_defaults, train_hierarchy
 from neuroanimator.manifest import ManifestError, parse_manifest
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.train_config import TrainConfig
@@ -134,6 +140,66 @@ def test_parts_must_partition_the_state(dolphin: PhysicalModel) -> None:
         check_parts(dolphin.layout, [bad, *parts[1:]])
 
 
+def test_a_part_reads_the_points_it_is_attached_to(dolphin: PhysicalModel) -> None:
+    parts = {p.name: p for p in dolphin.spec.parts}
+    # segment 2's springs reach the head's section 1 and segment 3's section 3, and nothing further
+    near = {pos.split(".")[0] for pos, _ in parts["segment2"].neighbours}
+    assert near == {f"s{k}{c}" for k in (1, 3) for c in ("tl", "tr", "bl", "br")}
+    assert {pos.split(".")[0] for pos, _ in parts["fluke"].neighbours} == {"s5tl", "s5tr", "s5bl", "s5br"}
+    others = list(parts.values())
+    own = parts["head"].model_copy(update={"neighbours": [parts["head"].points[0]]})
+    with pytest.raises(ValueError, match="its own"):
+        check_parts(dolphin.layout, [own, *others[1:]])
+    stranger = parts["head"].model_copy(update={"neighbours": [("strip1_tl.quat", "strip1_tl.angvel")]})
+    with pytest.raises(ValueError, match="other parts' points"):
+        check_parts(dolphin.layout, [stranger, *others[1:]])
+
+
+def test_a_neighbour_moves_the_part_it_is_attached_to(
+    dolphin: PhysicalModel, examples: sampling.Examples
+) -> None:
+    """Segment 2's network reads section 3's nodes: moving one of them changes segment 2's next
+    state (it would not if only the part's own groups were read), and nothing is read in world axes:
+    turning the whole body about the vertical turns the neighbour inputs' frame with it."""
+    emu = make(dolphin).double()
+    s, _, _ = tensors(examples)
+    k = [p.name for p in dolphin.spec.parts].index("segment2")
+    with torch.no_grad():
+        frames = emu.frames_of(s)
+        _, inputs = emu.local_inputs(k, s, frames)
+        nudged = s.clone()
+        nudged[:, dolphin.layout.slice_of("s3tl.pos")] += torch.tensor(
+            [0.03, -0.04, 0.05], dtype=torch.float64
+        )
+        _, nudged_inputs = emu.local_inputs(k, nudged, emu.frames_of(nudged))
+        changed = ((nudged_inputs - inputs).abs().amax(dim=0) > 1e-9).nonzero().flatten().tolist()
+        at = 3 * len(LOCAL_FRAME_INPUTS) + 3 * neighbour_inputs(dolphin.spec.parts[k]).index("near.s3tl.pos")
+        assert changed == [at, at + 1, at + 2]  # the one neighbour position, in segment 2's axes
+        # a quarter turn about z of every position and velocity leaves the part's inputs as they were
+        turn = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+        turned = s.clone()
+        for g, sl in dolphin.layout.group_slices():
+            if g.name.endswith((".pos", ".vel")):
+                turned[:, sl] = s[:, sl] @ turn.T
+        _, turned_inputs = emu.local_inputs(k, turned, emu.frames_of(turned))
+        torch.testing.assert_close(turned_inputs, inputs)
+
+
+def test_a_column_that_never_changes_takes_its_groups_scale(dolphin: PhysicalModel) -> None:
+    """A body that moves only in its plane never changes its nodes' y: the composed step's error is
+    scaled by the group's spread there, not divided by nothing."""
+    change = torch.randn(
+        200, dolphin.state_size, dtype=torch.float64, generator=torch.Generator().manual_seed(0)
+    )
+    sl = dolphin.layout.slice_of("s2tl.pos")
+    change[:, sl.start + 1] = 0.0  # y
+    change[:, sl.start] *= 3.0
+    scale = group_scale(dolphin, change)
+    expected = change[:, sl].std(dim=0).pow(2).mean().sqrt()
+    torch.testing.assert_close(scale[sl], expected.expand(3))
+    assert float(scale.min()) > 0.1
+
+
 TINY = TrainConfig(
     substeps=50,
     hidden=(8,),
@@ -176,6 +242,8 @@ def test_a_saved_hierarchy_is_described_loaded_and_served(
     assert glob.frame.part is None and len(glob.writes) == 6 * len(graph.parts)
     assert head.frame.part == "head" and head.reads.predicted == [f"head.{q}" for q in VECTORS]
     assert head.writes == list(dolphin.spec.parts[0].groups)
+    near = [g for pt in dolphin.spec.parts[0].neighbours for g in pt]
+    assert near and head.reads.state == [*head.writes, *near]
     assert sorted(graph.written) == sorted(g.name for g in manifest.layout)
     assert manifest.io.inputs == ["state", "controls"]
     with pytest.raises(ManifestError, match="composed of 7 networks"):

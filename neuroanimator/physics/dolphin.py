@@ -37,7 +37,9 @@ rollout of 1,000 steps runs about 3,200 steps/s, 1,000 rollouts of one step abou
 before any drag is computed. The price of the plates is 20 ball joints in the state (a quaternion
 and an angular velocity each), which follow the nodes. Each plate weighs 1.5 kg, heavy enough for
 its alignment springs to be stable at δt = 0.01 s (with 0.5 kg plates some strokes of the stiffer
-body diverged).
+body diverged). The alignment springs are damped near critically (``ALIGN_DAMPING``): at a fifth
+of that a plate rang for seconds with a period of about 1 s, a wobble that was the hardest part of
+the state to emulate (the hierarchy's segment networks had half again the error).
 
 **Time scale.** Stiffness and damping are set so that the body's best stroke has a period of
 about 4 s: the swim controller has one control point per 2 s (60 variables over 20 s, thesis 6.2)
@@ -92,7 +94,7 @@ WATER_DENSITY = 1000.0
 WATER_VISCOSITY = 0.0009
 PLATE_MASS = 1.5
 ALIGN_STIFFNESS = 31.25
-ALIGN_DAMPING = 1.25
+ALIGN_DAMPING = 7.5  # N·s/m: near critical damping of a plate on its alignment springs (see below)
 PLATE_DAMPING = 0.0025  # N·m·s, the plates' ball joints
 ALIGN_OFFSET = 0.1  # length of an alignment tendon at rest, perpendicular to the body's stretching
 
@@ -470,14 +472,23 @@ cross-section whose top and bottom give the segment's up axis."""
 def hierarchy_parts() -> list[HierarchyPart]:
     """The segments as parts of a hierarchical emulator: each its nodes and the plates hung from them;
     centre: the nodes' centre of mass; axes: left (left minus right nodes; the fluke's tips) and up
-    (top minus bottom of the segment's cross-section)."""
+    (top minus bottom of the segment's cross-section); neighbours: the other segments' nodes that a
+    spring, a muscle or one of its plates' alignment tendons attaches to (the forces on a segment
+    come from them)."""
     mass = node_masses()
     owner = {n: name for name, nodes, _ in SEGMENTS for n in nodes}
     plates_of: dict[str, list[str]] = {}
+    attached: dict[str, set[str]] = {name: set() for name, _, _ in SEGMENTS}
     for plate in PLATES:
-        plates_of.setdefault(owner[NODES[plate.anchor]], []).append(plate.name)
+        holder = owner[NODES[plate.anchor]]
+        plates_of.setdefault(holder, []).append(plate.name)
+        attached[holder] |= {NODES[n] for n, _ in plate.align}
+    for i, j in SPRINGS:
+        attached[owner[NODES[i]]].add(NODES[j])
+        attached[owner[NODES[j]]].add(NODES[i])
     parts = []
     for name, nodes, section in SEGMENTS:
+        near = [n for n in NODES if n in attached[name] and owner[n] != name]  # in node order
         mine = set(nodes) | set(plates_of.get(name, []))
         groups = [g.name for g in LAYOUT if g.name.split(".")[0] in mine]
         weights = [float(mass[_idx(n)]) for n in nodes]
@@ -493,6 +504,7 @@ def hierarchy_parts() -> list[HierarchyPart]:
                 axis1=[(f"{n}.pos", 1.0 / len(left)) for n in left]
                 + [(f"{n}.pos", -1.0 / len(right)) for n in right],
                 axis2=[(f"{n}.pos", 0.5) for n in top] + [(f"{n}.pos", -0.5) for n in bottom],
+                neighbours=[(f"{n}.pos", f"{n}.vel") for n in near],
             )
         )
     return parts
@@ -502,9 +514,10 @@ def dolphin() -> PhysicalModel:
     from neuroanimator.physics.model import PhysicalModel  # MuJoCo loads when a model is built
 
     size = 6 * NUM_NODES + 7 * len(PLATES)
-    low, high = np.zeros(size), np.zeros(size)
-    low[NODE_POS], high[NODE_POS] = -0.02, 0.02  # a slightly deformed body
-    low[NODE_VEL], high[NODE_VEL] = -0.1, 0.1
+    # Runs start at rest, as a session does. A start with each node moved at random (±2 cm, ±0.1 m/s)
+    # rang in modes that swimming never excites: those first super-steps were 1% of the data and held
+    # 56-75% of a linear model's error on the node velocities (0.085 against 0.012 from rest).
+    rest = np.zeros(size)
     spec = ModelSpec(
         name="dolphin",
         train_at_start=False,  # 278 state variables: minutes of training, not for a start-up
@@ -516,9 +529,9 @@ def dolphin() -> PhysicalModel:
         control_low=[0.0] * 6,
         control_high=[1.0] * 6,
         control_spacing_s=1.0,
-        # training runs start from a nearly resting body; 60 s of typical controls then reach the
-        # shapes and speeds of swimming
-        initial=InitialStates(low=low.tolist(), high=high.tolist()),
+        # training runs start from rest; 60 s of typical controls then reach the shapes and speeds
+        # of swimming
+        initial=InitialStates(low=rest.tolist(), high=rest.tolist()),
         episode_s=60.0,
         translation_invariant=False,
         rotation_invariant=False,
