@@ -118,10 +118,16 @@ def cmd_train(args: argparse.Namespace) -> int:
     if auto:
         result.metrics["substeps_reason"] = choice.reason
     m = result.metrics
+    summary = {"model": model.name, "substeps": cfg.substeps, "state_size": model.state_size}
     if not args.force:
-        super_step.check_useful(
-            model.name, cfg.substeps, m["one_step_rel_error"], m["linear_baseline_rel_error"]
-        )
+        try:
+            super_step.check_useful(
+                model.name, cfg.substeps, m["one_step_rel_error"], m["linear_baseline_rel_error"]
+            )
+        except super_step.ModelOutOfReach as exc:
+            if args.json:  # what was measured, so that a refusal can be looked into
+                _out(json.dumps({**summary, "accepted": False, "reason": str(exc), **m}))
+            raise
     path = artifacts.save(Path(args.out), model, result)
     _out(
         f"{model.name} n={cfg.substeps}: one-step relative error {m['one_step_rel_error']:.3g} "
@@ -129,8 +135,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         f"{m['examples']} examples, {m['total_seconds']:.0f} s\nwrote {path}"
     )
     if args.json:
-        summary = {"model": model.name, "substeps": cfg.substeps, "state_size": model.state_size}
-        _out(json.dumps({**summary, "artifact": str(path), **m}))
+        _out(json.dumps({**summary, "accepted": True, "artifact": str(path), **m}))
     return 0
 
 

@@ -362,10 +362,14 @@ def test_an_emulator_that_misses_the_bar_is_refused_and_nothing_written(
     out = tmp_path / "out"
     tiny = ["--substeps", "10", "--examples", "300", "--epochs", "2", "--hidden", "8", "--quiet"]
     with caplog.at_level(logging.ERROR):
-        rc, _ = _run(["train", "--mjcf", str(mjcf), *tiny, "--out", str(out)])
+        rc, stdout = _run(["train", "--mjcf", str(mjcf), *tiny, "--out", str(out), "--json"])
     assert rc == 2
     assert "misses the bar" in caplog.text and "--force" in caplog.text
     assert not (out / "myarm").exists()
+    # with --json, what was measured comes out too, marked refused
+    refused = _last_json(stdout)
+    assert refused["accepted"] is False and "misses the bar" in refused["reason"]
+    assert refused["model"] == "myarm" and refused["one_step_rel_error"] > 0 and "artifact" not in refused
 
 
 def test_auto_super_step_takes_50_for_a_model_without_contacts_or_limits(tmp_path: Path) -> None:
