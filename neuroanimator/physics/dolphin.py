@@ -35,11 +35,12 @@ with no Python in the step. A drag force computed in numpy would be lost by any 
 the MJCF alone, and would need one rollout call per physical step: measured on this machine, one
 rollout of 1,000 steps runs about 3,200 steps/s, 1,000 rollouts of one step about 1,200 steps/s,
 before any drag is computed. The price of the plates is 20 ball joints in the state (a quaternion
-and an angular velocity each), which follow the nodes. Each plate weighs 1.5 kg, heavy enough for
-its alignment springs to be stable at δt = 0.01 s (with 0.5 kg plates some strokes of the stiffer
-body diverged). The alignment springs are damped near critically (``ALIGN_DAMPING``): at a fifth
-of that a plate rang for seconds with a period of about 1 s, a wobble that was the hardest part of
-the state to emulate (the hierarchy's segment networks had half again the error).
+and an angular velocity each), which follow the nodes. Each plate weighs 0.5 kg: the lighter a
+plate, the more closely it follows its nodes and the easier its state is to emulate (with 1.5 kg
+plates segment 3's network had 3× the error), and 0.5 kg is stable at δt = 0.01 s on this body
+(some strokes of an earlier, 16× stiffer body diverged with it). The alignment springs are damped
+near critically (``ALIGN_DAMPING``): at a sixth of that a plate rang for seconds with a period of
+about 1 s, a wobble that was the hardest part of the state to emulate.
 
 **Time scale.** Stiffness and damping are set so that the body's best stroke has a period of
 about 4 s: the swim controller has one control point per 2 s (60 variables over 20 s, thesis 6.2)
@@ -92,7 +93,7 @@ MUSCLE_CONTRACTION = 0.7  # l_c / l_r of every muscle spring
 MUSCLE_INTERVALS = (1, 2, 3)  # the body intervals (section k to k + 1) that carry muscles
 WATER_DENSITY = 1000.0
 WATER_VISCOSITY = 0.0009
-PLATE_MASS = 1.5
+PLATE_MASS = 0.5
 ALIGN_STIFFNESS = 31.25
 ALIGN_DAMPING = 7.5  # N·s/m: near critical damping of a plate on its alignment springs (see below)
 PLATE_DAMPING = 0.0025  # N·m·s, the plates' ball joints
