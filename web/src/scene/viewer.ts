@@ -16,7 +16,7 @@ export class WebGLUnavailable extends Error {
 /**
  * Whether WebGL is drawn in software (SwiftShader, llvmpipe: no GPU, as in a headless browser or a
  * remote desktop). There every fragment costs CPU, so the views drop multisampling, draw at one
- * device pixel per CSS pixel and use the cheapest shadow filter.
+ * device pixel per CSS pixel, draw contact shadows instead of shadow maps and a coarser sky.
  */
 let software: boolean | undefined;
 export function softwareRendering(): boolean {
@@ -69,7 +69,7 @@ function gridTexture(anisotropy: number): THREE.Texture {
  * the opaque scene at the far plane with the depth test on, so only the pixels where the sky shows are
  * shaded (in software WebGL a full-screen pass costs as much as the rest of the frame).
  */
-function skyDome(): THREE.Mesh {
+function skyDome(soft: boolean): THREE.Mesh {
   const material = new THREE.ShaderMaterial({
     uniforms: {
       top: { value: new THREE.Color(SKY.top) },
@@ -95,10 +95,76 @@ function skyDome(): THREE.Mesh {
     fog: false,
   });
   // rows close to the horizon, where the gradient changes fastest
-  const dome = new THREE.Mesh(new THREE.SphereGeometry(1, 32, 48), material);
+  // software WebGL pays for every vertex of the dome each frame; a coarser one looks nearly the same
+  const dome = new THREE.Mesh(soft ? new THREE.SphereGeometry(1, 12, 16) : new THREE.SphereGeometry(1, 32, 48), material);
   dome.renderOrder = 10; // after the opaque scene (the ground, the models), before anything transparent
   dome.frustumCulled = false;
   return dome;
+}
+
+/** A soft dark disc, the texture of a contact shadow. */
+function blobTexture(): THREE.Texture {
+  const c = document.createElement('canvas');
+  c.width = c.height = 64;
+  const g = c.getContext('2d');
+  if (g) {
+    const r = g.createRadialGradient(32, 32, 0, 32, 32, 32);
+    r.addColorStop(0, 'rgba(0,0,0,1)');
+    r.addColorStop(0.5, 'rgba(0,0,0,0.6)');
+    r.addColorStop(1, 'rgba(0,0,0,0)');
+    g.fillStyle = r;
+    g.fillRect(0, 0, 64, 64);
+  }
+  return new THREE.CanvasTexture(c);
+}
+
+/**
+ * Contact shadows for software WebGL: one soft disc on the ground below each object of the world that
+ * casts a shadow, wider and fainter as it rises. A shadow map costs a second pass over every caster
+ * and a filtered lookup per ground pixel, which on the CPU is most of a frame; a disc is a few hundred
+ * blended pixels and still shows how high a body is and where it will land.
+ */
+class BlobShadows {
+  readonly group = new THREE.Group();
+  private readonly texture = blobTexture();
+  private readonly discs: THREE.Mesh[] = [];
+  private readonly box = new THREE.Box3();
+  private readonly part = new THREE.Box3();
+
+  /** Places a disc below each child of `world` with shadow-casting meshes (three's world frame, y up). */
+  update(world: THREE.Object3D, groundY: number): void {
+    let used = 0;
+    for (const child of world.children) {
+      if (!child.visible) continue;
+      this.box.makeEmpty();
+      child.traverseVisible((o) => {
+        if ((o as THREE.Mesh).isMesh && o.castShadow) this.box.union(this.part.setFromObject(o, false));
+      });
+      if (this.box.isEmpty()) continue;
+      const width = Math.max(this.box.max.x - this.box.min.x, this.box.max.z - this.box.min.z);
+      const height = Math.max(0, this.box.min.y - groundY);
+      const disc = this.disc(used++);
+      const grow = 1 + (0.5 * height) / (width + 0.5);
+      disc.position.set((this.box.min.x + this.box.max.x) / 2, groundY + 0.004 * (1 + width), (this.box.min.z + this.box.max.z) / 2);
+      disc.scale.setScalar(width * 0.75 * grow);
+      (disc.material as THREE.MeshBasicMaterial).opacity = 0.55 / (grow * grow);
+      disc.visible = true;
+    }
+    for (let i = used; i < this.discs.length; i++) this.discs[i]!.visible = false;
+  }
+
+  private disc(i: number): THREE.Mesh {
+    let d = this.discs[i];
+    if (!d) {
+      const m = new THREE.MeshBasicMaterial({ map: this.texture, transparent: true, depthWrite: false, fog: false });
+      d = new THREE.Mesh(new THREE.PlaneGeometry(2, 2), m);
+      d.rotation.x = -Math.PI / 2;
+      d.renderOrder = 1;
+      this.discs.push(d);
+      this.group.add(d);
+    }
+    return d;
+  }
 }
 
 declare global {
@@ -137,6 +203,7 @@ export class Viewer {
   animating = false;
   private readonly ground: THREE.Mesh;
   private readonly sky: THREE.Mesh;
+  private blobs: BlobShadows | null = null;
   private readonly sun: THREE.DirectionalLight;
   private readonly sunDir = new THREE.Vector3(0.45, 1, 0.3).normalize();
   private following: Follow | null = null;
@@ -167,24 +234,27 @@ export class Viewer {
     }
     this.renderer = renderer;
     this.basePixelRatio = soft ? 1 : Math.min(window.devicePixelRatio || 1, 2);
-    renderer.shadowMap.enabled = true;
-    renderer.shadowMap.type = soft ? THREE.PCFShadowMap : THREE.PCFSoftShadowMap;
+    // with a GPU the sun casts shadow maps; in software, contact shadows (BlobShadows) stand in for them
+    renderer.shadowMap.enabled = !soft;
+    renderer.shadowMap.type = THREE.PCFSoftShadowMap;
     renderer.toneMapping = THREE.ACESFilmicToneMapping;
     renderer.toneMappingExposure = 1.05;
     renderer.domElement.className = 'view-canvas';
     host.append(renderer.domElement);
 
-    this.sky = skyDome();
+    this.sky = skyDome(soft);
     this.scene.add(this.sky);
     this.scene.fog = new THREE.Fog(SKY.horizon, 60, 400);
     this.world.rotation.x = -Math.PI / 2; // MuJoCo z (up) -> three y (up)
     this.scene.add(this.world);
     this.scene.add(new THREE.HemisphereLight(0xcfe0ff, 0x3a3430, 1.4));
     this.sun = new THREE.DirectionalLight(0xfff1dc, 2.6);
-    this.sun.castShadow = true;
-    // software WebGL clears and draws the shadow map on the CPU every frame: a quarter of the texels
-    const size = soft ? 512 : 2048;
-    this.sun.shadow.mapSize.set(size, size);
+    this.sun.castShadow = !soft;
+    this.sun.shadow.mapSize.set(2048, 2048);
+    if (soft) {
+      this.blobs = new BlobShadows();
+      this.scene.add(this.blobs.group);
+    }
     this.sun.shadow.bias = -0.0004;
     this.sun.shadow.normalBias = 0.02;
     this.scene.add(this.sun, this.sun.target);
@@ -380,6 +450,7 @@ export class Viewer {
 
   /** Draws the scene as it is now and writes its marks (data-screen-*) for that very picture. */
   drawNow(): void {
+    this.blobs?.update(this.world, this.groundZ);
     this.renderer.render(this.scene, this.camera);
     this.writeMarks(performance.now(), true);
   }
@@ -460,6 +531,7 @@ export class Viewer {
     this.writeMarks(now);
     if (!this.dirty && !this.animating) return;
     this.dirty = false;
+    this.blobs?.update(this.world, this.groundZ);
     this.renderer.render(this.scene, this.camera);
   }
 
