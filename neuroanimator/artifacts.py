@@ -43,6 +43,7 @@ from neuroanimator.manifest import (
     TrainMetrics,
 )
 from neuroanimator.physics.model import ModelError, PhysicalModel
+from neuroanimator.regularizer import regularization
 from neuroanimator.structured import FrameConfig, JointLimit, StructuredEmulator
 from neuroanimator.training import TrainResult
 
@@ -106,7 +107,10 @@ def describe_hierarchy(emu: HierarchicalEmulator, model: PhysicalModel, mode: st
             )
         )
     return EmulatorGraph(
-        networks=networks, stages=[[GLOBAL], [p.name for p in emu.parts]], parts=list(emu.parts)
+        networks=networks,
+        stages=[[GLOBAL], [p.name for p in emu.parts]],
+        parts=list(emu.parts),
+        regularizer=None if emu.regularizer is None else emu.regularizer.spec,
     )
 
 
@@ -232,7 +236,9 @@ def build_manifest(
         emulator=describe_hierarchy(result.emulator, model, cfg.normalization)
         if isinstance(result.emulator, HierarchicalEmulator)
         else EmulatorGraph(
-            networks=[describe_network(result.emulator, model, cfg.normalization)], stages=[[CORE]]
+            networks=[describe_network(result.emulator, model, cfg.normalization)],
+            stages=[[CORE]],
+            regularizer=None if result.emulator.regularizer is None else result.emulator.regularizer.spec,
         ),
         train_config=cfg,
         metrics=TrainMetrics(**result.metrics),
@@ -306,6 +312,7 @@ def load_torch(path: Path) -> StructuredEmulator:
         horizon=net.limits[0].horizon if net.limits else 0.0,
     )
     emu.load_state_dict(torch.load(path / registry.WEIGHTS_FILE, weights_only=True))
+    emu.regularizer = regularization(model.layout, manifest.emulator.regularizer, model.num_controls)
     return emu.eval()
 
 
@@ -328,6 +335,7 @@ def load_hierarchy(path: Path) -> HierarchicalEmulator:
         skip=glob.skip,
     )
     emu.load_state_dict(torch.load(path / registry.WEIGHTS_FILE, weights_only=True))
+    emu.regularizer = regularization(model.layout, graph.regularizer, model.num_controls)
     return emu.eval()
 
 

@@ -78,6 +78,10 @@ def cmd_train(args: argparse.Namespace) -> int:
         if args.rollout_steps < 0:
             raise ModelError(f"--rollout-steps must be 0 or more, got {args.rollout_steps}")
         cfg.rollout_steps = args.rollout_steps
+    if args.regularizer_steps is not None:
+        if args.regularizer_steps < 0:
+            raise ModelError(f"--regularizer-steps must be 0 or more, got {args.regularizer_steps}")
+        cfg.regularizer_steps = args.regularizer_steps
     # torch loads only for the commands that need it
     from neuroanimator import artifacts, super_step
     from neuroanimator.hierarchy_training import HierarchyResult, small_defaults, train_hierarchy
@@ -356,6 +360,12 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--no-skip", action="store_true", help="no linear path beside the MLP")
     t.add_argument(
         "--rollout-steps", type=int, help="super-steps of the rollout training phase (default 8; 0: off)"
+    )
+    t.add_argument(
+        "--regularizer-steps",
+        type=int,
+        help="a mass-spring model's spring Euler steps after each super-step (thesis 6.1.3; default: "
+        "the model's, 5 for the dolphin; 0: off)",
     )
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -95,7 +95,8 @@ def _step_module(emu: StructuredEmulator) -> Any:
             f = next(it) if emu.num_forces else None
             frame = emu.local_frame(state)  # computed once, used by T'_x and T'_y
             cols = emu.local_inputs(state, u, f, frame, place=False)
-            return emu.apply_delta(state, self.core(cols), frame)
+            nxt = emu.apply_delta(state, self.core(cols), frame)
+            return nxt if emu.regularizer is None else emu.regularizer(nxt, u)
 
     return Step()
 

@@ -30,6 +30,7 @@ import torch
 from torch import Tensor, nn
 
 from neuroanimator.model_spec import FRAME_QUANTITIES, HierarchyPart
+from neuroanimator.regularizer import SpringRegularization
 from neuroanimator.state import StateGroup, StateLayout
 from neuroanimator.structured import FrameConfig, StructuredEmulator
 
@@ -261,6 +262,9 @@ class HierarchicalEmulator(nn.Module):
             nets.append(net)
         self.parts_nets = nn.ModuleList(nets)
         self.maps = nn.ModuleList(_PartMap(layout, p, k) for k, p in enumerate(parts))
+        # thesis 6.1.3: a mass-spring model's step ends with a few Euler steps of its springs (set after
+        # training; the networks learn the physics alone)
+        self.regularizer: SpringRegularization | None = None
 
     def _plan_frames(self) -> None:
         lay = self.layout
@@ -335,7 +339,8 @@ class HierarchicalEmulator(nn.Module):
         return out
 
     def forward(self, state: Tensor, controls: Tensor | None = None, forces: Tensor | None = None) -> Tensor:
-        return self.compose(state, controls, self.global_step(state, controls))
+        nxt = self.compose(state, controls, self.global_step(state, controls))
+        return nxt if self.regularizer is None else self.regularizer(nxt, controls)
 
     @property
     def networks(self) -> list[tuple[str, StructuredEmulator]]:

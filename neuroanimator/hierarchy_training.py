@@ -25,6 +25,7 @@ from neuroanimator.envelope import examples_envelope
 from neuroanimator.hierarchy import GLOBAL, HierarchicalEmulator
 from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.physics.model import ModelError, PhysicalModel
+from neuroanimator.regularizer import regularization
 from neuroanimator.structured import StructuredEmulator
 from neuroanimator.train_config import TrainConfig
 from neuroanimator.training import (
@@ -205,6 +206,12 @@ def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
         change = tn - ts
         scale = group_scale(model, change)
         composed = relative_error((emu(ts, tu) - ts) / scale, change / scale)
+        emu.regularizer = regularization(
+            model.layout, model.spec.regularizer, model.num_controls, cfg.regularizer_steps
+        )
+        regularized = (
+            None if emu.regularizer is None else relative_error((emu(ts, tu) - ts) / scale, change / scale)
+        )
     worst = max(errors, key=lambda n: errors[n]["one_step_rel_error"])
     metrics = {
         "weights": weights,
@@ -216,6 +223,8 @@ def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
         "validation_rel_error": max(val for _, val in fitted.values()),
         "network_errors": errors,
         "composed_rel_error": composed,
+        # the same with the spring regulariser after the networks (thesis 6.1.3), as the step is served
+        "composed_regularized_rel_error": regularized,
         "data_seconds": round(t_data, 2),
         "train_seconds": round(time.perf_counter() - t_start - t_data, 2),
         "total_seconds": round(time.perf_counter() - t_start, 2),

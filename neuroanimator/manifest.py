@@ -31,7 +31,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from neuroanimator.model_spec import FRAME_QUANTITIES, ForceInput, HierarchyPart, ModelSpec
+from neuroanimator.model_spec import FRAME_QUANTITIES, ForceInput, HierarchyPart, ModelSpec, SpringRegularizer
 from neuroanimator.state import LayoutGroup, StateLayout
 from neuroanimator.train_config import TrainConfig
 
@@ -206,6 +206,11 @@ class EmulatorGraph(_Strict):
     networks: list[Network] = Field(min_length=1)
     stages: list[list[str]] = Field(min_length=1)
     parts: list[HierarchyPart] = []
+    regularizer: SpringRegularizer | None = Field(
+        None,
+        description="after the networks, this many Euler steps of the model's springs (thesis 6.1.3), "
+        "in the ONNX graph; None: none",
+    )
 
     @model_validator(mode="after")
     def _composition_is_sound(self) -> EmulatorGraph:

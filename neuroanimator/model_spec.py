@@ -7,7 +7,7 @@ imports neither MuJoCo nor torch, so processes that only read manifests stay lig
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from neuroanimator.state import StateGroup
 
@@ -94,6 +94,50 @@ class HierarchyPart(BaseModel):
     )
 
 
+class SpringRegularizer(BaseModel):
+    """The regulariser of thesis 6.1.3 for a mass-spring model: after each emulated super-step, ``steps``
+    explicit Euler steps of the spring forces between the model's points,
+
+        v ← v + dt·f(x, v)/m,   x ← x + dt·v,
+
+    pull an accumulating deformation back. f is, per spring, −(stiffness·(l − l_r) + damping·l̇) along
+    it; a muscle's rest length moves with its control, l_r = rest + u·(contracted − rest). Softer and
+    more damped than the simulation's springs (explicit Euler is stable only so), and internal forces
+    only: the body's momentum is untouched.
+
+    ``points`` are (position group, velocity group) pairs of 3 world values, ``masses`` theirs;
+    ``springs`` (a, b, rest length) index ``points``; ``muscles`` (spring, control, contracted length).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    steps: int = Field(5, ge=0, description="Euler steps after each super-step (0: off)")
+    dt: float = Field(gt=0, description="seconds per Euler step")
+    stiffness: float = Field(gt=0, description="N/m, every spring")
+    damping: float = Field(ge=0, description="N·s/m along every spring")
+    points: list[tuple[str, str]] = Field(min_length=2, description="(position group, velocity group)")
+    masses: list[float] = Field(description="kg, one per point")
+    springs: list[tuple[int, int, float]] = Field(min_length=1, description="(point a, point b, rest length)")
+    muscles: list[tuple[int, int, float]] = Field(
+        default_factory=list, description="(spring, control, rest length at control 1)"
+    )
+
+    @model_validator(mode="after")
+    def _indices_agree(self) -> SpringRegularizer:
+        n = len(self.points)
+        if len(self.masses) != n or any(m <= 0 for m in self.masses):
+            raise ValueError(f"masses: {len(self.points)} positive values expected, got {self.masses}")
+        for a, b, rest in self.springs:
+            if not (0 <= a < n and 0 <= b < n) or a == b or rest <= 0:
+                raise ValueError(
+                    f"spring ({a}, {b}, {rest}): two different points below {n} and a rest length > 0"
+                )
+        for spring, control, contracted in self.muscles:
+            if not 0 <= spring < len(self.springs) or control < 0 or contracted <= 0:
+                raise ValueError(f"muscle ({spring}, {control}, {contracted}): no such spring or control")
+        return self
+
+
 class ModelSpec(BaseModel):
     """What the trainer needs beyond the MJCF to build an emulator of a model."""
 
@@ -130,6 +174,9 @@ class ModelSpec(BaseModel):
         default_factory=list,
         description="a hierarchical emulator's parts (thesis 4.4): a global network predicts the motion of "
         "their frames, then one network per part its groups in its frame; empty: one network",
+    )
+    regularizer: SpringRegularizer | None = Field(
+        None, description="a mass-spring model's regulariser (thesis 6.1.3), on by default in its emulators"
     )
     train_at_start: bool = Field(
         True,

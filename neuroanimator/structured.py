@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
+from neuroanimator.regularizer import SpringRegularization
 from neuroanimator.state import StateLayout
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
@@ -273,6 +274,8 @@ class StructuredEmulator(nn.Module):
         self.activation = activation
         self._plan()
         self.core = make_core(self.input_size, layout.size, hidden, activation)
+        # thesis 6.1.3: a mass-spring model's step ends with a few Euler steps of its springs
+        self.regularizer: SpringRegularization | None = None
         # A linear path beside the MLP: in a good local frame most of a step is close to linear (the
         # lander's body-frame least-squares fit leaves 1% of the variance), so the MLP only has to learn
         # the remainder. Initialised from the least-squares fit by the trainer.
@@ -670,7 +673,8 @@ class StructuredEmulator(nn.Module):
     def forward(self, state: Tensor, controls: Tensor | None = None, forces: Tensor | None = None) -> Tensor:
         frame = self.local_frame(state)
         x = self.normalize_inputs(self.local_inputs(state, controls, forces, frame))
-        return self.apply_delta(state, self.denormalize_outputs(self.network(x)), frame)
+        nxt = self.apply_delta(state, self.denormalize_outputs(self.network(x)), frame)
+        return nxt if self.regularizer is None else self.regularizer(nxt, controls)
 
     def network(self, x: Tensor) -> Tensor:
         """N^σ: normalised inputs (B, D) -> normalised local state changes (B, S)."""

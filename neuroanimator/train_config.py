@@ -43,6 +43,9 @@ class TrainConfig:
     rollout_steps: int = 8
     rollout_sequences: int | None = None  # None: one per 16 one-step examples
     rollout_seconds: float = 60.0  # wall-clock cap on the rollout phase
+    # thesis 6.1.3: Euler steps of a mass-spring model's springs after each emulated super-step (None:
+    # the model's own number, ModelSpec.regularizer; 0: off); models without springs ignore it
+    regularizer_steps: int | None = None
     seed: int = 0
     threads: int = 2
     progress: bool = True

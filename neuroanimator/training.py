@@ -22,6 +22,7 @@ from neuroanimator import sampling
 from neuroanimator.envelope import examples_envelope
 from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.regularizer import regularization
 from neuroanimator.structured import FrameConfig, JointLimit, StructuredEmulator
 from neuroanimator.train_config import TrainConfig
 
@@ -232,6 +233,9 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
         one_step,
         lin,
         metrics["total_seconds"],
+    )
+    emu.regularizer = regularization(
+        model.layout, model.spec.regularizer, model.num_controls, cfg.regularizer_steps
     )
     return TrainResult(emu, cfg, metrics, linear, data.sha256(), examples_envelope(model, data))
 

@@ -208,6 +208,7 @@ TINY = TrainConfig(
     max_epochs=3,
     max_seconds=5.0,
     rollout_steps=0,
+    regularizer_steps=5,  # off by default for the dolphin: on here, to check it is saved and served
     progress=False,
     threads=1,
 )
@@ -246,6 +247,10 @@ def test_a_saved_hierarchy_is_described_loaded_and_served(
     assert near and head.reads.state == [*head.writes, *near]
     assert sorted(graph.written) == sorted(g.name for g in manifest.layout)
     assert manifest.io.inputs == ["state", "controls"]
+    # the spring regulariser is part of the step, its Euler steps in the manifest (thesis 6.1.3)
+    assert graph.regularizer is not None and graph.regularizer.steps == 5
+    assert trained.emulator.regularizer is not None
+    assert np.isfinite(trained.metrics["composed_regularized_rel_error"])
     with pytest.raises(ManifestError, match="composed of 7 networks"):
         graph.only()
     data = json.loads((path / registry.MANIFEST_FILE).read_text())

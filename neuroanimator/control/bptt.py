@@ -50,7 +50,8 @@ class FastStep(nn.Module):
         forces = torch.zeros(state.shape[0], self.num_forces, dtype=state.dtype) if self.num_forces else None
         frame = emu.local_frame(state)  # once per step, shared by T'_x and T'_y
         cols = emu.local_inputs(state, controls, forces, frame, place=False)
-        return emu.apply_delta(state, self.core(cols), frame)
+        nxt = emu.apply_delta(state, self.core(cols), frame)
+        return nxt if emu.regularizer is None else emu.regularizer(nxt, controls)
 
 
 class ControlProblem:

@@ -64,7 +64,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.model_spec import ControlInfo, HierarchyPart, InitialStates, ModelSpec
+from neuroanimator.model_spec import ControlInfo, HierarchyPart, InitialStates, ModelSpec, SpringRegularizer
 from neuroanimator.state import StateGroup
 
 if TYPE_CHECKING:
@@ -511,6 +511,37 @@ def hierarchy_parts() -> list[HierarchyPart]:
     return parts
 
 
+REGULARIZER_STIFFNESS = STIFFNESS / 4  # softer and more damped than the body (thesis 6.1.3): explicit
+REGULARIZER_DAMPING = 2 * DAMPING  # Euler is stable with them at δt, and they only nudge the shape
+# Off by default: measured on the N^50 emulator (bench/dolphin_regularizer.py, BENCHMARKS.md), 5 steps
+# after networks trained without them keep E_d nearer the simulation's over 60 s, but over 300 s
+# they drive the body out of the states the networks were trained on, and the swim diverges, while
+# the emulator alone stays bounded. `neuro train dolphin --regularizer-steps 5` turns them on.
+REGULARIZER_STEPS = 0
+
+
+def regularizer(steps: int = REGULARIZER_STEPS) -> SpringRegularizer:
+    """The body's springs as the emulator's regulariser (thesis 6.1.3): every spring at its rest length,
+    the muscle springs' rest lengths moving with their activation as in the body."""
+    lengths = rest_lengths()
+    index = {pair: s for s, pair in enumerate(SPRINGS)}
+    muscles = [
+        (index[spring], control, MUSCLE_CONTRACTION * float(lengths[index[spring]]))
+        for control, pair in enumerate(MUSCLES)
+        for spring in pair
+    ]
+    return SpringRegularizer(
+        steps=steps,
+        dt=TIMESTEP,
+        stiffness=REGULARIZER_STIFFNESS,
+        damping=REGULARIZER_DAMPING,
+        points=[(f"{n}.pos", f"{n}.vel") for n in NODES],
+        masses=node_masses().tolist(),
+        springs=[(i, j, float(lengths[s])) for s, (i, j) in enumerate(SPRINGS)],
+        muscles=muscles,
+    )
+
+
 def dolphin() -> PhysicalModel:
     from neuroanimator.physics.model import PhysicalModel  # MuJoCo loads when a model is built
 
@@ -538,6 +569,7 @@ def dolphin() -> PhysicalModel:
         rotation_invariant=False,
         thesis_hidden=50,
         parts=hierarchy_parts(),
+        regularizer=regularizer(),
     )
     return PhysicalModel(mjcf(), spec)
 

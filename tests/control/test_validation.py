@@ -140,7 +140,11 @@ def test_quaternions_are_normalised() -> None:
     [
         ({"task": "fly-to-mars"}, "task", "unknown task 'fly-to-mars'; known tasks are ['lander-landing', "),
         ({}, "task", "expected a task or a model, got neither"),
-        ({"model": "submarine"}, "model", "unknown model 'submarine'; trained models are ['ball', 'lander', "),
+        (
+            {"model": "submarine"},
+            "model",
+            "unknown model 'submarine'; trained models are ['ball', 'lander', ",
+        ),
         (
             {"task": "pendulum-swing", "model": "truck"},
             "model",

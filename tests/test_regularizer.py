@@ -1,0 +1,138 @@
+"""The spring regulariser of thesis 6.1.3 (neuroanimator.regularizer) on the dolphin's body."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from neuroanimator import physics, sampling
+from neuroanimator.export import OnnxEmulator, to_onnx
+from neuroanimator.hierarchy import HierarchicalEmulator
+from neuroanimator.model_spec import SpringRegularizer
+from neuroanimator.physics import dolphin as body
+from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.regularizer import SpringRegularization, deformation_energy, regularization
+from neuroanimator.state import StateGroup, StateLayout
+
+
+@pytest.fixture(scope="module")
+def dolphin() -> PhysicalModel:
+    return physics.get("dolphin")
+
+
+@pytest.fixture(scope="module")
+def examples(dolphin: PhysicalModel) -> sampling.Examples:
+    return sampling.generate(dolphin, 50, 32, seed=5, progress=False)
+
+
+def two_points(steps: int = 1, muscles: list[tuple[int, int, float]] | None = None) -> SpringRegularization:
+    layout = StateLayout(
+        tuple(
+            StateGroup(name=f"{p}.{q}", kind="scalar", size=3, source="qpos", address=0)
+            for q in ("pos", "vel")
+            for p in "ab"
+        )
+    )
+    spec = SpringRegularizer(
+        steps=steps, dt=0.1, stiffness=4.0, damping=0.5, points=[("a.pos", "a.vel"), ("b.pos", "b.vel")],
+        masses=[1.0, 2.0], springs=[(0, 1, 1.0)], muscles=muscles or [],
+    )  # fmt: skip
+    return SpringRegularization(layout, spec, num_controls=1).double()
+
+
+def test_one_euler_step_matches_a_hand_computation() -> None:
+    reg = two_points()
+    # a at the origin moving +x at 1 m/s; b at (1.5, 0, 0) at rest: stretched 0.5, closing at 1 m/s
+    state = torch.tensor([[0.0, 0, 0, 1.5, 0, 0, 1.0, 0, 0, 0, 0, 0]], dtype=torch.float64)
+    tension = 4.0 * 0.5 + 0.5 * (0.0 - 1.0)  # k·(l − l_r) + c·l̇ = 1.5 N, pulling the ends together
+    va, vb = 1.0 + 0.1 * tension / 1.0, 0.0 - 0.1 * tension / 2.0
+    expected = [0.1 * va, 0, 0, 1.5 + 0.1 * vb, 0, 0, va, 0, 0, vb, 0, 0]
+    got = reg(state, torch.zeros(1, 1, dtype=torch.float64))
+    np.testing.assert_allclose(got[0].numpy(), expected, atol=1e-12)
+
+
+def test_a_muscle_moves_its_springs_rest_length() -> None:
+    reg = two_points(muscles=[(0, 0, 0.5)])  # fully contracted: rest length 0.5
+    state = torch.tensor([[0.0, 0, 0, 1.0, 0, 0] + [0.0] * 6], dtype=torch.float64)
+    relaxed = reg(state, torch.zeros(1, 1, dtype=torch.float64))
+    torch.testing.assert_close(relaxed, state)  # at rest length, at rest: nothing moves
+    half = reg(state, torch.full((1, 1), 0.5, dtype=torch.float64))
+    # rest 0.75: the spring pulls a towards +x with 4·0.25 = 1 N
+    assert half[0, 6].item() == pytest.approx(0.1 * 1.0) and half[0, 9].item() == pytest.approx(-0.1 * 0.5)
+
+
+def test_the_body_at_rest_is_left_alone(dolphin: PhysicalModel) -> None:
+    assert dolphin.spec.regularizer is not None and dolphin.spec.regularizer.steps == 0  # off unless asked
+    assert regularization(dolphin.layout, dolphin.spec.regularizer, dolphin.num_controls) is None
+    reg = regularization(dolphin.layout, dolphin.spec.regularizer, dolphin.num_controls, steps=5)
+    assert reg is not None and reg.steps == 5
+    rest = torch.from_numpy(dolphin.rest_state()[None, :]).float()
+    torch.testing.assert_close(reg(rest, torch.zeros(1, 6)), rest, atol=1e-6, rtol=0)
+    assert reg.deformation_energy(rest).item() == pytest.approx(0.0, abs=1e-10)
+
+
+def test_it_reduces_the_deformation_and_keeps_the_momentum(
+    dolphin: PhysicalModel, examples: sampling.Examples
+) -> None:
+    assert dolphin.spec.regularizer is not None
+    spec = dolphin.spec.regularizer.model_copy(update={"steps": 5})
+    reg = SpringRegularization(dolphin.layout, spec, dolphin.num_controls).double()
+    states = torch.from_numpy(examples.next_states)
+    controls = torch.from_numpy(examples.controls)
+    # an emulator's drift: every node off by a few centimetres
+    g = torch.Generator().manual_seed(0)
+    noisy = states.clone()
+    noisy[:, body.NODE_POS] += 0.03 * torch.randn(
+        noisy[:, body.NODE_POS].shape, generator=g, dtype=torch.float64
+    )
+    out = reg(noisy, controls)
+    before, after = reg.deformation_energy(noisy), reg.deformation_energy(out)
+    assert bool((after < before).all()), f"E_d before {before[:4]}, after {after[:4]}"
+    # the numpy E_d of the benchmarks is the same quantity
+    np.testing.assert_allclose(
+        deformation_energy(spec, body.node_positions(out.numpy())), after.numpy(), rtol=1e-6
+    )
+    # internal forces only: the body's momentum does not change
+    m = torch.tensor(body.node_masses())
+    momentum = lambda s: (s[:, body.NODE_VEL].reshape(-1, 23, 3) * m[None, :, None]).sum(1)  # noqa: E731
+    torch.testing.assert_close(momentum(out), momentum(noisy), atol=1e-6, rtol=0)
+    # the plates' columns are untouched
+    others = torch.ones(dolphin.state_size, dtype=torch.bool)
+    others[body.NODE_POS] = others[body.NODE_VEL] = False
+    torch.testing.assert_close(out[:, others], noisy[:, others])
+
+
+def test_the_onnx_graph_includes_the_regulariser(dolphin: PhysicalModel, examples: sampling.Examples) -> None:
+    torch.manual_seed(0)
+    emu = HierarchicalEmulator(dolphin.layout, dolphin.num_controls, dolphin.spec.parts, (8,), (8,)).eval()
+    s, u = examples.states.astype(np.float32), examples.controls.astype(np.float32)
+    with torch.no_grad():
+        plain = emu(torch.from_numpy(s), torch.from_numpy(u)).numpy()
+        emu.regularizer = regularization(
+            dolphin.layout, dolphin.spec.regularizer, dolphin.num_controls, steps=5
+        )
+        expected = emu(torch.from_numpy(s), torch.from_numpy(u)).numpy()
+    assert np.abs(expected - plain).max() > 1e-4  # the regulariser does move the nodes
+    np.testing.assert_allclose(OnnxEmulator(to_onnx(emu)).step(s, u), expected, atol=3e-5, rtol=1e-4)
+
+
+def test_a_spec_with_unknown_points_is_refused() -> None:
+    with pytest.raises(ValueError, match="two different points"):
+        SpringRegularizer(
+            dt=0.01,
+            stiffness=1,
+            damping=0,
+            points=[("a", "b"), ("c", "d")],
+            masses=[1, 1],
+            springs=[(0, 2, 1.0)],
+        )
+    with pytest.raises(ValueError, match="masses"):
+        SpringRegularizer(
+            dt=0.01,
+            stiffness=1,
+            damping=0,
+            points=[("a", "b"), ("c", "d")],
+            masses=[1],
+            springs=[(0, 1, 1.0)],
+        )
