@@ -3,17 +3,18 @@
     python bench/control.py [--tasks a,b] [--gf-evals 3000] [--curve-iterations 60] [--repeats 3]
                             [--out bench/results] [--artifacts artifacts] [--quick] [--json]
 
-For each thesis task (pendulum-swing, lander-landing, truck-parking):
+For each task (the thesis' pendulum-swing, lander-landing, truck-parking and dolphin-swim; by
+default those whose model has an emulator in ``--artifacts``):
 
 - ``run_job`` with the task's defaults: iterations until the success criterion holds on the
   emulator, the total gradient iterations (emulator phase, polishing and physics-refinement
   rounds), wall time per job (median of ``--repeats``, one thread), and the replay on MuJoCo of
   the emulator-only controller and of the one returned: success there, the final errors, the
   transfer error;
-- Nelder-Mead and CMA-ES (``neuroanimator.control.gradient_free``), each with a large and a small
-  initial step (``--gf-steps``), on the *same* objective of the same control points evaluated on
+- simulated annealing, Nelder-Mead and CMA-ES (``neuroanimator.control.gradient_free``), each with
+  a large and a small initial step (``--gf-steps``), on the *same* objective of the same control points evaluated on
   MuJoCo directly, from the same initial controller: objective evaluations (= physical
-  simulations, 2,000 steps each) and wall time until they reach the objective value the gradient
+  simulations, 2,000 physical steps each) and wall time until they reach the objective value the gradient
   method's controller scores on MuJoCo, capped at ``--gf-evals`` per run ("not reached"
   otherwise, and the ratios are then lower bounds); the best of the runs is compared;
 - gradient descent with and without momentum at fixed (η, α) (thesis 6.3.1, Figs. 6.13-6.15),
@@ -24,7 +25,10 @@ Prints a table; with ``--json`` the last line is one JSON object:
 ``{"tasks": [{"task", "iterations_to_success", "iterations", "wall_s", "success_emulator",
 "success_physics", "final_error_emulator", "final_error_physics", "transfer_error",
 "gradient_free_iterations", "gradient_free_method", "gradient_free_reached", "iteration_ratio",
-"emulator_rollouts", "rollout_ratio", "wall_ratio", ...}], "settings": {...}}``.
+"emulator_rollouts", "rollout_ratio", "wall_ratio", "bptt_networks", ...}], "settings": {...}}``;
+a task without a criterion (dolphin-swim: as far as it can) has null success fields, and its
+``forward_distance_m`` (emulator, MuJoCo) and ``transfer_ratio`` say how far the centre of mass
+went and how close MuJoCo came to the emulator's distance.
 """
 
 from __future__ import annotations
@@ -43,9 +47,10 @@ import torch
 
 from neuroanimator import registry
 from neuroanimator.control import TASKS, JobSpec, run_job, validate_job
-from neuroanimator.control.gradient_free import Trace, cma_es, nelder_mead
+from neuroanimator.control.gradient_free import Trace, cma_es, nelder_mead, simulated_annealing
 from neuroanimator.control.runner import load_problem
 from neuroanimator.control.synthesis import Settings, optimize
+from neuroanimator.controller_schemas import JobOutcome
 
 log = logging.getLogger("bench.control")
 # learning rates tried for the fixed-coefficient curves (raw gradients, so J's scale sets the rate)
@@ -139,6 +144,27 @@ def plot(
     return path
 
 
+def distances(res: JobOutcome) -> dict[str, Any]:
+    """A forward-distance task's distance in metres on the emulator and on MuJoCo: the direction-
+    weighted displacement of its variables (for the dolphin, the nodes' centre of mass), and their ratio."""
+    assert res.spec is not None and res.emulated is not None and res.physical is not None
+    terms = [t for t in res.spec.terms if t.term == "forward_distance"]
+    if not terms:
+        return {"forward_distance_m": None, "transfer_ratio": None}
+    (term,) = terms
+    w = np.asarray(term.direction) / np.sum(term.direction)  # a weighted mean of the variables
+
+    def moved(states: list[list[float | None]]) -> float:
+        s = np.asarray(states, dtype=np.float64)[:, term.variables]
+        return float(w @ (s[-1] - s[0]))
+
+    emu, phys = moved(res.emulated.states), moved(res.physical.states)
+    return {
+        "forward_distance_m": {"emulator": emu, "mujoco": phys},
+        "transfer_ratio": phys / emu if emu else None,
+    }
+
+
 def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
     root = Path(args.artifacts)
     spec = validate_job({"task": name}, root)
@@ -158,12 +184,17 @@ def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
     x0 = problem.initial_points().ravel()
 
     def on_physics(xs: np.ndarray) -> np.ndarray:
-        return problem.evaluate_physics(physical, xs.reshape(-1, *shape))
+        return problem.evaluate_physics(physical, xs.reshape(-1, *shape), threads=args.threads)
 
     # each method with a large and a small initial step (in units of the controls' half-ranges): the
     # lander needs small ones, the pendulum large ones; the best run is the one compared
     traces = []
     for step in args.gf_steps:
+        tr = simulated_annealing(
+            on_physics, x0, low=low, high=high, step=step, target=target, budget=args.gf_evals, seed=0
+        )
+        tr.method = f"simulated_annealing(step={step:g})"
+        traces.append(tr)
         tr = nelder_mead(on_physics, x0, low=low, high=high, step=step, target=target, budget=args.gf_evals)
         tr.method = f"nelder_mead(step={step:g})"
         traces.append(tr)
@@ -207,6 +238,8 @@ def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
         "success_physics_emulator_phase": res.emulator_phase.success_physics,
         "final_error_physics_emulator_phase": res.emulator_phase.final_error_physics,
         "emulator_rollouts": res.emulator_rollouts,
+        "bptt_networks": res.bptt_networks,
+        **distances(res),
         "wall_s": wall,
         "success_emulator": res.success_emulator,
         "success_physics": res.success_physics,
@@ -258,6 +291,19 @@ def table(rows: list[dict[str, Any]]) -> str:
             f" | {r['emulator_rollouts']} | {gf} | {bound}{r['iteration_ratio']:.0f}×"
             f" | {bound}{r['rollout_ratio']:.2f}× | {bound}{f(r['wall_ratio'], '.1f')}× |"
         )
+    moving = [r for r in rows if r["forward_distance_m"]]
+    if moving:
+        lines += [
+            "",
+            "| task | BPTT through | distance on the emulator m | on MuJoCo m | MuJoCo / emulator |",
+        ]
+        lines.append("|---|---|---|---|---|")
+        for r in moving:
+            d = r["forward_distance_m"]
+            lines.append(
+                f"| {r['task']} | {r['bptt_networks']} networks | {d['emulator']:.3f} | {d['mujoco']:.3f}"
+                f" | {f(r['transfer_ratio'], '.2f')} |"
+            )
     lines.append("")
     lines.append(
         "| task | update | η | α | final J after the curve's iterations | iterations to the default's J |"
@@ -274,7 +320,13 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--tasks", default=",".join(TASKS))
+    served = [t for t in TASKS if (Path("artifacts") / TASKS[t].model).is_dir()]
+    p.add_argument(
+        "--tasks", default=",".join(served), help=f"default: those with an emulator ({','.join(served)})"
+    )
+    p.add_argument(
+        "--threads", type=int, default=1, help="MuJoCo threads of a batch of gradient-free evaluations"
+    )
     p.add_argument("--artifacts", default="artifacts")
     p.add_argument(
         "--gf-evals", type=int, default=3000, help="evaluation budget of each gradient-free method"

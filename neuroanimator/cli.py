@@ -157,7 +157,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         model = registry.load_physical_model(path, manifest)
         errs = evaluation.one_step_errors(path, model, manifest)
         curve, physical = evaluation.rollout_errors(path, model, n, trials=args.trials, steps=args.steps)
-        net = manifest.emulator.only()
+        nets = manifest.emulator.networks  # a hierarchy: its global network's size, all its weights
+        net = nets[0]
         rows.append(
             VersionEval(
                 model=args.model,
@@ -168,7 +169,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
                 rollout_error_curve=curve,
                 rollout_error_at_20s=curve.at(20.0),
                 rollout_error_final=curve.error[-1],
-                architecture=NetworkSize(hidden=net.hidden, activation=net.activation, weights=net.weights),
+                architecture=NetworkSize(
+                    hidden=net.hidden, activation=net.activation, weights=sum(n.weights for n in nets)
+                ),
                 train_seconds=manifest.metrics.total_seconds,
                 physical_errors=physical,
             )
@@ -365,7 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--regularizer-steps",
         type=int,
         help="a mass-spring model's spring Euler steps after each super-step (thesis 6.1.3; default: "
-        "the model's, 5 for the dolphin; 0: off)",
+        "the model's, 0 for the dolphin as measured in BENCHMARKS.md; 0: off)",
     )
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--quiet", action="store_true", help="no progress bars")

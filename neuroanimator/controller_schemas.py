@@ -319,6 +319,13 @@ class JobOutcome(BaseModel):
     iterations: int | None = None
     iterations_to_success: int | None = None
     emulator_rollouts: int | None = None
+    bptt_networks: Literal["all", "global"] | None = Field(
+        None,
+        description=(
+            "the networks the gradients went through: all (the emulator's whole step) or global (a "
+            "hierarchy's global network alone, as the objective depends only on the parts' frames)"
+        ),
+    )
     objective: MaybeFloat = None
     objective_physics: MaybeFloat = None
     objective_history: list[MaybeFloat] = []

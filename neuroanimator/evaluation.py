@@ -26,11 +26,16 @@ EVAL_SEED = 20_000  # rollout trials use the same initial states and control fun
 def one_step_errors(
     path: Path, model: PhysicalModel, manifest: Manifest, count: int | None = None
 ) -> dict[str, float]:
-    """Relative one-step error of the emulator and of the linear baseline on fresh held-out data."""
+    """Relative one-step error of the emulator and of the linear baseline on fresh held-out data (of
+    a hierarchy: its worst network's, ``hierarchy_one_step_errors``)."""
     cfg = manifest.train_config
     test = sampling.generate(
         model, manifest.substeps, count or cfg.test_examples, held_out_seed(cfg.seed), progress=False
     )
+    if manifest.emulator.parts:
+        errors = hierarchy_one_step_errors(path, model, test)
+        worst = max(errors, key=lambda n: errors[n]["one_step_rel_error"])
+        return errors[worst]
     emu = artifacts.load_torch(path)
     linear = np.load(path / registry.LINEAR_FILE)
     s, u, f, nxt = to_tensors(test)
@@ -41,6 +46,31 @@ def one_step_errors(
             "one_step_rel_error": relative_error(emu.network(x), y),
             "linear_baseline_rel_error": relative_error(apply_linear(linear, x), y),
         }
+
+
+def hierarchy_one_step_errors(
+    path: Path, model: PhysicalModel, test: sampling.Examples
+) -> dict[str, dict[str, float]]:
+    """Each network's relative one-step error on held-out transitions ``test``, on its own targets (the
+    global network on the frames, each local network on its part given the true next frames), beside
+    a linear model of the same inputs fitted to those same transitions: the best any linear model
+    does there, so the ratio to it is a conservative one. Keys: the networks' names."""
+    from neuroanimator.hierarchy import HierarchicalEmulator
+    from neuroanimator.hierarchy_training import fit_linear, network_data
+
+    emu = artifacts.load_emulator(path)
+    assert isinstance(emu, HierarchicalEmulator)
+    s, u, _, nxt = to_tensors(test)
+    out: dict[str, dict[str, float]] = {}
+    with torch.no_grad():
+        for (name, net), d in zip(emu.networks, network_data(emu, s, u, nxt), strict=True):
+            x = net.network_inputs(d.state, d.controls, d.extra)
+            y = net.network_targets(d.state, d.next_state)
+            out[name] = {
+                "one_step_rel_error": relative_error(net.network(x), y),
+                "linear_baseline_rel_error": relative_error(apply_linear(fit_linear(x, y), x), y),
+            }
+    return out
 
 
 def held_controls(

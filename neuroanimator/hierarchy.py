@@ -298,6 +298,11 @@ class HierarchicalEmulator(nn.Module):
         return m
 
     # ------------------------------------------------------------------ the stages
+    @property
+    def frame_map(self) -> Tensor:
+        """(S, K·Q) the linear map from a state to every part's frame quantities."""
+        return self._frames
+
     def frames_of(self, state: Tensor) -> Tensor:
         """Every part's frame quantities (B, K·Q), world values."""
         return state @ self._frames

@@ -269,6 +269,27 @@ def test_a_saved_hierarchy_is_described_loaded_and_served(
     np.testing.assert_allclose(served.emulator.step(s, u), expected, atol=2e-5, rtol=1e-4)
 
 
+def test_a_saved_hierarchy_is_evaluated_network_by_network(
+    tmp_path: Path, dolphin: PhysicalModel, trained: HierarchyResult, examples: sampling.Examples
+) -> None:
+    """``neuro eval`` of a hierarchy: every network on fresh held-out data beside a linear fit of the
+    same inputs; the emulator's one-step error is its worst network's."""
+    from neuroanimator import evaluation
+
+    path = artifacts.save(tmp_path, dolphin, trained)
+    each = evaluation.hierarchy_one_step_errors(path, dolphin, examples)
+    assert list(each) == [name for name, _ in trained.emulator.networks]
+    for e in each.values():
+        assert np.isfinite(e["one_step_rel_error"]) and np.isfinite(e["linear_baseline_rel_error"])
+    # a linear fit to the very data it is scored on does at least as well as the global one saved
+    assert (
+        each["global"]["linear_baseline_rel_error"]
+        <= trained.metrics["network_errors"]["global"]["linear_baseline_rel_error"] * 1.5
+    )
+    errs = evaluation.one_step_errors(path, dolphin, registry.read_manifest(path), count=64)
+    assert errs["one_step_rel_error"] > 0 and set(errs) == {"one_step_rel_error", "linear_baseline_rel_error"}
+
+
 def test_a_hierarchy_trains_small_unless_told_otherwise() -> None:
     cfg = small_defaults(TrainConfig(), hidden_given=False, examples_given=False)
     assert (cfg.hidden, cfg.examples, cfg.test_examples) == ((16,), 5_000, 1_000)

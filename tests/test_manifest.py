@@ -19,7 +19,10 @@ from neuroanimator.state import StateLayout
 
 ROOT = Path(__file__).resolve().parents[1]
 ARTIFACTS = ROOT / "artifacts"
-COMMITTED = sorted(p.parent for p in ARTIFACTS.glob("*/*/manifest.json"))
+COMMITTED_ALL = sorted(p.parent for p in ARTIFACTS.glob("*/*/manifest.json"))
+# one-network emulators; the hierarchies (the dolphin) are checked on their own below
+COMMITTED = [p for p in COMMITTED_ALL if len(registry.read_manifest(p).emulator.networks) == 1]
+HIERARCHIES = [p for p in COMMITTED_ALL if p not in COMMITTED]
 
 # A body with a free root and two hinged arms: the shape of a hierarchy (one network for the body,
 # then one per arm in the arm's frame).
@@ -129,7 +132,24 @@ def test_every_committed_manifest_reads_as_one_network(path: Path) -> None:
     assert (m.train_config.frame, m.train_config.skip, m.train_config.rollout_steps) == ("heading", False, 0)
 
 
-@pytest.mark.parametrize("path", COMMITTED[:3], ids=lambda p: p.name)
+@pytest.mark.parametrize("path", HIERARCHIES, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_every_committed_hierarchy_reads_as_its_stages(path: Path) -> None:
+    """A committed hierarchy: the global network first, then one per part, together writing the state."""
+    m = registry.read_manifest(path)
+    assert (m.format, m.model, m.version) == (FORMAT, path.parent.name, path.name)
+    graph = m.emulator
+    parts = [p.name for p in graph.parts]
+    assert graph.stages == [["global"], parts] and [n.name for n in graph.networks] == ["global", *parts]
+    assert sorted(graph.written) == sorted(g.name for g in m.layout)
+    assert all(n.reads.controls == [c.name for c in m.controls] for n in graph.networks)
+    assert m.state_layout().size == m.state_size == len(m.state_labels)
+
+
+def test_the_dolphin_is_the_committed_hierarchy() -> None:
+    assert [p.parent.name for p in HIERARCHIES] == ["dolphin"]
+
+
+@pytest.mark.parametrize("path", COMMITTED_ALL[:3] + HIERARCHIES, ids=lambda p: p.name)
 def test_format_2_round_trips_through_json(path: Path) -> None:
     m = registry.read_manifest(path)
     again = parse_manifest(json.loads(m.model_dump_json()))

@@ -28,6 +28,7 @@ from neuroanimator.control.replay import simulate_held
 from neuroanimator.control.spec import JobSpec, num_points
 from neuroanimator.control.splines import ControlSpline
 from neuroanimator.export import fold_normalization
+from neuroanimator.hierarchy import HierarchicalEmulator
 from neuroanimator.manifest import Manifest
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.structured import StructuredEmulator
@@ -54,6 +55,56 @@ class FastStep(nn.Module):
         return nxt if emu.regularizer is None else emu.regularizer(nxt, controls)
 
 
+class FrozenStep(nn.Module):
+    """A hierarchical emulator's super-step (global network, local networks, regulariser), frozen:
+    ``(state (B,S), controls (B,U)) -> (B,S)``, the same composition as its ONNX graph."""
+
+    def __init__(self, emu: HierarchicalEmulator) -> None:
+        super().__init__()
+        self.emu = emu.eval()
+        self.requires_grad_(False)
+
+    def forward(self, state: Tensor, controls: Tensor) -> Tensor:
+        out: Tensor = self.emu(state, controls)
+        return out
+
+
+class GlobalStep(nn.Module):
+    """A hierarchical emulator's global network alone (thesis 4.4, 5.3.2), as a step on states:
+    ``(state (B,S), controls (B,U)) -> (B,S)`` whose frames (``state @ F``, F (S, K·Q)) are the
+    global network's prediction and whose part outside the frames is the state's own.
+
+    The next state is ``s + (f' − s F) F⁺`` with F⁺ the pseudo-inverse of F: its frames are f'
+    (exactly when the frames are independent; where two parts share an axis, as the dolphin's fluke
+    and last segment share their up axis, the nearest frames that a state can have: the two
+    predictions averaged), and what F does not see (the shape of each part in its frame) is carried
+    unchanged. An objective that depends on the state only through the
+    frames (``depends_only_on_frames``) gets the same value and gradient as on a rollout of the
+    frames alone, at the cost of one network instead of 1 + K.
+    """
+
+    _frames: Tensor  # (S, K·Q)
+    _inverse: Tensor  # (K·Q, S)
+
+    def __init__(self, emu: HierarchicalEmulator, dtype: torch.dtype = torch.float32) -> None:
+        super().__init__()
+        self.emu = emu.eval()
+        frames = emu.frame_map.double()  # (S, K·Q)
+        inverse = torch.linalg.pinv(frames)
+        self.register_buffer("_frames", frames.to(dtype), persistent=False)
+        self.register_buffer("_inverse", inverse.to(dtype), persistent=False)
+        self.requires_grad_(False)
+
+    def null_space(self) -> Tensor:
+        """(S, S) the projection onto the states' part that no frame sees: ``I − F F⁺``."""
+        eye = torch.eye(self._frames.shape[0], dtype=self._frames.dtype)
+        return eye - self._frames @ self._inverse
+
+    def forward(self, state: Tensor, controls: Tensor) -> Tensor:
+        nxt = self.emu.global_step(state, controls)  # (B, K·Q)
+        return state + (nxt - state @ self._frames) @ self._inverse
+
+
 class ControlProblem:
     """A job's objective as a function of its normalised control points ``z`` (M, U).
 
@@ -63,14 +114,14 @@ class ControlProblem:
 
     def __init__(
         self,
-        emu: StructuredEmulator,
+        emu: StructuredEmulator | HierarchicalEmulator,
         spec: JobSpec,
         manifest: Manifest,
         dtype: torch.dtype = torch.float32,
     ) -> None:
         self.spec = spec
         self.dtype = dtype  # float64 (with a float64 emulator) for finite-difference checks
-        self.step = FastStep(emu)
+        self.step: nn.Module = FrozenStep(emu) if isinstance(emu, HierarchicalEmulator) else FastStep(emu)
         self.horizon = spec.horizon
         self.super_dt = manifest.super_timestep
         self.num_controls = manifest.num_controls
@@ -92,6 +143,39 @@ class ControlProblem:
         # per-step additive correction (K, S) learned from a MuJoCo replay (``set_correction``)
         self.correction: Tensor | None = None
         self._residuals: int | None = None  # R, the length of ``objective.residuals``
+        # the step that gradients (and the search's evaluations) go through: a hierarchy's global
+        # network alone where the objective and the criterion depend only on the parts' frames
+        # (thesis 4.4, 5.3.2); the full step gives the trajectory that a job returns
+        self.gradient_step: nn.Module = self.step
+        self.networks = "all"
+        if isinstance(emu, HierarchicalEmulator):
+            global_only = GlobalStep(emu, dtype)
+            if self._depends_only_on_frames(global_only.null_space(), manifest.state_labels):
+                self.gradient_step, self.networks = global_only, "global"
+
+    @torch.no_grad()
+    def _depends_only_on_frames(self, null: Tensor, labels: list[str]) -> bool:
+        """Whether the objective and the success checks are unchanged by any change of the states
+        that leaves every frame as it is (``null`` (S, S) projects onto such changes).
+
+        The checks read variables, so each must be seen by the frames alone (its column of ``null``
+        zero); the objective is probed on the initial controller's rollout with random such changes
+        as large as the states themselves."""
+        tol = 1e-6
+        for check in self.spec.success:
+            cols = [labels.index(v) for v in check.variables]
+            if float(null[:, cols].abs().max()) > tol:
+                return False
+        z = torch.as_tensor(self.initial_points()[None], dtype=self.dtype)
+        states, u = self.rollout(z)
+        j = self.objective(states.double(), u.double())
+        gen = torch.Generator().manual_seed(0)
+        scale = 1.0 + states.abs().amax(dim=1, keepdim=True)
+        for _ in range(3):
+            moved = states + (torch.randn(states.shape, generator=gen, dtype=self.dtype) * scale) @ null
+            if not torch.allclose(self.objective(moved.double(), u.double()), j, rtol=tol, atol=tol):
+                return False
+        return True
 
     # ------------------------------------------------------------------ parametrisation
     def initial_points(self) -> FloatArray:
@@ -114,15 +198,17 @@ class ControlProblem:
         return torch.maximum(torch.minimum(u, self._high), self._low)
 
     # ------------------------------------------------------------------ rollout and objective
-    def rollout(self, z: Tensor) -> tuple[Tensor, Tensor]:
-        """Normalised points (B, M, U) -> states (B, K+1, S) from the initial state, held controls (B, K, U)."""
+    def rollout(self, z: Tensor, step: nn.Module | None = None) -> tuple[Tensor, Tensor]:
+        """Normalised points (B, M, U) -> states (B, K+1, S) from the initial state, held controls (B, K, U),
+        by the emulator's full step or ``step``."""
+        step = self.step if step is None else step
         u = self.held(z)
         s = self.s0.expand(z.shape[0], -1)
         states = [s]
         # unbind, not u[:, k]: one backward node for all steps instead of a zero-filled (B, K, U)
         # gradient buffer per step
         for k, u_k in enumerate(u.unbind(dim=1)):
-            s = self.step(s, u_k)
+            s = step(s, u_k)
             if self.correction is not None:
                 s = s + self.correction[k]
             states.append(s)
@@ -131,7 +217,7 @@ class ControlProblem:
     def value_and_grad(self, z: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
         """J, ∇_z J (M, U), states (K+1, S) and held controls (K, U) of one controller ``z`` (M, U)."""
         zt = torch.tensor(np.asarray(z)[None], dtype=self.dtype, requires_grad=True)
-        states, u = self.rollout(zt)
+        states, u = self.rollout(zt, self.gradient_step)
         j = self.objective(states.double(), u.double())[0]
         j.backward()
         assert zt.grad is not None
@@ -143,7 +229,7 @@ class ControlProblem:
         controllers (B, M, U), in one batched rollout and one backward pass (the controllers are
         independent, so the gradient of the sum is each one's own gradient)."""
         zt = torch.tensor(np.asarray(zs), dtype=self.dtype, requires_grad=True)
-        states, u = self.rollout(zt)
+        states, u = self.rollout(zt, self.gradient_step)
         j = self.objective(states.double(), u.double())
         j.sum().backward()
         assert zt.grad is not None
@@ -165,7 +251,7 @@ class ControlProblem:
         """
         zs = np.repeat(np.asarray(z, dtype=np.float64)[None], self._residual_count(z) + 1, axis=0)
         zt = torch.tensor(zs, dtype=self.dtype, requires_grad=True)
-        states, u = self.rollout(zt)
+        states, u = self.rollout(zt, self.gradient_step)
         r_all = self.objective.residuals(states[:-1].double(), u[:-1].double())  # (R, R)
         j = self.objective(states[-1:].double(), u[-1:].double())[0]
         (r_all.diagonal().sum() + j).backward()
@@ -182,7 +268,9 @@ class ControlProblem:
     def _residual_count(self, z: FloatArray) -> int:
         if self._residuals is None:
             with torch.no_grad():
-                states, u = self.rollout(torch.as_tensor(np.asarray(z)[None], dtype=self.dtype))
+                states, u = self.rollout(
+                    torch.as_tensor(np.asarray(z)[None], dtype=self.dtype), self.gradient_step
+                )
                 self._residuals = int(self.objective.residuals(states.double(), u.double()).shape[-1])
         return self._residuals
 
@@ -211,7 +299,7 @@ class ControlProblem:
             return
         phys = torch.as_tensor(np.asarray(physical_states), dtype=self.dtype)
         u = torch.as_tensor(np.asarray(held), dtype=self.dtype)
-        self.correction = phys[1:] - self.step(phys[:-1], u)
+        self.correction = phys[1:] - self.gradient_step(phys[:-1], u)
 
     @torch.no_grad()
     def evaluate_physics(self, physical: PhysicalModel, z: FloatArray, threads: int = 1) -> FloatArray:
@@ -226,5 +314,5 @@ class ControlProblem:
     def evaluate(self, z: FloatArray) -> FloatArray:
         """J of a batch of controllers (B, M, U) on the emulator, (B,)."""
         zt = torch.as_tensor(np.asarray(z), dtype=self.dtype)
-        states, u = self.rollout(zt)
+        states, u = self.rollout(zt, self.gradient_step)
         return self.objective(states.double(), u.double()).numpy()

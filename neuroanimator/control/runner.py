@@ -90,7 +90,7 @@ def load_problem(spec: JobSpec, artifacts_root: Path) -> tuple[ControlProblem, M
     """The emulator objective of a validated spec, the artifact's manifest and its folder."""
     path = registry.resolve(Path(artifacts_root), spec.model, spec.version)
     manifest = registry.read_manifest(path)
-    return ControlProblem(artifacts.load_torch(path), spec, manifest), manifest, path
+    return ControlProblem(artifacts.load_emulator(path), spec, manifest), manifest, path
 
 
 def run_job(
@@ -338,6 +338,7 @@ def _run(
         iterations=outcome.iterations,
         iterations_to_success=outcome.iterations_to_success,
         emulator_rollouts=outcome.rollouts,
+        bptt_networks=problem.networks,
         objective=clean(problem.score(emulated, held)),
         objective_physics=clean(-neg_j_phys),
         objective_history=clean(outcome.history),

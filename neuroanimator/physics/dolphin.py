@@ -64,8 +64,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from neuroanimator.control.spec import Task
 from neuroanimator.model_spec import ControlInfo, HierarchyPart, InitialStates, ModelSpec, SpringRegularizer
-from neuroanimator.state import StateGroup
+from neuroanimator.state import StateGroup, StateLayout
 
 if TYPE_CHECKING:
     from neuroanimator.physics.model import PhysicalModel
@@ -574,4 +575,41 @@ def dolphin() -> PhysicalModel:
     return PhysicalModel(mjcf(), spec)
 
 
-TASKS = ()
+def _rest_state() -> FloatArray:
+    """(S,) the body at rest in state order (MuJoCo's qpos0: plates unturned, nothing moving)."""
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], len(PLATES))
+    return np.concatenate([rest_positions().ravel(), quats, np.zeros(3 * NUM_NODES + 3 * len(PLATES))])
+
+
+# Swim forward for 20 s from rest: the distance its nodes' centre of mass moves along +x (each node's
+# x weighed by its mass), less a small control effort; no criterion: as far as it can. 60 control
+# variables: a point every 2 s (every four super-steps of N^50) for each of the six muscles (thesis
+# 6.2-6.3). The centre of mass is a weighted sum of the segments' centres, so the objective depends
+# on the global motion alone and BPTT goes through the global network only (thesis 4.4, 5.3.2).
+SWIM = Task(
+    name="dolphin-swim",
+    model="dolphin",
+    summary=(
+        "Dolphin: from rest, swim as far forward (+x) as possible in 20 s by driving its six muscles; "
+        "the objective is the forward distance of the body's centre of mass, less a small control effort."
+    ),
+    labels=tuple(StateLayout(tuple(LAYOUT)).labels()),
+    initial_state=tuple(float(v) for v in _rest_state()),
+    target_state=tuple(float(v) for v in _rest_state()),
+    state_weights=(0.0,) * (6 * NUM_NODES + 7 * len(PLATES)),
+    success=(),
+    initial_controls=(0.5,) * len(CONTROL_NAMES),
+    mu_u=1e-3,
+    mu_s=0.0,
+    terms=(
+        {
+            "term": "forward_distance",
+            "weight": 10.0,
+            "variables": [f"{n}.pos.x" for n in NODES],
+            "direction": (node_masses() / np.linalg.norm(node_masses())).tolist(),
+        },
+    ),
+    optimizer={"learning_rate": 0.5, "momentum": 0.5, "max_iterations": 20},
+    points_per_step=0.25,
+)
+TASKS = (SWIM,)

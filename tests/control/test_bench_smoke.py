@@ -30,10 +30,13 @@ def test_bench_control_quick(tmp_path: Path) -> None:
     assert row["gradient_free_budget"] == 40
     methods = [g["method"] for g in row["gradient_free"]]
     assert methods == [
+        "simulated_annealing(step=0.3)",
         "nelder_mead(step=0.3)",
         "cma_es(sigma=0.3)",
+        "simulated_annealing(step=0.03)",
         "nelder_mead(step=0.03)",
         "cma_es(sigma=0.03)",
     ]
+    assert row["bptt_networks"] == "all" and row["forward_distance_m"] is None
     assert all(g["total_evaluations"] <= 40 for g in row["gradient_free"])
     assert (tmp_path / "control_pendulum-swing.png").stat().st_size > 10_000

@@ -12,6 +12,8 @@ from neuroanimator.control import TASKS, run_job
 from neuroanimator.controller_schemas import JobOutcome
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts"
+# the tasks with a success criterion (dolphin-swim has none, as far as it can: test_dolphin_swim.py)
+WITH_CRITERION = sorted(name for name, task in TASKS.items() if task.success)
 
 
 @cache
@@ -20,7 +22,7 @@ def solved(name: str) -> JobOutcome:
     return run_job({"task": name}, ARTIFACTS)
 
 
-@pytest.mark.parametrize("name", sorted(TASKS))
+@pytest.mark.parametrize("name", WITH_CRITERION)
 def test_task_meets_its_criterion_on_the_emulator(name: str) -> None:
     result = solved(name)
     assert result.status == "succeeded" and result.stop == "success"
@@ -52,7 +54,7 @@ def test_pendulum_swings_back_and_forth() -> None:
     assert np.abs(np.asarray(result.controls, dtype=float)).max() <= 2.0 + 1e-9
 
 
-@pytest.mark.parametrize("name", sorted(TASKS))
+@pytest.mark.parametrize("name", WITH_CRITERION)
 def test_controller_drives_mujoco_after_physics_refinement(name: str) -> None:
     """The controller returned meets the criterion on MuJoCo; where the emulator-only controller did
     not (its drift), the refinement rounds say so and the first replay's outcome is kept."""

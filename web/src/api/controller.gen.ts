@@ -388,6 +388,10 @@ export interface JobOutcome {
   iterations?: number | null;
   iterations_to_success?: number | null;
   emulator_rollouts?: number | null;
+  /**
+   * the networks the gradients went through: all (the emulator's whole step) or global (a hierarchy's global network alone, as the objective depends only on the parts' frames)
+   */
+  bptt_networks?: ('all' | 'global') | null;
   objective?: number | null;
   objective_physics?: number | null;
   objective_history?: (number | null)[];
@@ -696,6 +700,10 @@ export interface JobResult {
   iterations?: number | null;
   iterations_to_success?: number | null;
   emulator_rollouts?: number | null;
+  /**
+   * the networks the gradients went through: all (the emulator's whole step) or global (a hierarchy's global network alone, as the objective depends only on the parts' frames)
+   */
+  bptt_networks?: ('all' | 'global') | null;
   objective?: number | null;
   objective_physics?: number | null;
   objective_history?: (number | null)[];
