@@ -152,15 +152,47 @@ class BodyInfo(BaseModel):
     geoms: list[GeomInfo]
 
 
+class SkinBone(BaseModel):
+    """One bone of a skin: a body (its index in ``bodies``), the body's pose when the skin was bound
+    (``bindpos``, ``bindquat`` ``[w, x, y, z]``, world frame), and the skin vertices it moves with their
+    weights."""
+
+    body: int
+    bindpos: list[float]
+    bindquat: list[float]
+    vertices: list[int]
+    weights: list[float]
+
+
+class SkinInfo(BaseModel):
+    """A MuJoCo skin (MJCF ``<skin>``): a triangle surface whose vertices follow bodies, drawn over
+    them (the dolphin's body surface over its nodes). ``vertices`` (V·3) are the bind positions,
+    ``faces`` (F·3) vertex indices. A vertex's world position at poses is MuJoCo's (``mjv_updateSkin``):
+    ``Σ_bones w · (R(q) v + p − R(q) bindpos)`` with ``q = quat ⊗ bindquat⁻¹`` and (p, quat) the
+    bone's body pose; then it is pushed ``inflate`` metres along its normal."""
+
+    name: str
+    rgba: list[float]
+    inflate: float = 0.0
+    vertices: list[float]
+    faces: list[int]
+    bones: list[SkinBone]
+
+
 class ModelGeometry(BaseModel):
     """What a client draws for a model, from the artifact's MJCF: its bodies and their geoms, the geoms
-    fixed to the world, and every body's world pose ``[x, y, z, qw, qx, qy, qz]`` at the rest state.
-    ``center`` and ``extent`` are MuJoCo's estimate of the model's middle and size (for a camera)."""
+    fixed to the world, its skins, the rest state (MuJoCo's qpos0, which a joint's ``ref`` moves off
+    zero: the dolphin's nodes sit at their rest positions) and every body's world pose
+    ``[x, y, z, qw, qx, qy, qz]`` there. ``center`` and ``extent`` are MuJoCo's estimate of the model's middle and size (for a camera)."""
 
     model: str
     version: str
     bodies: list[BodyInfo]
     world: list[GeomInfo]
+    skins: list[SkinInfo] = []
+    rest_state: list[float] | None = Field(
+        None, description="the state at MuJoCo's qpos0 with nothing moving (a Playground start at rest)"
+    )
     rest_poses: list[list[float]]
     center: list[float]
     extent: float

@@ -57,6 +57,7 @@ velocities, plate angular velocities (``NODE_POS`` and ``NODE_VEL`` slice the no
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -373,9 +374,58 @@ def mjcf() -> str:
             "  <actuator>",
             *actuators,
             "  </actuator>",
+            *_skin(),
             "</mujoco>",
         ]
     )
+
+
+SKIN_INFLATE = 0.02  # m: the surface passes just outside the nodes' spheres (0.03 m)
+
+
+def skin_faces() -> list[tuple[int, int, int]]:
+    """The body's surface as triangles of nodes, wound outwards: the nose to section 1, a band of
+    quads between consecutive sections, a cap behind section 5 and a blade to each fluke tip."""
+    ring = ["tl", "tr", "br", "bl"]  # around a cross-section: left-top, right-top, right-bottom, left-bottom
+    sec = [[_idx(f"s{k}{c}") for c in ring] for k in range(1, 6)]
+    tris: list[tuple[int, int, int]] = []
+    for a, b in zip(sec[0], sec[0][1:] + sec[0][:1], strict=True):
+        tris.append((_idx("nose"), a, b))
+    for front, back in itertools.pairwise(sec):
+        for i in range(4):
+            j = (i + 1) % 4
+            tris += [(front[i], back[i], back[j]), (front[i], back[j], front[j])]
+    last = sec[-1]
+    tris += [(last[0], last[2], last[1]), (last[0], last[3], last[2])]
+    tris += [(_idx("s5tl"), _idx("s5bl"), _idx("fluke_l")), (_idx("s5tr"), _idx("fluke_r"), _idx("s5br"))]
+    pos = rest_positions()
+    out = []
+    for t in tris:  # outwards: away from the body's axis, or along x at the caps
+        p = pos[list(t)]
+        normal = np.cross(p[1] - p[0], p[2] - p[0])
+        centre = p.mean(axis=0)
+        out_dir = centre - np.array([centre[0], 0.0, 0.0])
+        if np.linalg.norm(out_dir) < 1e-9 or abs(normal[0]) > np.linalg.norm(normal[1:]):
+            out_dir = np.array([centre[0], 0.0, 0.0])
+        out.append(t if normal @ out_dir >= 0 else (t[0], t[2], t[1]))
+    return out
+
+
+def _skin() -> list[str]:
+    """The MJCF skin over the nodes (visual only): one vertex per node, each on its node's body."""
+    pos = rest_positions()
+    bones = [
+        f'      <bone body="{name}" bindpos="{_v(pos[n])}" bindquat="1 0 0 0" vertid="{n}" vertweight="1"/>'
+        for n, name in enumerate(NODES)
+    ]
+    return [
+        "  <deformable>",
+        f'    <skin name="surface" rgba="0.42 0.52 0.62 1" inflate="{SKIN_INFLATE}"'
+        f' vertex="{" ".join(_v(p) for p in pos)}" face="{" ".join(f"{a} {b} {c}" for a, b, c in skin_faces())}">',
+        *bones,
+        "    </skin>",
+        "  </deformable>",
+    ]
 
 
 def _plate_inertia(plate: Plate) -> str:

@@ -3,7 +3,8 @@
 The batcher checks every new state it writes back (one comparison over the whole batch) and keeps the
 answer per session (``Session.outside_envelope``); step replies carry it as ``outside_envelope`` and
 name the state groups that are out (``outside_groups``). An artifact without an envelope (older ones)
-has no ``StateEnvelope``: its states are never flagged.
+has no ``StateEnvelope``: its states are never flagged. Each value is given at least ``GROUP_FLOOR`` of its
+group's scale (``widened``).
 """
 
 from __future__ import annotations
@@ -14,6 +15,28 @@ from numpy.typing import NDArray
 from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.state import StateLayout
 from services.emulator.bounds import RowBounds
+
+GROUP_FLOOR = 0.01
+"""The least half-width of a value's bounds, as a fraction of the widest range in its group: a value the
+training data never moved (a node's y, in a body that swims in its plane of symmetry) is not flagged
+for the emulator's millimetres of drift across it while its group moves metres."""
+
+
+def widened(
+    low: NDArray[np.float64], high: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """One group's bounds (n,), each at least ``GROUP_FLOOR`` of the group's widest finite range either
+    side of its middle; unbounded values stay unbounded."""
+    finite = np.isfinite(low) & np.isfinite(high)
+    if not finite.any():
+        return low, high
+    floor = GROUP_FLOOR * float((high[finite] - low[finite]).max())
+    mid = np.zeros_like(low)
+    mid[finite] = 0.5 * (low[finite] + high[finite])
+    return (
+        np.where(finite, np.minimum(low, mid - floor), low),
+        np.where(finite, np.maximum(high, mid + floor), high),
+    )
 
 
 class StateEnvelope:
@@ -26,8 +49,9 @@ class StateEnvelope:
         self.groups: list[tuple[str, slice]] = []
         for env in groups:
             sl = layout.slice_of(env.group)
-            low[sl] = [-np.inf if v is None else v for v in env.low]
-            high[sl] = [np.inf if v is None else v for v in env.high]
+            lo = np.array([-np.inf if v is None else v for v in env.low], np.float64)
+            hi = np.array([np.inf if v is None else v for v in env.high], np.float64)
+            low[sl], high[sl] = widened(lo, hi)
             if np.isfinite(low[sl]).any() or np.isfinite(high[sl]).any():
                 self.groups.append((env.group, sl))
         lo32, hi32 = low.astype(np.float32), high.astype(np.float32)

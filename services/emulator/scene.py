@@ -1,6 +1,6 @@
 """What a client needs to draw a model without kinematics of its own, from the artifact's MJCF.
 
-``geometry(emu)``: the bodies (with parents) and their geoms, as ``GET /models/{model}/geometry``
+``geometry(emu)``: the bodies (with parents), their geoms and the model's skins, as ``GET /models/{model}/geometry``
 answers. ``Kinematics.poses(states)``: every body's world pose for states (K, S), by MuJoCo's forward
 kinematics (``mj_kinematics``). ``MujocoShadow``: a MuJoCo copy of one session stepped with the same
 held inputs, for the websocket's ``shadow`` option. Torch-free, like the rest of the service.
@@ -19,7 +19,15 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.emulator_schemas import BodyInfo, GeomInfo, MaterialInfo, MeshInfo, ModelGeometry
+from neuroanimator.emulator_schemas import (
+    BodyInfo,
+    GeomInfo,
+    MaterialInfo,
+    MeshInfo,
+    ModelGeometry,
+    SkinBone,
+    SkinInfo,
+)
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.quaternion import wrap_angle
 from services.emulator.errors import BadInput
@@ -89,6 +97,37 @@ def _geom(m: mujoco.MjModel, g: int, assets: Collection[str] = ()) -> GeomInfo:
     )
 
 
+def _skins(m: mujoco.MjModel) -> list[SkinInfo]:
+    """The model's skins with their bones (bodies as indices of ``ModelGeometry.bodies``)."""
+    out = []
+    for k in range(m.nskin):
+        v0, nv = int(m.skin_vertadr[k]), int(m.skin_vertnum[k])
+        f0, nf = int(m.skin_faceadr[k]), int(m.skin_facenum[k])
+        bones = []
+        for b in range(int(m.skin_boneadr[k]), int(m.skin_boneadr[k]) + int(m.skin_bonenum[k])):
+            a, n = int(m.skin_bonevertadr[b]), int(m.skin_bonevertnum[b])
+            bones.append(
+                SkinBone(
+                    body=int(m.skin_bonebodyid[b]) - 1,
+                    bindpos=_floats(m.skin_bonebindpos[b]),
+                    bindquat=_floats(m.skin_bonebindquat[b]),
+                    vertices=[int(v) for v in m.skin_bonevertid[a : a + n]],
+                    weights=_floats(m.skin_bonevertweight[a : a + n]),
+                )
+            )
+        out.append(
+            SkinInfo(
+                name=mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SKIN, k) or f"skin{k}",
+                rgba=_floats(m.skin_rgba[k]),
+                inflate=round(float(m.skin_inflate[k]), 6),
+                vertices=_floats(m.skin_vert[v0 : v0 + nv].ravel()),
+                faces=[int(i) for i in m.skin_face[f0 : f0 + nf].ravel()],
+                bones=bones,
+            )
+        )
+    return out
+
+
 class Kinematics:
     """World poses of a model's bodies for emulator states, through one reusable ``MjData`` (guarded
     by a lock: ``POST /models/{m}/poses`` runs in worker threads, websocket poses on the event loop)."""
@@ -152,6 +191,8 @@ def geometry(model: str, version: str, kin: Kinematics) -> ModelGeometry:
         version=version,
         bodies=bodies,
         world=by_body[0],
+        skins=_skins(m),
+        rest_state=_floats(kin.physical.rest_state()),
         rest_poses=[_floats(p) for p in kin.rest_poses()],
         center=_floats(m.stat.center),
         extent=float(m.stat.extent),

@@ -149,6 +149,32 @@ async function playground(page) {
   await onScreen(page, '#pg-view', 'model');
   await noErrorNotice(page, 'pendulum-force');
   await shot(page, 'playground-pendulum-force');
+
+  // a third: the dolphin, drawn as a smooth skin over its 23 nodes, bent by its six muscles
+  await startSession(page, 'dolphin');
+  const skins = JSON.parse(await page.$eval('#pg-view', (el) => el.dataset.skins ?? '[]'));
+  log(`dolphin skins: ${JSON.stringify(skins)}`);
+  check(skins.length === 1 && skins[0].vertices === 23 && skins[0].triangles === 40, 'the dolphin is drawn as one skin of 23 vertices and 40 triangles');
+  await onScreen(page, '#pg-view', 'model');
+  const muscles = await page.$$eval('[data-control]', (els) => els.map((e) => e.dataset.control));
+  check(muscles.length === 6, `the dolphin has a slider for each of its six muscles (${muscles.join(', ')})`);
+  const rest = JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.state));
+  const d0 = await canvasStats(page, '#pg-view canvas');
+  await page.$$eval('[data-control]', (els) =>
+    els.forEach((el) => {
+      el.value = el.dataset.control.startsWith('dorsal') ? el.max : el.min; // every dorsal muscle pulls: the body arches
+      el.dispatchEvent(new Event('input', { bubbles: true }));
+    }),
+  );
+  await page.waitForTimeout(3000);
+  const bent = JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.state));
+  const moved3 = Math.max(...rest.slice(0, 69).map((v, i) => Math.abs(bent[i] - v)));
+  const d1 = await canvasStats(page, '#pg-view canvas');
+  log(`dolphin: largest node displacement ${moved3.toFixed(3)} m; ${changed(d0, d1)} cells changed`);
+  check(moved3 > 0.02, 'the muscles bend the body');
+  check(changed(d0, d1) > 5, 'the skin follows the nodes on screen');
+  await noErrorNotice(page, 'dolphin');
+  await shot(page, 'playground-dolphin');
   await page.click('#pg-stop');
 }
 
@@ -265,6 +291,27 @@ async function controllers(page) {
   await page.selectOption('#ct-task', 'pendulum-swing');
   await page.waitForFunction(() => !document.querySelector('#ct-submit')?.disabled, null, { timeout: 20000 });
   check(!(await page.isVisible('#ct-heading')), 'the pendulum task shows no goal heading');
+
+  // dolphin-swim: as far as it can, so no goal to drag or type; learned through the global network,
+  // replayed on the emulator and on MuJoCo side by side with the body drawn as its skin
+  await page.selectOption('#ct-task', 'dolphin-swim');
+  await page.waitForFunction(() => !document.querySelector('#ct-submit')?.disabled && document.querySelector('#ct-view')?.dataset.screenModel, null, { timeout: 30000 });
+  await page.waitForTimeout(600);
+  check(!(await page.$eval('#ct-view', (el) => el.dataset.screenGoal ?? '')), 'dolphin-swim draws no goal');
+  check((await page.$$('#ct-target input')).length === 0, 'dolphin-swim has no goal state to type');
+  await submitAndReplay(page);
+  const job = await page.$eval('#job-status', (el) => el.dataset.job);
+  const controller = await page.evaluate(async () => (await (await fetch('config.json')).json()).controller_url);
+  const swim = await page.evaluate(async (u) => (await fetch(u)).json(), `${controller}/jobs/${job}/result`);
+  log(`dolphin-swim: ${swim.iterations} iterations through the ${swim.bptt_networks} network(s), J emulator ${swim.objective}, MuJoCo ${swim.objective_physics}`);
+  check(swim.bptt_networks === 'global' && swim.iterations <= 20, 'dolphin-swim learns through the global network in at most 20 iterations');
+  const said = await page.$eval('#outcome', (el) => el.textContent);
+  check(/global network alone/.test(said) && /No goal state/.test(said), 'the outcome says there is no goal state and that BPTT used the global network');
+  for (const side of ['Emulator', 'MuJoCo (physics)']) await onScreen(page, `#replay .replay-view[data-side="${side}"]`, 'model');
+  await page.locator('#replay').scrollIntoViewIfNeeded();
+  await page.waitForTimeout(500);
+  await shot(page, 'replay-dolphin');
+  out.dolphin_objective_physics = swim.objective_physics;
 }
 
 async function workerDown(page) {

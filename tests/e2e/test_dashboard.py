@@ -6,11 +6,13 @@ the browser phase by phase at 1280×800:
   lander's errors in physical units;
 - Playground: a live lander session driven by the keyboard, on screen with the ground below it, the
   MuJoCo ghost and the gap to it (number and curve), the frame rate; then, without reloading, a
-  pendulum-force session framed with its ground and driven through its force sliders;
+  pendulum-force session framed with its ground and driven through its force sliders; then the dolphin,
+  drawn as a skin over its nodes and bent by its muscle sliders;
 - Controllers: a truck-parking job (goal dragged, objective curve live and falling), its outcome
   checked against the job's result check by check, the replay with model and goal on screen and the
   gap plotted; switching to lander-landing clears the job and frames the lander and its goal, and its
-  job's outcome and replay are checked the same way;
+  job's outcome and replay are checked the same way; dolphin-swim shows no goal, says its gradients
+  went through the global network, and is replayed on both sides;
 - with the worker stopped, the message that no worker is taking jobs.
 
 Screenshots go to ``tests/e2e/screenshots/`` (ignored by git); ``E2E_UPDATE_DOCS=1`` copies those the
@@ -36,10 +38,12 @@ DOC_SHOTS = {
     "models.png": "models.png",
     "playground.png": "playground.png",
     "playground-pendulum-force.png": "playground-pendulum-force.png",
+    "playground-dolphin.png": "playground-dolphin.png",
     "controllers.png": "controllers.png",
     "controllers-lander.png": "controllers-lander.png",
     "replay.png": "replay.png",
     "replay-lander.png": "replay-lander.png",
+    "replay-dolphin.png": "replay-dolphin.png",
 }
 
 pytestmark = pytest.mark.skipif(missing() is not None, reason=missing() or "")

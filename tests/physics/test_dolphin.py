@@ -207,3 +207,38 @@ def test_without_muscles_the_dolphin_drifts_to_rest(model: PhysicalModel) -> Non
     traj = model.simulate(s[None], np.zeros((1, 1, 6)), nstep=1000)[0]
     assert dolphin.deformation_energy(dolphin.node_positions(traj[-1])) < 1e-3
     assert np.abs(traj[-1, dolphin.NODE_VEL]).max() < 0.05
+
+
+def test_the_skin_is_the_body_surface_and_changes_nothing_simulated() -> None:
+    """The MJCF skin (drawn over the nodes) is visual only: without it MuJoCo computes the very same
+    motion; its triangles close the body and face outwards."""
+    xml = dolphin.mjcf()
+    start, end = xml.index("  <deformable>"), xml.index("  </deformable>") + len("  </deformable>\n")
+    runs = []
+    for text in (xml, xml[:start] + xml[end:]):
+        m = mujoco.MjModel.from_xml_string(text)
+        d = mujoco.MjData(m)
+        for k in range(300):
+            d.ctrl[:] = 0.5 + 0.5 * np.sin(0.05 * k + np.arange(6))
+            mujoco.mj_step(m, d)
+        runs.append((m.nskin, np.concatenate([d.qpos, d.qvel])))
+    (with_skin, a), (without, b) = runs
+    assert (with_skin, without) == (1, 0)
+    np.testing.assert_array_equal(a, b)
+    faces = dolphin.skin_faces()
+    assert len(faces) == 40 and sorted({i for f in faces for i in f}) == list(range(dolphin.NUM_NODES))
+    # every edge of the closed trunk (nose to the tail cap) is shared by two triangles
+    trunk = [
+        f
+        for f in faces
+        if dolphin.NODES.index("fluke_l") not in f and dolphin.NODES.index("fluke_r") not in f
+    ]
+    edges: dict[tuple[int, int], int] = {}
+    for f in trunk:
+        for i, j in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0])):
+            edges[(min(i, j), max(i, j))] = edges.get((min(i, j), max(i, j)), 0) + 1
+    assert set(edges.values()) == {2}
+    # outward: the enclosed volume of the trunk (divergence theorem) is positive
+    p = dolphin.rest_positions()
+    volume = sum(float(np.dot(p[a], np.cross(p[b], p[c]))) for a, b, c in trunk) / 6
+    assert volume > 0.05

@@ -1,6 +1,6 @@
 import { describe, expect, it } from 'vitest';
 import type { LayoutGroup } from '../src/api/emulator.gen';
-import { headingOf, targetHandles, withHeading, withXY } from '../src/session/target';
+import { hasGoalState, headingOf, targetHandles, withHeading, withXY } from '../src/session/target';
 
 const truck: LayoutGroup[] = [
   { name: 'position', kind: 'position', size: 2, offset: 0, source: 'qpos', address: 0 },
@@ -42,5 +42,14 @@ describe('editing a goal', () => {
     expect(headingOf(turned, l)).toBeCloseTo(1.2);
     expect(Math.hypot(...turned.slice(3, 7))).toBeCloseTo(1);
     expect(headingOf(withHeading(turned, l, -0.4), l)).toBeCloseTo(-0.4);
+  });
+});
+
+describe('hasGoalState', () => {
+  it('is a goal when any state weight is set, or when the job does not say', () => {
+    expect(hasGoalState([0, 0, 1])).toBe(true);
+    expect(hasGoalState(undefined)).toBe(true);
+    expect(hasGoalState([0, 0, 0])).toBe(false); // dolphin-swim: as far as it can, no goal state
+    expect(hasGoalState([])).toBe(false);
   });
 });

@@ -92,3 +92,20 @@ def test_an_artifact_without_an_envelope_is_never_flagged(
     state = [0.0, 0.0, 10.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1e4, 0.0, 0.0, 0.0]
     out = client.post(f"/sessions/{_session(client, state)}/step", json={"controls": HOVER}).json()
     assert out["outside_envelope"] is False and out["outside_groups"] == []
+
+
+def test_a_value_the_data_never_moved_is_bounded_by_its_groups_scale() -> None:
+    """A node's y in a body that swims in its plane of symmetry: constant in the data, so its bounds
+    are 1% of the group's widest range either side, not a float rounding error."""
+    from services.emulator.envelope import GROUP_FLOOR, widened
+
+    low = np.array([-4.0, 0.2 - 1e-6, -0.5, -np.inf])
+    high = np.array([6.0, 0.2 + 1e-6, 0.5, np.inf])
+    lo, hi = widened(low, high)
+    assert GROUP_FLOOR * 10.0 == 0.1
+    np.testing.assert_allclose(lo[:3], [-4.0, 0.1, -0.5])  # the wide ones as they were
+    np.testing.assert_allclose(hi[:3], [6.0, 0.3, 0.5])
+    assert lo[3] == -np.inf and hi[3] == np.inf  # unbounded stays unbounded
+    # a group with no bounds at all is left alone
+    free = np.array([-np.inf, -np.inf])
+    assert widened(free, -free)[0].tolist() == free.tolist()

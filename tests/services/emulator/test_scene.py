@@ -4,6 +4,7 @@ shadow (``shadow``) stepped with the same inputs."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -141,3 +142,70 @@ def test_mesh_geoms_name_their_file_and_its_placement() -> None:
     nearest = np.linalg.norm(placed[:, None] - compiled[None], axis=2).min(axis=1)
     assert nearest.max() < 1e-4 and len(compiled) == len(raw)
     assert _geom(m, 0).mesh.asset is None  # type: ignore[union-attr]  # a file the artifact does not have
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return _quat_mul(_quat_mul(q, np.array([0.0, *v])), q * np.array([1.0, -1.0, -1.0, -1.0]))[1:]
+
+
+def test_the_dolphin_is_drawn_as_a_skin_that_follows_its_nodes(
+    make_client: Callable[..., TestClient],
+) -> None:
+    """The geometry carries the MJCF's skin; the documented formula applied to the served poses puts
+    its vertices where MuJoCo's own skinning does (before inflation), for a bent and moved body."""
+    import mujoco
+
+    from neuroanimator.physics import dolphin
+
+    client = make_client(
+        artifacts_dir=Path(__file__).resolve().parents[3] / "artifacts"
+    )  # the committed dolphin
+    g = client.get("/models/dolphin/geometry").json()
+    # a Playground start at rest: MuJoCo's qpos0, where the slide joints' ref puts the nodes
+    assert g["rest_state"][:3] == pytest.approx([1.0, 0.0, 0.0]) and len(g["rest_state"]) == 278
+    (skin,) = g["skins"]
+    names = [b["name"] for b in g["bodies"]]
+    vertices = np.asarray(skin["vertices"]).reshape(-1, 3)
+    assert vertices.shape == (23, 3) and len(skin["faces"]) == 3 * 40 and skin["inflate"] > 0
+    assert [names[b["body"]] for b in skin["bones"]] == dolphin.NODES  # a vertex on each node
+    model = physics_get("dolphin")
+    rng = np.random.default_rng(3)
+    state = model.rest_state()
+    state[: 3 * 23] += rng.normal(scale=0.05, size=3 * 23) + np.tile([0.4, -0.2, 0.1], 23)
+    poses = np.asarray(
+        client.post("/models/dolphin/poses", json={"states": [state.tolist()]}).json()["poses"][0]
+    )
+    ours = np.zeros_like(vertices)
+    for bone in skin["bones"]:
+        pos, quat = poses[bone["body"], :3], poses[bone["body"], 3:]
+        bind = np.asarray(bone["bindquat"]) * np.array([1.0, -1.0, -1.0, -1.0])
+        q = _quat_mul(quat, bind)
+        shift = pos - _rotate(q, np.asarray(bone["bindpos"]))
+        for v, w in zip(bone["vertices"], bone["weights"], strict=True):
+            ours[v] += w * (_rotate(q, vertices[v]) + shift)
+    # MuJoCo's skinning of the same state, without the inflation
+    m = model.mj_model
+    m.skin_inflate[:] = 0.0
+    d = mujoco.MjData(m)
+    mujoco.mj_setState(m, d, model.to_physics(state[None])[0], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    mujoco.mj_forward(m, d)
+    scene = mujoco.MjvScene(m, maxgeom=1000)
+    mujoco.mjv_updateScene(
+        m, d, mujoco.MjvOption(), None, mujoco.MjvCamera(), mujoco.mjtCatBit.mjCAT_ALL, scene
+    )
+    theirs = np.asarray(scene.skinvert).reshape(-1, 3)[:23]
+    np.testing.assert_allclose(ours, theirs, atol=1e-5)
+    np.testing.assert_allclose(ours, dolphin.node_positions(state[None])[0], atol=1e-5)

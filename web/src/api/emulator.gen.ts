@@ -37,6 +37,8 @@ export interface EmulatorWire {
   SessionCreate?: SessionCreate;
   SessionInfo?: SessionInfo;
   ShadowState?: ShadowState;
+  SkinBone?: SkinBone;
+  SkinInfo?: SkinInfo;
   StepRequest?: StepRequest;
   StepResponse?: StepResponse;
   WsControls?: WsControls;
@@ -351,8 +353,9 @@ export interface ModelDetail {
 }
 /**
  * What a client draws for a model, from the artifact's MJCF: its bodies and their geoms, the geoms
- * fixed to the world, and every body's world pose ``[x, y, z, qw, qx, qy, qz]`` at the rest state.
- * ``center`` and ``extent`` are MuJoCo's estimate of the model's middle and size (for a camera).
+ * fixed to the world, its skins, the rest state (MuJoCo's qpos0, which a joint's ``ref`` moves off
+ * zero: the dolphin's nodes sit at their rest positions) and every body's world pose
+ * ``[x, y, z, qw, qx, qy, qz]`` there. ``center`` and ``extent`` are MuJoCo's estimate of the model's middle and size (for a camera).
  *
  * This interface was referenced by `EmulatorWire`'s JSON-Schema
  * via the `definition` "ModelGeometry".
@@ -362,9 +365,47 @@ export interface ModelGeometry {
   version: string;
   bodies: BodyInfo[];
   world: GeomInfo[];
+  skins?: SkinInfo[];
+  /**
+   * the state at MuJoCo's qpos0 with nothing moving (a Playground start at rest)
+   */
+  rest_state?: number[] | null;
   rest_poses: number[][];
   center: number[];
   extent: number;
+}
+/**
+ * A MuJoCo skin (MJCF ``<skin>``): a triangle surface whose vertices follow bodies, drawn over
+ * them (the dolphin's body surface over its nodes). ``vertices`` (V·3) are the bind positions,
+ * ``faces`` (F·3) vertex indices. A vertex's world position at poses is MuJoCo's (``mjv_updateSkin``):
+ * ``Σ_bones w · (R(q) v + p − R(q) bindpos)`` with ``q = quat ⊗ bindquat⁻¹`` and (p, quat) the
+ * bone's body pose; then it is pushed ``inflate`` metres along its normal.
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "SkinInfo".
+ */
+export interface SkinInfo {
+  name: string;
+  rgba: number[];
+  inflate?: number;
+  vertices: number[];
+  faces: number[];
+  bones: SkinBone[];
+}
+/**
+ * One bone of a skin: a body (its index in ``bodies``), the body's pose when the skin was bound
+ * (``bindpos``, ``bindquat`` ``[w, x, y, z]``, world frame), and the skin vertices it moves with their
+ * weights.
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "SkinBone".
+ */
+export interface SkinBone {
+  body: number;
+  bindpos: number[];
+  bindquat: number[];
+  vertices: number[];
+  weights: number[];
 }
 /**
  * This interface was referenced by `EmulatorWire`'s JSON-Schema

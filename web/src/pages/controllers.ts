@@ -10,7 +10,7 @@ import { DropLine } from '../scene/trail';
 import { makeViewer, meshFilesOf } from '../scene/setup';
 import type { Viewer } from '../scene/viewer';
 import { rootMoves } from '../scene/divergence';
-import { headingOf, targetHandles, withHeading, withXY, type TargetHandles } from '../session/target';
+import { hasGoalState, headingOf, NO_HANDLES, targetHandles, withHeading, withXY, type TargetHandles } from '../session/target';
 import { fmt, h } from '../ui/dom';
 import { clearNotice, notify } from '../ui/notices';
 import { LinePlot } from '../ui/plot';
@@ -84,7 +84,7 @@ export const controllersPage: Page = (root, ctx) => {
       if (scene !== s) return;
       s.goal.group.position.set(0, 0, 0);
       s.goal.setPoses(r.poses[0] ?? []);
-      viewer?.keepInView([s.model.group, s.goal.group]);
+      viewer?.keepInView(s.goal.visible ? [s.model.group, s.goal.group] : [s.model.group]);
     } catch (e) {
       notify(`Cannot place the goal. ${errorText(e)}`, 'error', 'goal');
     }
@@ -135,17 +135,19 @@ export const controllersPage: Page = (root, ctx) => {
       const init = task.initial_state ?? null;
       const target = [...(task.target_state ?? init ?? [])];
       const files = meshFilesOf(ctx.emulator, geometry);
+      const aimed = hasGoalState(task.state_weights); // dolphin-swim has no goal state: no goal drawn
       const s: Scene = {
         task,
         detail,
         geometry,
-        handles: targetHandles(detail.layout),
+        handles: aimed ? targetHandles(detail.layout) : NO_HANDLES,
         target,
         model: new ModelView(geometry, {}, files),
         goal: new ModelView(geometry, { ghost: true, color: GOAL_COLOR, opacity: 0.3 }, files),
         drops: [new DropLine(MODEL_TRAIL), new DropLine(GOAL_COLOR, 0.9)],
       };
       if (!alive || taskSelect.value !== name) return;
+      s.goal.visible = aimed;
       scene = s;
       const states = [init, target].filter((x): x is number[] => Array.isArray(x) && x.length === detail.state_size);
       const poses = states.length ? (await ctx.emulator.poses(detail.model, states, detail.version)).poses : [];
@@ -157,7 +159,7 @@ export const controllersPage: Page = (root, ctx) => {
         if (rootMoves(detail.layout)) viewer.world.add(...s.drops.map((d) => d.group));
         viewer.setGroundHeight(groundHeight(s.model, poses.length ? poses : [geometry.rest_poses]));
         // the model where it starts and the goal, whole, with the ground below them
-        viewer.frameObjects([s.model.group, s.goal.group]);
+        viewer.frameObjects(aimed ? [s.model.group, s.goal.group] : [s.model.group]);
         void Promise.all([s.model.meshes, s.goal.meshes]).then(() => viewer.invalidate()); // drawn from their files
       }
       drawEditor();
@@ -179,7 +181,9 @@ export const controllersPage: Page = (root, ctx) => {
 
   // where the model and the goal are on screen (for people's tests and automated ones alike):
   // data-screen-model and data-screen-goal = "x,y,on" in CSS pixels of the view
-  const marks = viewer ? [viewer.mark('model', () => scene?.model.root ?? null), viewer.mark('goal', () => scene?.goal.root ?? null)] : [];
+  const marks = viewer
+    ? [viewer.mark('model', () => scene?.model.root ?? null), viewer.mark('goal', () => (scene?.goal.visible ? scene.goal.root : null))]
+    : [];
   // the drop lines follow the model and the goal (dragged, typed); the view redraws when they move
   let placed = '';
   const stopDrops = viewer

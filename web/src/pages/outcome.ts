@@ -3,6 +3,7 @@
 // each check held and the value it measured. Nothing here judges success again: the verdicts are the
 // result's `success_emulator`, `success_physics` and `checks_*[i].passed`.
 import type { JobResult } from '../api/controller';
+import { hasGoalState } from '../session/target';
 import { fmt, h } from '../ui/dom';
 
 type Verdict = boolean | null | undefined;
@@ -59,10 +60,19 @@ export function outcomeView(r: JobResult): HTMLElement {
           ),
         )
       : null,
-    h(
-      'p',
-      { class: 'muted final-errors', id: 'final-errors' },
-      `Weighted distance of the final state to the target (what the objective penalises, not the criterion): emulator ${fmt(r.final_error_emulator)}, MuJoCo ${fmt(r.final_error_physics)}.`,
-    ),
+    hasGoalState(r.spec?.state_weights)
+      ? h(
+          'p',
+          { class: 'muted final-errors', id: 'final-errors' },
+          `Weighted distance of the final state to the target (what the objective penalises, not the criterion): emulator ${fmt(r.final_error_emulator)}, MuJoCo ${fmt(r.final_error_physics)}.`,
+        )
+      : h(
+          'p',
+          { class: 'muted final-errors', id: 'final-errors' },
+          `No goal state: the objective (lower is better) is emulator ${fmt(r.objective)}, MuJoCo ${fmt(r.objective_physics)}.`,
+        ),
+    r.bptt_networks === 'global'
+      ? h('p', { class: 'muted', id: 'bptt-networks' }, "Gradients went through the hierarchy's global network alone: the objective depends only on its parts' frames.")
+      : null,
   );
 }

@@ -102,7 +102,8 @@ export const playgroundPage: Page = (root, ctx) => {
     try {
       const [detail, geometry] = await Promise.all([ctx.emulator.model(name), ctx.emulator.geometry(name)]);
       // at rest, or a random typical state (?seed=N in the page's address: the same one every time)
-      const rest = startFrom.value === 'rest' ? restState(detail.layout, geometry.rest_poses[0]) : null;
+      // the service's rest state (MuJoCo's qpos0); from the layout only for a service that does not send it
+      const rest = startFrom.value === 'rest' ? (geometry.rest_state ?? restState(detail.layout, geometry.rest_poses[0])) : null;
       const { seed } = startFromQuery(location.hash.split('?')[1] ?? '');
       const info = await ctx.emulator.createSession(rest ? { model: name, state: rest } : seed !== null ? { model: name, seed } : { model: name });
       if (!alive) return;
@@ -308,6 +309,10 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
   viewer.world.add(below);
   let meshes: MeshesDrawn | null = null;
   let over = false;
+  // the skins drawn over the bodies (data-skins: name, vertices, triangles)
+  viewer.host.dataset.skins = JSON.stringify(
+    model.skins.map((k) => ({ skin: k.skin.name, vertices: k.skin.vertices.length / 3, triangles: k.skin.faces.length / 3 })),
+  );
   void model.meshes.then((m) => {
     if (over) return;
     meshes = m;
@@ -379,6 +384,7 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
       ghostTrail.dispose();
       below.removeFromParent();
       delete viewer.host.dataset.meshes;
+      delete viewer.host.dataset.skins;
       drop.dispose();
       arrows([]);
       viewer.world.children.filter((c) => c instanceof THREE.ArrowHelper).forEach((c) => c.removeFromParent());

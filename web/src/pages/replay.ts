@@ -13,6 +13,7 @@ import type { MeshFiles } from '../scene/meshes';
 import { makeViewer, meshFilesOf } from '../scene/setup';
 import { DropLine, Trail } from '../scene/trail';
 import type { Viewer } from '../scene/viewer';
+import { hasGoalState } from '../session/target';
 import { h } from '../ui/dom';
 import { DivergencePanel, GHOST_COLOR, GOAL_COLOR, MODEL_TRAIL } from './divergence';
 import { outcomeView } from './outcome';
@@ -87,7 +88,9 @@ export class Replay {
     const model = this.geometry.model;
     const emulated = finiteRows(r.emulated?.states ?? []);
     const physical = finiteRows(r.physical?.states ?? []);
-    const target = r.target_state && r.target_state.every((v) => v !== null) ? (r.target_state as number[]) : null;
+    // the goal, where the objective has one (dolphin-swim's has no goal state: as far as it can)
+    const aimed = hasGoalState(r.spec?.state_weights);
+    const target = aimed && r.target_state && r.target_state.every((v) => v !== null) ? (r.target_state as number[]) : null;
     const [pe, pp, pt] = await Promise.all([
       emulated.length ? this.api.poses(model, emulated, r.version ?? undefined) : null,
       physical.length ? this.api.poses(model, physical, r.version ?? undefined) : null,

@@ -4,12 +4,15 @@
 // is its bounding box until its file (STL, OBJ, MSH: meshes.ts) has loaded, then the file's triangles.
 // Groups 0–2 are drawn (MuJoCo's defaults: collision geoms in group 3 stay hidden, visual-only geoms in
 // group 2 give a model its look).
+// A model's skins (MJCF <skin>: the dolphin's body surface) are smooth meshes over their bodies (skin.ts),
+// placed with the bodies by setPoses.
 // A "ghost" is the same model as a translucent outline in one colour (the MuJoCo twin, a goal).
 import * as THREE from 'three';
 import type { GeomInfo, ModelGeometry } from '../api/emulator.gen';
 import type { Pose } from './interp';
 import { appearance, solidMaterial } from './materials';
 import type { MeshFiles } from './meshes';
+import { SkinView } from './skin';
 
 export interface Look {
   ghost?: boolean;
@@ -53,6 +56,8 @@ export interface MeshesDrawn {
 export class ModelView {
   readonly group = new THREE.Group();
   readonly bodies: THREE.Group[];
+  /** The model's skins, drawn over its bodies. */
+  readonly skins: SkinView[];
   /** The height of the model's own floor (a plane fixed to the world), if it has one. */
   readonly floorZ: number | null = null;
   /** Settles once every mesh geom with a file has its file's triangles (or kept its box). */
@@ -94,6 +99,18 @@ export class ModelView {
         if (mesh) this.group.add(mesh);
       }
     }
+    this.skins = (geometry.skins ?? []).map((skin) => {
+      const [r = 0.5, g = 0.5, b = 0.5, a = 1] = skin.rgba;
+      const material =
+        this.faces ??
+        solidMaterial({ rgba: [r, g, b, a], emission: 0, specular: 0.5, shininess: 0.6, reflectance: 0 });
+      if (!this.faces) (material as THREE.MeshStandardMaterial).side = THREE.DoubleSide;
+      const view = new SkinView(skin, material);
+      view.mesh.castShadow = !look.ghost;
+      view.mesh.renderOrder = look.ghost ? 2 : 0;
+      this.group.add(view.mesh);
+      return view;
+    });
     this.setPoses(geometry.rest_poses);
     this.meshes = Promise.all(this.loading).then(() => this.drawn);
   }
@@ -150,6 +167,7 @@ export class ModelView {
       const b = this.bodies[i];
       if (b) setPose(b, p);
     });
+    for (const skin of this.skins ?? []) skin.update(poses);
   }
 
   /** The root body (the first one): what a camera follows and a trail traces. */
@@ -157,9 +175,9 @@ export class ModelView {
     return this.bodies[0] ?? null;
   }
 
-  /** The moving bodies alone (without what is fixed to the world), for framing. */
+  /** The moving bodies and skins (without what is fixed to the world), for framing. */
   get moving(): THREE.Object3D[] {
-    return this.bodies;
+    return [...this.bodies, ...this.skins.map((s) => s.mesh)];
   }
 
   set visible(v: boolean) {
@@ -172,6 +190,7 @@ export class ModelView {
 
   dispose(): void {
     this.disposed = true;
+    for (const skin of this.skins) skin.dispose();
     this.group.traverse((o) => {
       if (o instanceof THREE.Mesh || o instanceof THREE.LineSegments) {
         o.geometry.dispose();
@@ -209,10 +228,7 @@ export function groundHeight(model: ModelView, posesList: Pose[][]): number {
     });
     if (!box.isEmpty()) low = Math.min(low, box.min.z);
   }
-  model.bodies.forEach((b, i) => {
-    const [p, q] = saved[i]!;
-    b.position.copy(p);
-    b.quaternion.copy(q);
-  });
+  // back where it was, the skins too
+  model.setPoses(saved.map(([p, q]) => [p.x, p.y, p.z, q.w, q.x, q.y, q.z]));
   return low;
 }

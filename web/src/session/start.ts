@@ -6,6 +6,8 @@ import type { LayoutGroup } from '../api/emulator.gen';
  * The rest state from the layout and the root body's rest pose [x, y, z, qw, qx, qy, qz]: a free
  * root (3 positions and a quaternion) where the MJCF puts it; joints (hinges, slides, a planar root's
  * heading) at 0; ball joints at the identity; every velocity 0. null for a layout without groups.
+ * Only for a service whose geometry has no `rest_state`: a joint with a `ref` rests off 0 (the
+ * dolphin's nodes), which the layout cannot tell.
  */
 export function restState(layout: LayoutGroup[], rootPose: number[] | undefined): number[] | null {
   if (!layout.length) return null;

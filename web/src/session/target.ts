@@ -10,6 +10,15 @@ export interface TargetHandles {
   editable: number[]; // state indices a person may type
 }
 
+/** Whether a job's objective weighs its final state against a target (state weights not all zero). A
+ * task without one (dolphin-swim: as far as it can) has no goal to draw, drag or type. */
+export function hasGoalState(weights: unknown): boolean {
+  return !Array.isArray(weights) || weights.some((w) => typeof w === 'number' && w !== 0);
+}
+
+/** No handles: a goal that cannot be moved. */
+export const NO_HANDLES: TargetHandles = { xy: null, heading: null, editable: [] };
+
 export function targetHandles(layout: LayoutGroup[]): TargetHandles {
   const pos = layout.find((g) => g.kind === 'position' && g.size >= 2);
   const heading = layout.find((g) => g.kind === 'heading' && g.size === 1);
