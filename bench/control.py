@@ -320,9 +320,8 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    served = [t for t in TASKS if (Path("artifacts") / TASKS[t].model).is_dir()]
     p.add_argument(
-        "--tasks", default=",".join(served), help=f"default: those with an emulator ({','.join(served)})"
+        "--tasks", default=None, help="comma-separated (default: those with an emulator in --artifacts)"
     )
     p.add_argument(
         "--threads", type=int, default=1, help="MuJoCo threads of a batch of gradient-free evaluations"
@@ -350,7 +349,8 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     t0 = time.perf_counter()
     rows = []
-    for name in args.tasks.split(","):
+    served = [t for t in TASKS if (Path(args.artifacts) / TASKS[t].model).is_dir()]
+    for name in (args.tasks or ",".join(served)).split(","):
         if name not in TASKS:
             p.error(f"unknown task {name!r}; tasks are {sorted(TASKS)}")
         rows.append(bench_task(name, args))

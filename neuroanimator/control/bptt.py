@@ -78,9 +78,9 @@ class GlobalStep(nn.Module):
     (exactly when the frames are independent; where two parts share an axis, as the dolphin's fluke
     and last segment share their up axis, the nearest frames that a state can have: the two
     predictions averaged), and what F does not see (the shape of each part in its frame) is carried
-    unchanged. An objective that depends on the state only through the
-    frames (``depends_only_on_frames``) gets the same value and gradient as on a rollout of the
-    frames alone, at the cost of one network instead of 1 + K.
+    unchanged. An objective that depends on the state only through the frames (as
+    ``ControlProblem`` checks) gets the same value and gradient as on a rollout of the frames alone,
+    at the cost of one network instead of 1 + K.
     """
 
     _frames: Tensor  # (S, K·Q)
@@ -150,24 +150,25 @@ class ControlProblem:
         self.networks = "all"
         if isinstance(emu, HierarchicalEmulator):
             global_only = GlobalStep(emu, dtype)
-            if self._depends_only_on_frames(global_only.null_space(), manifest.state_labels):
+            if self._depends_only_on_frames(global_only, manifest.state_labels):
                 self.gradient_step, self.networks = global_only, "global"
 
     @torch.no_grad()
-    def _depends_only_on_frames(self, null: Tensor, labels: list[str]) -> bool:
+    def _depends_only_on_frames(self, global_only: GlobalStep, labels: list[str]) -> bool:
         """Whether the objective and the success checks are unchanged by any change of the states
         that leaves every frame as it is (``null`` (S, S) projects onto such changes).
 
         The checks read variables, so each must be seen by the frames alone (its column of ``null``
-        zero); the objective is probed on the initial controller's rollout with random such changes
-        as large as the states themselves."""
+        zero); the objective is probed on the initial controller's rollout (by the global network, the
+        cheap one) with random such changes as large as the states themselves."""
         tol = 1e-6
+        null = global_only.null_space()
         for check in self.spec.success:
             cols = [labels.index(v) for v in check.variables]
             if float(null[:, cols].abs().max()) > tol:
                 return False
         z = torch.as_tensor(self.initial_points()[None], dtype=self.dtype)
-        states, u = self.rollout(z)
+        states, u = self.rollout(z, global_only)
         j = self.objective(states.double(), u.double())
         gen = torch.Generator().manual_seed(0)
         scale = 1.0 + states.abs().amax(dim=1, keepdim=True)
