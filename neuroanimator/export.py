@@ -112,11 +112,14 @@ def input_names(emu: Emulator) -> list[str]:
 
 def to_onnx(emu: Emulator) -> bytes:
     """Serialise the emulator's full step as an ONNX model (bytes). A hierarchical emulator is one graph
-    too (global network, local networks, back to world values), with the same inputs and output."""
+    too (global network, local networks, back to world values), with the same inputs and output; its
+    local networks stacked (``hierarchy_export.StackedStep``), so the graph's size does not grow with
+    the number of parts."""
     import torch
     from torch import Tensor
 
     from neuroanimator.hierarchy import HierarchicalEmulator
+    from neuroanimator.hierarchy_export import StackedStep, stackable
 
     emu = emu.eval()
     b = 2
@@ -131,8 +134,12 @@ def to_onnx(emu: Emulator) -> bytes:
     buf = io.BytesIO()
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")
+        if isinstance(emu, HierarchicalEmulator):  # the parts' networks stacked where they can be
+            module = StackedStep(emu) if stackable(emu) else emu
+        else:
+            module = _step_module(emu)
         torch.onnx.export(
-            emu if isinstance(emu, HierarchicalEmulator) else _step_module(emu),
+            module,
             tuple(args),
             buf,  # type: ignore[arg-type]  # a file-like object is accepted
             input_names=names,

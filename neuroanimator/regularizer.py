@@ -38,13 +38,19 @@ def deformation_energy(spec: SpringRegularizer, positions: NDArray[np.floating])
 
 class SpringRegularization(nn.Module):
     """``forward(state (B,S), controls (B,U) or None) -> (B,S)``: ``spec.steps`` Euler steps of the
-    springs on the points' columns; every other column passes through unchanged."""
+    springs on the points' columns; every other column passes through unchanged.
 
-    pos_cols: Tensor  # (3P, S) places the points' positions (P points × xyz) in the state
-    vel_cols: Tensor  # (3P, S) the same for their velocities
+    The steps run feature-major (``features``: (S, B) -> (S, B)), with the points' coordinates as one
+    (P, 3·B) matrix: each spring sum is then one product with the incidence matrix for the whole
+    batch, and an exported step keeps a handful of nodes per Euler step whatever B.
+    """
+
+    pos_rows: Tensor  # (3P,) the state index of each point's x, y, z
+    vel_rows: Tensor  # (3P,) the same for their velocities
+    place: Tensor  # (S,) index into [state, new positions, new velocities] of each state value
     incidence: Tensor  # (m, P)
-    rest: Tensor  # (m,) rest lengths
-    muscle: Tensor  # (U, m) change of each spring's rest length per unit of each control
+    rest: Tensor  # (m, 1, 1) rest lengths
+    muscle: Tensor  # (m, U) change of each spring's rest length per unit of each control
     inv_mass: Tensor  # (P, 1)
 
     def __init__(self, layout: StateLayout, spec: SpringRegularizer, num_controls: int) -> None:
@@ -52,27 +58,31 @@ class SpringRegularization(nn.Module):
         self.spec = spec
         self.steps = spec.steps
         p = len(spec.points)
-        pos = torch.zeros(3 * p, layout.size)
-        vel = torch.zeros(3 * p, layout.size)
-        for k, (pos_group, vel_group) in enumerate(spec.points):
-            for axis, (g, target) in (
-                (a, gt) for a in range(3) for gt in ((pos_group, pos), (vel_group, vel))
-            ):
+        pos_rows: list[int] = []
+        vel_rows: list[int] = []
+        for pos_group, vel_group in spec.points:
+            for g, rows in ((pos_group, pos_rows), (vel_group, vel_rows)):
                 sl = layout.slice_of(g)
                 if sl.stop - sl.start != 3:
                     raise ValueError(f"regulariser point {g!r}: a group of 3 world values expected")
-                target[3 * k + axis, sl.start + axis] = 1.0
-        muscle = torch.zeros(max(num_controls, 1), len(spec.springs))
+                rows.extend(range(sl.start, sl.stop))
+        place = torch.arange(layout.size)
+        place[pos_rows] = layout.size + torch.arange(3 * p)
+        place[vel_rows] = layout.size + 3 * p + torch.arange(3 * p)
+        muscle = torch.zeros(len(spec.springs), max(num_controls, 1))
         for spring, control, contracted in spec.muscles:
             if control >= num_controls:
                 raise ValueError(f"regulariser muscle on control {control}: the model has {num_controls}")
-            muscle[control, spring] = contracted - spec.springs[spring][2]
-        self.register_buffer("pos_cols", pos, persistent=False)
-        self.register_buffer("vel_cols", vel, persistent=False)
+            muscle[spring, control] = contracted - spec.springs[spring][2]
+        self.register_buffer("pos_rows", torch.tensor(pos_rows), persistent=False)
+        self.register_buffer("vel_rows", torch.tensor(vel_rows), persistent=False)
+        self.register_buffer("place", place, persistent=False)
         self.register_buffer(
             "incidence", torch.as_tensor(_incidence(spec), dtype=torch.float32), persistent=False
         )
-        self.register_buffer("rest", torch.tensor([s[2] for s in spec.springs]), persistent=False)
+        self.register_buffer(
+            "rest", torch.tensor([s[2] for s in spec.springs])[:, None, None], persistent=False
+        )
         self.register_buffer("muscle", muscle, persistent=False)
         self.register_buffer("inv_mass", 1.0 / torch.tensor(spec.masses)[:, None], persistent=False)
         self.has_muscles = bool(spec.muscles) and num_controls > 0
@@ -80,28 +90,39 @@ class SpringRegularization(nn.Module):
     def forward(self, state: Tensor, controls: Tensor | None = None) -> Tensor:
         if self.steps == 0:
             return state
-        b = state.shape[0]
-        x0 = (state @ self.pos_cols.T).reshape(b, -1, 3)  # (B, P, 3)
-        v0 = (state @ self.vel_cols.T).reshape(b, -1, 3)
-        rest = self.rest + controls @ self.muscle if self.has_muscles and controls is not None else self.rest
+        return self.features(state.T, None if controls is None else controls.T).T
+
+    def features(self, state: Tensor, controls: Tensor | None = None) -> Tensor:
+        """The steps on feature-major values: state (S, B), controls (U, B) -> (S, B)."""
+        if self.steps == 0:
+            return state
+        p = self.inv_mass.shape[0]
+        x = state[self.pos_rows].reshape(p, -1)  # (P, 3·B): point i's x, y, z for every row
+        v = state[self.vel_rows].reshape(p, -1)
         dt, k, c = self.spec.dt, self.spec.stiffness, self.spec.damping
-        x, v = x0, v0
+        pull = k * self.rest  # (m, 1, 1), or (m, 1, B) with the muscles' activations
+        if self.has_muscles and controls is not None:
+            pull = pull + k * (self.muscle @ controls).unsqueeze(1)
+        kick = -dt * self.inv_mass * self.incidence.T  # (P, m): tensions -> change of velocity
+        m = self.incidence.shape[0]
         for _ in range(self.steps):
-            r = self.incidence @ x  # (B, m, 3) spring vectors
-            length = torch.sqrt((r * r).sum(-1) + 1e-12)
-            unit = r / length[..., None]
-            rate = ((self.incidence @ v) * unit).sum(-1)  # (B, m) lengthening speed
-            tension = k * (length - rest) + c * rate  # > 0 pulls the ends together
-            force = -(self.incidence.T @ (tension[..., None] * unit))  # (B, P, 3): towards b at a, back at b
-            v = v + dt * force * self.inv_mass
+            r = (self.incidence @ x).reshape(m, 3, -1)  # (m, 3, B) spring vectors
+            # sums over the 3 axes written out: a reduction over a middle axis is slow at B = 1
+            rx, ry, rz = r.split(1, dim=1)
+            length = torch.sqrt(rx * rx + ry * ry + rz * rz + 1e-12)
+            unit = r / length
+            dx, dy, dz = ((self.incidence @ v).reshape(m, 3, -1) * unit).split(1, dim=1)
+            rate = dx + dy + dz  # (m, 1, B) lengthening speed
+            tension = k * length + c * rate - pull  # > 0 pulls the ends together
+            v = v + kick @ (tension * unit).reshape(m, -1)
             x = x + dt * v
-        return state + (x - x0).reshape(b, -1) @ self.pos_cols + (v - v0).reshape(b, -1) @ self.vel_cols
+        return torch.cat([state, x.reshape(3 * p, -1), v.reshape(3 * p, -1)])[self.place]
 
     def deformation_energy(self, state: Tensor) -> Tensor:
         """(B,S) -> (B,) E_d of the springs at their rest lengths."""
-        x = (state @ self.pos_cols.T).reshape(state.shape[0], -1, 3)
+        x = state[:, self.pos_rows].reshape(state.shape[0], -1, 3)
         r = self.incidence @ x
-        strain = (torch.sqrt((r * r).sum(-1)) - self.rest) / self.rest
+        strain = (torch.sqrt((r * r).sum(-1)) - self.rest[:, 0, 0]) / self.rest[:, 0, 0]
         return 0.5 * (strain * strain).sum(-1)
 
 

@@ -4,9 +4,9 @@
 
 The step an emulator computes is fixed by its weights (``weights.pt``) and its manifest; how that step is
 written as an ONNX graph may get better (fewer nodes, so less ONNX Runtime overhead per call). For each
-one-network version this builds the torch emulator from the artifact (``artifacts.load_torch``), exports
-it with the current ``export.to_onnx``, checks that the new graph computes what the old one did (typical
-states and controls of the model, 1e-5 relative), and replaces ``emulator.onnx`` and the manifest's
+version this builds the torch emulator from the artifact (``artifacts.load_emulator``: one network or a
+hierarchy), exports it with the current ``export.to_onnx``, checks that the new graph computes what the
+old one did (typical states and controls of the model, 1e-5 relative), and replaces ``emulator.onnx`` and the manifest's
 ``onnx_sha256``; the rest of the manifest is left as it is, byte for byte. A version whose graph would
 not change, or whose new graph disagrees, is left alone.
 """
@@ -44,12 +44,9 @@ def _typical_inputs(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarr
 
 def reexport(path: Path) -> str:
     """Export the version folder ``path`` again; what was done, in words."""
-    manifest = registry.read_manifest(path)
-    if manifest.emulator.parts:
-        return "skipped: a hierarchical emulator"
     old_file = path / registry.ONNX_FILE
     old_bytes = old_file.read_bytes()
-    new_bytes = to_onnx(artifacts.load_torch(path))
+    new_bytes = to_onnx(artifacts.load_emulator(path))
     if new_bytes == old_bytes:
         return "unchanged"
     s, u, f = _typical_inputs(path)

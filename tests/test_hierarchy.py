@@ -18,9 +18,11 @@ from neuroanimator.hierarchy import (
     check_parts,
     neighbour_inputs,
 )
+from neuroanimator.hierarchy_export import StackedStep
 from neuroanimator.hierarchy_training import HierarchyResult, group_scale, small_defaults, train_hierarchy
 from neuroanimator.manifest import ManifestError, parse_manifest
 from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.regularizer import regularization
 from neuroanimator.train_config import TrainConfig
 from services.emulator.registry import Registry as ServiceRegistry
 
@@ -35,10 +37,14 @@ def examples(dolphin: PhysicalModel) -> sampling.Examples:
     return sampling.generate(dolphin, 50, 48, seed=3, progress=False)
 
 
-def make(model: PhysicalModel, seed: int = 0) -> HierarchicalEmulator:
+def make(
+    model: PhysicalModel, seed: int = 0, local_hidden: tuple[int, ...] = (12,), skip: bool = True
+) -> HierarchicalEmulator:
     """A hierarchy with random weights and random normalisation statistics (nothing cancels)."""
     torch.manual_seed(seed)
-    emu = HierarchicalEmulator(model.layout, model.num_controls, model.spec.parts, (16,), (12,), skip=True)
+    emu = HierarchicalEmulator(
+        model.layout, model.num_controls, model.spec.parts, (16,), local_hidden, skip=skip
+    )
     with torch.no_grad():
         for _, net in emu.networks:
             for buf in (net.x_mean, net.y_mean):
@@ -129,6 +135,36 @@ def test_the_onnx_graph_equals_torch(dolphin: PhysicalModel, examples: sampling.
     got = onnx.step(s, u)
     np.testing.assert_allclose(got, expected, atol=2e-5, rtol=1e-4)
     assert np.abs(got - s).max() > 1e-3  # the networks do change the state
+
+
+@pytest.mark.parametrize(("local_hidden", "skip"), [((12,), True), ((10, 8), False)])
+def test_the_stacked_step_is_the_hierarchy(
+    dolphin: PhysicalModel, examples: sampling.Examples, local_hidden: tuple[int, ...], skip: bool
+) -> None:
+    """The exported form (parts stacked, normalisation folded, regulariser feature-major) computes
+    the same step as the torch composition, with one hidden layer and a linear path or two and none."""
+    emu = make(dolphin, local_hidden=local_hidden, skip=skip)
+    emu.regularizer = regularization(dolphin.layout, dolphin.spec.regularizer, dolphin.num_controls, 5)
+    assert emu.regularizer is not None
+    emu = emu.double()
+    s, u, _ = tensors(examples)
+    s = s + 0.05 * torch.randn_like(s)  # off the data too: every column and every part moves
+    with torch.no_grad():
+        expected, got = emu(s, u), StackedStep(emu)(s, u)
+    assert got.dtype == torch.float64
+    torch.testing.assert_close(got, expected, atol=1e-10, rtol=1e-10)
+    assert (expected - s).abs().max() > 1e-2
+
+
+def test_the_onnx_graph_does_not_grow_with_the_parts(dolphin: PhysicalModel) -> None:
+    """Six local networks cost about as many graph nodes as one: what a call at batch 1 pays for."""
+    import onnx
+
+    graph = onnx.load_from_string(to_onnx(make(dolphin))).graph
+    computing = [n for n in graph.node if n.op_type != "Constant"]
+    matmuls = [n for n in computing if n.op_type in ("MatMul", "Gemm")]
+    assert len(computing) < 150, len(computing)  # one part's maps and network alone took about 140
+    assert len(matmuls) <= 8, [n.name for n in matmuls]
 
 
 def test_parts_must_partition_the_state(dolphin: PhysicalModel) -> None:
