@@ -106,7 +106,10 @@ def cmd_train(args: argparse.Namespace) -> int:
             model.spec = model.spec.model_copy(update={"substeps": choice.substeps})
         if model.spec.parts:  # a hierarchy of networks (thesis 4.4)
             cfg = small_defaults(
-                cfg, hidden_given=args.hidden is not None, examples_given=args.examples is not None
+                cfg,
+                hidden_given=args.hidden is not None,
+                examples_given=args.examples is not None,
+                rollout_given=args.rollout_steps is not None,
             )
             result: TrainResult | HierarchyResult = train_hierarchy(model, cfg)
         else:
@@ -362,7 +365,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     t.add_argument("--no-skip", action="store_true", help="no linear path beside the MLP")
     t.add_argument(
-        "--rollout-steps", type=int, help="super-steps of the rollout training phase (default 8; 0: off)"
+        "--rollout-steps",
+        type=int,
+        help="super-steps of the rollout training phase (default 8, a hierarchy's 0: off; a "
+        "hierarchy's is through its composed step, regulariser included)",
     )
     t.add_argument(
         "--regularizer-steps",

@@ -23,6 +23,7 @@ from torch import Tensor
 from neuroanimator import sampling
 from neuroanimator.envelope import examples_envelope
 from neuroanimator.hierarchy import GLOBAL, HierarchicalEmulator
+from neuroanimator.hierarchy_rollouts import train_hierarchy_over_rollouts
 from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.physics.model import ModelError, PhysicalModel
 from neuroanimator.regularizer import regularization
@@ -32,6 +33,7 @@ from neuroanimator.training import (
     apply_linear,
     held_out_seed,
     relative_error,
+    rollout_sequences,
     start_from_linear,
     to_tensors,
     train_core,
@@ -45,15 +47,19 @@ SMALL_EXAMPLES = 5_000
 SMALL_TEST_EXAMPLES = 1_000
 
 
-def small_defaults(cfg: TrainConfig, *, hidden_given: bool, examples_given: bool) -> TrainConfig:
+def small_defaults(
+    cfg: TrainConfig, *, hidden_given: bool, examples_given: bool, rollout_given: bool = False
+) -> TrainConfig:
     """The config with a hierarchy's small defaults where the user chose nothing: one hidden layer of
     16 units per network, 5,000 examples, 1,000 held out (minutes of simulation for the dolphin; the
-    thesis-sized training is a benchmark)."""
+    thesis-sized training is a benchmark), and no rollout phase: fine-tuning through the composed
+    step is asked for with ``rollout_steps`` (BENCHMARKS.md measures what it does to the dolphin)."""
     return dataclasses.replace(
         cfg,
         hidden=cfg.hidden if hidden_given else SMALL_HIDDEN,
         examples=cfg.examples if examples_given else SMALL_EXAMPLES,
         test_examples=min(cfg.test_examples, SMALL_TEST_EXAMPLES),
+        rollout_steps=cfg.rollout_steps if rollout_given else 0,
     )
 
 
@@ -159,6 +165,22 @@ def group_scale(model: PhysicalModel, change: Tensor) -> Tensor:
     return scale.clamp_min(1e-12)
 
 
+def _train_composed(
+    model: PhysicalModel, emu: HierarchicalEmulator, cfg: TrainConfig, count: int, own_data: list[_Targets]
+) -> dict[str, Any]:
+    """The rollout phase (``hierarchy_rollouts``): simulate sequences, then fine-tune every network
+    through the composed step as it is served, keeping each network's one-step loss in the objective."""
+    seqs = rollout_sequences(model, cfg, count)
+    one_step = {}
+    for (name, net), d in zip(emu.networks, own_data, strict=True):
+        x, y = _normalised(net, d)
+        n_val = max(1, int(x.shape[0] * cfg.val_fraction))  # the rows ``fit_network`` validated on
+        one_step[name] = (x[n_val:], y[n_val:], x[:n_val], y[:n_val])
+    steps = torch.from_numpy(seqs.states[:, 1:] - seqs.states[:, :-1]).float()
+    scale = group_scale(model, steps.reshape(-1, steps.shape[2]))
+    return train_hierarchy_over_rollouts(emu, seqs, cfg, scale, one_step)
+
+
 def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
     """Simulate data, then train the global network and every local network on their own targets
     (the time budget ``max_seconds`` shared between them); evaluate each and the composed step on
@@ -188,11 +210,17 @@ def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
 
     s, u, _, nxt = to_tensors(data)
     each = dataclasses.replace(cfg, max_seconds=cfg.max_seconds / len(networks))
-    fitted = {
-        name: fit_network(net, d, each)
-        for (name, net), d in zip(networks, network_data(emu, s, u, nxt), strict=True)
-    }
+    own_data = network_data(emu, s, u, nxt)
+    fitted = {name: fit_network(net, d, each) for (name, net), d in zip(networks, own_data, strict=True)}
     linears = {name: lin for name, (lin, _) in fitted.items()}
+    # the step as it is served: a deformable model's ends with the spring regulariser (thesis 6.1.3)
+    regularizer = regularization(
+        model.layout, model.spec.regularizer, model.num_controls, cfg.regularizer_steps
+    )
+    emu.regularizer = regularizer
+    rollout_metrics: dict[str, Any] = {}
+    if cfg.rollout_steps > 0:
+        rollout_metrics = _train_composed(model, emu, cfg, count, own_data)
 
     ts, tu, _, tn = to_tensors(test)
     errors: dict[str, dict[str, float]] = {}
@@ -205,12 +233,11 @@ def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
             }
         change = tn - ts
         scale = group_scale(model, change)
+        emu.regularizer = None
         composed = relative_error((emu(ts, tu) - ts) / scale, change / scale)
-        emu.regularizer = regularization(
-            model.layout, model.spec.regularizer, model.num_controls, cfg.regularizer_steps
-        )
+        emu.regularizer = regularizer
         regularized = (
-            None if emu.regularizer is None else relative_error((emu(ts, tu) - ts) / scale, change / scale)
+            None if regularizer is None else relative_error((emu(ts, tu) - ts) / scale, change / scale)
         )
     worst = max(errors, key=lambda n: errors[n]["one_step_rel_error"])
     metrics = {
@@ -225,6 +252,7 @@ def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
         "composed_rel_error": composed,
         # the same with the spring regulariser after the networks (thesis 6.1.3), as the step is served
         "composed_regularized_rel_error": regularized,
+        **rollout_metrics,
         "data_seconds": round(t_data, 2),
         "train_seconds": round(time.perf_counter() - t_start - t_data, 2),
         "total_seconds": round(time.perf_counter() - t_start, 2),

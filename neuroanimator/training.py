@@ -194,14 +194,7 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
     # 5. training over rollouts, from the one-step solution
     rollout_metrics: dict[str, Any] = {}
     if cfg.rollout_steps > 0:
-        seqs = sampling.generate_sequences(
-            model,
-            cfg.substeps,
-            cfg.rollout_sequences or max(64, count // 16),
-            cfg.rollout_steps,
-            cfg.seed + 7,
-            progress=cfg.progress,
-        )
+        seqs = rollout_sequences(model, cfg, count)
         rollout_metrics = train_over_rollouts(
             emu, seqs, cfg, lr=final_lr, one_step=(x_tr, y_tr, x_val, y_val)
         )
@@ -325,6 +318,38 @@ def train_core(
     return float(opt.param_groups[0]["lr"])
 
 
+def rollout_sequences(model: PhysicalModel, cfg: TrainConfig, count: int) -> sampling.Sequences:
+    """The rollout phase's sequences: ``cfg.rollout_sequences`` (default one per 16 of the ``count``
+    one-step examples, at least 64) runs of ``cfg.rollout_steps`` super-steps."""
+    return sampling.generate_sequences(
+        model,
+        cfg.substeps,
+        cfg.rollout_sequences or max(64, count // 16),
+        cfg.rollout_steps,
+        cfg.seed + 7,
+        progress=cfg.progress,
+    )
+
+
+class KeepBest:
+    """Early stopping's bookkeeping: the best validation value so far, the module's state that gave it
+    (kept only for a gain of more than 0.1%), and the epochs since."""
+
+    def __init__(self, module: torch.nn.Module, value: float) -> None:
+        self.module, self.best, self.stale = module, value, 0
+        self._state = {k: v.detach().clone() for k, v in module.state_dict().items()}
+
+    def offer(self, value: float) -> None:
+        if value < self.best * (1 - 1e-3):
+            self.best, self.stale = value, 0
+            self._state = {k: v.detach().clone() for k, v in self.module.state_dict().items()}
+        else:
+            self.stale += 1
+
+    def restore(self) -> None:
+        self.module.load_state_dict(self._state)
+
+
 def _sequence_tensors(seq: sampling.Sequences) -> tuple[Tensor, Tensor | None, Tensor | None]:
     s = torch.from_numpy(seq.states).float()
     u = torch.from_numpy(seq.controls).float() if seq.controls.shape[2] else None
@@ -395,11 +420,10 @@ def train_over_rollouts(
         return roll / roll0 + (step / step0 if one_step is not None else 0.0)
 
     before_rollout = roll0
-    best = validate()
-    best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
-    t0, epochs, stale = time.perf_counter(), 0, 0
+    keep = KeepBest(net, validate())
+    t0, epochs = time.perf_counter(), 0
     batch = max(32, cfg.batch_size // 4)
-    while time.perf_counter() - t0 < cfg.rollout_seconds and stale < 10 and epochs < cfg.max_epochs:
+    while time.perf_counter() - t0 < cfg.rollout_seconds and keep.stale < 10 and epochs < cfg.max_epochs:
         emu.train()
         perm = torch.randperm(s_tr.shape[0], generator=gen)
         for i in range(0, perm.numel(), batch):
@@ -414,13 +438,8 @@ def train_over_rollouts(
             loss.backward()
             opt.step()
         epochs += 1
-        now = validate()
-        if now < best * (1 - 1e-3):
-            best, stale = now, 0
-            best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
-        else:
-            stale += 1
-    net.load_state_dict(best_state)
+        keep.offer(validate())
+    keep.restore()
     after_rollout, after_step = validate_parts()
     log.info(
         "rollout phase: %d epochs, validation rollout loss %.3g -> %.3g, one-step mse %.3g -> %.3g",

@@ -19,7 +19,13 @@ from neuroanimator.hierarchy import (
     neighbour_inputs,
 )
 from neuroanimator.hierarchy_export import StackedStep
-from neuroanimator.hierarchy_training import HierarchyResult, group_scale, small_defaults, train_hierarchy
+from neuroanimator.hierarchy_training import (
+    HierarchyResult,
+    group_scale,
+    network_data,
+    small_defaults,
+    train_hierarchy,
+)
 from neuroanimator.manifest import ManifestError, parse_manifest
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.regularizer import regularization
@@ -326,9 +332,43 @@ def test_a_saved_hierarchy_is_evaluated_network_by_network(
     assert errs["one_step_rel_error"] > 0 and set(errs) == {"one_step_rel_error", "linear_baseline_rel_error"}
 
 
+def test_training_over_rollouts_goes_through_the_composed_step_and_the_regulariser(
+    dolphin: PhysicalModel, examples: sampling.Examples
+) -> None:
+    """The rollout phase fine-tunes every network through the step as served (global network, local
+    networks on its predicted frames, the regulariser): from random networks the rollout loss falls."""
+    from neuroanimator.hierarchy_rollouts import composed_rollout_loss, train_hierarchy_over_rollouts
+
+    emu = make(dolphin, seed=3)
+    emu.regularizer = regularization(dolphin.layout, dolphin.spec.regularizer, dolphin.num_controls, 5)
+    seq = sampling.generate_sequences(dolphin, 50, 24, 2, seed=4, progress=False)
+    s, u, nxt = (
+        torch.from_numpy(a).float() for a in (examples.states, examples.controls, examples.next_states)
+    )
+    one_step = {}
+    for (name, net), d in zip(emu.networks, network_data(emu, s, u, nxt), strict=True):
+        with torch.no_grad():
+            x, y = (
+                net.network_inputs(d.state, d.controls, d.extra),
+                net.network_targets(d.state, d.next_state),
+            )
+        one_step[name] = (x[8:], y[8:], x[:8], y[:8])
+    change = torch.from_numpy(seq.states[:, 1:] - seq.states[:, :-1]).float()
+    scale = group_scale(dolphin, change.reshape(-1, change.shape[2]))
+    before = {k: v.clone() for k, v in emu.state_dict().items()}
+    cfg = TrainConfig(rollout_seconds=10.0, max_epochs=15, lr=3e-2, batch_size=128, seed=1)
+    m = train_hierarchy_over_rollouts(emu, seq, cfg, scale, one_step)
+    assert m["rollout_epochs"] >= 1 and m["rollout_loss_after"] < 0.9 * m["rollout_loss_before"]
+    with torch.no_grad():
+        states, controls = torch.from_numpy(seq.states).float(), torch.from_numpy(seq.controls).float()
+        assert float(composed_rollout_loss(emu, states[:2], controls[:2], scale)) > 0
+    changed = [k for k, v in emu.state_dict().items() if not torch.equal(v, before[k])]
+    assert any(k.startswith("glob.") for k in changed) and any(k.startswith("parts_nets.") for k in changed)
+
+
 def test_a_hierarchy_trains_small_unless_told_otherwise() -> None:
     cfg = small_defaults(TrainConfig(), hidden_given=False, examples_given=False)
-    assert (cfg.hidden, cfg.examples, cfg.test_examples) == ((16,), 5_000, 1_000)
-    mine = TrainConfig(hidden=(50,), examples=123, test_examples=77)
-    cfg = small_defaults(mine, hidden_given=True, examples_given=True)
-    assert (cfg.hidden, cfg.examples, cfg.test_examples) == ((50,), 123, 77)
+    assert (cfg.hidden, cfg.examples, cfg.test_examples, cfg.rollout_steps) == ((16,), 5_000, 1_000, 0)
+    mine = TrainConfig(hidden=(50,), examples=123, test_examples=77, rollout_steps=16)
+    cfg = small_defaults(mine, hidden_given=True, examples_given=True, rollout_given=True)
+    assert (cfg.hidden, cfg.examples, cfg.test_examples, cfg.rollout_steps) == ((50,), 123, 77, 16)
