@@ -1,6 +1,7 @@
 """Control synthesis through the emulator against gradient-free search on MuJoCo (thesis 6.2, 6.3).
 
-    python bench/control.py [--tasks a,b] [--gf-evals 3000] [--curve-iterations 60] [--repeats 3]
+    python bench/control.py [--tasks a,b] [--gf-evals 3000] [--gf-methods sa,nm,cma] [--gf-seed 0]
+                            [--curve-iterations 60] [--repeats 3]
                             [--out bench/results] [--artifacts artifacts] [--quick] [--json]
 
 For each task (the thesis' pendulum-swing, lander-landing, truck-parking and dolphin-swim; by
@@ -190,19 +191,26 @@ def bench_task(name: str, args: argparse.Namespace) -> dict[str, Any]:
     # lander needs small ones, the pendulum large ones; the best run is the one compared
     traces = []
     for step in args.gf_steps:
-        tr = simulated_annealing(
-            on_physics, x0, low=low, high=high, step=step, target=target, budget=args.gf_evals, seed=0
-        )
-        tr.method = f"simulated_annealing(step={step:g})"
-        traces.append(tr)
-        tr = nelder_mead(on_physics, x0, low=low, high=high, step=step, target=target, budget=args.gf_evals)
-        tr.method = f"nelder_mead(step={step:g})"
-        traces.append(tr)
-        tr = cma_es(
-            on_physics, x0, low=low, high=high, sigma=step, target=target, budget=args.gf_evals, seed=0
-        )
-        tr.method = f"cma_es(sigma={step:g})"
-        traces.append(tr)
+        if "sa" in args.gf_methods:
+            tr = simulated_annealing(
+                on_physics, x0, low=low, high=high, step=step, target=target, budget=args.gf_evals,
+                seed=args.gf_seed,
+            )  # fmt: skip
+            tr.method = f"simulated_annealing(step={step:g})"
+            traces.append(tr)
+        if "nm" in args.gf_methods:
+            tr = nelder_mead(
+                on_physics, x0, low=low, high=high, step=step, target=target, budget=args.gf_evals
+            )
+            tr.method = f"nelder_mead(step={step:g})"
+            traces.append(tr)
+        if "cma" in args.gf_methods:
+            tr = cma_es(
+                on_physics, x0, low=low, high=high, sigma=step, target=target, budget=args.gf_evals,
+                seed=args.gf_seed,
+            )  # fmt: skip
+            tr.method = f"cma_es(sigma={step:g})"
+            traces.append(tr)
     reached = [t for t in traces if t.evaluations_to_target is not None]
     if reached:
         gf = min(reached, key=lambda t: t.evaluations_to_target or 0)
@@ -335,6 +343,12 @@ def main(argv: list[str] | None = None) -> int:
         default="0.3,0.03",
         help="initial steps (simplex edge, CMA-ES sigma) of the gradient-free runs",
     )
+    p.add_argument(
+        "--gf-methods",
+        default="sa,nm,cma",
+        help="gradient-free methods: sa (simulated annealing), nm (Nelder-Mead), cma (CMA-ES)",
+    )
+    p.add_argument("--gf-seed", type=int, default=0, help="random seed of annealing and CMA-ES")
     p.add_argument("--curve-iterations", type=int, default=60, help="iterations of the fixed-rate curves")
     p.add_argument("--repeats", type=int, default=3, help="run_job repeats for the wall time (median)")
     p.add_argument("--out", default="bench/results", help="folder for the PNG curves")
@@ -343,6 +357,9 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     args.rates = SWEEP_RATES
     args.gf_steps = [float(x) for x in args.gf_steps.split(",")]
+    args.gf_methods = args.gf_methods.split(",")
+    if not args.gf_methods or set(args.gf_methods) - {"sa", "nm", "cma"}:
+        p.error(f"--gf-methods takes sa, nm and cma, comma-separated; got {','.join(args.gf_methods)!r}")
     if args.quick:
         args.gf_evals, args.curve_iterations, args.repeats, args.rates = 40, 3, 1, (0.01,)
     logging.basicConfig(level=logging.WARNING)
@@ -358,7 +375,8 @@ def main(argv: list[str] | None = None) -> int:
     print(table(rows))
     if args.json:
         settings = {
-            k: getattr(args, k) for k in ("gf_evals", "gf_steps", "curve_iterations", "repeats", "quick")
+            k: getattr(args, k)
+            for k in ("gf_evals", "gf_steps", "gf_methods", "gf_seed", "curve_iterations", "repeats", "quick")
         }
         settings["rates"] = list(args.rates)
         print(json.dumps({"tasks": rows, "settings": settings}))

@@ -63,18 +63,15 @@ def train_hierarchy_over_rollouts(
     opt = torch.optim.Adam(params, lr=cfg.lr * 0.1)
     gen = torch.Generator().manual_seed(cfg.seed + 13)
 
-    def step_losses(which: int) -> dict[str, Tensor]:
-        """Every network's one-step mse on its train (0) or validation (2) rows."""
-        return {
-            name: torch.mean((nets[name].network(d[which]) - d[which + 1]) ** 2)
-            for name, d in one_step.items()
-        }
+    def step_mse(name: str, x: Tensor, y: Tensor) -> Tensor:
+        """A network's one-step mean squared error on normalised inputs x and targets y."""
+        return torch.mean((nets[name].network(x) - y) ** 2)
 
     def validate_parts() -> tuple[float, dict[str, float]]:
         emu.eval()
         with torch.no_grad():
             roll = float(composed_rollout_loss(emu, s[val], u[val], scale))
-            steps = {name: float(v) for name, v in step_losses(2).items()}
+            steps = {name: float(step_mse(name, d[2], d[3])) for name, d in one_step.items()}
         return roll, steps
 
     roll0, step0 = validate_parts()
@@ -99,9 +96,7 @@ def train_hierarchy_over_rollouts(
             loss = composed_rollout_loss(emu, s_tr[idx], u_tr[idx], scale) / roll0
             for name, d in one_step.items():
                 rows = torch.randint(0, d[0].shape[0], (4 * batch,), generator=gen)
-                loss = loss + torch.mean((nets[name].network(d[0][rows]) - d[1][rows]) ** 2) / step0[
-                    name
-                ] / len(one_step)
+                loss = loss + step_mse(name, d[0][rows], d[1][rows]) / step0[name] / len(one_step)
             if not torch.isfinite(loss):
                 raise TrainingDiverged(f"training over rollouts diverged (loss {float(loss.detach())})")
             opt.zero_grad(set_to_none=True)
