@@ -29,6 +29,7 @@ from neuroanimator.control.spec import JobSpec, num_points
 from neuroanimator.control.splines import ControlSpline
 from neuroanimator.export import fold_normalization
 from neuroanimator.hierarchy import HierarchicalEmulator
+from neuroanimator.hierarchy_export import StackedStep, stackable
 from neuroanimator.manifest import Manifest
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.structured import StructuredEmulator
@@ -57,15 +58,18 @@ class FastStep(nn.Module):
 
 class FrozenStep(nn.Module):
     """A hierarchical emulator's super-step (global network, local networks, regulariser), frozen:
-    ``(state (B,S), controls (B,U)) -> (B,S)``, the same composition as its ONNX graph."""
+    ``(state (B,S), controls (B,U)) -> (B,S)``, the same composition as its ONNX graph and in the
+    same form: the parts' networks stacked (``hierarchy_export.StackedStep``), which makes a rollout
+    and its backward pass through the dolphin's whole hierarchy about 7× faster than part by part."""
 
     def __init__(self, emu: HierarchicalEmulator) -> None:
         super().__init__()
-        self.emu = emu.eval()
+        self.emu = emu.eval()  # its maps (frames, parts) for whoever reads the trajectory
+        self.step: nn.Module = StackedStep(emu) if stackable(emu) else self.emu
         self.requires_grad_(False)
 
     def forward(self, state: Tensor, controls: Tensor) -> Tensor:
-        out: Tensor = self.emu(state, controls)
+        out: Tensor = self.step(state, controls)
         return out
 
 

@@ -55,6 +55,10 @@ def test_the_swim_goes_through_the_global_network_alone(root: Path) -> None:
     # each step's frames are the global network's prediction from the last step's frames
     emu = problem.step.emu
     s = torch.as_tensor(states, dtype=torch.float32)
+    # the full step runs stacked (as the ONNX graph does): the same map as the hierarchy's own
+    with torch.no_grad():
+        u = torch.as_tensor(held, dtype=torch.float32)
+        torch.testing.assert_close(problem.step(s[:-1], u), emu(s[:-1], u), atol=2e-5, rtol=1e-4)
     predicted = emu.global_step(s[:-1], torch.as_tensor(held, dtype=torch.float32))
     # (the fluke shares segment 5's up axis: those two predictions are averaged)
     shared = np.zeros(predicted.shape[1], dtype=bool)
