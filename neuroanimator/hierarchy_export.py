@@ -112,13 +112,8 @@ class StackedStep(nn.Module):
             raise ValueError("the local networks cannot be stacked (a frame of their own, angles or limits)")
         dtype = emu.glob.x_mean.dtype
         emu = copy.deepcopy(emu).double().eval()  # the folded weights are made in float64
-        torch_default = torch.get_default_dtype()
-        torch.set_default_dtype(torch.float64)
-        try:
-            with torch.no_grad():
-                self._build(emu)
-        finally:
-            torch.set_default_dtype(torch_default)
+        with torch.no_grad():
+            self._build(emu)
         self.to(dtype)
 
     def _build(self, emu: HierarchicalEmulator) -> None:
@@ -195,8 +190,8 @@ class StackedStep(nn.Module):
         for k, (m, net, p) in enumerate(zip(maps, nets, points, strict=True)):
             s_k = m.keep.shape[0]
             extra = 3 * (11 + 2 * near[k])
-            to_net = torch.zeros(E, s_k + U + extra)  # X -> the network's unplaced input columns
-            to_out = torch.zeros(s_k, width)  # the part's local values -> the output block
+            to_net = torch.zeros(E, s_k + U + extra, dtype=torch.float64)  # X -> the network's input columns
+            to_out = torch.zeros(s_k, width, dtype=torch.float64)  # the part's values -> the output block
             slot = 0
             for j in range(s_k):
                 pos_hit, vel_hit = m.pos[j].nonzero(), m.vel[j].nonzero()
