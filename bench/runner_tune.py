@@ -2,6 +2,7 @@
 
     python bench/runner_tune.py [--init gait.json] [--batch 64] [--rounds 10] [--speeds 2.0,3.0]
                                 [--seconds 4,8,15] [--push-n 250] [--budget-s 600]
+                                [--control-every 3] [--kinematic]
 
 Each candidate gait runs at every target speed, and (from the last horizon on) four times more
 with a push of the torso (sideways both ways, forwards, backwards); all runs of all candidates are one batch of the closed loop. A candidate scores its
@@ -52,7 +53,13 @@ RANGES: dict[str, tuple[float, float]] = {
 
 
 def score(
-    pop: np.ndarray, names: list[str], speeds: list[float], seconds: float, push_n: float | None
+    pop: np.ndarray,
+    names: list[str],
+    speeds: list[float],
+    seconds: float,
+    push_n: float | None,
+    control_every: int = 3,
+    kinematic: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(C, P) candidates -> (C,) scores, (C,) worst seconds up, (C,) mean speed at the first target."""
     m = physics.get("runner").mj_model
@@ -69,7 +76,17 @@ def score(
     scores, alive_all, speed0 = [], [], np.zeros(c)
     for k, (v, push) in enumerate(conditions):
         gait = rc.Gait(**{n: pop[:, i] for i, n in enumerate(names)})  # type: ignore[arg-type]
-        res = rc.run(m, rc.running_start(m, v), v, seconds, gait=gait, push=push, record=False)
+        res = rc.run(
+            m,
+            rc.running_start(m, v),
+            v,
+            seconds,
+            gait=gait,
+            push=push,
+            record=False,
+            control_every=control_every,
+            kinematic=kinematic,
+        )
         alive = np.minimum(res.fell_at, seconds)
         mean = res.final_qpos[:, 0] / np.maximum(alive, 1e-3)
         scores.append(alive - 2.0 * np.abs(mean - v) - np.abs(res.final_qpos[:, 1]) / seconds)
@@ -90,6 +107,10 @@ def main() -> int:
     p.add_argument("--sigma", type=float, default=0.08, help="first step, as a fraction of each range")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--budget-s", type=float, default=600.0)
+    p.add_argument("--control-every", type=int, default=3, help="physical steps per control period")
+    p.add_argument(
+        "--kinematic", action="store_true", help="the controller reads runner_control.KinematicSensors"
+    )
     args = p.parse_args()
     rng = np.random.default_rng(args.seed)
     names = list(RANGES)
@@ -110,7 +131,7 @@ def main() -> int:
         stage = min(len(horizons) - 1, r * len(horizons) // args.rounds)
         seconds = horizons[stage]
         push = args.push_n if stage == len(horizons) - 1 else None
-        s, alive, v = score(pop, names, speeds, seconds, push)
+        s, alive, v = score(pop, names, speeds, seconds, push, args.control_every, args.kinematic)
         order = np.argsort(-s)
         best = pop[order[0]].copy()
         print(

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from neuroanimator import registry
+from neuroanimator.articulated import TRUNK, articulated_core, make_articulated
 from neuroanimator.export import to_onnx
 from neuroanimator.hierarchy import GLOBAL, VECTORS, HierarchicalEmulator
 from neuroanimator.hierarchy_training import HierarchyResult
@@ -110,6 +111,94 @@ def describe_hierarchy(emu: HierarchicalEmulator, model: PhysicalModel, mode: st
         networks=networks,
         stages=[[GLOBAL], [p.name for p in emu.parts]],
         parts=list(emu.parts),
+        regularizer=None if emu.regularizer is None else emu.regularizer.spec,
+    )
+
+
+def describe_articulated(emu: StructuredEmulator, model: PhysicalModel, mode: str) -> EmulatorGraph:
+    """The manifest's description of an articulated hierarchy (``neuroanimator.articulated``): the trunk
+    network, then one network per branch, all in the root frame; a branch reads the trunk's predicted
+    change of the trunk's groups. Each network's normalisation is its slice of the emulator's."""
+    core = articulated_core(emu)
+    assert core is not None
+    base = describe_network(emu, model, mode)
+    frame = base.frame
+    outputs = core.output_columns()
+    trunk_cols = outputs[TRUNK]
+    x_mean, x_std = emu.x_mean, emu.x_std
+    y_mean, y_std = emu.y_mean, emu.y_std
+    starts, at = {}, 0
+    for group, width in emu.input_groups:
+        starts[group] = (at, width)
+        at += width
+
+    def network(name: str, hidden: tuple[int, ...], net: torch.nn.Module, cols: list[int], reads: NetworkReads,
+                writes: list[str], inputs: list[int], groups: list[InputGroup]) -> Network:  # fmt: skip
+        norm = Normalization(
+            mode=mode,  # checked by the manifest
+            input_groups=groups,
+            x_mean=[float(v) for v in x_mean[inputs]] + [0.0] * (0 if name == TRUNK else len(trunk_cols)),
+            x_std=[float(v) for v in x_std[inputs]] + [1.0] * (0 if name == TRUNK else len(trunk_cols)),
+            y_mean=[float(v) for v in y_mean[cols]],
+            y_std=[float(v) for v in y_std[cols]],
+        )
+        size = len(norm.x_mean)
+        return Network(
+            name=name,
+            frame=frame,
+            reads=reads,
+            writes=writes,
+            hidden=list(hidden),
+            activation=emu.activation,  # checked by the manifest
+            normalization=norm,
+            input_size=size,
+            output_size=len(cols),
+            weights=sum(p.numel() for p in net.parameters()),
+            skip=True,
+            limits=base.limits if name == TRUNK else [],
+        )
+
+    trunk_reads = base.reads
+    networks = [
+        network(
+            TRUNK,
+            core.trunk_hidden,
+            core.trunk,
+            trunk_cols,
+            trunk_reads,
+            list(core.trunk_writes),
+            list(range(emu.input_size)),
+            list(base.normalization.input_groups),
+        )
+    ]
+    for k, b in enumerate(core.branches):
+        sel = core.selection(k).argmax(dim=0).tolist()  # the emulator's input columns it reads, in order
+        groups = []
+        for group, (start, width) in starts.items():
+            n = sum(1 for c in sel if start <= c < start + width)
+            if n:
+                groups.append(InputGroup(name=group, size=n))
+        groups.append(InputGroup(name=f"{TRUNK}.change", size=len(trunk_cols)))
+        state_groups = [g for g in [*b.groups, *core.trunk_writes, *b.reads] if g in starts]
+        networks.append(
+            network(
+                b.name,
+                core.branch_hidden,
+                core.branch_net(k),
+                outputs[b.name],
+                NetworkReads(
+                    state=list(dict.fromkeys(state_groups)),
+                    predicted=list(core.trunk_writes),
+                    controls=list(model.control_names) if b.controls is None else list(b.controls),
+                ),
+                list(b.groups),
+                sel,
+                groups,
+            )
+        )
+    return EmulatorGraph(
+        networks=networks,
+        stages=[[TRUNK], [b.name for b in core.branches]],
         regularizer=None if emu.regularizer is None else emu.regularizer.spec,
     )
 
@@ -235,6 +324,8 @@ def build_manifest(
         io=GraphIO(inputs=inputs),
         emulator=describe_hierarchy(result.emulator, model, cfg.normalization)
         if isinstance(result.emulator, HierarchicalEmulator)
+        else describe_articulated(result.emulator, model, cfg.normalization)
+        if articulated_core(result.emulator) is not None
         else EmulatorGraph(
             networks=[describe_network(result.emulator, model, cfg.normalization)],
             stages=[[CORE]],
@@ -288,11 +379,13 @@ def save(root: Path, model: PhysicalModel, result: TrainResult | HierarchyResult
 
 
 def load_torch(path: Path) -> StructuredEmulator:
-    """The torch emulator of an artifact (same weights as its ONNX graph); one-network emulators only
-    (``load_hierarchy`` builds a hierarchical one)."""
+    """The torch emulator of an artifact (same weights as its ONNX graph): one network, or an articulated
+    hierarchy (one structured emulator too); ``load_hierarchy`` builds a hierarchy over parts."""
     manifest = registry.read_manifest(path)
     model = registry.load_physical_model(path, manifest)
-    net = manifest.emulator.only()
+    branches = manifest.spec.branches
+    by_name = {n.name: n for n in manifest.emulator.networks}
+    net = by_name[TRUNK] if branches else manifest.emulator.only()
     fr = net.frame
     emu = StructuredEmulator(
         model.layout,
@@ -307,10 +400,13 @@ def load_torch(path: Path) -> StructuredEmulator:
         ),
         tuple(net.hidden),
         net.activation,
-        skip=net.skip,
+        skip=net.skip and not branches,
         limits=[JointLimit(lim.position, lim.velocity, lim.low, lim.high) for lim in net.limits],
         horizon=net.limits[0].horizon if net.limits else 0.0,
     )
+    if branches:
+        branch_hidden = by_name[branches[0].name].hidden
+        make_articulated(emu, branches, model.control_names, tuple(net.hidden), tuple(branch_hidden))
     emu.load_state_dict(torch.load(path / registry.WEIGHTS_FILE, weights_only=True))
     emu.regularizer = regularization(model.layout, manifest.emulator.regularizer, model.num_controls)
     return emu.eval()

@@ -54,6 +54,10 @@ def fold_normalization(emu: StructuredEmulator) -> Any:
         def forward(self, cols: torch.Tensor) -> torch.Tensor:
             return self.core(cols) + self.skip(cols)
 
+    from neuroanimator.articulated import NormalizedCore, articulated_core
+
+    if articulated_core(emu) is not None:  # a composed core: its normalisation stays around it
+        return NormalizedCore(emu)
     core = copy.deepcopy(emu.core)
     first, last = core[0], core[-1]
     assert isinstance(first, nn.Linear) and isinstance(last, nn.Linear)

@@ -94,6 +94,29 @@ class HierarchyPart(BaseModel):
     )
 
 
+class Branch(BaseModel):
+    """One branch of an articulated hierarchical emulator (thesis 4.4, Fig. 4.8: the runner's arms and
+    legs): state groups, its joints' angles and rates, that one network writes after the trunk network.
+
+    The trunk network writes every group that no branch holds (the root and the joints between the
+    branches) and reads the whole state and every control. A branch's network then reads, in the
+    root's frame like the trunk's, its own groups, the trunk's groups, the trunk's predicted change,
+    the groups in ``reads`` and the controls in ``controls``: a limb moves with what it hangs from
+    and with its own motors; what else it depends on (another limb, through the ground) is listed.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str
+    groups: list[str] = Field(min_length=1, description="state groups the branch's network writes")
+    reads: list[str] = Field(
+        default_factory=list, description="other branches' state groups that this branch's network reads"
+    )
+    controls: list[str] | None = Field(
+        None, description="the controls (actuator names) the branch's network reads; None: all"
+    )
+
+
 class SpringRegularizer(BaseModel):
     """The regulariser of thesis 6.1.3 for a mass-spring model: after each emulated super-step, ``steps``
     explicit Euler steps of the spring forces between the model's points,
@@ -174,6 +197,17 @@ class ModelSpec(BaseModel):
         default_factory=list,
         description="a hierarchical emulator's parts (thesis 4.4): a global network predicts the motion of "
         "their frames, then one network per part its groups in its frame; empty: one network",
+    )
+    branches: list[Branch] = Field(
+        default_factory=list,
+        description="an articulated hierarchy's branches (thesis 4.4, the runner): a trunk network writes the "
+        "groups no branch holds, then one network per branch its groups; empty: one network",
+    )
+    data_source: str | None = Field(
+        None,
+        description="'module:function' that generates the training transitions, called like "
+        "neuroanimator.sampling.generate (a model whose motion comes from a controller); None: the "
+        "sampler's typical controls",
     )
     regularizer: SpringRegularizer | None = Field(
         None, description="a mass-spring model's regulariser (thesis 6.1.3), on by default in its emulators"

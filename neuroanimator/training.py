@@ -6,6 +6,7 @@ Read ``train`` from the top: it is the whole recipe. The configuration is one da
 
 from __future__ import annotations
 
+import importlib
 import logging
 import math
 import time
@@ -19,6 +20,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from neuroanimator import sampling
+from neuroanimator.articulated import ArticulatedCore, articulated_core, make_articulated, ridge_fit
 from neuroanimator.envelope import examples_envelope
 from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.physics.model import PhysicalModel
@@ -110,17 +112,38 @@ def joint_limits(model: PhysicalModel) -> list[JointLimit]:
 
 
 def build_emulator(model: PhysicalModel, cfg: TrainConfig) -> StructuredEmulator:
-    return StructuredEmulator(
+    """The emulator ``cfg`` describes for ``model``: one network, or, for a model with branches, an
+    articulated hierarchy (``neuroanimator.articulated``) whose networks are each ``cfg.hidden`` wide."""
+    branches = model.spec.branches
+    emu = StructuredEmulator(
         model.layout,
         model.num_controls,
         model.num_forces,
         frame_config(model, cfg.frame),
         cfg.hidden,
         cfg.activation,
-        skip=cfg.skip and cfg.preset != "thesis",
+        skip=cfg.skip and cfg.preset != "thesis" and not branches,
         limits=joint_limits(model) if cfg.limits else (),
         horizon=model.dt * cfg.substeps,
     )
+    if branches:
+        make_articulated(emu, branches, model.control_names, cfg.hidden, cfg.hidden)
+    return emu
+
+
+def generate_examples(
+    model: PhysicalModel, substeps: int, count: int, seed: int, progress: bool
+) -> sampling.Examples:
+    """``count`` training transitions of ``model``: from its own data source (``ModelSpec.data_source``,
+    a model whose motion comes from a controller) or else the sampler's typical controls."""
+    source = model.spec.data_source
+    if source is None:
+        return sampling.generate(model, substeps, count, seed, progress=progress)
+    module_name, _, name = source.partition(":")
+    generate = getattr(importlib.import_module(module_name), name)
+    data: sampling.Examples = generate(model, substeps, count, seed, progress=progress)
+    data.check_finite(f"training data from {source}")
+    return data
 
 
 def to_tensors(ex: sampling.Examples) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:
@@ -166,10 +189,8 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
     log.info("%s n=%d: %d weights, %d examples", model.name, cfg.substeps, weights, count)
 
     # 1. data: training (+ validation) and an independent held-out test set
-    data = sampling.generate(model, cfg.substeps, count, cfg.seed, progress=cfg.progress)
-    test = sampling.generate(
-        model, cfg.substeps, cfg.test_examples, held_out_seed(cfg.seed), progress=cfg.progress
-    )
+    data = generate_examples(model, cfg.substeps, count, cfg.seed, cfg.progress)
+    test = generate_examples(model, cfg.substeps, cfg.test_examples, held_out_seed(cfg.seed), cfg.progress)
     t_data = time.perf_counter() - t_start
 
     # 2. T^σ from the training data (transformed by T'_x and (T'_y T^Δ_y)^-1 first, thesis 4.5.2)
@@ -185,7 +206,10 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
 
     # 3. the linear baseline, fitted on the training inputs; it also starts the network's linear path
     linear = fit_linear(x_tr, y_tr)
-    if emu.skip is not None:
+    composed = articulated_core(emu)
+    if composed is not None:
+        composed.start_from_linear(x_tr, y_tr)
+    elif emu.skip is not None:
         start_from_linear(emu, linear)
 
     # 4. the core network
@@ -193,7 +217,9 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
 
     # 5. training over rollouts, from the one-step solution
     rollout_metrics: dict[str, Any] = {}
-    if cfg.rollout_steps > 0:
+    if cfg.rollout_steps > 0 and model.spec.data_source is not None:
+        log.info("%s: no rollout phase (its data come from %s)", model.name, model.spec.data_source)
+    elif cfg.rollout_steps > 0:
         seqs = rollout_sequences(model, cfg, count)
         rollout_metrics = train_over_rollouts(
             emu, seqs, cfg, lr=final_lr, one_step=(x_tr, y_tr, x_val, y_val)
@@ -207,6 +233,7 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
         one_step = relative_error(emu.network(xt), yt)
         lin = relative_error(apply_linear(linear, xt), yt)
         val = relative_error(emu.network(x_val), y_val)
+        per_network = network_errors(composed, x_tr, y_tr, xt, yt) if composed is not None else None
     metrics = {
         "weights": weights,
         "examples": count,
@@ -215,6 +242,7 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
         "linear_baseline_rel_error": lin,
         "validation_rel_error": val,
         **rollout_metrics,
+        **({"networks": per_network} if per_network is not None else {}),
         "data_seconds": round(t_data, 2),
         "train_seconds": round(time.perf_counter() - t_start - t_data, 2),
         "total_seconds": round(time.perf_counter() - t_start, 2),
@@ -231,6 +259,28 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
         model.layout, model.spec.regularizer, model.num_controls, cfg.regularizer_steps
     )
     return TrainResult(emu, cfg, metrics, linear, data.sha256(), examples_envelope(model, data))
+
+
+def network_errors(
+    core: ArticulatedCore, x_tr: Tensor, y_tr: Tensor, x_test: Tensor, y_test: Tensor
+) -> dict[str, dict[str, float]]:
+    """Each network's held-out one-step relative error over its own outputs, and the same for a linear
+    map fitted on its inputs (a branch's fit reads the true trunk change; ``articulated.ridge_fit``:
+    with this many inputs, plain least squares is worse than the mean on held-out data), by name."""
+    cols = core.output_columns()
+    pred = core(x_test)
+    fit_inputs = core.network_inputs(x_tr, y_tr)
+    test_inputs = core.network_inputs(x_test, y_test)
+    out = {}
+    for name, c in cols.items():
+        w = ridge_fit(fit_inputs[name], y_tr[:, c]).numpy()
+        out[name] = {
+            "one_step_rel_error": relative_error(pred[:, c], y_test[:, c]),
+            "linear_baseline_rel_error": relative_error(apply_linear(w, test_inputs[name]), y_test[:, c]),
+            "outputs": len(c),
+            "inputs": int(fit_inputs[name].shape[1]),
+        }
+    return out
 
 
 def start_from_linear(emu: StructuredEmulator, linear: np.ndarray) -> None:

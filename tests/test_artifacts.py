@@ -15,20 +15,9 @@ from neuroanimator import artifacts, physics, registry, training
 from neuroanimator.export import OnnxEmulator
 from neuroanimator.manifest import FORMAT, TrainMetrics
 from neuroanimator.training import TrainConfig, TrainResult
-from tests.helpers import Trained
+from tests.helpers import METRICS, Trained
 
 FILES = {"emulator.onnx", "weights.pt", "linear_baseline.npy", "model.xml", "manifest.json"}
-METRICS = {
-    "weights": 1,
-    "examples": 1,
-    "test_examples": 1,
-    "one_step_rel_error": 0.5,
-    "linear_baseline_rel_error": 0.5,
-    "validation_rel_error": 0.5,
-    "data_seconds": 0.0,
-    "train_seconds": 0.0,
-    "total_seconds": 0.0,
-}
 
 
 def _untrained_result(model: physics.PhysicalModel, substeps: int) -> TrainResult:

@@ -18,7 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from neuroanimator.model_spec import InitialStates, ModelSpec
+from neuroanimator.model_spec import Branch, ForceInput, InitialStates, ModelSpec
 
 if TYPE_CHECKING:
     from neuroanimator.physics.model import PhysicalModel
@@ -47,6 +47,28 @@ STAND: dict[str, float] = {
 BAND = 0.35  # radians around the standing pose that typical open-loop controls span
 
 
+PUSH_N = 300.0  # the range of the push force inputs (newtons on the torso, each horizontal axis)
+SUBSTEPS = 6  # the super-step: the running controller's period (runner_control's gait is tuned for it)
+
+
+def branches() -> list[Branch]:
+    """The thesis' hierarchy (Fig. 4.8): a network per arm and per leg, each writing its joints' angles
+    and rates and reading its own servo targets; the trunk network writes the root (the pelvis) and the
+    waist and neck."""
+    out = []
+    for side in SIDES:
+        for limb, joints in (("arm", ARM), ("leg", LEG)):
+            names = [f"{side}_{j}" for j in joints]
+            out.append(
+                Branch(
+                    name=f"{side}_{limb}",
+                    groups=[f"{n}.angle" for n in names] + [f"{n}.rate" for n in names],
+                    controls=names,
+                )
+            )
+    return out
+
+
 def stand_targets() -> list[float]:
     """(29,) the servo targets of the standing pose, in the order of ``JOINTS``."""
     return [STAND.get(name, 0.0) for name in JOINTS]
@@ -71,6 +93,13 @@ def runner() -> PhysicalModel:
     jitter_low[vel], jitter_high[vel] = -0.2, 0.2
     spec = ModelSpec(
         name="runner",
+        substeps=SUBSTEPS,
+        branches=branches(),
+        data_source="neuroanimator.physics.runner_data:examples",
+        forces=[
+            ForceInput(name=f"push_{axis}", body="torso", component=i, low=-PUSH_N, high=PUSH_N)
+            for i, axis in enumerate("xy")
+        ],
         train_at_start=False,  # 71 state variables and 29 controls: its emulator is trained on purpose
         description=(
             "running human figure: 70 kg, 35 degrees of freedom (free root, 29 servoed hinges), "

@@ -27,7 +27,11 @@ def _standing_start(m: mujoco.MjModel) -> np.ndarray:
 def test_the_figure_is_a_70_kg_human_of_35_degrees_of_freedom(m: mujoco.MjModel) -> None:
     model = physics.get("runner")
     assert m.nv == 35 and m.nu == 29
-    assert (model.state_size, model.num_controls, model.num_forces) == (71, 29, 0)
+    assert (model.state_size, model.num_controls, model.num_forces) == (
+        71,
+        29,
+        2,
+    )  # a push on the torso, x and y
     assert model.control_names == list(runner.JOINTS)
     assert m.body_subtreemass[1] == pytest.approx(70.0, abs=0.05)
     d = mujoco.MjData(m)
@@ -97,3 +101,59 @@ def test_a_push_moves_the_torso(m: mujoco.MjModel) -> None:
     pushed = runner_control.run(m, start, 0.0, 0.4, push=push)
     still = runner_control.run(m, start, 0.0, 0.4)
     assert pushed.final_qpos[0, 1] - still.final_qpos[0, 1] > 0.005  # pushed along +y (leftwards)
+
+
+def test_kinematic_sensors_read_what_mujoco_reads_and_the_feet_as_mujoco_touches_them(
+    m: mujoco.MjModel,
+) -> None:
+    """The controller's readings from positions and velocities alone (what an emulated state offers):
+    every kinematic sensor exactly, and each foot down at the same physical steps as its touch sensor
+    nearly always."""
+    result = runner_control.run(m, runner_control.running_start(m, 2.0), 2.0, 2.0, control_every=1)
+    st = result.states[0, :-1]
+    sensors = runner_control.KinematicSensors(m)
+    read = sensors.read(st[:, 1 : 1 + m.nq], st[:, 1 + m.nq : 1 + m.nq + m.nv])
+    true = result.sensordata[0, 1:]  # a step's sensors are those of the state it started from
+    touch = sorted(sensors.touch_at.values())
+    kinematic = np.setdiff1d(np.arange(m.nsensordata), touch)
+    np.testing.assert_allclose(read[:, kinematic], true[:, kinematic], atol=1e-9)
+    ctl = runner_control.RunnerController(m)
+    down_read, down_true = ctl.feet_touch(read) > 50.0, ctl.feet_touch(true) > 50.0
+    assert (down_read == down_true).mean() > 0.97
+    assert down_true[:, 0].any() and down_true[:, 1].any()
+
+
+def test_noise_and_per_run_pushes_perturb_the_runs(m: mujoco.MjModel) -> None:
+    start = runner_control.running_start(m, 2.0)
+    plain = runner_control.run(m, start, np.array([2.0, 2.0]), 0.3, control_every=6, kinematic=True)
+    np.testing.assert_array_equal(plain.states[0], plain.states[1])
+    push = runner_control.Push(
+        force=np.array([[0.0, 0.0, 0.0], [0.0, 200.0, 0.0]]), start_s=0.0, duration_s=0.2
+    )
+    pushed = runner_control.run(
+        m, start, np.array([2.0, 2.0]), 0.3, control_every=6, kinematic=True, push=push
+    )
+    np.testing.assert_array_equal(pushed.states[0], plain.states[0])  # run 0 had no push
+    assert pushed.final_qpos[1, 1] - plain.final_qpos[1, 1] > 0.005  # run 1 went leftwards
+    noisy = runner_control.run(
+        m, start, 2.0, 0.3, control_every=6, kinematic=True, control_noise=0.05, seed=1
+    )
+    assert not np.array_equal(noisy.controls[0], plain.controls[0])
+    again = runner_control.run(
+        m, start, 2.0, 0.3, control_every=6, kinematic=True, control_noise=0.05, seed=1
+    )
+    np.testing.assert_array_equal(noisy.states, again.states)  # the noise comes from the seed
+
+
+def test_training_data_come_from_running_its_neighbourhood_and_pushes() -> None:
+    from neuroanimator.physics import runner_data
+
+    model = physics.get("runner")
+    ex = runner_data.examples(model, 6, 600, seed=2, progress=False)
+    assert ex.states.shape == (600, 71) and ex.forces.shape == (600, 2)
+    ex.check_finite()
+    speed = ex.states[:, model.layout.slice_of("root.vel").start]
+    assert np.median(speed) > 1.0  # running forward
+    assert (np.abs(ex.forces) > 0).any(axis=1).mean() > 0.0  # some transitions are pushed
+    z = ex.states[:, model.layout.slice_of("root.pos").start + 2]
+    assert z.min() > 0.55  # nothing from after a fall
