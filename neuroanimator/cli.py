@@ -85,10 +85,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     # torch loads only for the commands that need it
     from neuroanimator import artifacts, super_step
     from neuroanimator.hierarchy_training import HierarchyResult, small_defaults, train_hierarchy
-    from neuroanimator.training import TrainingDiverged, TrainResult, train
+    from neuroanimator.training import TrainingDiverged, TrainResult, source_defaults, train
 
     try:
-        activity = None if model.spec.parts else super_step.constraint_activity(model, seed=cfg.seed)
+        # a hierarchy over parts, or a model whose data come from its own source (a controller), keeps
+        # the network and super-step its spec gives
+        spec_given = bool(model.spec.parts or model.spec.data_source)
+        activity = None if spec_given else super_step.constraint_activity(model, seed=cfg.seed)
         network_reason = None
         if activity is not None:
             cfg, network_reason = super_step.constrained_defaults(
@@ -104,6 +107,20 @@ def cmd_train(args: argparse.Namespace) -> int:
             log.info("%s: super-step %s", model.name, choice.reason)
             cfg.substeps = choice.substeps
             model.spec = model.spec.model_copy(update={"substeps": choice.substeps})
+        if model.spec.data_source:  # a model trained on its controller's motion: its own settings
+            user_set = {
+                name
+                for name, value in (
+                    ("hidden", args.hidden),
+                    ("examples", args.examples),
+                    ("max_seconds", args.max_seconds),
+                    ("rollout_steps", args.rollout_steps),
+                    ("lr", args.lr),
+                    ("activation", args.activation),
+                )
+                if value is not None
+            }
+            cfg = source_defaults(model, cfg, user_set)
         if model.spec.parts:  # a hierarchy of networks (thesis 4.4)
             cfg = small_defaults(
                 cfg,

@@ -205,9 +205,9 @@ class ModelSpec(BaseModel):
     )
     data_source: str | None = Field(
         None,
-        description="'module:function' that generates the training transitions, called like "
-        "neuroanimator.sampling.generate (a model whose motion comes from a controller); None: the "
-        "sampler's typical controls",
+        description="a module whose functions examples and sequences generate the training transitions "
+        "and rollout windows, called like neuroanimator.sampling.generate and generate_sequences (a model "
+        "whose motion comes from a controller); None: the sampler's, under typical controls",
     )
     regularizer: SpringRegularizer | None = Field(
         None, description="a mass-spring model's regulariser (thesis 6.1.3), on by default in its emulators"

@@ -6,6 +6,7 @@ Read ``train`` from the top: it is the whole recipe. The configuration is one da
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import logging
 import math
@@ -139,9 +140,9 @@ def generate_examples(
     source = model.spec.data_source
     if source is None:
         return sampling.generate(model, substeps, count, seed, progress=progress)
-    module_name, _, name = source.partition(":")
-    generate = getattr(importlib.import_module(module_name), name)
-    data: sampling.Examples = generate(model, substeps, count, seed, progress=progress)
+    data: sampling.Examples = importlib.import_module(source).examples(
+        model, substeps, count, seed, progress=progress
+    )
     data.check_finite(f"training data from {source}")
     return data
 
@@ -217,9 +218,7 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
 
     # 5. training over rollouts, from the one-step solution
     rollout_metrics: dict[str, Any] = {}
-    if cfg.rollout_steps > 0 and model.spec.data_source is not None:
-        log.info("%s: no rollout phase (its data come from %s)", model.name, model.spec.data_source)
-    elif cfg.rollout_steps > 0:
+    if cfg.rollout_steps > 0:
         seqs = rollout_sequences(model, cfg, count)
         rollout_metrics = train_over_rollouts(
             emu, seqs, cfg, lr=final_lr, one_step=(x_tr, y_tr, x_val, y_val)
@@ -368,16 +367,29 @@ def train_core(
     return float(opt.param_groups[0]["lr"])
 
 
+def source_defaults(model: PhysicalModel, cfg: TrainConfig, given: set[str]) -> TrainConfig:
+    """``cfg`` with the training settings of the model's data source (its module's ``TRAIN_DEFAULTS``)
+    for the fields not in ``given`` (those the user set)."""
+    if model.spec.data_source is None:
+        return cfg
+    defaults = getattr(importlib.import_module(model.spec.data_source), "TRAIN_DEFAULTS", {})
+    updates = {k: v for k, v in defaults.items() if k not in given}
+    return dataclasses.replace(cfg, **updates) if updates else cfg
+
+
 def rollout_sequences(model: PhysicalModel, cfg: TrainConfig, count: int) -> sampling.Sequences:
     """The rollout phase's sequences: ``cfg.rollout_sequences`` (default one per 16 of the ``count``
-    one-step examples, at least 64) runs of ``cfg.rollout_steps`` super-steps."""
+    one-step examples, at least 64) runs of ``cfg.rollout_steps`` super-steps, from the model's own data
+    source where it has one."""
+    n = cfg.rollout_sequences or max(64, count // 16)
+    source = model.spec.data_source
+    if source is not None:
+        seqs: sampling.Sequences = importlib.import_module(source).sequences(
+            model, cfg.substeps, n, cfg.rollout_steps, cfg.seed + 7, progress=cfg.progress
+        )
+        return seqs
     return sampling.generate_sequences(
-        model,
-        cfg.substeps,
-        cfg.rollout_sequences or max(64, count // 16),
-        cfg.rollout_steps,
-        cfg.seed + 7,
-        progress=cfg.progress,
+        model, cfg.substeps, n, cfg.rollout_steps, cfg.seed + 7, progress=cfg.progress
     )
 
 

@@ -95,7 +95,7 @@ def runner() -> PhysicalModel:
         name="runner",
         substeps=SUBSTEPS,
         branches=branches(),
-        data_source="neuroanimator.physics.runner_data:examples",
+        data_source="neuroanimator.physics.runner_data",
         forces=[
             ForceInput(name=f"push_{axis}", body="torso", component=i, low=-PUSH_N, high=PUSH_N)
             for i, axis in enumerate("xy")

@@ -43,34 +43,37 @@ BODY_WEIGHT = 70.0 * 9.81  # newtons
 
 @dataclass(frozen=True)
 class Gait:
-    """The controller's parameters (radians, seconds, metres; torques in N·m per radian)."""
+    """The controller's parameters (radians, seconds, metres; torques in N·m per radian). The defaults
+    come from ``python bench/runner_tune.py --speeds 2.0,2.6 --rounds 18 --control-every 6 --kinematic
+    --budget-s 2700``: a gait that runs with the controller every 6 physical steps reading
+    ``KinematicSensors`` (as it does on the emulator), and every 3 steps on MuJoCo's sensors."""
 
-    stance_s: float = 0.192
-    flight_max_s: float = 0.028
-    lean: float = -0.07  # forward lean of the pelvis while running
-    lean_per_speed: float = 0.112  # extra lean per m/s below the target speed
-    pitch_kp: float = 1407.4
-    pitch_kd: float = 111.7
-    roll_kp: float = 800.3
-    roll_kd: float = 146.5
-    yaw_kp: float = 291.2
-    yaw_kd: float = 76.7
+    stance_s: float = 0.188
+    flight_max_s: float = 0.0211
+    lean: float = -0.0497  # forward lean of the pelvis while running
+    lean_per_speed: float = 0.076  # extra lean per m/s below the target speed
+    pitch_kp: float = 1110.4883
+    pitch_kd: float = 106.4086
+    roll_kp: float = 1125.6327
+    roll_kd: float = 161.0021
+    yaw_kp: float = 223.7293
+    yaw_kd: float = 59.0839
     leg_length: float = 0.88
-    step_gain: float = 0.983  # foot ahead of the centre of mass: step_gain·v·stance_s
-    speed_gain: float = 0.117  # ... plus speed_gain·(v − v_target)
-    side_gain: float = 0.086  # sideways placement per m/s of sideways speed
-    width: float = 0.008  # nominal sideways foot offset from the centre of mass
-    swing_knee: float = 1.942
-    fold_fraction: float = 0.834  # fraction of the other leg's stance the swing knee stays folded
-    touchdown_knee: float = 0.495
-    stance_knee: float = 0.656
-    pushoff_knee: float = 0.323
-    pushoff_ankle: float = -0.367
-    pushoff_from: float = 0.562  # fraction of stance after which the leg pushes off
-    liftoff_hip: float = 0.92  # world thigh angle the leaving leg swings towards
-    arm_swing: float = 0.852
+    step_gain: float = 0.9745  # foot ahead of the centre of mass: step_gain·v·stance_s
+    speed_gain: float = 0.1058  # ... plus speed_gain·(v − v_target)
+    side_gain: float = 0.1813  # sideways placement per m/s of sideways speed
+    width: float = 0.0104  # nominal sideways foot offset from the centre of mass
+    swing_knee: float = 1.7983
+    fold_fraction: float = 0.8927  # fraction of the other leg's stance the swing knee stays folded
+    touchdown_knee: float = 0.4379
+    stance_knee: float = 0.519
+    pushoff_knee: float = 0.3804
+    pushoff_ankle: float = -0.4044
+    pushoff_from: float = 0.5371  # fraction of stance after which the leg pushes off
+    liftoff_hip: float = 0.9298  # world thigh angle the leaving leg swings towards
+    arm_swing: float = 1.0807
     elbow: float = 1.5
-    waist_lean: float = 0.3
+    waist_lean: float = 0.2969
 
 
 @dataclass(frozen=True)
@@ -410,6 +413,7 @@ class RunResult:
     fell_at: FloatArray  # (B,) seconds into the run when the pelvis dropped, inf if it never did
     wall_s: float
     final_qpos: FloatArray  # (B, nq) where each run ended
+    ends: FloatArray  # (B, T, nfull) the state each period ended in (before the next period's kick)
 
     @property
     def fell(self) -> NDArray[np.bool_]:
@@ -451,6 +455,7 @@ def run(
     record: bool = True,
     kinematic: bool = False,
     control_noise: float = 0.0,
+    state_noise: tuple[float, float] = (0.0, 0.0),
     seed: int = 0,
 ) -> RunResult:
     """Run the closed loop from ``start`` (B|1, nfull) for ``seconds``.
@@ -460,7 +465,10 @@ def run(
     fallen once its pelvis is below 0.55 m. ``kinematic``: the controller reads ``KinematicSensors``
     (what it can read from an emulated state) instead of MuJoCo's sensors. ``control_noise``: Gaussian
     noise of this many radians is added to every servo target each control period (the neighbourhood
-    of the gait, for training data), from ``seed``.
+    of the gait, for training data), from ``seed``; ``state_noise`` (radians, and radians or metres
+    per second) to every hinge angle and every velocity of the state the period starts from: states
+    just off the gait, whose next states show how the body returns (an emulator's own rollouts leave
+    the gait that way).
     """
     start = np.atleast_2d(np.asarray(start, float))
     speeds = np.atleast_1d(np.asarray(target_speed, float))
@@ -496,6 +504,7 @@ def run(
         sens[i] = probe.sensordata
     rec_states = np.zeros((batch, periods, nstate)) if record else np.zeros((batch, 0, nstate))
     rec_ctrl = np.zeros((batch, periods, m.nu)) if record else np.zeros((batch, 0, m.nu))
+    rec_ends = np.zeros_like(rec_states)
     rec_sens = np.zeros((batch, periods, m.nsensordata)) if record else np.zeros((batch, 0, m.nsensordata))
     fell_at = np.full(batch, np.inf)
     t0 = time.perf_counter()
@@ -503,6 +512,9 @@ def run(
     noise_rng = np.random.default_rng(seed)
     push_force = None if push is None else np.broadcast_to(np.asarray(push.force, float), (batch, 3))
     for k in range(periods):
+        if state_noise[0] > 0 or state_noise[1] > 0:  # kicks off the gait's own states (hinges, rates)
+            state[:, qpos_at + 7 : qpos_at + m.nq] += noise_rng.normal(0.0, state_noise[0], (batch, m.nq - 7))
+            state[:, qvel_at : qvel_at + m.nv] += noise_rng.normal(0.0, state_noise[1], (batch, m.nv))
         qpos = state[:, qpos_at : qpos_at + m.nq]
         qvel = state[:, qvel_at : qvel_at + m.nv]
         if observer is not None:
@@ -538,11 +550,13 @@ def run(
         )
         state = out_state[:, -1].copy()
         sens = sensordata[:, -1].copy()
+        if record:
+            rec_ends[:, k] = state
         down = (state[:, qpos_at + 2] < 0.55) & ~np.isfinite(fell_at)
         fell_at[down] = now + dt
     wall = time.perf_counter() - t0
     return RunResult(
-        rec_states, rec_ctrl, rec_sens, dt, fell_at, wall, state[:, qpos_at : qpos_at + m.nq].copy()
+        rec_states, rec_ctrl, rec_sens, dt, fell_at, wall, state[:, qpos_at : qpos_at + m.nq].copy(), rec_ends
     )
 
 

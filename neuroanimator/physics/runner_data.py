@@ -4,10 +4,13 @@ The thesis trained its runner emulator on one 30 s run, and it reproduced only t
 transitions come from many closed-loop runs (``runner_control.run``, the controller reading what it
 can read from a state, ``KinematicSensors``), each a sample of the dynamics near running:
 
-- target speeds drawn from ``TRAIN_SPEEDS`` (a few distinct speeds, so that a speed between two of them
-  is one the data did not contain);
+- target speeds drawn from ``TRAIN_SPEEDS`` (a few distinct speeds, so that ``UNSEEN_SPEED``, between
+  two of them, is one the data did not contain);
 - Gaussian noise on every servo target each control period, of a standard deviation drawn per run up
   to ``MAX_NOISE`` radians (perturbed controls);
+- small kicks of the state each control period (every hinge angle and velocity, of a standard
+  deviation drawn per batch up to ``MAX_STATE_NOISE``): states just off the gait and how the body
+  returns from them, which an emulator's own rollouts need (they leave the gait the same way);
 - a push of the torso in a random horizontal direction for ``PUSH_S`` seconds at a random time, of a
   force drawn up to ``MAX_PUSH`` newtons, in half of the runs.
 
@@ -15,12 +18,17 @@ The controller acts every super-step: the emulator's controls are the servo targ
 super-step, and its force inputs the push. Transitions after a run fell (pelvis below 0.55 m, and the
 half second before) are dropped: lying on the floor is not the neighbourhood of running.
 
+``TRAIN_DEFAULTS`` are the training settings this model's emulator needs beyond the defaults (``neuro
+train runner`` applies those the command line does not give).
+
 Shapes: N examples, S = 71 state, U = 29 controls, F = 2 forces.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,22 +36,48 @@ from tqdm import tqdm
 
 from neuroanimator.physics import runner_control as rc
 from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.sampling import Examples
+from neuroanimator.sampling import Examples, Sequences
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
-TRAIN_SPEEDS = (1.8, 2.2, 2.6)  # m/s; 2.0 and 2.4 lie between them
+TRAIN_SPEEDS = (1.6, 1.8, 2.2, 2.4)  # target speeds, m/s; 2.0 lies between two of them
+UNSEEN_SPEED = 2.0
 MAX_NOISE = 0.08  # radians on the servo targets
+MAX_STATE_NOISE = (0.01, 0.1)  # radians on the hinges, rad/s (m/s) on the velocities, per control period
 MAX_PUSH = 150.0  # newtons on the torso
 PUSH_S = 0.2
 RUN_S = 10.0  # seconds per run
+TRAIN_DEFAULTS = {
+    "hidden": (128, 128),
+    "examples": 200_000,
+    "batch_size": 512,
+    "max_seconds": 1200.0,
+    "limits": False,  # the joints' ranges are far from the gait; 174 ramp inputs would be almost always 0
+    # no rollout phase: through 16 super-steps of contact its gradients are ill-conditioned (norms of
+    # 60-80) and it made the 16-step rollout error worse (0.25 -> 0.43 at a learning rate of 1e-4)
+    "rollout_steps": 0,
+}
 BATCH = 32  # runs stepped together
 FALL_MARGIN_S = 0.5
 
 
-def _batch(model: PhysicalModel, substeps: int, rng: np.random.Generator) -> tuple[FloatArray, ...]:
-    """One batch of closed-loop runs -> states (N, S), controls (N, U), forces (N, F), next states (N, S)."""
+@dataclass
+class _Runs:
+    """R closed-loop runs: states (R, T, S), the states each period ended in (R, T, S: the next state
+    before the next period's kick), controls and forces held from each state on (R, T, U) and (R, T, F),
+    and which states still belong to running (R, T)."""
+
+    states: FloatArray
+    ends: FloatArray
+    controls: FloatArray
+    forces: FloatArray
+    running: NDArray[np.bool_]
+
+
+def _batch(model: PhysicalModel, substeps: int, rng: np.random.Generator, kicks: bool = True) -> _Runs:
+    """One batch of ``BATCH`` closed-loop runs (see the module docstring); ``kicks=False``: without the
+    kicks of the state, so that a window replays open loop exactly."""
     m = model.mj_model
     speeds = rng.choice(TRAIN_SPEEDS, BATCH)
     starts = np.stack([rc.running_start(m, float(v)) for v in speeds])
@@ -52,6 +86,7 @@ def _batch(model: PhysicalModel, substeps: int, rng: np.random.Generator) -> tup
     size = rng.uniform(0.0, MAX_PUSH, BATCH) * (rng.random(BATCH) < 0.5)
     force = np.stack([size * np.cos(angle), size * np.sin(angle), np.zeros(BATCH)], axis=1)
     push = rc.Push(force=force, start_s=float(rng.uniform(1.0, RUN_S - 1.0)), duration_s=PUSH_S)
+    kick = rng.uniform(0.0, 1.0, 2) * np.asarray(MAX_STATE_NOISE)
     res = rc.run(
         m,
         starts,
@@ -61,19 +96,37 @@ def _batch(model: PhysicalModel, substeps: int, rng: np.random.Generator) -> tup
         push=push,
         kinematic=True,
         control_noise=noise,
+        state_noise=(kick[0], kick[1]) if kicks else (0.0, 0.0),
         seed=int(rng.integers(2**31)),
     )
-    states = model.from_physics(res.states)  # (R, T, S)
-    t = np.arange(states.shape[1]) * res.dt
-    keep = (t[:-1] + res.dt)[None, :] < (res.fell_at[:, None] - FALL_MARGIN_S)
+    t = np.arange(res.states.shape[1]) * res.dt
     pushing = (t >= push.start_s) & (t < push.start_s + push.duration_s)
-    forces = np.where(pushing[None, :, None], force[:, None, :2], 0.0)  # (R, T, 2)
-    return (
-        states[:, :-1][keep],
-        res.controls[:, :-1][keep],
-        forces[:, :-1][keep],
-        states[:, 1:][keep],
+    return _Runs(
+        states=model.from_physics(res.states),
+        ends=model.from_physics(res.ends),
+        controls=res.controls,
+        forces=np.where(pushing[None, :, None], force[:, None, :2], 0.0),
+        running=t[None, :] < (res.fell_at[:, None] - FALL_MARGIN_S),
     )
+
+
+def _collect(
+    model: PhysicalModel, substeps: int, count: int, rng: np.random.Generator, what: str, progress: bool,
+    take: Callable[[_Runs], tuple[FloatArray, ...]], kicks: bool = True,
+) -> tuple[FloatArray, ...]:  # fmt: skip
+    """Run batches until ``take`` has given ``count`` rows; the rows of every batch, shuffled, cut to count."""
+    parts: list[tuple[FloatArray, ...]] = []
+    have = 0
+    with tqdm(total=count, desc=f"running {model.name} n={substeps}", unit=what, disable=not progress) as bar:
+        while have < count:
+            part = take(_batch(model, substeps, rng, kicks))
+            parts.append(part)
+            have += len(part[0])
+            bar.update(min(len(part[0]), count - bar.n))
+    arrays = tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
+    order = rng.permutation(len(arrays[0]))[:count]
+    log.info("%s: %d %s from %d runs", model.name, len(arrays[0]), what, BATCH * len(parts))
+    return tuple(a[order] for a in arrays)
 
 
 def examples(
@@ -83,16 +136,38 @@ def examples(
     module docstring); the controller acts every ``substeps`` steps."""
     if count < 1:
         raise ValueError(f"count must be positive, got {count}")
-    rng = np.random.default_rng(seed)
-    parts: list[tuple[FloatArray, ...]] = []
-    have = 0
-    with tqdm(total=count, desc=f"running {model.name} n={substeps}", unit="ex", disable=not progress) as bar:
-        while have < count:
-            part = _batch(model, substeps, rng)
-            parts.append(part)
-            have += len(part[0])
-            bar.update(min(len(part[0]), count - bar.n))
-    s, u, f, n = (np.concatenate([p[i] for p in parts]) for i in range(4))
-    order = rng.permutation(len(s))[:count]
-    log.info("%s: %d transitions from %d runs", model.name, len(s), BATCH * len(parts))
-    return Examples(s[order], u[order], f[order], n[order])
+
+    def transitions(r: _Runs) -> tuple[FloatArray, ...]:
+        keep = r.running[:, 1:]  # the transition and the state it ends in are both still running
+        return r.states[:, :-1][keep], r.controls[:, :-1][keep], r.forces[:, :-1][keep], r.ends[:, :-1][keep]
+
+    s, u, f, n = _collect(
+        model, substeps, count, np.random.default_rng(seed), "transitions", progress, transitions
+    )
+    return Examples(s, u, f, n)
+
+
+def sequences(
+    model: PhysicalModel, substeps: int, count: int, horizon: int, seed: int, *, progress: bool = True
+) -> Sequences:
+    """``count`` windows of ``horizon`` super-steps of closed-loop runs, for training over rollouts: the
+    states at the window's super-steps and the servo targets and pushes held over each (replayed open
+    loop, they reproduce the window exactly)."""
+    if count < 1 or horizon < 1:
+        raise ValueError(f"count and horizon must be positive, got {count} and {horizon}")
+
+    def windows(r: _Runs) -> tuple[FloatArray, ...]:
+        t = r.states.shape[1]
+        starts = np.arange(0, t - horizon, max(1, horizon // 2))  # half-overlapping windows
+        rows, cols = np.nonzero(r.running[:, starts + horizon])  # still running at the window's end
+        span = starts[cols][:, None] + np.arange(horizon + 1)[None, :]
+        return (
+            r.states[rows[:, None], span],
+            r.controls[rows[:, None], span[:, :-1]],
+            r.forces[rows[:, None], span[:, :-1]],
+        )
+
+    s, u, f = _collect(
+        model, substeps, count, np.random.default_rng(seed), "windows", progress, windows, kicks=False
+    )
+    return Sequences(s, u, f)

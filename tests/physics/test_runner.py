@@ -154,6 +154,28 @@ def test_training_data_come_from_running_its_neighbourhood_and_pushes() -> None:
     ex.check_finite()
     speed = ex.states[:, model.layout.slice_of("root.vel").start]
     assert np.median(speed) > 1.0  # running forward
-    assert (np.abs(ex.forces) > 0).any(axis=1).mean() > 0.0  # some transitions are pushed
     z = ex.states[:, model.layout.slice_of("root.pos").start + 2]
     assert z.min() > 0.55  # nothing from after a fall
+    runs = runner_data._batch(model, 6, np.random.default_rng(0))
+    pushed = np.any(np.abs(runs.forces) > 0, axis=2)  # (R, T)
+    assert 0 < pushed.any(axis=1).sum() < runs.forces.shape[0]  # some runs are pushed, not all
+    assert pushed.sum(axis=1).max() == round(runner_data.PUSH_S / (6 * model.dt))  # for 0.2 s
+    kicked = runs.states[:, 1:] - runs.ends[:, :-1]  # each period starts a little off where the last ended
+    assert np.abs(kicked).max() > 0
+
+
+def test_rollout_windows_replayed_open_loop_are_the_runs_they_came_from(m: mujoco.MjModel) -> None:
+    """A window of a closed-loop run, its servo targets and pushes replayed without the controller,
+    is the same window: what training over rollouts compares the emulator with."""
+    from neuroanimator.physics import runner_data
+
+    model = physics.get("runner")
+    seq = runner_data.sequences(model, 6, 8, 4, seed=3, progress=False)
+    assert (
+        seq.states.shape == (8, 5, 71) and seq.controls.shape == (8, 4, 29) and seq.forces.shape == (8, 4, 2)
+    )
+    u = np.repeat(seq.controls, 6, axis=1)
+    f = np.repeat(seq.forces, 6, axis=1)
+    replay = model.simulate(seq.states[:, 0], u, f)[:, 5::6]
+    # equal but for the constraint solver's warm start, which a state does not carry
+    np.testing.assert_allclose(replay, seq.states[:, 1:], atol=1e-4)
