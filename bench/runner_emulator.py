@@ -12,7 +12,8 @@ The emulator is the latest ``runner`` artifact (``neuro train runner``). Three t
   from the same start: at a target speed in the training data, at ``runner_data.UNSEEN_SPEED`` (not in
   it), and pushed harder than any training push. Root (pelvis) position error at 1, 5, 10 s and the
   end; mean forward speed of each; the largest relative difference of their forward speeds over
-  5-second windows; whether and when each fell;
+  5-second windows; whether and when each fell. Errors and speeds are compared while both are up
+  ("–" after a fall);
 - speed against MuJoCo for 20,000 physical steps, one client and batched (``neuroanimator.speed``:
   the same open-loop controls for both, on the same cores in the same run).
 
@@ -66,11 +67,17 @@ def closed_loop(
     sim = model.from_physics(ref.states[0])  # (T, S): the state each control period starts from
     em = emu.states[0]
     pos = model.layout.slice_of("root.pos")
-    n = min(len(em), len(sim))
+    # compare while both are up: after a fall an emulator leaves everything it was trained on
+    up_s = min(float(emu.fell_at[0]), float(ref.fell_at[0]), seconds)
+    n = min(len(em), len(sim), round(up_s / emu.dt) + 1)
     err = np.linalg.norm(em[:n, pos] - sim[:n, pos], axis=1)
-    at = {f"{t:g}": float(err[min(n - 1, round(t / emu.dt))]) for t in (1.0, 5.0, 10.0, seconds)}
-    v_emu = _windows(em[:n, pos.start], emu.dt, seconds)
-    v_sim = _windows(sim[:n, pos.start], emu.dt, seconds)
+    at = {
+        f"{t:g}": float(err[round(t / emu.dt)]) if round(t / emu.dt) < n else None
+        for t in (1.0, 5.0, 10.0, seconds)
+    }
+    v_emu = _windows(em[:n, pos.start], emu.dt, up_s)
+    v_sim = _windows(sim[:n, pos.start], emu.dt, up_s)
+    span = max(1, n - 1) * emu.dt
     return {
         "target_speed": speed_target,
         "push": None
@@ -81,8 +88,9 @@ def closed_loop(
             "duration_s": push.duration_s,
         },
         "root_error_m": at,
-        "mean_speed_emulator": float((em[n - 1, pos.start] - em[0, pos.start]) / ((n - 1) * emu.dt)),
-        "mean_speed_mujoco": float((sim[n - 1, pos.start] - sim[0, pos.start]) / ((n - 1) * emu.dt)),
+        "compared_s": (n - 1) * emu.dt,
+        "mean_speed_emulator": float((em[n - 1, pos.start] - em[0, pos.start]) / span),
+        "mean_speed_mujoco": float((sim[n - 1, pos.start] - sim[0, pos.start]) / span),
         "worst_window_speed_difference": float(np.max(np.abs(v_emu - v_sim) / np.abs(v_sim)))
         if len(v_sim)
         else None,
@@ -135,7 +143,7 @@ def main() -> int:
         )
         worst = r["worst_window_speed_difference"]
         print(
-            f"| {label} | {v:.1f} | {' / '.join(f'{x:.2f}' for x in e.values())} | "
+            f"| {label} | {v:.1f} | {' / '.join('–' if x is None else f'{x:.2f}' for x in e.values())} | "
             f"{r['mean_speed_emulator']:.2f} / {r['mean_speed_mujoco']:.2f} | "
             f"{'–' if worst is None else f'{100 * worst:.0f} %'} | {fell} |"
         )

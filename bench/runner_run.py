@@ -1,12 +1,13 @@
 """The runner's controller on MuJoCo: speed over 30 s at two target speeds, pushes, throughput.
 
-    python bench/runner_run.py [--speeds 2.0,2.6] [--seconds 30] [--push-n 250] [--json]
+    python bench/runner_run.py [--speeds 2.0,2.6] [--seconds 30] [--push-n 250]
+                               [--control-every 3] [--kinematic] [--json]
 
 Each run starts from ``runner_control.running_start`` at the target speed. The speed is the mean
 forward speed of the pelvis over the whole run and over its last 25 s; a run has fallen once its
 pelvis drops below 0.55 m. Pushes: a force of ``--push-n`` newtons on the torso for 0.2 s at 10 s,
 leftwards, rightwards, forwards and backwards, while running at the first target speed. Throughput:
-simulated seconds per wall-clock second of the closed loop (Python controller every few physical
+simulated seconds per wall-clock second of the closed loop (MuJoCo's sensors) (Python controller every few physical
 steps, ``mujoco.rollout`` in between, 2 threads), for one run and for a batch of 64.
 With ``--json`` the last line is one JSON object with every number.
 """
@@ -35,16 +36,28 @@ def main() -> int:
     p.add_argument("--speeds", default="2.0,2.6")
     p.add_argument("--seconds", type=float, default=30.0)
     p.add_argument("--push-n", type=float, default=250.0)
+    p.add_argument("--control-every", type=int, default=3, help="physical steps per control period")
+    p.add_argument("--kinematic", action="store_true", help="the controller reads KinematicSensors")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     m = physics.get("runner").mj_model
     speeds = [float(s) for s in args.speeds.split(",")]
-    out: dict[str, Any] = {"dt": m.opt.timestep, "seconds": args.seconds, "runs": [], "pushes": []}
+    every = args.control_every
+    out: dict[str, Any] = {
+        "dt": m.opt.timestep,
+        "seconds": args.seconds,
+        "control_every": args.control_every,
+        "kinematic": args.kinematic,
+        "runs": [],
+        "pushes": [],
+    }
 
     print("| target speed (m/s) | mean speed (m/s) | after 5 s (m/s) | sideways drift (m) | fell |")
     print("|---|---|---|---|---|")
     for v in speeds:
-        res = rc.run(m, rc.running_start(m, v), v, args.seconds)
+        res = rc.run(
+            m, rc.running_start(m, v), v, args.seconds, control_every=every, kinematic=args.kinematic
+        )
         mean, settled = _speeds(res, args.seconds)
         fell = float(res.fell_at[0])
         drift = float(res.final_qpos[0, 1])
@@ -76,7 +89,9 @@ def main() -> int:
     print("|---|---|---|---|---|---|")
     for name, force in pushes.items():
         push = rc.Push(force=force, start_s=10.0, duration_s=0.2)
-        res = rc.run(m, rc.running_start(m, v), v, 15.0, push=push)
+        res = rc.run(
+            m, rc.running_start(m, v), v, 15.0, push=push, control_every=every, kinematic=args.kinematic
+        )
         fell = float(res.fell_at[0])
         k10 = round(10.0 / res.dt)
         after = (float(res.final_qpos[0, 0]) - float(res.states[0, k10, 1])) / 5.0

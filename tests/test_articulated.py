@@ -18,7 +18,7 @@ from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.structured import StructuredEmulator
 from neuroanimator.train_config import TrainConfig
 from neuroanimator.training import TrainResult
-from tests.helpers import METRICS
+from tests.helpers import METRICS, ROOT
 
 
 @pytest.fixture(scope="module")
@@ -198,3 +198,30 @@ def test_a_small_articulated_emulator_trains_below_its_linear_baselines() -> Non
     assert [nets[n]["outputs"] for n in (TRUNK, "left", "right")] == [2, 2, 2]
     for name, m in nets.items():
         assert m["one_step_rel_error"] < 0.5 * m["linear_baseline_rel_error"], name
+
+
+def test_the_committed_runner_emulator_runs_a_short_closed_loop_finite_and_upright(
+    runner: PhysicalModel,
+) -> None:
+    """The catalog's runner emulator (``neuro train runner``) driven by the running controller for half
+    a second from a running start: it stays finite and up, and close to MuJoCo's run."""
+    from neuroanimator.physics import runner_control as rc
+
+    path = registry.resolve(ROOT / "artifacts", "runner")
+    manifest = registry.read_manifest(path)
+    assert manifest.emulator.stages[0] == [TRUNK] and len(manifest.emulator.stages[1]) == 4
+    onnx = OnnxEmulator(path / registry.ONNX_FILE)
+
+    def step(s: np.ndarray, u: np.ndarray, f: np.ndarray) -> np.ndarray:
+        return np.asarray(onnx.step(s.astype(np.float32), u.astype(np.float32), f.astype(np.float32)), float)
+
+    m = runner.mj_model
+    start = rc.running_start(m, 2.2)
+    emulated = rc.run_emulated(runner, step, manifest.substeps, start, 2.2, 0.5)
+    assert np.isfinite(emulated.states).all() and not np.isfinite(emulated.fell_at).any()
+    z = emulated.states[0, :, runner.layout.slice_of("root.pos").start + 2]
+    assert z.min() > 0.75
+    ref = rc.run(m, start, 2.2, 0.5, control_every=manifest.substeps, kinematic=True)
+    pos = runner.layout.slice_of("root.pos")
+    sim = runner.from_physics(ref.states[0])
+    assert np.linalg.norm(emulated.states[0, len(sim) - 1, pos] - sim[-1, pos]) < 0.1

@@ -22,7 +22,10 @@ ARTIFACTS = ROOT / "artifacts"
 COMMITTED_ALL = sorted(p.parent for p in ARTIFACTS.glob("*/*/manifest.json"))
 # one-network emulators; the hierarchies (the dolphin) are checked on their own below
 COMMITTED = [p for p in COMMITTED_ALL if len(registry.read_manifest(p).emulator.networks) == 1]
-HIERARCHIES = [p for p in COMMITTED_ALL if p not in COMMITTED]
+HIERARCHIES = [p for p in COMMITTED_ALL if p not in COMMITTED and registry.read_manifest(p).emulator.parts]
+ARTICULATED = [
+    p for p in COMMITTED_ALL if p not in COMMITTED and not registry.read_manifest(p).emulator.parts
+]
 
 # A body with a free root and two hinged arms: the shape of a hierarchy (one network for the body,
 # then one per arm in the arm's frame).
@@ -149,7 +152,23 @@ def test_the_dolphin_is_the_committed_hierarchy() -> None:
     assert [p.parent.name for p in HIERARCHIES] == ["dolphin"]
 
 
-@pytest.mark.parametrize("path", COMMITTED_ALL[:3] + HIERARCHIES, ids=lambda p: p.name)
+@pytest.mark.parametrize("path", ARTICULATED, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_every_committed_articulated_hierarchy_reads_as_its_stages(path: Path) -> None:
+    """A committed articulated hierarchy (the runner): the trunk, then one network per branch, together
+    writing the state once, each branch reading the trunk's prediction and its own controls."""
+    m = registry.read_manifest(path)
+    graph = m.emulator
+    branches = [b.name for b in m.spec.branches]
+    assert graph.stages == [["trunk"], branches] and [n.name for n in graph.networks] == ["trunk", *branches]
+    assert sorted(graph.written) == sorted(g.name for g in m.layout)
+    trunk = graph.networks[0]
+    for net, branch in zip(graph.networks[1:], m.spec.branches, strict=True):
+        assert net.writes == branch.groups and net.reads.predicted == trunk.writes
+        assert net.reads.controls == branch.controls
+    assert [p.parent.name for p in ARTICULATED] == ["runner"]
+
+
+@pytest.mark.parametrize("path", COMMITTED_ALL[:3] + HIERARCHIES + ARTICULATED, ids=lambda p: p.name)
 def test_format_2_round_trips_through_json(path: Path) -> None:
     m = registry.read_manifest(path)
     again = parse_manifest(json.loads(m.model_dump_json()))

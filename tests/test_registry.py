@@ -105,7 +105,8 @@ def test_committed_results_are_stored_per_version_and_typed() -> None:
         assert summary is not None and [r.substeps for r in summary.by_substeps] == ns
         speed = registry.model_bench(ARTIFACTS, model)
         assert speed is not None and [r.substeps for r in speed.single] == ns
-        assert [r.batch for r in speed.batched] == [1, 64, 1024, 4096]
+        # 4,096 where MuJoCo's side fits the time: the runner's 20 s at B = 4,096 would take 40 minutes
+        assert [r.batch for r in speed.batched] in ([1, 64, 1024, 4096], [1, 64, 1024]), model
         if ns == [25, 50, 100]:
             # the summary is of the version "latest" points to: the model's own super-step (the
             # quadrotor's is 25, the thesis models' 50)
