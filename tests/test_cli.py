@@ -400,3 +400,24 @@ def test_auto_super_step_probes_a_model_whose_limits_engage(tmp_path: Path) -> N
     reason = summary["substeps_reason"]
     assert "limits engaged in" in reason and "probe one-step errors n=50:" in reason
     assert summary["substeps"] in (50, 25, 10)
+
+
+def test_train_runner_uses_its_data_source_and_its_settings(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``neuro train runner``: the runner's data come from its running controller and its settings from
+    its data source (``runner_data.TRAIN_DEFAULTS``), except what the command line gives; the result is
+    the articulated hierarchy of five networks."""
+    rc = main(
+        ["train", "runner", "--out", str(tmp_path), "--examples", "1500", "--max-seconds", "3",
+         "--hidden", "16", "--force", "--quiet", "--json"]
+    )  # fmt: skip
+    assert rc == 0
+    summary = _last_json(capsys.readouterr().out)
+    assert summary["substeps"] == 6 and summary["examples"] == 1500
+    assert set(summary["networks"]) == {"trunk", "left_arm", "right_arm", "left_leg", "right_leg"}
+    manifest = registry.read_manifest(registry.resolve(tmp_path, "runner"))
+    cfg = manifest.train_config
+    assert cfg.hidden == (16,) and cfg.max_seconds == 3  # given on the command line
+    assert cfg.limits is False and cfg.batch_size == 512 and cfg.rollout_steps == 0  # the source's
+    assert "contact_fraction" not in summary  # no probe of typical controls: the spec gives n
