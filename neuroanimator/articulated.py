@@ -31,17 +31,9 @@ import torch
 from torch import Tensor, nn
 
 from neuroanimator.model_spec import Branch
-from neuroanimator.structured import LIMIT_FRACTIONS, StructuredEmulator, make_core
+from neuroanimator.structured import LIMIT_FRACTIONS, StructuredEmulator, make_core, select_columns
 
 TRUNK = "trunk"
-
-
-def _select(rows: int, cols: Sequence[int]) -> Tensor:
-    """(rows, len(cols)) 0/1 matrix: ``x @ sel`` picks columns ``cols`` of x in order."""
-    sel = torch.zeros(rows, len(cols))
-    for j, c in enumerate(cols):
-        sel[c, j] = 1.0
-    return sel
 
 
 RIDGE = 1e-3  # per example, on unit-variance inputs
@@ -142,7 +134,9 @@ class ArticulatedCore(nn.Module):
         d = at
         out_cols = {g.name: list(range(sl.start, sl.stop)) for g, sl in lay.group_slices()}
         trunk_out = [c for g in self.trunk_writes for c in out_cols[g]]
-        self.register_buffer("_trunk_out", _select(lay.size, trunk_out).T.contiguous(), persistent=False)
+        self.register_buffer(
+            "_trunk_out", select_columns(lay.size, trunk_out).T.contiguous(), persistent=False
+        )
         self.trunk = _Net(d, len(trunk_out), trunk_hidden, activation)
         nets, self.inputs = [], []
         for k, b in enumerate(branches):
@@ -153,8 +147,10 @@ class ArticulatedCore(nn.Module):
                 cols += [in_cols["controls"][list(control_names).index(c)] for c in wanted]
             cols += self._own_limit_columns(emu, b, in_cols, out_cols)
             outs = [c for g in b.groups for c in out_cols[g]]
-            self.register_buffer(f"_sel{k}", _select(d, cols), persistent=False)
-            self.register_buffer(f"_place{k}", _select(lay.size, outs).T.contiguous(), persistent=False)
+            self.register_buffer(f"_sel{k}", select_columns(d, cols), persistent=False)
+            self.register_buffer(
+                f"_place{k}", select_columns(lay.size, outs).T.contiguous(), persistent=False
+            )
             self.inputs.append(len(cols) + len(trunk_out))
             nets.append(_Net(len(cols) + len(trunk_out), len(outs), branch_hidden, activation))
         self.nets = nn.ModuleList(nets)

@@ -104,7 +104,7 @@ class _PairPlan:
 Frame = Tensor  # (B, 4): cos ψ, sin ψ, cos ψ/2, sin ψ/2 of each state's heading ψ
 
 
-def _select(rows: int, cols: Sequence[int]) -> Tensor:
+def select_columns(rows: int, cols: Sequence[int]) -> Tensor:
     """The 0/1 matrix M (rows, len(cols)) with ``(v @ M)[:, j] == v[:, cols[j]]``.
 
     Column picks are written as products with constant matrices rather than gathers: ONNX Runtime
@@ -117,7 +117,7 @@ def _select(rows: int, cols: Sequence[int]) -> Tensor:
 
 
 def _select_or_zero(rows: int, cols: Sequence[int]) -> Tensor:
-    """Like ``_select``, but a column index of -1 gives a column of zeros."""
+    """Like ``select_columns``, but a column index of -1 gives a column of zeros."""
     m = torch.zeros(rows, len(cols))
     for j, c in enumerate(cols):
         if c >= 0:
@@ -203,8 +203,8 @@ class _Rotation(nn.Module):
     def __init__(self, width: int, plan: _PairPlan) -> None:
         super().__init__()
         p = len(plan.x)
-        self.register_buffer("xy", _select(width, plan.x + plan.y), persistent=False)  # (K, 2P)
-        self.register_buffer("yx", _select(width, plan.y + plan.x), persistent=False)
+        self.register_buffer("xy", select_columns(width, plan.x + plan.y), persistent=False)  # (K, 2P)
+        self.register_buffer("yx", select_columns(width, plan.y + plan.x), persistent=False)
         cos = torch.zeros(4, 2 * p)  # picks cos ψ or cos ψ/2 for each output column
         sin = torch.zeros(4, 2 * p)  # picks ±sin ψ or ±sin ψ/2 (sign of the local transform)
         for k, h in enumerate(plan.half):
@@ -411,11 +411,11 @@ class StructuredEmulator(nn.Module):
         self._rot_in = _Rotation(S + U + F, in_plan) if in_pairs else None
         self._angles = tuple(angles)
         self._num_in_vecs = len(in_vecs)
-        self.register_buffer("_angle_sel", _select(S, angles), persistent=False)  # (S, A)
+        self.register_buffer("_angle_sel", select_columns(S, angles), persistent=False)  # (S, A)
         self.register_buffer(
             "_vec_in_sel", _select_or_zero(S + U + F, [c for v in in_vecs for c in v]), persistent=False
         )  # (S+U+F, 3K)
-        self.register_buffer("_in_place", _select(width, gather), persistent=False)
+        self.register_buffer("_in_place", select_columns(width, gather), persistent=False)
         self.input_groups = groups
         self.input_size = len(gather)
 
@@ -453,30 +453,32 @@ class StructuredEmulator(nn.Module):
             "_vec_out_sel", _select_or_zero(S, [c for v in out_vecs for c in v]), persistent=False
         )  # (S, 3K')
         out_width = quat_out_at + (4 if body else 0)
-        self.register_buffer("_out_place", _select(out_width, out_gather), persistent=False)  # (W, S)
+        self.register_buffer("_out_place", select_columns(out_width, out_gather), persistent=False)  # (W, S)
 
         # ---- quaternion renormalisation: next = nxt @ keep + normalised(nxt @ quat) @ place
         quats = [sl for g, sl in lay.group_slices() if g.kind in ("quaternion", "local_quaternion")]
         self.quaternion_slices = quats
         qcols = [c for sl in quats for c in range(sl.start, sl.stop)]
         self._num_quats = len(quats)
-        self.register_buffer("_quat_sel", _select(S, qcols), persistent=False)  # (S, 4k)
+        self.register_buffer("_quat_sel", select_columns(S, qcols), persistent=False)  # (S, 4k)
         keep = torch.eye(S)
         for c in qcols:
             keep[c, c] = 0.0
         self.register_buffer("_keep", keep, persistent=False)  # (S, S): every column but the quaternions
-        self.register_buffer("_quat_place", _select(S, qcols).T.contiguous(), persistent=False)  # (4k, S)
+        self.register_buffer(
+            "_quat_place", select_columns(S, qcols).T.contiguous(), persistent=False
+        )  # (4k, S)
 
         # ---- the frame: the root quaternion's (w, z), the heading angle, or the whole root quaternion
         if body:
             assert self._quat is not None
             self.register_buffer(
-                "_frame_sel", _select(S, range(self._quat[0], self._quat[0] + 4)), persistent=False
+                "_frame_sel", select_columns(S, range(self._quat[0], self._quat[0] + 4)), persistent=False
             )  # (S, 4)
         elif self._quat is not None:
-            self.register_buffer("_frame_sel", _select(S, self._quat), persistent=False)  # (S, 2)
+            self.register_buffer("_frame_sel", select_columns(S, self._quat), persistent=False)  # (S, 2)
         elif self._heading is not None:
-            self.register_buffer("_frame_sel", _select(S, [self._heading]), persistent=False)  # (S, 1)
+            self.register_buffer("_frame_sel", select_columns(S, [self._heading]), persistent=False)  # (S, 1)
         # [h², h·swap(h), h] (B, 6) -> [cos ψ, sin ψ, cos ψ/2, sin ψ/2] (B, 4) for h = (cos ψ/2, sin ψ/2)
         table = torch.zeros(6, 4)
         table[0, 0], table[1, 0] = 1.0, -1.0  # cos ψ = ch² - sh²
