@@ -21,14 +21,17 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from neuroanimator.manifest import EnvelopeGroup
+from neuroanimator.model_spec import DriverParam
 from neuroanimator.state import LayoutGroup
 
-WIRE_MODELS_FROM_ELSEWHERE = (LayoutGroup, EnvelopeGroup)
+WIRE_MODELS_FROM_ELSEWHERE = (LayoutGroup, EnvelopeGroup, DriverParam)
 """Wire models owned by another module (the state layout's), exported to proto/ with these."""
 
 Number = Annotated[float, Field(strict=True, allow_inf_nan=False)]
 """A finite JSON number (int or float; no strings, booleans, NaN or Infinity)."""
 Vector = list[Number]
+DriverParams = dict[str, Number]
+"""A driver's parameters by name (``ModelDetail.driver.params``), e.g. ``{"speed": 2.2}``."""
 Integer = Annotated[int, Field(strict=True)]
 """A JSON integer (no strings, booleans or fractions)."""
 Flag = Annotated[bool, Field(strict=True)]
@@ -79,6 +82,14 @@ class ModelSummary(BaseModel):
     versions: list[str]
 
 
+class DriverInfo(BaseModel):
+    """A model's driver: its name, what it does, and the parameters a client may set."""
+
+    name: str
+    description: str = ""
+    params: list[DriverParam]
+
+
 class ModelDetail(ModelSummary):
     """The manifest's description of the latest (or the named) version."""
 
@@ -90,6 +101,11 @@ class ModelDetail(ModelSummary):
     metrics: dict[str, Any] = {}
     envelope: list[EnvelopeGroup] | None = Field(
         None, description="per state group, the range of the training states (absent for older artifacts)"
+    )
+    driver: DriverInfo | None = Field(
+        None,
+        description="the model's own controller, which a session may ask for (SessionCreate.driver): it sets "
+        "every control each super-step, and the client sets its params and the forces",
     )
 
 
@@ -223,6 +239,12 @@ class SessionCreate(_Wire):
     version: str | None = None
     state: Vector | None = None
     seed: Annotated[int, Field(ge=0, strict=True)] | None = None
+    driver: DriverParams | None = Field(
+        None,
+        description="run the model's driver (ModelDetail.driver) with these parameters ({} for its "
+        "defaults): it sets the controls every super-step; without a state, the session starts where "
+        "the driver starts (the runner: a running stride at the target speed)",
+    )
 
 
 class SessionInfo(BaseModel):
@@ -237,6 +259,10 @@ class SessionInfo(BaseModel):
     diverged: bool
     seed: int | None = None
     ttl_s: float
+    driver: dict[str, float] | None = Field(
+        None,
+        description="the driver's parameters when the model's driver sets the controls; null: the client",
+    )
 
 
 class StepRequest(_Wire):
@@ -246,6 +272,11 @@ class StepRequest(_Wire):
     forces: Vector = []
     steps: Annotated[int, Field(ge=1, strict=True)] = 1
     frames_per_step: Annotated[int, Field(ge=1, strict=True)] | None = None
+    driver: DriverParams | None = Field(
+        None,
+        description="a driven session only: new parameters for its driver (the rest keep their values); "
+        "its controls come from the driver, so controls may be left out",
+    )
 
 
 class StepResponse(BaseModel):
@@ -320,6 +351,11 @@ class WsStep(_Wire):
     type: Literal["step"]
     controls: Vector = []
     forces: Vector = []
+    driver: DriverParams | None = Field(
+        None,
+        description="a driven session only: new parameters for its driver (the rest keep their values); "
+        "its controls come from the driver, so controls may be left out",
+    )
     seq: int | None = None
 
 
@@ -358,6 +394,11 @@ class WsControls(_Wire):
     type: Literal["controls"]
     controls: Vector = []
     forces: Vector = []
+    driver: DriverParams | None = Field(
+        None,
+        description="a driven session only: new parameters for its driver (the rest keep their values); "
+        "its controls come from the driver, so controls may be left out",
+    )
     seq: int | None = None
 
 

@@ -117,6 +117,40 @@ class Branch(BaseModel):
     )
 
 
+class DriverParam(BaseModel):
+    """One setting of a model's driver that a client may change while it runs (a target speed)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str
+    label: str = Field(description="what it sets, in words")
+    unit: str = ""
+    low: float
+    high: float
+    default: float
+
+    @model_validator(mode="after")
+    def _ordered(self) -> DriverParam:
+        if not self.low <= self.default <= self.high:
+            raise ValueError(f"driver parameter {self.name!r}: need low <= default <= high")
+        return self
+
+
+class DriverSpec(BaseModel):
+    """A model's own closed-loop controller, which the emulator service can run for a session (the
+    runner's running controller). Each super-step it reads the session's state and sets every control;
+    a client sets only its ``params`` (and the force inputs, which stay the client's). ``factory`` is
+    ``"module:function"`` in this package, called with the ``PhysicalModel``, the super-step's
+    physical steps and the parameters; it returns a ``neuroanimator.driver.Driver``."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str
+    description: str = ""
+    factory: str = Field(pattern=r"^neuroanimator\.[\w.]+:\w+$")
+    params: list[DriverParam] = Field(default_factory=list)
+
+
 class SpringRegularizer(BaseModel):
     """The regulariser of thesis 6.1.3 for a mass-spring model: after each emulated super-step, ``steps``
     explicit Euler steps of the spring forces between the model's points,
@@ -208,6 +242,11 @@ class ModelSpec(BaseModel):
         description="a module whose functions examples and sequences generate the training transitions "
         "and rollout windows, called like neuroanimator.sampling.generate and generate_sequences (a model "
         "whose motion comes from a controller); None: the sampler's, under typical controls",
+    )
+    driver: DriverSpec | None = Field(
+        None,
+        description="the model's own controller, which the emulator service runs for a session that asks "
+        "for it (a model whose controls come from a controller: the runner's joint targets)",
     )
     regularizer: SpringRegularizer | None = Field(
         None, description="a mass-spring model's regulariser (thesis 6.1.3), on by default in its emulators"

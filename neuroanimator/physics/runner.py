@@ -8,9 +8,10 @@ damper run inside every physical step: stable at any control period, and the emu
 joint targets, held over a super-step like any model's controls. The torque a servo applies is capped
 by its ``forcerange``, so a target far away is a bounded torque, not an impulse.
 
-The running data come from the closed loop (``runner_control.run``). The spec's typical controls are
-the open-loop neighbourhood of standing: targets within a band around ``STAND`` (the figure sways,
-crouches, and falls over), which is what the catalog's samplers draw.
+The running data come from the closed loop (``runner_control.run``), whose targets reach across the
+actuators' whole ``ctrlrange`` (a swing knee folds to 1.8 rad): so the range of the controls, which the
+emulator service clips inputs to, is the ``ctrlrange`` and not a band around the standing pose. The
+spec's driver (``DRIVER``) lets the emulator service run that controller for a session.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from neuroanimator.model_spec import Branch, ForceInput, InitialStates, ModelSpec
+from neuroanimator.model_spec import Branch, DriverParam, DriverSpec, ForceInput, InitialStates, ModelSpec
 
 if TYPE_CHECKING:
     from neuroanimator.physics.model import PhysicalModel
@@ -44,7 +45,6 @@ STAND: dict[str, float] = {
     **{f"{side}_shoulder_x": 0.15 for side in SIDES},
     **{f"{side}_elbow": 0.3 for side in SIDES},
 }
-BAND = 0.35  # radians around the standing pose that typical open-loop controls span
 
 
 PUSH_N = 300.0  # the range of the push force inputs (newtons on the torso, each horizontal axis)
@@ -69,6 +69,17 @@ def branches() -> list[Branch]:
     return out
 
 
+# The running controller sets the joint targets; a client sets its target speed. The range is the
+# speeds the emulator's training runs were at (runner_data.TRAIN_SPEEDS); 2.0 m/s lies between them.
+DRIVER = DriverSpec(
+    name="run",
+    description="the running controller (runner_control): joint targets from the emulated state each "
+    "super-step; the client sets the target speed and may push the torso",
+    factory="neuroanimator.physics.runner_control:driver",
+    params=[DriverParam(name="speed", label="target speed", unit="m/s", low=1.6, high=2.4, default=2.0)],
+)
+
+
 def stand_targets() -> list[float]:
     """(29,) the servo targets of the standing pose, in the order of ``JOINTS``."""
     return [STAND.get(name, 0.0) for name in JOINTS]
@@ -80,11 +91,7 @@ def runner() -> PhysicalModel:
     from neuroanimator.physics.model import PhysicalModel  # MuJoCo loads when a model is built
 
     xml = XML_PATH.read_text()
-    stand = np.asarray(stand_targets())
     probe = PhysicalModel(xml, ModelSpec(name="runner"))
-    limits = probe.control_limits
-    low = np.clip(stand - BAND, limits[:, 0], limits[:, 1])
-    high = np.clip(stand + BAND, limits[:, 0], limits[:, 1])
     size = probe.state_size
     height = probe.layout.slice_of("root.pos").start + 2
     jitter_low, jitter_high = np.zeros(size), np.zeros(size)
@@ -96,6 +103,7 @@ def runner() -> PhysicalModel:
         substeps=SUBSTEPS,
         branches=branches(),
         data_source="neuroanimator.physics.runner_data",
+        driver=DRIVER,
         forces=[
             ForceInput(name=f"push_{axis}", body="torso", component=i, low=-PUSH_N, high=PUSH_N)
             for i, axis in enumerate("xy")
@@ -105,8 +113,6 @@ def runner() -> PhysicalModel:
             "running human figure: 70 kg, 35 degrees of freedom (free root, 29 servoed hinges), "
             "ground contact with friction; controls are joint targets (thesis 4.4, Hodgins' runner)"
         ),
-        control_low=low.tolist(),
-        control_high=high.tolist(),
         control_spacing_s=0.5,
         initial=InitialStates(
             low=jitter_low.tolist(), high=jitter_high.tolist(), random_yaw=True, max_tilt=0.05

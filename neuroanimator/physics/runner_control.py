@@ -630,3 +630,43 @@ def run_emulated(
         down = (full[:, qpos_cols[2]] < 0.55) & ~np.isfinite(fell_at)
         fell_at[down] = now
     return EmulatedRun(states, controls, dt, fell_at)
+
+
+class RunnerDriver:
+    """The running controller as a ``neuroanimator.driver.Driver`` of one run: what the emulator
+    service runs for a session of the runner's emulator, and for its MuJoCo shadow. It reads
+    ``KinematicSensors`` (the emulated state has no contact forces), as ``run_emulated`` does."""
+
+    def __init__(self, model: PhysicalModel, substeps: int, params: dict[str, float]) -> None:
+        self.model = model
+        m = model.mj_model
+        self.dt = m.opt.timestep * substeps
+        self.controller = RunnerController(m)
+        self.observer = KinematicSensors(m)
+        self.speed = float(params.get("speed", DRIVER_SPEED))
+        self.controller.reset(1, self.speed)
+        self.qpos_cols = np.arange(1, 1 + m.nq)  # full physics: time, qpos, qvel, ...
+        self.qvel_cols = np.arange(1 + m.nq, 1 + m.nq + m.nv)
+
+    def start(self) -> FloatArray:
+        """(S,) a running stride's start at the target speed (``running_start``)."""
+        return np.asarray(self.model.from_physics(running_start(self.model.mj_model, self.speed)[None])[0])
+
+    def configure(self, params: dict[str, float]) -> None:
+        self.speed = float(params.get("speed", self.speed))
+        self.controller.target_speed[:] = self.speed
+        self.controller.running = self.controller.target_speed > 0.0
+
+    def act(self, state: NDArray[np.floating]) -> FloatArray:
+        full = self.model.to_physics(np.asarray(state, float)[None])
+        qpos, qvel = full[:, self.qpos_cols], full[:, self.qvel_cols]
+        targets = self.controller.act(qpos, qvel, self.observer.read(qpos, qvel), self.dt)
+        return np.asarray(targets[0])
+
+
+DRIVER_SPEED = 2.0  # m/s: the driver's default target speed (between two the emulator was trained at)
+
+
+def driver(model: PhysicalModel, substeps: int, params: dict[str, float]) -> RunnerDriver:
+    """The ``ModelSpec.driver`` factory of the runner."""
+    return RunnerDriver(model, substeps, params)

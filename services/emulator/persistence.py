@@ -37,6 +37,7 @@ from redis.asyncio.retry import Retry
 from redis.backoff import ExponentialBackoff
 from redis.exceptions import RedisError, ResponseError
 
+from neuroanimator.driver import load_driver
 from services.emulator.errors import EmulatorError
 from services.emulator.service import EmulatorService
 from services.emulator.sessions import Session
@@ -58,6 +59,7 @@ class Record:
     seed: int | None
     owner: str | None
     last_used: float
+    driver: dict[str, float] | None = None  # a driven session's driver parameters
 
 
 def encode(sess: Session, last_used_wall: float) -> bytes:
@@ -70,6 +72,7 @@ def encode(sess: Session, last_used_wall: float) -> bytes:
         "s": sess.seed,
         "o": sess.owner,
         "u": round(last_used_wall, 3),
+        "r": sess.driver_params,
     }
     state = sess.pool.states[sess.slot].astype("<f4")
     return json.dumps(head, separators=(",", ":")).encode() + b"\0" + state.tobytes()
@@ -90,6 +93,7 @@ def decode(raw: bytes) -> Record:
         seed=None if head["s"] is None else int(head["s"]),
         owner=None if head["o"] is None else str(head["o"]),
         last_used=float(head["u"]),
+        driver=None if head.get("r") is None else {str(k): float(v) for k, v in head["r"].items()},
     )
 
 
@@ -210,7 +214,15 @@ class Persistence:
                 emu = self.service.registry.get(rec.model, rec.version)
                 if rec.state.shape != (emu.state_size,):
                     raise ValueError(f"state of {rec.state.size} values, the model has {emu.state_size}")
+                driver = None
+                if rec.driver is not None:  # the controller starts afresh (its phase is not checkpointed)
+                    params = self.service.driver_params(emu, rec.driver)
+                    spec = emu.manifest.spec.driver
+                    assert spec is not None  # driver_params refuses a model without one
+                    driver = load_driver(spec, emu.physical, emu.substeps, params)
                 sess = store.create(emu, rec.state, rec.seed, owner=rec.owner, sid=sid)
+                if driver is not None:
+                    sess.attach_driver(driver, params)
             except (EmulatorError, ValueError) as exc:
                 log.warning("cannot restore session %s (%s/%s): %s", sid, rec.model, rec.version, exc)
                 continue

@@ -3,7 +3,8 @@
 ``geometry(emu)``: the bodies (with parents), their geoms and the model's skins, as ``GET /models/{model}/geometry``
 answers. ``Kinematics.poses(states)``: every body's world pose for states (K, S), by MuJoCo's forward
 kinematics (``mj_kinematics``). ``MujocoShadow``: a MuJoCo copy of one session stepped with the same
-held inputs, for the websocket's ``shadow`` option. Torch-free, like the rest of the service.
+held inputs (a driven session's copy: with its own instance of the driver), for the websocket's
+``shadow`` option. Torch-free, like the rest of the service.
 
 A pose is ``[x, y, z, qw, qx, qy, qz]`` in the world frame; bodies are MuJoCo's bodies 1..nbody-1
 (the world body 0 is left out: its geoms are ``ModelGeometry.world``).
@@ -19,6 +20,7 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
+from neuroanimator.driver import Driver
 from neuroanimator.emulator_schemas import (
     BodyInfo,
     GeomInfo,
@@ -237,8 +239,15 @@ class MujocoShadow:
     steps under held inputs, the emulator's contract) at a time. Stops when its state stops being
     finite."""
 
-    def __init__(self, physical: PhysicalModel, substeps: int, state: NDArray[np.floating]) -> None:
+    def __init__(
+        self,
+        physical: PhysicalModel,
+        substeps: int,
+        state: NDArray[np.floating],
+        driver: Driver | None = None,
+    ) -> None:
         self.physical = physical
+        self.driver = driver  # a driven session's twin runs its own instance of the controller
         self.substeps = substeps
         self.state = np.asarray(state, dtype=np.float64).copy()
         self.diverged = False
@@ -249,6 +258,8 @@ class MujocoShadow:
         if self.diverged:
             return self.state
         p = self.physical
+        if self.driver is not None:
+            controls = self.driver.act(self.state).astype(np.float32)
         u = controls[None].astype(np.float64) if p.num_controls else None
         f = forces[None].astype(np.float64) if p.num_forces else None
         new = p.step_held(self.state[None], u, f, self.substeps)[0]

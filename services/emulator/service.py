@@ -10,16 +10,18 @@ from __future__ import annotations
 import asyncio
 import logging
 import secrets
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from neuroanimator.driver import Driver, DriverError, check_params, load_driver
 from neuroanimator.emulator_schemas import SessionCreate
 from services.common.auth import CALLER
 from services.emulator.errors import BadInput, UnknownSession
-from services.emulator.inputs import check_vector
+from services.emulator.inputs import CheckedInputs, check_vector
 from services.emulator.metrics import Metrics
-from services.emulator.registry import Registry
+from services.emulator.registry import LoadedEmulator, Registry
 from services.emulator.sessions import Session, SessionStore
 from services.emulator.settings import Settings
 from services.emulator.stepping import Stepper
@@ -79,10 +81,51 @@ class EmulatorService:
         else:
             seed = req.seed if req.seed is not None else secrets.randbits(63)
             state = emu.initial_state(seed)
+        driver = None
+        if req.driver is not None:
+            params = self.driver_params(emu, req.driver)
+            spec = emu.manifest.spec.driver
+            assert spec is not None  # driver_params refuses a model without one
+            driver = load_driver(spec, emu.physical, emu.substeps, params)
+            if req.state is None:  # where the driven motion starts; no random draw
+                state, seed = driver.start().astype(np.float32), None
         sess = self.store.create(emu, state, seed, owner=CALLER.get())
+        if driver is not None:
+            sess.attach_driver(driver, params)
         self.update_gauges()
         log.info("session created", extra={"session": sess.id, "model": emu.model, "version": emu.version})
         return sess
+
+    # ------------------------------------------------------------------ drivers
+    @staticmethod
+    def driver_params(emu: LoadedEmulator, given: Mapping[str, float]) -> dict[str, float]:
+        """The model's driver's parameters, ``given`` over its defaults; ``BadInput`` naming the problem."""
+        try:
+            return check_params(emu.manifest.spec.driver, emu.model, given)
+        except DriverError as exc:
+            raise BadInput(str(exc), code="bad_driver", field="driver", got=dict(given)) from None
+
+    def drive(self, sess: Session, params: Mapping[str, float] | None) -> None:
+        """New parameters for a driven session's driver (``None``: unchanged); ``BadInput`` for a session
+        without a driver."""
+        if params is None:
+            return
+        if sess.driver is None:
+            raise BadInput(
+                f"session {sess.id} has no driver: create it with a driver to set driver parameters",
+                code="no_driver",
+                field="driver",
+                got=dict(params),
+            )
+        full = self.driver_params(sess.emu, {**(sess.driver_params or {}), **params})
+        sess.driver.configure(full)
+        sess.driver_params = full
+
+    def driven_inputs(self, sess: Session, driver: Driver, forces: Sequence[float]) -> CheckedInputs:
+        """The inputs of a driven session's next super-step: the driver's controls for its current
+        state, and the client's (checked) forces."""
+        controls = driver.act(sess.state)
+        return self.stepper.check(sess.emu, controls.tolist(), list(forces))
 
     def delete(self, sid: str) -> None:
         """``UnknownSession`` unless it exists and the caller's key (if any) owns it."""

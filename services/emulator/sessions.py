@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from neuroanimator.driver import Driver
 from services.common.auth import CALLER
 from services.emulator.binary import decode_ids
 from services.emulator.errors import BadInput, QuotaExceeded, UnknownSession
@@ -43,6 +44,7 @@ class StatePool:
         self.last_used = np.zeros(capacity, dtype=np.float64)  # time.monotonic()
         self.diverged = np.zeros(capacity, dtype=bool)
         self.outside = np.zeros(capacity, dtype=bool)
+        self.driven = np.zeros(capacity, dtype=bool)  # its model's driver sets its controls
         self.busy = np.zeros(capacity, dtype=bool)
         self.taken = np.zeros(capacity, dtype=bool)
         self.gen = np.zeros(capacity, dtype=np.uint32)
@@ -60,6 +62,7 @@ class StatePool:
             "last_used",
             "diverged",
             "outside",
+            "driven",
             "busy",
             "taken",
             "gen",
@@ -83,6 +86,7 @@ class StatePool:
         self.last_used[slot] = time.monotonic()
         self.diverged[slot] = False
         self.outside[slot] = False
+        self.driven[slot] = False
         self.busy[slot] = False
         self.taken[slot] = True
         self.owner_code[slot] = owner_code
@@ -92,6 +96,7 @@ class StatePool:
     def release(self, slot: int) -> None:
         """The slot is free again; a step of its old session still in flight sees ``gen`` changed."""
         self.owner[slot] = None
+        self.driven[slot] = False
         self.gen[slot] += 1
         self.busy[slot] = False
         self.taken[slot] = False
@@ -169,6 +174,16 @@ class Session:
     # what its row said when it was deleted (a step in flight may still report on it)
     final_steps: int = 0
     final_diverged: bool = False
+    # the model's controller setting the controls each super-step (``neuroanimator.driver``), and its
+    # parameters as the client set them; None: the client's controls
+    driver: Driver | None = None
+    driver_params: dict[str, float] | None = None
+
+    def attach_driver(self, driver: Driver, params: dict[str, float]) -> None:
+        """From now on ``driver`` sets this session's controls on every transport."""
+        self.driver, self.driver_params = driver, params
+        if self.slot >= 0:
+            self.pool.driven[self.slot] = True
 
     @property
     def alive(self) -> bool:

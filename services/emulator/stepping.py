@@ -211,7 +211,8 @@ class Stepper:
             except EmulatorError as exc:
                 prepared.append(exc)
                 continue
-            prepared.append((sess, self.check(sess.emu, it.controls, it.forces, prefix=f"items[{i}].")))
+            controls = it.controls if sess.driver is None else sess.driver.act(sess.state).tolist()
+            prepared.append((sess, self.check(sess.emu, controls, it.forces, prefix=f"items[{i}].")))
         t0 = time.perf_counter()
 
         async def one(p: tuple[Session, CheckedInputs] | EmulatorError) -> Stepped | EmulatorError:
@@ -244,6 +245,13 @@ class Stepper:
         emu, pool = res.emu, res.pool
         assert emu is not None and pool is not None
         n = len(rows)
+        driven = np.flatnonzero(res.known & pool.driven[np.where(res.known, res.slots, 0)])
+        if driven.size:  # a driven session's controls come from its driver, whatever the row says
+            rows = rows.copy()
+            for i in driven.tolist():
+                one = pool.owner[int(res.slots[i])]
+                if one is not None and one.driver is not None:
+                    rows[i, : emu.num_controls] = one.driver.act(one.state)
         inputs, mask = emu.inputs.clip(rows, label)
         status = np.zeros(n, np.uint8)
         if mask is not None:  # (the rows of the clipped values, without a reduction along the short axis)

@@ -175,6 +175,33 @@ async function playground(page) {
   check(changed(d0, d1) > 5, 'the skin follows the nodes on screen');
   await noErrorNotice(page, 'dolphin');
   await shot(page, 'playground-dolphin');
+
+  // a fourth: the runner, driven by its own running controller; the person sets its target speed
+  await page.selectOption('#pg-model', 'runner');
+  await page.waitForFunction(() => document.querySelector('#pg-start-from')?.value === 'driver', null, { timeout: 10000 });
+  await startSession(page, 'runner');
+  const speed = await page.$$eval('[data-driver]', (els) => els.map((e) => [e.dataset.driver, e.min, e.max, e.value]));
+  const runnerControls = await page.$$eval('[data-control]', (els) => els.length);
+  const runnerForces = await page.$$eval('[data-force]', (els) => els.map((e) => e.dataset.force));
+  log(`runner: driver sliders ${JSON.stringify(speed)}, ${runnerControls} control sliders, forces ${runnerForces}`);
+  check(speed.length === 1 && speed[0][0] === 'speed', 'the runner has a target-speed slider for its controller');
+  check(runnerControls === 0 && runnerForces.length === 2, 'its joint targets come from the controller; the pushes are the person\'s');
+  const r0 = JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.state));
+  const rt0 = Number(await page.$eval('#pg-status', (el) => el.dataset.t));
+  await page.$eval('[data-driver="speed"]', (el) => {
+    el.value = el.max;
+    el.dispatchEvent(new Event('input', { bubbles: true }));
+  });
+  await page.waitForTimeout(1000);
+  const r1 = JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.state));
+  const rt1 = Number(await page.$eval('#pg-status', (el) => el.dataset.t));
+  const runnerSent = JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.sent ?? '{}'));
+  log(`runner: x ${r0[0]} -> ${r1[0]} m, pelvis height ${r1[2]} m over ${(rt1 - rt0).toFixed(2)} s; sent ${JSON.stringify(runnerSent.driver)}`);
+  check(r1[0] - r0[0] > 1.0 * (rt1 - rt0) && rt1 > rt0, 'the emulated runner runs forward');
+  check(runnerSent.driver?.speed === 2.4, 'the target speed goes to the session');
+  await onScreen(page, '#pg-view', 'model');
+  await onScreen(page, '#pg-view', 'ghost');
+  await shot(page, 'playground-runner');
   await page.click('#pg-stop');
 }
 

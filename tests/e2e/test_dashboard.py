@@ -7,7 +7,8 @@ the browser phase by phase at 1280×800:
 - Playground: a live lander session driven by the keyboard, on screen with the ground below it, the
   MuJoCo ghost and the gap to it (number and curve), the frame rate; then, without reloading, a
   pendulum-force session framed with its ground and driven through its force sliders; then the dolphin,
-  drawn as a skin over its nodes and bent by its muscle sliders;
+  drawn as a skin over its nodes and bent by its muscle sliders; then the runner, driven by its own
+  running controller at the target speed its slider sets, beside its MuJoCo ghost;
 - Controllers: a truck-parking job (goal dragged, objective curve live and falling), its outcome
   checked against the job's result check by check, the replay with model and goal on screen and the
   gap plotted; switching to lander-landing clears the job and frames the lander and its goal, and its
@@ -39,6 +40,7 @@ DOC_SHOTS = {
     "playground.png": "playground.png",
     "playground-pendulum-force.png": "playground-pendulum-force.png",
     "playground-dolphin.png": "playground-dolphin.png",
+    "playground-runner.png": "playground-runner.png",
     "controllers.png": "controllers.png",
     "controllers-lander.png": "controllers-lander.png",
     "replay.png": "replay.png",

@@ -12,6 +12,7 @@ from fastapi.responses import FileResponse
 from neuroanimator import registry
 from neuroanimator.emulator_schemas import (
     ControlInfo,
+    DriverInfo,
     ErrorBody,
     ForceInfo,
     ModelDetail,
@@ -68,6 +69,7 @@ async def get_model(model: str, service: ServiceDep, version: str | None = None)
         forces=[ForceInfo(**f.model_dump()) for f in m.forces],
         metrics=m.metrics.model_dump(),
         envelope=m.envelope,
+        driver=None if m.spec.driver is None else DriverInfo(**m.spec.driver.model_dump(exclude={"factory"})),
     )
 
 

@@ -5,11 +5,13 @@ from __future__ import annotations
 import numpy as np
 from fastapi import APIRouter, Response
 
+from neuroanimator.driver import Driver
 from neuroanimator.emulator_schemas import ErrorBody, SessionCreate, SessionInfo, StepRequest, StepResponse
 from services.emulator.deps import ServiceDep
 from services.emulator.interpolation import frames
 from services.emulator.service import EmulatorService
 from services.emulator.sessions import Session
+from services.emulator.stepping import Stepped
 
 router = APIRouter(tags=["sessions"])
 _ERRORS: dict[int | str, dict[str, object]] = {
@@ -31,7 +33,20 @@ def session_info(service: EmulatorService, sess: Session) -> SessionInfo:
         diverged=sess.diverged,
         seed=sess.seed,
         ttl_s=service.settings.session_ttl_s,
+        driver=sess.driver_params,
     )
+
+
+async def drive_steps(
+    service: EmulatorService, sess: Session, driver: Driver, forces: list[float], steps: int
+) -> Stepped:
+    """``steps`` super-steps of a driven session, the driver setting the controls before each: the
+    states of all, the start, and the last step's inputs."""
+    runs = []
+    for _ in range(steps):
+        runs.append(await service.stepper.step(sess, service.driven_inputs(sess, driver, forces), 1))
+    outside = sorted({g for r in runs for g in r.outside})
+    return Stepped(sess, np.concatenate([r.states for r in runs]), runs[-1].inputs, outside, runs[0].start)
 
 
 @router.post("/sessions", response_model=SessionInfo, status_code=201, responses=_ERRORS)
@@ -60,7 +75,11 @@ async def step_session(sid: str, req: StepRequest, service: ServiceDep) -> StepR
     stepper = service.stepper
     sess = service.store.get(sid)
     stepper.check_steps(req.steps, req.frames_per_step)
-    stepped = await stepper.step(sess, stepper.check(sess.emu, req.controls, req.forces), req.steps)
+    service.drive(sess, req.driver)
+    if sess.driver is None:
+        stepped = await stepper.step(sess, stepper.check(sess.emu, req.controls, req.forces), req.steps)
+    else:
+        stepped = await drive_steps(service, sess, sess.driver, req.forces, req.steps)
     states, inputs = stepped.states, stepped.inputs
     fr = None
     if req.frames_per_step is not None and stepped.start is not None:

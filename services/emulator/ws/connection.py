@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from neuroanimator.driver import load_driver
 from neuroanimator.emulator_schemas import WsControls, WsPing, WsStart
 from services.emulator import binary
 from services.emulator.error_mapping import ws_error
@@ -66,9 +67,21 @@ class Connection:
     def session(self) -> Session:
         return self.service.store.get(self.sid)
 
-    def check(self, controls: list[float], forces: list[float], seq: int | None) -> HeldInputs:
-        """Inputs from a JSON message (an unknown session is reported before bad inputs)."""
-        self.session()
+    def check(
+        self,
+        controls: list[float],
+        forces: list[float],
+        seq: int | None,
+        driver: dict[str, float] | None = None,
+    ) -> HeldInputs:
+        """Inputs from a JSON message (an unknown session is reported before bad inputs). A driven
+        session takes new driver parameters from it, and only its forces: the driver sets the controls."""
+        sess = self.session()
+        self.service.drive(sess, driver)
+        if sess.driver is not None:
+            if driver and self.shadow is not None and self.shadow.driver is not None:
+                self.shadow.driver.configure(sess.driver_params or {})
+            controls = [0.0] * self.emu.num_controls  # replaced by the driver's at each step
         return HeldInputs(self.service.stepper.check(self.emu, controls, forces), seq)
 
     # ------------------------------------------------------------------ states out
@@ -92,6 +105,10 @@ class Connection:
     async def advance(self, held: HeldInputs, lane: Lane) -> Frame:
         """One super-step of the session (and its shadow) under these inputs: the state frame."""
         sess = self.session()
+        if sess.driver is not None:  # the model's controller sets the controls; the client's forces hold
+            held = HeldInputs(
+                self.service.driven_inputs(sess, sess.driver, held.inputs.forces.tolist()), held.seq
+            )
         out = await lane.step(sess, held.inputs.row)
         if self.shadow is not None:
             self.shadow.step(held.inputs.controls, held.inputs.forces)
@@ -130,7 +147,7 @@ class Connection:
             if isinstance(msg, WsStart):
                 return await self.start(msg)
             if isinstance(msg, WsControls):
-                self.held = self.check(msg.controls, msg.forces, msg.seq)
+                self.held = self.check(msg.controls, msg.forces, msg.seq, msg.driver)
                 return None
             if self.mode == "realtime":
                 raise WrongMode(
@@ -140,14 +157,15 @@ class Connection:
                     expected="controls",
                     got="step",
                 )
-            held = self.check(msg.controls, msg.forces, msg.seq)
+            held = self.check(msg.controls, msg.forces, msg.seq, msg.driver)
         except EmulatorError as exc:
             return ws_error(exc, seq)
         return await self.lockstep(held)
 
     async def on_binary(self, data: bytes) -> Frame | None:
         realtime = self.realtime
-        if self.shadow is None and (realtime is None or not realtime.ticking):  # lock-step, no shadow
+        plain = self.shadow is None and not self.emu.manifest.spec.driver
+        if plain and (realtime is None or not realtime.ticking):  # lock-step, no shadow, no driver
             fast = self.frames.unpack(data)
             # NaN fails the range check too, so it takes the general path below and is named there
             if fast is not None and self.emu.inputs.fits(fast[1]):
@@ -183,7 +201,11 @@ class Connection:
         self.poses = want_poses
         if msg.shadow is True:  # (re)start the shadow from the session's current state
             sess = self.session()
-            self.shadow = MujocoShadow(sess.emu.physical, sess.emu.substeps, sess.state)
+            driver = None
+            if sess.driver is not None and sess.emu.manifest.spec.driver is not None:  # its own controller
+                spec = sess.emu.manifest.spec.driver
+                driver = load_driver(spec, sess.emu.physical, sess.emu.substeps, sess.driver_params or {})
+            self.shadow = MujocoShadow(sess.emu.physical, sess.emu.substeps, sess.state, driver)
         elif msg.shadow is False:
             self.shadow = None
         if msg.mode == "realtime":

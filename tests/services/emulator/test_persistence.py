@@ -170,3 +170,24 @@ def test_redis_down_at_startup(make_settings: Callable[..., Settings], redis_pre
 
 def test_persistence_off_without_redis_url(client: TestClient) -> None:
     assert client.get("/readyz").json() == {"status": "ready", "persistence": "off"}
+
+
+def test_a_driven_session_comes_back_driven(
+    make_settings: Callable[..., Settings], redis_url: str, redis_prefix: str
+) -> None:
+    """The driver's parameters are checkpointed; a restored session is driven again (its controller
+    starts its phase afresh), so it steps without controls as before."""
+    from pathlib import Path
+
+    artifacts = Path(__file__).resolve().parents[3] / "artifacts"  # the committed runner
+    settings = _settings(make_settings, redis_url, redis_prefix, artifacts_dir=artifacts)
+    with TestClient(create_app(settings)) as a:
+        s = a.post("/sessions", json={"model": "runner", "driver": {"speed": 2.2}}).json()
+        a.post(f"/sessions/{s['id']}/step", json={"forces": [0.0, 0.0], "steps": 3})
+        assert _checkpoint(a) == 1
+        assert decode(_hash(redis_url, redis_prefix)[s["id"].encode()]).driver == {"speed": 2.2}
+        with TestClient(create_app(settings)) as b:
+            got = b.get(f"/sessions/{s['id']}").json()
+            assert got["driver"] == {"speed": 2.2} and got["steps"] == 3
+            r = b.post(f"/sessions/{s['id']}/step", json={"forces": [0.0, 0.0]})
+            assert r.status_code == 200 and r.json()["steps"] == 4

@@ -20,6 +20,8 @@ export interface EmulatorWire {
   BodyInfo?: BodyInfo;
   ClientMessage?: ClientMessage;
   ControlInfo?: ControlInfo;
+  DriverInfo?: DriverInfo;
+  DriverParam?: DriverParam;
   EnvelopeGroup?: EnvelopeGroup;
   ErrorBody?: ErrorBody;
   ForceInfo?: ForceInfo;
@@ -192,6 +194,12 @@ export interface WsStep {
   type: 'step';
   controls?: number[];
   forces?: number[];
+  /**
+   * a driven session only: new parameters for its driver (the rest keep their values); its controls come from the driver, so controls may be left out
+   */
+  driver?: {
+    [k: string]: number;
+  } | null;
   seq?: number | null;
 }
 /**
@@ -239,6 +247,12 @@ export interface WsControls {
   type: 'controls';
   controls?: number[];
   forces?: number[];
+  /**
+   * a driven session only: new parameters for its driver (the rest keep their values); its controls come from the driver, so controls may be left out
+   */
+  driver?: {
+    [k: string]: number;
+  } | null;
   seq?: number | null;
 }
 /**
@@ -271,6 +285,34 @@ export interface ControlInfo {
    * what a positive value does (the sign convention)
    */
   sign?: string | null;
+}
+/**
+ * A model's driver: its name, what it does, and the parameters a client may set.
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "DriverInfo".
+ */
+export interface DriverInfo {
+  name: string;
+  description?: string;
+  params: DriverParam[];
+}
+/**
+ * One setting of a model's driver that a client may change while it runs (a target speed).
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "DriverParam".
+ */
+export interface DriverParam {
+  name: string;
+  /**
+   * what it sets, in words
+   */
+  label: string;
+  unit?: string;
+  low: number;
+  high: number;
+  default: number;
 }
 /**
  * The values one state group took in the training data (the states and the next states the emulator
@@ -350,6 +392,10 @@ export interface ModelDetail {
    * per state group, the range of the training states (absent for older artifacts)
    */
   envelope?: EnvelopeGroup[] | null;
+  /**
+   * the model's own controller, which a session may ask for (SessionCreate.driver): it sets every control each super-step, and the client sets its params and the forces
+   */
+  driver?: DriverInfo | null;
 }
 /**
  * What a client draws for a model, from the artifact's MJCF: its bodies and their geoms, the geoms
@@ -555,6 +601,12 @@ export interface SessionCreate {
   version?: string | null;
   state?: number[] | null;
   seed?: number | null;
+  /**
+   * run the model's driver (ModelDetail.driver) with these parameters ({} for its defaults): it sets the controls every super-step; without a state, the session starts where the driver starts (the runner: a running stride at the target speed)
+   */
+  driver?: {
+    [k: string]: number;
+  } | null;
 }
 /**
  * A session: its id names the replica that owns it (``<replica>-<token>``).
@@ -575,6 +627,12 @@ export interface SessionInfo {
   diverged: boolean;
   seed?: number | null;
   ttl_s: number;
+  /**
+   * the driver's parameters when the model's driver sets the controls; null: the client
+   */
+  driver?: {
+    [k: string]: number;
+  } | null;
 }
 /**
  * Hold ``controls`` (U) and ``forces`` (F) for ``steps`` super-steps.
@@ -587,6 +645,12 @@ export interface StepRequest {
   forces?: number[];
   steps?: number;
   frames_per_step?: number | null;
+  /**
+   * a driven session only: new parameters for its driver (the rest keep their values); its controls come from the driver, so controls may be left out
+   */
+  driver?: {
+    [k: string]: number;
+  } | null;
 }
 /**
  * ``states`` (steps, S) after each super-step, ``state`` the last of them. ``frames`` (when

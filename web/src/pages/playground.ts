@@ -4,7 +4,7 @@
 // "MuJoCo ghost" shows the physics driven by the same inputs as a cyan outline, with the gap between
 // the two (root position, attitude) as numbers and a curve beside the view.
 import * as THREE from 'three';
-import type { ControlInfo, ForceInfo, ModelDetail, ModelGeometry, SessionInfo, WsState } from '../api/emulator.gen';
+import type { ControlInfo, DriverInfo, ForceInfo, ModelDetail, ModelGeometry, SessionInfo, WsState } from '../api/emulator.gen';
 import { errorText } from '../api/http';
 import { gapLabel, poseGap, rootMoves } from '../scene/divergence';
 import type { Pose } from '../scene/interp';
@@ -37,6 +37,8 @@ export const playgroundPage: Page = (root, ctx) => {
     h('option', { value: 'rest' }, 'at rest, in its MJCF pose'),
     h('option', { value: 'random' }, 'a random typical state'),
   );
+  // a model driven by its own controller (the runner) can start in its driven motion
+  const drivenOption = h('option', { value: 'driver', hidden: true }, 'driven by its controller');
   const startBtn = h('button', { id: 'pg-start', class: 'primary' }, 'Start session');
   const stopBtn = h('button', { id: 'pg-stop', disabled: true }, 'Stop');
   const ghostBox = h('input', { type: 'checkbox', id: 'pg-ghost' });
@@ -56,7 +58,7 @@ export const playgroundPage: Page = (root, ctx) => {
         h('label', {}, 'Model ', select),
         h('label', {}, 'Start ', startFrom),
         h('div', { class: 'buttons' }, startBtn, stopBtn),
-        h('label', { class: 'check' }, ghostBox, ' Show the MuJoCo ghost (same inputs)'),
+        h('label', { class: 'check' }, ghostBox, ' Show the MuJoCo ghost (same inputs, or its own run of the controller)'),
         h(
           'p',
           { class: 'legend' },
@@ -105,7 +107,10 @@ export const playgroundPage: Page = (root, ctx) => {
       // the service's rest state (MuJoCo's qpos0); from the layout only for a service that does not send it
       const rest = startFrom.value === 'rest' ? (geometry.rest_state ?? restState(detail.layout, geometry.rest_poses[0])) : null;
       const { seed } = startFromQuery(location.hash.split('?')[1] ?? '');
-      const info = await ctx.emulator.createSession(rest ? { model: name, state: rest } : seed !== null ? { model: name, seed } : { model: name });
+      const driven = startFrom.value === 'driver' && detail.driver;
+      const info = await ctx.emulator.createSession(
+        driven ? { model: name, driver: {} } : rest ? { model: name, state: rest } : seed !== null ? { model: name, seed } : { model: name },
+      );
       if (!alive) return;
       live = begin(ctx, viewer, { info, detail, geometry, ghostOn: ghostBox.checked, sliders, status, envelope, divergence }, () => void stop());
       stopBtn.disabled = false;
@@ -150,9 +155,24 @@ export const playgroundPage: Page = (root, ctx) => {
       const asked = startFromQuery(query).from;
       const pick = models.find((m) => m.model === want) ?? models[0];
       if (pick) select.value = pick.model;
+      startFrom.append(drivenOption);
       const pickStart = (): void => {
         const m = models.find((x) => x.model === select.value);
-        startFrom.value = asked ?? (m && m.num_controls + m.num_forces > 0 ? 'rest' : 'random');
+        const name = select.value;
+        // the address's start is for the address's model; another one starts as its inputs suggest
+        const given = name === want ? asked : null;
+        drivenOption.hidden = true;
+        startFrom.value = given ?? (m && m.num_controls + m.num_forces > 0 ? 'rest' : 'random');
+        // a model with a driver starts driven unless the address says otherwise
+        void ctx.emulator
+          .model(name)
+          .then((d) => {
+            if (!d.driver || select.value !== name) return;
+            drivenOption.hidden = false;
+            drivenOption.textContent = `driven by its controller (${d.driver.name})`;
+            if (!given || given === 'driver') startFrom.value = 'driver';
+          })
+          .catch(() => undefined);
       };
       pickStart();
       select.addEventListener('change', pickStart);
@@ -185,11 +205,29 @@ interface Setup {
   divergence: DivergencePanel;
 }
 
+/** Sliders for a driven session's driver parameters (the runner's target speed): they write `values`. */
+function drawDriverSliders(host: HTMLElement, driver: DriverInfo, values: Record<string, number>): void {
+  host.append(
+    h('h3', {}, `Controller: ${driver.name}`),
+    h('p', { class: 'meaning' }, `${(driver.description ?? '').replace(/\.?$/, '.')} It sets every control; the forces below are yours.`),
+  );
+  for (const p of driver.params) {
+    const v = values[p.name] ?? p.default;
+    const value = h('span', { class: 'value' }, `${fmt(v)} ${p.unit}`);
+    const range = h('input', { type: 'range', min: p.low, max: p.high, step: (p.high - p.low) / 80, value: v, 'data-driver': p.name, 'aria-label': p.label });
+    range.addEventListener('input', () => {
+      values[p.name] = Number(range.value);
+      value.textContent = `${fmt(values[p.name]!)} ${p.unit}`;
+    });
+    host.append(h('div', { class: 'slider' }, h('div', { class: 'slider-head' }, h('b', {}, p.label), ' ', value), range));
+  }
+}
+
 /** Sliders for every control and force, with their keys and (as a tooltip) what they do. */
-function drawSliders(host: HTMLElement, drive: Drive, controls: ControlInfo[]): HTMLElement[] {
+function drawSliders(host: HTMLElement, drive: Drive, controls: ControlInfo[], driven = false): HTMLElement[] {
   const labels: HTMLElement[] = [];
-  host.textContent = '';
-  if (!drive.bindings.length) host.append(h('p', { class: 'muted' }, 'This model has no inputs: watch it move.'));
+  if (!driven) host.textContent = '';
+  if (!drive.bindings.length && !driven) host.append(h('p', { class: 'muted' }, 'This model has no inputs: watch it move.'));
   let kind = '';
   drive.bindings.forEach((b, i) => {
     if (b.kind !== kind) {
@@ -259,7 +297,10 @@ function showMeshes(host: HTMLElement, model: string, m: MeshesDrawn): void {
 
 function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): Live {
   const { info, detail, geometry, divergence } = s;
-  const drive = new Drive(bindingsFor(detail.controls, detail.forces));
+  // a driven session: the model's controller sets the controls, the person its parameters and the forces
+  const driver = info.driver && detail.driver ? detail.driver : null;
+  const driverValues: Record<string, number> = { ...(info.driver ?? {}) };
+  const drive = new Drive(bindingsFor(driver ? [] : detail.controls, detail.forces));
   const files = meshFilesOf(ctx.emulator, geometry);
   const model = new ModelView(geometry, {}, files);
   const ghost = new ModelView(geometry, { ghost: true, color: GHOST_COLOR }, files);
@@ -288,7 +329,9 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
       onDead();
     },
   });
-  const valueLabels = drawSliders(s.sliders, drive, detail.controls);
+  s.sliders.textContent = '';
+  if (driver) drawDriverSliders(s.sliders, driver, driverValues);
+  const valueLabels = drawSliders(s.sliders, drive, detail.controls, !!driver);
   if (!viewer) {
     return { info, socket, drive, model, ghost, dispose: () => socket.close() };
   }
@@ -332,7 +375,7 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
   };
   const stopFrame = viewer.onBeforeRender((now) => {
     const { controls, forces } = drive.split();
-    socket.setControls(controls, forces);
+    socket.setControls(controls, forces, driver ? driverValues : undefined);
     arrows(forces);
     const poses = socket.sample(now);
     if (poses) {
@@ -357,11 +400,11 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
       const last = socket.last;
       const stats = window.__neuro;
       const fps = `${(stats?.fps ?? 0).toFixed(0)} fps${stats && stats.scale < 1 ? ` at ${Math.round(stats.scale * 100)} % resolution` : ''}`;
-      s.status.dataset.sent = JSON.stringify({ controls, forces });
+      s.status.dataset.sent = JSON.stringify(driver ? { controls, forces, driver: driverValues } : { controls, forces });
       s.status.dataset.t = String(last?.t ?? '');
       s.status.dataset.state = last ? JSON.stringify(last.state.map((v) => Number(v.toPrecision(4)))) : '';
       s.status.textContent = last
-        ? `session ${info.id}${info.seed != null ? ` (start seed ${info.seed})` : ''} · t = ${last.t.toFixed(1)} s · ${last.steps} super-steps of ${fmt(detail.super_timestep)} s${last.clipped ? ' · inputs clipped to the trained range' : ''} · ${fps}`
+        ? `session ${info.id}${info.seed != null ? ` (start seed ${info.seed})` : ''} · t = ${last.t.toFixed(1)} s · ${last.steps} super-steps of ${fmt(detail.super_timestep)} s${driver ? ` · driven by its controller (${driver.name})` : ''}${last.clipped ? ' · inputs clipped to the trained range' : ''} · ${fps}`
         : `session ${info.id} · waiting for the first state…`;
     }
   });

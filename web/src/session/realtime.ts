@@ -81,11 +81,13 @@ export class RealtimeSession {
     if (this.ws.readyState === WebSocket.OPEN) this.ws.send(JSON.stringify(obj));
   }
 
-  setControls(controls: number[], forces: number[] = []): void {
-    const text = JSON.stringify({ type: 'controls', controls, forces });
+  /** The inputs held from now on; a driven session takes its driver's parameters (`driver`) and the
+   * forces, its controls coming from the driver. Sent only when something changed. */
+  setControls(controls: number[], forces: number[] = [], driver?: Record<string, number>): void {
+    const text = JSON.stringify(driver ? { type: 'controls', controls, forces, driver } : { type: 'controls', controls, forces });
     if (text === this.lastSent) return;
     if (this.ws.readyState !== WebSocket.OPEN) {
-      this.ws.addEventListener('open', () => this.setControls(controls, forces), { once: true });
+      this.ws.addEventListener('open', () => this.setControls(controls, forces, driver), { once: true });
       return;
     }
     this.lastSent = text;

@@ -22,15 +22,16 @@ export function restState(layout: LayoutGroup[], rootPose: number[] | undefined)
   return state;
 }
 
-export type StartFrom = 'rest' | 'random';
+export type StartFrom = 'rest' | 'random' | 'driver';
 
-/** The start asked for in the page's address: `start=rest|random`, `seed=N` (a random start). */
+/** The start asked for in the page's address: `start=rest|random|driver` (driver: driven by the model's
+ * own controller, for a model that has one), `seed=N` (a random start). */
 export function startFromQuery(query: string): { from: StartFrom | null; seed: number | null } {
   const q = new URLSearchParams(query);
   const raw = q.get('seed');
   const seed = raw !== null && /^\d+$/.test(raw) ? Number(raw) : null;
   const start = q.get('start');
-  const from: StartFrom | null = start === 'rest' || start === 'random' ? start : seed !== null ? 'random' : null;
+  const from: StartFrom | null = start === 'rest' || start === 'random' || start === 'driver' ? start : seed !== null ? 'random' : null;
   return { from, seed };
 }
 
