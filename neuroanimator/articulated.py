@@ -12,8 +12,8 @@ In normalised local coordinates (the emulator's network inputs x, (B, D), and ou
 
 1. the **trunk** network reads all of x and writes the columns of y that no branch holds;
 2. each **branch** network reads the columns of x of its own groups, the trunk's groups and the groups
-   it lists in ``reads``, the controls it lists, the joint-limit ramps of its own joints, and the
-   trunk's output (its predicted change, in the same frame), and writes its groups' columns of y.
+   it lists in ``reads``, the controls it lists, the joint-limit ramps of its own joints, the ground
+   clearance of the geoms its joints move (``neuroanimator.clearance``), and the trunk's output (its predicted change, in the same frame), and writes its groups' columns of y.
 
 While training (``self.training``) the branches read the trunk's output detached: every network learns
 its own outputs only, as the thesis trained each network on its own, and a branch learns from the
@@ -30,6 +30,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
+from neuroanimator.clearance import FRACTIONS, Clearance
 from neuroanimator.model_spec import Branch
 from neuroanimator.structured import LIMIT_FRACTIONS, StructuredEmulator, make_core, select_columns
 
@@ -71,6 +72,19 @@ class _Net(nn.Module):
             self.skip.bias.copy_(w[-1])
             last.weight.mul_(0.01)
             last.bias.zero_()
+
+
+def own_geoms(clr: Clearance, columns: set[int]) -> list[int]:
+    """The probed geoms (indices of ``clr.geoms``) that joints at these state columns move."""
+    return [g for g in range(len(clr.geoms)) if clr.state_columns(g) & columns]
+
+
+def branch_geoms(emu: StructuredEmulator, b: Branch) -> list[str]:
+    """The geoms whose ground clearance branch ``b``'s network reads, by name."""
+    if emu.clearance is None:
+        return []
+    own = {c for g, sl in emu.layout.group_slices() if g.name in b.groups for c in range(sl.start, sl.stop)}
+    return [emu.clearance.geoms[g] for g in own_geoms(emu.clearance, own)]
 
 
 def trunk_groups(names: Sequence[str], branches: Sequence[Branch]) -> list[str]:
@@ -146,6 +160,7 @@ class ArticulatedCore(nn.Module):
                 wanted = control_names if b.controls is None else b.controls
                 cols += [in_cols["controls"][list(control_names).index(c)] for c in wanted]
             cols += self._own_limit_columns(emu, b, in_cols, out_cols)
+            cols += self._own_clearance_columns(emu, b, in_cols, out_cols)
             outs = [c for g in b.groups for c in out_cols[g]]
             self.register_buffer(f"_sel{k}", select_columns(d, cols), persistent=False)
             self.register_buffer(
@@ -173,6 +188,22 @@ class ArticulatedCore(nn.Module):
                     if lim.position in own:
                         cols.append(first + side * k * len(lims) + i * len(lims) + j)
         return cols
+
+    @staticmethod
+    def _own_clearance_columns(
+        emu: StructuredEmulator, b: Branch, in_cols: dict[str, list[int]], out_cols: dict[str, list[int]]
+    ) -> list[int]:
+        """The input columns of the ground clearance and contact ramps of the geoms the branch's joints
+        move (a leg's thigh, shank, foot and toes): column g·K + k of each block for geom g."""
+        clr = emu.clearance
+        if clr is None or "clearance" not in in_cols:
+            return []
+        own = {c for g in b.groups for c in out_cols[g]}
+        k = len(FRACTIONS)
+        mine = own_geoms(clr, own)
+        return [
+            in_cols[block][g * k + i] for block in ("clearance", "contact") for g in mine for i in range(k)
+        ]
 
     def selection(self, k: int) -> Tensor:
         """(D, d_k − T) the 0/1 matrix that picks branch k's inputs."""

@@ -22,7 +22,8 @@ import numpy as np
 import torch
 
 from neuroanimator import registry
-from neuroanimator.articulated import TRUNK, articulated_core, make_articulated
+from neuroanimator.articulated import TRUNK, articulated_core, branch_geoms, make_articulated
+from neuroanimator.clearance import Clearance
 from neuroanimator.export import to_onnx
 from neuroanimator.hierarchy import GLOBAL, VECTORS, HierarchicalEmulator
 from neuroanimator.hierarchy_training import HierarchyResult
@@ -36,6 +37,7 @@ from neuroanimator.manifest import (
     Manifest,
     ModelAsset,
     Network,
+    NetworkClearance,
     NetworkFrame,
     NetworkLimit,
     NetworkReads,
@@ -133,7 +135,8 @@ def describe_articulated(emu: StructuredEmulator, model: PhysicalModel, mode: st
         at += width
 
     def network(name: str, hidden: tuple[int, ...], net: torch.nn.Module, cols: list[int], reads: NetworkReads,
-                writes: list[str], inputs: list[int], groups: list[InputGroup]) -> Network:  # fmt: skip
+                writes: list[str], inputs: list[int], groups: list[InputGroup],
+                clearance: NetworkClearance | None) -> Network:  # fmt: skip
         norm = Normalization(
             mode=mode,  # checked by the manifest
             input_groups=groups,
@@ -156,6 +159,7 @@ def describe_articulated(emu: StructuredEmulator, model: PhysicalModel, mode: st
             weights=sum(p.numel() for p in net.parameters()),
             skip=True,
             limits=base.limits if name == TRUNK else [],
+            clearance=clearance,
         )
 
     trunk_reads = base.reads
@@ -169,6 +173,7 @@ def describe_articulated(emu: StructuredEmulator, model: PhysicalModel, mode: st
             list(core.trunk_writes),
             list(range(emu.input_size)),
             list(base.normalization.input_groups),
+            base.clearance,
         )
     ]
     for k, b in enumerate(core.branches):
@@ -194,6 +199,9 @@ def describe_articulated(emu: StructuredEmulator, model: PhysicalModel, mode: st
                 list(b.groups),
                 sel,
                 groups,
+                None
+                if emu.clearance is None or not branch_geoms(emu, b)
+                else NetworkClearance(geoms=branch_geoms(emu, b), horizon=emu.clearance.horizon),
             )
         )
     return EmulatorGraph(
@@ -232,6 +240,9 @@ def _describe(
             )
             for lim in emu.limits
         ],
+        clearance=None
+        if emu.clearance is None
+        else NetworkClearance(geoms=list(emu.clearance.geoms), horizon=emu.clearance.horizon),
     )
 
 
@@ -403,6 +414,9 @@ def load_torch(path: Path) -> StructuredEmulator:
         skip=net.skip and not branches,
         limits=[JointLimit(lim.position, lim.velocity, lim.low, lim.high) for lim in net.limits],
         horizon=net.limits[0].horizon if net.limits else 0.0,
+        clearance=None
+        if net.clearance is None
+        else Clearance(model, net.clearance.geoms, net.clearance.horizon),
     )
     if branches:
         branch_hidden = by_name[branches[0].name].hidden

@@ -158,6 +158,14 @@ class NetworkReads(_Strict):
     forces: list[str] = []
 
 
+class NetworkClearance(_Strict):
+    """The geoms whose height above the floor the network reads (``neuroanimator.clearance``), by MJCF
+    name, each at the start, middle and end of a super-step of ``horizon`` seconds."""
+
+    geoms: list[str] = Field(min_length=1)
+    horizon: float = Field(ge=0.0)
+
+
 class Network(_Strict):
     """One network of an emulator: an MLP (``hidden`` widths, ``activation``) between its
     normalisation, reading ``reads`` in its frame and predicting the change of the state groups in
@@ -176,6 +184,7 @@ class Network(_Strict):
     weights: int = Field(ge=0)
     skip: bool = False
     limits: list[NetworkLimit] = []
+    clearance: NetworkClearance | None = None
 
     @model_validator(mode="after")
     def _widths_agree(self) -> Network:

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
+from neuroanimator.clearance import Clearance
 from neuroanimator.regularizer import SpringRegularization
 from neuroanimator.state import StateLayout
 
@@ -262,10 +263,13 @@ class StructuredEmulator(nn.Module):
         skip: bool = False,
         limits: Sequence[JointLimit] = (),
         horizon: float = 0.0,
+        clearance: Clearance | None = None,
     ) -> None:
         super().__init__()
         self.layout = layout
         self.limits = tuple(limits)
+        # ground clearance of the geoms that can touch the floor (``neuroanimator.clearance``)
+        self.clearance = clearance
         self.horizon = float(horizon)  # seconds of one super-step, for the limit extrapolation
         self.num_controls = num_controls
         self.num_forces = num_forces
@@ -291,7 +295,8 @@ class StructuredEmulator(nn.Module):
         """Decide, once, which columns go where, as constant 0/1 matrices (tracing sees constants).
 
         Network inputs are picked from ``[state, controls, forces, heading-rotated pairs, sin(angles),
-        cos(angles), body-rotated vectors, body-frame up, joint-limit ramps]`` and world state changes
+        cos(angles), body-rotated vectors, body-frame up, joint-limit ramps, ground clearances and
+        contact ramps]`` and world state changes
         from ``[delta, heading-rotated pairs, body-rotated vectors, root quaternion increment]``, so each transform
         is a handful of graph nodes whatever the model (a small graph is what makes one ONNX call
         cheap).
@@ -357,7 +362,9 @@ class StructuredEmulator(nn.Module):
         up_at = vec_at + 3 * len(in_vecs)  # body frame: the up direction in the body frame
         lim_at = up_at + (3 if body else 0)  # joint-limit ramps: first all "past high", then all "past low"
         lim_width = 2 * len(LIMIT_FRACTIONS) * len(self.limits)
-        width = lim_at + lim_width
+        clr_at = lim_at + lim_width  # ground clearances, then how far below the floor each is
+        clr_width = 0 if self.clearance is None else self.clearance.width
+        width = clr_at + 2 * clr_width
 
         def col(c: int) -> int:
             return rot_at + replaced[c] if c in replaced else c
@@ -404,8 +411,11 @@ class StructuredEmulator(nn.Module):
             gather += force_cols
             groups.append(("forces", len(force_cols)))
         if lim_width:
-            gather += list(range(lim_at, width))
+            gather += list(range(lim_at, lim_at + lim_width))
             groups.append(("limits", lim_width))
+        if clr_width:
+            gather += list(range(clr_at, width))
+            groups += [("clearance", clr_width), ("contact", clr_width)]
         self._plan_limits(S)
         in_plan = _PairPlan(*map(tuple, zip(*in_pairs, strict=True))) if in_pairs else _PairPlan()
         self._rot_in = _Rotation(S + U + F, in_plan) if in_pairs else None
@@ -578,6 +588,9 @@ class StructuredEmulator(nn.Module):
         if self.limits:
             z = state @ self._limit_sel  # (B, K·L) extrapolated joint positions
             ext += [torch.relu(z - self._limit_high), torch.relu(self._limit_low - z)]
+        if self.clearance is not None:
+            c = self.clearance(state)  # (B, G·K) heights above the floor
+            ext += [c, torch.relu(-c)]
         cols = torch.cat(ext, dim=1) if len(ext) > 1 else base
         return cols @ self._in_place if place else cols
 
@@ -693,6 +706,7 @@ class StructuredEmulator(nn.Module):
             "weights": sum(p.numel() for p in self.parameters()),
             "skip": self.skip is not None,
             "limits": len(self.limits),
+            "clearance": [] if self.clearance is None else list(self.clearance.geoms),
             "frame": {
                 "translate": list(self.frame.translate),
                 "rotate": self.frame.rotate,

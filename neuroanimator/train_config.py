@@ -38,6 +38,8 @@ class TrainConfig:
     frame: str = "auto"  # "auto"/"body": full body frame for a quaternion root; "heading": yaw only
     skip: bool = True  # a linear path beside the MLP, started from the least-squares fit
     limits: bool = True  # limited joints also enter as ramps past their limits (structured.JointLimit)
+    # geoms that can touch the floor enter through their height above it (neuroanimator.clearance)
+    clearance: bool = False
     # Then train over emulated rollouts of this many super-steps (0: off), so that a long rollout stays
     # on track: one-step training leaves small biases that a rollout integrates into drift.
     rollout_steps: int = 8

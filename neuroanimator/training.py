@@ -22,6 +22,7 @@ from tqdm import tqdm
 
 from neuroanimator import sampling
 from neuroanimator.articulated import ArticulatedCore, articulated_core, make_articulated, ridge_fit
+from neuroanimator.clearance import Clearance, ground_geoms, near_geoms
 from neuroanimator.envelope import examples_envelope
 from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.physics.model import PhysicalModel
@@ -112,9 +113,13 @@ def joint_limits(model: PhysicalModel) -> list[JointLimit]:
     return limits
 
 
-def build_emulator(model: PhysicalModel, cfg: TrainConfig) -> StructuredEmulator:
+def build_emulator(
+    model: PhysicalModel, cfg: TrainConfig, states: np.ndarray | None = None
+) -> StructuredEmulator:
     """The emulator ``cfg`` describes for ``model``: one network, or, for a model with branches, an
-    articulated hierarchy (``neuroanimator.articulated``) whose networks are each ``cfg.hidden`` wide."""
+    articulated hierarchy (``neuroanimator.articulated``) whose networks are each ``cfg.hidden`` wide.
+    With ``cfg.clearance``, the geoms probed are those that come near the floor in ``states`` (N, S)
+    (every geom that can touch it when none are given)."""
     branches = model.spec.branches
     emu = StructuredEmulator(
         model.layout,
@@ -126,10 +131,18 @@ def build_emulator(model: PhysicalModel, cfg: TrainConfig) -> StructuredEmulator
         skip=cfg.skip and cfg.preset != "thesis" and not branches,
         limits=joint_limits(model) if cfg.limits else (),
         horizon=model.dt * cfg.substeps,
+        clearance=ground_clearance(model, model.dt * cfg.substeps, states) if cfg.clearance else None,
     )
     if branches:
         make_articulated(emu, branches, model.control_names, cfg.hidden, cfg.hidden)
     return emu
+
+
+def ground_clearance(model: PhysicalModel, horizon: float, states: np.ndarray | None) -> Clearance | None:
+    """The clearance features of the geoms of ``model`` that come near its floor in ``states`` (every
+    geom that can touch it when None), over ``horizon`` seconds; None when there are none."""
+    geoms = ground_geoms(model.mj_model) if states is None else near_geoms(model, states, horizon)
+    return Clearance(model, geoms, horizon) if geoms else None
 
 
 def generate_examples(
@@ -193,6 +206,10 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
     data = generate_examples(model, cfg.substeps, count, cfg.seed, cfg.progress)
     test = generate_examples(model, cfg.substeps, cfg.test_examples, held_out_seed(cfg.seed), cfg.progress)
     t_data = time.perf_counter() - t_start
+    if cfg.clearance:  # probe the geoms that come near the floor in these data
+        emu = build_emulator(model, cfg, data.states)
+        if emu.clearance is not None:
+            log.info("%s: ground clearance of %s", model.name, ", ".join(emu.clearance.geoms))
 
     # 2. T^σ from the training data (transformed by T'_x and (T'_y T^Δ_y)^-1 first, thesis 4.5.2)
     s, u, f, nxt = to_tensors(data)
