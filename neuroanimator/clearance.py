@@ -205,10 +205,10 @@ class Clearance(nn.Module):
         }
         joints = [j for b in self._bodies for j in self._joints[b]]
         self._plan_motion(m, joints)
-        self._plan_hinges(joints)
         self._const = {
             b: (torch.tensor(m.body_pos[b], dtype=torch.float32), _mat(m.body_quat[b])) for b in self._bodies
         }
+        self._plan_levels(joints)
         self._geom_body = [int(m.geom_bodyid[g]) for g in ids]
         self._plan_geoms(m, ids)
         self.width = len(ids) * len(FRACTIONS)
@@ -249,17 +249,6 @@ class Clearance(nn.Module):
         self._turns = bool(pairs)
         self._buffers_from(lin=lin, ql=ql, vr=vr, tot=tot)
 
-    def _plan_hinges(self, joints: list[_Joint]) -> None:
-        """All hinge angles in one GEMM; their sines and versines spread over 9 columns each."""
-        hinges = [j for j in joints if j.kind == 3]
-        self._hinge_at = {j.qpos: k for k, j in enumerate(hinges)}
-        ref, spread = torch.zeros(len(hinges)), torch.zeros(len(hinges), 9 * len(hinges))
-        sel = torch.zeros(self._qpos_sel.shape[1], len(hinges))
-        for k, j in enumerate(hinges):
-            sel[j.qpos, k], ref[k] = 1.0, float(j.ref[0])
-            spread[k, 9 * k : 9 * k + 9] = 1.0
-        self._buffers_from(hinge_sel=sel, hinge_ref=ref, hinge_spread=spread)
-
     def _plan_geoms(self, m: mujoco.MjModel, ids: list[int]) -> None:
         """Per geom, the (9, 4) map from its body's rotation to the world's z in the geom's axes and the
         height of its centre above the body's origin; the lowest point is then one GEMM away for
@@ -267,7 +256,8 @@ class Clearance(nn.Module):
         g_count = len(ids)
         self._zrows = []
         reach, lift = torch.zeros(3 * g_count, g_count), torch.zeros(g_count)
-        self._curved: list[tuple[int, int, Tensor]] = []  # cylinders and ellipsoids: (geom, kind, size)
+        # cylinders and ellipsoids: (geom, kind, size, the (1, G) row that puts their term in place)
+        self._curved: list[tuple[int, int, Tensor, Tensor]] = []
         for g, gid in enumerate(ids):
             kind = int(m.geom_type[gid])
             mesh = kind == mujoco.mjtGeom.mjGEOM_MESH
@@ -283,10 +273,26 @@ class Clearance(nn.Module):
             elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
                 reach[3 * g + 2, g], lift[g] = size[1], size[0]
             elif kind in (mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_ELLIPSOID):
-                self._curved.append((g, kind, size))
+                self._curved.append((g, kind, size, torch.eye(g_count)[g : g + 1]))
             else:  # box, mesh
                 reach[3 * g : 3 * g + 3, g] = size
         self._buffers_from(reach=reach, lift=lift + self.floor)
+        # per level with geoms: (9·C, 4G) from its rotations and (3·C, 4G) from its positions
+        self._geom_maps: list[tuple[int, Tensor, Tensor]] = []
+        widths = {lv + 1: lvl.c for lv, lvl in enumerate(self._levels)}
+        for lv in sorted({self._frame_of[self._geom_body[g]][0] for g in range(g_count)}):
+            from_rot, from_pos = (
+                torch.zeros(9 * widths[lv], 4 * g_count),
+                torch.zeros(3 * widths[lv], 4 * g_count),
+            )
+            for g in range(g_count):
+                at, col = self._frame_of[self._geom_body[g]]
+                if at != lv:
+                    continue
+                from_rot[9 * col : 9 * col + 9, 3 * g : 3 * g + 3] = self._zrows[g][:, :3]
+                from_rot[9 * col : 9 * col + 9, 3 * g_count + g] = self._zrows[g][:, 3]
+                from_pos[3 * col + 2, 3 * g_count + g] = 1.0
+            self._geom_maps.append((lv, from_rot, from_pos))
 
     def state_columns(self, g: int) -> set[int]:
         """The state columns (joint positions) on the way from the world to geom ``g``: what moves it."""
@@ -300,6 +306,66 @@ class Clearance(nn.Module):
         return cols
 
     # ------------------------------------------------------------------ the graph
+    def _plan_levels(self, joints: list[_Joint]) -> None:
+        """Group the frames into levels computed together. Every joint is a step from one frame to the
+        next (a body's first joint also applies the body's offset from its parent; a body without
+        joints is one step of its offset); a step's level is one more than its input's, the world being
+        level 0. The steps of one level (the hips of both legs and the shoulders, say) are one GEMM of
+        the level before's rotations by a constant block matrix and a few elementwise operations on all
+        of them at once, so the graph grows with the depth of the tree, not its size."""
+        steps: list[dict[str, object]] = []  # in body order: a parent's steps come before its children's
+        last: dict[int, int] = {}  # body -> index of its last step (its frame)
+        for body in self._bodies:
+            pos, rot = self._const[body]
+            parent = self._parent[body]
+            source = last.get(parent, -1)
+            offset, turn = pos, rot
+            for j in self._joints[body] or [None]:  # type: ignore[list-item]
+                level = 1 + (steps[source]["level"] if source >= 0 else 0)  # type: ignore[operator]
+                kind = "weld" if j is None else {0: "free", 1: "ball", 2: "slide", 3: "hinge"}[j.kind]
+                steps.append(
+                    {"kind": kind, "joint": j, "rot": turn, "offset": offset, "input": source, "level": level}
+                )
+                source = len(steps) - 1
+                offset, turn = torch.zeros(3), torch.eye(3)
+            last[body] = source
+        depth = max(int(st["level"]) for st in steps)  # type: ignore[call-overload]
+        cols: dict[int, tuple[int, int]] = {}  # step -> (level, column within its level)
+        per_level: list[list[int]] = [[] for _ in range(depth + 1)]
+        for i, st in enumerate(steps):
+            lv = int(st["level"])  # type: ignore[call-overload]
+            cols[i] = (lv, len(per_level[lv]))
+            per_level[lv].append(i)
+        nq = self._qpos_sel.shape[1]
+        # hinge angles ordered by level, so that a level's sines are one slice of all of them
+        hinges = [i for lv in per_level for i in lv if steps[i]["kind"] == "hinge"]
+        hsel, href = torch.zeros(nq, len(hinges)), torch.zeros(len(hinges))
+        spread = torch.zeros(len(hinges), 9 * len(hinges))
+        for h, i in enumerate(hinges):
+            hinge = steps[i]["joint"]
+            assert isinstance(hinge, _Joint)
+            hsel[hinge.qpos, h], href[h] = 1.0, float(hinge.ref[0])
+            spread[h, 9 * h : 9 * h + 9] = 1.0
+        self._buffers_from(hinge_sel=hsel, hinge_ref=href, hinge_spread=spread)
+        self._levels: list[_Level] = []
+        hinge_at = 0
+        for lv in range(1, depth + 1):
+            ids = per_level[lv]
+            c, c_in = len(ids), len(per_level[lv - 1]) if lv > 1 else 0
+            lvl = _Level(c, c_in, nq)
+            for k, i in enumerate(ids):
+                lvl.add(k, steps[i], cols[int(steps[i]["input"])][1] if int(steps[i]["input"]) >= 0 else -1)  # type: ignore[call-overload]
+            lvl.hinges = (9 * hinge_at, 9 * (hinge_at + sum(1 for i in ids if steps[i]["kind"] == "hinge")))
+            # a level's hinges are in the order of its columns; the spread of all puts each in its column
+            order = [k for k, i in enumerate(ids) if steps[i]["kind"] == "hinge"]
+            lvl.hinge_place = torch.zeros(9 * len(order), 9 * c)
+            for h, k in enumerate(order):
+                lvl.hinge_place[9 * h : 9 * h + 9, 9 * k : 9 * k + 9] = torch.eye(9)
+            hinge_at += len(order)
+            lvl.finish()
+            self._levels.append(lvl)
+        self._frame_of = {body: cols[last[body]] for body in self._bodies}
+
     def forward(self, state: Tensor) -> Tensor:
         b = state.shape[0]
         qpos = state @ self._qpos_sel + self._qpos_const
@@ -309,58 +375,130 @@ class Clearance(nn.Module):
             rate = rate + ((qpos @ self._ql) * (qvel @ self._vr)) @ self._tot
         q = torch.cat([qpos if a == 0.0 else qpos + (a * self.horizon) * rate for a in FRACTIONS], dim=0)
         n = q.shape[0]
-        theta = q @ self._hinge_sel - self._hinge_ref  # (K·B, H)
+        theta = q @ self._hinge_sel - self._hinge_ref  # (K·B, H), ordered by level
         sin9, vers9 = torch.sin(theta) @ self._hinge_spread, (1.0 - torch.cos(theta)) @ self._hinge_spread
-        rot: dict[int, Tensor | None] = {0: None}  # the world: identity, at the origin
-        pos: dict[int, Tensor | None] = {0: None}
-        for body in self._bodies:
-            body_pos, body_rot = self._const[body]
-            r, p = rot[self._parent[body]], pos[self._parent[body]]
-            p = _place(r, p, body_pos, n)
-            r = _times_const(r, body_rot, n)
-            for j in self._joints[body]:
-                if j.kind == 0:  # free
-                    p, r = q[:, j.qpos : j.qpos + 3], _quat_matrix(q[:, j.qpos + 3 : j.qpos + 7])
-                elif j.kind == 1:  # ball
-                    r = _times(r, _quat_matrix(q[:, j.qpos : j.qpos + 4]))
-                elif (
-                    j.kind == 3
-                ):  # hinge, about the axis through its anchor: R·(I + sin θ K + (1 − cos θ) K²)
-                    k, anchor = (
-                        torch.tensor(_skew(j.axis), dtype=torch.float32),
-                        torch.tensor(j.pos, dtype=torch.float32),
-                    )
-                    h = 9 * self._hinge_at[j.qpos]
-                    a = _place(r, p, anchor, n)
-                    r_full = r if r is not None else torch.eye(3).reshape(1, 9).expand(n, 9)
-                    r = (
-                        r_full
-                        + sin9[:, h : h + 9] * _times_const(r, k, n)
-                        + vers9[:, h : h + 9] * _times_const(r, k @ k, n)
-                    )
-                    p = a - r @ _apply_matrix(anchor)
-                else:  # slide
-                    axis = torch.tensor(j.axis, dtype=torch.float32)
-                    shift = _place(r, None, axis, n) * (
-                        (q[:, j.qpos : j.qpos + 1] - float(j.ref[0])) @ _ONES9[:, :3]
-                    )
-                    p = shift if p is None else p + shift
-            rot[body], pos[body] = r, p
-        ups, heights = [], []
-        for g, body in enumerate(self._geom_body):
-            r, p = rot[body], pos[body]
-            assert r is not None and p is not None  # a moving body has a joint above it
-            out = r @ self._zrows[g]  # (N, 4): the world's z in the geom's axes, its centre's height
-            ups.append(out[:, :3])
-            heights.append(p[:, 2:3] + out[:, 3:4])
-        up = torch.cat(ups, dim=1)  # (N, 3G)
-        low = torch.cat(heights, dim=1) - up.abs() @ self._reach - self._lift  # (N, G)
-        for g, kind, size in self._curved:
-            u = up[:, 3 * g : 3 * g + 3]
-            extra = _reach(kind, u, size)
-            low = low - extra[:, None] @ torch.eye(len(self.geoms))[g : g + 1]
+        r: Tensor | None = None  # the world: identity, at the origin
+        p: Tensor | None = None
+        frames: list[tuple[Tensor, Tensor]] = []
+        for lvl in self._levels:
+            r, p = lvl.step(r, p, q, sin9, vers9, n)
+            frames.append((r, p))
+        # every geom's [world z in its axes (3) | centre height (1)], (N, 4G), a GEMM or two per level
+        acc: Tensor | None = None
+        for lv, from_rot, from_pos in self._geom_maps:
+            r, p = frames[lv - 1]
+            part = r @ from_rot + p @ from_pos
+            acc = part if acc is None else acc + part
+        assert acc is not None
+        g_count = len(self.geoms)
+        up = acc[:, : 3 * g_count]
+        low = acc[:, 3 * g_count :] - up.abs() @ self._reach - self._lift  # (N, G)
+        for g, shape, size, place in self._curved:
+            low = low - _reach(shape, up[:, 3 * g : 3 * g + 3], size)[:, None] @ place
         # (K·B, G) fraction-major -> (B, G·K), geom-major
         return low.reshape(len(FRACTIONS), b, -1).permute(1, 2, 0).reshape(b, -1)
+
+
+class _Level:
+    """The steps of one level as constant matrices (see ``Clearance._plan_levels``): for its C steps
+    reading the C_in frames of the level before, rotations R' = R·(A + sin θ·A K + (1 − cos θ)·A K²)
+    (A the step's constant rotation, K a hinge's axis) and positions p' = p + R·u + d·R·e − R'·w (u the
+    offset to the anchor, w the anchor, e a slide's axis, d its coordinate)."""
+
+    def __init__(self, c: int, c_in: int, nq: int) -> None:
+        w = max(c_in, 1)  # a first level reads the world: constant rows instead
+        self.c = c
+        self.a, self.ak, self.akk = (
+            torch.zeros(9 * w, 9 * c),
+            torch.zeros(9 * w, 9 * c),
+            torch.zeros(9 * w, 9 * c),
+        )
+        self.u, self.e = torch.zeros(9 * w, 3 * c), torch.zeros(9 * w, 3 * c)
+        self.pick = torch.zeros(3 * w, 3 * c)  # the input frame's position, per step
+        self.w = torch.zeros(9 * c, 3 * c)
+        self.slide, self.slide_ref = torch.zeros(nq, 3 * c), torch.zeros(3 * c)
+        self.free: list[tuple[int, int]] = []  # (column, qpos address)
+        self.balls: list[tuple[int, int]] = []
+        self.first = c_in == 0
+        self.hinges = (0, 0)
+        self.hinge_place = torch.zeros(0, 9 * c)
+
+    def add(self, k: int, step: dict[str, object], source: int) -> None:
+        kind, j = step["kind"], step["joint"]
+        rot, offset = step["rot"], step["offset"]
+        assert isinstance(rot, Tensor) and isinstance(offset, Tensor)
+        i = max(source, 0)
+        if kind == "free":
+            assert isinstance(j, _Joint)
+            self.free.append((k, j.qpos))
+            return
+        blk = slice(9 * i, 9 * i + 9)
+        self.a[blk, 9 * k : 9 * k + 9] = _kron3(rot)
+        self.u[blk, 3 * k : 3 * k + 3] = _apply_matrix(offset)
+        if source >= 0:
+            self.pick[3 * i : 3 * i + 3, 3 * k : 3 * k + 3] = torch.eye(3)
+        if kind == "hinge":
+            assert isinstance(j, _Joint)
+            axis = torch.tensor(_skew(j.axis), dtype=torch.float32)
+            anchor = torch.tensor(j.pos, dtype=torch.float32)
+            self.ak[blk, 9 * k : 9 * k + 9] = _kron3(rot @ axis)
+            self.akk[blk, 9 * k : 9 * k + 9] = _kron3(rot @ axis @ axis)
+            self.u[blk, 3 * k : 3 * k + 3] = _apply_matrix(offset + rot @ anchor)
+            self.w[9 * k : 9 * k + 9, 3 * k : 3 * k + 3] = _apply_matrix(anchor)
+        elif kind == "slide":
+            assert isinstance(j, _Joint)
+            self.e[blk, 3 * k : 3 * k + 3] = _apply_matrix(rot @ torch.tensor(j.axis, dtype=torch.float32))
+            self.slide[j.qpos, 3 * k : 3 * k + 3] = 1.0
+            self.slide_ref[3 * k : 3 * k + 3] = float(j.ref[0])
+        elif kind == "ball":
+            assert isinstance(j, _Joint)
+            self.balls.append((k, j.qpos))
+
+    def finish(self) -> None:
+        """The products of constants, made once (``step`` is traced: it must hold only the graph)."""
+        self.ak_h = self.ak @ self.hinge_place.T  # (9·C_in, 9·H_level): only the hinges' columns
+        self.akk_h = self.akk @ self.hinge_place.T
+        self.has_slides, self.has_anchors = bool(self.e.any()), bool(self.w.any())
+        self.free_place = [(at, _column(9, k, self.c), _column(3, k, self.c)) for k, at in self.free]
+        self.ball_place = [(k, at, _column(9, k, self.c)) for k, at in self.balls]
+
+    def step(
+        self, r: Tensor | None, p: Tensor | None, q: Tensor, sin9: Tensor, vers9: Tensor, n: int
+    ) -> tuple[Tensor, Tensor]:
+        """The level's (N, 9C) rotations and (N, 3C) positions from the level before's (None: the world)."""
+        r_in = _EYE9.expand(n, 9) if r is None else r
+        new = r_in @ self.a
+        lo, hi = self.hinges
+        if hi > lo:  # the hinges' columns only, placed back among the level's
+            turn = sin9[:, lo:hi] * (r_in @ self.ak_h) + vers9[:, lo:hi] * (r_in @ self.akk_h)
+            new = new + turn @ self.hinge_place
+        for at, place9, _ in self.free_place:
+            new = new + _quat_matrix(q[:, at + 3 : at + 7]) @ place9
+        for k, at, place9 in self.ball_place:
+            block = new[:, 9 * k : 9 * k + 9]
+            new = new + (_times(block, _quat_matrix(q[:, at : at + 4])) - block) @ place9
+        pos = r_in @ self.u
+        if p is not None:
+            pos = pos + p @ self.pick
+        if self.has_slides:
+            pos = pos + (r_in @ self.e) * (q @ self.slide - self.slide_ref)
+        if self.has_anchors:
+            pos = pos - new @ self.w
+        for at, _, place3 in self.free_place:
+            pos = pos + q[:, at : at + 3] @ place3
+        return new, pos
+
+
+def _column(width: int, k: int, c: int) -> Tensor:
+    """(width, width·C) places a (N, width) block at block column k of C."""
+    m = torch.zeros(width, width * c)
+    m[:, width * k : width * k + width] = torch.eye(width)
+    return m
+
+
+def _kron3(m: Tensor) -> Tensor:
+    """(9, 9) I ⊗ M: a row-major rotation R (as a (N, 9) row) times it is R·M."""
+    return torch.kron(torch.eye(3), m)
 
 
 def _apply_matrix(v: Tensor) -> Tensor:
@@ -371,20 +509,8 @@ def _apply_matrix(v: Tensor) -> Tensor:
     return m
 
 
-def _place(r: Tensor | None, p: Tensor | None, v: Tensor, n: int) -> Tensor:
-    """p + r·v for a frame (r, p) (None: the world's identity, origin) and a constant vector v: (N, 3)."""
-    moved = v.expand(n, 3) if r is None else r @ _apply_matrix(v)
-    return moved if p is None else p + moved
-
-
-def _times_const(r: Tensor | None, m: Tensor, n: int) -> Tensor:
-    """Row-major rotations (N, 9) (None: identity) times a constant (3, 3): (N, 9), one GEMM by I ⊗ M."""
-    if r is None:
-        return m.reshape(1, 9).expand(n, 9)
-    return r @ torch.kron(torch.eye(3), m)
-
-
 _ONES9 = torch.ones(1, 9)
+_EYE9 = torch.eye(3).reshape(1, 9)
 _PAIRS = [(i, k, j) for i in range(3) for j in range(3) for k in range(3)]
 
 

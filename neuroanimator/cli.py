@@ -74,6 +74,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     if args.epochs is not None:
         cfg.max_epochs = args.epochs
     cfg.frame, cfg.skip = args.frame, not args.no_skip
+    if args.clearance is not None:
+        cfg.clearance = args.clearance == "on"
     if args.rollout_steps is not None:
         if args.rollout_steps < 0:
             raise ModelError(f"--rollout-steps must be 0 or more, got {args.rollout_steps}")
@@ -117,6 +119,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                     ("rollout_steps", args.rollout_steps),
                     ("lr", args.lr),
                     ("activation", args.activation),
+                    ("clearance", args.clearance),
                 )
                 if value is not None
             }
@@ -381,6 +384,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="local frame of a free root: body (the default) or heading only",
     )
     t.add_argument("--no-skip", action="store_true", help="no linear path beside the MLP")
+    t.add_argument(
+        "--clearance",
+        choices=["on", "off"],
+        help="the network also reads how high the geoms that come near the floor are above it, computed "
+        "in the graph by forward kinematics (contact with the ground; default off, on for the runner)",
+    )
     t.add_argument(
         "--rollout-steps",
         type=int,

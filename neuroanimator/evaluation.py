@@ -5,6 +5,7 @@ weights and MJCF).
 
 from __future__ import annotations
 
+import importlib
 import logging
 from pathlib import Path
 
@@ -87,6 +88,20 @@ def held_controls(
     return u[:, starts], f[:, starts]
 
 
+def source_windows(
+    model: PhysicalModel, source: str, substeps: int, trials: int, steps: int, seed: int
+) -> tuple[NDArray[np.float64], ...]:
+    """For a model whose motion comes from its data source (the runner's running controller): windows
+    of that motion (``sequences``), as long as the source's runs allow, and the controls that replay
+    them exactly on MuJoCo: starts (trials, S), controls (trials, M, U), forces (trials, M, F) and the
+    recorded states (trials, M, S) after each super-step. The emulator replays the same controls open
+    loop, as it does the typical controls of other models."""
+    module = importlib.import_module(source)
+    horizon = min(steps // substeps, int(module.longest_window(model, substeps)))
+    seqs = module.sequences(model, substeps, trials, horizon, seed, progress=False)
+    return seqs.states[:, 0], seqs.controls, seqs.forces, seqs.states[:, 1:]
+
+
 def rollout_curve(
     path: Path,
     model: PhysicalModel,
@@ -110,16 +125,20 @@ def rollout_errors(
 ) -> tuple[RolloutCurve, PhysicalErrors]:
     """The normalised rollout curve (``rollout_curve``) and the same rollouts' errors in physical units
     (root position in metres, attitude in degrees, joints in radians) at 1, 5, 10 and 20 s."""
-    rng = np.random.default_rng(seed)
-    s0 = model.initial_states(rng, trials)
-    u, f = held_controls(model, rng, trials, steps, substeps)
+    source = model.spec.data_source
+    if source is not None:  # a model driven by a controller: windows of its own motion, replayed
+        s0, u, f, phys = source_windows(model, source, substeps, trials, steps, seed)
+    else:
+        rng = np.random.default_rng(seed)
+        s0 = model.initial_states(rng, trials)
+        u, f = held_controls(model, rng, trials, steps, substeps)
+        # physics: every held value repeated for its n physical steps
+        phys = model.simulate(
+            s0,
+            np.repeat(u, substeps, axis=1),
+            np.repeat(f, substeps, axis=1) if model.num_forces else None,
+        )[:, substeps - 1 :: substeps]  # (trials, M, S) at the super-step boundaries
     m = u.shape[1]
-    # physics: every held value repeated for its n physical steps
-    phys = model.simulate(
-        s0,
-        np.repeat(u, substeps, axis=1),
-        np.repeat(f, substeps, axis=1) if model.num_forces else None,
-    )[:, substeps - 1 :: substeps]  # (trials, M, S) at the super-step boundaries
     emu = OnnxEmulator(path / registry.ONNX_FILE, threads=2)
     pred = emu.rollout(s0, u if model.num_controls else None, f if model.num_forces else None, steps=m)[:, 1:]
     std = np.concatenate([s0[:, None], phys], axis=1).reshape(-1, model.state_size).std(axis=0)

@@ -420,4 +420,8 @@ def test_train_runner_uses_its_data_source_and_its_settings(
     cfg = manifest.train_config
     assert cfg.hidden == (16,) and cfg.max_seconds == 3  # given on the command line
     assert cfg.limits is False and cfg.batch_size == 512 and cfg.rollout_steps == 0  # the source's
+    # the feet's height above the floor, chosen from the data: the geoms that come near it
+    trunk = next(n for n in manifest.emulator.networks if n.name == "trunk")
+    assert cfg.clearance is True and trunk.clearance is not None
+    assert {"left_foot", "right_toes"} <= set(trunk.clearance.geoms) and "head" not in trunk.clearance.geoms
     assert "contact_fraction" not in summary  # no probe of typical controls: the spec gives n

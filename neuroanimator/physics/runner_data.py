@@ -149,6 +149,11 @@ def examples(
     return Examples(s, u, f, n)
 
 
+def longest_window(model: PhysicalModel, substeps: int) -> int:
+    """The most super-steps a window of one run can hold (``RUN_S`` less the margin kept before a fall)."""
+    return int((RUN_S - FALL_MARGIN_S) / (model.mj_model.opt.timestep * substeps))
+
+
 def sequences(
     model: PhysicalModel, substeps: int, count: int, horizon: int, seed: int, *, progress: bool = True
 ) -> Sequences:
