@@ -14,6 +14,7 @@ import torch
 from numpy.typing import NDArray
 
 from neuroanimator import artifacts, physical_errors, registry, sampling
+from neuroanimator.driver import check_params, load_driver
 from neuroanimator.export import OnnxEmulator
 from neuroanimator.manifest import Manifest
 from neuroanimator.physics.model import PhysicalModel
@@ -88,6 +89,43 @@ def held_controls(
     return u[:, starts], f[:, starts]
 
 
+def driven_rollouts(
+    model: PhysicalModel, emu: OnnxEmulator, substeps: int, trials: int, steps: int, seed: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """For a model with a driver (``ModelSpec.driver``, the runner's running controller) at its default
+    parameters: from the driver's start with every velocity perturbed by N(0, 0.01), the driver closes
+    its loop through the emulator and, from the same start, through MuJoCo, a driver instance per run
+    and side. Returns the starts (trials, S), the emulated and the physical states after each of the
+    M super-steps (trials, M, S); a run whose emulated state stops being finite stays where it was."""
+    spec = model.spec.driver
+    assert spec is not None
+    params = check_params(spec, model.name, {})
+    rng = np.random.default_rng(seed)
+    start = load_driver(spec, model, substeps, params).start()
+    full = model.to_physics(np.repeat(start[None], trials, axis=0))
+    m_ = model.mj_model
+    full[:, 1 + m_.nq : 1 + m_.nq + m_.nv] += rng.normal(0.0, 0.01, (trials, m_.nv))
+    s0 = np.asarray(model.from_physics(full))
+    on_emu = [load_driver(spec, model, substeps, params) for _ in range(trials)]
+    on_mj = [load_driver(spec, model, substeps, params) for _ in range(trials)]
+    forces = np.zeros((trials, model.num_forces))
+    m = steps // substeps
+    pred, phys = np.zeros((trials, m, model.state_size)), np.zeros((trials, m, model.state_size))
+    se, sm = s0.copy(), s0.copy()
+    for k in range(m):
+        ue = np.stack([d.act(x) for d, x in zip(on_emu, se, strict=True)])
+        um = np.stack([d.act(x) for d, x in zip(on_mj, sm, strict=True)])
+        nxt = np.asarray(
+            emu.step(se, ue, forces if model.num_forces else None, validate=False), dtype=np.float64
+        )
+        broken = ~np.isfinite(nxt).all(axis=1)
+        nxt[broken] = se[broken]
+        se = nxt
+        sm = model.step_held(sm, um, forces if model.num_forces else None, substeps)
+        pred[:, k], phys[:, k] = se, sm
+    return s0, pred, phys
+
+
 def source_windows(
     model: PhysicalModel, source: str, substeps: int, trials: int, steps: int, seed: int
 ) -> tuple[NDArray[np.float64], ...]:
@@ -126,7 +164,12 @@ def rollout_errors(
     """The normalised rollout curve (``rollout_curve``) and the same rollouts' errors in physical units
     (root position in metres, attitude in degrees, joints in radians) at 1, 5, 10 and 20 s."""
     source = model.spec.data_source
-    if source is not None:  # a model driven by a controller: windows of its own motion, replayed
+    emu = OnnxEmulator(path / registry.ONNX_FILE, threads=2)
+    pred: NDArray[np.float64] | None = None
+    if model.spec.driver is not None:  # its own controller closes the loop on both sides
+        s0, pred, phys = driven_rollouts(model, emu, substeps, trials, steps, seed)
+        u = np.zeros((trials, phys.shape[1], model.num_controls))
+    elif source is not None:  # a model driven by a controller: windows of its own motion, replayed
         s0, u, f, phys = source_windows(model, source, substeps, trials, steps, seed)
     else:
         rng = np.random.default_rng(seed)
@@ -139,15 +182,16 @@ def rollout_errors(
             np.repeat(f, substeps, axis=1) if model.num_forces else None,
         )[:, substeps - 1 :: substeps]  # (trials, M, S) at the super-step boundaries
     m = u.shape[1]
-    emu = OnnxEmulator(path / registry.ONNX_FILE, threads=2)
-    pred = emu.rollout(s0, u if model.num_controls else None, f if model.num_forces else None, steps=m)[:, 1:]
+    if pred is None:
+        controls, pushes = (u if model.num_controls else None), (f if model.num_forces else None)
+        pred = np.asarray(emu.rollout(s0, controls, pushes, steps=m)[:, 1:], dtype=np.float64)
     std = np.concatenate([s0[:, None], phys], axis=1).reshape(-1, model.state_size).std(axis=0)
     std = np.where(std > 1e-9, std, 1.0)
-    err = np.abs(pred.astype(np.float64) - phys) / std
+    err = np.abs(pred - phys) / std
     err = np.where(np.isfinite(err), err, 1e6)  # a diverged emulator shows as a huge error, not NaN
     curve = np.concatenate([[0.0], err.mean(axis=(0, 2))])
     t = np.arange(m + 1) * substeps * model.dt
-    series = physical_errors.error_series(model.layout, pred.astype(np.float64), phys)
+    series = physical_errors.error_series(model.layout, pred, phys)
     return (
         RolloutCurve(t=[round(float(x), 6) for x in t], error=[float(e) for e in curve]),
         physical_errors.summarize(series, substeps * model.dt),

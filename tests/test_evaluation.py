@@ -65,3 +65,19 @@ def test_plot_curves_writes_a_png(tmp_path: Path) -> None:
     }
     evaluation.plot_curves(curves, "test", out)
     assert out.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_model_with_a_driver_is_evaluated_in_its_closed_loop() -> None:
+    """The runner's controller closes its loop through the committed emulator and through MuJoCo from
+    the same perturbed starts: both run forward, close together over the first strides."""
+    from neuroanimator.export import OnnxEmulator
+
+    path = registry.resolve(Path(__file__).resolve().parents[1] / "artifacts", "runner")
+    model = registry.load_physical_model(path, registry.read_manifest(path))
+    emu = OnnxEmulator(path / registry.ONNX_FILE)
+    s0, pred, phys = evaluation.driven_rollouts(model, emu, 6, trials=2, steps=6 * 20, seed=3)
+    assert s0.shape == (2, model.state_size) and pred.shape == phys.shape == (2, 20, model.state_size)
+    assert not np.allclose(s0[0], s0[1])  # the starts are perturbed apart
+    moved = phys[:, -1, 0] - s0[:, 0]
+    assert np.all(moved > 0.4)  # 0.32 s at about 2 m/s
+    assert np.abs(pred[:, -1, :3] - phys[:, -1, :3]).max() < 0.1  # metres, after 20 super-steps
