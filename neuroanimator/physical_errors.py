@@ -84,7 +84,8 @@ def summarize(
     """The errors at the given times (those the rollouts reach): mean and 90th percentile over trials.
 
     ``series[q]`` is (N, M) with column k the error after k + 1 super-steps of ``super_dt`` seconds.
-    A non-finite error (a diverged emulator) is reported as infinity, never hidden.
+    A non-finite error (a diverged emulator) makes the statistic it enters infinite, reported as None
+    (JSON's null), never hidden.
     """
     out: dict[str, list[PhysicalErrorAt]] = {}
     for name, err in series.items():
@@ -94,9 +95,18 @@ def summarize(
             if k < 0 or k >= err.shape[1]:
                 continue
             col = np.where(np.isfinite(err[:, k]), err[:, k], np.inf)
-            rows.append(PhysicalErrorAt(t_s=t, mean=float(np.mean(col)), p90=float(np.percentile(col, 90))))
+            mean, p90 = float(np.mean(col)), float(np.percentile(col, 90))
+            rows.append(
+                PhysicalErrorAt(
+                    t_s=t, mean=mean if np.isfinite(mean) else None, p90=p90 if np.isfinite(p90) else None
+                )
+            )
         out[name] = rows
     return PhysicalErrors(**out)
+
+
+def _num(v: float | None) -> str:
+    return "inf" if v is None else f"{v:.3g}"
 
 
 UNITS = {"root_position_m": "m", "attitude_deg": "°", "joint_angle_rad": "rad", "joint_position_m": "m"}
@@ -108,6 +118,6 @@ def format_table(errors: PhysicalErrors) -> list[str]:
     for name in UNITS:
         rows = getattr(errors, name)
         if rows:
-            cells = "  ".join(f"{e.t_s:g} s: {e.mean:.3g} ({e.p90:.3g})" for e in rows)
+            cells = "  ".join(f"{e.t_s:g} s: {_num(e.mean)} ({_num(e.p90)})" for e in rows)
             lines.append(f"{name:<16} mean (p90) in {UNITS[name]}: {cells}")
     return lines

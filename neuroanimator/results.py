@@ -48,11 +48,12 @@ class NetworkSize(_Result):
 
 class PhysicalErrorAt(_Result):
     """An error in physical units at ``t_s`` seconds into the rollouts: mean and 90th percentile over
-    the trials; infinite where an emulated rollout diverged."""
+    the trials; null (an infinite error: JSON has no infinity) where enough emulated rollouts diverged
+    to make it so."""
 
     t_s: float
-    mean: float
-    p90: float
+    mean: float | None
+    p90: float | None
 
 
 class PhysicalErrors(_Result):

@@ -115,15 +115,16 @@ export interface PhysicalErrors {
 }
 /**
  * An error in physical units at ``t_s`` seconds into the rollouts: mean and 90th percentile over
- * the trials; infinite where an emulated rollout diverged.
+ * the trials; null (an infinite error: JSON has no infinity) where enough emulated rollouts diverged
+ * to make it so.
  *
  * This interface was referenced by `ResultsWire`'s JSON-Schema
  * via the `definition` "PhysicalErrorAt".
  */
 export interface PhysicalErrorAt {
   t_s: number;
-  mean: number;
-  p90: number;
+  mean: number | null;
+  p90: number | null;
 }
 /**
  * The thesis' network for this model (Table 6.1), for comparison.

@@ -28,15 +28,16 @@ export interface LossPoint {
 }
 /**
  * An error in physical units at ``t_s`` seconds into the rollouts: mean and 90th percentile over
- * the trials; infinite where an emulated rollout diverged.
+ * the trials; null (an infinite error: JSON has no infinity) where enough emulated rollouts diverged
+ * to make it so.
  *
  * This interface was referenced by `TrainerWire`'s JSON-Schema
  * via the `definition` "PhysicalErrorAt".
  */
 export interface PhysicalErrorAt {
   t_s: number;
-  mean: number;
-  p90: number;
+  mean: number | null;
+  p90: number | null;
 }
 /**
  * Rollout errors against MuJoCo in physical units, for the quantities the model has: the root's

@@ -10,7 +10,7 @@ import type { TrainerApi } from '../api/trainer';
 import { PHYSICAL_QUANTITIES, type PhysicalQuantity } from '../api/measurements';
 import { driveHash } from '../session/start';
 import { formFields, fromStatus, isEnded, onEvent, phaseSteps, resultRows, startView, statusLine, uploadProblem, type TrainingView } from '../training/progress';
-import { fmt, h } from '../ui/dom';
+import { fmt, h, physicalText } from '../ui/dom';
 import { notify } from '../ui/notices';
 import { LinePlot } from '../ui/plot';
 
@@ -40,7 +40,7 @@ function physicalTable(v: TrainingView): HTMLElement | null {
         h('td', {}, PHYSICAL_QUANTITIES[q]),
         ...times.map((t) => {
           const p = errors[q]!.find((x) => x.t_s === t);
-          return h('td', { class: 'num' }, p ? `${fmt(p.mean)} / ${fmt(p.p90)}` : '–');
+          return h('td', { class: 'num' }, p ? `${physicalText(p.mean)} / ${physicalText(p.p90)}` : '–');
         }),
       ),
     ),

@@ -7,7 +7,7 @@ import type { ModelDetail } from '../api/emulator.gen';
 import { controlMeaning } from '../session/inputs';
 import { errorText } from '../api/http';
 import { curvesOf, loadBench, loadEval, PHYSICAL_QUANTITIES, physicalRows, servedLabel, type BenchResult, type EvalResult } from '../api/measurements';
-import { fmt, h } from '../ui/dom';
+import { fmt, h, physicalText } from '../ui/dom';
 import { notify } from '../ui/notices';
 import { LinePlot } from '../ui/plot';
 import { addModelPanel } from './addmodel';
@@ -105,7 +105,7 @@ function physicalTable(m: ModelDetail, e: EvalResult | null): HTMLElement {
         h('td', {}, PHYSICAL_QUANTITIES[r.quantity]),
         ...times.map((t) => {
           const v = r.values.find((x) => x.t_s === t);
-          return h('td', { class: 'num' }, v ? `${fmt(v.mean)} / ${fmt(v.p90)}` : '–');
+          return h('td', { class: 'num' }, v ? `${physicalText(v.mean)} / ${physicalText(v.p90)}` : '–');
         }),
       ),
     ),

@@ -27,6 +27,11 @@ export function append(el: Element, ...children: Child[]): void {
 }
 
 /** A number for people: 3 significant digits, exponent form for tiny or huge values. */
+/** An error in physical units: null is an infinite one (a diverged rollout; JSON has no infinity). */
+export function physicalText(v: number | null): string {
+  return v === null ? '∞' : fmt(v);
+}
+
 export function fmt(v: number | null | undefined, digits = 3): string {
   if (v === null || v === undefined || !Number.isFinite(v)) return '–';
   const a = Math.abs(v);
