@@ -509,7 +509,6 @@ def _apply_matrix(v: Tensor) -> Tensor:
     return m
 
 
-_ONES9 = torch.ones(1, 9)
 _EYE9 = torch.eye(3).reshape(1, 9)
 _PAIRS = [(i, k, j) for i in range(3) for j in range(3) for k in range(3)]
 
