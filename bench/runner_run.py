@@ -1,7 +1,7 @@
 """The runner's controller on MuJoCo: speed over 30 s at two target speeds, pushes, throughput.
 
     python bench/runner_run.py [--speeds 2.0,2.6] [--seconds 30] [--push-n 250]
-                               [--control-every 3] [--kinematic] [--json]
+                               [--control-every 3] [--kinematic] [--starts K] [--json]
 
 Each run starts from ``runner_control.running_start`` at the target speed. The speed is the mean
 forward speed of the pelvis over the whole run and over its last 25 s; a run has fallen once its
@@ -9,6 +9,11 @@ pelvis drops below 0.55 m. Pushes: a force of ``--push-n`` newtons on the torso 
 leftwards, rightwards, forwards and backwards, while running at the first target speed. Throughput:
 simulated seconds per wall-clock second of the closed loop (MuJoCo's sensors) (Python controller every few physical
 steps, ``mujoco.rollout`` in between, 2 threads), for one run and for a batch of 64.
+
+One run from one start says little about a chaotic loop: with ``--starts K`` each case (every target
+speed, and each push at the first one, here at 5 s) runs again from K starts whose velocities are
+perturbed by N(0, 0.01) (m/s, rad/s), and a table says how many stay up for the whole run, the
+median time up, and the mean speed and sideways drift of those that stayed up.
 With ``--json`` the last line is one JSON object with every number.
 """
 
@@ -31,6 +36,47 @@ def _speeds(result: rc.RunResult, seconds: float) -> tuple[float, float]:
     return x_end / seconds, (x_end - float(x[k5])) / (seconds - 5.0)
 
 
+def _reliability(
+    m: Any, speeds: list[float], pushes: dict[str, tuple[float, float, float]], args: argparse.Namespace
+) -> list[dict[str, Any]]:
+    """Each case from ``args.starts`` perturbed starts: how many stay up, for how long, how fast."""
+    rng = np.random.default_rng(0)
+    cases: list[tuple[str, float, rc.Push | None]] = [(f"{v:.1f} m/s", v, None) for v in speeds]
+    cases += [
+        (
+            f"pushed {name} at {speeds[0]:.1f} m/s",
+            speeds[0],
+            rc.Push(force=force, start_s=5.0, duration_s=0.2),
+        )
+        for name, force in pushes.items()
+    ]
+    print()
+    print(
+        f"| case ({args.starts} perturbed starts) | up for {args.seconds:.0f} s | median s up | mean speed (m/s) | mean sideways drift (m) |"
+    )
+    print("|---|---|---|---|---|")
+    rows = []
+    for name, v, push in cases:
+        start = np.repeat(rc.running_start(m, v)[None], args.starts, axis=0)
+        start[:, 1 + m.nq : 1 + m.nq + m.nv] += rng.normal(0.0, 0.01, (args.starts, m.nv))
+        res = rc.run(
+            m, start, v, args.seconds, push=push, control_every=args.control_every,
+            kinematic=args.kinematic, record=False,
+        )  # fmt: skip
+        up = ~np.isfinite(res.fell_at)
+        speed = float(np.mean(res.final_qpos[up, 0])) / args.seconds if up.any() else None
+        drift = float(np.mean(np.abs(res.final_qpos[up, 1]))) if up.any() else None
+        median = float(np.median(np.minimum(res.fell_at, args.seconds)))
+        rows.append(
+            {"case": name, "target": v, "starts": args.starts, "up": int(up.sum()), "median_s": median,
+             "speed": speed, "drift": drift}
+        )  # fmt: skip
+        speed_text = "–" if speed is None else f"{speed:.2f}"
+        drift_text = "–" if drift is None else f"{drift:.2f}"
+        print(f"| {name} | {int(up.sum())} of {args.starts} | {median:.1f} | {speed_text} | {drift_text} |")
+    return rows
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--speeds", default="2.0,2.6")
@@ -38,6 +84,9 @@ def main() -> int:
     p.add_argument("--push-n", type=float, default=250.0)
     p.add_argument("--control-every", type=int, default=3, help="physical steps per control period")
     p.add_argument("--kinematic", action="store_true", help="the controller reads KinematicSensors")
+    p.add_argument(
+        "--starts", type=int, default=0, help="perturbed starts per case for the reliability table"
+    )
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     m = physics.get("runner").mj_model
@@ -107,6 +156,9 @@ def main() -> int:
         print(
             f"| {name} | {f:.0f} | 0.2 | {0.2 * f:.0f} | {'no' if np.isinf(fell) else f'at {fell:.1f} s'} | {after:.2f} |"
         )
+
+    if args.starts > 0:
+        out["reliability"] = _reliability(m, speeds, pushes, args)
 
     print()
     print("| runs at once | control every (steps) | simulated s per wall s (all runs) | per run |")

@@ -2,12 +2,17 @@
 
     python bench/runner_tune.py [--init gait.json] [--batch 64] [--rounds 10] [--speeds 2.0,3.0]
                                 [--seconds 4,8,15] [--push-n 250] [--budget-s 600]
-                                [--control-every 3] [--kinematic]
+                                [--control-every 3] [--kinematic] [--starts 1] [--noise 0.01]
 
 Each candidate gait runs at every target speed, and (from the last horizon on) four times more
-with a push of the torso (sideways both ways, forwards, backwards); all runs of all candidates are one batch of the closed loop. A candidate scores its
-worst condition: the seconds it stayed up, less the error of its mean speed. The next round samples
-around the 16 best (a shrinking Gaussian step). The last line is the best gait as JSON, the form
+with a push of the torso (sideways both ways, forwards, backwards); all runs of all candidates are one
+batch of the closed loop. With ``--starts 1`` a candidate scores its worst condition: the seconds it
+stayed up, less the error of its mean speed. The running loop is chaotic, so a gait that survives one
+start may fall from a start 0.01 m/s away: with ``--starts K`` every condition runs from K starts
+whose velocities are perturbed by N(0, ``--noise``), drawn afresh each round, and a candidate scores
+the mean over all of them (a smoother measure of how reliably it stays up). The next round samples
+around the best quarter (a shrinking Gaussian step); the best ones are scored again each round, so
+a lucky draw does not keep a gait. After each round a line gives the best gait so far as JSON, the form
 ``runner_control.Gait`` takes; the controller's defaults come from such a search.
 """
 
@@ -60,9 +65,17 @@ def score(
     push_n: float | None,
     control_every: int = 3,
     kinematic: bool = False,
+    starts: int = 1,
+    noise: float = 0.0,
+    rng: np.random.Generator | None = None,
+    speed_weight: float = 2.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(C, P) candidates -> (C,) scores, (C,) worst seconds up, (C,) mean speed at the first target."""
+    """(C, P) candidates -> (C,) scores, (C,) worst seconds up, (C,) mean speed at the first target.
+
+    With ``starts`` > 1 each condition runs ``starts`` times per candidate from perturbed starts and
+    the score and the seconds up are means over them."""
     m = physics.get("runner").mj_model
+    rng = rng or np.random.default_rng(0)
     conditions: list[tuple[float, rc.Push | None]] = [(v, None) for v in speeds]
     if push_n:  # sideways both ways, and forwards and backwards at 0.8 of the force
         for force in (
@@ -74,11 +87,15 @@ def score(
             conditions.append((speeds[0], rc.Push(force=force, start_s=seconds / 2, duration_s=0.2)))
     c = pop.shape[0]
     scores, alive_all, speed0 = [], [], np.zeros(c)
+    reps = np.repeat(pop, starts, axis=0)  # (C·K, P): each candidate K times in a row
     for k, (v, push) in enumerate(conditions):
-        gait = rc.Gait(**{n: pop[:, i] for i, n in enumerate(names)})  # type: ignore[arg-type]
+        gait = rc.Gait(**{n: reps[:, i] for i, n in enumerate(names)})  # type: ignore[arg-type]
+        start = np.repeat(rc.running_start(m, v)[None], reps.shape[0], axis=0)
+        if noise > 0:
+            start[:, 1 + m.nq : 1 + m.nq + m.nv] += rng.normal(0.0, noise, (reps.shape[0], m.nv))
         res = rc.run(
             m,
-            rc.running_start(m, v),
+            start,
             v,
             seconds,
             gait=gait,
@@ -89,10 +106,13 @@ def score(
         )
         alive = np.minimum(res.fell_at, seconds)
         mean = res.final_qpos[:, 0] / np.maximum(alive, 1e-3)
-        scores.append(alive - 2.0 * np.abs(mean - v) - np.abs(res.final_qpos[:, 1]) / seconds)
-        alive_all.append(alive)
+        each = alive - speed_weight * np.abs(mean - v) - np.abs(res.final_qpos[:, 1]) / seconds
+        scores.append(each.reshape(c, starts).mean(axis=1))
+        alive_all.append(alive.reshape(c, starts).mean(axis=1))
         if k == 0:
-            speed0 = mean
+            speed0 = mean.reshape(c, starts).mean(axis=1)
+    if starts > 1:  # many starts per condition: the mean over everything, not the worst condition
+        return np.mean(scores, axis=0), np.mean(alive_all, axis=0), speed0
     return np.min(scores, axis=0), np.min(alive_all, axis=0), speed0
 
 
@@ -111,6 +131,9 @@ def main() -> int:
     p.add_argument(
         "--kinematic", action="store_true", help="the controller reads runner_control.KinematicSensors"
     )
+    p.add_argument("--starts", type=int, default=1, help="perturbed starts per condition and candidate")
+    p.add_argument("--noise", type=float, default=0.01, help="velocity perturbation of those starts")
+    p.add_argument("--speed-weight", type=float, default=2.0, help="score lost per m/s off the target")
     args = p.parse_args()
     rng = np.random.default_rng(args.seed)
     names = list(RANGES)
@@ -131,21 +154,34 @@ def main() -> int:
         stage = min(len(horizons) - 1, r * len(horizons) // args.rounds)
         seconds = horizons[stage]
         push = args.push_n if stage == len(horizons) - 1 else None
-        s, alive, v = score(pop, names, speeds, seconds, push, args.control_every, args.kinematic)
+        s, alive, v = score(
+            pop,
+            names,
+            speeds,
+            seconds,
+            push,
+            args.control_every,
+            args.kinematic,
+            args.starts,
+            args.noise,
+            rng,
+            args.speed_weight,
+        )
         order = np.argsort(-s)
         best = pop[order[0]].copy()
         print(
             f"round {r}: {seconds:.0f} s, best score {s[order[0]]:.2f} (up {alive[order[0]]:.1f} s, "
-            f"{v[order[0]]:.2f} m/s), {(alive >= seconds).sum()} of {len(s)} stay up, {time.time() - t0:.0f} s",
+            f"{v[order[0]]:.2f} m/s), mean up {alive.mean():.1f} s, {(alive >= seconds).sum()} of {len(s)} "
+            f"stay up, {time.time() - t0:.0f} s",
             flush=True,
         )
+        print(json.dumps({n: round(float(best[i]), 4) for i, n in enumerate(names)}), flush=True)
         if time.time() - t0 > args.budget_s:
             break
-        elite = pop[order[:16]]
+        elite = pop[order[: max(2, args.batch // 4)]]
         parents = elite[rng.integers(0, len(elite), args.batch)]
         pop = np.clip(parents + sigma * (0.8 ** (r + 1)) * rng.standard_normal(parents.shape), lo, hi)
         pop[: len(elite)] = elite
-    print(json.dumps({n: round(float(best[i]), 4) for i, n in enumerate(names)}))
     return 0
 
 
