@@ -1,7 +1,8 @@
 """The runner's controller on MuJoCo: speed over 30 s at two target speeds, pushes, throughput.
 
     python bench/runner_run.py [--speeds 2.0,2.6] [--seconds 30] [--push-n 250]
-                               [--control-every 3] [--kinematic] [--starts K] [--json]
+                               [--control-every 3] [--kinematic] [--starts K] [--gait JSON]
+                               [--json]
 
 Each run starts from ``runner_control.running_start`` at the target speed. The speed is the mean
 forward speed of the pelvis over the whole run and over its last 25 s; a run has fallen once its
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -61,7 +63,7 @@ def _reliability(
         start[:, 1 + m.nq : 1 + m.nq + m.nv] += rng.normal(0.0, 0.01, (args.starts, m.nv))
         res = rc.run(
             m, start, v, args.seconds, push=push, control_every=args.control_every,
-            kinematic=args.kinematic, record=False,
+            kinematic=args.kinematic, record=False, gait=args.gait,
         )  # fmt: skip
         up = ~np.isfinite(res.fell_at)
         speed = float(np.mean(res.final_qpos[up, 0])) / args.seconds if up.any() else None
@@ -87,8 +89,12 @@ def main() -> int:
     p.add_argument(
         "--starts", type=int, default=0, help="perturbed starts per case for the reliability table"
     )
+    p.add_argument(
+        "--gait", type=Path, help="a gait as JSON (as runner_tune.py prints it) instead of the default"
+    )
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
+    args.gait = rc.Gait(**json.loads(args.gait.read_text())) if args.gait else None
     m = physics.get("runner").mj_model
     speeds = [float(s) for s in args.speeds.split(",")]
     every = args.control_every
@@ -105,8 +111,9 @@ def main() -> int:
     print("|---|---|---|---|---|")
     for v in speeds:
         res = rc.run(
-            m, rc.running_start(m, v), v, args.seconds, control_every=every, kinematic=args.kinematic
-        )
+            m, rc.running_start(m, v), v, args.seconds, control_every=every, kinematic=args.kinematic,
+            gait=args.gait,
+        )  # fmt: skip
         mean, settled = _speeds(res, args.seconds)
         fell = float(res.fell_at[0])
         drift = float(res.final_qpos[0, 1])
@@ -139,8 +146,9 @@ def main() -> int:
     for name, force in pushes.items():
         push = rc.Push(force=force, start_s=10.0, duration_s=0.2)
         res = rc.run(
-            m, rc.running_start(m, v), v, 15.0, push=push, control_every=every, kinematic=args.kinematic
-        )
+            m, rc.running_start(m, v), v, 15.0, push=push, control_every=every, kinematic=args.kinematic,
+            gait=args.gait,
+        )  # fmt: skip
         fell = float(res.fell_at[0])
         k10 = round(10.0 / res.dt)
         after = (float(res.final_qpos[0, 0]) - float(res.states[0, k10, 1])) / 5.0
@@ -167,7 +175,7 @@ def main() -> int:
     for batch in (1, 64):
         for every in (3, 6):
             start = np.repeat(rc.running_start(m, v)[None], batch, axis=0)
-            res = rc.run(m, start, v, 5.0, control_every=every, record=False)
+            res = rc.run(m, start, v, 5.0, control_every=every, record=False, gait=args.gait)
             rate = batch * 5.0 / res.wall_s
             out["throughput"].append({"batch": batch, "control_every": every, "sim_s_per_wall_s": rate})
             print(f"| {batch} | {every} | {rate:.1f} | {rate / batch:.2f} |")
