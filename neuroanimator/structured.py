@@ -251,9 +251,6 @@ class StructuredEmulator(nn.Module):
     _limit_sel: Tensor
     _limit_low: Tensor
     _limit_high: Tensor
-    _range_at: Tensor
-    _range_low: Tensor
-    _range_high: Tensor
 
     def __init__(
         self,
@@ -525,25 +522,6 @@ class StructuredEmulator(nn.Module):
         self.register_buffer("_limit_sel", sel, persistent=False)
         self.register_buffer("_limit_high", high, persistent=False)
         self.register_buffer("_limit_low", low, persistent=False)
-        # each limited joint's position alone (S, L), to keep predicted positions within the range
-        at = torch.zeros(S, len(lims))
-        for j, lim in enumerate(lims):
-            at[lim.position, j] = 1.0
-        self.register_buffer("_range_at", at, persistent=False)
-        self.register_buffer("_range_high", torch.tensor([lim.high for lim in lims]), persistent=False)
-        self.register_buffer("_range_low", torch.tensor([lim.low for lim in lims]), persistent=False)
-
-    def _within_limits(self, state: Tensor) -> Tensor:
-        """(B, S) states with every limited joint's position clamped to its range.
-
-        A limit is a constraint: the joint cannot pass it. A network's prediction can, by its error,
-        and an angle past its limit then reads (as sine and cosine) like one near the other end of the
-        range, a state the data never held, from which a rollout ran away (dm_control's reacher: the
-        wrist past its 160° limit, then its rate grew 50× in three super-steps). Clamped, the next
-        input is a state at the limit, which the data hold in plenty."""
-        z = state @ self._range_at  # (B, L)
-        inside = torch.minimum(torch.maximum(z, self._range_low), self._range_high)
-        return state + (inside - z) @ self._range_at.T
 
     def output_groups(self) -> list[tuple[str, int]]:
         return [(g.name, g.size) for g in self.layout]
@@ -695,11 +673,8 @@ class StructuredEmulator(nn.Module):
         return self.apply_delta(state, self.denormalize_outputs(y))
 
     def apply_delta(self, state: Tensor, delta_local: Tensor, frame: Frame | None = None) -> Tensor:
-        """T^Δ_y T'_y: local state change (B,S) -> next state (B,S), quaternions renormalised and
-        limited joints kept within their ranges."""
+        """T^Δ_y T'_y: local state change (B,S) -> next state (B,S), quaternions renormalised."""
         nxt = state + self._map_delta(state, delta_local, inverse=True, frame=frame)
-        if self.limits:
-            nxt = self._within_limits(nxt)
         if not self._num_quats:
             return nxt
         if self._num_quats == 1:  # (B, 4) as it is: two reshapes fewer in the graph

@@ -86,34 +86,6 @@ def test_onnx_graph_computes_the_same_ramps(make_emulator: MakeEmulator) -> None
     np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-5)
 
 
-def test_a_predicted_position_never_passes_a_limit(make_emulator: MakeEmulator) -> None:
-    """A joint cannot pass its limit; a prediction that would (by the network's error) stops at it, in
-    torch and in the ONNX graph, and positions that end inside the range are left as predicted."""
-    model = _rail()
-    emu = make_emulator(model, seed=3)
-    pos = model.layout.labels().index("slider.pos")
-    last = emu.core[-1]
-    assert isinstance(last, torch.nn.Linear)
-    with torch.no_grad():  # a network that moves the slider by about +0.3 whatever the state
-        last.weight.zero_()
-        if emu.skip is not None:
-            emu.skip.weight.zero_()
-        bias = torch.zeros(model.state_size)
-        bias[pos] = (0.3 - emu.y_mean[pos]) / emu.y_std[pos]
-        last.bias.copy_(bias)
-    s = np.zeros((3, model.state_size))
-    s[:, pos] = [0.0, 0.4, -0.6]  # inside; pushed past the high limit; from past the low limit, inside
-    u = np.zeros((3, 1))
-    with torch.no_grad():
-        torch_next = emu(torch.from_numpy(s).float(), torch.from_numpy(u).float()).numpy()
-    onnx_next = OnnxEmulator(to_onnx(emu)).step(s, u)
-    for nxt in (torch_next, onnx_next):
-        moved = nxt[0, pos]  # from 0.0: the step the network predicts, well inside the range
-        assert 0.2 < moved < 0.5
-        assert nxt[1, pos] == pytest.approx(0.5, abs=1e-6)  # 0.4 + that step would pass 0.5: at the limit
-        assert nxt[2, pos] == pytest.approx(-0.6 + moved, abs=1e-5)  # ends inside: as predicted
-
-
 def test_limits_travel_through_the_manifest(tmp_path: Path) -> None:
     model = _rail()
     cfg = TrainConfig(substeps=10, examples=300, test_examples=50, hidden=(8,), max_epochs=2, progress=False)
