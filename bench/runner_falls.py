@@ -71,8 +71,7 @@ def main() -> int:
     ]
     rows = []
     for name, speed, push in cases:
-        start = np.repeat(rc.running_start(m, speed)[None], args.runs, axis=0)
-        start[:, 1 + m.nq : 1 + m.nq + m.nv] += rng.normal(0.0, VELOCITY_NOISE, (args.runs, m.nv))
+        start = rc.perturbed_starts(m, speed, args.runs, rng, VELOCITY_NOISE)
         emu = rc.run_emulated(model, step, manifest.substeps, start, speed, args.seconds, push=push)
         ref = rc.run(
             m,

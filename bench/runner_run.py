@@ -59,8 +59,7 @@ def _reliability(
     print("|---|---|---|---|---|")
     rows = []
     for name, v, push in cases:
-        start = np.repeat(rc.running_start(m, v)[None], args.starts, axis=0)
-        start[:, 1 + m.nq : 1 + m.nq + m.nv] += rng.normal(0.0, 0.01, (args.starts, m.nv))
+        start = rc.perturbed_starts(m, v, args.starts, rng)
         res = rc.run(
             m, start, v, args.seconds, push=push, control_every=args.control_every,
             kinematic=args.kinematic, record=False, gait=args.gait,

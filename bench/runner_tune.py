@@ -90,9 +90,8 @@ def score(
     reps = np.repeat(pop, starts, axis=0)  # (C·K, P): each candidate K times in a row
     for k, (v, push) in enumerate(conditions):
         gait = rc.Gait(**{n: reps[:, i] for i, n in enumerate(names)})  # type: ignore[arg-type]
-        start = np.repeat(rc.running_start(m, v)[None], reps.shape[0], axis=0)
-        if noise > 0:
-            start[:, 1 + m.nq : 1 + m.nq + m.nv] += rng.normal(0.0, noise, (reps.shape[0], m.nv))
+        # one start per condition as it is, or K perturbed ones
+        start = rc.perturbed_starts(m, v, reps.shape[0], rng, noise if starts > 1 else 0.0)
         res = rc.run(
             m,
             start,

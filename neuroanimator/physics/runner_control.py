@@ -442,6 +442,18 @@ def running_start(m: mujoco.MjModel, speed: float) -> FloatArray:
     return state
 
 
+def perturbed_starts(
+    m: mujoco.MjModel, speed: float, count: int, rng: np.random.Generator, noise: float = 0.01
+) -> FloatArray:
+    """(count, nfull) copies of ``running_start`` at ``speed`` with every velocity perturbed by
+    N(0, ``noise``) (m/s, rad/s): the closed loop is chaotic, so how reliably a gait (or an emulator
+    driven by it) stays up is measured over many such starts, not one."""
+    start = np.repeat(running_start(m, speed)[None], count, axis=0)
+    if noise > 0:
+        start[:, 1 + m.nq : 1 + m.nq + m.nv] += rng.normal(0.0, noise, (count, m.nv))
+    return start
+
+
 def run(
     m: mujoco.MjModel,
     start: FloatArray,

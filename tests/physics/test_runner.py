@@ -82,8 +82,7 @@ def test_the_gait_stays_up_from_perturbed_starts(m: mujoco.MjModel) -> None:
     (every 6 physical steps, kinematic sensors), at a speed between two trained ones and at one of them."""
     rng = np.random.default_rng(3)
     for speed in (2.0, 2.2):
-        start = np.repeat(runner_control.running_start(m, speed)[None], 8, axis=0)
-        start[:, 1 + m.nq : 1 + m.nq + m.nv] += rng.normal(0.0, 0.01, (8, m.nv))
+        start = runner_control.perturbed_starts(m, speed, 8, rng)
         result = runner_control.run(m, start, speed, 12.0, control_every=6, kinematic=True, record=False)
         assert not result.fell.any(), f"fell at {result.fell_at[result.fell]} s at {speed} m/s"
         assert np.all(result.final_qpos[:, 0] > 12.0 * 1.5)  # kept running forward
