@@ -7,7 +7,10 @@
 // A model's skins (MJCF <skin>: the dolphin's body surface) are smooth meshes over their bodies (skin.ts),
 // placed with the bodies by setPoses.
 // A "ghost" is the same model as a translucent outline in one colour (the MuJoCo twin, a goal).
+// A body's geoms of one look are merged into one mesh (mergeByLook): every draw call has a fixed cost,
+// which in software WebGL was a fifth of a frame for a lander and its ghost (60 draws).
 import * as THREE from 'three';
+import { mergeGeometries } from 'three/addons/utils/BufferGeometryUtils.js';
 import type { GeomInfo, ModelGeometry } from '../api/emulator.gen';
 import type { Pose } from './interp';
 import { appearance, solidMaterial } from './materials';
@@ -86,18 +89,22 @@ export class ModelView {
         const mesh = this.mesh(geom);
         if (mesh) g.add(mesh);
       }
+      mergeByLook(g);
       this.group.add(g);
       return g;
     });
     if (!look.ghost) {
+      const fixed = new THREE.Group(); // what is fixed to the world
       for (const geom of geometry.world) {
         if (geom.type === 'plane') {
           if (this.floorZ === null || geom.pos[2]! < this.floorZ) this.floorZ = geom.pos[2] ?? 0;
           continue;
         }
         const mesh = this.mesh(geom);
-        if (mesh) this.group.add(mesh);
+        if (mesh) fixed.add(mesh);
       }
+      mergeByLook(fixed);
+      this.group.add(fixed);
     }
     this.skins = (geometry.skins ?? []).map((skin) => {
       const [r = 0.5, g = 0.5, b = 0.5, a = 1] = skin.rgba;
@@ -134,6 +141,8 @@ export class ModelView {
     obj.name = geom.name;
     setPose(obj, [...geom.pos, ...geom.quat]);
     if (geom.mesh?.asset && this.files && obj instanceof THREE.Mesh) this.loading.push(this.fromFile(obj, geom));
+    // a geom drawn from a file keeps a mesh of its own (its triangles replace its box when they load)
+    else obj.userData.look = this.faces ? 'ghost' : JSON.stringify(appearance(geom));
     return obj;
   }
 
@@ -200,6 +209,47 @@ export class ModelView {
     this.faces?.dispose();
     this.edges?.dispose();
     this.group.removeFromParent();
+  }
+}
+
+/**
+ * Merges the meshes directly under `group` that share a look (`userData.look`) into one mesh, in the
+ * group's frame; a ghost's edges (a mesh's LineSegments child) merge with it into one set of lines.
+ * Each look keeps the first mesh's material.
+ */
+function mergeByLook(group: THREE.Group): void {
+  const byLook = new Map<string, THREE.Mesh[]>();
+  for (const o of group.children) {
+    const look = o.userData.look as string | undefined;
+    if (look === undefined || !(o instanceof THREE.Mesh)) continue;
+    byLook.set(look, [...(byLook.get(look) ?? []), o]);
+  }
+  for (const meshes of byLook.values()) {
+    if (meshes.length < 2) continue;
+    const first = meshes[0]!;
+    const placed = (g: THREE.BufferGeometry, m: THREE.Mesh) => {
+      m.updateMatrix();
+      return g.clone().applyMatrix4(m.matrix);
+    };
+    const faces = mergeGeometries(meshes.map((m) => placed(m.geometry, m)));
+    const lines = meshes.map((m) => m.children.find((c): c is THREE.LineSegments => c instanceof THREE.LineSegments));
+    if (!faces) continue; // geometries that cannot be merged (different attributes): kept as they are
+    const merged = new THREE.Mesh(faces, first.material);
+    merged.castShadow = first.castShadow;
+    merged.receiveShadow = first.receiveShadow;
+    merged.renderOrder = first.renderOrder;
+    merged.name = meshes.map((m) => m.name).join('+');
+    if (lines.every((l) => l)) {
+      const edges = mergeGeometries(lines.map((l, i) => placed(l!.geometry, meshes[i]!)));
+      if (edges) merged.add(new THREE.LineSegments(edges, lines[0]!.material));
+    }
+    for (const m of meshes) {
+      m.removeFromParent();
+      m.geometry.dispose();
+      for (const c of m.children) if (c instanceof THREE.LineSegments) c.geometry.dispose();
+      if (m.material !== first.material) (m.material as THREE.Material).dispose();
+    }
+    group.add(merged);
   }
 }
 

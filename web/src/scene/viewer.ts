@@ -16,7 +16,8 @@ export class WebGLUnavailable extends Error {
 /**
  * Whether WebGL is drawn in software (SwiftShader, llvmpipe: no GPU, as in a headless browser or a
  * remote desktop). There every fragment costs CPU, so the views drop multisampling, draw at one
- * device pixel per CSS pixel, draw contact shadows instead of shadow maps and a coarser sky.
+ * device pixel per CSS pixel, draw contact shadows instead of shadow maps, a coarser sky, and a ground
+ * whose grid is worked out per pixel instead of sampled from a texture.
  */
 let software: boolean | undefined;
 export function softwareRendering(): boolean {
@@ -34,9 +35,9 @@ export const SKY = { top: 0x1b3354, horizon: 0x8fa6bd, below: 0x2a2f36 };
 const GROUND = '#5b6168';
 const GROUND_LINE = '#737a82';
 
-/** A tiled grid texture: five 1 m cells per repeat, every fifth line stronger. Anisotropic filtering
- * keeps far lines crisp; in software it costs more than it shows. */
-function gridTexture(anisotropy: number): THREE.Texture {
+/** A tiled grid texture: five 1 m cells per repeat, every fifth line stronger; anisotropic filtering
+ * keeps far lines crisp. */
+function gridTexture(): THREE.Texture {
   const c = document.createElement('canvas');
   c.width = c.height = 256;
   const g = c.getContext('2d');
@@ -58,9 +59,73 @@ function gridTexture(anisotropy: number): THREE.Texture {
   }
   const t = new THREE.CanvasTexture(c);
   t.wrapS = t.wrapT = THREE.RepeatWrapping;
-  t.anisotropy = anisotropy;
+  t.anisotropy = 8;
   t.colorSpace = THREE.SRGBColorSpace;
   return t;
+}
+
+/** The ground with a GPU: the grid as a texture on a matte (Lambert) surface that receives the sun's
+ * shadows; `extent` is the plane's side in metres. */
+function texturedGround(extent: number): THREE.MeshLambertMaterial {
+  const tex = gridTexture();
+  tex.repeat.set(extent / 5, extent / 5);
+  return new THREE.MeshLambertMaterial({ map: tex, side: THREE.DoubleSide });
+}
+
+/** What a matte ground facing up reflects of the lights, per unit of albedo (linear colour): three's
+ * Lambert shading, the sky half of the hemisphere light and the sun at its angle, over π. */
+function groundLight(hemisphere: THREE.HemisphereLight, sun: THREE.DirectionalLight, sunDir: THREE.Vector3): THREE.Color {
+  const up = Math.max(0, sunDir.y);
+  return hemisphere.color
+    .clone()
+    .multiplyScalar(hemisphere.intensity)
+    .add(sun.color.clone().multiplyScalar(sun.intensity * up))
+    .multiplyScalar(1 / Math.PI);
+}
+
+/**
+ * The ground for software WebGL: the same grid as `gridTexture`, worked out per pixel from the position
+ * on the plane, with the light a flat ground receives folded into its two colours. A textured, lit
+ * ground costs a filtered texture lookup and the lighting per pixel, which on the CPU was a sixth of a
+ * frame; this is a few multiplications. Lines thinner than a pixel fade to their share of it, as a
+ * mipmapped texture's do. `lit` is the irradiance on the ground over π (linear colour).
+ */
+function gridGroundMaterial(lit: THREE.Color): THREE.ShaderMaterial {
+  const colour = (hex: string) => new THREE.Color(hex).multiply(lit);
+  return new THREE.ShaderMaterial({
+    uniforms: THREE.UniformsUtils.merge([
+      THREE.UniformsLib.fog,
+      { base: { value: colour(GROUND) }, line: { value: colour(GROUND_LINE) } },
+    ]),
+    vertexShader: `varying vec2 vGrid;
+      #include <fog_pars_vertex>
+      void main() {
+        vGrid = position.xy; // metres on the plane (MuJoCo's x and y)
+        vec4 mvPosition = modelViewMatrix * vec4(position, 1.0);
+        gl_Position = projectionMatrix * mvPosition;
+        #include <fog_vertex>
+      }`,
+    fragmentShader: `uniform vec3 base; uniform vec3 line; varying vec2 vGrid;
+      #include <fog_pars_fragment>
+      // coverage of a pixel by lines \`width\` metres wide every \`spacing\` metres
+      float lines(float width, float spacing) {
+        vec2 w = fwidth(vGrid);
+        vec2 d = abs(fract(vGrid / spacing - 0.5) - 0.5) * spacing;
+        vec2 k = clamp((0.5 * (width + w) - d) / w, 0.0, 1.0) * min(vec2(1.0), width / w);
+        // where a pixel spans a whole cell, the average share of the cell the lines cover
+        vec2 far = clamp(w / spacing - 0.5, 0.0, 1.0);
+        k = mix(k, vec2(width / spacing), far);
+        return max(k.x, k.y);
+      }
+      void main() {
+        gl_FragColor = vec4(mix(base, line, max(lines(0.03, 1.0), lines(0.08, 5.0))), 1.0);
+        #include <tonemapping_fragment>
+        #include <colorspace_fragment>
+        #include <fog_fragment>
+      }`,
+    side: THREE.DoubleSide,
+    fog: true,
+  });
 }
 
 /**
@@ -247,7 +312,8 @@ export class Viewer {
     this.scene.fog = new THREE.Fog(SKY.horizon, 60, 400);
     this.world.rotation.x = -Math.PI / 2; // MuJoCo z (up) -> three y (up)
     this.scene.add(this.world);
-    this.scene.add(new THREE.HemisphereLight(0xcfe0ff, 0x3a3430, 1.4));
+    const hemisphere = new THREE.HemisphereLight(0xcfe0ff, 0x3a3430, 1.4);
+    this.scene.add(hemisphere);
     this.sun = new THREE.DirectionalLight(0xfff1dc, 2.6);
     this.sun.castShadow = !soft;
     this.sun.shadow.mapSize.set(2048, 2048);
@@ -259,15 +325,9 @@ export class Viewer {
     this.sun.shadow.normalBias = 0.02;
     this.scene.add(this.sun, this.sun.target);
 
-    // the ground: a plane in MuJoCo's xy plane with a 1 m grid (every 5 m stronger) drawn into its texture
-    const tex = gridTexture(soft ? 1 : 8);
+    // the ground: a plane in MuJoCo's xy plane with a 1 m grid (every 5 m stronger)
     const extent = 4000;
-    tex.repeat.set(extent / 5, extent / 5);
-    this.ground = new THREE.Mesh(
-      new THREE.PlaneGeometry(extent, extent),
-      // Lambert, not the physically based material: a matte ground looks the same and costs far less per pixel
-      new THREE.MeshLambertMaterial({ map: tex, side: THREE.DoubleSide }),
-    );
+    this.ground = new THREE.Mesh(new THREE.PlaneGeometry(extent, extent), soft ? gridGroundMaterial(groundLight(hemisphere, this.sun, this.sunDir)) : texturedGround(extent));
     this.ground.receiveShadow = true;
     this.ground.name = 'ground';
     this.world.add(this.ground);
