@@ -236,7 +236,12 @@ def _describe(
         skip=emu.skip is not None,
         limits=[
             NetworkLimit(
-                position=lim.position, velocity=lim.velocity, low=lim.low, high=lim.high, horizon=emu.horizon
+                position=lim.position,
+                velocity=lim.velocity,
+                low=lim.low,
+                high=lim.high,
+                horizon=emu.horizon,
+                margin=lim.margin,
             )
             for lim in emu.limits
         ],
@@ -412,7 +417,7 @@ def load_torch(path: Path) -> StructuredEmulator:
         tuple(net.hidden),
         net.activation,
         skip=net.skip and not branches,
-        limits=[JointLimit(lim.position, lim.velocity, lim.low, lim.high) for lim in net.limits],
+        limits=[JointLimit(lim.position, lim.velocity, lim.low, lim.high, lim.margin) for lim in net.limits],
         horizon=net.limits[0].horizon if net.limits else 0.0,
         clearance=None
         if net.clearance is None

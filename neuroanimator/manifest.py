@@ -139,13 +139,15 @@ class NetworkFrame(_Strict):
 class NetworkLimit(_Strict):
     """A limited joint the network reads through ramps past its limits (see ``structured.JointLimit``):
     ``position``/``velocity`` are state columns, ``low``/``high`` the range, ``horizon`` the seconds
-    over which the joint is extrapolated (one super-step)."""
+    over which the joint is extrapolated (one super-step), ``margin`` how far past the range a
+    predicted position may go (None: no bound; see ``structured.JointLimit``)."""
 
     position: int = Field(ge=0)
     velocity: int | None = Field(default=None, ge=0)
     low: float
     high: float
     horizon: float = Field(ge=0.0)
+    margin: float | None = Field(default=None, ge=0.0)
 
 
 class NetworkReads(_Strict):

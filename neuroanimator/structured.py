@@ -20,7 +20,7 @@ U controls, F forces, D network inputs.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor, nn
@@ -60,12 +60,28 @@ class JointLimit:
     kink off. So the network also reads, for the joint extrapolated over the super-step at constant
     velocity (``q + a·v·horizon``, a = 0, ½, 1), how far past each limit it would be: ramps that are
     zero away from the limit and carry the kink exactly where the constraint switches on.
+
+    ``margin`` (None: none) keeps every predicted position within ``[low - margin, high + margin]``.
+    A network can put a joint past its limit by its error, and an angle past it reads (as sine and
+    cosine) like one near the other end of the range, a state the data never held: dm_control's
+    reacher's rollouts ran away from there. MuJoCo's limits are soft, so true states pass them a
+    little; the margin (``limit_margin``) is wider than any pass in the training data, so it never
+    moves a state that MuJoCo could reach.
     """
 
     position: int
     velocity: int | None
     low: float
     high: float
+    margin: float | None = None
+
+
+def limit_margin(lim: JointLimit, positions: Tensor) -> float:
+    """The margin past its range within which ``lim``'s predicted positions are kept, from the
+    joint's positions ``(N,)`` in the training data: half as much again as the farthest the data pass
+    either limit, and at least 2% of the range."""
+    past = max(float((positions - lim.high).max()), float((lim.low - positions).max()), 0.0)
+    return max(1.5 * past, 0.02 * (lim.high - lim.low))
 
 
 LIMIT_FRACTIONS = (0.0, 0.5, 1.0)  # points of the super-step at which each joint is extrapolated
@@ -251,6 +267,9 @@ class StructuredEmulator(nn.Module):
     _limit_sel: Tensor
     _limit_low: Tensor
     _limit_high: Tensor
+    _range_at: Tensor
+    _range_low: Tensor
+    _range_high: Tensor
 
     def __init__(
         self,
@@ -522,6 +541,37 @@ class StructuredEmulator(nn.Module):
         self.register_buffer("_limit_sel", sel, persistent=False)
         self.register_buffer("_limit_high", high, persistent=False)
         self.register_buffer("_limit_low", low, persistent=False)
+        self._plan_ranges(S)
+
+    def _plan_ranges(self, S: int) -> None:
+        """``state @ _range_at`` (S, M) is the position of each limited joint with a margin, and
+        ``_range_low``/``_range_high`` (M,) the range widened by it (see ``JointLimit``)."""
+        kept = [lim for lim in self.limits if lim.margin is not None]
+        at = torch.zeros(S, len(kept))
+        for j, lim in enumerate(kept):
+            at[lim.position, j] = 1.0
+        self._ranged = bool(kept)
+        self.register_buffer("_range_at", at, persistent=False)
+        self.register_buffer(
+            "_range_low", torch.tensor([lim.low - (lim.margin or 0.0) for lim in kept]), persistent=False
+        )
+        self.register_buffer(
+            "_range_high", torch.tensor([lim.high + (lim.margin or 0.0) for lim in kept]), persistent=False
+        )
+
+    def set_limit_margins(self, states: Tensor) -> None:
+        """Keep each limited joint's predicted positions within a margin of its range, the margin
+        taken from ``states`` (N, S), the training data's states and next states (``limit_margin``)."""
+        self.limits = tuple(
+            replace(lim, margin=limit_margin(lim, states[:, lim.position])) for lim in self.limits
+        )
+        self._plan_ranges(self.layout.size)
+
+    def _within_ranges(self, state: Tensor) -> Tensor:
+        """(B, S) states with every limited joint that has a margin kept within it."""
+        z = state @ self._range_at  # (B, M)
+        inside = torch.minimum(torch.maximum(z, self._range_low), self._range_high)
+        return state + (inside - z) @ self._range_at.T
 
     def output_groups(self) -> list[tuple[str, int]]:
         return [(g.name, g.size) for g in self.layout]
@@ -673,8 +723,11 @@ class StructuredEmulator(nn.Module):
         return self.apply_delta(state, self.denormalize_outputs(y))
 
     def apply_delta(self, state: Tensor, delta_local: Tensor, frame: Frame | None = None) -> Tensor:
-        """T^Δ_y T'_y: local state change (B,S) -> next state (B,S), quaternions renormalised."""
+        """T^Δ_y T'_y: local state change (B,S) -> next state (B,S), quaternions renormalised and
+        limited joints kept within their margins (``JointLimit.margin``)."""
         nxt = state + self._map_delta(state, delta_local, inverse=True, frame=frame)
+        if self._ranged:
+            nxt = self._within_ranges(nxt)
         if not self._num_quats:
             return nxt
         if self._num_quats == 1:  # (B, 4) as it is: two reshapes fewer in the graph

@@ -213,6 +213,8 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
 
     # 2. T^σ from the training data (transformed by T'_x and (T'_y T^Δ_y)^-1 first, thesis 4.5.2)
     s, u, f, nxt = to_tensors(data)
+    if emu.limits:  # predicted positions kept within a margin of each limit that the data never pass
+        emu.set_limit_margins(torch.cat([s, nxt]))
     with torch.no_grad():
         x_local = emu.local_inputs(s, u, f)
         y_local = emu.delta_to_local(s, nxt - s)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import tempfile
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ from neuroanimator import artifacts, registry, sampling
 from neuroanimator.export import OnnxEmulator, to_onnx
 from neuroanimator.physics.mjcf import load_mjcf
 from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.structured import LIMIT_FRACTIONS, StructuredEmulator
+from neuroanimator.structured import LIMIT_FRACTIONS, JointLimit, StructuredEmulator, limit_margin
 from neuroanimator.train_config import TrainConfig
 from neuroanimator.training import build_emulator, joint_limits, train
 from tests.helpers import ARM_XML, RAIL_XML
@@ -86,6 +87,54 @@ def test_onnx_graph_computes_the_same_ramps(make_emulator: MakeEmulator) -> None
     np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-5)
 
 
+def test_the_margin_is_wider_than_any_pass_in_the_data() -> None:
+    lim = JointLimit(0, 1, -0.5, 0.5)
+    assert limit_margin(lim, torch.tensor([-0.2, 0.1, 0.4])) == pytest.approx(
+        0.02
+    )  # never past: 2% of the range
+    assert limit_margin(lim, torch.tensor([-0.58, 0.0, 0.53])) == pytest.approx(
+        1.5 * 0.08
+    )  # the farthest pass
+
+
+def test_a_predicted_position_stays_within_the_margin(make_emulator: MakeEmulator) -> None:
+    """A prediction that would take a joint farther past its limit than the margin stops at the
+    margin, in torch and in the ONNX graph; one that ends within it is left as predicted; without a
+    margin (an artifact from before margins) nothing is bounded."""
+    model = _rail()
+    emu = make_emulator(model, seed=3)
+    pos = model.layout.labels().index("slider.pos")
+    last = emu.core[-1]
+    assert isinstance(last, torch.nn.Linear)
+    with torch.no_grad():  # a network that moves the slider by about +0.3 whatever the state
+        last.weight.zero_()
+        if emu.skip is not None:
+            emu.skip.weight.zero_()
+        bias = torch.zeros(model.state_size)
+        bias[pos] = (0.3 - emu.y_mean[pos]) / emu.y_std[pos]
+        last.bias.copy_(bias)
+    s = np.zeros((3, model.state_size))
+    s[:, pos] = [0.0, 0.4, -0.6]  # inside; pushed past the high limit; from past the low limit, inside
+    u = np.zeros((3, 1))
+
+    def step(e: StructuredEmulator) -> list[np.ndarray]:
+        with torch.no_grad():
+            torch_next = e(torch.from_numpy(s).float(), torch.from_numpy(u).float()).numpy()
+        return [torch_next, OnnxEmulator(to_onnx(e)).step(s, u)]
+
+    unbounded = step(emu)[0][1, pos]
+    assert unbounded > 0.6
+    states = torch.zeros(2, model.state_size)
+    states[:, pos] = torch.tensor([0.52, -0.5])  # the data pass the high limit by 0.02: margin 0.03
+    emu.set_limit_margins(states)
+    assert emu.limits[0].margin == pytest.approx(0.03)
+    for nxt in step(emu):
+        moved = nxt[0, pos]  # from 0.0: the step the network predicts, well inside the range
+        assert 0.2 < moved < 0.5
+        assert nxt[1, pos] == pytest.approx(0.53, abs=1e-6)  # 0.4 + that step would pass 0.53: at the margin
+        assert nxt[2, pos] == pytest.approx(-0.6 + moved, abs=1e-5)  # ends inside: as predicted
+
+
 def test_limits_travel_through_the_manifest(tmp_path: Path) -> None:
     model = _rail()
     cfg = TrainConfig(substeps=10, examples=300, test_examples=50, hidden=(8,), max_epochs=2, progress=False)
@@ -93,8 +142,11 @@ def test_limits_travel_through_the_manifest(tmp_path: Path) -> None:
     path = artifacts.save(tmp_path, model, train(model, cfg))
     (net,) = registry.read_manifest(path).emulator.networks
     assert [(lim.low, lim.high, lim.horizon) for lim in net.limits] == [(-0.5, 0.5, pytest.approx(0.1))]
+    (margin,) = [lim.margin for lim in net.limits]  # set from the training data
+    assert margin is not None and 0.02 <= margin < 0.5
     back = artifacts.load_torch(path)
-    assert back.limits == build_emulator(model, cfg).limits and back.horizon == pytest.approx(0.1)
+    assert [replace(lim, margin=None) for lim in back.limits] == list(build_emulator(model, cfg).limits)
+    assert back.limits[0].margin == pytest.approx(margin) and back.horizon == pytest.approx(0.1)
 
 
 def test_the_ramps_learn_a_cart_hitting_its_limit() -> None:
