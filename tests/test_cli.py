@@ -389,7 +389,7 @@ def test_auto_super_step_takes_50_for_a_model_without_contacts_or_limits(tmp_pat
     )
 
 
-def test_auto_super_step_probes_a_model_whose_limits_engage(tmp_path: Path) -> None:
+def test_auto_super_step_takes_50_for_a_model_whose_limits_engage_without_contact(tmp_path: Path) -> None:
     from tests.helpers import RAIL_XML
 
     mjcf = tmp_path / "rail.xml"
@@ -398,7 +398,17 @@ def test_auto_super_step_probes_a_model_whose_limits_engage(tmp_path: Path) -> N
     assert rc == 0
     summary = _last_json(stdout)
     reason = summary["substeps_reason"]
-    assert "limits engaged in" in reason and "probe one-step errors n=50:" in reason
+    assert summary["substeps"] == 50
+    assert "no contact" in reason and "limits engaged in" in reason and "probe" not in reason
+
+
+def test_auto_super_step_probes_a_model_with_contact(tmp_path: Path) -> None:
+    mjcf = Path(__file__).parent / "data" / "pushed_ball.xml"
+    rc, stdout = _run(["train", "--mjcf", str(mjcf), *TINY_AUTO, "--out", str(tmp_path)])
+    assert rc == 0
+    summary = _last_json(stdout)
+    reason = summary["substeps_reason"]
+    assert "contacts in" in reason and "probe one-step errors n=50:" in reason
     assert summary["substeps"] in (50, 25, 10)
 
 
