@@ -16,6 +16,7 @@ import type { Pose } from './interp';
 import { appearance, solidMaterial } from './materials';
 import type { MeshFiles } from './meshes';
 import { SkinView } from './skin';
+import { softwareRendering } from './viewer';
 
 export interface Look {
   ghost?: boolean;
@@ -27,7 +28,8 @@ const HIDDEN_GROUP = 3;
 
 function shape(g: GeomInfo, ghost: boolean): THREE.BufferGeometry | null {
   const [a = 0.05, b = 0.05, c = 0.05] = g.size;
-  const round = ghost ? 12 : 28;
+  // software WebGL pays for every vertex each frame: rounder shapes cost the lander 4-5 fps there
+  const round = ghost || softwareRendering() ? 12 : 28;
   switch (g.type) {
     case 'box':
     case 'mesh':

@@ -16,12 +16,14 @@ export class WebGLUnavailable extends Error {
 /**
  * Whether WebGL is drawn in software (SwiftShader, llvmpipe: no GPU, as in a headless browser or a
  * remote desktop). There every fragment costs CPU, so the views drop multisampling, draw at one
- * device pixel per CSS pixel, draw contact shadows instead of shadow maps, a coarser sky, and a ground
- * whose grid is worked out per pixel instead of sampled from a texture.
+ * device pixel per CSS pixel, draw contact shadows instead of shadow maps, a coarser sky, rounded
+ * shapes of fewer facets, and a ground whose grid is worked out per pixel instead of sampled from a
+ * texture.
  */
 let software: boolean | undefined;
 export function softwareRendering(): boolean {
   if (software === undefined) {
+    if (typeof document === 'undefined') return false; // no page (a unit test): nothing is drawn
     const gl = document.createElement('canvas').getContext('webgl2') ?? document.createElement('canvas').getContext('webgl');
     const info = gl?.getExtension('WEBGL_debug_renderer_info');
     const name = gl && info ? String(gl.getParameter(info.UNMASKED_RENDERER_WEBGL)) : '';
