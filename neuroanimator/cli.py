@@ -67,6 +67,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.activation = args.activation
     if args.examples is not None:
         cfg.examples = args.examples
+    if args.sampler is not None:
+        cfg.sampler = args.sampler
     if args.lr is not None:
         cfg.lr = args.lr
     if args.max_seconds is not None:
@@ -374,6 +376,12 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--hidden", help="hidden layer widths, e.g. 64,64")
     t.add_argument("--activation", choices=["sigmoid", "tanh", "silu", "gelu", "relu"])
     t.add_argument("--examples", type=_positive_int, help="training examples (default: 10 × weights)")
+    t.add_argument(
+        "--sampler",
+        choices=["runs", "spaced"],
+        help="training data: every super-step of runs driven with held controls (runs, the default: "
+        "about n physical steps an example) or thesis 4.5's examples at lags of [Δt, 5Δt] (spaced: about 6n)",
+    )
     t.add_argument("--epochs", type=_positive_int, help="maximum epochs")
     t.add_argument("--lr", type=_positive_float, help="learning rate")
     t.add_argument("--max-seconds", type=_positive_float, help="cap on optimisation time")

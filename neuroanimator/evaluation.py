@@ -32,7 +32,12 @@ def one_step_errors(
     a hierarchy: its worst network's, ``hierarchy_one_step_errors``)."""
     cfg = manifest.train_config
     test = generate_examples(
-        model, manifest.substeps, count or cfg.test_examples, held_out_seed(cfg.seed), progress=False
+        model,
+        manifest.substeps,
+        count or cfg.test_examples,
+        held_out_seed(cfg.seed),
+        progress=False,
+        sampler=cfg.sampler,
     )
     if manifest.emulator.parts:
         errors = hierarchy_one_step_errors(path, model, test)

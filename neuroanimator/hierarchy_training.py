@@ -202,9 +202,14 @@ def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
         weights,
         count,
     )
-    data = sampling.generate(model, cfg.substeps, count, cfg.seed, progress=cfg.progress)
+    data = sampling.generate(model, cfg.substeps, count, cfg.seed, progress=cfg.progress, sampler=cfg.sampler)
     test = sampling.generate(
-        model, cfg.substeps, cfg.test_examples, held_out_seed(cfg.seed), progress=cfg.progress
+        model,
+        cfg.substeps,
+        cfg.test_examples,
+        held_out_seed(cfg.seed),
+        progress=cfg.progress,
+        sampler=cfg.sampler,
     )
     t_data = time.perf_counter() - t_start
 

@@ -427,9 +427,18 @@ def parse_manifest(data: Mapping[str, Any], source: str = "manifest") -> Manifes
         )
     try:
         upgraded = _upgrade_1_to_2(data) if found == 1 else data
-        return Manifest.model_validate(upgraded)
+        return Manifest.model_validate(_with_sampler(upgraded))
     except (ValidationError, KeyError, TypeError, ValueError) as exc:
         raise ManifestError(f"{source}: not a valid format-{found} manifest: {exc}") from exc
+
+
+def _with_sampler(data: Mapping[str, Any]) -> Mapping[str, Any]:
+    """A manifest written before ``TrainConfig.sampler`` existed was trained on thesis 4.5's spaced
+    examples: its config says so, so that it stays a true record (``sampling.SAMPLERS``)."""
+    cfg = data.get("train_config")
+    if not isinstance(cfg, Mapping) or "sampler" in cfg:
+        return data
+    return {**data, "train_config": {**cfg, "sampler": "spaced"}}
 
 
 def _upgrade_1_to_2(old: Mapping[str, Any]) -> dict[str, Any]:

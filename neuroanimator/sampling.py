@@ -1,18 +1,25 @@
-"""Training data from MuJoCo, as in thesis 4.5.
+"""Training data from MuJoCo, as in thesis 4.5, and the faster default built on the same runs.
 
 Many long runs are simulated side by side under typical smooth controls (Catmull-Rom over random
-control points in the useful range). Examples are taken at well-separated times: the lag between
-two samples of a run is drawn uniformly in [Δt, 5Δt] (a run's first sample anywhere in its first
-5Δt, so the start states and their transients are seen too). For each sample the physics is then stepped
-n more times with the controls (and forces) *held* at their sampled values, which is exactly what
-the emulator is asked to predict: its inputs determine the physics over the whole super-step.
-Runs restart from a fresh typical state every ``spec.episode_s`` seconds. Deterministic for a seed.
+control points in the useful range), each from a fresh typical state. Two samplers take examples
+from them; both are deterministic for a seed.
+
+- ``"runs"`` (the default, ``generate_runs``): after a random lead of [1, 5n] physical steps under
+  the smooth controls (so the start states and their transients are seen too), a run goes on as
+  consecutive super-steps with each control held at its smooth value at the super-step's start:
+  exactly how the emulator is driven when served. Every super-step is an example, so an example
+  costs about n physical steps, and the runs double as the rollout phase's sequences.
+- ``"spaced"`` (thesis 4.5, ``generate_spaced``): examples at well-separated times; the lag between
+  two samples of a run is drawn uniformly in [Δt, 5Δt], and for each sample the physics is stepped n
+  more times with the controls held. An example costs about 6n physical steps (the runs of a batch
+  all step to the longest lag).
 """
 
 from __future__ import annotations
 
 import hashlib
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +66,9 @@ def sample_lags(rng: np.random.Generator, substeps: int, size: int) -> NDArray[n
     return rng.integers(substeps, 5 * substeps + 1, size=size)
 
 
+SAMPLERS = ("runs", "spaced")
+
+
 def generate(
     model: PhysicalModel,
     substeps: int,
@@ -67,8 +77,27 @@ def generate(
     *,
     runs: int = 256,
     progress: bool = True,
+    sampler: str = "runs",
 ) -> Examples:
-    """``count`` shuffled examples of super-steps of ``substeps`` physical steps."""
+    """``count`` shuffled examples of super-steps of ``substeps`` physical steps, by ``sampler``."""
+    if sampler == "runs":
+        return generate_runs(model, substeps, count, seed, runs=runs, progress=progress).examples(count, seed)
+    if sampler == "spaced":
+        return generate_spaced(model, substeps, count, seed, runs=runs, progress=progress)
+    raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {sampler!r}")
+
+
+def generate_spaced(
+    model: PhysicalModel,
+    substeps: int,
+    count: int,
+    seed: int,
+    *,
+    runs: int = 256,
+    progress: bool = True,
+) -> Examples:
+    """``count`` shuffled examples of super-steps of ``substeps`` physical steps, sampled as in thesis
+    4.5: lags of [Δt, 5Δt] between the samples of a run, the controls held from each sample."""
     if count < 1:
         raise ValueError(f"count must be positive, got {count}")
     if substeps < 1:
@@ -141,6 +170,70 @@ class Sequences:
 
     def __len__(self) -> int:
         return int(self.states.shape[0])
+
+    def examples(self, count: int | None = None, seed: int = 0) -> Examples:
+        """Every super-step of every run as one example, shuffled (by ``seed``); the first ``count``."""
+        s = self.states
+        total = len(self) * (s.shape[1] - 1)
+        ex = Examples(
+            s[:, :-1].reshape(total, s.shape[2]),
+            self.controls.reshape(total, self.controls.shape[2]),
+            self.forces.reshape(total, self.forces.shape[2]),
+            s[:, 1:].reshape(total, s.shape[2]),
+        )
+        if count is not None and count > total:
+            raise ValueError(f"{count} examples asked of runs that hold {total}")
+        return ex.subset(np.random.default_rng(seed).permutation(total)[:count])
+
+    def windows(self, horizon: int, count: int | None = None, seed: int = 0) -> Sequences:
+        """Non-overlapping windows of ``horizon`` super-steps cut from the runs, shuffled (by ``seed``);
+        the first ``count``: (count, horizon+1, S) states, (count, horizon, U|F) controls and forces."""
+        k = self.states.shape[1] - 1
+        per_run = k // horizon
+        if per_run < 1:
+            raise ValueError(f"runs of {k} super-steps hold no window of {horizon}")
+        starts = np.arange(per_run) * horizon
+        steps = starts[:, None] + np.arange(horizon + 1)[None, :]  # (W, horizon+1)
+        w = len(self) * per_run
+        states = self.states[:, steps].reshape(w, horizon + 1, self.states.shape[2])
+        controls = self.controls[:, steps[:, :-1]].reshape(w, horizon, self.controls.shape[2])
+        forces = self.forces[:, steps[:, :-1]].reshape(w, horizon, self.forces.shape[2])
+        pick = np.random.default_rng(seed).permutation(states.shape[0])[:count]
+        return Sequences(states[pick], controls[pick], forces[pick])
+
+
+# The most physical states one rollout call of ``generate_sequences`` may return (about 128 MB):
+# a model's runs are cut shorter where its state is large.
+MAX_TRAJECTORY_VALUES = 16_000_000
+
+
+def run_horizon(model: PhysicalModel, substeps: int, runs: int) -> int:
+    """Super-steps per run for ``generate_runs``: an episode (``spec.episode_s``), fewer where a batch
+    of ``runs`` such runs would not fit in ``MAX_TRAJECTORY_VALUES``; at least 1."""
+    episode = round(model.spec.episode_s / model.dt) // substeps
+    fits = MAX_TRAJECTORY_VALUES // max(1, runs * substeps * model.state_size)
+    return int(max(1, min(episode, fits)))
+
+
+def generate_runs(
+    model: PhysicalModel,
+    substeps: int,
+    count: int,
+    seed: int,
+    *,
+    runs: int = 256,
+    progress: bool = True,
+) -> Sequences:
+    """Runs of consecutive held super-steps that hold at least ``count`` examples (``run_horizon``
+    super-steps each, from typical states after a random lead under the smooth controls)."""
+    if count < 1:
+        raise ValueError(f"count must be positive, got {count}")
+    if substeps < 1:
+        raise ValueError(f"substeps must be positive, got {substeps}")
+    horizon = run_horizon(model, substeps, runs)
+    return generate_sequences(
+        model, substeps, math.ceil(count / horizon), horizon, seed, runs=runs, progress=progress
+    )
 
 
 def generate_sequences(

@@ -24,6 +24,9 @@ class TrainConfig:
     normalization: str = "group"  # "group" (thesis eqs. 4.10-4.11) or "variable"
     examples: int | None = None  # None: examples_per_weight × the network's weights (thesis: 8-10×)
     examples_per_weight: float = 10.0
+    # "runs": every super-step of runs driven with held controls (about n physical steps an example);
+    # "spaced": thesis 4.5's examples at lags of [Δt, 5Δt] (about 6n); neuroanimator.sampling
+    sampler: str = "runs"
     test_examples: int = 4000  # held out: drawn from an independent seed, never trained on
     val_fraction: float = 0.1  # of the training examples, for early stopping
     optimizer: str = "adam"  # "adam" or "sgd" (mini-batch gradient descent with momentum, thesis 4.5.3)

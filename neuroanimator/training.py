@@ -146,13 +146,13 @@ def ground_clearance(model: PhysicalModel, horizon: float, states: np.ndarray | 
 
 
 def generate_examples(
-    model: PhysicalModel, substeps: int, count: int, seed: int, progress: bool
+    model: PhysicalModel, substeps: int, count: int, seed: int, progress: bool, sampler: str = "runs"
 ) -> sampling.Examples:
     """``count`` training transitions of ``model``: from its own data source (``ModelSpec.data_source``,
-    a model whose motion comes from a controller) or else the sampler's typical controls."""
+    a model whose motion comes from a controller) or else ``sampler``'s runs under typical controls."""
     source = model.spec.data_source
     if source is None:
-        return sampling.generate(model, substeps, count, seed, progress=progress)
+        return sampling.generate(model, substeps, count, seed, progress=progress, sampler=sampler)
     data: sampling.Examples = importlib.import_module(source).examples(
         model, substeps, count, seed, progress=progress
     )
@@ -203,8 +203,15 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
     log.info("%s n=%d: %d weights, %d examples", model.name, cfg.substeps, weights, count)
 
     # 1. data: training (+ validation) and an independent held-out test set
-    data = generate_examples(model, cfg.substeps, count, cfg.seed, cfg.progress)
-    test = generate_examples(model, cfg.substeps, cfg.test_examples, held_out_seed(cfg.seed), cfg.progress)
+    runs = own_runs(model, cfg, count)
+    data = (
+        runs.examples(count, cfg.seed)
+        if runs is not None
+        else generate_examples(model, cfg.substeps, count, cfg.seed, cfg.progress, cfg.sampler)
+    )
+    test = generate_examples(
+        model, cfg.substeps, cfg.test_examples, held_out_seed(cfg.seed), cfg.progress, cfg.sampler
+    )
     t_data = time.perf_counter() - t_start
     if cfg.clearance:  # probe the geoms that come near the floor in these data
         emu = build_emulator(model, cfg, data.states)
@@ -238,7 +245,7 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
     # 5. training over rollouts, from the one-step solution
     rollout_metrics: dict[str, Any] = {}
     if cfg.rollout_steps > 0:
-        seqs = rollout_sequences(model, cfg, count)
+        seqs = rollout_sequences(model, cfg, count, runs)
         rollout_metrics = train_over_rollouts(
             emu, seqs, cfg, lr=final_lr, one_step=(x_tr, y_tr, x_val, y_val)
         )
@@ -396,11 +403,24 @@ def source_defaults(model: PhysicalModel, cfg: TrainConfig, given: set[str]) -> 
     return dataclasses.replace(cfg, **updates) if updates else cfg
 
 
-def rollout_sequences(model: PhysicalModel, cfg: TrainConfig, count: int) -> sampling.Sequences:
+def own_runs(model: PhysicalModel, cfg: TrainConfig, count: int) -> sampling.Sequences | None:
+    """The runs of the ``"runs"`` sampler that hold ``count`` examples; None for a model with its own
+    data source or for the ``"spaced"`` sampler."""
+    if model.spec.data_source is not None or cfg.sampler != "runs":
+        return None
+    return sampling.generate_runs(model, cfg.substeps, count, cfg.seed, progress=cfg.progress)
+
+
+def rollout_sequences(
+    model: PhysicalModel, cfg: TrainConfig, count: int, runs: sampling.Sequences | None = None
+) -> sampling.Sequences:
     """The rollout phase's sequences: ``cfg.rollout_sequences`` (default one per 16 of the ``count``
-    one-step examples, at least 64) runs of ``cfg.rollout_steps`` super-steps, from the model's own data
-    source where it has one."""
+    one-step examples, at least 64) runs of ``cfg.rollout_steps`` super-steps: windows of the one-step
+    examples' ``runs`` where they hold that many (no more simulation), else from the model's own data
+    source where it has one, else newly simulated."""
     n = cfg.rollout_sequences or max(64, count // 16)
+    if runs is not None and (runs.states.shape[1] - 1) // cfg.rollout_steps * len(runs) >= n:
+        return runs.windows(cfg.rollout_steps, n, cfg.seed + 7)
     source = model.spec.data_source
     if source is not None:
         seqs: sampling.Sequences = importlib.import_module(source).sequences(

@@ -32,7 +32,10 @@ def add_envelope(path: Path, examples: int, force: bool) -> bool:
         return False
     physical = registry.load_physical_model(path, manifest)
     count = min(examples, manifest.metrics.examples)
-    data = sampling.generate(physical, manifest.substeps, count, manifest.train_config.seed, progress=False)
+    cfg = manifest.train_config
+    data = sampling.generate(
+        physical, manifest.substeps, count, cfg.seed, progress=False, sampler=cfg.sampler
+    )
     envelope = training_envelope(
         manifest.state_layout(),
         np.concatenate([data.states, data.next_states]),

@@ -27,10 +27,20 @@ def test_lags_are_uniform() -> None:
     assert counts.min() > 0.6 * expected and counts.max() < 1.4 * expected
 
 
-@pytest.fixture(scope="module", params=["pendulum-force", "lander"])
+@pytest.fixture(
+    scope="module",
+    params=[
+        ("pendulum-force", "runs"),
+        ("lander", "runs"),
+        ("pendulum-force", "spaced"),
+        ("lander", "spaced"),
+    ],
+    ids=lambda p: f"{p[0]}-{p[1]}",
+)
 def data(request: pytest.FixtureRequest) -> tuple[physics.PhysicalModel, sampling.Examples]:
-    model = physics.get(request.param)
-    return model, sampling.generate(model, 10, 300, seed=4, runs=64, progress=False)
+    name, sampler = request.param
+    model = physics.get(name)
+    return model, sampling.generate(model, 10, 300, seed=4, runs=64, progress=False, sampler=sampler)
 
 
 def test_shapes(data: tuple[physics.PhysicalModel, sampling.Examples]) -> None:
@@ -62,7 +72,8 @@ def test_next_states_are_held_control_super_steps(
     pick = np.array([0, 7, 42, 123, 299])
     u = ex.controls[pick] if model.num_controls else None
     f = ex.forces[pick] if model.num_forces else None
-    np.testing.assert_array_equal(model.step_held(ex.states[pick], u, f, 10), ex.next_states[pick])
+    # a run's super-step continues one rollout, a held step starts one from the same state
+    np.testing.assert_allclose(model.step_held(ex.states[pick], u, f, 10), ex.next_states[pick], atol=1e-9)
 
 
 def test_examples_are_distinct_states(data: tuple[physics.PhysicalModel, sampling.Examples]) -> None:
@@ -71,10 +82,11 @@ def test_examples_are_distinct_states(data: tuple[physics.PhysicalModel, samplin
     assert not np.allclose(ex.states, ex.next_states)
 
 
-def test_generate_is_deterministic_for_a_seed() -> None:
+@pytest.mark.parametrize("sampler", sampling.SAMPLERS)
+def test_generate_is_deterministic_for_a_seed(sampler: str) -> None:
     model = physics.get("truck")
-    a = sampling.generate(model, 5, 120, seed=7, runs=32, progress=False)
-    b = sampling.generate(model, 5, 120, seed=7, runs=32, progress=False)
+    a = sampling.generate(model, 5, 120, seed=7, runs=32, progress=False, sampler=sampler)
+    b = sampling.generate(model, 5, 120, seed=7, runs=32, progress=False, sampler=sampler)
     for x, y in ((a.states, b.states), (a.controls, b.controls), (a.next_states, b.next_states)):
         np.testing.assert_array_equal(x, y)
     assert a.sha256() == b.sha256()
@@ -126,3 +138,73 @@ def test_sequences_are_held_super_steps_of_the_physics() -> None:
         np.testing.assert_allclose(seq.states[:, k + 1], nxt, atol=1e-9)
     again = sampling.generate_sequences(model, 10, 12, 3, seed=5, progress=False)
     np.testing.assert_array_equal(again.states, seq.states)
+
+
+def test_unknown_sampler_is_named() -> None:
+    with pytest.raises(ValueError, match="sampler must be one of runs, spaced, got 'dense'"):
+        sampling.generate(physics.get("truck"), 5, 10, seed=0, progress=False, sampler="dense")
+
+
+def test_runs_are_consecutive_held_super_steps_from_typical_states() -> None:
+    """Every super-step of a run is an example; a run is an episode long and its controls change only
+    at super-step starts (the emulator's contract), taking the smooth controls' values there."""
+    model = physics.get("truck")
+    n = 10
+    runs = sampling.generate_runs(model, n, 500, seed=3, runs=16, progress=False)
+    k = sampling.run_horizon(model, n, 16)
+    assert k == round(model.spec.episode_s / model.dt) // n
+    assert runs.states.shape == (len(runs), k + 1, model.state_size) and len(runs) * k >= 500
+    assert len(runs) == -(-500 // k)  # no more runs than the count asks for
+    for j in (0, k // 2, k - 1):
+        nxt = model.step_held(runs.states[:, j], runs.controls[:, j], None, n)
+        np.testing.assert_allclose(runs.states[:, j + 1], nxt, atol=1e-9)
+    # the runs start from distinct states and their controls vary from super-step to super-step
+    assert np.unique(runs.states[:, 0], axis=0).shape[0] == len(runs)
+    assert np.abs(np.diff(runs.controls, axis=1)).max() > 0
+
+
+def test_examples_of_runs_are_every_super_step_once() -> None:
+    model = physics.get("pendulum-active")
+    runs = sampling.generate_runs(model, 5, 200, seed=1, runs=8, progress=False)
+    total = len(runs) * (runs.states.shape[1] - 1)
+    every = runs.examples(seed=2)
+    assert len(every) == total
+    pairs = {(tuple(a), tuple(b)) for a, b in zip(every.states, every.next_states, strict=True)}
+    assert len(pairs) == total
+    first, last = runs.states[0, 0], runs.states[-1, -1]
+    assert any(np.array_equal(first, s) for s in every.states)
+    assert not any(np.array_equal(last, s) for s in every.states)  # a run's end starts no example
+    some = runs.examples(200, seed=2)
+    assert len(some) == 200
+    np.testing.assert_array_equal(some.states, every.states[:200])  # the same shuffle, cut
+    with pytest.raises(ValueError, match=f"{total + 1} examples asked of runs that hold {total}"):
+        runs.examples(total + 1)
+
+
+def test_windows_are_cut_from_the_runs_without_overlap() -> None:
+    model = physics.get("lander")
+    runs = sampling.generate_runs(model, 10, 300, seed=5, runs=4, progress=False)
+    k = runs.states.shape[1] - 1
+    win = runs.windows(8, seed=1)
+    assert win.states.shape == (len(runs) * (k // 8), 9, model.state_size)
+    assert win.controls.shape == (len(win), 8, model.num_controls)
+    # each window is a stretch of one run: its states, and the controls held over them
+    starts = {tuple(w[0]) for w in win.states}
+    assert len(starts) == len(win)
+    r, j = np.argwhere((runs.states == win.states[0, 0]).all(axis=2))[0]
+    np.testing.assert_array_equal(runs.states[r, j : j + 9], win.states[0])
+    np.testing.assert_array_equal(runs.controls[r, j : j + 8], win.controls[0])
+    assert len(runs.windows(8, 3, seed=1)) == 3
+    with pytest.raises(ValueError, match="no window"):
+        runs.windows(k + 1)
+
+
+def test_run_horizon_shortens_runs_of_large_states() -> None:
+    """A batch of runs is kept within MAX_TRAJECTORY_VALUES physical states; never below one step."""
+    model = physics.get("lander")
+    episode = round(model.spec.episode_s / model.dt) // 10
+    assert sampling.run_horizon(model, 10, 256) == episode
+    many = sampling.MAX_TRAJECTORY_VALUES // (10 * model.state_size * episode) + 1
+    short = sampling.run_horizon(model, 10, many)
+    assert 1 <= short < episode and many * 10 * short * model.state_size <= sampling.MAX_TRAJECTORY_VALUES
+    assert sampling.run_horizon(model, 10, 10**9) == 1
