@@ -69,6 +69,10 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.examples = args.examples
     if args.sampler is not None:
         cfg.sampler = args.sampler
+    if args.schedule is not None:
+        cfg.schedule = args.schedule
+    if args.batch_size is not None:
+        cfg.batch_size = args.batch_size
     if args.lr is not None:
         cfg.lr = args.lr
     if args.max_seconds is not None:
@@ -103,6 +107,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                 activity,
                 hidden_given=args.hidden is not None,
                 activation_given=args.activation is not None,
+                schedule_given=args.schedule is not None,
             )
             if network_reason:
                 log.info("%s: network %s", model.name, network_reason)
@@ -383,7 +388,14 @@ def build_parser() -> argparse.ArgumentParser:
         "about n physical steps an example) or thesis 4.5's examples at lags of [Δt, 5Δt] (spaced: about 6n)",
     )
     t.add_argument("--epochs", type=_positive_int, help="maximum epochs")
+    t.add_argument("--batch-size", type=_positive_int, help="examples per gradient step (default 256)")
     t.add_argument("--lr", type=_positive_float, help="learning rate")
+    t.add_argument(
+        "--schedule",
+        choices=["plateau", "cosine"],
+        help="learning rate: halved when validation stalls (plateau, the default for a smooth model) or "
+        "annealed over the time budget (cosine, the default where contacts or limits engage)",
+    )
     t.add_argument("--max-seconds", type=_positive_float, help="cap on optimisation time")
     t.add_argument(
         "--frame",

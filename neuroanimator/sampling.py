@@ -232,7 +232,14 @@ def generate_runs(
         raise ValueError(f"substeps must be positive, got {substeps}")
     horizon = run_horizon(model, substeps, runs)
     return generate_sequences(
-        model, substeps, math.ceil(count / horizon), horizon, seed, runs=runs, progress=progress
+        model,
+        substeps,
+        math.ceil(count / horizon),
+        horizon,
+        seed,
+        runs=runs,
+        progress=progress,
+        as_examples=True,
     )
 
 
@@ -245,8 +252,10 @@ def generate_sequences(
     *,
     runs: int = 256,
     progress: bool = True,
+    as_examples: bool = False,
 ) -> Sequences:
     """``count`` runs of ``horizon`` super-steps from typical states, for training over rollouts.
+    With ``as_examples`` the progress bar is the one-step sampler's ("sampling", in examples).
 
     Each starts where a run under typical smooth controls is after a random lag (as ``generate``'s
     examples do); the controls and forces of its super-steps are that run's, sampled at the start of
@@ -264,8 +273,13 @@ def generate_sequences(
     out_u = np.empty((count, k, U))
     out_f = np.empty((count, k, F))
     filled = 0
+    scale = k if as_examples else 1  # the bar counts super-steps as examples, or runs as sequences
     bar = tqdm(
-        total=count, desc=f"sequences {model.name} n={n}", unit="seq", disable=not progress, leave=False
+        total=count * scale,
+        desc=f"{'sampling' if as_examples else 'sequences'} {model.name} n={n}",
+        unit="ex" if as_examples else "seq",
+        disable=not progress,
+        leave=False,
     )
     rows = np.arange(runs)
     while filled < count:
@@ -287,7 +301,7 @@ def generate_sequences(
         out_s[sel, 0], out_s[sel, 1:] = start[:take], traj[:take]
         out_u[sel], out_f[sel] = u_held[:take], f_held[:take]
         filled += take
-        bar.update(take)
+        bar.update(take * scale)
     bar.close()
     if not np.all(np.isfinite(out_s)):
         raise ValueError(f"simulated sequences of {model.name} contain NaN or Inf")

@@ -122,7 +122,12 @@ def probe_config(cfg: TrainConfig, substeps: int) -> TrainConfig:
 
 
 def constrained_defaults(
-    cfg: TrainConfig, activity: ConstraintActivity, *, hidden_given: bool, activation_given: bool
+    cfg: TrainConfig,
+    activity: ConstraintActivity,
+    *,
+    hidden_given: bool,
+    activation_given: bool,
+    schedule_given: bool = False,
 ) -> tuple[TrainConfig, str | None]:
     """The config for a model whose contacts or limits engage (``activity.any``): two layers of 128
     SiLU units where the user gave no width or activation (see the module doc), the learning rate
@@ -136,10 +141,10 @@ def constrained_defaults(
         activation=cfg.activation if activation_given else CONSTRAINED_ACTIVATION,
         # annealed over the time budget: a wider network does not converge within it, and a run cut
         # off at a large rate leaves the kinks' last digits unlearned
-        schedule="cosine",
+        schedule=cfg.schedule if schedule_given else "cosine",
     )
     width = "×".join(str(h) for h in changed.hidden)
-    return changed, f"{width} {changed.activation} units, cosine schedule: {activity.describe()}"
+    return changed, f"{width} {changed.activation} units, {changed.schedule} schedule: {activity.describe()}"
 
 
 def choose_substeps(

@@ -74,6 +74,12 @@ def user_train(tmp_path_factory: pytest.TempPathFactory) -> CliRun:
             "5",
             "--hidden",
             "16",
+            "--sampler",
+            "spaced",
+            "--schedule",
+            "cosine",
+            "--batch-size",
+            "64",
             "--quiet",
             "--json",
             "--force",  # a tiny training: the plumbing is under test, not the accuracy
@@ -93,6 +99,8 @@ def test_train_with_user_mjcf_writes_latest(user_train: CliRun) -> None:
     assert manifest.metrics.examples == 400
     assert manifest.train_config.hidden == (16,)
     assert manifest.train_config.max_epochs == 5
+    cfg = manifest.train_config
+    assert (cfg.sampler, cfg.schedule, cfg.batch_size) == ("spaced", "cosine", 64)
 
 
 def test_train_json_line_describes_the_artifact(user_train: CliRun) -> None:

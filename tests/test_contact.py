@@ -93,6 +93,14 @@ def test_a_model_in_contact_gets_a_wider_network_of_units_that_do_not_saturate()
         TrainConfig(hidden=(32,)), activity, hidden_given=True, activation_given=False
     )
     assert (mine.hidden, mine.activation) == ((32,), "silu")
+    kept, why_kept = constrained_defaults(
+        TrainConfig(schedule="plateau"),
+        activity,
+        hidden_given=False,
+        activation_given=False,
+        schedule_given=True,
+    )
+    assert kept.schedule == "plateau" and why_kept is not None and "plateau schedule" in why_kept
     both = TrainConfig(hidden=(32,), activation="tanh")
     assert constrained_defaults(both, activity, hidden_given=True, activation_given=True) == (both, None)
     # a smooth model keeps the defaults
