@@ -41,6 +41,9 @@ TARGET = 0.01  # held-out one-step relative error a chosen n should reach
 PROBE_SLACK = 2.0  # a short probe overstates the error of a full training about this much
 REFUSE_ERROR = 0.05  # above this one-step error, an emulator is refused ...
 REFUSE_GAIN = 2.0  # ... as it is when it is not this many times below the linear baseline
+# Below this one-step error an emulator is exact to float32's precision, and is kept whatever the linear
+# baseline does: a linear system (dm_control's LQR) is fitted exactly by both, with nothing to beat
+EXACT = 1e-6
 CONSTRAINED_HIDDEN = (128, 128)  # the network of a model whose contacts or limits engage ...
 CONSTRAINED_ACTIVATION = "silu"  # ... and its units
 
@@ -189,7 +192,10 @@ def choose_substeps(
 
 
 def check_useful(name: str, substeps: int, one_step: float, linear: float) -> None:
-    """Refuse an emulator far off the target or hardly better than a linear fit (``ModelOutOfReach``)."""
+    """Refuse an emulator far off the target or hardly better than a linear fit (``ModelOutOfReach``),
+    unless it is exact (``EXACT``)."""
+    if math.isfinite(one_step) and one_step <= EXACT:
+        return
     if not math.isfinite(one_step) or one_step > REFUSE_ERROR or linear < REFUSE_GAIN * one_step:
         raise ModelOutOfReach(
             f"{name} n={substeps}: one-step relative error {one_step:.3g} (linear baseline {linear:.3g}) misses "

@@ -7,13 +7,21 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from neuroanimator import evaluation, physics, quaternion, registry
 from neuroanimator.cli import main
 from neuroanimator.physics.mjcf import load_mjcf
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.structured import StructuredEmulator
-from neuroanimator.super_step import constrained_defaults, constraint_activity, probe_config
+from neuroanimator.super_step import (
+    EXACT,
+    ModelOutOfReach,
+    check_useful,
+    constrained_defaults,
+    constraint_activity,
+    probe_config,
+)
 from neuroanimator.train_config import TrainConfig
 from tests.helpers import ROOT
 from tests.test_body_frame import _move, _predict, _sphere_of_attitudes
@@ -135,3 +143,21 @@ def test_the_catalog_ball_is_emulated_within_the_bar_on_held_out_contact_data() 
     errors = evaluation.one_step_errors(path, model, manifest)
     assert errors["one_step_rel_error"] <= 0.01
     assert errors["linear_baseline_rel_error"] >= 5 * errors["one_step_rel_error"]
+
+
+def test_an_emulator_is_refused_off_the_bar_and_kept_when_exact() -> None:
+    """Refused: far off the target, or hardly better than the linear fit; kept: an exact emulator of
+    a linear system, which the linear fit also matches (dm_control's LQR: 9e-15 against 5e-15)."""
+    check_useful("m", 50, 0.004, 0.3)
+    with pytest.raises(
+        ModelOutOfReach, match=r"m n=50: one-step relative error 0.06 \(linear baseline 0.3\)"
+    ):
+        check_useful("m", 50, 0.06, 0.3)
+    with pytest.raises(ModelOutOfReach, match="≥ 2× below linear"):
+        check_useful("m", 50, 0.004, 0.006)
+    with pytest.raises(ModelOutOfReach):
+        check_useful("m", 50, float("nan"), 0.3)
+    check_useful("lqr", 50, 8.96e-15, 5.23e-15)
+    check_useful("lqr", 50, EXACT, EXACT / 10)
+    with pytest.raises(ModelOutOfReach):
+        check_useful("m", 50, 2 * EXACT, EXACT)
