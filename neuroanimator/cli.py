@@ -77,6 +77,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.lr = args.lr
     if args.max_seconds is not None:
         cfg.max_seconds = args.max_seconds
+        cfg.time_budget = None  # the cap asked for, not one cut to a budget
+    if args.time_budget is not None:
+        if args.time_budget < 0:
+            raise ModelError(f"--time-budget must be 0 (none) or more seconds, got {args.time_budget:g}")
+        cfg.time_budget = args.time_budget or None
     if args.epochs is not None:
         cfg.max_epochs = args.epochs
     cfg.frame, cfg.skip = args.frame, not args.no_skip
@@ -123,6 +128,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                     ("hidden", args.hidden),
                     ("examples", args.examples),
                     ("max_seconds", args.max_seconds),
+                    ("time_budget", args.time_budget if args.max_seconds is None else 0.0),
                     ("rollout_steps", args.rollout_steps),
                     ("lr", args.lr),
                     ("activation", args.activation),
@@ -396,7 +402,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="learning rate: halved when validation stalls (plateau, the default for a smooth model) or "
         "annealed over the time budget (cosine, the default where contacts or limits engage)",
     )
-    t.add_argument("--max-seconds", type=_positive_float, help="cap on optimisation time")
+    t.add_argument(
+        "--max-seconds",
+        type=_positive_float,
+        help="cap on the one-step phase's optimisation time (default 150; given, no --time-budget applies)",
+    )
+    t.add_argument(
+        "--time-budget",
+        type=float,
+        help="the whole training's wall-clock budget in seconds, sampling included (default 285; 0: none): "
+        "the rollout phase gets what is left, the one-step phase is cut only after very slow sampling",
+    )
     t.add_argument(
         "--frame",
         choices=["auto", "body", "heading"],

@@ -427,18 +427,23 @@ def parse_manifest(data: Mapping[str, Any], source: str = "manifest") -> Manifes
         )
     try:
         upgraded = _upgrade_1_to_2(data) if found == 1 else data
-        return Manifest.model_validate(_with_sampler(upgraded))
+        return Manifest.model_validate(_with_later_fields(upgraded))
     except (ValidationError, KeyError, TypeError, ValueError) as exc:
         raise ManifestError(f"{source}: not a valid format-{found} manifest: {exc}") from exc
 
 
-def _with_sampler(data: Mapping[str, Any]) -> Mapping[str, Any]:
-    """A manifest written before ``TrainConfig.sampler`` existed was trained on thesis 4.5's spaced
-    examples: its config says so, so that it stays a true record (``sampling.SAMPLERS``)."""
+# TrainConfig fields added later, as an artifact written before them was trained: on thesis 4.5's spaced
+# examples (``sampling.SAMPLERS``), with no time budget over its phases
+BEFORE_LATER_FIELDS = {"sampler": "spaced", "time_budget": None}
+
+
+def _with_later_fields(data: Mapping[str, Any]) -> Mapping[str, Any]:
+    """A manifest's training config with the fields it predates (``BEFORE_LATER_FIELDS``) set as its
+    training was, so that it stays a true record rather than taking today's defaults."""
     cfg = data.get("train_config")
-    if not isinstance(cfg, Mapping) or "sampler" in cfg:
+    if not isinstance(cfg, Mapping):
         return data
-    return {**data, "train_config": {**cfg, "sampler": "spaced"}}
+    return {**data, "train_config": {**BEFORE_LATER_FIELDS, **cfg}}
 
 
 def _upgrade_1_to_2(old: Mapping[str, Any]) -> dict[str, Any]:

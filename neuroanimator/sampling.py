@@ -207,12 +207,15 @@ class Sequences:
 MAX_TRAJECTORY_VALUES = 16_000_000
 
 
-def run_horizon(model: PhysicalModel, substeps: int, runs: int) -> int:
-    """Super-steps per run for ``generate_runs``: an episode (``spec.episode_s``), fewer where a batch
-    of ``runs`` such runs would not fit in ``MAX_TRAJECTORY_VALUES``; at least 1."""
+def run_horizon(model: PhysicalModel, substeps: int, count: int, runs: int) -> int:
+    """Super-steps per run for ``generate_runs`` of ``count`` examples: an episode
+    (``spec.episode_s``), shorter so that the examples come from at least ``runs`` runs (independent
+    starts: a few thousand held-out examples from a dozen runs would cover a dozen motions), and
+    shorter where a batch of ``runs`` runs would not fit in ``MAX_TRAJECTORY_VALUES``; at least 1."""
     episode = round(model.spec.episode_s / model.dt) // substeps
+    spread = math.ceil(count / max(1, runs))
     fits = MAX_TRAJECTORY_VALUES // max(1, runs * substeps * model.state_size)
-    return int(max(1, min(episode, fits)))
+    return int(max(1, min(episode, spread, fits)))
 
 
 def generate_runs(
@@ -230,7 +233,7 @@ def generate_runs(
         raise ValueError(f"count must be positive, got {count}")
     if substeps < 1:
         raise ValueError(f"substeps must be positive, got {substeps}")
-    horizon = run_horizon(model, substeps, runs)
+    horizon = run_horizon(model, substeps, count, runs)
     return generate_sequences(
         model,
         substeps,

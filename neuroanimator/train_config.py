@@ -48,6 +48,10 @@ class TrainConfig:
     rollout_steps: int = 8
     rollout_sequences: int | None = None  # None: one per 16 one-step examples
     rollout_seconds: float = 60.0  # wall-clock cap on the rollout phase
+    # The whole training's wall-clock budget, sampling included (None: the phases' own caps only): the
+    # rollout phase gets what the data and the one-step phase left of it (at least a third of its cap),
+    # and the one-step phase is cut only where sampling alone leaves it less than its cap
+    time_budget: float | None = 285.0
     # thesis 6.1.3: Euler steps of a mass-spring model's springs after each emulated super-step (None:
     # the model's own number, ModelSpec.regularizer; 0: off); models without springs ignore it
     regularizer_steps: int | None = None

@@ -240,14 +240,18 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
         start_from_linear(emu, linear)
 
     # 4. the core network
-    final_lr = train_core(emu, x_tr, y_tr, x_val, y_val, cfg)
+    core_cfg = dataclasses.replace(cfg, max_seconds=one_step_seconds(cfg, time.perf_counter() - t_start))
+    final_lr = train_core(emu, x_tr, y_tr, x_val, y_val, core_cfg)
 
     # 5. training over rollouts, from the one-step solution
     rollout_metrics: dict[str, Any] = {}
     if cfg.rollout_steps > 0:
         seqs = rollout_sequences(model, cfg, count, runs)
+        roll_cfg = dataclasses.replace(
+            cfg, rollout_seconds=rollout_seconds(cfg, time.perf_counter() - t_start)
+        )
         rollout_metrics = train_over_rollouts(
-            emu, seqs, cfg, lr=final_lr, one_step=(x_tr, y_tr, x_val, y_val)
+            emu, seqs, roll_cfg, lr=final_lr, one_step=(x_tr, y_tr, x_val, y_val)
         )
 
     # 6. held-out evaluation
@@ -284,6 +288,38 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
         model.layout, model.spec.regularizer, model.num_controls, cfg.regularizer_steps
     )
     return TrainResult(emu, cfg, metrics, linear, data.sha256(), examples_envelope(model, data))
+
+
+# Seconds kept, within ``TrainConfig.time_budget``, for what follows the phases: the held-out
+# evaluation, the export and writing the artifact
+AFTER_PHASES_S = 10.0
+
+
+def one_step_seconds(cfg: TrainConfig, elapsed: float) -> float:
+    """The one-step phase's cap after ``elapsed`` seconds (sampling): ``cfg.max_seconds``, cut where
+    the budget would otherwise leave the rollout phase less than a third of its cap (never below a
+    third of ``max_seconds``: a very slow model overruns its budget rather than going untrained)."""
+    if cfg.time_budget is None:
+        return cfg.max_seconds
+    rollout = cfg.rollout_seconds / 3 if cfg.rollout_steps > 0 else 0.0
+    left = cfg.time_budget - elapsed - rollout - AFTER_PHASES_S
+    if left < cfg.max_seconds:
+        log.info(
+            "time budget %.0f s: the one-step phase gets %.0f s after %.0f s of sampling",
+            cfg.time_budget,
+            max(left, cfg.max_seconds / 3),
+            elapsed,
+        )
+    return max(min(cfg.max_seconds, left), cfg.max_seconds / 3)
+
+
+def rollout_seconds(cfg: TrainConfig, elapsed: float) -> float:
+    """The rollout phase's cap after ``elapsed`` seconds: what the budget leaves, between a third of
+    ``cfg.rollout_seconds`` and all of it."""
+    if cfg.time_budget is None:
+        return cfg.rollout_seconds
+    left = cfg.time_budget - elapsed - AFTER_PHASES_S
+    return max(min(cfg.rollout_seconds, left), cfg.rollout_seconds / 3)
 
 
 def network_errors(

@@ -100,7 +100,7 @@ def test_train_with_user_mjcf_writes_latest(user_train: CliRun) -> None:
     assert manifest.train_config.hidden == (16,)
     assert manifest.train_config.max_epochs == 5
     cfg = manifest.train_config
-    assert (cfg.sampler, cfg.schedule, cfg.batch_size) == ("spaced", "cosine", 64)
+    assert (cfg.sampler, cfg.schedule, cfg.batch_size, cfg.time_budget) == ("spaced", "cosine", 64, 285.0)
 
 
 def test_train_json_line_describes_the_artifact(user_train: CliRun) -> None:
@@ -436,7 +436,9 @@ def test_train_runner_uses_its_data_source_and_its_settings(
     assert set(summary["networks"]) == {"trunk", "left_arm", "right_arm", "left_leg", "right_leg"}
     manifest = registry.read_manifest(registry.resolve(tmp_path, "runner"))
     cfg = manifest.train_config
-    assert cfg.hidden == (16,) and cfg.max_seconds == 3  # given on the command line
+    assert (
+        cfg.hidden == (16,) and cfg.max_seconds == 3 and cfg.time_budget is None
+    )  # given on the command line
     assert cfg.limits is False and cfg.batch_size == 512 and cfg.rollout_steps == 0  # the source's
     # the feet's height above the floor, chosen from the data: the geoms that come near it
     trunk = next(n for n in manifest.emulator.networks if n.name == "trunk")

@@ -116,8 +116,9 @@ def test_every_committed_manifest_reads_as_one_network(path: Path) -> None:
     assert set(net.reads.state) <= {g.name for g in m.layout}
     assert net.reads.controls == [c.name for c in m.controls]
     assert m.state_layout().size == m.state_size == len(m.state_labels)
-    # trained before there was a choice of sampler: on thesis 4.5's spaced examples
+    # trained before there was a choice of sampler or a time budget: spaced examples, no budget
     assert m.train_config.sampler == raw["train_config"].get("sampler", "spaced")
+    assert m.train_config.time_budget == raw["train_config"].get("time_budget")
     if raw["format"] == FORMAT:
         written = raw["emulator"]["networks"][0]
         # fields added later read as their defaults

@@ -151,8 +151,8 @@ def test_runs_are_consecutive_held_super_steps_from_typical_states() -> None:
     model = physics.get("truck")
     n = 10
     runs = sampling.generate_runs(model, n, 500, seed=3, runs=16, progress=False)
-    k = sampling.run_horizon(model, n, 16)
-    assert k == round(model.spec.episode_s / model.dt) // n
+    k = sampling.run_horizon(model, n, 500, 16)
+    assert k == 32 < round(model.spec.episode_s / model.dt) // n  # 500 examples over at least 16 runs
     assert runs.states.shape == (len(runs), k + 1, model.state_size) and len(runs) * k >= 500
     assert len(runs) == -(-500 // k)  # no more runs than the count asks for
     for j in (0, k // 2, k - 1):
@@ -199,12 +199,24 @@ def test_windows_are_cut_from_the_runs_without_overlap() -> None:
         runs.windows(k + 1)
 
 
-def test_run_horizon_shortens_runs_of_large_states() -> None:
-    """A batch of runs is kept within MAX_TRAJECTORY_VALUES physical states; never below one step."""
+def test_run_horizon_spreads_examples_over_runs_and_keeps_batches_small() -> None:
+    """A run is an episode long where the count fills ``runs`` runs of it; shorter so that a small
+    count still comes from ``runs`` independent runs; shorter where a batch would pass
+    MAX_TRAJECTORY_VALUES physical states; never below one super-step."""
     model = physics.get("lander")
     episode = round(model.spec.episode_s / model.dt) // 10
-    assert sampling.run_horizon(model, 10, 256) == episode
+    assert sampling.run_horizon(model, 10, 10**6, 256) == episode
+    assert sampling.run_horizon(model, 10, 4000, 256) == 16  # 250 runs of 16 super-steps
+    assert sampling.run_horizon(model, 10, 10, 256) == 1
     many = sampling.MAX_TRAJECTORY_VALUES // (10 * model.state_size * episode) + 1
-    short = sampling.run_horizon(model, 10, many)
+    short = sampling.run_horizon(model, 10, 10**9, many)
     assert 1 <= short < episode and many * 10 * short * model.state_size <= sampling.MAX_TRAJECTORY_VALUES
-    assert sampling.run_horizon(model, 10, 10**9) == 1
+    assert sampling.run_horizon(model, 10, 10**12, 10**9) == 1
+
+
+def test_small_counts_come_from_many_runs() -> None:
+    """3,000 held-out examples of the tumbling quadrotor: from about 256 runs, not a dozen episodes,
+    so that upright and upside-down states are both well represented."""
+    model = physics.get("quadrotor")
+    runs = sampling.generate_runs(model, 10, 3000, seed=77, progress=False)
+    assert len(runs) >= 250 and np.unique(runs.states[:, 0], axis=0).shape[0] == len(runs)

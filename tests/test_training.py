@@ -232,3 +232,22 @@ def test_training_over_rollouts_keeps_the_one_step_accuracy() -> None:
     relative = out["rollout_loss_after"] / out["rollout_loss_before"] + step_after / step_before
     assert relative <= 2.0 + 1e-9 and step_after < 2.0 * step_before
     assert out["rollout_epochs"] >= 1
+
+
+def test_the_time_budget_trims_the_rollout_phase_first() -> None:
+    """285 s in all: after quick sampling both phases keep their caps; after slow sampling (the
+    swimmer's 100 s) the rollout phase gets what is left, down to a third of its cap; the one-step
+    phase is cut only when sampling leaves it less than its cap, never below a third of it."""
+    cfg = TrainConfig()  # max_seconds 150, rollout_seconds 60, time_budget 285
+    assert training.one_step_seconds(cfg, 30.0) == 150.0
+    assert training.rollout_seconds(cfg, 30.0 + 150.0) == 60.0
+    assert training.one_step_seconds(cfg, 100.0) == 150.0
+    assert training.rollout_seconds(cfg, 100.0 + 150.0) == pytest.approx(25.0)
+    assert training.rollout_seconds(cfg, 270.0) == pytest.approx(20.0)  # a third of 60, not less
+    assert training.one_step_seconds(cfg, 150.0) == pytest.approx(285 - 150 - 20 - 10)
+    assert training.one_step_seconds(cfg, 260.0) == pytest.approx(50.0)  # a third of 150, not less
+    no_rollouts = TrainConfig(rollout_steps=0)
+    assert training.one_step_seconds(no_rollouts, 150.0) == pytest.approx(285 - 150 - 10)
+    unbudgeted = TrainConfig(time_budget=None)
+    assert training.one_step_seconds(unbudgeted, 1e4) == 150.0
+    assert training.rollout_seconds(unbudgeted, 1e4) == 60.0
