@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from neuroanimator import physical_errors, physics, registry
+from neuroanimator import physical_errors, physics, registry, sampling
 from neuroanimator.physics.mjcf import load_mjcf
 from neuroanimator.physics.model import ModelError, PhysicalModel
 from neuroanimator.results import NetworkSize, VersionEval, split_bench, summarize_eval
@@ -128,7 +128,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                     ("hidden", args.hidden),
                     ("examples", args.examples),
                     ("max_seconds", args.max_seconds),
-                    ("time_budget", args.time_budget if args.max_seconds is None else 0.0),
+                    ("time_budget", args.time_budget),
                     ("rollout_steps", args.rollout_steps),
                     ("lr", args.lr),
                     ("activation", args.activation),
@@ -389,7 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--examples", type=_positive_int, help="training examples (default: 10 × weights)")
     t.add_argument(
         "--sampler",
-        choices=["runs", "spaced"],
+        choices=sampling.SAMPLERS,
         help="training data: every super-step of runs driven with held controls (runs, the default: "
         "about n physical steps an example) or thesis 4.5's examples at lags of [Δt, 5Δt] (spaced: about 6n)",
     )
