@@ -11,6 +11,7 @@ import json
 import logging
 import os
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -42,6 +43,7 @@ def _out(text: str) -> None:
 
 # ---------------------------------------------------------------------------- train
 def cmd_train(args: argparse.Namespace) -> int:
+    started = time.perf_counter()  # the time budget is over the whole command, probes included
     if (args.model is None) == (args.mjcf is None):
         raise ModelError("give either a catalog model name or --mjcf PATH (not both)")
     if args.mjcf is None and (args.entry or args.name):
@@ -98,7 +100,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     # torch loads only for the commands that need it
     from neuroanimator import artifacts, super_step
     from neuroanimator.hierarchy_training import HierarchyResult, small_defaults, train_hierarchy
-    from neuroanimator.training import TrainingDiverged, TrainResult, source_defaults, train
+    from neuroanimator.training import TrainingDiverged, TrainResult, budget_after, source_defaults, train
 
     try:
         # a hierarchy over parts, or a model whose data come from its own source (a controller), keeps
@@ -137,6 +139,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                 if value is not None
             }
             cfg = source_defaults(model, cfg, user_set)
+        cfg = budget_after(cfg, time.perf_counter() - started)
         if model.spec.parts:  # a hierarchy of networks (thesis 4.4)
             cfg = small_defaults(
                 cfg,
@@ -410,8 +413,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument(
         "--time-budget",
         type=float,
-        help="the whole training's wall-clock budget in seconds, sampling included (default 285; 0: none): "
-        "the rollout phase gets what is left, the one-step phase is cut only after very slow sampling",
+        help="the whole command's wall-clock budget in seconds, probes and sampling included (default 285; "
+        "0: none): the rollout phase gets what is left, the one-step phase is cut only after very slow sampling",
     )
     t.add_argument(
         "--frame",

@@ -295,6 +295,20 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
 AFTER_PHASES_S = 10.0
 
 
+def budget_after(cfg: TrainConfig, spent: float) -> TrainConfig:
+    """The config for a training that starts ``spent`` seconds into the budget (loading the model,
+    measuring its contacts and limits, probing super-steps): the budget less those seconds, so that
+    the whole command keeps to it, but never below a third of it (the floors of ``one_step_seconds``
+    and ``rollout_seconds`` then decide). Unchanged without a budget."""
+    if cfg.time_budget is None or spent <= 0:
+        return cfg
+    left = max(cfg.time_budget - spent, cfg.time_budget / 3)
+    log.info(
+        "time budget %.0f s: %.0f s left after %.0f s of checks and probes", cfg.time_budget, left, spent
+    )
+    return dataclasses.replace(cfg, time_budget=left)
+
+
 def one_step_seconds(cfg: TrainConfig, elapsed: float) -> float:
     """The one-step phase's cap after ``elapsed`` seconds (sampling): ``cfg.max_seconds``, cut where
     the budget would otherwise leave the rollout phase less than a third of its cap (never below a

@@ -251,3 +251,14 @@ def test_the_time_budget_trims_the_rollout_phase_first() -> None:
     unbudgeted = TrainConfig(time_budget=None)
     assert training.one_step_seconds(unbudgeted, 1e4) == 150.0
     assert training.rollout_seconds(unbudgeted, 1e4) == 60.0
+
+
+def test_the_time_budget_counts_what_came_before_the_training() -> None:
+    """`neuro train` spends time before the training (loading, the contact check, super-step probes:
+    the humanoid's took about 150 s); the training gets the budget less that, never below a third."""
+    cfg = TrainConfig()  # time_budget 285
+    assert training.budget_after(cfg, 60.0).time_budget == pytest.approx(225.0)
+    assert training.budget_after(cfg, 250.0).time_budget == pytest.approx(95.0)  # a third of 285
+    assert training.budget_after(cfg, 0.0) is cfg
+    unbudgeted = TrainConfig(time_budget=None)
+    assert training.budget_after(unbudgeted, 100.0).time_budget is None
