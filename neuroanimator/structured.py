@@ -654,8 +654,8 @@ class StructuredEmulator(nn.Module):
 
         In the body frame the root quaternion's change is the increment q⁻¹ ⊗ q' − 1 in the body frame.
         q' keeps the sign the simulation gave it (MuJoCo integrates the quaternion continuously), so
-        the increment is (cos φ/2, sin φ/2 · axis) − 1 for the whole turn φ: continuous up to a full
-        turn. Choosing w ≥ 0 instead would jump from +axis to −axis at φ = π, which a tumbling body
+        the increment is (cos φ/2, sin φ/2 · axis) less the identity (1, 0, 0, 0) for the whole turn φ:
+        continuous up to a full turn. Choosing w ≥ 0 instead would jump from +axis to −axis at φ = π, which a tumbling body
         passes within one long super-step (N^100 of the quadrotor: 7% of the examples).
         """
         return self._map_delta(state, delta, inverse=False)
