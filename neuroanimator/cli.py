@@ -100,7 +100,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     # torch loads only for the commands that need it
     from neuroanimator import artifacts, super_step
     from neuroanimator.hierarchy_training import HierarchyResult, small_defaults, train_hierarchy
-    from neuroanimator.training import TrainingDiverged, TrainResult, budget_after, source_defaults, train
+    from neuroanimator.training import TrainingDiverged, TrainResult, source_defaults, train
 
     try:
         # a hierarchy over parts, or a model whose data come from its own source (a controller), keeps
@@ -139,7 +139,6 @@ def cmd_train(args: argparse.Namespace) -> int:
                 if value is not None
             }
             cfg = source_defaults(model, cfg, user_set)
-        cfg = budget_after(cfg, time.perf_counter() - started)
         if model.spec.parts:  # a hierarchy of networks (thesis 4.4)
             cfg = small_defaults(
                 cfg,
@@ -149,7 +148,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             )
             result: TrainResult | HierarchyResult = train_hierarchy(model, cfg)
         else:
-            result = train(model, cfg)
+            result = train(model, cfg, spent=time.perf_counter() - started)
     except TrainingDiverged as exc:
         log.error("%s", exc)
         return 2

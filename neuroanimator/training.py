@@ -191,12 +191,18 @@ def held_out_seed(seed: int) -> int:
     return seed + 1_000_003
 
 
-def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
-    """Simulate data, fit normalisation, train N^σ with early stopping, evaluate on held-out data."""
+def train(model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0) -> TrainResult:
+    """Simulate data, fit normalisation, train N^σ with early stopping, evaluate on held-out data.
+
+    ``spent``: seconds of ``cfg.time_budget`` used before the call (``neuro train``: loading the model,
+    its contact check and super-step probes), so that the whole command keeps to the budget."""
     cfg = cfg.resolved()
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     t_start = time.perf_counter()
+    t_budget = t_start - max(spent, 0.0)  # the phases' caps count from here
+    if spent > 0 and cfg.time_budget is not None:
+        log.info("time budget %.0f s: %.0f s spent before the training", cfg.time_budget, spent)
     emu = build_emulator(model, cfg)
     weights = sum(p.numel() for p in emu.parameters())
     count = cfg.examples or math.ceil(cfg.examples_per_weight * weights)
@@ -240,7 +246,7 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
         start_from_linear(emu, linear)
 
     # 4. the core network
-    core_cfg = dataclasses.replace(cfg, max_seconds=one_step_seconds(cfg, time.perf_counter() - t_start))
+    core_cfg = dataclasses.replace(cfg, max_seconds=one_step_seconds(cfg, time.perf_counter() - t_budget))
     final_lr = train_core(emu, x_tr, y_tr, x_val, y_val, core_cfg)
 
     # 5. training over rollouts, from the one-step solution
@@ -248,7 +254,7 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
     if cfg.rollout_steps > 0:
         seqs = rollout_sequences(model, cfg, count, runs)
         roll_cfg = dataclasses.replace(
-            cfg, rollout_seconds=rollout_seconds(cfg, time.perf_counter() - t_start)
+            cfg, rollout_seconds=rollout_seconds(cfg, time.perf_counter() - t_budget)
         )
         rollout_metrics = train_over_rollouts(
             emu, seqs, roll_cfg, lr=final_lr, one_step=(x_tr, y_tr, x_val, y_val)
@@ -295,22 +301,8 @@ def train(model: PhysicalModel, cfg: TrainConfig) -> TrainResult:
 AFTER_PHASES_S = 10.0
 
 
-def budget_after(cfg: TrainConfig, spent: float) -> TrainConfig:
-    """The config for a training that starts ``spent`` seconds into the budget (loading the model,
-    measuring its contacts and limits, probing super-steps): the budget less those seconds, so that
-    the whole command keeps to it, but never below a third of it (the floors of ``one_step_seconds``
-    and ``rollout_seconds`` then decide). Unchanged without a budget."""
-    if cfg.time_budget is None or spent <= 0:
-        return cfg
-    left = max(cfg.time_budget - spent, cfg.time_budget / 3)
-    log.info(
-        "time budget %.0f s: %.0f s left after %.0f s of checks and probes", cfg.time_budget, left, spent
-    )
-    return dataclasses.replace(cfg, time_budget=left)
-
-
 def one_step_seconds(cfg: TrainConfig, elapsed: float) -> float:
-    """The one-step phase's cap after ``elapsed`` seconds (sampling): ``cfg.max_seconds``, cut where
+    """The one-step phase's cap after ``elapsed`` seconds (set-up and sampling): ``cfg.max_seconds``, cut where
     the budget would otherwise leave the rollout phase less than a third of its cap (never below a
     third of ``max_seconds``: a very slow model overruns its budget rather than going untrained)."""
     if cfg.time_budget is None:
@@ -319,7 +311,7 @@ def one_step_seconds(cfg: TrainConfig, elapsed: float) -> float:
     left = cfg.time_budget - elapsed - rollout - AFTER_PHASES_S
     if left < cfg.max_seconds:
         log.info(
-            "time budget %.0f s: the one-step phase gets %.0f s after %.0f s of sampling",
+            "time budget %.0f s: the one-step phase gets %.0f s after %.0f s of set-up and sampling",
             cfg.time_budget,
             max(left, cfg.max_seconds / 3),
             elapsed,
