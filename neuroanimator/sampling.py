@@ -218,6 +218,93 @@ def run_horizon(model: PhysicalModel, substeps: int, count: int, runs: int) -> i
     return int(max(1, min(episode, spread, fits)))
 
 
+def steps_to_sample(
+    model: PhysicalModel, substeps: int, count: int, sampler: str = "runs", runs: int = 256
+) -> float:
+    """Physical steps that ``generate`` simulates for ``count`` examples: batches of ``runs`` runs (the
+    last one whole), each run a lead of up to 5n steps and then ``run_horizon`` super-steps ("runs"), or
+    a lag of up to 5n steps and a super-step per example ("spaced")."""
+    n = substeps
+    if sampler == "spaced":
+        batch = max(1, min(runs, count))
+        return math.ceil(count / batch) * batch * 6.0 * n
+    horizon = run_horizon(model, n, count, runs)
+    sequences = math.ceil(count / horizon)
+    batch = max(1, min(runs, sequences))
+    return math.ceil(sequences / batch) * batch * (5.0 + horizon) * n
+
+
+def sampling_steps(
+    model: PhysicalModel, substeps: int, examples: int, test_examples: int, sampler: str = "runs"
+) -> float:
+    """Physical steps that simulating ``examples`` and ``test_examples`` takes (``steps_to_sample``)."""
+    return steps_to_sample(model, substeps, examples, sampler) + steps_to_sample(
+        model, substeps, test_examples, sampler
+    )
+
+
+# The fewest examples a capped sampling keeps: below this a network learns nothing worth writing, and
+# a model this slow overruns its budget rather than going untrained
+MIN_TRAINING_EXAMPLES = 2000
+MIN_TEST_EXAMPLES = 1000
+
+
+@dataclass(frozen=True)
+class SamplingPlan:
+    """How many training and held-out examples to simulate, and why (None when nothing was cut)."""
+
+    examples: int
+    test_examples: int
+    reason: str | None = None
+
+
+def plan_within(
+    model: PhysicalModel,
+    substeps: int,
+    examples: int,
+    test_examples: int,
+    seconds: float,
+    *,
+    sampler: str = "runs",
+    seed: int = 0,
+    least: tuple[int, int] = (MIN_TRAINING_EXAMPLES, MIN_TEST_EXAMPLES),
+) -> SamplingPlan:
+    """The examples that simulating fits in ``seconds`` at the model's measured step rate
+    (``PhysicalModel.measure_step_rate``): all that were asked for when they fit; else both counts cut
+    in proportion (no fewer than ``least``, training and held out), saying why.
+
+    Why: a model's cost per physical step spans three orders of magnitude (a pendulum, dm_control's
+    quadruped on its height field at about 3,000 steps/s on two cores), so a count set by the network's
+    weights alone can take half an hour to simulate."""
+    rate = model.measure_step_rate(seed)
+
+    def steps(train: int, test: int) -> float:
+        return sampling_steps(model, substeps, train, test, sampler)
+
+    wanted = steps(examples, test_examples)
+    if wanted <= seconds * rate:
+        return SamplingPlan(examples, test_examples)
+
+    def counts(fraction: float) -> tuple[int, int]:
+        return (
+            max(min(least[0], examples), int(examples * fraction)),
+            max(min(least[1], test_examples), int(test_examples * fraction)),
+        )
+
+    low, high = 0.0, 1.0  # the largest fraction of both counts that fits (bisection: steps grow with it)
+    for _ in range(40):
+        mid = (low + high) / 2
+        low, high = (mid, high) if steps(*counts(mid)) <= seconds * rate else (low, mid)
+    train, test = counts(low)
+    reason = (
+        f"sampling cut to {train:,} examples and {test:,} held out (of {examples:,} and {test_examples:,}): "
+        f"the model simulates {rate:,.0f} physical steps/s here, {wanted / rate:,.0f} s for all of them, "
+        f"and the time budget leaves {seconds:,.0f} s for sampling; a longer --time-budget, or --examples, "
+        "samples more"
+    )
+    return SamplingPlan(train, test, reason)
+
+
 def generate_runs(
     model: PhysicalModel,
     substeps: int,

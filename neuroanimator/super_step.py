@@ -5,7 +5,9 @@ or a joint limit that switches on inside a super-step makes the map from state t
 and the longer the super-step, the more of its examples hold one: such a model may only be learnable
 at a shorter super-step. So: measure how often constraints engage in typical motion; if no contact
 does, take 50; else train short probes at n = 50, 25, 10 and take the longest n whose probe reaches
-the target, saying why.
+the target, saying why. A probe samples no more than ``PROBE_SAMPLING_S`` of simulation; a longer n
+whose smallest probe would take over twice that (a slow model: dm_control's quadruped simulates about
+2,600 steps/s here) is not probed, and the training's budget goes to the shorter ones.
 
 A joint limit alone does not shorten the step: the network reads how far past each limit the joint
 would go within the super-step (``structured.JointLimit``), and full trainings at n = 50 meet the
@@ -31,6 +33,7 @@ from dataclasses import dataclass, field, replace
 import mujoco
 import numpy as np
 
+from neuroanimator import sampling
 from neuroanimator.physics.model import ModelError, PhysicalModel
 from neuroanimator.train_config import TrainConfig
 
@@ -39,6 +42,8 @@ log = logging.getLogger(__name__)
 CANDIDATES = (50, 25, 10)  # longest first; never below 10 physical steps per super-step
 TARGET = 0.01  # held-out one-step relative error a chosen n should reach
 PROBE_SLACK = 2.0  # a short probe overstates the error of a full training about this much
+PROBE_SAMPLING_S = 20.0  # the most a probe's examples may take to simulate ...
+PROBE_LEAST = (1000, 500)  # ... unless it would have fewer than these (training, held out)
 REFUSE_ERROR = 0.05  # above this one-step error, an emulator is refused ...
 REFUSE_GAIN = 2.0  # ... as it is when it is not this many times below the linear baseline
 # Below this one-step error an emulator is exact to float32's precision, and is kept whatever the linear
@@ -107,16 +112,24 @@ def constraint_activity(
     return ConstraintActivity(contact=contact / n, limit=limit / n, states=n)
 
 
-def probe_config(cfg: TrainConfig, substeps: int) -> TrainConfig:
-    """A short training at ``substeps``: at most 6,000 examples and 40 epochs, no rollout phase, no bars.
+def probe_config(cfg: TrainConfig, substeps: int, model: PhysicalModel | None = None) -> TrainConfig:
+    """A short training at ``substeps``: at most 6,000 examples and 40 epochs, no rollout phase, no bars;
+    with ``model``, no more examples than it simulates in ``PROBE_SAMPLING_S`` (a slow model: dm_control's
+    quadruped took 280 s to sample a probe's 7,000 examples at n = 50).
 
     Bounded by epochs rather than seconds, so that a busy machine does not change the choice (a 60 s
     cap only guards against a very slow one)."""
+    examples, test = min(cfg.examples or 6000, 6000), 1000
+    if model is not None:
+        plan = sampling.plan_within(
+            model, substeps, examples, test, PROBE_SAMPLING_S, sampler=cfg.sampler, least=PROBE_LEAST
+        )
+        examples, test = plan.examples, plan.test_examples
     return replace(
         cfg,
         substeps=substeps,
-        examples=min(cfg.examples or 6000, 6000),
-        test_examples=1000,
+        examples=examples,
+        test_examples=test,
         max_epochs=min(cfg.max_epochs, 40),
         max_seconds=min(cfg.max_seconds, 60.0),
         rollout_steps=0,
@@ -173,8 +186,19 @@ def choose_substeps(
             activity,
         )
     probes: dict[int, float] = {}
+    skipped: list[str] = []
     for n in candidates:
-        err = float(train(model, probe_config(cfg, n)).metrics["one_step_rel_error"])
+        probe = probe_config(cfg, n, model)
+        seconds = sampling.sampling_steps(model, n, probe.examples or 0, probe.test_examples, cfg.sampler) / (
+            model.step_rate or model.measure_step_rate()
+        )
+        if seconds > 2 * PROBE_SAMPLING_S and n != candidates[-1]:  # the shortest is always probed
+            skipped.append(f"n={n} ({seconds:.0f} s to simulate {probe.examples:,} examples)")
+            log.info(
+                "%s: no probe at n=%d: its examples would take %.0f s to simulate", model.name, n, seconds
+            )
+            continue
+        err = float(train(model, probe).metrics["one_step_rel_error"])
         probes[n] = err
         log.info("%s: probe at n=%d: one-step relative error %.3g", model.name, n, err)
         if err <= PROBE_SLACK * TARGET:
@@ -187,7 +211,8 @@ def choose_substeps(
         if fits
         else f"no probe reached {PROBE_SLACK * TARGET:g}; the best one"
     )
-    reason = f"n={chosen}: {activity.describe()}; probe one-step errors {tried}; {verdict}"
+    slow = f"; too slow to probe: {', '.join(skipped)}" if skipped else ""
+    reason = f"n={chosen}: {activity.describe()}; probe one-step errors {tried}; {verdict}{slow}"
     return SuperStepChoice(chosen, reason, activity, probes)
 
 

@@ -206,6 +206,10 @@ def train(model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0) -> TrainRe
     emu = build_emulator(model, cfg)
     weights = sum(p.numel() for p in emu.parameters())
     count = cfg.examples or math.ceil(cfg.examples_per_weight * weights)
+    plan = sampling_plan(model, cfg, count, time.perf_counter() - t_budget)
+    if plan.reason:
+        log.info("%s: %s", model.name, plan.reason)
+    count = plan.examples
     log.info("%s n=%d: %d weights, %d examples", model.name, cfg.substeps, weights, count)
 
     # 1. data: training (+ validation) and an independent held-out test set
@@ -216,7 +220,7 @@ def train(model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0) -> TrainRe
         else generate_examples(model, cfg.substeps, count, cfg.seed, cfg.progress, cfg.sampler)
     )
     test = generate_examples(
-        model, cfg.substeps, cfg.test_examples, held_out_seed(cfg.seed), cfg.progress, cfg.sampler
+        model, cfg.substeps, plan.test_examples, held_out_seed(cfg.seed), cfg.progress, cfg.sampler
     )
     t_data = time.perf_counter() - t_start
     if cfg.clearance:  # probe the geoms that come near the floor in these data
@@ -278,6 +282,7 @@ def train(model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0) -> TrainRe
         "validation_rel_error": val,
         **rollout_metrics,
         **({"networks": per_network} if per_network is not None else {}),
+        **({"sampling_reason": plan.reason} if plan.reason else {}),
         "data_seconds": round(t_data, 2),
         "train_seconds": round(time.perf_counter() - t_start - t_data, 2),
         "total_seconds": round(time.perf_counter() - t_start, 2),
@@ -294,6 +299,27 @@ def train(model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0) -> TrainRe
         model.layout, model.spec.regularizer, model.num_controls, cfg.regularizer_steps
     )
     return TrainResult(emu, cfg, metrics, linear, data.sha256(), examples_envelope(model, data))
+
+
+# The share of ``TrainConfig.time_budget`` that sampling may take (what set-up spent comes off it), and
+# the least it gets however much set-up spent: the rest trains
+SAMPLING_SHARE = 0.4
+SAMPLING_FLOOR = 0.15
+
+
+def sampling_plan(
+    model: PhysicalModel, cfg: TrainConfig, count: int, elapsed: float
+) -> sampling.SamplingPlan:
+    """The examples to simulate after ``elapsed`` seconds of the budget: ``count`` and
+    ``cfg.test_examples``, cut to what fits in the budget's sampling share at the model's measured step
+    rate (``sampling.plan_within``) unless the user set the count, there is no budget, or the data come
+    from the model's own source."""
+    if cfg.examples is not None or cfg.time_budget is None or model.spec.data_source is not None:
+        return sampling.SamplingPlan(count, cfg.test_examples)
+    seconds = max(SAMPLING_SHARE * cfg.time_budget - elapsed, SAMPLING_FLOOR * cfg.time_budget)
+    return sampling.plan_within(
+        model, cfg.substeps, count, cfg.test_examples, seconds, sampler=cfg.sampler, seed=cfg.seed
+    )
 
 
 # Seconds kept, within ``TrainConfig.time_budget``, for what follows the phases: the held-out

@@ -220,3 +220,46 @@ def test_small_counts_come_from_many_runs() -> None:
     model = physics.get("quadrotor")
     runs = sampling.generate_runs(model, 10, 3000, seed=77, progress=False)
     assert len(runs) >= 250 and np.unique(runs.states[:, 0], axis=0).shape[0] == len(runs)
+
+
+# ----------------------------------------------------------------------------- the cost of sampling
+def test_a_model_knows_its_step_rate_only_after_simulating() -> None:
+    """``step_rate`` is None for a fresh model (nothing measured) and counts every thread's steps."""
+    model = physics.get("pendulum-force")
+    assert model.step_rate is None
+    rate = model.measure_step_rate()
+    assert rate > 0 and model.step_rate == rate
+    assert model._seconds_simulating >= model.RATE_MIN_SECONDS
+
+
+@pytest.mark.parametrize(("sampler", "count"), [("runs", 3000), ("runs", 300), ("spaced", 300)])
+def test_the_cost_estimate_is_the_steps_that_sampling_simulates(sampler: str, count: int) -> None:
+    """``steps_to_sample`` predicts the physical steps ``generate`` takes (which ``plan_within`` turns
+    into seconds): within 25% for both samplers, long runs and short."""
+    model = physics.get("lander")
+    before = model._steps_simulated
+    sampling.generate(model, 10, count, seed=3, progress=False, sampler=sampler)
+    simulated = model._steps_simulated - before
+    estimate = sampling.steps_to_sample(model, 10, count, sampler)
+    assert 0.75 * simulated <= estimate <= 1.25 * simulated, (simulated, estimate)
+
+
+def test_a_plan_that_fits_keeps_every_example() -> None:
+    model = physics.get("pendulum-force")
+    plan = sampling.plan_within(model, 10, 500, 200, seconds=60.0)
+    assert (plan.examples, plan.test_examples, plan.reason) == (500, 200, None)
+
+
+def test_a_plan_that_does_not_fit_is_cut_to_the_seconds_and_says_why() -> None:
+    """Both counts shrink in proportion until their estimated steps fit the seconds at the measured
+    rate; the reason names the rate, the cut and what to do; never below ``least``."""
+    model = physics.get("lander")
+    rate = model.measure_step_rate()
+    seconds = 2_000_000 / rate  # about 2 M physical steps: 400,000 examples at n = 50 do not fit
+    plan = sampling.plan_within(model, 50, 400_000, 4000, seconds)
+    assert 2000 <= plan.examples < 400_000 and 1000 <= plan.test_examples < 4000
+    steps = sampling.sampling_steps(model, 50, plan.examples, plan.test_examples)
+    assert 0.8 * seconds * rate <= steps <= 1.05 * seconds * rate
+    assert plan.reason and "physical steps/s" in plan.reason and "--time-budget" in plan.reason
+    tiny = sampling.plan_within(model, 50, 400_000, 4000, 1e-6, least=(700, 300))
+    assert (tiny.examples, tiny.test_examples) == (700, 300)

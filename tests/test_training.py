@@ -271,3 +271,27 @@ def test_time_spent_before_the_training_comes_off_its_budget(caplog: pytest.LogC
     # 285 s less the 200 spent and the 10 kept for what follows: 75 s for the one-step phase
     assert any("the one-step phase gets 75 s" in r.getMessage() for r in caplog.records), caplog.text
     assert result.config.time_budget == 285.0
+
+
+def test_sampling_keeps_to_its_share_of_the_time_budget() -> None:
+    """Without a count from the user, the examples are what the budget's sampling share (less what set-up
+    spent, down to its floor) simulates; a count the user set, or no budget, keeps every example."""
+    from neuroanimator.training import SAMPLING_FLOOR, SAMPLING_SHARE, sampling_plan
+
+    model = physics.get("lander")
+    rate = model.measure_step_rate()
+    # a share of 10 M physical steps: 17 batches of 256 runs of 45 × 50 steps (a batch is the grain)
+    budget = 10_000_000 / rate / SAMPLING_SHARE
+    cfg = TrainConfig(substeps=50, time_budget=budget)
+    fresh = sampling_plan(model, cfg, 400_000, elapsed=0.0)
+    late = sampling_plan(model, cfg, 400_000, elapsed=0.15 * budget)
+    floor = sampling_plan(model, cfg, 400_000, elapsed=budget)
+    assert fresh.reason and 2000 < floor.examples < late.examples < fresh.examples < 400_000
+
+    def steps(plan: sampling.SamplingPlan) -> float:
+        return sampling.sampling_steps(model, 50, plan.examples, plan.test_examples)
+
+    assert steps(floor) / steps(fresh) == pytest.approx(SAMPLING_FLOOR / SAMPLING_SHARE, rel=0.15)
+    given = sampling_plan(model, TrainConfig(substeps=50, examples=400_000, time_budget=budget), 400_000, 0.0)
+    unbounded = sampling_plan(model, TrainConfig(substeps=50, time_budget=None), 400_000, 0.0)
+    assert given.examples == unbounded.examples == 400_000 and given.reason is None

@@ -15,6 +15,7 @@ import hashlib
 import logging
 import os
 import threading
+import time
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -181,6 +182,9 @@ class PhysicalModel:
         self._force_index = self._resolve_forces()
         self._threads = max(1, min(2, os.cpu_count() or 1))
         self._local = threading.local()
+        # physical steps simulated on all threads, and the seconds they took (``step_rate``)
+        self._steps_simulated = 0
+        self._seconds_simulating = 0.0
         self._probe_state_offsets()
 
     # ------------------------------------------------------------------ description
@@ -404,6 +408,30 @@ class PhysicalModel:
             self._local.datas = datas
         return datas
 
+    # ------------------------------------------------------------------ cost
+    # Below this many seconds of simulation a measured rate is mostly overhead, not physics
+    RATE_MIN_SECONDS = 0.2
+
+    @property
+    def step_rate(self) -> float | None:
+        """Physical steps per second that ``simulate`` has achieved on all its threads so far (over
+        every call, so typical motion's contacts are in it), or None before ``RATE_MIN_SECONDS`` of it."""
+        if self._seconds_simulating < self.RATE_MIN_SECONDS:
+            return None
+        return self._steps_simulated / self._seconds_simulating
+
+    def measure_step_rate(self, seed: int = 0) -> float:
+        """``step_rate``, simulating typical motion from typical states first where it is not known yet
+        (a fresh model: batches of 16 runs of 100 steps until ``RATE_MIN_SECONDS`` have passed)."""
+        rng = np.random.default_rng(seed)
+        times = np.arange(100, dtype=np.float64) * self.dt
+        while (rate := self.step_rate) is None:
+            s0 = self.initial_states(rng, 16)
+            u = self.typical_controls(rng, 16, times)
+            f = self.typical_forces(rng, 16, times) if self.num_forces else None
+            self.simulate(s0, u, f)
+        return rate
+
     def simulate(
         self,
         states: FloatArray,
@@ -454,6 +482,7 @@ class PhysicalModel:
             datas = datas[: max(1, threads)]
         for d in datas:
             d.warning[_BAD_QACC].number = 0
+        started = time.perf_counter()
         out, _ = rollout.rollout(
             self.mj_model,
             datas,
@@ -462,6 +491,9 @@ class PhysicalModel:
             control_spec=int(_CONTROL_SPEC),
             nstep=steps,
         )
+        if len(datas) == self._threads and b >= len(datas):  # a rate on every thread
+            self._steps_simulated += b * steps
+            self._seconds_simulating += time.perf_counter() - started
         result = self.from_physics(out).reshape(b, steps, self.state_size)
         bad = [d for d in datas if d.warning[_BAD_QACC].number]
         if check and bad:
