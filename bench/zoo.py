@@ -149,25 +149,22 @@ def train_suite_model(name: str, xml: Path, root: Path, quick: bool, timeout: fl
         done = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return ZooRow(name, "dm_control", False, reason=f"training ran past {timeout:.0f} s")
+    wall = time.perf_counter() - t0  # the whole command: loading, probes, sampling, training, export
     summary = _last_json(done.stdout)
-    if done.returncode != 0 or summary is None:
-        return ZooRow(
-            name,
-            "dm_control",
-            False,
-            reason=_error_line(done.stderr + done.stdout),
-            train_s=time.perf_counter() - t0,
-        )
+    if summary is None or (done.returncode != 0 and summary.get("accepted") is not False):
+        return ZooRow(name, "dm_control", False, reason=_error_line(done.stderr + done.stdout), train_s=wall)
+    accepted = done.returncode == 0 and summary.get("accepted", True)
     return ZooRow(
         model=name,
         source="dm_control",
-        accepted=True,
-        emulator=summary["model"],
-        reason=summary.get("substeps_reason", ""),
+        accepted=accepted,
+        emulator=summary["model"] if accepted else None,
+        # a refusal's reason says what it missed (and what cut its data); an acceptance, its super-step
+        reason=summary.get("substeps_reason", "") if accepted else summary.get("reason", ""),
         state_size=summary.get("state_size"),
         substeps=summary["substeps"],
         contact=summary.get("contact_fraction", 0.0) > 0,
-        train_s=summary["total_seconds"],
+        train_s=wall,
         one_step=summary["one_step_rel_error"],
         linear=summary["linear_baseline_rel_error"],
     )

@@ -164,7 +164,11 @@ def cmd_train(args: argparse.Namespace) -> int:
     if not args.force:
         try:
             super_step.check_useful(
-                model.name, cfg.substeps, m["one_step_rel_error"], m["linear_baseline_rel_error"]
+                model.name,
+                cfg.substeps,
+                m["one_step_rel_error"],
+                m["linear_baseline_rel_error"],
+                m.get("sampling_reason"),
             )
         except super_step.ModelOutOfReach as exc:
             if args.json:  # what was measured, so that a refusal can be looked into

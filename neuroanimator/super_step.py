@@ -216,15 +216,19 @@ def choose_substeps(
     return SuperStepChoice(chosen, reason, activity, probes)
 
 
-def check_useful(name: str, substeps: int, one_step: float, linear: float) -> None:
+def check_useful(
+    name: str, substeps: int, one_step: float, linear: float, sampling: str | None = None
+) -> None:
     """Refuse an emulator far off the target or hardly better than a linear fit (``ModelOutOfReach``),
-    unless it is exact (``EXACT``)."""
+    unless it is exact (``EXACT``). ``sampling``: why the training had fewer examples than it asked
+    for (``training.sampling_plan``), the first thing to try then."""
     if math.isfinite(one_step) and one_step <= EXACT:
         return
     if not math.isfinite(one_step) or one_step > REFUSE_ERROR or linear < REFUSE_GAIN * one_step:
         raise ModelOutOfReach(
             f"{name} n={substeps}: one-step relative error {one_step:.3g} (linear baseline {linear:.3g}) misses "
-            f"the bar (≤ {REFUSE_ERROR:g} and ≥ {REFUSE_GAIN:g}× below linear): nothing written. Try a shorter "
-            f"super-step (--substeps), more examples (--examples) or a wider network (--hidden); --force writes "
-            f"it anyway"
+            f"the bar (≤ {REFUSE_ERROR:g} and ≥ {REFUSE_GAIN:g}× below linear): nothing written. "
+            + (f"The time budget cut its data: {sampling}. " if sampling else "")
+            + "Try a shorter super-step (--substeps), more examples (--examples) or a wider network (--hidden); "
+            "--force writes it anyway"
         )

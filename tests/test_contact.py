@@ -153,8 +153,11 @@ def test_an_emulator_is_refused_off_the_bar_and_kept_when_exact() -> None:
         ModelOutOfReach, match=r"m n=50: one-step relative error 0.06 \(linear baseline 0.3\)"
     ):
         check_useful("m", 50, 0.06, 0.3)
-    with pytest.raises(ModelOutOfReach, match="≥ 2× below linear"):
+    with pytest.raises(ModelOutOfReach, match="≥ 2× below linear") as refused:
         check_useful("m", 50, 0.004, 0.006)
+    assert "time budget" not in str(refused.value)
+    with pytest.raises(ModelOutOfReach, match="The time budget cut its data: sampling cut to 10 examples"):
+        check_useful("m", 50, 0.004, 0.006, "sampling cut to 10 examples")
     with pytest.raises(ModelOutOfReach):
         check_useful("m", 50, float("nan"), 0.3)
     check_useful("lqr", 50, 8.96e-15, 5.23e-15)
