@@ -231,13 +231,14 @@ def probe(model: Any, spec: dict[str, Any], substeps: int) -> None:
     s0 = model.initial_states(rng, PROBE_RUNS)
     u = model.typical_controls(rng, PROBE_RUNS, times)
     f = model.typical_forces(rng, PROBE_RUNS, times)
+    from neuroanimator import sampling  # after main has put Bar in tqdm's place
+
     model.simulate(s0[:1], u[:1, :10], f[:1, :10] if model.num_forces else None, check=True)  # warm up
-    t0 = time.perf_counter()
     model.simulate(s0, u, f if model.num_forces else None, check=True)
-    rate = PROBE_RUNS * steps / max(time.perf_counter() - t0, 1e-6)
-    # a sample is held for 1 to 5 super-steps (3 on average); then the held-out set, then rollouts
+    rate = model.measure_step_rate()  # the warm-up (one run) does not count
+    # the runs that hold the examples, then the held-out set; the rollout phase cuts windows of the runs
     examples = int(spec["examples"])
-    needed = 3 * substeps * (examples + TEST_EXAMPLES) + substeps * max(64, examples // 16) * 10
+    needed = round(sampling.sampling_steps(model, substeps, examples, TEST_EXAMPLES))
     estimate = needed / rate
     allowed = SAMPLING_SHARE_OF_LIMIT * float(spec["time_limit_s"])
     if estimate > allowed:
