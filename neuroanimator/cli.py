@@ -392,7 +392,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--optimizer", choices=["adam", "sgd"], default="adam")
     t.add_argument("--hidden", help="hidden layer widths, e.g. 64,64")
     t.add_argument("--activation", choices=["sigmoid", "tanh", "silu", "gelu", "relu"])
-    t.add_argument("--examples", type=_positive_int, help="training examples (default: 10 × weights)")
+    t.add_argument(
+        "--examples",
+        type=_positive_int,
+        help="training examples (default: 10 × weights, cut to what the model simulates in 40%% of the time budget)",
+    )
     t.add_argument(
         "--sampler",
         choices=sampling.SAMPLERS,

@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import re
 import threading
 import time
 import xml.etree.ElementTree as ET
@@ -64,9 +65,16 @@ def mujoco_warnings_as_debug() -> Iterator[None]:
         _quiet_warnings -= 1
 
 
+_BAD_DOF = re.compile(r"QACC at DOF (\d+)")
+_last_bad_dof = -1  # the degree of freedom of MuJoCo's latest instability warning (-1: none yet)
+
+
 def _log_mujoco_warning(text: str) -> None:
     # MuJoCo's default prints to stderr and appends to MUJOCO_LOG.TXT in the working directory
+    global _last_bad_dof
     log.log(logging.DEBUG if _quiet_warnings else logging.WARNING, "MuJoCo: %s", text.strip())
+    if found := _BAD_DOF.search(text):
+        _last_bad_dof = int(found.group(1))
 
 
 mujoco.set_mju_user_warning(_log_mujoco_warning)
@@ -349,9 +357,11 @@ class PhysicalModel:
         d = mujoco.MjData(m)
         d.qpos[:] = np.arange(m.nq) + 1000.0
         d.qvel[:] = np.arange(m.nv) + 2000.0
+        d.time = -1000.0
         full = np.empty(mujoco.mj_stateSize(m, _PHYSICS))
         mujoco.mj_getState(m, d, full, _PHYSICS)
         self._nfull = full.size
+        self._time_at = int(np.flatnonzero(full == -1000.0)[0])
         self._qpos_at = int(np.flatnonzero(full == 1000.0)[0]) if m.nq else 0
         self._qvel_at = int(np.flatnonzero(full == 2000.0)[0]) if m.nv else 0
         self._template = np.zeros(self._nfull)
@@ -495,17 +505,30 @@ class PhysicalModel:
             self._steps_simulated += b * steps
             self._seconds_simulating += time.perf_counter() - started
         result = self.from_physics(out).reshape(b, steps, self.state_size)
-        bad = [d for d in datas if d.warning[_BAD_QACC].number]
-        if check and bad:
-            raise self._diverged(states, result, int(bad[0].warning[_BAD_QACC].lastinfo))
+        if check:
+            bad = [d for d in datas if d.warning[_BAD_QACC].number]
+            # rollout clears a thread's warnings before each of its runs, so only the last run of a
+            # thread would show in ``bad``; but an unstable run's clock stops rising (rollout stops
+            # stepping it after MuJoCo's reset), the step after the one that diverged
+            clock = np.concatenate([np.zeros((b, 1)), out[..., self._time_at]], axis=1)
+            stalled = np.diff(clock, axis=1) <= 0  # (B, T)
+            if bad or stalled.any():
+                dof = int(bad[0].warning[_BAD_QACC].lastinfo) if bad else _last_bad_dof
+                first = max(0, int(np.flatnonzero(stalled.any(axis=0))[0]) - 1) if stalled.any() else None
+                raise self._diverged(states, result, dof, first)
         return result
 
-    def _diverged(self, start: FloatArray, traj: FloatArray, dof: int) -> SimulationDiverged:
+    def _diverged(
+        self, start: FloatArray, traj: FloatArray, dof: int, step: int | None = None
+    ) -> SimulationDiverged:
         """The error for an unstable rollout from (B, S) to (B, T, S): it names the first step with a
-        non-finite value or one a thousand times the start's (MuJoCo resets the run right after)."""
+        non-finite value or one a thousand times the start's (MuJoCo resets the run right after), or
+        ``step``, where a run was seen to be reset."""
         m = self.mj_model
         huge = ~np.isfinite(traj) | (np.abs(traj) > 1e3 * (1.0 + np.abs(start[:, None, :])))
         steps = np.flatnonzero(huge.any(axis=(0, 2)))
+        if step is not None and (not steps.size or step < steps[0]):
+            steps = np.array([step])
         when = f"{(int(steps[0]) + 1) * self.dt:.4g} s into" if steps.size else "during"
         joint = (
             mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.dof_jntid[dof]))

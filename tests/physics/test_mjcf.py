@@ -207,6 +207,32 @@ def test_a_model_that_diverges_is_refused_with_the_time_and_joint(tmp_path: Path
     assert not out.exists()
 
 
+def test_one_unstable_run_among_stable_ones_is_caught_wherever_it_runs(tmp_path: Path) -> None:
+    """MuJoCo resets an unstable run, and rollout clears a thread's warnings before each of its runs:
+    a run that diverges before others on its thread is caught from its reset clock, naming the joint
+    (dm_control's dog: a few runs of thousands sampled their reset poses as data before)."""
+    path = tmp_path / "stiff.xml"
+    path.write_text(
+        """<mujoco model="stiff"><option timestep="0.01"/><worldbody><body>
+        <joint name="stiff" type="hinge" axis="0 0 1" stiffness="1e9"/>
+        <geom type="sphere" size="0.1" mass="1e-6"/></body></worldbody>
+        <actuator><motor name="m" joint="stiff" ctrlrange="-1 1"/></actuator></mujoco>"""
+    )
+    model = load_mjcf(path, substeps=5)
+    states = np.zeros((8, model.state_size))
+    assert np.isfinite(model.simulate(states, nstep=20, check=True)).all()  # at rest: stable
+    for first in (0, 3, 7):  # first, in the middle, last (the case the warnings alone caught)
+        pushed = states.copy()
+        pushed[first, 0] = 1.0  # one run displaced against a stiffness of 1e9
+        with pytest.raises(SimulationDiverged, match=r"diverged 0.01 s into .*joint 'stiff'"):
+            model.simulate(pushed, nstep=20, check=True)
+        assert model.simulate(pushed, nstep=20).shape == (
+            8,
+            20,
+            model.state_size,
+        )  # unchecked: as MuJoCo gives
+
+
 def test_velocities_too_violent_for_a_small_model_are_narrowed_until_it_samples(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
