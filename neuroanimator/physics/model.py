@@ -67,14 +67,17 @@ def mujoco_warnings_as_debug() -> Iterator[None]:
 
 _BAD_DOF = re.compile(r"QACC at DOF (\d+)")
 _last_bad_dof = -1  # the degree of freedom of MuJoCo's latest instability warning (-1: none yet)
+_arena_full = 0  # MuJoCo's warnings that its arena could not hold a step's contacts or constraints
 
 
 def _log_mujoco_warning(text: str) -> None:
     # MuJoCo's default prints to stderr and appends to MUJOCO_LOG.TXT in the working directory
-    global _last_bad_dof
+    global _last_bad_dof, _arena_full
     log.log(logging.DEBUG if _quiet_warnings else logging.WARNING, "MuJoCo: %s", text.strip())
     if found := _BAD_DOF.search(text):
         _last_bad_dof = int(found.group(1))
+    if "arena memory" in text:
+        _arena_full += 1
 
 
 mujoco.set_mju_user_warning(_log_mujoco_warning)
@@ -492,15 +495,20 @@ class PhysicalModel:
             datas = datas[: max(1, threads)]
         for d in datas:
             d.warning[_BAD_QACC].number = 0
-        started = time.perf_counter()
-        out, _ = rollout.rollout(
-            self.mj_model,
-            datas,
-            self.to_physics(states),
-            cvec,
-            control_spec=int(_CONTROL_SPEC),
-            nstep=steps,
-        )
+        started, arena_warnings = time.perf_counter(), _arena_full
+        try:
+            out, _ = rollout.rollout(
+                self.mj_model,
+                datas,
+                self.to_physics(states),
+                cvec,
+                control_spec=int(_CONTROL_SPEC),
+                nstep=steps,
+            )
+        except mujoco.FatalError as exc:  # MuJoCo's stack ran out: too many contacts for the arena
+            raise self._arena_too_small(str(exc).strip().replace("\n", "; ")) from exc
+        if check and _arena_full > arena_warnings:  # concurrent checked calls may share this count
+            raise self._arena_too_small("it dropped contacts or constraints that did not fit")
         if len(datas) == self._threads and b >= len(datas):  # a rate on every thread
             self._steps_simulated += b * steps
             self._seconds_simulating += time.perf_counter() - started
@@ -517,6 +525,15 @@ class PhysicalModel:
                 first = max(0, int(np.flatnonzero(stalled.any(axis=0))[0]) - 1) if stalled.any() else None
                 raise self._diverged(states, result, dof, first)
         return result
+
+    def _arena_too_small(self, what: str) -> ModelError:
+        """The error for typical motion whose contacts and constraints MuJoCo's arena cannot hold."""
+        return ModelError(
+            f"model {self.name}: MuJoCo ran out of arena memory ({self.mj_model.narena:,} bytes) simulating "
+            f'typical motion from typical states: {what}. Give the MJCF more (<size memory="..."/>, '
+            "or larger njmax / nconmax), or narrower typical initial states (limbs that start interpenetrating "
+            "make many contacts)"
+        )
 
     def _diverged(
         self, start: FloatArray, traj: FloatArray, dof: int, step: int | None = None

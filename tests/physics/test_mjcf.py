@@ -233,6 +233,26 @@ def test_one_unstable_run_among_stable_ones_is_caught_wherever_it_runs(tmp_path:
         )  # unchecked: as MuJoCo gives
 
 
+def test_an_arena_too_small_for_the_contacts_is_named(tmp_path: Path) -> None:
+    """Two boxes stacked on a floor in an MJCF that gives MuJoCo 12 KB: stepping them overflows its
+    arena. On the calling thread that is a ``ModelError`` naming the arena and what to give the MJCF,
+    not a crash (rollout's worker threads still end the process: MuJoCo's error there is fatal)."""
+    path = tmp_path / "stack.xml"
+    path.write_text(
+        """<mujoco model="stack"><size memory="12K"/><worldbody><geom type="plane" size="5 5 .1"/>
+        <body pos="0 0 0.05"><joint name="lift" type="slide" axis="0 0 1"/><geom type="box" size=".2 .2 .05"/></body>
+        <body pos="0 0 0.16"><freejoint/><geom type="box" size=".2 .2 .05"/></body></worldbody>
+        <actuator><motor name="m" joint="lift" ctrlrange="-1 1"/></actuator></mujoco>"""
+    )
+    model = load_mjcf(path, substeps=10, stabilise=False)
+    rest = np.repeat(model.rest_state()[None], 4, axis=0)
+    with pytest.raises(ModelError, match=r"ran out of arena memory \(12,288 bytes\).*<size memory="):
+        model.simulate(rest, nstep=50, check=True, threads=1)
+    path.write_text(path.read_text().replace('memory="12K"', 'memory="1M"'))
+    roomy = load_mjcf(path, substeps=10)
+    assert np.isfinite(roomy.simulate(rest, nstep=50, check=True)).all()
+
+
 def test_velocities_too_violent_for_a_small_model_are_narrowed_until_it_samples(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
