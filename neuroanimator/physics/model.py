@@ -527,12 +527,11 @@ class PhysicalModel:
         return result
 
     def _arena_too_small(self, what: str) -> ModelError:
-        """The error for typical motion whose contacts and constraints MuJoCo's arena cannot hold."""
+        """The error for a simulation whose contacts and constraints MuJoCo's arena cannot hold."""
         return ModelError(
-            f"model {self.name}: MuJoCo ran out of arena memory ({self.mj_model.narena:,} bytes) simulating "
-            f'typical motion from typical states: {what}. Give the MJCF more (<size memory="..."/>, '
-            "or larger njmax / nconmax), or narrower typical initial states (limbs that start interpenetrating "
-            "make many contacts)"
+            f"model {self.name}: MuJoCo ran out of arena memory ({self.mj_model.narena:,} bytes) in a "
+            f'simulation: {what}. Give the MJCF more (<size memory="..."/>, or larger njmax / nconmax), or '
+            "start from states with fewer contacts (limbs that start interpenetrating make many)"
         )
 
     def _diverged(
