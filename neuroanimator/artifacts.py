@@ -247,7 +247,9 @@ def _describe(
         ],
         clearance=None
         if emu.clearance is None
-        else NetworkClearance(geoms=list(emu.clearance.geoms), horizon=emu.clearance.horizon),
+        else NetworkClearance(
+            geoms=list(emu.clearance.geoms), pairs=list(emu.clearance.pairs), horizon=emu.clearance.horizon
+        ),
     )
 
 
@@ -421,7 +423,7 @@ def load_torch(path: Path) -> StructuredEmulator:
         horizon=net.limits[0].horizon if net.limits else 0.0,
         clearance=None
         if net.clearance is None
-        else Clearance(model, net.clearance.geoms, net.clearance.horizon),
+        else Clearance(model, net.clearance.geoms, net.clearance.horizon, net.clearance.pairs),
     )
     if branches:
         branch_hidden = by_name[branches[0].name].hidden

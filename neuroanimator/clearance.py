@@ -30,6 +30,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from neuroanimator import proximity
+
 if TYPE_CHECKING:
     from neuroanimator.physics.model import PhysicalModel
 
@@ -149,20 +151,42 @@ class Clearance(nn.Module):
     _hinge_spread: Tensor
     _reach: Tensor
     _lift: Tensor
+    _pair_fixed: Tensor
+    _pair_c1: Tensor
+    _pair_d1: Tensor
+    _pair_c2: Tensor
+    _pair_d2: Tensor
+    _pair_radii: Tensor
+    _pair_total: Tensor
 
-    def __init__(self, model: PhysicalModel, geoms: Sequence[str], horizon: float) -> None:
+    def __init__(
+        self,
+        model: PhysicalModel,
+        geoms: Sequence[str],
+        horizon: float,
+        pairs: Sequence[tuple[str, str]] = (),
+    ) -> None:
         super().__init__()
         m = model.mj_model
         floor = floor_height(m)
-        if floor is None:
+        if floor is None and geoms:
             raise ValueError(f"model {model.name}: no floor (an upward-facing plane of the world body)")
-        self.floor = floor
+        self.floor = floor or 0.0
         self.geoms = tuple(geoms)
+        self.pairs = tuple((a, b) for a, b in pairs)
         self.horizon = float(horizon)
         ids = [_geom_id(m, g) for g in self.geoms]
         bad = [g for g, i in zip(self.geoms, ids, strict=True) if m.geom_bodyid[i] == 0]
-        if bad or not ids:
+        if bad or not (ids or self.pairs):
             raise ValueError(f"clearance needs geoms of moving bodies; {bad or 'none'} given")
+        pair_ids = [(_geom_id(m, a), _geom_id(m, b)) for a, b in self.pairs]
+        still = [
+            f"{a}-{b}"
+            for (a, b), (i, j) in zip(self.pairs, pair_ids, strict=True)
+            if not (m.geom_bodyid[i] or m.geom_bodyid[j])
+        ]
+        if still:
+            raise ValueError(f"proximity needs a moving geom in each pair; {still} are both fixed")
         # the state's columns of each qpos and qvel entry (full physics: time, qpos, qvel, ...)
         S, index, template = model.state_size, model._state_index, model._template
 
@@ -182,7 +206,7 @@ class Clearance(nn.Module):
         )  # fmt: skip
         # the bodies on the way from the world to each probed geom, parents first, and their joints
         need: set[int] = set()
-        for g in ids:
+        for g in ids + [g for pair in pair_ids for g in pair]:
             b = int(m.geom_bodyid[g])
             while b > 0:
                 need.add(b)
@@ -211,7 +235,8 @@ class Clearance(nn.Module):
         self._plan_levels(joints)
         self._geom_body = [int(m.geom_bodyid[g]) for g in ids]
         self._plan_geoms(m, ids)
-        self.width = len(ids) * len(FRACTIONS)
+        self._plan_pairs(m, pair_ids)
+        self.width = (len(ids) + len(pair_ids)) * len(FRACTIONS)
 
     def _buffers_from(self, **tensors: Tensor) -> None:
         for name, t in tensors.items():
@@ -293,6 +318,61 @@ class Clearance(nn.Module):
                 from_rot[9 * col : 9 * col + 9, 3 * g_count + g] = self._zrows[g][:, 3]
                 from_pos[3 * col + 2, 3 * g_count + g] = 1.0
             self._geom_maps.append((lv, from_rot, from_pos))
+
+    def _plan_pairs(self, m: mujoco.MjModel, pair_ids: list[tuple[int, int]]) -> None:
+        """Per level, the (9·C, 6H) and (3·C, 6H) maps from its frames to the world centre (3) and
+        half-extent (3) of each of the H geoms in some pair (``proximity.swept``), a (6H,) constant for
+        the world's own geoms, and the selections from those to the pairs' two sides."""
+        unique = sorted({g for pair in pair_ids for g in pair})
+        h_count, p_count = len(unique), len(pair_ids)
+        at = {g: h for h, g in enumerate(unique)}
+        shapes = [proximity.swept(m, g) for g in unique]
+        fixed = torch.zeros(6 * h_count)
+        d = mujoco.MjData(m)
+        mujoco.mj_kinematics(m, d)
+        widths = {lv + 1: lvl.c for lv, lvl in enumerate(self._levels)}
+        maps: dict[int, tuple[Tensor, Tensor]] = {}
+        for h, (g, sw) in enumerate(zip(unique, shapes, strict=True)):
+            rot = _mat(m.geom_quat[g])
+            centre = torch.tensor(m.geom_pos[g], dtype=torch.float32) + rot @ torch.tensor(
+                sw.centre, dtype=torch.float32
+            )
+            half = rot @ torch.tensor(sw.axis * sw.half, dtype=torch.float32)
+            body = int(m.geom_bodyid[g])
+            if body == 0:  # fixed in the world: its pose at any configuration
+                xmat = torch.tensor(d.geom_xmat[g].reshape(3, 3), dtype=torch.float32)
+                fixed[3 * h : 3 * h + 3] = torch.tensor(
+                    d.geom_xpos[g], dtype=torch.float32
+                ) + xmat @ torch.tensor(sw.centre, dtype=torch.float32)
+                fixed[3 * h_count + 3 * h : 3 * h_count + 3 * h + 3] = xmat @ torch.tensor(
+                    sw.axis * sw.half, dtype=torch.float32
+                )
+                continue
+            lv, col = self._frame_of[body]
+            if lv not in maps:
+                maps[lv] = (
+                    torch.zeros(9 * widths[lv], 6 * h_count),
+                    torch.zeros(3 * widths[lv], 6 * h_count),
+                )
+            from_rot, from_pos = maps[lv]
+            from_rot[9 * col : 9 * col + 9, 3 * h : 3 * h + 3] = _apply_matrix(centre)
+            from_rot[9 * col : 9 * col + 9, 3 * h_count + 3 * h : 3 * h_count + 3 * h + 3] = _apply_matrix(
+                half
+            )
+            from_pos[3 * col : 3 * col + 3, 3 * h : 3 * h + 3] = torch.eye(3)
+        self._pair_maps = sorted((lv, r, p) for lv, (r, p) in maps.items())
+        side = {k: torch.zeros(6 * h_count, 3 * p_count) for k in ("c1", "d1", "c2", "d2")}
+        radii = torch.zeros(p_count)
+        for p, (i, j) in enumerate(pair_ids):
+            for k in range(3):
+                side["c1"][3 * at[i] + k, 3 * p + k] = side["c2"][3 * at[j] + k, 3 * p + k] = 1.0
+                side["d1"][3 * h_count + 3 * at[i] + k, 3 * p + k] = 1.0
+                side["d2"][3 * h_count + 3 * at[j] + k, 3 * p + k] = 1.0
+            radii[p] = shapes[at[i]].radius + shapes[at[j]].radius
+        self._buffers_from(
+            pair_fixed=fixed, pair_c1=side["c1"], pair_d1=side["d1"], pair_c2=side["c2"], pair_d2=side["d2"],
+            pair_radii=radii, pair_total=proximity.sum_matrix(p_count),
+        )  # fmt: skip
 
     def state_columns(self, g: int) -> set[int]:
         """The state columns (joint positions) on the way from the world to geom ``g``: what moves it."""
@@ -383,6 +463,17 @@ class Clearance(nn.Module):
         for lvl in self._levels:
             r, p = lvl.step(r, p, q, sin9, vers9, n)
             frames.append((r, p))
+        parts = []
+        if self.geoms:
+            parts.append(self._heights(frames))
+        if self.pairs:
+            parts.append(self._gaps(frames, n))
+        out = parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
+        # (K·B, G + P) fraction-major -> (B, (G + P)·K), geom-major
+        return out.reshape(len(FRACTIONS), b, -1).permute(1, 2, 0).reshape(b, -1)
+
+    def _heights(self, frames: list[tuple[Tensor, Tensor]]) -> Tensor:
+        """(N, G) heights of the probed geoms' lowest points above the floor."""
         # every geom's [world z in its axes (3) | centre height (1)], (N, 4G), a GEMM or two per level
         acc: Tensor | None = None
         for lv, from_rot, from_pos in self._geom_maps:
@@ -395,8 +486,18 @@ class Clearance(nn.Module):
         low = acc[:, 3 * g_count :] - up.abs() @ self._reach - self._lift  # (N, G)
         for g, shape, size, place in self._curved:
             low = low - _reach(shape, up[:, 3 * g : 3 * g + 3], size)[:, None] @ place
-        # (K·B, G) fraction-major -> (B, G·K), geom-major
-        return low.reshape(len(FRACTIONS), b, -1).permute(1, 2, 0).reshape(b, -1)
+        return low
+
+    def _gaps(self, frames: list[tuple[Tensor, Tensor]], n: int) -> Tensor:
+        """(N, P) distances between the surfaces of each pair's two geoms (negative: overlapping)."""
+        acc = self._pair_fixed.expand(n, -1)
+        for lv, from_rot, from_pos in self._pair_maps:
+            r, p = frames[lv - 1]
+            acc = acc + r @ from_rot + p @ from_pos
+        return proximity.segment_gap(
+            acc @ self._pair_c1, acc @ self._pair_d1, acc @ self._pair_c2, acc @ self._pair_d2,
+            self._pair_radii, self._pair_total,
+        )  # fmt: skip
 
 
 class _Level:

@@ -89,6 +89,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     cfg.frame, cfg.skip = args.frame, not args.no_skip
     if args.clearance is not None:
         cfg.clearance = args.clearance == "on"
+    if args.proximity is not None:
+        cfg.proximity = args.proximity == "on"
     if args.rollout_steps is not None:
         if args.rollout_steps < 0:
             raise ModelError(f"--rollout-steps must be 0 or more, got {args.rollout_steps}")
@@ -435,6 +437,13 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["on", "off"],
         help="the network also reads how high the geoms that come near the floor are above it, computed "
         "in the graph by forward kinematics (contact with the ground; default off, on for the runner)",
+    )
+    t.add_argument(
+        "--proximity",
+        choices=["on", "off"],
+        help="the network also reads the distance between each pair of geoms that touch each other in "
+        "the training data (a fingertip and what it pushes), computed in the graph by forward kinematics "
+        "(default on; a hierarchy's networks read none)",
     )
     t.add_argument(
         "--rollout-steps",

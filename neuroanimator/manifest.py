@@ -161,11 +161,19 @@ class NetworkReads(_Strict):
 
 
 class NetworkClearance(_Strict):
-    """The geoms whose height above the floor the network reads (``neuroanimator.clearance``), by MJCF
-    name, each at the start, middle and end of a super-step of ``horizon`` seconds."""
+    """The geoms whose height above the floor the network reads (``neuroanimator.clearance``) and the
+    pairs of geoms whose distance it reads (``neuroanimator.proximity``), by MJCF name, each at the
+    start, middle and end of a super-step of ``horizon`` seconds."""
 
-    geoms: list[str] = Field(min_length=1)
+    geoms: list[str] = []
+    pairs: list[tuple[str, str]] = []
     horizon: float = Field(ge=0.0)
+
+    @model_validator(mode="after")
+    def _reads_something(self) -> NetworkClearance:
+        if not self.geoms and not self.pairs:
+            raise ValueError("clearance names no geom and no pair of geoms")
+        return self
 
 
 class Network(_Strict):

@@ -762,6 +762,7 @@ class StructuredEmulator(nn.Module):
             "skip": self.skip is not None,
             "limits": len(self.limits),
             "clearance": [] if self.clearance is None else list(self.clearance.geoms),
+            "proximity": [] if self.clearance is None else [list(p) for p in self.clearance.pairs],
             "frame": {
                 "translate": list(self.frame.translate),
                 "rotate": self.frame.rotate,

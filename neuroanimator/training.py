@@ -20,9 +20,9 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from neuroanimator import sampling
+from neuroanimator import proximity, sampling
 from neuroanimator.articulated import ArticulatedCore, articulated_core, make_articulated, ridge_fit
-from neuroanimator.clearance import Clearance, ground_geoms, near_geoms
+from neuroanimator.clearance import Clearance, geom_name, ground_geoms, near_geoms
 from neuroanimator.envelope import examples_envelope
 from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.physics.model import PhysicalModel
@@ -119,7 +119,8 @@ def build_emulator(
     """The emulator ``cfg`` describes for ``model``: one network, or, for a model with branches, an
     articulated hierarchy (``neuroanimator.articulated``) whose networks are each ``cfg.hidden`` wide.
     With ``cfg.clearance``, the geoms probed are those that come near the floor in ``states`` (N, S)
-    (every geom that can touch it when none are given)."""
+    (every geom that can touch it when none are given); with ``cfg.proximity``, the pairs of geoms that
+    touch each other in ``states`` (a hierarchy's networks read none)."""
     branches = model.spec.branches
     emu = StructuredEmulator(
         model.layout,
@@ -131,18 +132,41 @@ def build_emulator(
         skip=cfg.skip and cfg.preset != "thesis" and not branches,
         limits=joint_limits(model) if cfg.limits else (),
         horizon=model.dt * cfg.substeps,
-        clearance=ground_clearance(model, model.dt * cfg.substeps, states) if cfg.clearance else None,
+        clearance=contact_features(
+            model, model.dt * cfg.substeps, states, floor=cfg.clearance, pairs=cfg.proximity and not branches
+        ),
     )
     if branches:
         make_articulated(emu, branches, model.control_names, cfg.hidden, cfg.hidden)
     return emu
 
 
-def ground_clearance(model: PhysicalModel, horizon: float, states: np.ndarray | None) -> Clearance | None:
-    """The clearance features of the geoms of ``model`` that come near its floor in ``states`` (every
-    geom that can touch it when None), over ``horizon`` seconds; None when there are none."""
-    geoms = ground_geoms(model.mj_model) if states is None else near_geoms(model, states, horizon)
-    return Clearance(model, geoms, horizon) if geoms else None
+PAIR_PROBE_STATES = 2000  # states searched for touching pairs of geoms
+
+
+def contact_features(
+    model: PhysicalModel, horizon: float, states: np.ndarray | None, *, floor: bool, pairs: bool
+) -> Clearance | None:
+    """With ``floor``, the clearance features of the geoms of ``model`` that come near its floor in
+    ``states`` (every geom that can touch it when None); with ``pairs``, the distances between the pairs
+    of geoms that touch each other in ``states`` (``neuroanimator.proximity``; none when None); over
+    ``horizon`` seconds. None when there are none."""
+    geoms: list[str] = []
+    if floor:
+        geoms = ground_geoms(model.mj_model) if states is None else near_geoms(model, states, horizon)
+    touching = touching_pairs(model, states) if pairs and states is not None else []
+    return Clearance(model, geoms, horizon, touching) if geoms or touching else None
+
+
+def touching_pairs(model: PhysicalModel, states: np.ndarray) -> list[tuple[str, str]]:
+    """The pairs of geoms, by name, that touch each other (not the floor) in some of ``states`` (N, S)."""
+    m = model.mj_model
+    picked = states[:: max(1, len(states) // PAIR_PROBE_STATES)]
+    qpos = model.to_physics(picked)[:, 1 : 1 + m.nq]  # full physics rows: time, qpos, ...
+    floors = {
+        g for g in range(m.ngeom) if m.geom_bodyid[g] == 0 and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE
+    }
+    return [(geom_name(m, a), geom_name(m, b)) for a, b in proximity.touching_pairs(m, qpos, floors)]
 
 
 def generate_examples(
@@ -223,10 +247,18 @@ def train(model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0) -> TrainRe
         model, cfg.substeps, plan.test_examples, held_out_seed(cfg.seed), cfg.progress, cfg.sampler
     )
     t_data = time.perf_counter() - t_start
-    if cfg.clearance:  # probe the geoms that come near the floor in these data
+    pairs_read = cfg.proximity and not model.spec.branches
+    # probe the geoms that come near the floor or touch each other in these data
+    if cfg.clearance or (pairs_read and touching_pairs(model, data.states)):
         emu = build_emulator(model, cfg, data.states)
         if emu.clearance is not None:
-            log.info("%s: ground clearance of %s", model.name, ", ".join(emu.clearance.geoms))
+            clr = emu.clearance
+            log.info(
+                "%s: ground clearance of %s; distances between %s",
+                model.name,
+                ", ".join(clr.geoms) or "no geom",
+                ", ".join(f"{a} and {b}" for a, b in clr.pairs) or "no pair of geoms",
+            )
 
     # 2. T^σ from the training data (transformed by T'_x and (T'_y T^Δ_y)^-1 first, thesis 4.5.2)
     s, u, f, nxt = to_tensors(data)
