@@ -21,6 +21,7 @@ from neuroanimator.super_step import (
     constrained_defaults,
     constraint_activity,
     probe_config,
+    user_defaults,
 )
 from neuroanimator.train_config import TrainConfig
 from tests.helpers import ROOT
@@ -119,14 +120,44 @@ def test_a_model_in_contact_gets_a_wider_network_of_units_that_do_not_saturate()
     )
 
 
+def test_a_model_of_ones_own_gets_the_deeper_network_unless_the_user_chose() -> None:
+    smooth = constraint_activity(physics.get("pendulum-active"))
+    cfg, why = user_defaults(TrainConfig(), smooth, hidden_given=False, activation_given=False)
+    assert (cfg.hidden, cfg.activation, cfg.schedule, cfg.batch_size) == (
+        (128, 128, 128),
+        "silu",
+        "cosine",
+        512,
+    )
+    assert why is not None and "a model of one's own" in why and "limits engaged in 0%" in why
+    mine, why_mine = user_defaults(
+        TrainConfig(hidden=(32,), batch_size=64),
+        smooth,
+        hidden_given=True,
+        activation_given=False,
+        batch_given=True,
+    )
+    assert (mine.hidden, mine.batch_size, mine.activation) == ((32,), 64, "silu") and "32 silu" in str(
+        why_mine
+    )
+    chosen = TrainConfig(hidden=(32,), activation="tanh", schedule="plateau", batch_size=64)
+    assert user_defaults(
+        chosen, smooth, hidden_given=True, activation_given=True, schedule_given=True, batch_given=True
+    ) == (chosen, None)
+
+
 def test_neuro_train_says_why_a_model_in_contact_gets_its_network(tmp_path: Path) -> None:
     out = tmp_path / "out"
     argv = ["train", "--mjcf", str(BALL), "--substeps", "10", "--examples", "300", "--epochs", "1"]
     assert main([*argv, "--rollout-steps", "0", "--force", "--out", str(out), "--quiet"]) == 0
     manifest = registry.read_manifest(registry.resolve(out, "ball"))
-    assert manifest.train_config.hidden == (128, 128) and manifest.train_config.activation == "silu"
+    assert manifest.train_config.hidden == (128, 128, 128) and manifest.train_config.activation == "silu"
+    assert manifest.train_config.batch_size == 512
     extra = manifest.metrics.model_extra or {}
-    assert extra["network_reason"].startswith("128×128 silu units, cosine schedule: contacts in")
+    assert extra["network_reason"].startswith(
+        "128×128×128 silu units, cosine schedule, batches of 512: a model"
+    )
+    assert "contacts in" in extra["network_reason"]
     assert extra["contact_fraction"] > 0.5 and extra["limit_fraction"] == 0
 
 
