@@ -248,7 +248,10 @@ def _describe(
         clearance=None
         if emu.clearance is None
         else NetworkClearance(
-            geoms=list(emu.clearance.geoms), pairs=list(emu.clearance.pairs), horizon=emu.clearance.horizon
+            geoms=list(emu.clearance.geoms),
+            pairs=list(emu.clearance.pairs),
+            tendons=list(emu.clearance.tendons),
+            horizon=emu.clearance.horizon,
         ),
     )
 
@@ -423,7 +426,9 @@ def load_torch(path: Path) -> StructuredEmulator:
         horizon=net.limits[0].horizon if net.limits else 0.0,
         clearance=None
         if net.clearance is None
-        else Clearance(model, net.clearance.geoms, net.clearance.horizon, net.clearance.pairs),
+        else Clearance(
+            model, net.clearance.geoms, net.clearance.horizon, net.clearance.pairs, net.clearance.tendons
+        ),
     )
     if branches:
         branch_hidden = by_name[branches[0].name].hidden

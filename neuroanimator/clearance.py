@@ -21,6 +21,7 @@ Shapes: B batch, S state, G probed geoms, K = len(FRACTIONS).
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -158,6 +159,8 @@ class Clearance(nn.Module):
     _pair_d2: Tensor
     _pair_radii: Tensor
     _pair_total: Tensor
+    _seg_sum: Tensor
+    _tendon_high: Tensor
 
     def __init__(
         self,
@@ -165,6 +168,7 @@ class Clearance(nn.Module):
         geoms: Sequence[str],
         horizon: float,
         pairs: Sequence[tuple[str, str]] = (),
+        tendons: Sequence[str] = (),
     ) -> None:
         super().__init__()
         m = model.mj_model
@@ -174,12 +178,15 @@ class Clearance(nn.Module):
         self.floor = floor or 0.0
         self.geoms = tuple(geoms)
         self.pairs = tuple((a, b) for a, b in pairs)
+        self.tendons = tuple(tendons)
         self.horizon = float(horizon)
         ids = [_geom_id(m, g) for g in self.geoms]
         bad = [g for g, i in zip(self.geoms, ids, strict=True) if m.geom_bodyid[i] == 0]
-        if bad or not (ids or self.pairs):
+        if bad or not (ids or self.pairs or self.tendons):
             raise ValueError(f"clearance needs geoms of moving bodies; {bad or 'none'} given")
         pair_ids = [(_geom_id(m, a), _geom_id(m, b)) for a, b in self.pairs]
+        # a limited tendon through sites: its straight segments, each a pair of points
+        segments, high = tendon_segments(m, self.tendons)
         still = [
             f"{a}-{b}"
             for (a, b), (i, j) in zip(self.pairs, pair_ids, strict=True)
@@ -206,8 +213,8 @@ class Clearance(nn.Module):
         )  # fmt: skip
         # the bodies on the way from the world to each probed geom, parents first, and their joints
         need: set[int] = set()
-        for g in ids + [g for pair in pair_ids for g in pair]:
-            b = int(m.geom_bodyid[g])
+        anchors = [("geom", g) for pair in pair_ids for g in pair] + [a for seg in segments for a in seg]
+        for b in [int(m.geom_bodyid[g]) for g in ids] + [_anchor_body(m, a) for a in anchors]:
             while b > 0:
                 need.add(b)
                 b = int(m.body_parentid[b])
@@ -235,8 +242,15 @@ class Clearance(nn.Module):
         self._plan_levels(joints)
         self._geom_body = [int(m.geom_bodyid[g]) for g in ids]
         self._plan_geoms(m, ids)
-        self._plan_pairs(m, pair_ids)
-        self.width = (len(ids) + len(pair_ids)) * len(FRACTIONS)
+        self._plan_pairs(m, [(("geom", i), ("geom", j)) for i, j in pair_ids] + segments)
+        seg_sum = torch.zeros(len(segments), len(self.tendons))
+        at = 0
+        for t, name in enumerate(self.tendons):
+            count = len(tendon_segments(m, [name])[0])
+            seg_sum[at : at + count, t] = 1.0
+            at += count
+        self._buffers_from(seg_sum=seg_sum, tendon_high=torch.tensor(high, dtype=torch.float32))
+        self.width = (len(ids) + len(pair_ids) + len(self.tendons)) * len(FRACTIONS)
 
     def _buffers_from(self, **tensors: Tensor) -> None:
         for name, t in tensors.items():
@@ -319,32 +333,38 @@ class Clearance(nn.Module):
                 from_pos[3 * col + 2, 3 * g_count + g] = 1.0
             self._geom_maps.append((lv, from_rot, from_pos))
 
-    def _plan_pairs(self, m: mujoco.MjModel, pair_ids: list[tuple[int, int]]) -> None:
+    def _plan_pairs(self, m: mujoco.MjModel, pairs: list[tuple[Anchor, Anchor]]) -> None:
         """Per level, the (9·C, 6H) and (3·C, 6H) maps from its frames to the world centre (3) and
-        half-extent (3) of each of the H geoms in some pair (``proximity.swept``), a (6H,) constant for
-        the world's own geoms, and the selections from those to the pairs' two sides."""
-        unique = sorted({g for pair in pair_ids for g in pair})
-        h_count, p_count = len(unique), len(pair_ids)
-        at = {g: h for h, g in enumerate(unique)}
-        shapes = [proximity.swept(m, g) for g in unique]
+        half-extent (3) of each of the H geoms or sites in some pair (``proximity.swept``; a site is a
+        point), a (6H,) constant for the world's own, and the selections from those to the pairs' two
+        sides."""
+        unique = sorted({a for pair in pairs for a in pair})
+        h_count, p_count = len(unique), len(pairs)
+        at = {a: h for h, a in enumerate(unique)}
+        shapes = [proximity.swept(m, a[1]) if a[0] == "geom" else proximity.POINT for a in unique]
         fixed = torch.zeros(6 * h_count)
         d = mujoco.MjData(m)
         mujoco.mj_kinematics(m, d)
         widths = {lv + 1: lvl.c for lv, lvl in enumerate(self._levels)}
         maps: dict[int, tuple[Tensor, Tensor]] = {}
-        for h, (g, sw) in enumerate(zip(unique, shapes, strict=True)):
-            rot = _mat(m.geom_quat[g])
-            centre = torch.tensor(m.geom_pos[g], dtype=torch.float32) + rot @ torch.tensor(
+        for h, (a, sw) in enumerate(zip(unique, shapes, strict=True)):
+            kind, i = a
+            rot = _mat(m.geom_quat[i] if kind == "geom" else m.site_quat[i])
+            pos = m.geom_pos[i] if kind == "geom" else m.site_pos[i]
+            centre = torch.tensor(pos, dtype=torch.float32) + rot @ torch.tensor(
                 sw.centre, dtype=torch.float32
             )
             half = rot @ torch.tensor(sw.axis * sw.half, dtype=torch.float32)
-            body = int(m.geom_bodyid[g])
+            body = _anchor_body(m, a)
             if body == 0:  # fixed in the world: its pose at any configuration
-                xmat = torch.tensor(d.geom_xmat[g].reshape(3, 3), dtype=torch.float32)
-                fixed[3 * h : 3 * h + 3] = torch.tensor(
-                    d.geom_xpos[g], dtype=torch.float32
-                ) + xmat @ torch.tensor(sw.centre, dtype=torch.float32)
-                fixed[3 * h_count + 3 * h : 3 * h_count + 3 * h + 3] = xmat @ torch.tensor(
+                xpos, xmat = (
+                    (d.geom_xpos[i], d.geom_xmat[i]) if kind == "geom" else (d.site_xpos[i], d.site_xmat[i])
+                )
+                world = torch.tensor(xmat.reshape(3, 3), dtype=torch.float32)
+                fixed[3 * h : 3 * h + 3] = torch.tensor(xpos, dtype=torch.float32) + world @ torch.tensor(
+                    sw.centre, dtype=torch.float32
+                )
+                fixed[3 * h_count + 3 * h : 3 * h_count + 3 * h + 3] = world @ torch.tensor(
                     sw.axis * sw.half, dtype=torch.float32
                 )
                 continue
@@ -363,12 +383,12 @@ class Clearance(nn.Module):
         self._pair_maps = sorted((lv, r, p) for lv, (r, p) in maps.items())
         side = {k: torch.zeros(6 * h_count, 3 * p_count) for k in ("c1", "d1", "c2", "d2")}
         radii = torch.zeros(p_count)
-        for p, (i, j) in enumerate(pair_ids):
+        for p, (one, two) in enumerate(pairs):
             for k in range(3):
-                side["c1"][3 * at[i] + k, 3 * p + k] = side["c2"][3 * at[j] + k, 3 * p + k] = 1.0
-                side["d1"][3 * h_count + 3 * at[i] + k, 3 * p + k] = 1.0
-                side["d2"][3 * h_count + 3 * at[j] + k, 3 * p + k] = 1.0
-            radii[p] = shapes[at[i]].radius + shapes[at[j]].radius
+                side["c1"][3 * at[one] + k, 3 * p + k] = side["c2"][3 * at[two] + k, 3 * p + k] = 1.0
+                side["d1"][3 * h_count + 3 * at[one] + k, 3 * p + k] = 1.0
+                side["d2"][3 * h_count + 3 * at[two] + k, 3 * p + k] = 1.0
+            radii[p] = shapes[at[one]].radius + shapes[at[two]].radius
         self._buffers_from(
             pair_fixed=fixed, pair_c1=side["c1"], pair_d1=side["d1"], pair_c2=side["c2"], pair_d2=side["d2"],
             pair_radii=radii, pair_total=proximity.sum_matrix(p_count),
@@ -466,10 +486,15 @@ class Clearance(nn.Module):
         parts = []
         if self.geoms:
             parts.append(self._heights(frames))
-        if self.pairs:
-            parts.append(self._gaps(frames, n))
+        if self.pairs or self.tendons:
+            gaps = self._gaps(frames, n)
+            p_count = len(self.pairs)
+            if p_count:
+                parts.append(gaps[:, :p_count])
+            if self.tendons:  # how much slack is left before the limit: negative past it
+                parts.append(self._tendon_high - gaps[:, p_count:] @ self._seg_sum)
         out = parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
-        # (K·B, G + P) fraction-major -> (B, (G + P)·K), geom-major
+        # (K·B, G + P + T) fraction-major -> (B, (G + P + T)·K), geom-major
         return out.reshape(len(FRACTIONS), b, -1).permute(1, 2, 0).reshape(b, -1)
 
     def _heights(self, frames: list[tuple[Tensor, Tensor]]) -> Tensor:
@@ -498,6 +523,43 @@ class Clearance(nn.Module):
             acc @ self._pair_c1, acc @ self._pair_d1, acc @ self._pair_c2, acc @ self._pair_d2,
             self._pair_radii, self._pair_total,
         )  # fmt: skip
+
+
+Anchor = tuple[str, int]  # ("geom" or "site", id)
+
+
+def _anchor_body(m: mujoco.MjModel, a: Anchor) -> int:
+    return int(m.geom_bodyid[a[1]] if a[0] == "geom" else m.site_bodyid[a[1]])
+
+
+def limited_site_tendons(m: mujoco.MjModel) -> list[str]:
+    """The limited spatial tendons whose path runs through sites only (a string from a ball to a cup):
+    their length is a sum of straight segments. An unnamed tendon is ``tendon<id>``."""
+    out = []
+    for t in range(m.ntendon):
+        wraps = m.wrap_type[m.tendon_adr[t] : m.tendon_adr[t] + m.tendon_num[t]]
+        if m.tendon_limited[t] and len(wraps) >= 2 and (wraps == mujoco.mjtWrap.mjWRAP_SITE).all():
+            out.append(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_TENDON, t) or f"tendon{t}")
+    return out
+
+
+def tendon_segments(
+    m: mujoco.MjModel, names: Sequence[str]
+) -> tuple[list[tuple[Anchor, Anchor]], list[float]]:
+    """The straight segments (pairs of sites) of each named tendon of ``limited_site_tendons``, in
+    order, and each tendon's upper limit (metres)."""
+    segments: list[tuple[Anchor, Anchor]] = []
+    high = []
+    for name in names:
+        t = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TENDON, name)
+        if t < 0 and name.startswith("tendon") and name[6:].isdigit():
+            t = int(name[6:])
+        if t < 0 or name not in limited_site_tendons(m):
+            raise ValueError(f"no limited tendon through sites named {name!r} in the model")
+        sites = [int(s) for s in m.wrap_objid[m.tendon_adr[t] : m.tendon_adr[t] + m.tendon_num[t]]]
+        segments += [(("site", a), ("site", b)) for a, b in itertools.pairwise(sites)]
+        high.append(float(m.tendon_range[t][1]))
+    return segments, high
 
 
 class _Level:

@@ -161,18 +161,19 @@ class NetworkReads(_Strict):
 
 
 class NetworkClearance(_Strict):
-    """The geoms whose height above the floor the network reads (``neuroanimator.clearance``) and the
-    pairs of geoms whose distance it reads (``neuroanimator.proximity``), by MJCF name, each at the
-    start, middle and end of a super-step of ``horizon`` seconds."""
+    """The geoms whose height above the floor the network reads (``neuroanimator.clearance``), the
+    pairs of geoms whose distance it reads (``neuroanimator.proximity``) and the tendons whose slack it
+    reads, by MJCF name, each at the start, middle and end of a super-step of ``horizon`` seconds."""
 
     geoms: list[str] = []
     pairs: list[tuple[str, str]] = []
+    tendons: list[str] = []  # limited tendons through sites: the slack before each one's upper limit
     horizon: float = Field(ge=0.0)
 
     @model_validator(mode="after")
     def _reads_something(self) -> NetworkClearance:
-        if not self.geoms and not self.pairs:
-            raise ValueError("clearance names no geom and no pair of geoms")
+        if not (self.geoms or self.pairs or self.tendons):
+            raise ValueError("clearance names no geom, pair of geoms or tendon")
         return self
 
 

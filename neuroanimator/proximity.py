@@ -37,6 +37,9 @@ class Swept:
     radius: float
 
 
+POINT = Swept(np.zeros(3), np.array([0.0, 0.0, 1.0]), 0.0, 0.0)  # a site: the end of a tendon's segment
+
+
 def swept(m: mujoco.MjModel, g: int) -> Swept:
     """Geom ``g`` as a swept sphere: a sphere or capsule exactly; a cylinder as the capsule around it;
     an ellipsoid, box or mesh (its bounding box) as a capsule along its longest axis whose radius is the

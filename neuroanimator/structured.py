@@ -763,6 +763,7 @@ class StructuredEmulator(nn.Module):
             "limits": len(self.limits),
             "clearance": [] if self.clearance is None else list(self.clearance.geoms),
             "proximity": [] if self.clearance is None else [list(p) for p in self.clearance.pairs],
+            "tendons": [] if self.clearance is None else list(self.clearance.tendons),
             "frame": {
                 "translate": list(self.frame.translate),
                 "rotate": self.frame.rotate,

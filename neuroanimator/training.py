@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from neuroanimator import proximity, sampling
 from neuroanimator.articulated import ArticulatedCore, articulated_core, make_articulated, ridge_fit
-from neuroanimator.clearance import Clearance, geom_name, ground_geoms, near_geoms
+from neuroanimator.clearance import Clearance, geom_name, ground_geoms, limited_site_tendons, near_geoms
 from neuroanimator.envelope import examples_envelope
 from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.physics.model import PhysicalModel
@@ -133,7 +133,12 @@ def build_emulator(
         limits=joint_limits(model) if cfg.limits else (),
         horizon=model.dt * cfg.substeps,
         clearance=contact_features(
-            model, model.dt * cfg.substeps, states, floor=cfg.clearance, pairs=cfg.proximity and not branches
+            model,
+            model.dt * cfg.substeps,
+            states,
+            floor=cfg.clearance,
+            pairs=cfg.proximity and not branches,
+            tendons=cfg.limits and not branches,
         ),
     )
     if branches:
@@ -145,17 +150,25 @@ PAIR_PROBE_STATES = 2000  # states searched for touching pairs of geoms
 
 
 def contact_features(
-    model: PhysicalModel, horizon: float, states: np.ndarray | None, *, floor: bool, pairs: bool
+    model: PhysicalModel,
+    horizon: float,
+    states: np.ndarray | None,
+    *,
+    floor: bool,
+    pairs: bool,
+    tendons: bool = False,
 ) -> Clearance | None:
     """With ``floor``, the clearance features of the geoms of ``model`` that come near its floor in
     ``states`` (every geom that can touch it when None); with ``pairs``, the distances between the pairs
-    of geoms that touch each other in ``states`` (``neuroanimator.proximity``; none when None); over
-    ``horizon`` seconds. None when there are none."""
+    of geoms that touch each other in ``states`` (``neuroanimator.proximity``; none when None); with
+    ``tendons``, the slack of each limited tendon through sites (a string); over ``horizon`` seconds.
+    None when there are none."""
     geoms: list[str] = []
     if floor:
         geoms = ground_geoms(model.mj_model) if states is None else near_geoms(model, states, horizon)
     touching = touching_pairs(model, states) if pairs and states is not None else []
-    return Clearance(model, geoms, horizon, touching) if geoms or touching else None
+    strings = limited_site_tendons(model.mj_model) if tendons else []
+    return Clearance(model, geoms, horizon, touching, strings) if geoms or touching or strings else None
 
 
 def touching_pairs(model: PhysicalModel, states: np.ndarray) -> list[tuple[str, str]]:
@@ -249,15 +262,16 @@ def train(model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0) -> TrainRe
     t_data = time.perf_counter() - t_start
     pairs_read = cfg.proximity and not model.spec.branches
     # probe the geoms that come near the floor or touch each other in these data
-    if cfg.clearance or (pairs_read and touching_pairs(model, data.states)):
+    if cfg.clearance or (pairs_read and touching_pairs(model, data.states)):  # the pairs: known from data
         emu = build_emulator(model, cfg, data.states)
         if emu.clearance is not None:
             clr = emu.clearance
             log.info(
-                "%s: ground clearance of %s; distances between %s",
+                "%s: ground clearance of %s; distances between %s; slack of %s",
                 model.name,
                 ", ".join(clr.geoms) or "no geom",
                 ", ".join(f"{a} and {b}" for a, b in clr.pairs) or "no pair of geoms",
+                ", ".join(clr.tendons) or "no tendon",
             )
 
     # 2. T^σ from the training data (transformed by T'_x and (T'_y T^Δ_y)^-1 first, thesis 4.5.2)

@@ -1,8 +1,9 @@
 """Distances between pairs of geoms (``neuroanimator.proximity`` through ``clearance.Clearance``): the
 graph puts two spheres and capsules as far apart as MuJoCo measures them, wherever the joints put them
 and whichever body (or the world) holds them; a bounding capsule stands in for other shapes; the pairs
-are the ones that touch in the data, not the floor's; the features survive ONNX export and an
-artifact's save and load; the gradient is finite where segments are parallel or a segment is a point."""
+are the ones that touch in the data, not the floor's; a limited string's slack is what MuJoCo's tendon
+length leaves of its range; the features survive ONNX export and an artifact's save and load; the
+gradient is finite where segments are parallel or a segment is a point."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import pytest
 import torch
 
 from neuroanimator import artifacts, proximity, registry, training
-from neuroanimator.clearance import FRACTIONS, Clearance
+from neuroanimator.clearance import FRACTIONS, Clearance, limited_site_tendons
 from neuroanimator.export import OnnxEmulator, to_onnx
 from neuroanimator.model_spec import ModelSpec
 from neuroanimator.physics.model import PhysicalModel
@@ -36,17 +37,24 @@ ARM_XML = """
       <body name="fore" pos="0.4 0 0" quat="0.96 0 0.28 0">
         <joint name="elbow" type="hinge" axis="0 1 0.2" ref="0.1"/>
         <geom name="tip" type="capsule" fromto="0 0 0 0.35 0 0" size="0.03"/>
+        <site name="hand" pos="0.35 0 0"/>
       </body>
     </body>
     <body name="ball" pos="0.6 0 0.3">
       <joint name="ball_x" type="slide" axis="1 0 0"/>
       <joint name="ball_z" type="slide" axis="0 0 1"/>
       <geom name="ball" type="sphere" size="0.06"/>
+      <site name="ball" pos="0 0.02 0.05"/>
       <geom name="crate" type="box" pos="0 0 0.3" size="0.04 0.03 0.12" quat="0.9 0.3 0 0.2"/>
       <geom name="can" type="cylinder" pos="0.3 0 0" size="0.05 0.1"/>
       <geom name="egg" type="ellipsoid" pos="-0.3 0 0" size="0.05 0.08 0.15"/>
     </body>
+    <site name="hook" pos="0.2 0.1 0.6"/>
   </worldbody>
+  <tendon>
+    <spatial name="string" limited="true" range="0 1.1"><site site="hand"/><site site="hook"/><site site="ball"/></spatial>
+    <spatial name="loose"><site site="hand"/><site site="ball"/></spatial>
+  </tendon>
   <actuator>
     <motor joint="shoulder" ctrlrange="-1 1"/>
     <motor joint="elbow" ctrlrange="-1 1"/>
@@ -140,6 +148,24 @@ def test_the_pairs_are_those_that_touch_and_not_the_floor(arm: PhysicalModel) ->
     assert len(pairs) <= proximity.MAX_PAIRS
 
 
+def test_a_strings_slack_is_what_its_length_leaves_of_its_range(arm: PhysicalModel) -> None:
+    m = arm.mj_model
+    assert limited_site_tendons(m) == ["string"]  # "loose" has no limit
+    states = _states(arm, 200, seed=6)
+    clr = Clearance(arm, [], 0.05, (), ["string"])
+    got = clr(torch.from_numpy(states).float()).detach().numpy().reshape(200, 1, len(FRACTIONS))[:, 0, 0]
+    d = mujoco.MjData(m)
+    want = np.zeros(200)
+    for i, full in enumerate(arm.to_physics(states)):
+        mujoco.mj_setState(m, d, full, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        mujoco.mj_forward(m, d)
+        want[i] = 1.1 - d.ten_length[0]
+    np.testing.assert_allclose(got, want, atol=2e-5)
+    assert want.min() < 0.0 < want.max()  # some of these states pull it taut past its limit
+    with pytest.raises(ValueError, match="no limited tendon through sites named 'loose'"):
+        Clearance(arm, [], 0.05, (), ["loose"])
+
+
 def test_the_gradient_is_finite_for_points_and_parallel_segments() -> None:
     total = proximity.sum_matrix(3)
     c1 = torch.tensor([[0.0, 0, 0, 0, 0, 0, 0, 0, 0]], requires_grad=True)
@@ -153,10 +179,11 @@ def test_the_gradient_is_finite_for_points_and_parallel_segments() -> None:
 
 
 def test_pairs_survive_export_and_an_artifact_round_trip(arm: PhysicalModel, tmp_path: Path) -> None:
-    cfg = TrainConfig(substeps=5, hidden=(16,), limits=False, clearance=True, progress=False)
+    cfg = TrainConfig(substeps=5, hidden=(16,), clearance=True, progress=False)
     states = _states(arm, 400, seed=5)
     emu = training.build_emulator(arm, cfg, states)
     assert emu.clearance is not None and ("ball", "tip") in {tuple(sorted(p)) for p in emu.clearance.pairs}
+    assert emu.clearance.tendons == ("string",)
     torch.manual_seed(0)
     with torch.no_grad():
         emu.x_std.uniform_(0.5, 2.0)
@@ -173,5 +200,6 @@ def test_pairs_survive_export_and_an_artifact_round_trip(arm: PhysicalModel, tmp
     path = artifacts.save(tmp_path, arm, TrainResult(emu, cfg, METRICS, np.zeros((1, 1)), "0" * 64))
     (net,) = registry.read_manifest(path).emulator.networks
     assert net.clearance is not None and [tuple(p) for p in net.clearance.pairs] == list(emu.clearance.pairs)
+    assert net.clearance.tendons == ["string"]
     with torch.no_grad():
         torch.testing.assert_close(artifacts.load_torch(path)(x, u, f), want, rtol=0, atol=0)
