@@ -111,23 +111,18 @@ def cmd_train(args: argparse.Namespace) -> int:
         activity = None if spec_given else super_step.constraint_activity(model, seed=cfg.seed)
         network_reason = None
         if activity is not None:
+            given = {
+                "hidden_given": args.hidden is not None,
+                "activation_given": args.activation is not None,
+                "schedule_given": args.schedule is not None,
+            }
             if args.mjcf is not None:  # a model of one's own: the deeper network the suite measured
+                batch_given = args.batch_size is not None
                 cfg, network_reason = super_step.user_defaults(
-                    cfg,
-                    activity,
-                    hidden_given=args.hidden is not None,
-                    activation_given=args.activation is not None,
-                    schedule_given=args.schedule is not None,
-                    batch_given=args.batch_size is not None,
+                    cfg, activity, **given, batch_given=batch_given
                 )
             else:
-                cfg, network_reason = super_step.constrained_defaults(
-                    cfg,
-                    activity,
-                    hidden_given=args.hidden is not None,
-                    activation_given=args.activation is not None,
-                    schedule_given=args.schedule is not None,
-                )
+                cfg, network_reason = super_step.constrained_defaults(cfg, activity, **given)
             if network_reason:
                 log.info("%s: network %s", model.name, network_reason)
         if auto:
