@@ -448,7 +448,7 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["on", "off"],
         help="the network also reads the distance between each pair of geoms that touch each other in "
         "the training data (a fingertip and what it pushes), computed in the graph by forward kinematics "
-        "(default on; a hierarchy's networks read none)",
+        "(default off: on dm_control's finger it did not lower the error; a hierarchy's networks read none)",
     )
     t.add_argument(
         "--rollout-steps",

@@ -179,7 +179,7 @@ def test_the_gradient_is_finite_for_points_and_parallel_segments() -> None:
 
 
 def test_pairs_survive_export_and_an_artifact_round_trip(arm: PhysicalModel, tmp_path: Path) -> None:
-    cfg = TrainConfig(substeps=5, hidden=(16,), clearance=True, progress=False)
+    cfg = TrainConfig(substeps=5, hidden=(16,), clearance=True, proximity=True, progress=False)
     states = _states(arm, 400, seed=5)
     emu = training.build_emulator(arm, cfg, states)
     assert emu.clearance is not None and ("ball", "tip") in {tuple(sorted(p)) for p in emu.clearance.pairs}
