@@ -16,6 +16,7 @@ import torch
 
 from neuroanimator import artifacts, proximity, registry, training
 from neuroanimator.clearance import FRACTIONS, Clearance, limited_site_tendons
+from neuroanimator.cli import main
 from neuroanimator.export import OnnxEmulator, to_onnx
 from neuroanimator.model_spec import ModelSpec
 from neuroanimator.physics.model import PhysicalModel
@@ -203,3 +204,16 @@ def test_pairs_survive_export_and_an_artifact_round_trip(arm: PhysicalModel, tmp
     assert net.clearance.tendons == ["string"]
     with torch.no_grad():
         torch.testing.assert_close(artifacts.load_torch(path)(x, u, f), want, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("flag", ["on", None])
+def test_neuro_train_reads_the_pairs_only_when_asked(flag: str | None, tmp_path: Path) -> None:
+    path = tmp_path / "reach.xml"
+    path.write_text(ARM_XML)
+    out = tmp_path / "out"
+    argv = ["train", "--mjcf", str(path), "--substeps", "10", "--examples", "400", "--epochs", "1"]
+    argv += ["--hidden", "8", "--rollout-steps", "0", "--force", "--out", str(out), "--quiet"]
+    assert main(argv + (["--proximity", flag] if flag else [])) == 0
+    (net,) = registry.read_manifest(registry.resolve(out, "reach")).emulator.networks
+    assert net.clearance is not None and net.clearance.tendons == ["string"]  # a limit: always read
+    assert bool(net.clearance.pairs) == (flag == "on")
