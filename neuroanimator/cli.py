@@ -397,8 +397,15 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--out", default="artifacts", help="artifact registry to write to (default: artifacts/)")
     t.add_argument("--preset", choices=["default", "thesis"], default="default")
     t.add_argument("--optimizer", choices=["adam", "sgd"], default="adam")
-    t.add_argument("--hidden", help="hidden layer widths, e.g. 64,64")
-    t.add_argument("--activation", choices=["sigmoid", "tanh", "silu", "gelu", "relu"])
+    t.add_argument(
+        "--hidden",
+        help="hidden layer widths, e.g. 64,64 (default for --mjcf: 128,128,128; a catalog model's own)",
+    )
+    t.add_argument(
+        "--activation",
+        choices=["sigmoid", "tanh", "silu", "gelu", "relu"],
+        help="hidden units (default for --mjcf: silu)",
+    )
     t.add_argument(
         "--examples",
         type=_positive_int,
@@ -411,13 +418,15 @@ def build_parser() -> argparse.ArgumentParser:
         "about n physical steps an example) or thesis 4.5's examples at lags of [Δt, 5Δt] (spaced: about 6n)",
     )
     t.add_argument("--epochs", type=_positive_int, help="maximum epochs")
-    t.add_argument("--batch-size", type=_positive_int, help="examples per gradient step (default 256)")
+    t.add_argument(
+        "--batch-size", type=_positive_int, help="examples per gradient step (default 256; 512 for --mjcf)"
+    )
     t.add_argument("--lr", type=_positive_float, help="learning rate")
     t.add_argument(
         "--schedule",
         choices=["plateau", "cosine"],
-        help="learning rate: halved when validation stalls (plateau, the default for a smooth model) or "
-        "annealed over the time budget (cosine, the default where contacts or limits engage)",
+        help="learning rate: halved when validation stalls (plateau, the default for a smooth catalog model) "
+        "or annealed over the time budget (cosine, the default for --mjcf and where contacts or limits engage)",
     )
     t.add_argument(
         "--max-seconds",
