@@ -20,6 +20,7 @@ from neuroanimator.super_step import (
     check_useful,
     constrained_defaults,
     constraint_activity,
+    pick,
     probe_config,
     user_defaults,
 )
@@ -195,3 +196,17 @@ def test_an_emulator_is_refused_off_the_bar_and_kept_when_exact() -> None:
     check_useful("lqr", 50, EXACT, EXACT / 10)
     with pytest.raises(ModelOutOfReach):
         check_useful("m", 50, 2 * EXACT, EXACT)
+
+
+def test_the_longest_super_step_wins_among_probes_within_their_noise() -> None:
+    # ball_in_cup's probes: a near tie, so the longest (fully trained: 0.013 at n = 50, 0.019 at 25)
+    n, why = pick({50: 0.0607, 25: 0.0529, 10: 0.0562})
+    assert n == 50 and "within 1.25× of the best" in why
+    # the finger's: n = 10 is clearly best
+    assert pick({50: 0.342, 25: 0.24, 10: 0.156})[0] == 10
+    assert pick({50: 0.119, 25: 0.0604, 10: 0.0552})[0] == 25
+    # a probe that reaches the target wins outright
+    n, why = pick({50: 0.05, 25: 0.019})
+    assert n == 25 and "reached 0.02" in why
+    # the exact edge of a tie counts as one
+    assert pick({50: 0.125, 10: 0.1})[0] == 50
