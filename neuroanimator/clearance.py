@@ -16,7 +16,12 @@ reference pose). The floor is the highest plane of the world body facing up (+z)
 such plane has no clearance features. Everything is constant matrices, sums, products, sin and cos:
 one ONNX graph with the rest of the step.
 
-Shapes: B batch, S state, G probed geoms, K = len(FRACTIONS).
+The same forward kinematics also gives, after the floor's columns, the distance between the surfaces
+of named pairs of geoms (``pairs``, ``neuroanimator.proximity``: two bodies that touch each other) and
+the slack of limited tendons strung through sites (``tendons``: the upper limit less the tendon's
+length), each at the same fractions; negative is overlap, or a string pulled past its limit.
+
+Shapes: B batch, S state, G probed geoms, P pairs, T tendons, K = len(FRACTIONS).
 """
 
 from __future__ import annotations
@@ -130,9 +135,10 @@ class _Joint:
 
 
 class Clearance(nn.Module):
-    """(B, S) states -> (B, G·K) clearances: for geom g (the order of ``geoms``) and fraction k, column
-    g·K + k is the height of the geom's lowest point above the floor, the state extrapolated by
-    ``FRACTIONS[k]`` of ``horizon`` seconds at constant velocity.
+    """(B, S) states -> (B, (G + P + T)·K) clearances: for geom g (the order of ``geoms``) and fraction
+    k, column g·K + k is the height of the geom's lowest point above the floor, the state extrapolated
+    by ``FRACTIONS[k]`` of ``horizon`` seconds at constant velocity; then, in the same layout, the
+    distance between each of ``pairs``' two geoms and the slack of each of ``tendons``.
 
     The graph is kept small and made of 2-D GEMMs by constant matrices and same-shape elementwise
     operations: ONNX Runtime runs batched 3×3 products, products by 1-D operands and broadcasts many
