@@ -260,9 +260,9 @@ def train(model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0) -> TrainRe
         model, cfg.substeps, plan.test_examples, held_out_seed(cfg.seed), cfg.progress, cfg.sampler
     )
     t_data = time.perf_counter() - t_start
-    pairs_read = cfg.proximity and not model.spec.branches
-    # probe the geoms that come near the floor or touch each other in these data
-    if cfg.clearance or (pairs_read and touching_pairs(model, data.states)):  # the pairs: known from data
+    # probe the geoms that come near the floor or touch each other in these data (the pairs are known
+    # only from data: contact_features searches them there)
+    if cfg.clearance or (cfg.proximity and not model.spec.branches):
         emu = build_emulator(model, cfg, data.states)
         if emu.clearance is not None:
             clr = emu.clearance
