@@ -12,7 +12,8 @@ can read from a state, ``KinematicSensors``), each a sample of the dynamics near
   deviation drawn per batch up to ``MAX_STATE_NOISE``): states just off the gait and how the body
   returns from them, which an emulator's own rollouts need (they leave the gait the same way);
 - a push of the torso in a random horizontal direction for ``PUSH_S`` seconds at a random time, of a
-  force drawn up to ``MAX_PUSH`` newtons, in half of the runs.
+  force drawn up to ``MAX_PUSH`` newtons (the whole range of the model's push inputs, so that every
+  push the service accepts is one the data covers), in half of the runs.
 
 The controller acts every super-step: the emulator's controls are the servo targets, held over its
 super-step, and its force inputs the push. Transitions after a run fell (pelvis below 0.55 m, and the
@@ -34,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from neuroanimator.physics import runner as body
 from neuroanimator.physics import runner_control as rc
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.sampling import Examples, Sequences
@@ -45,11 +47,14 @@ TRAIN_SPEEDS = (1.6, 1.8, 2.2, 2.4)  # target speeds, m/s; 2.0 lies between two 
 UNSEEN_SPEED = 2.0
 MAX_NOISE = 0.08  # radians on the servo targets
 MAX_STATE_NOISE = (0.01, 0.1)  # radians on the hinges, rad/s (m/s) on the velocities, per control period
-MAX_PUSH = 150.0  # newtons on the torso
+MAX_PUSH = body.PUSH_N  # newtons on the torso: the push inputs' range (with 150 N, 250 N pushes fell)
 PUSH_S = 0.2
 RUN_S = 10.0  # seconds per run
 TRAIN_DEFAULTS = {
-    "hidden": (128, 128),
+    # three layers of SiLU units: trunk 0.0094 and legs 0.016-0.017 against 0.014 and 0.022-0.023 for
+    # two of tanh units on the same data (BENCHMARKS.md, the runner's emulator)
+    "hidden": (128, 128, 128),
+    "activation": "silu",
     "examples": 200_000,
     "batch_size": 512,
     "max_seconds": 1200.0,
