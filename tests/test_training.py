@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -126,6 +127,23 @@ def test_optimizers_reduce_the_validation_loss(optimizer: str) -> None:
     with torch.no_grad():
         after = float(torch.mean((emu.network(xv) - yv) ** 2))
     assert after < 0.5 * before
+
+
+def test_cosine_schedule_does_not_stop_before_it_has_annealed_halfway() -> None:
+    """With validation targets that nothing predicts and a patience of one epoch, the plateau schedule
+    stops within a few epochs; the cosine one goes on until its learning rate has come down halfway
+    (the learning rate it returns says where it stopped)."""
+    x, y, xv, _ = _regression_problem()
+    noise = torch.randn(xv.shape[0], y.shape[1], generator=torch.Generator().manual_seed(1))
+    base = TrainConfig(lr=1e-2, batch_size=64, max_epochs=20, patience=1, threads=1, progress=False)
+    plateau_lr = training.train_core(
+        _emulator(), x, y, xv, noise, dataclasses.replace(base, schedule="plateau")
+    )
+    cosine_lr = training.train_core(
+        _emulator(), x, y, xv, noise, dataclasses.replace(base, schedule="cosine")
+    )
+    assert plateau_lr == pytest.approx(1e-2)  # stopped before the plateau schedule lowered it
+    assert cosine_lr <= 0.51 * 1e-2
 
 
 def test_bad_optimizer_name_raises() -> None:
