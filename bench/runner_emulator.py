@@ -11,8 +11,8 @@ The emulator is the latest ``runner`` artifact (``neuro train runner``). Three t
   the emulator (``run_emulated``) and through MuJoCo (``run`` with the controller every super-step),
   from the same start: at a target speed in the training data, at ``runner_data.UNSEEN_SPEED`` (not in
   it), and pushed sideways at 5 s (a push none of the training runs had: their pushes come at random
-  times, directions and sizes up to the push inputs' range). Root (pelvis) position error at 1, 5, 10 s and the
-  end; mean forward speed of each; the largest relative difference of their forward speeds over
+  times, directions and sizes up to the push inputs' range). Root (pelvis) position error at 1, 5,
+  10 s and the end; mean forward speed of each; the largest relative difference of their forward speeds over
   5-second windows; whether and when each fell. Errors and speeds are compared while both are up
   ("–" after a fall);
 - speed against MuJoCo for 20,000 physical steps, one client and batched (``neuroanimator.speed``:

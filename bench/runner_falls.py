@@ -10,7 +10,8 @@ each stays up (a run that never falls counts as ``--seconds``) and how many stay
 the emulator (the latest ``runner`` artifact) and for MuJoCo (``runner_control.run``, the controller
 every super-step on kinematic sensors, as on the emulator). Cases: a target speed in the training
 data, one that is not (``runner_data.UNSEEN_SPEED``), and the first pushed sideways at 5 s (not a push
-of the training runs, whose pushes come at random times, directions and sizes up to 300 N). With ``--json`` the last line is one JSON object with every number.
+of the training runs, whose pushes come at random times, directions and sizes up to 300 N). With
+``--json`` the last line is one JSON object with every number.
 """
 
 from __future__ import annotations
