@@ -5,9 +5,10 @@ or a joint limit that switches on inside a super-step makes the map from state t
 and the longer the super-step, the more of its examples hold one: such a model may only be learnable
 at a shorter super-step. So: measure how often constraints engage in typical motion; if no contact
 does, take 50; else train short probes at n = 50, 25, 10 and take the longest n whose probe reaches
-the target, else the longest within ``PROBE_TIE`` of the best probe, saying why. A probe samples no more than ``PROBE_SAMPLING_S`` of simulation; a longer n
-whose smallest probe would take over twice that (a slow model: dm_control's quadruped simulates about
-2,600 steps/s here) is not probed, and the training's budget goes to the shorter ones.
+the target, else the longest within ``PROBE_TIE`` of the best probe, saying why. A probe samples no
+more than ``PROBE_SAMPLING_S`` of simulation; a longer n whose smallest probe would take over twice
+that (a slow model: dm_control's quadruped simulates about 2,600 steps/s here) is not probed, and the
+training's budget goes to the shorter ones.
 
 A joint limit alone does not shorten the step: the network reads how far past each limit the joint
 would go within the super-step (``structured.JointLimit``), and full trainings at n = 50 meet the
@@ -261,10 +262,11 @@ def pick(probes: dict[int, float]) -> tuple[int, str]:
     if fits:
         return max(fits), f"the longest whose short probe reached {PROBE_SLACK * TARGET:g}"
     best = min(probes.values())
-    ties = [n for n, e in probes.items() if e <= PROBE_TIE * best]
-    return max(
-        ties
-    ), f"no probe reached {PROBE_SLACK * TARGET:g}; the longest within {PROBE_TIE:g}× of the best"
+    longest_tie = max(n for n, e in probes.items() if e <= PROBE_TIE * best)
+    return (
+        longest_tie,
+        f"no probe reached {PROBE_SLACK * TARGET:g}; the longest within {PROBE_TIE:g}× of the best",
+    )
 
 
 def check_useful(
