@@ -42,6 +42,35 @@ def _out(text: str) -> None:
 
 
 # ---------------------------------------------------------------------------- train
+# ``TrainConfig`` fields and the ``neuro train`` options that set them
+CONFIG_OPTIONS = {
+    "hidden": "hidden",
+    "branch_hidden": "branch_hidden",
+    "activation": "activation",
+    "examples": "examples",
+    "sampler": "sampler",
+    "schedule": "schedule",
+    "batch_size": "batch_size",
+    "lr": "lr",
+    "max_seconds": "max_seconds",
+    "time_budget": "time_budget",
+    "max_epochs": "epochs",
+    "clearance": "clearance",
+    "proximity": "proximity",
+    "rollout_steps": "rollout_steps",
+    "regularizer_steps": "regularizer_steps",
+}
+
+
+def given_fields(args: argparse.Namespace) -> set[str]:
+    """The ``TrainConfig`` fields the command line set: a model's own training settings
+    (``training.source_defaults``) never override them."""
+    given = {name for name, option in CONFIG_OPTIONS.items() if getattr(args, option, None) is not None}
+    if args.max_seconds is not None:
+        given.add("time_budget")  # --max-seconds sets the cap asked for, with no budget to cut it
+    return given
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     started = time.perf_counter()  # the time budget is over the whole command, probes included
     if (args.model is None) == (args.mjcf is None):
@@ -64,7 +93,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         thesis_hidden=model.spec.thesis_hidden or max(20, 2 * model.state_size),
     )
     if args.hidden is not None:
-        cfg.hidden = tuple(int(h) for h in args.hidden.split(","))
+        cfg.hidden = args.hidden
+    if args.branch_hidden is not None:
+        cfg.branch_hidden = args.branch_hidden
     if args.activation is not None:
         cfg.activation = args.activation
     if args.examples is not None:
@@ -131,21 +162,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             cfg.substeps = choice.substeps
             model.spec = model.spec.model_copy(update={"substeps": choice.substeps})
         if model.spec.data_source:  # a model trained on its controller's motion: its own settings
-            user_set = {
-                name
-                for name, value in (
-                    ("hidden", args.hidden),
-                    ("examples", args.examples),
-                    ("max_seconds", args.max_seconds),
-                    ("time_budget", args.time_budget),
-                    ("rollout_steps", args.rollout_steps),
-                    ("lr", args.lr),
-                    ("activation", args.activation),
-                    ("clearance", args.clearance),
-                )
-                if value is not None
-            }
-            cfg = source_defaults(model, cfg, user_set)
+            cfg = source_defaults(model, cfg, given_fields(args))
         if model.spec.parts:  # a hierarchy of networks (thesis 4.4)
             cfg = small_defaults(
                 cfg,
@@ -365,6 +382,19 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _widths(text: str) -> tuple[int, ...]:
+    """Hidden layer widths: comma-separated positive integers."""
+    try:
+        widths = tuple(int(w) for w in text.split(","))
+    except ValueError:
+        widths = ()
+    if not widths or min(widths) < 1:
+        raise argparse.ArgumentTypeError(
+            f"must be comma-separated positive integers such as 64,64, got {text!r}"
+        )
+    return widths
+
+
 def _substeps(text: str) -> int | str:
     return "auto" if text == "auto" else _positive_int(text)
 
@@ -399,7 +429,14 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--optimizer", choices=["adam", "sgd"], default="adam")
     t.add_argument(
         "--hidden",
+        type=_widths,
         help="hidden layer widths, e.g. 64,64 (default for --mjcf: 128,128,128; a catalog model's own)",
+    )
+    t.add_argument(
+        "--branch-hidden",
+        type=_widths,
+        help="an articulated hierarchy's limb networks (the runner's arms and legs): hidden layer widths "
+        "(default: as --hidden)",
     )
     t.add_argument(
         "--activation",

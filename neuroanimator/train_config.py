@@ -20,6 +20,8 @@ class TrainConfig:
     substeps: int = 50
     preset: str = "default"  # "default" or "thesis" (one sigmoid hidden layer, Table 6.1 width)
     hidden: tuple[int, ...] = (64, 64)
+    # an articulated hierarchy's limb networks (neuroanimator.articulated; None: as wide as ``hidden``)
+    branch_hidden: tuple[int, ...] | None = None
     activation: str = "tanh"
     normalization: str = "group"  # "group" (thesis eqs. 4.10-4.11) or "variable"
     examples: int | None = None  # None: examples_per_weight × the network's weights (thesis: 8-10×)
@@ -68,7 +70,13 @@ class TrainConfig:
         if self.preset == "thesis":
             width = self.thesis_hidden or 40
             return TrainConfig(
-                **{**asdict(self), "hidden": (width,), "activation": "sigmoid", "preset": "thesis"}
+                **{
+                    **asdict(self),
+                    "hidden": (width,),
+                    "branch_hidden": None,
+                    "activation": "sigmoid",
+                    "preset": "thesis",
+                }
             )
         if self.preset != "default":
             raise ValueError(f"preset must be 'default' or 'thesis', got {self.preset!r}")
@@ -77,4 +85,5 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["hidden"] = list(self.hidden)
+        d["branch_hidden"] = None if self.branch_hidden is None else list(self.branch_hidden)
         return d

@@ -117,7 +117,8 @@ def build_emulator(
     model: PhysicalModel, cfg: TrainConfig, states: np.ndarray | None = None
 ) -> StructuredEmulator:
     """The emulator ``cfg`` describes for ``model``: one network, or, for a model with branches, an
-    articulated hierarchy (``neuroanimator.articulated``) whose networks are each ``cfg.hidden`` wide.
+    articulated hierarchy (``neuroanimator.articulated``): a trunk network ``cfg.hidden`` wide and limb
+    networks ``cfg.branch_hidden`` wide.
     With ``cfg.clearance``, the geoms probed are those that come near the floor in ``states`` (N, S)
     (every geom that can touch it when none are given); with ``cfg.proximity``, the pairs of geoms that
     touch each other in ``states`` (a hierarchy's networks read none)."""
@@ -142,7 +143,7 @@ def build_emulator(
         ),
     )
     if branches:
-        make_articulated(emu, branches, model.control_names, cfg.hidden, cfg.hidden)
+        make_articulated(emu, branches, model.control_names, cfg.hidden, cfg.branch_hidden or cfg.hidden)
     return emu
 
 

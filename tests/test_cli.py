@@ -13,8 +13,9 @@ from pathlib import Path
 import pytest
 
 from neuroanimator import physics, registry
-from neuroanimator.cli import main
+from neuroanimator.cli import CONFIG_OPTIONS, build_parser, given_fields, main
 from neuroanimator.results import ModelBench, ModelEval
+from neuroanimator.train_config import TrainConfig
 from tests.helpers import ARM_XML, Trained
 
 
@@ -428,7 +429,7 @@ def test_train_runner_uses_its_data_source_and_its_settings(
     the articulated hierarchy of five networks."""
     rc = main(
         ["train", "runner", "--out", str(tmp_path), "--examples", "1500", "--max-seconds", "3",
-         "--hidden", "16", "--force", "--quiet", "--json"]
+         "--hidden", "16", "--branch-hidden", "8,8", "--batch-size", "128", "--force", "--quiet", "--json"]
     )  # fmt: skip
     assert rc == 0
     summary = _last_json(capsys.readouterr().out)
@@ -437,11 +438,43 @@ def test_train_runner_uses_its_data_source_and_its_settings(
     manifest = registry.read_manifest(registry.resolve(tmp_path, "runner"))
     cfg = manifest.train_config
     assert (
-        cfg.hidden == (16,) and cfg.max_seconds == 3 and cfg.time_budget is None
+        cfg.hidden == (16,) and cfg.max_seconds == 3 and cfg.time_budget is None and cfg.batch_size == 128
     )  # given on the command line
-    assert cfg.limits is False and cfg.batch_size == 512 and cfg.rollout_steps == 0  # the source's
+    assert cfg.limits is False and cfg.rollout_steps == 0 and cfg.activation == "silu"  # the source's
+    widths = {n.name: tuple(n.hidden) for n in manifest.emulator.networks}
+    assert widths == {
+        "trunk": (16,),
+        **{f"{s}_{limb}": (8, 8) for s in ("left", "right") for limb in ("arm", "leg")},
+    }
     # the feet's height above the floor, chosen from the data: the geoms that come near it
     trunk = next(n for n in manifest.emulator.networks if n.name == "trunk")
     assert cfg.clearance is True and trunk.clearance is not None
-    assert {"left_foot", "right_toes"} <= set(trunk.clearance.geoms) and "head" not in trunk.clearance.geoms
+    probed = set(trunk.clearance.geoms)
+    assert {"left_foot", "right_toes"} <= probed and not {"pelvis", "torso"} & probed
     assert "contact_fraction" not in summary  # no probe of typical controls: the spec gives n
+
+
+def test_options_given_on_the_command_line_are_never_overridden_by_a_models_own_settings() -> None:
+    """``given_fields``: every ``neuro train`` option that sets a training setting counts as given (a
+    runner trained with ``--batch-size`` keeps it, though its data source sets another)."""
+    parser = build_parser()
+    assert given_fields(parser.parse_args(["train", "runner"])) == set()
+    args = parser.parse_args(
+        [
+            "train",
+            "runner",
+            "--batch-size",
+            "64",
+            "--schedule",
+            "cosine",
+            "--epochs",
+            "5",
+            "--max-seconds",
+            "9",
+        ]
+    )
+    assert given_fields(args) == {"batch_size", "schedule", "max_epochs", "max_seconds", "time_budget"}
+    # every option named exists on the command line
+    train = parser.parse_args(["train", "runner"])
+    assert all(hasattr(train, option) for option in CONFIG_OPTIONS.values())
+    assert set(CONFIG_OPTIONS) <= set(TrainConfig.__dataclass_fields__)

@@ -80,11 +80,16 @@ class Gait:
 @dataclass(frozen=True)
 class Push:
     """A push of the torso: ``force`` newtons (world x, y, z; or (B, 3), one per run) from ``start_s``
-    for ``duration_s``."""
+    seconds (or (B,), one per run) for ``duration_s``."""
 
     force: tuple[float, float, float] | FloatArray = (0.0, 250.0, 0.0)
-    start_s: float = 10.0
+    start_s: float | FloatArray = 10.0
     duration_s: float = 0.2
+
+    def active(self, now: float, batch: int) -> NDArray[np.bool_]:
+        """(B,) which runs are being pushed at time ``now`` (seconds)."""
+        start = np.broadcast_to(np.asarray(self.start_s, float), (batch,))
+        return (start <= now) & (now < start + self.duration_s)
 
 
 def _quat_to_mat(q: FloatArray) -> FloatArray:
@@ -467,8 +472,8 @@ def run(
     threads: int = 2,
     record: bool = True,
     kinematic: bool = False,
-    control_noise: float = 0.0,
-    state_noise: tuple[float, float] = (0.0, 0.0),
+    control_noise: float | FloatArray = 0.0,
+    state_noise: tuple[float | FloatArray, float | FloatArray] = (0.0, 0.0),
     seed: int = 0,
 ) -> RunResult:
     """Run the closed loop from ``start`` (B|1, nfull) for ``seconds``.
@@ -524,28 +529,32 @@ def run(
     observer = KinematicSensors(m) if kinematic else None
     noise_rng = np.random.default_rng(seed)
     push_force = None if push is None else np.broadcast_to(np.asarray(push.force, float), (batch, 3))
+    # per-run noise levels, (B, 1): a batch's runs may each draw their own
+    kick_angle, kick_rate, target_noise = (
+        np.broadcast_to(np.asarray(level, float), (batch,))[:, None]
+        for level in (*state_noise, control_noise)
+    )
     for k in range(periods):
-        if state_noise[0] > 0 or state_noise[1] > 0:  # kicks off the gait's own states (hinges, rates)
-            state[:, qpos_at + 7 : qpos_at + m.nq] += noise_rng.normal(0.0, state_noise[0], (batch, m.nq - 7))
-            state[:, qvel_at : qvel_at + m.nv] += noise_rng.normal(0.0, state_noise[1], (batch, m.nv))
+        if kick_angle.any() or kick_rate.any():  # kicks off the gait's own states (hinges, rates)
+            hinges = slice(qpos_at + 7, qpos_at + m.nq)
+            state[:, hinges] += kick_angle * noise_rng.standard_normal((batch, m.nq - 7))
+            state[:, qvel_at : qvel_at + m.nv] += kick_rate * noise_rng.standard_normal((batch, m.nv))
         qpos = state[:, qpos_at : qpos_at + m.nq]
         qvel = state[:, qvel_at : qvel_at + m.nv]
         if observer is not None:
             sens = observer.read(qpos, qvel)
         targets = ctl.act(qpos, qvel, sens, dt)
-        if control_noise > 0:
+        if target_noise.any():
             targets = np.clip(
-                targets + noise_rng.normal(0.0, control_noise, targets.shape), ctl.low, ctl.high
+                targets + target_noise * noise_rng.standard_normal(targets.shape), ctl.low, ctl.high
             )
         control[:, :, ctrl_at + ctl.ctrl_ids] = targets[:, None, :]
         control[:, :, xfrc_at:] = 0.0
         now = k * dt
-        if (
-            push is not None
-            and push_force is not None
-            and push.start_s <= now < push.start_s + push.duration_s
-        ):
-            control[:, :, xfrc_at + 6 * body_id : xfrc_at + 6 * body_id + 3] = push_force[:, None, :]
+        if push is not None and push_force is not None:
+            pushed = push.active(now, batch)
+            at = xfrc_at + 6 * body_id  # the pushed body's force (x, y, z) in xfrc_applied
+            control[pushed, :, at : at + 3] = push_force[pushed, None, :]
         if record:
             rec_states[:, k] = state
             rec_ctrl[:, k] = targets
@@ -626,12 +635,9 @@ def run_emulated(
         targets = ctl.act(qpos, qvel, observer.read(qpos, qvel), dt)
         now = k * dt
         forces = np.zeros((batch, model.num_forces))
-        if (
-            push is not None
-            and push_force is not None
-            and push.start_s <= now < push.start_s + push.duration_s
-        ):
-            forces[:, :2] = push_force[:, :2]
+        if push is not None and push_force is not None:
+            pushed = push.active(now, batch)
+            forces[pushed, :2] = push_force[pushed, :2]
         nxt = step(state, targets, forces)
         broken = ~np.isfinite(nxt).all(axis=1)
         if broken.any():  # a run that went non-finite has fallen; it stays where it was
