@@ -55,11 +55,10 @@ def _tail_shares(core: ArticulatedCore, x: torch.Tensor, y: torch.Tensor) -> dic
     out = {}
     for name, cols in core.output_columns().items():
         per_example = np.sort(err[:, cols].sum(dim=1).numpy())[::-1]
-        total = per_example.sum()
-        out[name] = tuple(
-            float(per_example[: max(1, int(len(per_example) * q))].sum() / total) for q in (0.01, 0.1)
-        )
-    return out  # type: ignore[return-value]
+        share = np.cumsum(per_example) / per_example.sum()  # of the worst k + 1 examples
+        n = len(per_example)
+        out[name] = (float(share[max(1, n // 100) - 1]), float(share[max(1, n // 10) - 1]))
+    return out
 
 
 def main() -> int:
