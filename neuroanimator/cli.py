@@ -57,6 +57,7 @@ CONFIG_OPTIONS = {
     "max_epochs": "epochs",
     "clearance": "clearance",
     "proximity": "proximity",
+    "mirror": "mirror",
     "rollout_steps": "rollout_steps",
     "regularizer_steps": "regularizer_steps",
 }
@@ -122,6 +123,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.clearance = args.clearance == "on"
     if args.proximity is not None:
         cfg.proximity = args.proximity == "on"
+    if args.mirror is not None:
+        cfg.mirror = args.mirror == "on"
     if args.rollout_steps is not None:
         if args.rollout_steps < 0:
             raise ModelError(f"--rollout-steps must be 0 or more, got {args.rollout_steps}")
@@ -495,6 +498,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="the network also reads the distance between each pair of geoms that touch each other in "
         "the training data (a fingertip and what it pushes), computed in the graph by forward kinematics "
         "(default off: on dm_control's finger it did not lower the error; a hierarchy's networks read none)",
+    )
+    t.add_argument(
+        "--mirror",
+        choices=["on", "off"],
+        help="a left-right symmetric figure (joints and actuators named left_*/right_*, mirror images of "
+        "each other across the x-z plane): half the examples are simulated, half are their mirror images "
+        "(default off); a model that is not symmetric is refused, naming the part",
     )
     t.add_argument(
         "--rollout-steps",

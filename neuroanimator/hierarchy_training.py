@@ -186,6 +186,10 @@ def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
     (the time budget ``max_seconds`` shared between them); evaluate each and the composed step on
     held-out data."""
     cfg = cfg.resolved()
+    if cfg.mirror:
+        raise ModelError(
+            "mirror images are for joint-space figures (one network or an articulated hierarchy)"
+        )
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     t_start = time.perf_counter()

@@ -48,6 +48,9 @@ class TrainConfig:
     # pairs of geoms that touch each other in the data enter through their distance (neuroanimator.proximity;
     # off by default: measured on dm_control's finger, it did not lower the error)
     proximity: bool = False
+    # a left-right symmetric figure: half the examples simulated, the other half their mirror images
+    # across the x-z plane (neuroanimator.mirror); a model that is not symmetric is refused
+    mirror: bool = False
     # Then train over emulated rollouts of this many super-steps (0: off), so that a long rollout stays
     # on track: one-step training leaves small biases that a rollout integrates into drift.
     rollout_steps: int = 8
