@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neuroanimator.model_spec import ForceInput
-from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.physics.model import ModelError, PhysicalModel
 from neuroanimator.sampling import Examples
 from neuroanimator.state import StateLayout
 
@@ -43,8 +43,11 @@ _TOL = 1e-6
 _COMMUTE_TOL = 1e-6  # of the largest change in the transitions checked
 
 
-class MirrorError(ValueError):
-    """The model is not left-right symmetric."""
+class MirrorError(ModelError):
+    """The model is not left-right symmetric: the message says where."""
+
+    def __init__(self, why: str) -> None:
+        super().__init__(f"the model is not left-right symmetric, so it has no mirror images: {why}")
 
 
 def partner_name(name: str) -> str:
@@ -195,5 +198,5 @@ def check_mirror(mirror: Mirror, model: PhysicalModel, data: Examples, substeps:
         col = int(err.argmax())
         raise MirrorError(
             f"the mirror image of a transition is not what MuJoCo does from the mirrored state: "
-            f"{model.layout.labels()[col]} differs by {err[col]:.3g} (the model is not left-right symmetric)"
+            f"{model.layout.labels()[col]} differs by {err[col]:.3g}"
         )

@@ -25,8 +25,8 @@ from neuroanimator.articulated import ArticulatedCore, articulated_core, make_ar
 from neuroanimator.clearance import Clearance, geom_name, ground_geoms, limited_site_tendons, near_geoms
 from neuroanimator.envelope import examples_envelope
 from neuroanimator.manifest import EnvelopeGroup
-from neuroanimator.mirror import Mirror, MirrorError, check_mirror, mirror_map, with_mirror_images
-from neuroanimator.physics.model import ModelError, PhysicalModel
+from neuroanimator.mirror import check_mirror, mirror_map, with_mirror_images
+from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.regularizer import regularization
 from neuroanimator.structured import FrameConfig, JointLimit, StructuredEmulator
 from neuroanimator.train_config import TrainConfig
@@ -225,14 +225,6 @@ def apply_linear(w: np.ndarray, x: Tensor) -> Tensor:
     return (xa @ torch.from_numpy(w)).float()
 
 
-def mirror_of(model: PhysicalModel) -> Mirror:
-    """The model's left-right mirror (``neuroanimator.mirror``), or a ``ModelError`` saying why it has none."""
-    try:
-        return mirror_map(model.mj_model, model.layout, model.spec.forces)
-    except MirrorError as e:
-        raise ModelError(f"model {model.name} cannot train with mirror images: {e}") from e
-
-
 def held_out_seed(seed: int) -> int:
     """The seed of the held-out test set: a different stream from the training data's."""
     return seed + 1_000_003
@@ -260,7 +252,7 @@ def train(model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0) -> TrainRe
     log.info("%s n=%d: %d weights, %d examples", model.name, cfg.substeps, weights, count)
 
     # 1. data: training (+ validation) and an independent held-out test set
-    mirror = mirror_of(model) if cfg.mirror else None
+    mirror = mirror_map(model.mj_model, model.layout, model.spec.forces) if cfg.mirror else None
     simulated = count if mirror is None else (count + 1) // 2
     runs = own_runs(model, cfg, simulated)
     data = (
@@ -269,10 +261,7 @@ def train(model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0) -> TrainRe
         else generate_examples(model, cfg.substeps, simulated, cfg.seed, cfg.progress, cfg.sampler)
     )
     if mirror is not None:
-        try:
-            check_mirror(mirror, model, data, cfg.substeps)
-        except MirrorError as e:
-            raise ModelError(f"model {model.name} cannot train with mirror images: {e}") from e
+        check_mirror(mirror, model, data, cfg.substeps)  # what the names and masses do not show
         data = with_mirror_images(mirror, data).subset(slice(0, count))
     test = generate_examples(
         model, cfg.substeps, plan.test_examples, held_out_seed(cfg.seed), cfg.progress, cfg.sampler
