@@ -105,6 +105,40 @@ export async function frameRate(page, seconds) {
   return { fps: ((f1.frames - f0.frames) * 1000) / (f1.t - f0.t), scale: f1.scale };
 }
 
+/** `windows` windows of `seconds` each, back to back, timed in the page from its animation frames: per
+ * window the frame rate, the frames that came late (an interval over 1.5 display frames: a vsync
+ * missed) and the resolution scale at its end. */
+export async function frameWindows(page, windows, seconds) {
+  return page.evaluate(
+    ([n, span]) =>
+      new Promise((done) => {
+        const rows = [];
+        let start = -1;
+        let prev = -1;
+        let frames = 0;
+        let late = 0;
+        const tick = (t) => {
+          if (start < 0) start = t;
+          else {
+            frames += 1;
+            if (t - prev > 25) late += 1; // 1.5 frames of a 60 Hz display
+          }
+          prev = t;
+          if (t - start >= span * 1000) {
+            rows.push({ fps: (frames * 1000) / (t - start), late, frames, scale: window.__neuro?.scale ?? 1 });
+            start = t;
+            frames = 0;
+            late = 0;
+          }
+          if (rows.length < n) requestAnimationFrame(tick);
+          else done(rows);
+        };
+        requestAnimationFrame(tick);
+      }),
+    [windows, seconds],
+  );
+}
+
 export async function noErrorNotice(page, what) {
   const errors = await page.$$eval('.notice-error', (els) => els.map((e) => e.textContent));
   check(errors.length === 0, `${what}: no error notice (got ${errors.join(' | ')})`);

@@ -1,10 +1,11 @@
 // End-to-end checks of the dashboard in headless Chromium (browser.mjs: the browser, the environment,
 // the shared checks). tests/e2e/test_dashboard.py starts the stack and runs this.
 //
-//   node tests/e2e/dashboard.mjs <phase>     phase: models | playground | controllers | worker-down
+//   node tests/e2e/dashboard.mjs <phase>     phase: models | playground | controllers | worker-down | frame-rate
 //
-// Environment: browser.mjs's, and TRUCK_TASK (the truck-parking task's name, optional).
-import { canvasStats, changed, check, frameRate, log, main, noErrorNotice, onScreen, out, shot, url } from './browser.mjs';
+// Environment: browser.mjs's, TRUCK_TASK (the truck-parking task's name, optional), and for frame-rate
+// (bench/dashboard_fps.py) FPS_SETTLE, FPS_WINDOWS and FPS_SECONDS.
+import { canvasStats, changed, check, frameRate, frameWindows, log, main, noErrorNotice, onScreen, out, shot, url } from './browser.mjs';
 
 async function models(page) {
   await page.goto(url('models'));
@@ -63,18 +64,22 @@ async function startSession(page, model) {
   await page.waitForTimeout(1200); // the camera glides to the model
 }
 
-async function playground(page) {
-  // the lander at rest 20 m above its pad, as its MJCF puts it
+/** A lander session started at rest 20 m above its pad (as its MJCF puts it) with hover thrust on the
+ * slider (mass 100 under lunar gravity: 16.2), as soon as the sliders are there. */
+async function hoveringLander(page) {
   await page.goto(url('playground', 'model=lander&start=rest'));
   await page.waitForFunction(() => document.querySelector('#pg-model')?.value === 'lander', null, { timeout: 20000 });
-  // hover thrust on the slider (mass 100 under lunar gravity: 16.2) and full thrust from the key for a
-  // second and a half, as soon as the sliders are there
   await page.click('#pg-start');
   await page.waitForSelector('[data-control="main_jet"]', { timeout: 20000 });
   await page.$eval('[data-control="main_jet"]', (el) => {
     el.value = '16.4';
     el.dispatchEvent(new Event('input', { bubbles: true }));
   });
+}
+
+async function playground(page) {
+  // hover thrust, and full thrust from the key for a second and a half
+  await hoveringLander(page);
   await page.focus('body');
   await page.keyboard.down('ArrowUp');
   await page.waitForFunction(() => /t = /.test(document.querySelector('#pg-status')?.textContent ?? ''), null, { timeout: 20000 });
@@ -359,4 +364,27 @@ async function workerDown(page) {
   if (id) await page.click('#ct-cancel'); // leave no job behind for a later worker
 }
 
-await main({ models, playground, controllers, 'worker-down': workerDown }, { 'worker-down': () => true });
+/** The frame rate of the Playground with a live lander session and its MuJoCo ghost (the lander at rest
+ * 20 m up, hover thrust: it climbs slowly, the camera following), after FPS_SETTLE seconds, over
+ * FPS_WINDOWS windows of FPS_SECONDS seconds. */
+async function frameRatePhase(page) {
+  const settle = Number(process.env.FPS_SETTLE ?? 10);
+  const windows = Number(process.env.FPS_WINDOWS ?? 6);
+  const seconds = Number(process.env.FPS_SECONDS ?? 5);
+  await hoveringLander(page);
+  await page.check('#pg-ghost');
+  await page.waitForFunction(() => document.querySelector('#pg-divergence')?.dataset.position !== undefined, null, { timeout: 20000 });
+  log(`live session with its ghost; settling for ${settle} s`);
+  await page.waitForTimeout(settle * 1000);
+  const rows = await frameWindows(page, windows, seconds);
+  for (const r of rows) log(`${r.fps.toFixed(1)} fps, ${r.late} late frames of ${r.frames}, resolution scale ${r.scale}`);
+  out.windows = rows.map((r) => ({ ...r, fps: Number(r.fps.toFixed(2)) }));
+  out.renderer = await page.evaluate(() => {
+    const gl = document.createElement('canvas').getContext('webgl2');
+    const info = gl?.getExtension('WEBGL_debug_renderer_info');
+    return gl && info ? String(gl.getParameter(info.UNMASKED_RENDERER_WEBGL)) : 'unknown';
+  });
+  await noErrorNotice(page, 'frame-rate');
+}
+
+await main({ models, playground, controllers, 'worker-down': workerDown, 'frame-rate': frameRatePhase }, { 'worker-down': () => true });

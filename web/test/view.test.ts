@@ -27,18 +27,51 @@ describe('resolution governor', () => {
     const g = new ResolutionGovernor({ min: 0.5 });
     let t = run(g, 20, 2.5, 0);
     expect(g.scale).toBeLessThan(1);
-    t = run(g, 20, 10, t);
+    t = run(g, 20, 20, t);
     expect(g.scale).toBe(0.5);
-    t = run(g, 60, 2, t);
+    t = run(g, 60, 4, t);
     expect(g.scale).toBe(0.5); // not at once: after a few good windows
-    run(g, 60, 20, t);
+    run(g, 60, 40, t);
     expect(g.scale).toBe(1);
   });
 
-  it('does not step down between 45 and 57 fps (no flicker around the threshold)', () => {
+  it('steps down while frames are dropped, even at 50 fps, and settles where the display rate holds', () => {
     const g = new ResolutionGovernor();
-    run(g, 50, 10, 0);
+    run(g, 50, 3, 0);
+    expect(g.scale).toBeLessThan(1);
+    expect(g.fps).toBeCloseTo(50, 0);
+  });
+
+  it('keeps full resolution through a missed vsync now and then (one a second)', () => {
+    const g = new ResolutionGovernor();
+    run(g, 59, 30, 0);
     expect(g.scale).toBe(1);
+  });
+
+  it('steps down when a few frames a second are late (58 fps is not 60)', () => {
+    const g = new ResolutionGovernor();
+    run(g, 58, 3, 0);
+    expect(g.scale).toBe(0.8);
+  });
+
+  it('tries a scale that proved too slow again less and less often (no flicker)', () => {
+    // a view that keeps 60 fps at 0.8 of the resolution and drops frames (55 fps) at full resolution
+    const g = new ResolutionGovernor({ maxUpAfter: 1000 });
+    let t = 0;
+    let changes = 0;
+    let at60 = 0;
+    const seconds = 600;
+    while (t < seconds * 1000) {
+      const fps = g.scale > 0.8 ? 55 : 60; // each frame's time follows the scale it is drawn at
+      if (fps === 60) at60 += 1000 / fps;
+      t += 1000 / fps;
+      if (g.frame(t)) changes += 1;
+    }
+    expect(g.scale).toBeLessThanOrEqual(0.8);
+    expect(g.scale).toBeGreaterThanOrEqual(0.64); // it found the scale that holds, not the floor
+    expect(at60 / t).toBeGreaterThan(0.95);
+    expect(changes).toBeLessThan(16); // each retry waits twice as long: about log2 of the time
+    expect(g.waitFor(1)).toBeGreaterThan(24);
   });
 });
 
