@@ -52,10 +52,12 @@ export class DivergencePanel {
       this.ts.shift();
       this.gaps.shift();
     }
-    this.show(gap);
+    // the number and the curve change a few times a second, not with every state: a readable number,
+    // and each change of the page over the view is a repaint that the view's frame waits for
     const now = performance.now();
     if (now - this.last > 400 || this.ts.length < 3) {
       this.last = now;
+      this.show(gap);
       this.draw();
     }
   }

@@ -88,6 +88,8 @@ export const playgroundPage: Page = (root, ctx) => {
     l.dispose();
     sliders.textContent = '';
     envelope.hidden = true;
+    envelope.textContent = ''; // the next session's first word on its envelope is news
+    clearNotice('envelope');
     try {
       await ctx.emulator.deleteSession(l.info.id);
     } catch {
@@ -313,6 +315,9 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
       if (gap) divergence.add(msg.t, gap);
     }
     const text = envelopeText(msg);
+    if ((s.envelope.textContent ?? '') === (text ?? '')) return;
+    // written only when it changes: a write is a repaint, and states come many times a second (and a
+    // notice the person dismissed stays dismissed until the envelope says something new)
     s.envelope.hidden = !text;
     s.envelope.textContent = text ?? '';
     if (text) notify(`The session left the emulator's trained envelope: ${text}. Its states are extrapolated.`, 'warning', 'envelope');
