@@ -139,6 +139,29 @@ def test_only_geoms_that_come_near_the_floor_are_probed(runner: PhysicalModel) -
     assert "left_foot" in near and "head" not in near and "right_hand" not in near
 
 
+def test_probing_and_transforming_in_chunks_equals_all_at_once(
+    kinds: PhysicalModel, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Large data sets are probed and transformed a chunk at a time (the runner's 1.6 million examples
+    would hold 26 GB at once); the chunks' seams change nothing."""
+    states = _random_states(kinds, 50, seed=3)
+    nxt = _random_states(kinds, 50, seed=4)
+    whole = near_geoms(kinds, states, 0.05)
+    emu = training.build_emulator(
+        kinds, TrainConfig(substeps=10, hidden=(8,), limits=False, clearance=True), states
+    )
+    s, n = torch.from_numpy(states).float(), torch.from_numpy(nxt).float()
+    u = torch.linspace(-1.0, 1.0, 50)[:, None]
+    with torch.no_grad():
+        x_all, y_all = emu.local_inputs(s, u, None), emu.delta_to_local(s, n - s)
+        monkeypatch.setattr("neuroanimator.clearance.PROBE_CHUNK", 7)
+        monkeypatch.setattr(training, "LOCAL_CHUNK", 7)
+        x, y = training.local_examples(emu, s, u, None, n)
+    assert near_geoms(kinds, states, 0.05) == whole and whole  # some geoms come near the floor
+    assert emu.clearance is not None and x.shape == x_all.shape
+    assert torch.allclose(x, x_all, atol=1e-6) and torch.allclose(y, y_all, atol=1e-6)
+
+
 def _emulator(model: PhysicalModel, seed: int = 0) -> training.StructuredEmulator:
     torch.manual_seed(seed)
     emu = training.build_emulator(model, TrainConfig(substeps=6, hidden=(16,), limits=False, clearance=True))
