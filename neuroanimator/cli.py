@@ -134,7 +134,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             raise ModelError(f"--regularizer-steps must be 0 or more, got {args.regularizer_steps}")
         cfg.regularizer_steps = args.regularizer_steps
     # torch loads only for the commands that need it
-    from neuroanimator import artifacts, super_step
+    from neuroanimator import artifacts, data_cache, super_step
     from neuroanimator.hierarchy_training import HierarchyResult, small_defaults, train_hierarchy
     from neuroanimator.training import TrainingDiverged, TrainResult, source_defaults, train
 
@@ -175,7 +175,8 @@ def cmd_train(args: argparse.Namespace) -> int:
             )
             result: TrainResult | HierarchyResult = train_hierarchy(model, cfg)
         else:
-            result = train(model, cfg, spent=time.perf_counter() - started)
+            cache = data_cache.directory(args.data_cache)
+            result = train(model, cfg, spent=time.perf_counter() - started, data_cache=cache)
     except TrainingDiverged as exc:
         log.error("%s", exc)
         return 2
@@ -428,6 +429,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--force", action="store_true", help="write the emulator even when it misses the acceptance bar"
     )
     t.add_argument("--out", default="artifacts", help="artifact registry to write to (default: artifacts/)")
+    t.add_argument(
+        "--data-cache",
+        help="keep the simulated examples in this directory and read them back when a later training asks "
+        "for the same ones (model, super-step, count, seed, sampler, simulating code; default: "
+        "$NEURO_DATA_CACHE, else none)",
+    )
     t.add_argument("--preset", choices=["default", "thesis"], default="default")
     t.add_argument("--optimizer", choices=["adam", "sgd"], default="adam")
     t.add_argument(

@@ -12,6 +12,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import mujoco
@@ -23,6 +24,7 @@ from tqdm import tqdm
 from neuroanimator import proximity, sampling
 from neuroanimator.articulated import ArticulatedCore, articulated_core, make_articulated, ridge_fit
 from neuroanimator.clearance import Clearance, geom_name, ground_geoms, limited_site_tendons, near_geoms
+from neuroanimator.data_cache import cached
 from neuroanimator.envelope import examples_envelope
 from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.mirror import check_mirror, mirror_map, with_mirror_images
@@ -247,11 +249,15 @@ def held_out_seed(seed: int) -> int:
     return seed + 1_000_003
 
 
-def train(model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0) -> TrainResult:
+def train(
+    model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0, data_cache: Path | None = None
+) -> TrainResult:
     """Simulate data, fit normalisation, train N^σ with early stopping, evaluate on held-out data.
 
     ``spent``: seconds of ``cfg.time_budget`` used before the call (``neuro train``: loading the model,
-    its contact check and super-step probes), so that the whole command keeps to the budget."""
+    its contact check and super-step probes), so that the whole command keeps to the budget.
+    ``data_cache``: a directory where simulated examples are kept and read back
+    (``neuroanimator.data_cache``; None: simulate every time)."""
     cfg = cfg.resolved()
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
@@ -271,18 +277,20 @@ def train(model: PhysicalModel, cfg: TrainConfig, spent: float = 0.0) -> TrainRe
     # 1. data: training (+ validation) and an independent held-out test set
     mirror = mirror_map(model.mj_model, model.layout, model.spec.forces) if cfg.mirror else None
     simulated = count if mirror is None else (count + 1) // 2
-    runs = own_runs(model, cfg, simulated)
-    data = (
-        runs.examples(simulated, cfg.seed)
-        if runs is not None
-        else generate_examples(model, cfg.substeps, simulated, cfg.seed, cfg.progress, cfg.sampler)
-    )
+    runs = own_runs(model, cfg, simulated, data_cache)
+
+    def simulate(count: int, seed: int) -> sampling.Examples:
+        return cached(
+            data_cache, model, cfg.substeps, count, seed, cfg.sampler,
+            lambda: generate_examples(model, cfg.substeps, count, seed, cfg.progress, cfg.sampler),
+            sampling.Examples,
+        )  # fmt: skip
+
+    data = runs.examples(simulated, cfg.seed) if runs is not None else simulate(simulated, cfg.seed)
     if mirror is not None:
         check_mirror(mirror, model, data, cfg.substeps)  # what the names and masses do not show
         data = with_mirror_images(mirror, data).subset(slice(0, count))
-    test = generate_examples(
-        model, cfg.substeps, plan.test_examples, held_out_seed(cfg.seed), cfg.progress, cfg.sampler
-    )
+    test = simulate(plan.test_examples, held_out_seed(cfg.seed))
     t_data = time.perf_counter() - t_start
     # probe the geoms that come near the floor or touch each other in these data (the pairs are known
     # only from data: contact_features searches them there)
@@ -550,12 +558,18 @@ def source_defaults(model: PhysicalModel, cfg: TrainConfig, given: set[str]) -> 
     return dataclasses.replace(cfg, **updates) if updates else cfg
 
 
-def own_runs(model: PhysicalModel, cfg: TrainConfig, count: int) -> sampling.Sequences | None:
-    """The runs of the ``"runs"`` sampler that hold ``count`` examples; None for a model with its own
-    data source or for the ``"spaced"`` sampler."""
+def own_runs(
+    model: PhysicalModel, cfg: TrainConfig, count: int, data_cache: Path | None = None
+) -> sampling.Sequences | None:
+    """The runs of the ``"runs"`` sampler that hold ``count`` examples (kept in or read from
+    ``data_cache``); None for a model with its own data source or for the ``"spaced"`` sampler."""
     if model.spec.data_source is not None or cfg.sampler != "runs":
         return None
-    return sampling.generate_runs(model, cfg.substeps, count, cfg.seed, progress=cfg.progress)
+    return cached(
+        data_cache, model, cfg.substeps, count, cfg.seed, cfg.sampler,
+        lambda: sampling.generate_runs(model, cfg.substeps, count, cfg.seed, progress=cfg.progress),
+        sampling.Sequences,
+    )  # fmt: skip
 
 
 def rollout_sequences(
