@@ -56,6 +56,7 @@ CONFIG_OPTIONS = {
     "time_budget": "time_budget",
     "max_epochs": "epochs",
     "clearance": "clearance",
+    "limits": "limits",
     "proximity": "proximity",
     "mirror": "mirror",
     "rollout_steps": "rollout_steps",
@@ -121,6 +122,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     cfg.frame, cfg.skip = args.frame, not args.no_skip
     if args.clearance is not None:
         cfg.clearance = args.clearance == "on"
+    if args.limits is not None:
+        cfg.limits = args.limits == "on"
     if args.proximity is not None:
         cfg.proximity = args.proximity == "on"
     if args.mirror is not None:
@@ -493,6 +496,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="local frame of a free root: body (the default) or heading only",
     )
     t.add_argument("--no-skip", action="store_true", help="no linear path beside the MLP")
+    t.add_argument(
+        "--limits",
+        choices=["on", "off"],
+        help="each limited joint also enters as ramps past its range at the start, middle and end of the "
+        "super-step, where its limit's force switches on (default on; off for the runner)",
+    )
     t.add_argument(
         "--clearance",
         choices=["on", "off"],

@@ -475,7 +475,26 @@ def test_options_given_on_the_command_line_are_never_overridden_by_a_models_own_
     )
     assert given_fields(args) == {"batch_size", "schedule", "max_epochs", "max_seconds", "time_budget"}
     assert given_fields(parser.parse_args(["train", "runner", "--mirror", "on"])) == {"mirror"}
+    assert given_fields(parser.parse_args(["train", "runner", "--limits", "on"])) == {"limits"}
     # every option named exists on the command line
     train = parser.parse_args(["train", "runner"])
     assert all(hasattr(train, option) for option in CONFIG_OPTIONS.values())
     assert set(CONFIG_OPTIONS) <= set(TrainConfig.__dataclass_fields__)
+
+
+def test_limits_off_trains_without_the_joint_limit_ramps(tmp_path: Path) -> None:
+    """``--limits off`` drops the ramps past each joint's range, which are otherwise read; ``on`` keeps them."""
+    from tests.helpers import RAIL_XML
+
+    mjcf = tmp_path / "rail.xml"
+    mjcf.write_text(RAIL_XML)
+    ramps = {}
+    for choice in ("on", "off"):
+        out = tmp_path / choice
+        rc, _ = _run(["train", "--mjcf", str(mjcf), *TINY_AUTO, "--substeps", "10", "--limits", choice,
+                      "--out", str(out)])  # fmt: skip
+        assert rc == 0
+        manifest = registry.read_manifest(registry.resolve(out, "rail"))
+        assert manifest.train_config.limits is (choice == "on")
+        ramps[choice] = len(manifest.emulator.networks[0].limits)
+    assert ramps["on"] >= 1 and ramps["off"] == 0
