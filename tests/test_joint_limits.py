@@ -169,3 +169,31 @@ def test_the_ramps_learn_a_cart_hitting_its_limit() -> None:
             pred = emu(s, u).numpy()
         errors[limits] = float(np.abs(pred - test.next_states)[hits][:, pos].mean())
     assert errors[True] < 0.85 * errors[False], errors
+
+
+@pytest.mark.parametrize("mode", ["group", "variable"])
+def test_ramps_are_normalised_by_their_engaged_values(mode: str) -> None:
+    """A ramp is zero in most rows: its normalisation keeps zero at zero and scales what is engaged to
+    unit root mean square, rather than dividing by a deviation that the zeros make small (the runner's
+    limit ramps reached 120 deviations that way)."""
+    model = _rail(substeps=10)
+    emu = build_emulator(model, TrainConfig(substeps=10, hidden=(8,), progress=False))
+    rng = np.random.default_rng(0)
+    s = torch.from_numpy(model.initial_states(rng, 2000)).float()
+    labels = model.layout.labels()
+    pos = labels.index("slider.pos")
+    s[:, pos] = torch.linspace(-0.45, 0.45, 2000)  # inside the rail's ±0.5
+    s[:20, pos] = 0.52 + 0.01 * torch.arange(20)  # a few past the upper limit
+    u = torch.zeros(2000, model.num_controls)
+    x_local = emu.local_inputs(s, u, None)
+    emu.set_normalization(x_local, torch.randn(2000, model.state_size), mode)
+    groups = dict(emu.input_groups)
+    start = sum(w for name, w in emu.input_groups[: [n for n, _ in emu.input_groups].index("limits")])
+    cols = slice(start, start + groups["limits"])
+    x = emu.normalize_inputs(x_local)[:, cols]
+    assert torch.all(emu.x_mean[cols] == 0)
+    assert torch.all(x[x_local[:, cols] == 0] == 0)  # zero stays zero
+    engaged = x[x_local[:, cols] != 0]
+    if mode == "group":
+        assert float(engaged.pow(2).mean().sqrt()) == pytest.approx(1.0, rel=1e-4)
+    assert float(engaged.abs().max()) < 5  # not tens of deviations out
