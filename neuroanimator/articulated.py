@@ -51,27 +51,52 @@ def ridge_fit(x: Tensor, y: Tensor) -> Tensor:
 
 
 class _Net(nn.Module):
-    """One network of the hierarchy: an MLP plus a linear path, (B, d) -> (B, o)."""
+    """One network of the hierarchy: an MLP plus a linear path, (B, d) -> (B, o).
 
-    def __init__(self, inputs: int, outputs: int, hidden: Sequence[int], activation: str) -> None:
+    With ``members`` > 1 the MLP is the mean of that many MLPs of the same widths, started apart and
+    each trained on its own error (``member_outputs``): an ensemble, whose mean errs less on runs it has
+    not seen than one network does (two of the runner's left-leg networks: an eighth less on held-out
+    runs, BENCHMARKS.md)."""
+
+    def __init__(
+        self, inputs: int, outputs: int, hidden: Sequence[int], activation: str, members: int = 1
+    ) -> None:
         super().__init__()
+        if members < 1:
+            raise ValueError(f"a network needs at least one member, got {members}")
         self.mlp = make_core(inputs, outputs, hidden, activation)
+        self.more = nn.ModuleList(make_core(inputs, outputs, hidden, activation) for _ in range(members - 1))
         self.skip = nn.Linear(inputs, outputs)
 
+    @property
+    def members(self) -> int:
+        return 1 + len(self.more)
+
     def forward(self, x: Tensor) -> Tensor:
-        return self.mlp(x) + self.skip(x)
+        y = self.mlp(x)
+        if len(self.more):
+            for m in self.more:
+                y = y + m(x)
+            y = y / self.members
+        return y + self.skip(x)
+
+    def member_outputs(self, x: Tensor) -> Tensor:
+        """(K, B, o): what each of the K members predicts on its own (its MLP and the linear path)."""
+        s = self.skip(x)
+        return torch.stack([s + m(x) for m in (self.mlp, *self.more)])
 
     def start_from_linear(self, x: Tensor, y: Tensor) -> None:
-        """Set the linear path to the ridge fit of y (N, o) on x (N, d) (``ridge_fit``) and quieten the
-        MLP's last layer, so that training starts from the linear model."""
+        """Set the linear path to the ridge fit of y (N, o) on x (N, d) (``ridge_fit``) and quieten every
+        member's last layer, so that training starts from the linear model."""
         w = ridge_fit(x, y).float()
-        last = self.mlp[-1]
-        assert isinstance(last, nn.Linear)
         with torch.no_grad():
             self.skip.weight.copy_(w[:-1].T)
             self.skip.bias.copy_(w[-1])
-            last.weight.mul_(0.01)
-            last.bias.zero_()
+            for mlp in (self.mlp, *self.more):
+                last = mlp[-1]
+                assert isinstance(last, nn.Linear)
+                last.weight.mul_(0.01)
+                last.bias.zero_()
 
 
 def own_geoms(clr: Clearance, columns: set[int]) -> list[int]:
@@ -132,9 +157,11 @@ class ArticulatedCore(nn.Module):
         trunk_hidden: Sequence[int],
         branch_hidden: Sequence[int],
         activation: str,
+        members: int = 1,
     ) -> None:
         super().__init__()
         check_branches(emu, branches, control_names)
+        self.members = members
         self.branches = tuple(branches)
         self.trunk_hidden, self.branch_hidden = tuple(trunk_hidden), tuple(branch_hidden)
         lay = emu.layout
@@ -151,7 +178,7 @@ class ArticulatedCore(nn.Module):
         self.register_buffer(
             "_trunk_out", select_columns(lay.size, trunk_out).T.contiguous(), persistent=False
         )
-        self.trunk = _Net(d, len(trunk_out), trunk_hidden, activation)
+        self.trunk = _Net(d, len(trunk_out), trunk_hidden, activation, members)
         nets, self.inputs = [], []
         for k, b in enumerate(branches):
             groups = [*b.groups, *self.trunk_writes, *(g for g in b.reads if g not in b.groups)]
@@ -167,7 +194,7 @@ class ArticulatedCore(nn.Module):
                 f"_place{k}", select_columns(lay.size, outs).T.contiguous(), persistent=False
             )
             self.inputs.append(len(cols) + len(trunk_out))
-            nets.append(_Net(len(cols) + len(trunk_out), len(outs), branch_hidden, activation))
+            nets.append(_Net(len(cols) + len(trunk_out), len(outs), branch_hidden, activation, members))
         self.nets = nn.ModuleList(nets)
 
     @staticmethod
@@ -230,6 +257,18 @@ class ArticulatedCore(nn.Module):
             y = y + self.branch_net(k)(torch.cat([x @ self.selection(k), feed], dim=1)) @ self.placement(k)
         return y
 
+    def training_loss(self, x: Tensor, y: Tensor) -> Tensor:
+        """The loss of a batch x (B, D), y (B, S): the mean squared error over B·S, every member of every
+        network on its own outputs (each learns as if alone; the branches read the mean of the trunk's
+        members, detached, as in ``forward``). With one member each it is ``mean((self(x) − y)²)``."""
+        trunk = self.trunk.member_outputs(x)  # (K, B, T)
+        sq = ((trunk - y @ self._trunk_out.T) ** 2).mean(dim=0).sum()
+        feed = trunk.mean(dim=0).detach()
+        for k in range(len(self.branches)):
+            out = self.branch_net(k).member_outputs(torch.cat([x @ self.selection(k), feed], dim=1))
+            sq = sq + ((out - y @ self.placement(k).T) ** 2).mean(dim=0).sum()
+        return sq / y.numel()
+
     def start_from_linear(self, x: Tensor, y: Tensor) -> None:
         """Every network's linear path from least squares on normalised data x (N, D), y (N, S); the
         branches' trunk input is the true trunk change."""
@@ -276,12 +315,15 @@ def make_articulated(
     control_names: Sequence[str],
     trunk_hidden: Sequence[int],
     branch_hidden: Sequence[int],
+    members: int = 1,
 ) -> StructuredEmulator:
     """Turn a structured emulator (built without a linear path) into an articulated hierarchy: its core
-    becomes an ``ArticulatedCore``; returns the same emulator."""
+    becomes an ``ArticulatedCore`` whose networks have ``members`` MLPs each; returns the same emulator."""
     if emu.skip is not None:
         raise ValueError("build the emulator without a linear path: every network has its own")
-    emu.core = ArticulatedCore(emu, branches, control_names, trunk_hidden, branch_hidden, emu.activation)  # type: ignore[assignment]
+    emu.core = ArticulatedCore(  # type: ignore[assignment]
+        emu, branches, control_names, trunk_hidden, branch_hidden, emu.activation, members
+    )
     emu.hidden = tuple(trunk_hidden)
     return emu
 

@@ -160,6 +160,7 @@ def describe_articulated(emu: StructuredEmulator, model: PhysicalModel, mode: st
             skip=True,
             limits=base.limits if name == TRUNK else [],
             clearance=clearance,
+            members=core.members,
         )
 
     trunk_reads = base.reads
@@ -432,7 +433,9 @@ def load_torch(path: Path) -> StructuredEmulator:
     )
     if branches:
         branch_hidden = by_name[branches[0].name].hidden
-        make_articulated(emu, branches, model.control_names, tuple(net.hidden), tuple(branch_hidden))
+        make_articulated(
+            emu, branches, model.control_names, tuple(net.hidden), tuple(branch_hidden), net.members
+        )
     emu.load_state_dict(torch.load(path / registry.WEIGHTS_FILE, weights_only=True))
     emu.regularizer = regularization(model.layout, manifest.emulator.regularizer, model.num_controls)
     return emu.eval()

@@ -46,6 +46,7 @@ def _out(text: str) -> None:
 CONFIG_OPTIONS = {
     "hidden": "hidden",
     "branch_hidden": "branch_hidden",
+    "members": "members",
     "activation": "activation",
     "examples": "examples",
     "sampler": "sampler",
@@ -98,6 +99,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.hidden = args.hidden
     if args.branch_hidden is not None:
         cfg.branch_hidden = args.branch_hidden
+    if args.members is not None:
+        cfg.members = args.members
     if args.activation is not None:
         cfg.activation = args.activation
     if args.examples is not None:
@@ -450,6 +453,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=_widths,
         help="an articulated hierarchy's limb networks (the runner's arms and legs): hidden layer widths "
         "(default: as --hidden)",
+    )
+    t.add_argument(
+        "--members",
+        type=_positive_int,
+        help="an articulated hierarchy (the runner): each network the mean of this many MLPs, each trained "
+        "on its own error (an ensemble; default 1)",
     )
     t.add_argument(
         "--activation",

@@ -196,6 +196,8 @@ class Network(_Strict):
     skip: bool = False
     limits: list[NetworkLimit] = []
     clearance: NetworkClearance | None = None
+    # the MLP is the mean of this many MLPs of the same widths (an ensemble, neuroanimator.articulated)
+    members: int = Field(1, ge=1)
 
     @model_validator(mode="after")
     def _widths_agree(self) -> Network:

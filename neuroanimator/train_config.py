@@ -23,6 +23,9 @@ class TrainConfig:
     # an articulated hierarchy's limb networks (neuroanimator.articulated; None: as wide as ``hidden``)
     branch_hidden: tuple[int, ...] | None = None
     activation: str = "tanh"
+    # an articulated hierarchy's networks each the mean of this many MLPs, each trained on its own error
+    # (an ensemble: neuroanimator.articulated)
+    members: int = 1
     normalization: str = "group"  # "group" (thesis eqs. 4.10-4.11) or "variable"
     examples: int | None = None  # None: examples_per_weight × the network's weights (thesis: 8-10×)
     examples_per_weight: float = 10.0

@@ -48,6 +48,13 @@ class _Network(torch.nn.Module):
         y = self.core(x)
         return y + self.skip(x) if self.skip is not None else y
 
+    def loss(self, x: Tensor, y: Tensor) -> Tensor:
+        """The training loss of a batch x (B, D), y (B, S): the mean squared error, or an articulated
+        hierarchy's own (``ArticulatedCore.training_loss``: each member of an ensembled network alone)."""
+        if isinstance(self.core, ArticulatedCore) and self.core.members > 1:
+            return self.core.training_loss(x, y)
+        return torch.mean((self(x) - y) ** 2)
+
 
 class TrainingDiverged(RuntimeError):
     """Training produced a non-finite loss; no artifact is written."""
@@ -146,7 +153,14 @@ def build_emulator(
         ),
     )
     if branches:
-        make_articulated(emu, branches, model.control_names, cfg.hidden, cfg.branch_hidden or cfg.hidden)
+        make_articulated(
+            emu, branches, model.control_names, cfg.hidden, cfg.branch_hidden or cfg.hidden, cfg.members
+        )
+    elif cfg.members != 1:
+        raise ValueError(
+            f"{model.name}: members ({cfg.members}) ensemble the networks of an articulated hierarchy; "
+            "this model has one network"
+        )
     return emu
 
 
@@ -499,7 +513,7 @@ def train_core(
                 # noise on the state inputs only: the net learns to pull a drifted state back
                 noise = torch.randn(xb.shape[0], n_state_inputs, generator=gen) * cfg.input_noise
                 xb = torch.cat([xb[:, :n_state_inputs] + noise, xb[:, n_state_inputs:]], dim=1)
-            loss = torch.mean((net(xb) - yb) ** 2)
+            loss = net.loss(xb, yb)
             if not torch.isfinite(loss):
                 raise TrainingDiverged(
                     f"training diverged at epoch {epoch} (loss {float(loss.detach())}); lower the learning rate ({cfg.lr})"

@@ -180,9 +180,10 @@ CART_WITH_TWO_ARMS = """
 """
 
 
-def test_a_small_articulated_emulator_trains_below_its_linear_baselines() -> None:
+@pytest.mark.parametrize("members", [1, 2])
+def test_a_small_articulated_emulator_trains_below_its_linear_baselines(members: int) -> None:
     """A cart with two swinging arms, each arm a branch: every network learns, and beats a linear map of
-    its own inputs."""
+    its own inputs; the same with every network an ensemble of two."""
     probe = PhysicalModel(CART_WITH_TWO_ARMS, physics.ModelSpec(name="cart-arms"))
     groups = [g.name for g in probe.layout]
     arms = [
@@ -191,7 +192,7 @@ def test_a_small_articulated_emulator_trains_below_its_linear_baselines() -> Non
     ]
     model = PhysicalModel(CART_WITH_TWO_ARMS, physics.ModelSpec(name="cart-arms", branches=arms, substeps=10))
     cfg = TrainConfig(substeps=10, hidden=(32,), examples=3000, test_examples=500, max_seconds=15,
-                      rollout_steps=0, progress=False)  # fmt: skip
+                      rollout_steps=0, members=members, progress=False)  # fmt: skip
     result = training.train(model, cfg)
     nets = result.metrics["networks"]
     assert set(nets) == {TRUNK, "left", "right"}
@@ -227,3 +228,69 @@ def test_the_committed_runner_emulator_runs_a_short_closed_loop_finite_and_uprig
     # 0.06 m and 0.11 m for the last two committed emulators from this start (1.1 m run); a broken step
     # (a frame or a control order mixed up) is metres off or down
     assert np.linalg.norm(emulated.states[0, len(sim) - 1, pos] - sim[-1, pos]) < 0.2
+
+
+def _ensembled(model: PhysicalModel, members: int) -> StructuredEmulator:
+    torch.manual_seed(3)
+    emu = training.build_emulator(model, TrainConfig(substeps=6, hidden=(16,), members=members))
+    with torch.no_grad():
+        emu.y_std.uniform_(0.005, 0.02)
+        for p in emu.core.parameters():
+            p.normal_(0.0, 0.3)
+    return emu.eval()
+
+
+def test_an_ensembled_network_is_the_mean_of_its_members(runner: PhysicalModel, tmp_path: Path) -> None:
+    """``members``: each network is the mean of K MLPs beside one linear path; its artifact says so and
+    loads back, and its ONNX graph computes the same step."""
+    emu = _ensembled(runner, 3)
+    core = articulated_core(emu)
+    assert core is not None and core.members == 3
+    s, u, f = _inputs(runner, 16)
+    with torch.no_grad():
+        x = emu.network_inputs(s, u, f)
+        each = core.trunk.member_outputs(x)  # (K, B, T)
+        assert each.shape == (3, 16, 23) and not torch.allclose(each[0], each[1])
+        torch.testing.assert_close(core.trunk(x), each.mean(dim=0), rtol=0, atol=1e-5)
+    cfg = TrainConfig(substeps=6, hidden=(16,), members=3, progress=False)
+    path = artifacts.save(tmp_path, runner, TrainResult(emu, cfg, METRICS, np.zeros((1, 1)), "0" * 64))
+    graph = registry.read_manifest(path).emulator
+    assert {n.members for n in graph.networks} == {3}
+    assert sum(n.weights for n in graph.networks) == sum(p.numel() for p in emu.parameters())
+    loaded = artifacts.load_torch(path)
+    with torch.no_grad():
+        torch.testing.assert_close(loaded(s, u, f), emu(s, u, f), rtol=0, atol=0)
+    onnx = OnnxEmulator(path / registry.ONNX_FILE).step(s.numpy(), u.numpy(), f.numpy())
+    np.testing.assert_allclose(onnx, loaded(s, u, f).detach().numpy(), atol=2e-5, rtol=0)
+
+
+def test_each_member_learns_on_its_own_error(runner: PhysicalModel) -> None:
+    """The training loss is the mean of the members' own squared errors (not the error of their mean),
+    so a member's gradient does not depend on the others; with one member it is the plain mean squared
+    error."""
+    s, u, f = _inputs(runner, 32)
+    single = _ensembled(runner, 1).train()
+    core1 = articulated_core(single)
+    assert core1 is not None
+    x = single.network_inputs(s, u, f).detach()
+    y = torch.randn(32, runner.state_size)
+    torch.testing.assert_close(core1.training_loss(x, y), torch.mean((core1(x) - y) ** 2))
+    emu = _ensembled(runner, 2).train()
+    core = articulated_core(emu)
+    assert core is not None
+    loss = core.training_loss(x, y)
+    assert loss.item() > torch.mean((core(x) - y) ** 2).item()  # the members' errors, not their mean's
+    loss.backward()
+    first = core.trunk.mlp[-1].weight.grad
+    assert first is not None
+    with torch.no_grad():  # moving the other member changes nothing in this one's gradient
+        for p in core.trunk.more.parameters():
+            p.add_(0.5)
+    core.zero_grad()
+    core.training_loss(x, y).backward()
+    torch.testing.assert_close(core.trunk.mlp[-1].weight.grad, first)
+
+
+def test_members_are_for_a_hierarchy() -> None:
+    with pytest.raises(ValueError, match="members"):
+        training.build_emulator(physics.get("lander"), TrainConfig(members=2))

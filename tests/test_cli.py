@@ -476,6 +476,7 @@ def test_options_given_on_the_command_line_are_never_overridden_by_a_models_own_
     assert given_fields(args) == {"batch_size", "schedule", "max_epochs", "max_seconds", "time_budget"}
     assert given_fields(parser.parse_args(["train", "runner", "--mirror", "on"])) == {"mirror"}
     assert given_fields(parser.parse_args(["train", "runner", "--limits", "on"])) == {"limits"}
+    assert given_fields(parser.parse_args(["train", "runner", "--members", "2"])) == {"members"}
     # every option named exists on the command line
     train = parser.parse_args(["train", "runner"])
     assert all(hasattr(train, option) for option in CONFIG_OPTIONS.values())
