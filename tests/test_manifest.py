@@ -122,7 +122,7 @@ def test_every_committed_manifest_reads_as_one_network(path: Path) -> None:
     if raw["format"] == FORMAT:
         written = raw["emulator"]["networks"][0]
         # fields added later read as their defaults
-        later: dict[str, Any] = {f: True for f in {"limits", "clearance"} - set(written)}
+        later: dict[str, Any] = {f: True for f in {"limits", "clearance", "members"} - set(written)}
         if "control_pairs" not in written["frame"]:
             later["frame"] = {"control_pairs"}
             assert net.frame.control_pairs == []
