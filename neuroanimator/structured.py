@@ -783,10 +783,9 @@ RAMP_GROUPS = ("limits", "contact")
 
 
 def _ramp_scale(block: Tensor) -> Tensor:
-    """The root mean square of a ramp block's nonzero values (1 where there are none)."""
-    engaged = block != 0
-    count = engaged.sum(dim=0 if block.dim() > 1 else None)
-    rms = torch.sqrt((block**2).sum(dim=0 if block.dim() > 1 else None) / count.clamp_min(1))
+    """(W,) the root mean square of each column's nonzero values of a ramp block (N, W); 1 where none."""
+    count = (block != 0).sum(dim=0)
+    rms = torch.sqrt((block**2).sum(dim=0) / count.clamp_min(1))
     return torch.where(count > 0, rms, torch.ones_like(rms))
 
 
@@ -799,7 +798,7 @@ def _group_stats(data: Tensor, groups: Sequence[tuple[str, int]], mode: str) -> 
         block = data[:, at : at + width].double()
         at += width
         if name in RAMP_GROUPS:
-            scale = _ramp_scale(block.flatten()).expand(width) if mode == "group" else _ramp_scale(block)
+            scale = _ramp_scale(block.reshape(-1, 1)).expand(width) if mode == "group" else _ramp_scale(block)
             means.append(torch.zeros(width, dtype=torch.float64))
             stds.append(scale)
         elif mode == "group":
