@@ -190,6 +190,7 @@ class ArticulatedCore(nn.Module):
             cols += self._own_clearance_columns(emu, b, in_cols, out_cols)
             outs = [c for g in b.groups for c in out_cols[g]]
             self.register_buffer(f"_sel{k}", select_columns(d, cols), persistent=False)
+            self.register_buffer(f"_idx{k}", torch.tensor(cols, dtype=torch.long), persistent=False)
             self.register_buffer(
                 f"_place{k}", select_columns(lay.size, outs).T.contiguous(), persistent=False
             )
@@ -238,6 +239,13 @@ class ArticulatedCore(nn.Module):
         assert isinstance(sel, Tensor)
         return sel
 
+    def pick(self, x: Tensor, k: int) -> Tensor:
+        """(B, d_k − T) branch k's inputs of x (B, D): ``x @ selection(k)``, gathered rather than
+        multiplied (a tenth of the time: the product was a twentieth of a training step)."""
+        idx = getattr(self, f"_idx{k}")
+        assert isinstance(idx, Tensor)
+        return x.index_select(1, idx)
+
     def placement(self, k: int) -> Tensor:
         """(o_k, S) the 0/1 matrix that places branch k's outputs."""
         place = getattr(self, f"_place{k}")
@@ -254,7 +262,7 @@ class ArticulatedCore(nn.Module):
         feed = yt.detach() if self.training else yt
         y = yt @ self._trunk_out
         for k in range(len(self.branches)):
-            y = y + self.branch_net(k)(torch.cat([x @ self.selection(k), feed], dim=1)) @ self.placement(k)
+            y = y + self.branch_net(k)(torch.cat([self.pick(x, k), feed], dim=1)) @ self.placement(k)
         return y
 
     def training_loss(self, x: Tensor, y: Tensor) -> Tensor:
@@ -265,7 +273,7 @@ class ArticulatedCore(nn.Module):
         sq = ((trunk - y @ self._trunk_out.T) ** 2).mean(dim=0).sum()
         feed = trunk.mean(dim=0).detach()
         for k in range(len(self.branches)):
-            out = self.branch_net(k).member_outputs(torch.cat([x @ self.selection(k), feed], dim=1))
+            out = self.branch_net(k).member_outputs(torch.cat([self.pick(x, k), feed], dim=1))
             sq = sq + ((out - y @ self.placement(k).T) ** 2).mean(dim=0).sum()
         return sq / y.numel()
 
@@ -275,7 +283,7 @@ class ArticulatedCore(nn.Module):
         yt = y @ self._trunk_out.T
         self.trunk.start_from_linear(x, yt)
         for k in range(len(self.branches)):
-            xk = torch.cat([x @ self.selection(k), yt], dim=1)
+            xk = torch.cat([self.pick(x, k), yt], dim=1)
             self.branch_net(k).start_from_linear(xk, y @ self.placement(k).T)
 
     def output_columns(self) -> dict[str, list[int]]:
@@ -291,7 +299,7 @@ class ArticulatedCore(nn.Module):
         yt = self.trunk(x) if y is None else y @ self._trunk_out.T
         out = {TRUNK: x}
         for k, b in enumerate(self.branches):
-            out[b.name] = torch.cat([x @ self.selection(k), yt], dim=1)
+            out[b.name] = torch.cat([self.pick(x, k), yt], dim=1)
         return out
 
 
