@@ -146,7 +146,6 @@ class ArticulatedCore(nn.Module):
     """N^σ of an articulated hierarchy: normalised inputs (B, D) -> normalised local changes (B, S)."""
 
     _trunk_out: Tensor  # (T, S) places the trunk's outputs
-    _sel: list[Tensor]
     _place: list[Tensor]
 
     def __init__(
@@ -172,7 +171,7 @@ class ArticulatedCore(nn.Module):
         for name, width in emu.input_groups:
             in_cols[name] = list(range(at, at + width))
             at += width
-        d = at
+        d = self.input_size = at
         out_cols = {g.name: list(range(sl.start, sl.stop)) for g, sl in lay.group_slices()}
         trunk_out = [c for g in self.trunk_writes for c in out_cols[g]]
         self.register_buffer(
@@ -189,7 +188,6 @@ class ArticulatedCore(nn.Module):
             cols += self._own_limit_columns(emu, b, in_cols, out_cols)
             cols += self._own_clearance_columns(emu, b, in_cols, out_cols)
             outs = [c for g in b.groups for c in out_cols[g]]
-            self.register_buffer(f"_sel{k}", select_columns(d, cols), persistent=False)
             self.register_buffer(f"_idx{k}", torch.tensor(cols, dtype=torch.long), persistent=False)
             self.register_buffer(
                 f"_place{k}", select_columns(lay.size, outs).T.contiguous(), persistent=False
@@ -234,10 +232,14 @@ class ArticulatedCore(nn.Module):
         ]
 
     def selection(self, k: int) -> Tensor:
-        """(D, d_k − T) the 0/1 matrix that picks branch k's inputs."""
-        sel = getattr(self, f"_sel{k}")
-        assert isinstance(sel, Tensor)
-        return sel
+        """(D, d_k − T) the 0/1 matrix that picks branch k's inputs (``pick`` gathers them)."""
+        return select_columns(self.input_size, self.input_columns(k))
+
+    def input_columns(self, k: int) -> list[int]:
+        """The emulator's input columns that branch k reads, in order."""
+        idx = getattr(self, f"_idx{k}")
+        assert isinstance(idx, Tensor)
+        return [int(c) for c in idx.tolist()]
 
     def pick(self, x: Tensor, k: int) -> Tensor:
         """(B, d_k − T) branch k's inputs of x (B, D): ``x @ selection(k)``, gathered rather than

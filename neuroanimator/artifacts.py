@@ -178,7 +178,7 @@ def describe_articulated(emu: StructuredEmulator, model: PhysicalModel, mode: st
         )
     ]
     for k, b in enumerate(core.branches):
-        sel = core.selection(k).argmax(dim=0).tolist()  # the emulator's input columns it reads, in order
+        sel = core.input_columns(k)  # the emulator's input columns it reads, in order
         groups = []
         for group, (start, width) in starts.items():
             n = sum(1 for c in sel if start <= c < start + width)

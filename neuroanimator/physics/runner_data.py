@@ -69,8 +69,9 @@ TRAIN_DEFAULTS = {
     "time_budget": None,  # the phases' own caps: this emulator takes longer than the 5-minute budget
     # the running gait stays inside the joints' ranges, but the stumbles of the data pass them (the hip to
     # 0.17 rad past its ab/adduction limit): 5 % of the transitions, a third of the legs' error. The
-    # ramps lower the legs' error a little (set 3: 0.0115 -> 0.0107, one network trained alone), and the
-    # trunk then reads 174 more inputs (an epoch 20 s instead of 11-14): off until trained with them
+    # ramps lower the legs' error a little (set 3: 0.0115 -> 0.0107, one network trained alone). Trained
+    # with them and two members every network was lower one step, but the closed loop drifted 0.62 m from
+    # MuJoCo's at 5 s against 0.20 m (BENCHMARKS.md, not kept): off
     "limits": False,
     # the feet: when a foot lands inside a super-step is what the legs and the trunk get wrong without it
     "clearance": True,
