@@ -47,6 +47,7 @@ CONFIG_OPTIONS = {
     "hidden": "hidden",
     "branch_hidden": "branch_hidden",
     "members": "members",
+    "loop_tolerance": "loop_tolerance",
     "activation": "activation",
     "examples": "examples",
     "sampler": "sampler",
@@ -101,6 +102,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.branch_hidden = args.branch_hidden
     if args.members is not None:
         cfg.members = args.members
+    if args.loop_tolerance is not None:
+        cfg.loop_tolerance = None if args.loop_tolerance == "off" else args.loop_tolerance
     if args.activation is not None:
         cfg.activation = args.activation
     if args.examples is not None:
@@ -385,6 +388,18 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _loop_tolerance(text: str) -> float | str:
+    if text == "off":
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a fraction of at least 0 or 'off', got {text!r}") from None
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must be a fraction of at least 0 or 'off', got {text!r}")
+    return value
+
+
 def _positive_float(text: str) -> float:
     value = float(text)
     if not value > 0:
@@ -459,6 +474,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive_int,
         help="an articulated hierarchy (the runner): each network the mean of this many MLPs, each trained "
         "on its own error (an ensemble; default 1)",
+    )
+    t.add_argument(
+        "--loop-tolerance",
+        metavar="FRACTION|off",
+        type=_loop_tolerance,
+        help="the kept epoch: of those whose validation loss is within this fraction of the lowest, the "
+        "one whose closed loop (the model's own controller through the emulator) ends nearest MuJoCo's; "
+        "for models whose data source has a loop check (the runner; default off, or the model's own)",
     )
     t.add_argument(
         "--activation",

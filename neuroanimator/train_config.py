@@ -42,6 +42,10 @@ class TrainConfig:
     max_epochs: int = 300
     patience: int = 30  # epochs without a better validation loss before stopping
     max_seconds: float = 150.0  # wall-clock cap on the optimisation loop (keeps a run under 5 min)
+    # the kept epoch: None, the lowest validation loss; a fraction t, of the epochs within (1 + t) of
+    # it, the one whose closed loop (the data source's loop check) ends nearest MuJoCo's
+    # (neuroanimator.loop_choice)
+    loop_tolerance: float | None = None
     input_noise: float = 0.0  # std of Gaussian noise on normalised state inputs during training
     frame: str = "auto"  # "auto"/"body": full body frame for a quaternion root; "heading": yaw only
     skip: bool = True  # a linear path beside the MLP, started from the least-squares fit

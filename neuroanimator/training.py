@@ -26,6 +26,7 @@ from neuroanimator.articulated import ArticulatedCore, articulated_core, make_ar
 from neuroanimator.clearance import Clearance, geom_name, ground_geoms, limited_site_tendons, near_geoms
 from neuroanimator.data_cache import cached
 from neuroanimator.envelope import examples_envelope
+from neuroanimator.loop_choice import LoopChoice, loop_choice
 from neuroanimator.manifest import EnvelopeGroup
 from neuroanimator.mirror import check_mirror, mirror_map, with_mirror_images
 from neuroanimator.physics.model import PhysicalModel
@@ -342,7 +343,8 @@ def train(
 
     # 4. the core network
     core_cfg = dataclasses.replace(cfg, max_seconds=one_step_seconds(cfg, time.perf_counter() - t_budget))
-    final_lr = train_core(emu, x_tr, y_tr, x_val, y_val, core_cfg)
+    choice = loop_choice(model, cfg)
+    final_lr = train_core(emu, x_tr, y_tr, x_val, y_val, core_cfg, choice)
 
     # 5. training over rollouts, from the one-step solution
     rollout_metrics: dict[str, Any] = {}
@@ -372,6 +374,7 @@ def train(
         "linear_baseline_rel_error": lin,
         "validation_rel_error": val,
         **rollout_metrics,
+        **(choice.metrics() if choice is not None else {}),
         **({"networks": per_network} if per_network is not None else {}),
         **({"sampling_reason": plan.reason} if plan.reason else {}),
         "data_seconds": round(t_data, 2),
@@ -482,10 +485,17 @@ def start_from_linear(emu: StructuredEmulator, linear: np.ndarray) -> None:
 
 
 def train_core(
-    emu: StructuredEmulator, x: Tensor, y: Tensor, x_val: Tensor, y_val: Tensor, cfg: TrainConfig
+    emu: StructuredEmulator,
+    x: Tensor,
+    y: Tensor,
+    x_val: Tensor,
+    y_val: Tensor,
+    cfg: TrainConfig,
+    choice: LoopChoice | None = None,
 ) -> float:
     """Mini-batch training of N^σ on normalised data, early stopping on the validation loss; returns
-    the learning rate it ended with."""
+    the learning rate it ended with. ``choice``: the kept epoch weighs a closed loop too
+    (``neuroanimator.loop_choice``); None: the epoch of the lowest validation loss."""
     net = _Network(emu)
     if cfg.optimizer == "adam":
         # fused: one kernel for every parameter's update, about a fifth faster a step on the CPU
@@ -542,10 +552,15 @@ def train_core(
             best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
         else:
             stale += 1
+        loop = choice.offer(epoch, val, best, net, emu) if choice is not None else None
         # the worst validation example beside the mean: a mean that rises while the rate falls can be a
         # few inputs far outside the rest on which the network extrapolates (the runner on 1.6 million)
         bar.set_postfix(
-            val=f"{val:.2e}", best=f"{best:.2e}", worst=f"{worst:.1e}", lr=f"{opt.param_groups[0]['lr']:.1e}"
+            val=f"{val:.2e}",
+            best=f"{best:.2e}",
+            worst=f"{worst:.1e}",
+            lr=f"{opt.param_groups[0]['lr']:.1e}",
+            **({"loop": f"{loop:.3g}"} if loop is not None else {}),
         )
         # under the cosine schedule a stalled validation loss early on is the noise of a high learning
         # rate, not the end: stop only once it has come down halfway (the runner stopped at epoch 55 of
@@ -557,7 +572,9 @@ def train_core(
             log.info("time cap %.0f s reached at epoch %d", cfg.max_seconds, epoch)
             break
     bar.close()
-    if best_state is not None:
+    if choice is not None and choice.restore(net) is not None:
+        pass
+    elif best_state is not None:
         net.load_state_dict(best_state)
     return float(opt.param_groups[0]["lr"])
 

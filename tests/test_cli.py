@@ -429,11 +429,17 @@ def test_train_runner_uses_its_data_source_and_its_settings(
     the articulated hierarchy of five networks."""
     rc = main(
         ["train", "runner", "--out", str(tmp_path), "--examples", "1500", "--max-seconds", "3",
-         "--hidden", "16", "--branch-hidden", "8,8", "--batch-size", "128", "--force", "--quiet", "--json"]
+         "--hidden", "16", "--branch-hidden", "8,8", "--batch-size", "128", "--loop-tolerance", "0.5",
+         "--force", "--quiet", "--json"]
     )  # fmt: skip
     assert rc == 0
     summary = _last_json(capsys.readouterr().out)
     assert summary["substeps"] == 6 and summary["examples"] == 1500
+    # the kept epoch weighed by the runner's loop check: every epoch's loop error in metres, finite
+    # (so tiny an emulator runs far from MuJoCo: hundreds of metres in 5 s)
+    curve = summary["loop_curve"]
+    assert curve and all(row[2] is not None and 0 < row[2] < 1e6 for row in curve)
+    assert summary["loop_kept_epoch"] in [row[0] for row in curve]
     assert set(summary["networks"]) == {"trunk", "left_arm", "right_arm", "left_leg", "right_leg"}
     manifest = registry.read_manifest(registry.resolve(tmp_path, "runner"))
     cfg = manifest.train_config
@@ -477,6 +483,12 @@ def test_options_given_on_the_command_line_are_never_overridden_by_a_models_own_
     assert given_fields(parser.parse_args(["train", "runner", "--mirror", "on"])) == {"mirror"}
     assert given_fields(parser.parse_args(["train", "runner", "--limits", "on"])) == {"limits"}
     assert given_fields(parser.parse_args(["train", "runner", "--members", "2"])) == {"members"}
+    assert given_fields(parser.parse_args(["train", "runner", "--loop-tolerance", "off"])) == {
+        "loop_tolerance"
+    }
+    for bad in ("-0.1", "soon"):
+        with pytest.raises(SystemExit):
+            parser.parse_args(["train", "runner", "--loop-tolerance", bad])
     # every option named exists on the command line
     train = parser.parse_args(["train", "runner"])
     assert all(hasattr(train, option) for option in CONFIG_OPTIONS.values())

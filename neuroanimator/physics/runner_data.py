@@ -80,6 +80,11 @@ TRAIN_DEFAULTS = {
     "rollout_steps": 0,
 }
 BATCH = 32  # runs stepped together
+# the loop check (neuroanimator.loop_choice): runs from the running start at trained speeds other than
+# the benchmark's (bench/runner_emulator.py: 2.2 m/s, and the unseen 2.0), so that the choice of the kept
+# epoch does not look at the runs it is measured on
+LOOP_SPEEDS = (1.6, 1.8, 2.4)
+LOOP_S = 5.0
 FALL_MARGIN_S = 0.5
 
 
@@ -167,6 +172,27 @@ def examples(
         model, substeps, count, np.random.default_rng(seed), "transitions", progress, transitions
     )
     return Examples(s, u, f, n)
+
+
+def loop_check(model: PhysicalModel, substeps: int) -> Callable[[rc.Step], float]:
+    """The runner's loop check for choosing the kept epoch (``neuroanimator.loop_choice``): the running
+    controller closed through an emulator step from the running start at each of ``LOOP_SPEEDS`` for
+    ``LOOP_S`` seconds; returns the mean distance (m) of the pelvis from MuJoCo's at the end. MuJoCo's
+    runs are simulated once, here."""
+    m = model.mj_model
+    starts = np.stack([rc.running_start(m, v) for v in LOOP_SPEEDS])
+    ref = rc.run(m, starts, np.asarray(LOOP_SPEEDS), LOOP_S, control_every=substeps, kinematic=True)
+    pos = model.layout.slice_of("root.pos")
+    sim = model.from_physics(ref.states.reshape(-1, ref.states.shape[2])).reshape(
+        len(starts), -1, model.state_size
+    )
+
+    def error(step: rc.Step) -> float:
+        emu = rc.run_emulated(model, step, substeps, starts, np.asarray(LOOP_SPEEDS), LOOP_S)
+        at = min(emu.states.shape[1], sim.shape[1]) - 1
+        return float(np.linalg.norm(emu.states[:, at, pos] - sim[:, at, pos], axis=1).mean())
+
+    return error
 
 
 def longest_window(model: PhysicalModel, substeps: int) -> int:
