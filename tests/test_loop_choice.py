@@ -97,7 +97,7 @@ def test_a_loop_tolerance_needs_a_model_with_a_loop_check() -> None:
 
 def test_the_runner_loop_check_on_the_committed_emulator_is_within_half_a_metre() -> None:
     """The runner's loop check (its controller closed through the committed emulator from the running
-    start at three trained speeds for 5 s) measures metres from MuJoCo's run: finite, and under the
+    starts at three trained speeds for 5 s) measures metres from MuJoCo's runs: finite, and under the
     0.5 m an emulated run must keep at 5 s."""
     path = registry.resolve(ROOT / "artifacts", "runner")
     manifest = registry.read_manifest(path)
