@@ -8,6 +8,10 @@ controller through a step function and returns how far the loop ends from MuJoCo
 unit where lower is better). With ``TrainConfig.loop_tolerance`` set, every epoch whose validation loss
 is within that fraction of the best one is a candidate, and the candidate whose loop ends nearest
 MuJoCo's is kept; early stopping still follows the validation loss.
+
+A loop check must average many runs: the runner's distance from MuJoCo's at 5 s from one start ranged
+over 0.2-1.2 m among epochs of one training whose validation losses were within 5 % of each other, and
+an epoch chosen on three starts was no better on others (BENCHMARKS.md).
 """
 
 from __future__ import annotations

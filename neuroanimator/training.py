@@ -281,6 +281,7 @@ def train(
     if spent > 0 and cfg.time_budget is not None:
         log.info("time budget %.0f s: %.0f s spent before the training", cfg.time_budget, spent)
     emu = build_emulator(model, cfg)
+    choice = loop_choice(model, cfg)  # before sampling: a model without a loop check fails at once
     weights = sum(p.numel() for p in emu.parameters())
     count = cfg.examples or math.ceil(cfg.examples_per_weight * weights)
     plan = sampling_plan(model, cfg, count, time.perf_counter() - t_budget)
@@ -343,7 +344,6 @@ def train(
 
     # 4. the core network
     core_cfg = dataclasses.replace(cfg, max_seconds=one_step_seconds(cfg, time.perf_counter() - t_budget))
-    choice = loop_choice(model, cfg)
     final_lr = train_core(emu, x_tr, y_tr, x_val, y_val, core_cfg, choice)
 
     # 5. training over rollouts, from the one-step solution
@@ -572,9 +572,8 @@ def train_core(
             log.info("time cap %.0f s reached at epoch %d", cfg.max_seconds, epoch)
             break
     bar.close()
-    if choice is not None and choice.restore(net) is not None:
-        pass
-    elif best_state is not None:
+    kept = choice.restore(net) if choice is not None else None
+    if kept is None and best_state is not None:
         net.load_state_dict(best_state)
     return float(opt.param_groups[0]["lr"])
 
