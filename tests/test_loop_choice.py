@@ -105,3 +105,15 @@ def test_the_runner_loop_check_on_the_committed_emulator_is_within_half_a_metre(
     check = runner_data.loop_check(model, manifest.substeps)
     error = check(numpy_step(artifacts.load_torch(path).eval()))
     assert math.isfinite(error) and 0.0 < error < 0.5
+
+
+def test_neuro_train_with_a_loop_tolerance_for_a_model_without_a_loop_check_fails_at_once(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A clear error before any data are simulated, and nothing written."""
+    from neuroanimator.cli import main
+
+    rc = main(["train", "pendulum-active", "--loop-tolerance", "0.05", "--out", str(tmp_path), "--quiet"])
+    assert rc == 2
+    assert "no loop check" in caplog.text
+    assert not any(tmp_path.iterdir())
