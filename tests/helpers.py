@@ -1,5 +1,6 @@
 """What several test modules share besides fixtures: a user's MJCF file, the trained-artifact record,
-running a benchmark script, and the emulator service behind a test client.
+running a benchmark script, the emulator service behind a test client, and a small regression problem
+with an emulator of its shape.
 
 Here rather than in ``conftest.py``, which pytest imports itself and tests should not import.
 """
@@ -13,9 +14,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import torch
 from fastapi import FastAPI
 
 from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.structured import StructuredEmulator
+from neuroanimator.train_config import TrainConfig
 from neuroanimator.training import TrainResult
 
 if TYPE_CHECKING:
@@ -113,3 +117,21 @@ METRICS = {
     "train_seconds": 0.0,
     "total_seconds": 0.0,
 }
+
+
+def regression_problem(seed: int = 0) -> tuple[torch.Tensor, ...]:
+    """A smooth map from 5 inputs to 6 outputs (the truck emulator's core shape): training x, y and
+    validation x, y (the first 80 of 400 rows)."""
+    gen = torch.Generator().manual_seed(seed)
+    w = torch.randn(5, 6, generator=gen)
+    x = torch.randn(400, 5, generator=gen)
+    y = torch.tanh(x @ w)
+    return x[80:], y[80:], x[:80], y[:80]
+
+
+def truck_emulator() -> StructuredEmulator:
+    """The truck's emulator with one hidden layer of 16, random weights from seed 0."""
+    from neuroanimator import physics, training
+
+    torch.manual_seed(0)
+    return training.build_emulator(physics.get("truck"), TrainConfig(hidden=(16,)))

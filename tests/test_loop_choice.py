@@ -15,13 +15,9 @@ from neuroanimator import artifacts, physics, registry, training
 from neuroanimator.loop_choice import LoopChoice, Step, loop_choice, numpy_step
 from neuroanimator.physics import runner_data
 from neuroanimator.training import TrainConfig
+from tests.helpers import regression_problem, truck_emulator
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _truck_emulator() -> training.StructuredEmulator:
-    torch.manual_seed(0)
-    return training.build_emulator(physics.get("truck"), TrainConfig(hidden=(16,)))
 
 
 def _output_size(step: Step) -> float:
@@ -34,7 +30,7 @@ def _output_size(step: Step) -> float:
 def test_the_candidate_with_the_lowest_loop_error_within_the_tolerance_is_kept() -> None:
     """Scripted loop errors over five epochs: epoch 1 has the lowest loop but a validation loss beyond
     10 % of the best, so epoch 3 (within it, the lowest loop there) is kept and its weights restored."""
-    emu = _truck_emulator()
+    emu = truck_emulator()
     vals = [1.0, 0.5, 0.3, 0.32, 0.30]  # best 0.3: within 10 % are epochs 2, 3, 4
     loops = iter([5.0, 0.1, 2.0, 0.7, 1.5])
     choice = LoopChoice(lambda step: next(loops), tolerance=0.1)
@@ -56,7 +52,7 @@ def test_the_candidate_with_the_lowest_loop_error_within_the_tolerance_is_kept()
 
 
 def test_with_no_tolerance_the_kept_epoch_is_one_of_the_lowest_validation_loss() -> None:
-    emu = _truck_emulator()
+    emu = truck_emulator()
     loops = iter([0.1, 3.0, 2.0])
     choice = LoopChoice(lambda step: next(loops), tolerance=0.0)
     for epoch, (val, best) in enumerate([(1.0, 1.0), (0.4, 0.4), (0.5, 0.4)]):
@@ -68,13 +64,11 @@ def test_train_core_keeps_the_epoch_the_choice_names_and_records_every_epoch() -
     """Through ``train_core``: one curve row per epoch; the kept epoch within the tolerance of the
     lowest validation loss and the lowest loop error among those; the emulator left with its weights
     (its loop check measures the kept error again)."""
-    gen = torch.Generator().manual_seed(0)
-    x = torch.randn(400, 5, generator=gen)
-    y = torch.tanh(x @ torch.randn(5, 6, generator=gen))
-    emu = _truck_emulator()
+    x, y, xv, yv = regression_problem()
+    emu = truck_emulator()
     choice = LoopChoice(_output_size, tolerance=0.2)
     cfg = TrainConfig(lr=1e-2, batch_size=64, max_epochs=12, threads=1, progress=False)
-    training.train_core(emu, x[80:], y[80:], x[:80], y[:80], cfg, choice)
+    training.train_core(emu, x, y, xv, yv, cfg, choice)
     curve = choice.curve
     assert [row[0] for row in curve] == list(range(len(curve))) and len(curve) == 12
     best_val = min(v for _, v, _ in curve)

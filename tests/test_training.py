@@ -12,6 +12,7 @@ import torch
 
 from neuroanimator import artifacts, physics, sampling, training
 from neuroanimator.training import TrainConfig, TrainingDiverged
+from tests.helpers import regression_problem, truck_emulator
 
 
 @pytest.fixture(scope="module")
@@ -93,25 +94,15 @@ def test_to_dict_is_plain_data() -> None:
     assert d["optimizer"] == "adam"
 
 
-def _regression_problem(seed: int = 0) -> tuple[torch.Tensor, ...]:
-    """A smooth map from 5 inputs to 6 outputs: the truck emulator's core shape."""
-    gen = torch.Generator().manual_seed(seed)
-    w = torch.randn(5, 6, generator=gen)
-    x = torch.randn(400, 5, generator=gen)
-    y = torch.tanh(x @ w)
-    return x[80:], y[80:], x[:80], y[:80]
-
-
 def _emulator() -> training.StructuredEmulator:
-    torch.manual_seed(0)
-    emu = training.build_emulator(physics.get("truck"), TrainConfig(hidden=(16,)))
+    emu = truck_emulator()
     assert emu.input_size == 5 and emu.layout.size == 6
     return emu
 
 
 @pytest.mark.parametrize("optimizer", ["sgd", "adam"])
 def test_optimizers_reduce_the_validation_loss(optimizer: str) -> None:
-    x, y, xv, yv = _regression_problem()
+    x, y, xv, yv = regression_problem()
     emu = _emulator()
     with torch.no_grad():
         before = float(torch.mean((emu.network(xv) - yv) ** 2))
@@ -133,7 +124,7 @@ def test_cosine_schedule_does_not_stop_before_it_has_annealed_halfway() -> None:
     """With validation targets that nothing predicts and a patience of one epoch, the plateau schedule
     stops within a few epochs; the cosine one goes on until its learning rate has come down halfway
     (the learning rate it returns says where it stopped)."""
-    x, y, xv, _ = _regression_problem()
+    x, y, xv, _ = regression_problem()
     noise = torch.randn(xv.shape[0], y.shape[1], generator=torch.Generator().manual_seed(1))
     base = TrainConfig(lr=1e-2, batch_size=64, max_epochs=20, patience=1, threads=1, progress=False)
     plateau_lr = training.train_core(
@@ -147,14 +138,14 @@ def test_cosine_schedule_does_not_stop_before_it_has_annealed_halfway() -> None:
 
 
 def test_bad_optimizer_name_raises() -> None:
-    x, y, xv, yv = _regression_problem()
+    x, y, xv, yv = regression_problem()
     emu = _emulator()
     with pytest.raises(ValueError, match="optimizer"):
         training.train_core(emu, x, y, xv, yv, TrainConfig(optimizer="lbfgs", progress=False))
 
 
 def test_huge_learning_rate_raises_training_diverged() -> None:
-    x, y, xv, yv = _regression_problem()
+    x, y, xv, yv = regression_problem()
     emu = _emulator()
     with pytest.raises(TrainingDiverged, match="learning rate"):
         training.train_core(
