@@ -31,7 +31,7 @@ import torch
 
 from neuroanimator import artifacts, registry
 from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.training import generate_examples, held_out_seed, to_tensors
+from neuroanimator.training import held_out_examples, held_out_seed, to_tensors
 
 log = logging.getLogger("contact_errors")
 KINDS = ("none", "always", "switch")
@@ -63,7 +63,8 @@ def measure(path: Path, examples: int) -> dict[str, Any]:
         raise SystemExit(f"{path}: a hierarchy; bench/hierarchy_errors.py splits its error by network")
     model = registry.load_physical_model(path, manifest)
     n, cfg = manifest.substeps, manifest.train_config
-    test = generate_examples(model, n, examples, held_out_seed(cfg.seed), progress=False, sampler=cfg.sampler)
+    like = manifest.metrics.examples  # held out as the training runs were drawn
+    test = held_out_examples(model, n, examples, held_out_seed(cfg.seed), False, cfg.sampler, like=like)
     emu = artifacts.load_torch(path)
     s, u, f, nxt = to_tensors(test)
     with torch.no_grad():

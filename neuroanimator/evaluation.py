@@ -19,7 +19,7 @@ from neuroanimator.export import OnnxEmulator
 from neuroanimator.manifest import Manifest
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.results import PhysicalErrors, RolloutCurve
-from neuroanimator.training import apply_linear, generate_examples, held_out_seed, relative_error, to_tensors
+from neuroanimator.training import apply_linear, held_out_examples, held_out_seed, relative_error, to_tensors
 
 log = logging.getLogger(__name__)
 EVAL_SEED = 20_000  # rollout trials use the same initial states and control functions for every n
@@ -31,13 +31,15 @@ def one_step_errors(
     """Relative one-step error of the emulator and of the linear baseline on fresh held-out data (of
     a hierarchy: its worst network's, ``hierarchy_one_step_errors``)."""
     cfg = manifest.train_config
-    test = generate_examples(
+    simulated = manifest.metrics.examples if not cfg.mirror else (manifest.metrics.examples + 1) // 2
+    test = held_out_examples(
         model,
         manifest.substeps,
         count or cfg.test_examples,
         held_out_seed(cfg.seed),
         progress=False,
         sampler=cfg.sampler,
+        like=simulated,
     )
     if manifest.emulator.parts:
         errors = hierarchy_one_step_errors(path, model, test)

@@ -207,11 +207,12 @@ def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
         count,
     )
     data = sampling.generate(model, cfg.substeps, count, cfg.seed, progress=cfg.progress, sampler=cfg.sampler)
-    test = sampling.generate(
+    test = sampling.generate_held_out(
         model,
         cfg.substeps,
         cfg.test_examples,
         held_out_seed(cfg.seed),
+        like=count,
         progress=cfg.progress,
         sampler=cfg.sampler,
     )

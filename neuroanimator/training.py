@@ -216,6 +216,31 @@ def generate_examples(
     return data
 
 
+def held_out_examples(
+    model: PhysicalModel,
+    substeps: int,
+    count: int,
+    seed: int,
+    progress: bool,
+    sampler: str = "runs",
+    *,
+    like: int,
+) -> sampling.Examples:
+    """``count`` held-out transitions of ``model``, drawn as its training set of ``like`` examples is
+    (``sampling.generate_held_out``), or from its own data source as ``generate_examples``."""
+    if model.spec.data_source is not None:
+        return generate_examples(model, substeps, count, seed, progress, sampler)
+    return sampling.generate_held_out(
+        model, substeps, count, seed, like=like, progress=progress, sampler=sampler
+    )
+
+
+def held_out_key(model: PhysicalModel, cfg: TrainConfig, like: int) -> str:
+    """The data cache's name for a held-out set drawn like ``like`` training examples (``held_out_examples``;
+    a data source's held-out set is its own, whatever the training count)."""
+    return cfg.sampler if model.spec.data_source is not None else f"{cfg.sampler}, held out like {like}"
+
+
 def to_tensors(ex: sampling.Examples) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:
     s = torch.from_numpy(ex.states).float()
     u = torch.from_numpy(ex.controls).float() if ex.controls.shape[1] else None
@@ -306,7 +331,14 @@ def train(
     if mirror is not None:
         check_mirror(mirror, model, data, cfg.substeps)  # what the names and masses do not show
         data = with_mirror_images(mirror, data).subset(slice(0, count))
-    test = simulate(plan.test_examples, held_out_seed(cfg.seed))
+    out_seed = held_out_seed(cfg.seed)
+    test = cached(  # drawn as the training runs are: the same stretch of each run, not only its start
+        data_cache, model, cfg.substeps, plan.test_examples, out_seed, held_out_key(model, cfg, simulated),
+        lambda: held_out_examples(
+            model, cfg.substeps, plan.test_examples, out_seed, cfg.progress, cfg.sampler, like=simulated
+        ),
+        sampling.Examples,
+    )  # fmt: skip
     t_data = time.perf_counter() - t_start
     # probe the geoms that come near the floor or touch each other in these data (the pairs are known
     # only from data: contact_features searches them there)

@@ -222,6 +222,26 @@ def test_small_counts_come_from_many_runs() -> None:
     assert len(runs) >= 250 and np.unique(runs.states[:, 0], axis=0).shape[0] == len(runs)
 
 
+def test_held_out_examples_are_drawn_like_the_training_set() -> None:
+    """A held-out set of 500 examples, like a training set of 256 episodes: from the same stretch of
+    the runs (the truck drives away from its start, so its distance says how far into a run a state
+    is), where 500 examples of their own come from the first super-steps of 256 runs."""
+    model = physics.get("truck")
+    like = 256 * (round(model.spec.episode_s / model.dt) // 10)
+    train = sampling.generate(model, 10, like, seed=1, progress=False)
+    held = sampling.generate_held_out(model, 10, 500, seed=2, like=like, progress=False)
+    short = sampling.generate(model, 10, 500, seed=2, progress=False)
+    assert len(held) == 500 and np.isfinite(held.states).all()
+    far = np.abs(train.states[:, :2]).mean()
+    assert 0.8 * far <= np.abs(held.states[:, :2]).mean() <= 1.2 * far
+    assert np.abs(short.states[:, :2]).mean() < 0.7 * far
+    again = sampling.generate_held_out(model, 10, 500, seed=2, like=like, progress=False)
+    np.testing.assert_array_equal(again.states, held.states)
+    # from at least HELD_OUT_RUNS runs: as many distinct starts of runs as a short set's
+    total, horizon, _ = sampling._held_out_runs(model, 10, 500, like, 256)
+    assert total >= sampling.HELD_OUT_RUNS and horizon == sampling.run_horizon(model, 10, like, 256)
+
+
 # ----------------------------------------------------------------------------- the cost of sampling
 def test_a_model_knows_its_step_rate_only_after_simulating() -> None:
     """``step_rate`` is None for a fresh model (nothing measured) and counts every thread's steps."""
@@ -232,15 +252,31 @@ def test_a_model_knows_its_step_rate_only_after_simulating() -> None:
     assert model._seconds_simulating >= model.RATE_MIN_SECONDS
 
 
-@pytest.mark.parametrize(("sampler", "count"), [("runs", 3000), ("runs", 300), ("spaced", 300)])
-def test_the_cost_estimate_is_the_steps_that_sampling_simulates(sampler: str, count: int) -> None:
+@pytest.mark.parametrize(
+    ("sampler", "count", "like"),
+    [
+        ("runs", 3000, None),
+        ("runs", 300, None),
+        ("spaced", 300, None),
+        ("runs", 300, 3000),
+        ("runs", 300, 60000),
+    ],
+)
+def test_the_cost_estimate_is_the_steps_that_sampling_simulates(
+    sampler: str, count: int, like: int | None
+) -> None:
     """``steps_to_sample`` predicts the physical steps ``generate`` takes (which ``plan_within`` turns
-    into seconds): within 25% for both samplers, long runs and short."""
+    into seconds), and ``held_out_steps`` those of ``generate_held_out`` (``like``): within 25% for both
+    samplers, long runs and short."""
     model = physics.get("lander")
     before = model._steps_simulated
-    sampling.generate(model, 10, count, seed=3, progress=False, sampler=sampler)
+    if like is None:
+        sampling.generate(model, 10, count, seed=3, progress=False, sampler=sampler)
+        estimate = sampling.steps_to_sample(model, 10, count, sampler)
+    else:
+        sampling.generate_held_out(model, 10, count, seed=3, like=like, progress=False, sampler=sampler)
+        estimate = sampling.held_out_steps(model, 10, count, like, sampler)
     simulated = model._steps_simulated - before
-    estimate = sampling.steps_to_sample(model, 10, count, sampler)
     assert 0.75 * simulated <= estimate <= 1.25 * simulated, (simulated, estimate)
 
 
