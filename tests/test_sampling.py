@@ -237,7 +237,7 @@ def test_held_out_examples_are_drawn_like_the_training_set() -> None:
     assert np.abs(short.states[:, :2]).mean() < 0.7 * far
     again = sampling.generate_held_out(model, 10, 500, seed=2, like=like, progress=False)
     np.testing.assert_array_equal(again.states, held.states)
-    # from at least HELD_OUT_RUNS runs: as many distinct starts of runs as a short set's
+    # from at least HELD_OUT_RUNS runs, each as long as the training set's runs
     total, horizon, _ = sampling._held_out_runs(model, 10, 500, like, 256)
     assert total >= sampling.HELD_OUT_RUNS and horizon == sampling.run_horizon(model, 10, like, 256)
 
