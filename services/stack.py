@@ -25,6 +25,7 @@ import argparse
 import contextlib
 import logging
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -79,11 +80,49 @@ class StackError(RuntimeError):
     """The stack could not start (the message says which part and why)."""
 
 
-def free_port(host: str = "127.0.0.1") -> int:
-    with socket.socket() as s:
-        s.bind((host, 0))
-        port: int = s.getsockname()[1]
-        return port
+class PortTakenError(StackError):
+    """A service could not bind its port: something took it after the stack found it free (a caller on
+    free ports may pick new ones and start again)."""
+
+
+EPHEMERAL_RANGE = Path("/proc/sys/net/ipv4/ip_local_port_range")
+_handed_out: set[int] = set()
+
+
+def _ephemeral_range() -> tuple[int, int]:
+    """The ports the kernel gives outgoing connections (Linux's default where it cannot be read)."""
+    try:
+        low, high = (int(v) for v in EPHEMERAL_RANGE.read_text().split())
+    except (OSError, ValueError):
+        return 32768, 60999
+    return low, high
+
+
+def free_port(host: str = "127.0.0.1", rng: random.Random | None = None) -> int:
+    """A port free to bind now, never the same twice in one process, drawn from below the kernel's
+    ephemeral range where there is room: a port in that range can be given to any outgoing connection
+    (a client of Redis, say) between this check and the service binding it."""
+    rng = rng or random.Random()
+    low, _ = _ephemeral_range()
+    if low > 20000:
+        for _ in range(200):
+            port = rng.randrange(15000, low)
+            if port in _handed_out:
+                continue
+            with socket.socket() as s:
+                try:
+                    s.bind((host, port))
+                except OSError:
+                    continue
+            _handed_out.add(port)
+            return port
+    while True:  # no room below the range: let the kernel choose
+        with socket.socket() as s:
+            s.bind((host, 0))
+            port = int(s.getsockname()[1])
+        if port not in _handed_out:
+            _handed_out.add(port)
+            return port
 
 
 def port_in_use(host: str, port: int) -> bool:
@@ -292,9 +331,11 @@ class Stack:
         assert svc.proc is not None
         while svc.ready_url is not None:
             if svc.proc.poll() is not None:
-                raise StackError(
+                tail = svc.tail()
+                error = PortTakenError if "address already in use" in tail else StackError
+                raise error(
                     f"{svc.name} exited with status {svc.proc.returncode} while starting; "
-                    f"the end of {svc.log_path}:\n{svc.tail()}"
+                    f"the end of {svc.log_path}:\n{tail}"
                 )
             try:
                 with urllib.request.urlopen(svc.ready_url, timeout=2) as r:

@@ -19,12 +19,13 @@ from typing import Any
 
 import pytest
 
-from services.stack import Stack, StackConfig, StackError, free_port
+from services.stack import PortTakenError, Stack, StackConfig, StackError, free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 SHOTS = ROOT / "tests" / "e2e" / "screenshots"
 CHROMIUM = os.environ.get("CHROMIUM", "/usr/bin/chromium")
 log = logging.getLogger(__name__)
+PORT_ATTEMPTS = 3  # starts on fresh ports when a service finds its port taken
 
 
 def missing(dashboard: bool = True) -> str | None:
@@ -45,24 +46,31 @@ def running_stack(log_dir: Path, **config: Any) -> Iterator[Stack]:
     """The whole stack on free ports (``StackConfig`` fields in ``config``); skips the test when there
     is no Redis to be had."""
     env = {"WORKER_THREADS": "1", **config.pop("env", {})}
-    cfg = StackConfig(
-        emulator_port=free_port(),
-        controller_port=free_port(),
-        trainer_port=free_port(),
-        web_port=free_port(),
-        log_dir=log_dir,
-        train_missing=False,
-        namespace=f"test-e2e-{uuid.uuid4().hex[:8]}",
-        env=env,
-        **config,
-    )
-    s = Stack(cfg)
-    try:
-        s.start()
-    except StackError as exc:
-        if "no Redis" in str(exc):
-            pytest.skip(str(exc))
-        raise
+    for attempt in range(1, PORT_ATTEMPTS + 1):
+        s = Stack(
+            StackConfig(
+                emulator_port=free_port(),
+                controller_port=free_port(),
+                trainer_port=free_port(),
+                web_port=free_port(),
+                log_dir=log_dir,
+                train_missing=False,
+                namespace=f"test-e2e-{uuid.uuid4().hex[:8]}",
+                env=env,
+                **config,
+            )
+        )
+        try:
+            s.start()
+            break
+        except PortTakenError as exc:  # another process bound a port first: new ports, start again
+            if attempt == PORT_ATTEMPTS:
+                raise
+            log.warning("a port was taken while the stack started (attempt %d): %s", attempt, exc)
+        except StackError as exc:
+            if "no Redis" in str(exc):
+                pytest.skip(str(exc))
+            raise
     log.info("stack up in %.1f s: %s", s.startup_s, s.urls)
     try:
         yield s

@@ -7,7 +7,6 @@ import json
 import logging
 import os
 import selectors
-import socket
 import subprocess
 import sys
 import time
@@ -18,6 +17,7 @@ from typing import Any
 import pytest
 
 from services.common.logs import JsonFormatter, setup
+from services.stack import free_port as _free_port
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -70,13 +70,6 @@ def test_setup_replaces_the_root_handlers() -> None:
     finally:
         root.handlers[:] = before
         root.setLevel(level)
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 def _lines_until(proc: subprocess.Popen[bytes], wanted: str, timeout: float) -> list[dict[str, Any]]:
