@@ -18,7 +18,7 @@ import re
 import threading
 import time
 import xml.etree.ElementTree as ET
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import cached_property
@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from neuroanimator import catmull_rom
 from neuroanimator import quaternion as quat
 from neuroanimator.model_spec import ControlInfo, ModelSpec
+from neuroanimator.physics import separation
 from neuroanimator.state import GroupKind, StateGroup, StateLayout
 
 log = logging.getLogger(__name__)
@@ -193,6 +194,7 @@ class PhysicalModel:
         self._force_index = self._resolve_forces()
         self._threads = max(1, min(2, os.cpu_count() or 1))
         self._local = threading.local()
+        self._separator_lock = threading.Lock()
         # physical steps simulated on all threads, and the seconds they took (``step_rate``)
         self._steps_simulated = 0
         self._seconds_simulating = 0.0
@@ -591,27 +593,71 @@ class PhysicalModel:
 
     # ------------------------------------------------------------------ typical inputs
     def initial_states(self, rng: np.random.Generator, batch: int) -> FloatArray:
-        """(batch, S) typical initial states (spec.initial), deterministic for the generator."""
+        """(batch, S) typical initial states (spec.initial), deterministic for the generator; a start that
+        would begin inside the floor or inside another body is lifted or drawn nearer the rest pose
+        (``separation``)."""
         init = self.spec.initial
-        states = np.repeat(self.rest_state()[None, :], batch, axis=0)
+        rest = self.rest_state()
+        delta = np.zeros((batch, self.state_size))
         if init.low:
             lo, hi = np.asarray(init.low), np.asarray(init.high)
             if lo.size != self.state_size or hi.size != self.state_size:
                 raise ModelError(f"model {self.name}: initial low/high must have {self.state_size} values")
-            states += lo + (hi - lo) * rng.random((batch, self.state_size))
+            delta = lo + (hi - lo) * rng.random((batch, self.state_size))
         qg = self.layout.find("quaternion")
+        turn: tuple[slice, FloatArray, FloatArray, FloatArray] | None = None
         if qg is not None and (init.random_yaw or init.max_tilt > 0):
-            sl = self.layout.slice_of(qg.name)
             yaw = rng.uniform(-np.pi, np.pi, batch) if init.random_yaw else np.zeros(batch)
             # uniform over the spherical cap of half-angle max_tilt (the whole sphere for π)
             tilt = np.arccos(1.0 - rng.random(batch) * (1.0 - np.cos(min(init.max_tilt, np.pi))))
             axis_angle = rng.uniform(-np.pi, np.pi, batch)
             axis = np.stack([np.cos(axis_angle), np.sin(axis_angle), np.zeros(batch)], axis=1)
-            q_yaw = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), yaw)
-            q_tilt = quat.from_axis_angle(axis, tilt)
-            q = quat.multiply(q_yaw, quat.multiply(q_tilt, states[:, sl]))
-            states[:, sl] = q / np.linalg.norm(q, axis=1, keepdims=True)
-        return states
+            turn = (self.layout.slice_of(qg.name), yaw, tilt, axis)
+
+        def build(rows: NDArray[np.int64], scale: float) -> FloatArray:
+            """The starts of ``rows`` with their perturbation (tilt included) scaled by ``scale``."""
+            states = rest + scale * delta[rows]
+            if turn is not None:
+                sl, yaw, tilt, axis = turn
+                q_yaw = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), yaw[rows])
+                q_tilt = quat.from_axis_angle(axis[rows], scale * tilt[rows])
+                q = quat.multiply(q_yaw, quat.multiply(q_tilt, states[:, sl]))
+                states[:, sl] = q / np.linalg.norm(q, axis=1, keepdims=True)
+            return states
+
+        states = build(np.arange(batch), 1.0)
+        if self._separator is None:
+            return states
+        return self._separated(states, lambda i, scale: build(np.array([i]), scale)[0])
+
+    @cached_property
+    def _separator(self) -> separation.Separator | None:
+        """The penetration check of the starts; None for a model whose geoms never collide."""
+        m = self.mj_model
+        if m.npair == 0 and not (np.any(m.geom_contype) and np.any(m.geom_conaffinity)):
+            return None
+        return separation.Separator(m)
+
+    def _separated(self, states: FloatArray, rebuild: Callable[[int, float], FloatArray]) -> FloatArray:
+        sep = self._separator
+        assert sep is not None
+        m = self.mj_model
+        at = slice(self._qpos_at, self._qpos_at + m.nq)
+        full = self.to_physics(states)
+        with self._separator_lock:  # one MjData for the check
+            qpos, lifted, shrunk = separation.separate(
+                sep, full[:, at], lambda i, scale: self.to_physics(rebuild(i, scale)[None])[0, at]
+            )
+        if lifted or shrunk:
+            log.debug(
+                "%s: of %d starts, %d lifted off the floor, %d drawn nearer rest",
+                self.name,
+                len(states),
+                lifted,
+                shrunk,
+            )
+        full[:, at] = qpos
+        return self.from_physics(full)
 
     def typical_controls(self, rng: np.random.Generator, batch: int, times: FloatArray) -> FloatArray:
         """(batch, T, U) smooth Catmull-Rom controls over the useful range, at the given times."""
