@@ -45,10 +45,15 @@ _SIZES: dict[str, tuple[int, ...]] = {
 }
 
 
+StateSource = Literal["qpos", "qvel", "act"]
+STATE_SOURCES: tuple[str, ...] = get_args(StateSource)
+
+
 class StateGroup(BaseModel):
     """One named group of state variables: what its numbers mean and where MuJoCo keeps them.
 
-    ``source`` is ``"qpos"`` or ``"qvel"`` and ``address`` the first index in that MuJoCo array;
+    ``source`` is ``"qpos"``, ``"qvel"`` or ``"act"`` (the activations of actuators with their own
+    dynamics: filters, muscles) and ``address`` the first index in that MuJoCo array;
     ``labels`` (one per value, or none) name the values for people. The physics modules, the model
     spec, the manifest and the wire contract all use this one type.
     """
@@ -58,7 +63,7 @@ class StateGroup(BaseModel):
     name: str
     kind: GroupKind
     size: int = Field(ge=1)
-    source: Literal["qpos", "qvel"]
+    source: StateSource
     address: int = Field(ge=0)
     labels: tuple[str, ...] = ()
 
@@ -71,8 +76,10 @@ class StateGroup(BaseModel):
         name, kind, size = data.get("name"), data.get("kind"), data.get("size")
         if kind not in GROUP_KINDS:
             raise ValueError(f"group {name!r}: kind must be one of {GROUP_KINDS}, got {kind!r}")
-        if data.get("source") not in ("qpos", "qvel"):
-            raise ValueError(f"group {name!r}: source must be 'qpos' or 'qvel', got {data.get('source')!r}")
+        if data.get("source") not in STATE_SOURCES:
+            raise ValueError(
+                f"group {name!r}: source must be one of {STATE_SOURCES}, got {data.get('source')!r}"
+            )
         address = data.get("address")
         if isinstance(address, int) and address < 0:
             raise ValueError(f"group {name!r}: address must be >= 0, got {address}")

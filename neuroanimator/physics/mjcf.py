@@ -48,7 +48,7 @@ def load_mjcf(
     the entry's file name; state layout from its joints, controls and their ranges from its actuators.
 
     Typical initial states perturb ``qpos0`` a little (±0.3 on joint angles and slides, ±0.3 on
-    velocities), and typical controls sweep each actuator's ctrlrange (±1 when unlimited). With
+    velocities; an actuator's activation anywhere in its control range), and typical controls sweep each actuator's ctrlrange (±1 when unlimited). With
     ``stabilise``, the velocity perturbations are narrowed where MuJoCo cannot simulate them
     (``stabilise_initial_states``); a quick check of an upload may skip that.
     """
@@ -77,7 +77,13 @@ def load_mjcf(
         )
     low, high = np.zeros(layout.size), np.zeros(layout.size)
     for g, sl in layout.group_slices():
-        if g.kind in ("angle", "scalar", "local_vector", "world_vector"):
+        if g.source == "act":  # an activation: anywhere its control can drive it
+            a = _actuator_of_activation(m, g.address)
+            if m.actuator_ctrllimited[a]:
+                low[sl], high[sl] = m.actuator_ctrlrange[a]
+            else:
+                low[sl], high[sl] = -1.0, 1.0
+        elif g.kind in ("angle", "scalar", "local_vector", "world_vector"):
             low[sl], high[sl] = -0.3, 0.3
     origin = bundle.entry if bundle.entry == p.name else f"{bundle.entry} in {p.name}"
     spec = ModelSpec(
@@ -91,6 +97,11 @@ def load_mjcf(
     if stabilise:
         stabilise_initial_states(model)
     return model
+
+
+def _actuator_of_activation(m: mujoco.MjModel, address: int) -> int:
+    """The actuator whose activation sits at ``act[address]``."""
+    return int(np.flatnonzero(m.actuator_actadr == address)[0])
 
 
 PROBE_RUNS = 256

@@ -22,7 +22,6 @@ from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Literal
 
 import mujoco
 import numpy as np
@@ -33,7 +32,7 @@ from neuroanimator import catmull_rom
 from neuroanimator import quaternion as quat
 from neuroanimator.model_spec import ControlInfo, ModelSpec
 from neuroanimator.physics import separation
-from neuroanimator.state import GroupKind, StateGroup, StateLayout
+from neuroanimator.state import GroupKind, StateGroup, StateLayout, StateSource
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -96,7 +95,7 @@ def _group(
     name: str,
     kind: GroupKind,
     size: int,
-    source: Literal["qpos", "qvel"],
+    source: StateSource,
     address: int,
     labels: tuple[str, ...] = (),
 ) -> StateGroup:
@@ -105,7 +104,9 @@ def _group(
 
 def derive_layout(m: mujoco.MjModel) -> StateLayout:
     """State groups from the joints: free → position, quaternion, velocity, angular velocity;
-    ball → local quaternion and angular velocity; hinge → angle and rate; slide → scalars.
+    ball → local quaternion and angular velocity; hinge → angle and rate; slide → scalars; and one
+    scalar per activation of an actuator with its own dynamics (a filter, a muscle: ``<name>.act``),
+    without which the next state would not follow from the state and the controls.
 
     The first free joint is the root (its position and orientation define the local frame);
     further free joints are treated as plain numbers, without symmetry.
@@ -145,7 +146,23 @@ def derive_layout(m: mujoco.MjModel) -> StateLayout:
             vel_groups.append(_group(f"{name}.vel", "scalar", 1, "qvel", va))
     if not pos_groups:
         raise ModelError("the MJCF has no joints: there is no state to emulate")
-    return StateLayout(tuple(pos_groups + vel_groups))
+    act_groups = [
+        _group(
+            f"{mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f'actuator{a}'}.act",
+            "scalar",
+            1,
+            "act",
+            adr,
+        )
+        for a in range(m.nu)
+        if (adr := int(m.actuator_actadr[a])) >= 0 and int(m.actuator_actnum[a]) == 1
+    ]
+    if len(act_groups) != m.na:
+        raise ModelError(
+            f"the MJCF's actuators hold {m.na} activations, of which {m.na - len(act_groups)} in actuators with "
+            "more than one (a user-defined dynamics): such a state cannot be emulated yet"
+        )
+    return StateLayout(tuple(pos_groups + vel_groups + act_groups))
 
 
 class PhysicalModel:
@@ -319,7 +336,7 @@ class PhysicalModel:
     def _check_layout(self) -> None:
         m = self.mj_model
         for g in self.layout:
-            limit = m.nq if g.source == "qpos" else m.nv
+            limit = {"qpos": m.nq, "qvel": m.nv, "act": m.na}[g.source]
             if g.address + g.size > limit:
                 raise ModelError(
                     f"model {self.name}: state group {g.name!r} reads {g.source}[{g.address}:{g.address + g.size}]"
@@ -362,6 +379,7 @@ class PhysicalModel:
         d = mujoco.MjData(m)
         d.qpos[:] = np.arange(m.nq) + 1000.0
         d.qvel[:] = np.arange(m.nv) + 2000.0
+        d.act[:] = np.arange(m.na) + 5000.0
         d.time = -1000.0
         full = np.empty(mujoco.mj_stateSize(m, _PHYSICS))
         mujoco.mj_getState(m, d, full, _PHYSICS)
@@ -369,6 +387,7 @@ class PhysicalModel:
         self._time_at = int(np.flatnonzero(full == -1000.0)[0])
         self._qpos_at = int(np.flatnonzero(full == 1000.0)[0]) if m.nq else 0
         self._qvel_at = int(np.flatnonzero(full == 2000.0)[0]) if m.nv else 0
+        self._act_at = int(np.flatnonzero(full == 5000.0)[0]) if m.na else 0
         self._template = np.zeros(self._nfull)
         mujoco.mj_resetData(m, d)
         mujoco.mj_getState(m, d, self._template, _PHYSICS)
@@ -382,7 +401,7 @@ class PhysicalModel:
         # state index -> index in the full-physics vector
         index: list[int] = []
         for g in self.layout:
-            base = self._qpos_at if g.source == "qpos" else self._qvel_at
+            base = {"qpos": self._qpos_at, "qvel": self._qvel_at, "act": self._act_at}[g.source]
             index.extend(range(base + g.address, base + g.address + g.size))
         self._state_index = np.asarray(index, dtype=np.int64)
         self._rest = self._template[self._state_index].copy()

@@ -359,7 +359,7 @@ export interface LayoutGroup {
     | 'angle'
     | 'scalar';
   size: number;
-  source: 'qpos' | 'qvel';
+  source: 'qpos' | 'qvel' | 'act';
   address: number;
   labels?: string[];
   offset: number;
