@@ -2,8 +2,8 @@
 
 A typical initial state perturbs the rest pose: joint angles by a few tenths of a radian, a root
 slide by a few tenths of a metre, the root tilted. On a body that stands on a floor that often puts
-a foot into the ground or one limb into another (dm_control's hopper, walker and cheetah in a third
-to a half of their starts, by up to 33 cm; the quadruped and the dog in nine of ten). MuJoCo's soft
+a foot into the ground or one limb into another (dm_control's hopper, walker and cheetah in 39-53%
+of their starts, by up to 35 cm; the quadruped and the dog in 84% and 95%). MuJoCo's soft
 contact then pushes the geoms apart with forces that no motion of the model ever meets again: the
 first tenths of a second of such a run are an explosion, which an emulator is trained and measured
 on, and the dog's runs diverge outright.
