@@ -48,9 +48,10 @@ def load_mjcf(
     the entry's file name; state layout from its joints, controls and their ranges from its actuators.
 
     Typical initial states perturb ``qpos0`` a little (±0.3 on joint angles and slides, ±0.3 on
-    velocities; an actuator's activation anywhere in its control range), and typical controls sweep each actuator's ctrlrange (±1 when unlimited). With
-    ``stabilise``, the velocity perturbations are narrowed where MuJoCo cannot simulate them
-    (``stabilise_initial_states``); a quick check of an upload may skip that.
+    velocities; an actuator's activation anywhere in its control range), and typical controls sweep
+    each actuator's ctrlrange (±1 when unlimited). With ``stabilise``, the velocity perturbations are
+    narrowed where MuJoCo cannot simulate them (``stabilise_initial_states``); a quick check of an
+    upload may skip that.
     """
     p = Path(path)
     bundle = load_source(p, entry, limits)
