@@ -115,8 +115,14 @@ def plot(
     import matplotlib.pyplot as plt
 
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4.2), dpi=110)
+    # a log scale where every J is positive (an error to drive to zero); a distance objective (the
+    # dolphin's) is negative, and a log axis would draw nothing of it
+    positive = all(v > 0 for c in curves.values() for v in c["history"])
+    positive = positive and target > 0 and all(v > 0 for t in traces for v in t.best)
+    for axis in (a1, a2):
+        axis.set_yscale("log" if positive else "linear")
     for label, c in curves.items():
-        a1.semilogy(
+        a1.plot(
             range(len(c["history"])),
             c["history"],
             label=f"{label} (η={c['learning_rate']:g}, α={c['momentum']:g})",
@@ -128,7 +134,7 @@ def plot(
     a1.legend(fontsize=8)
     for t in traces:
         if t.evaluations:
-            a2.semilogy(t.evaluations, t.best, label=f"{t.method} (MuJoCo)")
+            a2.plot(t.evaluations, t.best, label=f"{t.method} (MuJoCo)")
     a2.axhline(
         target, color="k", ls="--", lw=1, label=f"gradient method's J on MuJoCo ({grad_iters} iterations)"
     )

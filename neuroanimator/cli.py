@@ -466,8 +466,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument(
         "--branch-hidden",
         type=_widths,
-        help="an articulated hierarchy's limb networks (the runner's arms and legs): hidden layer widths "
-        "(default: as --hidden)",
+        help="an articulated hierarchy's limb networks (the runner's arms and legs), or a hierarchy's part "
+        "networks (the dolphin's segments): hidden layer widths (default: as --hidden)",
     )
     t.add_argument(
         "--members",

@@ -77,7 +77,8 @@ class HierarchyResult:
 
 
 def build_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchicalEmulator:
-    """The hierarchy of ``model.spec.parts``, every network of the config's width."""
+    """The hierarchy of ``model.spec.parts``: the global network ``cfg.hidden`` wide, each part's
+    ``cfg.branch_hidden`` (None: as wide as the global one)."""
     if not model.spec.parts:
         raise ModelError(f"model {model.name} has no parts: its emulator is one network")
     return HierarchicalEmulator(
@@ -85,7 +86,7 @@ def build_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchicalEmula
         model.num_controls,
         model.spec.parts,
         cfg.hidden,
-        cfg.hidden,
+        cfg.branch_hidden or cfg.hidden,
         cfg.activation,
         skip=cfg.skip and cfg.preset != "thesis",
         num_forces=model.num_forces,

@@ -195,6 +195,45 @@ class SpringRegularizer(BaseModel):
         return self
 
 
+class TravellingWaves(BaseModel):
+    """Typical controls of a rhythmic gait, for a share of the sampler's runs (thesis 4.5: training data
+    under the controls the model will be driven with). A swimmer moves by waves of contraction whose
+    antagonists alternate; independent random controls rarely line up so, and an emulator trained on
+    them alone underrates the strokes a controller then finds. Control k of a wave run is
+
+        centre_k + amplitude·half_range_k·sin(2π·t/period − phase_k − lag·rank_k + φ₀),
+
+    with period, lag, amplitude and φ₀ drawn per run from their ranges, then blended with the run's
+    random smooth controls: (1 − blend)·wave + blend·random, clipped to the range.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    fraction: float = Field(gt=0, le=1, description="share of the runs under waves")
+    period_s: tuple[float, float] = Field(description="range of the wave's period, seconds")
+    lag: tuple[float, float] = Field(description="range of the phase lag between consecutive ranks, radians")
+    amplitude: tuple[float, float] = Field(description="range of the amplitude, in half control ranges")
+    phase: list[float] = Field(
+        min_length=1, description="per control, its phase offset (antagonists π apart)"
+    )
+    rank: list[int] = Field(
+        min_length=1, description="per control, its place along the wave (lags behind rank 0)"
+    )
+    blend: float = Field(0.0, ge=0, lt=1, description="weight of the run's random smooth controls")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> TravellingWaves:
+        if len(self.phase) != len(self.rank):
+            raise ValueError(f"phase and rank: one per control, got {len(self.phase)} and {len(self.rank)}")
+        for name in ("period_s", "lag", "amplitude"):
+            low, high = getattr(self, name)
+            if low > high:
+                raise ValueError(f"{name}: low {low} above high {high}")
+        if self.period_s[0] <= 0 or self.amplitude[0] < 0 or self.amplitude[1] > 1:
+            raise ValueError("period_s must be positive and amplitude within [0, 1] half ranges")
+        return self
+
+
 class ModelSpec(BaseModel):
     """What the trainer needs beyond the MJCF to build an emulator of a model."""
 
@@ -216,6 +255,9 @@ class ModelSpec(BaseModel):
     )
     control_spacing_s: float = Field(
         1.0, gt=0, description="seconds between control points of typical controls"
+    )
+    travelling_waves: TravellingWaves | None = Field(
+        None, description="a share of the typical controls as waves of a rhythmic gait (a swimmer's strokes)"
     )
     forces: list[ForceInput] = Field(default_factory=list)
     force_spacing_s: float = Field(1.0, gt=0)

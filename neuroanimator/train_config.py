@@ -20,7 +20,8 @@ class TrainConfig:
     substeps: int = 50
     preset: str = "default"  # "default" or "thesis" (one sigmoid hidden layer, Table 6.1 width)
     hidden: tuple[int, ...] = (64, 64)
-    # an articulated hierarchy's limb networks (neuroanimator.articulated; None: as wide as ``hidden``)
+    # an articulated hierarchy's limb networks (neuroanimator.articulated), or a hierarchy's part networks
+    # (neuroanimator.hierarchy); None: as wide as ``hidden``
     branch_hidden: tuple[int, ...] | None = None
     activation: str = "tanh"
     # an articulated hierarchy's networks each the mean of this many MLPs, each trained on its own error

@@ -192,7 +192,7 @@ def test_a_part_reads_the_points_it_is_attached_to(dolphin: PhysicalModel) -> No
     own = parts["head"].model_copy(update={"neighbours": [parts["head"].points[0]]})
     with pytest.raises(ValueError, match="its own"):
         check_parts(dolphin.layout, [own, *others[1:]])
-    stranger = parts["head"].model_copy(update={"neighbours": [("strip1_tl.quat", "strip1_tl.angvel")]})
+    stranger = parts["head"].model_copy(update={"neighbours": [("strip1_tl.pitch", "strip1_tl.rate")]})
     with pytest.raises(ValueError, match="other parts' points"):
         check_parts(dolphin.layout, [stranger, *others[1:]])
 
@@ -245,6 +245,7 @@ def test_a_column_that_never_changes_takes_its_groups_scale(dolphin: PhysicalMod
 TINY = TrainConfig(
     substeps=50,
     hidden=(8,),
+    branch_hidden=(6,),  # the parts' networks narrower than the global one, as the committed dolphin's
     examples=160,
     test_examples=64,
     max_epochs=3,
@@ -265,6 +266,8 @@ def test_each_network_is_trained_on_its_own_targets(trained: HierarchyResult) ->
     m = trained.metrics
     names = [name for name, _ in trained.emulator.networks]
     assert names == ["global", "head", "segment2", "segment3", "segment4", "segment5", "fluke"]
+    widths = {name: tuple(net.hidden) for name, net in trained.emulator.networks}
+    assert widths.pop("global") == (8,) and set(widths.values()) == {(6,)}
     assert sorted(m["network_errors"]) == sorted(names)
     worst = max(e["one_step_rel_error"] for e in m["network_errors"].values())
     assert m["one_step_rel_error"] == worst
@@ -308,7 +311,8 @@ def test_a_saved_hierarchy_is_described_loaded_and_served(
     # the emulator service loads it by the registry and ONNX only, as any model
     served = ServiceRegistry(tmp_path).get("dolphin")
     assert served.manifest.version == path.name
-    np.testing.assert_allclose(served.emulator.step(s, u), expected, atol=2e-5, rtol=1e-4)
+    # float32 both, summed in another order (the stacked graph): 3e-5 seen on plate pitch rates of 0.5 rad/s
+    np.testing.assert_allclose(served.emulator.step(s, u), expected, atol=5e-5, rtol=1e-4)
 
 
 def test_a_saved_hierarchy_is_evaluated_network_by_network(

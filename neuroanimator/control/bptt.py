@@ -100,9 +100,11 @@ class GlobalStep(nn.Module):
         self.requires_grad_(False)
 
     def null_space(self) -> Tensor:
-        """(S, S) the projection onto the states' part that no frame sees: ``I − F F⁺``."""
-        eye = torch.eye(self._frames.shape[0], dtype=self._frames.dtype)
-        return eye - self._frames @ self._inverse
+        """(S, S) float64, the projection onto the states' part that no frame sees: ``I − F F⁺``
+        (in float64 whatever the step's dtype: in float32 its rounding alone moved the dolphin's
+        objective by more than the 1e-6 that ``ControlProblem`` tests it to)."""
+        frames = self.emu.frame_map.double()
+        return torch.eye(frames.shape[0], dtype=torch.float64) - frames @ torch.linalg.pinv(frames)
 
     def forward(self, state: Tensor, controls: Tensor) -> Tensor:
         nxt = self.emu.global_step(state, controls)  # (B, K·Q)
@@ -172,13 +174,14 @@ class ControlProblem:
             if float(null[:, cols].abs().max()) > tol:
                 return False
         z = torch.as_tensor(self.initial_points()[None], dtype=self.dtype)
-        states, u = self.rollout(z, global_only)
-        j = self.objective(states.double(), u.double())
+        rolled, held = self.rollout(z, global_only)
+        states, u = rolled.double(), held.double()
+        j = self.objective(states, u)
         gen = torch.Generator().manual_seed(0)
         scale = 1.0 + states.abs().amax(dim=1, keepdim=True)
         for _ in range(3):
-            moved = states + (torch.randn(states.shape, generator=gen, dtype=self.dtype) * scale) @ null
-            if not torch.allclose(self.objective(moved.double(), u.double()), j, rtol=tol, atol=tol):
+            moved = states + (torch.randn(states.shape, generator=gen, dtype=torch.float64) * scale) @ null
+            if not torch.allclose(self.objective(moved, u), j, rtol=tol, atol=tol):
                 return False
         return True
 

@@ -21,10 +21,10 @@ resistance natively with its ellipsoid fluid model (``fluidshape="ellipsoid"``: 
 drag, angular drag, Kutta and Magnus lift, from the water's density and viscosity), but only for
 geoms on bodies that rotate; a point mass on slide joints never does. So each quarter of the five
 horizontal surface strips (the four intervals between sections and the fluke; left or right, dorsal
-or ventral) carries a flat ellipsoid "plate" on a light body hung by a ball joint from its corner
-node, and three alignment tendons from sites on the plate to neighbouring nodes keep the plate in
-the plane of its strip (each tendon lies perpendicular to the body's stretching, so it holds the
-plate's pitch, yaw or roll without stiffening the muscles). The plate passes the water's force on to
+or ventral) carries a flat ellipsoid "plate" on a light body hinged at its corner node about the
+lateral axis, and three alignment tendons from sites on the plate to neighbouring nodes keep the
+plate in the plane of its strip (each tendon lies perpendicular to the body's stretching, so it
+holds the plate's pitch without stiffening the muscles). The plate passes the water's force on to
 the nodes through its joint and tendons. The plates are mirror-symmetric left to right and top to
 bottom: with plates only on the top nodes the same stroke curved down (about 7 m in 60 s), with
 them alternating it looped upwards; with all four quarters it swims straight.
@@ -34,8 +34,13 @@ every part of the system rebuilds the model, and ``PhysicalModel.simulate`` runs
 with no Python in the step. A drag force computed in numpy would be lost by any consumer that steps
 the MJCF alone, and would need one rollout call per physical step: measured on this machine, one
 rollout of 1,000 steps runs about 3,200 steps/s, 1,000 rollouts of one step about 1,200 steps/s,
-before any drag is computed. The price of the plates is 20 ball joints in the state (a quaternion
-and an angular velocity each), which follow the nodes. Each plate weighs 0.5 kg: the lighter a
+before any drag is computed. The price of the plates is 20 hinges in the state (a pitch angle and
+its rate each), which follow the nodes. Hinges about the lateral (y) axis, not ball joints: the
+body swims in its plane of symmetry, so a plate only pitches with its strip; ball joints spent three
+rotational degrees of freedom (a quaternion and an angular velocity: 7 state values a plate against 2)
+on that one pitch, and measured on 5,000 examples the segment networks' one-step errors fell 10-20×
+with hinges (segment 2 0.043 → 0.0029; ``BENCHMARKS.md``) while the stroke swims as far (4.04 m in
+60 s with ball joints, 3.87 m with hinges). Each plate weighs 0.5 kg: the lighter a
 plate, the more closely it follows its nodes and the easier its state is to emulate (with 1.5 kg
 plates segment 3's network had 3× the error), and 0.5 kg is stable at δt = 0.01 s on this body
 (some strokes of an earlier, 16× stiffer body diverged with it). The alignment springs are damped
@@ -50,9 +55,8 @@ stiffer body (c = 2,000 N/m) swam best with a 1 s stroke, at 0.28 m/s; this one 
 with a 4 s stroke, and holding the stroke constant over each 0.5 s super-step changes that by 2%
 (against 27% for the stiffer body).
 
-State (S = 278): for each node its position (3) and velocity (3), for each plate its orientation
-quaternion (4) and angular velocity (3), in the order node positions, plate quaternions, node
-velocities, plate angular velocities (``NODE_POS`` and ``NODE_VEL`` slice the nodes' part). δt = 0.01 s, implicitfast integration.
+State (S = 178): for each node its position (3) and velocity (3), for each plate its pitch (1) and
+pitch rate (1), in the order node positions, plate pitches, node velocities, plate pitch rates (``NODE_POS`` and ``NODE_VEL`` slice the nodes' part). δt = 0.01 s, implicitfast integration.
 """
 
 from __future__ import annotations
@@ -66,7 +70,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neuroanimator.control.spec import Task
-from neuroanimator.model_spec import ControlInfo, HierarchyPart, InitialStates, ModelSpec, SpringRegularizer
+from neuroanimator.model_spec import (
+    ControlInfo,
+    HierarchyPart,
+    InitialStates,
+    ModelSpec,
+    SpringRegularizer,
+    TravellingWaves,
+)
 from neuroanimator.state import StateGroup, StateLayout
 
 if TYPE_CHECKING:
@@ -98,7 +109,7 @@ WATER_VISCOSITY = 0.0009
 PLATE_MASS = 0.5
 ALIGN_STIFFNESS = 31.25
 ALIGN_DAMPING = 7.5  # N·s/m: near critical damping of a plate on its alignment springs (see below)
-PLATE_DAMPING = 0.0025  # N·m·s, the plates' ball joints
+PLATE_DAMPING = 0.0025  # N·m·s, the plates' hinges
 ALIGN_OFFSET = 0.1  # length of an alignment tendon at rest, perpendicular to the body's stretching
 
 
@@ -311,7 +322,7 @@ def mjcf() -> str:
                 f'      <body name="{plate.name}">',
                 f'        <inertial pos="{_v(centre)}" mass="{PLATE_MASS}" '
                 f'diaginertia="{_plate_inertia(plate)}"/>',
-                f'        <joint name="{plate.name}" type="ball" damping="{PLATE_DAMPING}"/>',
+                f'        <joint name="{plate.name}" type="hinge" axis="0 1 0" damping="{PLATE_DAMPING}"/>',
                 f'        <geom name="{plate.name}" type="ellipsoid" pos="{_v(centre)}" size="{_v(plate.half)}"'
                 ' fluidshape="ellipsoid" group="1" rgba="0.3 0.5 0.8 0.3"/>',
                 *(
@@ -435,7 +446,7 @@ def _plate_inertia(plate: Plate) -> str:
 
 
 def _qpos_addresses() -> tuple[list[int], list[int], list[int], list[int]]:
-    """qpos/qvel addresses of each node's slides and each plate's ball joint, in MJCF body order."""
+    """qpos/qvel addresses of each node's slides and each plate's hinge, in MJCF body order."""
     node_q, node_v, plate_q, plate_v = [0] * NUM_NODES, [0] * NUM_NODES, [0] * len(PLATES), [0] * len(PLATES)
     q = v = 0
     for n in range(NUM_NODES):
@@ -444,12 +455,12 @@ def _qpos_addresses() -> tuple[list[int], list[int], list[int], list[int]]:
         for p, plate in enumerate(PLATES):
             if plate.anchor == n:
                 plate_q[p], plate_v[p] = q, v
-                q, v = q + 4, v + 3
+                q, v = q + 1, v + 1
     return node_q, node_v, plate_q, plate_v
 
 
 def layout() -> list[StateGroup]:
-    """Node positions, plate orientations, node velocities, plate angular velocities."""
+    """Node positions, plate pitches, node velocities, plate pitch rates."""
     node_q, node_v, plate_q, plate_v = _qpos_addresses()
     xyz = ("x", "y", "z")
     return (
@@ -458,14 +469,8 @@ def layout() -> list[StateGroup]:
             for n, a in zip(NODES, node_q, strict=True)
         ]
         + [
-            StateGroup(
-                name=f"{p.name}.quat",
-                kind="local_quaternion",
-                size=4,
-                source="qpos",
-                address=a,
-                labels=("w", "x", "y", "z"),
-            )
+            # a small angle held by springs that never wraps: a scalar, not a periodic angle
+            StateGroup(name=f"{p.name}.pitch", kind="scalar", size=1, source="qpos", address=a, labels=("a",))
             for p, a in zip(PLATES, plate_q, strict=True)
         ]
         + [
@@ -473,9 +478,7 @@ def layout() -> list[StateGroup]:
             for n, a in zip(NODES, node_v, strict=True)
         ]
         + [
-            StateGroup(
-                name=f"{p.name}.angvel", kind="local_vector", size=3, source="qvel", address=a, labels=xyz
-            )
+            StateGroup(name=f"{p.name}.rate", kind="scalar", size=1, source="qvel", address=a, labels=("w",))
             for p, a in zip(PLATES, plate_v, strict=True)
         ]
     )
@@ -483,7 +486,7 @@ def layout() -> list[StateGroup]:
 
 LAYOUT = layout()
 NODE_POS = slice(0, 3 * NUM_NODES)  # node positions in the state vector, (23·3,)
-NODE_VEL = slice(3 * NUM_NODES + 4 * len(PLATES), 6 * NUM_NODES + 4 * len(PLATES))
+NODE_VEL = slice(3 * NUM_NODES + len(PLATES), 6 * NUM_NODES + len(PLATES))
 
 
 def node_positions(states: NDArray[np.floating]) -> FloatArray:
@@ -593,17 +596,33 @@ def regularizer(steps: int = REGULARIZER_STEPS) -> SpringRegularizer:
     )
 
 
+# Half the training runs swim: waves of contraction from head to tail, dorsal and ventral muscles of
+# an interval in antiphase (as ``travelling_wave``), of periods around the best stroke's 4 s and the
+# swim controller's (its control points 2.2 s apart), blended 4:1 with random activations so that no
+# two wave runs are alike. Random activations alone rarely line up into a stroke, and an emulator
+# trained on them underrated the strokes its controller found (BENCHMARKS.md, dolphin-swim).
+STROKES = TravellingWaves(
+    fraction=0.5,
+    period_s=(3.0, 8.0),
+    lag=(0.0, math.pi / 2),
+    amplitude=(0.5, 1.0),
+    phase=[0.0, math.pi] * len(MUSCLE_INTERVALS),
+    rank=[k for k in range(len(MUSCLE_INTERVALS)) for _ in range(2)],
+    blend=0.2,
+)
+
+
 def dolphin() -> PhysicalModel:
     from neuroanimator.physics.model import PhysicalModel  # MuJoCo loads when a model is built
 
-    size = 6 * NUM_NODES + 7 * len(PLATES)
+    size = 6 * NUM_NODES + 2 * len(PLATES)
     # Runs start at rest, as a session does. A start with each node moved at random (±2 cm, ±0.1 m/s)
     # rang in modes that swimming never excites: those first super-steps were 1% of the data and held
     # 56-75% of a linear model's error on the node velocities (0.085 against 0.012 from rest).
     rest = np.zeros(size)
     spec = ModelSpec(
         name="dolphin",
-        train_at_start=False,  # 278 state variables: minutes of training, not for a start-up
+        train_at_start=False,  # 178 state variables: minutes of training, not for a start-up
         description="dolphin: 23-node mass-spring body, 6 muscle pairs, swims by water drag (thesis E.4)",
         layout=LAYOUT,
         control_info=CONTROL_INFO,
@@ -612,6 +631,7 @@ def dolphin() -> PhysicalModel:
         control_low=[0.0] * 6,
         control_high=[1.0] * 6,
         control_spacing_s=1.0,
+        travelling_waves=STROKES,
         # training runs start from rest; 60 s of typical controls then reach the shapes and speeds
         # of swimming
         initial=InitialStates(low=rest.tolist(), high=rest.tolist()),
@@ -627,8 +647,8 @@ def dolphin() -> PhysicalModel:
 
 def _rest_state() -> FloatArray:
     """(S,) the body at rest in state order (MuJoCo's qpos0: plates unturned, nothing moving)."""
-    quats = np.tile([1.0, 0.0, 0.0, 0.0], len(PLATES))
-    return np.concatenate([rest_positions().ravel(), quats, np.zeros(3 * NUM_NODES + 3 * len(PLATES))])
+    pitches = np.zeros(len(PLATES))
+    return np.concatenate([rest_positions().ravel(), pitches, np.zeros(3 * NUM_NODES + len(PLATES))])
 
 
 # Swim forward for 20 s from rest: the distance its nodes' centre of mass moves along +x (each node's
@@ -646,7 +666,7 @@ SWIM = Task(
     labels=tuple(StateLayout(tuple(LAYOUT)).labels()),
     initial_state=tuple(float(v) for v in _rest_state()),
     target_state=tuple(float(v) for v in _rest_state()),
-    state_weights=(0.0,) * (6 * NUM_NODES + 7 * len(PLATES)),
+    state_weights=(0.0,) * (6 * NUM_NODES + 2 * len(PLATES)),
     success=(),
     initial_controls=(0.5,) * len(CONTROL_NAMES),
     mu_u=1e-3,

@@ -679,8 +679,14 @@ class PhysicalModel:
         return self.from_physics(full)
 
     def typical_controls(self, rng: np.random.Generator, batch: int, times: FloatArray) -> FloatArray:
-        """(batch, T, U) smooth Catmull-Rom controls over the useful range, at the given times."""
-        return self._smooth(rng, batch, times, self.control_range, self.spec.control_spacing_s)
+        """(batch, T, U) smooth Catmull-Rom controls over the useful range, at the given times; where the
+        spec has ``travelling_waves``, that share of the runs under a rhythmic gait's waves."""
+        random = self._smooth(rng, batch, times, self.control_range, self.spec.control_spacing_s)
+        if self.spec.travelling_waves is None:
+            return random
+        from neuroanimator.physics.waves import mix_waves
+
+        return mix_waves(self.spec.travelling_waves, rng, random, times, self.control_range)
 
     def typical_forces(self, rng: np.random.Generator, batch: int, times: FloatArray) -> FloatArray:
         """(batch, T, F) smooth external forces over their ranges."""

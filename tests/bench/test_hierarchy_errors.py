@@ -22,8 +22,8 @@ def test_hierarchy_errors_small() -> None:
     assert set(r["full_state_linear"]) == {
         "scalar:pos",
         "scalar:vel",
-        "local_quaternion:quat",
-        "local_vector:angvel",
+        "scalar:pitch",
+        "scalar:rate",
     }
     for v in r["full_state_linear"].values():
         assert 0 < v["worst_1pct_share"] <= v["worst_5pct_share"] <= 1

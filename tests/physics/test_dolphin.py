@@ -37,7 +37,7 @@ def _forward(model: PhysicalModel, s: np.ndarray, a: np.ndarray) -> mujoco.MjDat
 
 def test_state_is_node_positions_velocities_and_plate_orientations(model: PhysicalModel) -> None:
     assert dolphin.NUM_NODES == 23
-    assert model.state_size == 6 * 23 + 7 * len(dolphin.PLATES)
+    assert model.state_size == 6 * 23 + 2 * len(dolphin.PLATES)
     assert model.num_controls == 6 and model.control_names == dolphin.CONTROL_NAMES
     assert model.dt == pytest.approx(0.01)
     np.testing.assert_allclose(model.mj_model.opt.gravity, 0.0)  # neutrally buoyant: no gravity
