@@ -89,6 +89,7 @@ class GlobalStep(nn.Module):
 
     _frames: Tensor  # (S, K·Q)
     _inverse: Tensor  # (K·Q, S)
+    _null: Tensor  # (S, S) float64
 
     def __init__(self, emu: HierarchicalEmulator, dtype: torch.dtype = torch.float32) -> None:
         super().__init__()
@@ -97,14 +98,15 @@ class GlobalStep(nn.Module):
         inverse = torch.linalg.pinv(frames)
         self.register_buffer("_frames", frames.to(dtype), persistent=False)
         self.register_buffer("_inverse", inverse.to(dtype), persistent=False)
+        # in float64 whatever the step's dtype: in float32 its rounding alone moved the dolphin's
+        # objective by more than the 1e-6 that ``ControlProblem`` tests it to
+        null = torch.eye(frames.shape[0], dtype=torch.float64) - frames @ inverse
+        self.register_buffer("_null", null, persistent=False)
         self.requires_grad_(False)
 
     def null_space(self) -> Tensor:
-        """(S, S) float64, the projection onto the states' part that no frame sees: ``I − F F⁺``
-        (in float64 whatever the step's dtype: in float32 its rounding alone moved the dolphin's
-        objective by more than the 1e-6 that ``ControlProblem`` tests it to)."""
-        frames = self.emu.frame_map.double()
-        return torch.eye(frames.shape[0], dtype=torch.float64) - frames @ torch.linalg.pinv(frames)
+        """(S, S) float64, the projection onto the states' part that no frame sees: ``I − F F⁺``."""
+        return self._null
 
     def forward(self, state: Tensor, controls: Tensor) -> Tensor:
         nxt = self.emu.global_step(state, controls)  # (B, K·Q)
