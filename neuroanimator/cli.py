@@ -62,6 +62,7 @@ CONFIG_OPTIONS = {
     "proximity": "proximity",
     "mirror": "mirror",
     "rollout_steps": "rollout_steps",
+    "rollout_seconds": "rollout_seconds",
     "regularizer_steps": "regularizer_steps",
 }
 
@@ -138,6 +139,10 @@ def cmd_train(args: argparse.Namespace) -> int:
         if args.rollout_steps < 0:
             raise ModelError(f"--rollout-steps must be 0 or more, got {args.rollout_steps}")
         cfg.rollout_steps = args.rollout_steps
+    if args.rollout_seconds is not None:
+        if not args.rollout_seconds > 0:
+            raise ModelError(f"--rollout-seconds must be above 0, got {args.rollout_seconds}")
+        cfg.rollout_seconds = args.rollout_seconds
     if args.regularizer_steps is not None:
         if args.regularizer_steps < 0:
             raise ModelError(f"--regularizer-steps must be 0 or more, got {args.regularizer_steps}")
@@ -175,6 +180,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             model.spec = model.spec.model_copy(update={"substeps": choice.substeps})
         if model.spec.data_source:  # a model trained on its controller's motion: its own settings
             cfg = source_defaults(model, cfg, given_fields(args))
+        cache = data_cache.directory(args.data_cache)
         if model.spec.parts:  # a hierarchy of networks (thesis 4.4)
             cfg = small_defaults(
                 cfg,
@@ -182,9 +188,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                 examples_given=args.examples is not None,
                 rollout_given=args.rollout_steps is not None,
             )
-            result: TrainResult | HierarchyResult = train_hierarchy(model, cfg)
+            result: TrainResult | HierarchyResult = train_hierarchy(model, cfg, data_cache=cache)
         else:
-            cache = data_cache.directory(args.data_cache)
             result = train(model, cfg, spent=time.perf_counter() - started, data_cache=cache)
     except TrainingDiverged as exc:
         log.error("%s", exc)
@@ -559,6 +564,11 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         help="super-steps of the rollout training phase (default 8, a hierarchy's 0: off; a "
         "hierarchy's is through its composed step, regulariser included)",
+    )
+    t.add_argument(
+        "--rollout-seconds",
+        type=float,
+        help="wall-clock cap on the rollout training phase (default 60 s)",
     )
     t.add_argument(
         "--regularizer-steps",

@@ -14,6 +14,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,6 +22,7 @@ import torch
 from torch import Tensor
 
 from neuroanimator import sampling
+from neuroanimator.data_cache import cached
 from neuroanimator.envelope import examples_envelope
 from neuroanimator.hierarchy import GLOBAL, HierarchicalEmulator
 from neuroanimator.hierarchy_rollouts import train_hierarchy_over_rollouts
@@ -31,6 +33,9 @@ from neuroanimator.structured import StructuredEmulator
 from neuroanimator.train_config import TrainConfig
 from neuroanimator.training import (
     apply_linear,
+    generate_examples,
+    held_out_examples,
+    held_out_key,
     held_out_seed,
     relative_error,
     rollout_sequences,
@@ -182,10 +187,13 @@ def _train_composed(
     return train_hierarchy_over_rollouts(emu, seqs, cfg, scale, one_step)
 
 
-def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
+def train_hierarchy(
+    model: PhysicalModel, cfg: TrainConfig, data_cache: Path | None = None
+) -> HierarchyResult:
     """Simulate data, then train the global network and every local network on their own targets
     (the time budget ``max_seconds`` shared between them); evaluate each and the composed step on
-    held-out data."""
+    held-out data. ``data_cache``: a directory where the simulated examples are kept and read back,
+    the same files as a one-network training of the model makes (``neuroanimator.data_cache``)."""
     cfg = cfg.resolved()
     if cfg.mirror:
         raise ModelError(
@@ -207,16 +215,19 @@ def train_hierarchy(model: PhysicalModel, cfg: TrainConfig) -> HierarchyResult:
         weights,
         count,
     )
-    data = sampling.generate(model, cfg.substeps, count, cfg.seed, progress=cfg.progress, sampler=cfg.sampler)
-    test = sampling.generate_held_out(
-        model,
-        cfg.substeps,
-        cfg.test_examples,
-        held_out_seed(cfg.seed),
-        like=count,
-        progress=cfg.progress,
-        sampler=cfg.sampler,
-    )
+    data = cached(
+        data_cache, model, cfg.substeps, count, cfg.seed, cfg.sampler,
+        lambda: generate_examples(model, cfg.substeps, count, cfg.seed, cfg.progress, cfg.sampler),
+        sampling.Examples,
+    )  # fmt: skip
+    out_seed = held_out_seed(cfg.seed)
+    test = cached(
+        data_cache, model, cfg.substeps, cfg.test_examples, out_seed, held_out_key(model, cfg, count),
+        lambda: held_out_examples(
+            model, cfg.substeps, cfg.test_examples, out_seed, cfg.progress, cfg.sampler, like=count
+        ),
+        sampling.Examples,
+    )  # fmt: skip
     t_data = time.perf_counter() - t_start
 
     s, u, _, nxt = to_tensors(data)

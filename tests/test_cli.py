@@ -268,6 +268,14 @@ def test_bench_unknown_model_exits_2_naming_it(tmp_path: Path, caplog: pytest.Lo
     assert "ghost-model" in caplog.text
 
 
+def test_train_refuses_a_rollout_phase_of_no_time(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.ERROR):
+        rc = main(["train", "dolphin", "--rollout-seconds", "0", "--out", str(tmp_path), "--quiet"])
+    assert rc == 2
+    assert "--rollout-seconds must be above 0, got 0.0" in caplog.text
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_train_malformed_mjcf_exits_2(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     bad = tmp_path / "bad.xml"
     bad.write_text("<mujoco><worldbody><body>")

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -260,6 +262,24 @@ TINY = TrainConfig(
 @pytest.fixture(scope="module")
 def trained(dolphin: PhysicalModel) -> HierarchyResult:
     return train_hierarchy(dolphin, TINY)
+
+
+def test_a_hierarchy_keeps_its_data_in_the_cache_and_reads_them_back(
+    tmp_path: Path, dolphin: PhysicalModel, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A second training of the dolphin (minutes of simulation at full size) reads the examples that
+    the first one kept, and trains on the same ones."""
+    cfg = dataclasses.replace(TINY, examples=48, test_examples=16, max_epochs=1)
+    first = train_hierarchy(dolphin, cfg, data_cache=tmp_path)
+    kept = sorted(p.name for p in tmp_path.glob("*.npz"))
+    assert len(kept) == 2 and all(name.startswith("dolphin-examples-n50-") for name in kept), kept
+    with caplog.at_level(logging.INFO, logger="neuroanimator.data_cache"):
+        again = train_hierarchy(dolphin, cfg, data_cache=tmp_path)
+    assert caplog.text.count("read from") == 2
+    assert sorted(p.name for p in tmp_path.glob("*.npz")) == kept
+    assert again.metrics["network_errors"]["global"]["linear_baseline_rel_error"] == pytest.approx(
+        first.metrics["network_errors"]["global"]["linear_baseline_rel_error"]
+    )
 
 
 def test_each_network_is_trained_on_its_own_targets(trained: HierarchyResult) -> None:

@@ -103,6 +103,47 @@ def test_it_reduces_the_deformation_and_keeps_the_momentum(
     torch.testing.assert_close(out[:, others], noisy[:, others])
 
 
+def _plain_steps(spec: SpringRegularizer, x: np.ndarray, v: np.ndarray, activation: np.ndarray) -> np.ndarray:
+    """Symplectic Euler of the springs written spring by spring: x, v (P, 3), activation (U,) -> (2P, 3)."""
+    x, v = x.copy(), v.copy()
+    rest = np.array([s[2] for s in spec.springs])
+    for spring, control, contracted in spec.muscles:
+        rest[spring] += activation[control] * (contracted - spec.springs[spring][2])
+    mass = np.asarray(spec.masses)
+    for _ in range(spec.steps):
+        force = np.zeros_like(x)
+        for i, (a, b, _) in enumerate(spec.springs):
+            r, rate = x[b] - x[a], v[b] - v[a]
+            length = np.linalg.norm(r)
+            tension = spec.stiffness * (length - rest[i]) + spec.damping * (rate @ r) / length
+            force[a] += tension * r / length
+            force[b] -= tension * r / length
+        v = v + spec.dt * force / mass[:, None]
+        x = x + spec.dt * v
+    return np.concatenate([x, v])
+
+
+def test_the_steps_equal_the_springs_one_by_one(dolphin: PhysicalModel, examples: sampling.Examples) -> None:
+    """The fused form (``SpringRegularization.features``: the k·r part folded into the update, the axes
+    summed by a product) is the textbook step, spring by spring, on a deformed body with muscles on."""
+    assert dolphin.spec.regularizer is not None
+    spec = dolphin.spec.regularizer.model_copy(update={"steps": 4})
+    reg = SpringRegularization(dolphin.layout, spec, dolphin.num_controls).double()
+    g = np.random.default_rng(2)
+    states = examples.next_states[:5].copy()
+    states[:, body.NODE_POS] += 0.05 * g.standard_normal(states[:, body.NODE_POS].shape)
+    states[:, body.NODE_VEL] += 0.2 * g.standard_normal(states[:, body.NODE_VEL].shape)
+    controls = g.uniform(0.0, 1.0, (5, dolphin.num_controls))
+    with torch.no_grad():
+        got = reg(torch.from_numpy(states), torch.from_numpy(controls)).numpy()
+    # to float32's precision: the module holds its constants (lengths, δt/m) as the exported graph does
+    for s, u, out in zip(states, controls, got, strict=True):
+        expected = _plain_steps(spec, s[body.NODE_POS].reshape(-1, 3), s[body.NODE_VEL].reshape(-1, 3), u)
+        np.testing.assert_allclose(out[body.NODE_POS].reshape(-1, 3), expected[:23], rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(out[body.NODE_VEL].reshape(-1, 3), expected[23:], rtol=1e-5, atol=1e-6)
+        assert np.abs(out - s).max() > 1e-3
+
+
 def test_the_onnx_graph_includes_the_regulariser(dolphin: PhysicalModel, examples: sampling.Examples) -> None:
     torch.manual_seed(0)
     emu = HierarchicalEmulator(dolphin.layout, dolphin.num_controls, dolphin.spec.parts, (8,), (8,)).eval()
