@@ -21,8 +21,6 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from neuroanimator import sampling
-from neuroanimator.data_cache import cached
 from neuroanimator.envelope import examples_envelope
 from neuroanimator.hierarchy import GLOBAL, HierarchicalEmulator
 from neuroanimator.hierarchy_rollouts import train_hierarchy_over_rollouts
@@ -33,10 +31,8 @@ from neuroanimator.structured import StructuredEmulator
 from neuroanimator.train_config import TrainConfig
 from neuroanimator.training import (
     apply_linear,
-    generate_examples,
-    held_out_examples,
-    held_out_key,
-    held_out_seed,
+    cached_examples,
+    cached_held_out,
     relative_error,
     rollout_sequences,
     start_from_linear,
@@ -215,19 +211,8 @@ def train_hierarchy(
         weights,
         count,
     )
-    data = cached(
-        data_cache, model, cfg.substeps, count, cfg.seed, cfg.sampler,
-        lambda: generate_examples(model, cfg.substeps, count, cfg.seed, cfg.progress, cfg.sampler),
-        sampling.Examples,
-    )  # fmt: skip
-    out_seed = held_out_seed(cfg.seed)
-    test = cached(
-        data_cache, model, cfg.substeps, cfg.test_examples, out_seed, held_out_key(model, cfg, count),
-        lambda: held_out_examples(
-            model, cfg.substeps, cfg.test_examples, out_seed, cfg.progress, cfg.sampler, like=count
-        ),
-        sampling.Examples,
-    )  # fmt: skip
+    data = cached_examples(data_cache, model, cfg, count)
+    test = cached_held_out(data_cache, model, cfg, cfg.test_examples, like=count)
     t_data = time.perf_counter() - t_start
 
     s, u, _, nxt = to_tensors(data)

@@ -241,6 +241,29 @@ def held_out_key(model: PhysicalModel, cfg: TrainConfig, like: int) -> str:
     return cfg.sampler if model.spec.data_source is not None else f"{cfg.sampler}, held out like {like}"
 
 
+def cached_examples(
+    data_cache: Path | None, model: PhysicalModel, cfg: TrainConfig, count: int
+) -> sampling.Examples:
+    """``generate_examples`` for ``cfg``'s super-step, seed and sampler, through the data cache."""
+    return cached(
+        data_cache, model, cfg.substeps, count, cfg.seed, cfg.sampler,
+        lambda: generate_examples(model, cfg.substeps, count, cfg.seed, cfg.progress, cfg.sampler),
+        sampling.Examples,
+    )  # fmt: skip
+
+
+def cached_held_out(
+    data_cache: Path | None, model: PhysicalModel, cfg: TrainConfig, count: int, *, like: int
+) -> sampling.Examples:
+    """``held_out_examples`` (seed ``held_out_seed(cfg.seed)``) through the data cache."""
+    seed = held_out_seed(cfg.seed)
+    return cached(
+        data_cache, model, cfg.substeps, count, seed, held_out_key(model, cfg, like),
+        lambda: held_out_examples(model, cfg.substeps, count, seed, cfg.progress, cfg.sampler, like=like),
+        sampling.Examples,
+    )  # fmt: skip
+
+
 def to_tensors(ex: sampling.Examples) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:
     s = torch.from_numpy(ex.states).float()
     u = torch.from_numpy(ex.controls).float() if ex.controls.shape[1] else None
@@ -320,25 +343,16 @@ def train(
     simulated = count if mirror is None else (count + 1) // 2
     runs = own_runs(model, cfg, simulated, data_cache)
 
-    def simulate(count: int, seed: int) -> sampling.Examples:
-        return cached(
-            data_cache, model, cfg.substeps, count, seed, cfg.sampler,
-            lambda: generate_examples(model, cfg.substeps, count, seed, cfg.progress, cfg.sampler),
-            sampling.Examples,
-        )  # fmt: skip
-
-    data = runs.examples(simulated, cfg.seed) if runs is not None else simulate(simulated, cfg.seed)
+    data = (
+        runs.examples(simulated, cfg.seed)
+        if runs is not None
+        else cached_examples(data_cache, model, cfg, simulated)
+    )
     if mirror is not None:
         check_mirror(mirror, model, data, cfg.substeps)  # what the names and masses do not show
         data = with_mirror_images(mirror, data).subset(slice(0, count))
-    out_seed = held_out_seed(cfg.seed)
-    test = cached(  # drawn as the training runs are: the same stretch of each run, not only its start
-        data_cache, model, cfg.substeps, plan.test_examples, out_seed, held_out_key(model, cfg, simulated),
-        lambda: held_out_examples(
-            model, cfg.substeps, plan.test_examples, out_seed, cfg.progress, cfg.sampler, like=simulated
-        ),
-        sampling.Examples,
-    )  # fmt: skip
+    # drawn as the training runs are: the same stretch of each run, not only its start
+    test = cached_held_out(data_cache, model, cfg, plan.test_examples, like=simulated)
     t_data = time.perf_counter() - t_start
     # probe the geoms that come near the floor or touch each other in these data (the pairs are known
     # only from data: contact_features searches them there)
