@@ -167,6 +167,15 @@ def group_scale(model: PhysicalModel, change: Tensor) -> Tensor:
     return scale.clamp_min(1e-12)
 
 
+def drifted(model: PhysicalModel, s: Tensor, nxt: Tensor, share: float, seed: int) -> Tensor:
+    """(N, S) states moved by Gaussian noise of ``share`` of each group's change over a super-step
+    (``group_scale``): the states an emulator's own small errors lead it to. Trained from them to the
+    true next states, a network learns to pull a drifted state back towards the simulation's."""
+    gen = torch.Generator().manual_seed(seed + 1)
+    noise = torch.randn(s.shape, generator=gen, dtype=s.dtype)
+    return s + share * group_scale(model, nxt - s) * noise
+
+
 def _train_composed(
     model: PhysicalModel, emu: HierarchicalEmulator, cfg: TrainConfig, count: int, own_data: list[_Targets]
 ) -> dict[str, Any]:
@@ -218,6 +227,12 @@ def train_hierarchy(
     s, u, _, nxt = to_tensors(data)
     each = dataclasses.replace(cfg, max_seconds=cfg.max_seconds / len(networks))
     own_data = network_data(emu, s, u, nxt)
+    if cfg.state_noise > 0:
+        # the global network from drifted states: it carries the body's motion from step to step, so
+        # its drift is what a long rollout integrates (the parts are placed in its frames each step)
+        with torch.no_grad():
+            g_state, g_next = emu.global_inputs(drifted(model, s, nxt, cfg.state_noise, cfg.seed), nxt)
+        own_data[0] = _Targets(g_state, u, None, g_next)
     fitted = {name: fit_network(net, d, each) for (name, net), d in zip(networks, own_data, strict=True)}
     linears = {name: lin for name, (lin, _) in fitted.items()}
     # the step as it is served: a deformable model's ends with the spring regulariser (thesis 6.1.3)

@@ -7,6 +7,8 @@ imports neither MuJoCo nor torch, so processes that only read manifests stay lig
 
 from __future__ import annotations
 
+import math
+
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from neuroanimator.state import StateGroup
@@ -151,6 +153,32 @@ class DriverSpec(BaseModel):
     params: list[DriverParam] = Field(default_factory=list)
 
 
+class HingeAlignment(BaseModel):
+    """A hinged part held in line with two of the regulariser's points, as a plate hung from one node
+    and tied to another by springs is: its angle about ``axis`` follows the turn of the line from
+    ``anchor`` to ``target`` about that axis since rest (``rest``: that line when the angle is 0).
+    ``angle`` and ``rate`` name its state groups (one value each: the hinge's angle and rate)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    angle: str
+    rate: str
+    anchor: int = Field(ge=0, description="index into the regulariser's points")
+    target: int = Field(ge=0, description="index into the regulariser's points")
+    axis: tuple[float, float, float] = Field(description="the hinge's axis in world coordinates")
+    rest: tuple[float, float, float] = Field(description="target − anchor at angle 0")
+
+    @model_validator(mode="after")
+    def _a_line_across_the_axis(self) -> HingeAlignment:
+        if abs(math.fsum(a * a for a in self.axis) - 1.0) > 1e-6:
+            raise ValueError(f"hinge {self.angle!r}: axis {self.axis} must be a unit vector")
+        along = math.fsum(a * r for a, r in zip(self.axis, self.rest, strict=True))
+        across = math.fsum((r - along * a) ** 2 for a, r in zip(self.axis, self.rest, strict=True))
+        if self.anchor == self.target or across < 1e-18:
+            raise ValueError(f"hinge {self.angle!r}: its anchor and target must span a line across its axis")
+        return self
+
+
 class SpringRegularizer(BaseModel):
     """The regulariser of thesis 6.1.3 for a mass-spring model: after each emulated super-step, ``steps``
     explicit Euler steps of the spring forces between the model's points,
@@ -178,6 +206,12 @@ class SpringRegularizer(BaseModel):
     muscles: list[tuple[int, int, float]] = Field(
         default_factory=list, description="(spring, control, rest length at control 1)"
     )
+    hinges: list[HingeAlignment] = Field(
+        default_factory=list, description="hinged parts that follow the line between two points"
+    )
+    hinge_pull: float = Field(
+        0.0, ge=0, le=1, description="share of each hinge's misalignment removed after each super-step"
+    )
 
     @model_validator(mode="after")
     def _indices_agree(self) -> SpringRegularizer:
@@ -192,6 +226,11 @@ class SpringRegularizer(BaseModel):
         for spring, control, contracted in self.muscles:
             if not 0 <= spring < len(self.springs) or control < 0 or contracted <= 0:
                 raise ValueError(f"muscle ({spring}, {control}, {contracted}): no such spring or control")
+        for hinge in self.hinges:
+            if hinge.anchor >= n or hinge.target >= n:
+                raise ValueError(
+                    f"hinge {hinge.angle!r}: points {hinge.anchor}, {hinge.target} not below {n}"
+                )
         return self
 
 

@@ -48,6 +48,11 @@ class TrainConfig:
     # (neuroanimator.loop_choice)
     loop_tolerance: float | None = None
     input_noise: float = 0.0  # std of Gaussian noise on normalised state inputs during training
+    # a hierarchy's global network trained from states moved by Gaussian noise of this share of each
+    # group's change over a super-step, its targets still the true next frames: it learns to pull a
+    # drifted body back (as learned simulators are trained), where clean data show it only the
+    # simulation's states (the parts' networks, placed in its frames each step, train on clean data)
+    state_noise: float = 0.0
     frame: str = "auto"  # "auto"/"body": full body frame for a quaternion root; "heading": yaw only
     skip: bool = True  # a linear path beside the MLP, started from the least-squares fit
     limits: bool = True  # limited joints also enter as ramps past their limits (structured.JointLimit)

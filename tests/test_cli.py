@@ -276,6 +276,23 @@ def test_train_refuses_a_rollout_phase_of_no_time(tmp_path: Path, caplog: pytest
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["dolphin", "--state-noise", "1.5"], "--state-noise must be between 0 and 1, got 1.5"),
+        (["pendulum-passive", "--state-noise", "0.1"], "pendulum-passive is emulated by one network"),
+    ],
+)
+def test_train_refuses_state_noise_it_cannot_use(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, args: list[str], message: str
+) -> None:
+    with caplog.at_level(logging.ERROR):
+        rc = main(["train", *args, "--out", str(tmp_path), "--quiet"])
+    assert rc == 2
+    assert message in caplog.text
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_train_malformed_mjcf_exits_2(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     bad = tmp_path / "bad.xml"
     bad.write_text("<mujoco><worldbody><body>")

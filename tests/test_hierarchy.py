@@ -23,6 +23,7 @@ from neuroanimator.hierarchy import (
 from neuroanimator.hierarchy_export import StackedStep
 from neuroanimator.hierarchy_training import (
     HierarchyResult,
+    drifted,
     group_scale,
     network_data,
     small_defaults,
@@ -244,6 +245,20 @@ def test_a_column_that_never_changes_takes_its_groups_scale(dolphin: PhysicalMod
     assert float(scale.min()) > 0.1
 
 
+def test_drifted_states_move_each_group_by_its_share_of_a_step(
+    dolphin: PhysicalModel, examples: sampling.Examples
+) -> None:
+    """``--state-noise``: each training state moves by about the asked share of its group's change
+    over a super-step (its own scale: metres for a node, radians for a plate), the next states stay."""
+    s, _, nxt = tensors(examples)
+    moved = drifted(dolphin, s, nxt, 0.1, seed=0)
+    scale = group_scale(dolphin, nxt - s)
+    ratio = ((moved - s) / scale).std(dim=0)  # (S,) about 0.1 everywhere
+    assert float(ratio.min()) > 0.07 and float(ratio.max()) < 0.13, ratio
+    torch.testing.assert_close(drifted(dolphin, s, nxt, 0.1, seed=0), moved)  # the same for a seed
+    assert not torch.equal(drifted(dolphin, s, nxt, 0.1, seed=1), moved)
+
+
 TINY = TrainConfig(
     substeps=50,
     hidden=(8,),
@@ -253,7 +268,7 @@ TINY = TrainConfig(
     max_epochs=3,
     max_seconds=5.0,
     rollout_steps=0,
-    regularizer_steps=5,  # off by default for the dolphin: on here, to check it is saved and served
+    regularizer_steps=5,  # not the dolphin's default (2): to check the number asked is saved and served
     progress=False,
     threads=1,
 )

@@ -9,7 +9,7 @@ import torch
 from neuroanimator import physics, sampling
 from neuroanimator.export import OnnxEmulator, to_onnx
 from neuroanimator.hierarchy import HierarchicalEmulator
-from neuroanimator.model_spec import SpringRegularizer
+from neuroanimator.model_spec import HingeAlignment, SpringRegularizer
 from neuroanimator.physics import dolphin as body
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.regularizer import SpringRegularization, deformation_energy, regularization
@@ -63,12 +63,15 @@ def test_a_muscle_moves_its_springs_rest_length() -> None:
 
 
 def test_the_body_at_rest_is_left_alone(dolphin: PhysicalModel) -> None:
-    assert dolphin.spec.regularizer is not None and dolphin.spec.regularizer.steps == 0  # off unless asked
-    assert regularization(dolphin.layout, dolphin.spec.regularizer, dolphin.num_controls) is None
+    assert dolphin.spec.regularizer is not None and dolphin.spec.regularizer.steps == 2  # on by default
+    assert dolphin.spec.regularizer.hinge_pull > 0 and len(dolphin.spec.regularizer.hinges) == len(
+        body.PLATES
+    )
+    assert regularization(dolphin.layout, dolphin.spec.regularizer, dolphin.num_controls, steps=0) is None
     reg = regularization(dolphin.layout, dolphin.spec.regularizer, dolphin.num_controls, steps=5)
     assert reg is not None and reg.steps == 5
     rest = torch.from_numpy(dolphin.rest_state()[None, :]).float()
-    torch.testing.assert_close(reg(rest, torch.zeros(1, 6)), rest, atol=1e-6, rtol=0)
+    torch.testing.assert_close(reg(rest, torch.zeros(1, 6)), rest, atol=5e-6, rtol=0)
     assert reg.deformation_energy(rest).item() == pytest.approx(0.0, abs=1e-10)
 
 
@@ -97,10 +100,54 @@ def test_it_reduces_the_deformation_and_keeps_the_momentum(
     m = torch.tensor(body.node_masses())
     momentum = lambda s: (s[:, body.NODE_VEL].reshape(-1, 23, 3) * m[None, :, None]).sum(1)  # noqa: E731
     torch.testing.assert_close(momentum(out), momentum(noisy), atol=1e-6, rtol=0)
-    # the plates' columns are untouched
+    # the plates' columns move only by their hinges' pull towards their strips
     others = torch.ones(dolphin.state_size, dtype=torch.bool)
     others[body.NODE_POS] = others[body.NODE_VEL] = False
-    torch.testing.assert_close(out[:, others], noisy[:, others])
+    unpulled = SpringRegularization(
+        dolphin.layout, spec.model_copy(update={"hinge_pull": 0.0}), dolphin.num_controls
+    ).double()
+    torch.testing.assert_close(unpulled(noisy, controls)[:, others], noisy[:, others])
+    assert (out[:, others] - noisy[:, others]).abs().max() > 1e-4
+
+
+def _plate(dolphin: PhysicalModel, name: str) -> tuple[int, int]:
+    return dolphin.layout.slice_of(f"{name}.pitch").start, dolphin.layout.slice_of(f"{name}.rate").start
+
+
+def test_a_plate_is_pulled_towards_its_strip(dolphin: PhysicalModel) -> None:
+    """A plate's pitch moves ``hinge_pull`` of the way to the turn of its strip (its node to the far
+    node its pitch tendon holds) about the lateral axis; its rate likewise to the strip's rate."""
+    assert dolphin.spec.regularizer is not None
+    spec = dolphin.spec.regularizer.model_copy(
+        update={"steps": 1, "hinge_pull": 0.5, "stiffness": 1e-9, "damping": 0.0}
+    )
+    reg = SpringRegularization(dolphin.layout, spec, dolphin.num_controls).double()
+    plate = body.PLATES[1]  # strip 2, top left
+    anchor, far = plate.anchor, plate.align[0][0]
+    pitch, rate = _plate(dolphin, plate.name)
+    state = dolphin.rest_state().copy()
+    # turn the far node about the anchor by 0.2 rad about +y (x towards −z), moving at 0.1 rad/s
+    q0 = body.rest_positions()[far] - body.rest_positions()[anchor]
+    turn, spin = 0.2, 0.1
+    rot = np.array([[np.cos(turn), 0, np.sin(turn)], [0, 1, 0], [-np.sin(turn), 0, np.cos(turn)]])
+    q = rot @ q0
+    state[body.NODE_POS.start + 3 * far : body.NODE_POS.start + 3 * far + 3] = (
+        body.rest_positions()[anchor] + q
+    )
+    state[body.NODE_VEL.start + 3 * far : body.NODE_VEL.start + 3 * far + 3] = spin * np.cross(
+        [0.0, 1.0, 0.0], q
+    )
+    state[pitch], state[rate] = -0.1, 0.3
+    out = reg(torch.from_numpy(state[None]), torch.zeros(1, 6, dtype=torch.float64))[0].numpy()
+    assert out[pitch] == pytest.approx(-0.1 + 0.5 * (turn + 0.1), abs=1e-3)  # the far node moved a step
+    assert out[rate] == pytest.approx(0.3 + 0.5 * (spin - 0.3), abs=1e-3)
+    # a body that looped once: the pitch is pulled the near way round, not by 2π
+    state[pitch] = 2 * np.pi + 0.1
+    out = reg(torch.from_numpy(state[None]), torch.zeros(1, 6, dtype=torch.float64))[0].numpy()
+    assert out[pitch] == pytest.approx(2 * np.pi + 0.1 + 0.5 * (turn - 0.1), abs=1e-3)
+    # every other plate sits on an unturned strip and is left where it is
+    others = [_plate(dolphin, p.name)[0] for p in body.PLATES if p.align[0][0] != far and p.anchor != far]
+    np.testing.assert_allclose(out[others], 0.0, atol=1e-7)
 
 
 def _plain_steps(spec: SpringRegularizer, x: np.ndarray, v: np.ndarray, activation: np.ndarray) -> np.ndarray:
@@ -156,6 +203,19 @@ def test_the_onnx_graph_includes_the_regulariser(dolphin: PhysicalModel, example
         expected = emu(torch.from_numpy(s), torch.from_numpy(u)).numpy()
     assert np.abs(expected - plain).max() > 1e-4  # the regulariser does move the nodes
     np.testing.assert_allclose(OnnxEmulator(to_onnx(emu)).step(s, u), expected, atol=3e-5, rtol=1e-4)
+
+
+def test_a_hinge_that_cannot_follow_a_line_is_refused() -> None:
+    with pytest.raises(ValueError, match="unit vector"):
+        HingeAlignment(angle="a", rate="w", anchor=0, target=1, axis=(0, 2, 0), rest=(1, 0, 0))
+    with pytest.raises(ValueError, match="across its axis"):
+        HingeAlignment(angle="a", rate="w", anchor=0, target=1, axis=(0, 1, 0), rest=(0, 0.5, 0))
+    with pytest.raises(ValueError, match="not below 2"):
+        SpringRegularizer(
+            dt=0.01, stiffness=1, damping=0, points=[("a", "b"), ("c", "d")], masses=[1, 1],
+            springs=[(0, 1, 1.0)],
+            hinges=[HingeAlignment(angle="a", rate="w", anchor=0, target=2, axis=(0, 1, 0), rest=(1, 0, 0))],
+        )  # fmt: skip
 
 
 def test_a_spec_with_unknown_points_is_refused() -> None:
