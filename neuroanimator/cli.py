@@ -584,7 +584,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         help="a hierarchy's global network trained from states moved by noise of this share of each "
         "group's change over a super-step, its targets unchanged, so that it learns to pull a drifted "
-        "body back (default 0; the committed dolphin's 0.03, as BENCHMARKS.md measures)",
+        "body back (default 0; the committed dolphin's 0.02, as BENCHMARKS.md measures)",
     )
     t.add_argument(
         "--regularizer-steps",

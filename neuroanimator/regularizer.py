@@ -170,8 +170,8 @@ class SpringRegularization(nn.Module):
     def deformation_energy(self, state: Tensor) -> Tensor:
         """(B,S) -> (B,) E_d of the springs at their rest lengths."""
         x = state[:, self.pos_rows].reshape(state.shape[0], -1, 3)
-        r = torch.as_tensor(_incidence(self.spec), dtype=x.dtype) @ x
-        rest = torch.tensor([s[2] for s in self.spec.springs], dtype=x.dtype)
+        r = self.spans[: self.rest.shape[1], : x.shape[1]].to(x.dtype) @ x  # the incidence rows
+        rest = self.rest[0, :, 0].to(x.dtype) / self.spec.stiffness
         strain = (torch.sqrt((r * r).sum(-1)) - rest) / rest
         return 0.5 * (strain * strain).sum(-1)
 
