@@ -215,12 +215,16 @@ def read_assets(path: Path, manifest: Manifest | None = None) -> dict[str, bytes
 
 def load_physical_model(path: Path, manifest: Manifest | None = None) -> PhysicalModel:
     """Rebuild the physical model an artifact was trained on, from the artifact alone: its MJCF and the
-    assets it names (imports MuJoCo)."""
+    assets it names, compiled in the sandbox (``sim.sandbox``; imports MuJoCo)."""
     from neuroanimator.physics.model import PhysicalModel
+    from neuroanimator.sim import sandbox
 
     manifest = manifest or read_manifest(path)
     sources = {a.name: a.source for a in manifest.assets}
-    return PhysicalModel((path / MJCF_FILE).read_text(), manifest.spec, read_assets(path, manifest), sources)
+    xml, assets = (path / MJCF_FILE).read_text(), read_assets(path, manifest)
+    # a stored MJCF may be a user's: it is compiled where MuJoCo can read nothing but its assets
+    compiled = sandbox.compile_xml(xml, assets)
+    return PhysicalModel(xml, manifest.spec, assets, sources, compiled)
 
 
 def version_size(path: Path, manifest: Manifest | None = None) -> int:

@@ -15,17 +15,17 @@ import mujoco
 import numpy as np
 
 from neuroanimator.model_spec import InitialStates, ModelSpec
-from neuroanimator.physics.bundle import Limits, SourceError, load_source
 from neuroanimator.physics.model import (
-    ModelError,
     PhysicalModel,
     SimulationDiverged,
     derive_layout,
     mujoco_warnings_as_debug,
-    read_model_name,
 )
+from neuroanimator.sim import sandbox
+from neuroanimator.sim.bundle import Limits, SourceError
 
 log = logging.getLogger(__name__)
+MAX_NAME = 64  # characters of a model's name (a folder's)
 
 
 def folder_name(text: str) -> str:
@@ -42,6 +42,7 @@ def load_mjcf(
     name: str | None = None,
     limits: Limits | None = None,
     stabilise: bool = True,
+    require_landlock: bool = False,
 ) -> PhysicalModel:
     """Build a model from an MJCF file, a model folder or an archive of one (``entry``: the MJCF in a
     folder or archive; see ``bundle``): name from ``name``, else the MJCF's ``model`` attribute, else
@@ -54,15 +55,17 @@ def load_mjcf(
     upload may skip that.
     """
     p = Path(path)
-    bundle = load_source(p, entry, limits)
+    bundle, m = sandbox.load_source(p, entry, limits or Limits(), require_landlock)
     entry_stem = PurePosixPath(bundle.entry).stem
-    model_name = folder_name(name or read_model_name(bundle.xml, entry_stem)) or folder_name(entry_stem)
+    model_name = folder_name(name or bundle.name or entry_stem) or folder_name(entry_stem)
     if not model_name:
         raise SourceError("entry", f"no usable model name in {p.name!r}: give one (--name)")
-    try:
-        m = mujoco.MjModel.from_xml_string(bundle.xml, bundle.vfs() or None)
-    except Exception as exc:  # compiled once already by load_source: not expected
-        raise ModelError(f"malformed MJCF {str(p)!r}: {exc}") from exc
+    if len(model_name) > MAX_NAME:
+        raise SourceError(
+            "entry",
+            f"the model's name ({model_name[:40]}...) has {len(model_name)} characters; a name may have "
+            f"{MAX_NAME}: give a shorter one (--name, or the form field name)",
+        )
     layout = derive_layout(m)
     unlimited = [
         mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator{i}"
@@ -94,7 +97,7 @@ def load_mjcf(
         initial=InitialStates(low=low.tolist(), high=high.tolist(), random_yaw=True, max_tilt=0.3),
         episode_s=20.0,
     )
-    model = PhysicalModel(bundle.xml, spec, bundle.vfs(), {a.name: a.source for a in bundle.assets})
+    model = PhysicalModel(bundle.xml, spec, bundle.vfs(), {a.name: a.source for a in bundle.assets}, m)
     if stabilise:
         stabilise_initial_states(model)
     return model

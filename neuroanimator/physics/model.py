@@ -32,6 +32,7 @@ from neuroanimator import catmull_rom
 from neuroanimator import quaternion as quat
 from neuroanimator.model_spec import ControlInfo, ModelSpec
 from neuroanimator.physics import separation
+from neuroanimator.sim.errors import ModelError
 from neuroanimator.state import GroupKind, StateGroup, StateLayout, StateSource
 
 log = logging.getLogger(__name__)
@@ -39,10 +40,6 @@ FloatArray = NDArray[np.float64]
 _BAD_QACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
 _PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CONTROL_SPEC = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
-
-
-class ModelError(ValueError):
-    """A model that cannot be built or used as asked; the message names the problem."""
 
 
 class SimulationDiverged(ModelError):
@@ -174,17 +171,20 @@ class PhysicalModel:
         spec: ModelSpec,
         assets: Mapping[str, bytes] | None = None,
         sources: Mapping[str, str] | None = None,
+        compiled: mujoco.MjModel | None = None,
     ) -> None:
         """``assets``: the files the MJCF names (meshes, textures, ...), by the names it uses
         (MuJoCo's virtual file system); a model read from files has them by content (``bundle``), and
-        ``sources`` says where each was found (for people)."""
+        ``sources`` says where each was found (for people). ``compiled``: the MJCF already compiled,
+        in the sandbox (``sim.sandbox``), for a model that did not come with the code; without it the
+        MJCF is compiled here, which only the catalog's own models may be."""
         self.xml = xml
         self.assets = dict(assets or {})
         self.asset_sources = dict(sources or {})
         self.spec = spec
         self.name = spec.name
         try:
-            self.mj_model = mujoco.MjModel.from_xml_string(xml, self.assets or None)
+            self.mj_model = compiled or mujoco.MjModel.from_xml_string(xml, self.assets or None)
         except Exception as exc:  # MuJoCo raises ValueError with the parser's message
             raise ModelError(f"malformed MJCF for model {spec.name!r}: {exc}") from exc
         m = self.mj_model

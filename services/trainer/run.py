@@ -294,8 +294,8 @@ def last_json(text: str) -> dict[str, Any]:
 def run(spec: dict[str, Any], channel: Channel, errors: LastError) -> dict[str, Any]:
     """The phases (see the module's text); the result."""
     from neuroanimator import registry
-    from neuroanimator.physics.bundle import Limits
     from neuroanimator.physics.mjcf import load_mjcf
+    from neuroanimator.sim.bundle import Limits
     from services.trainer.validation import check_trainable
 
     seconds: dict[str, float] = {}

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from pydantic import Field
 
-from neuroanimator.physics.bundle import Limits
+from neuroanimator.sim.bundle import Limits
 from services.common.jobs import QueueSettings
 from services.common.settings import Port
 

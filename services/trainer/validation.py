@@ -2,7 +2,7 @@
 
 The model is read as ``neuro train --mjcf`` reads it (``mjcf.load_mjcf``: the includes and assets of an
 MJCF file, or a .zip / .tar.gz of a model folder, under the service's caps), so every refusal of
-``neuroanimator.physics.bundle`` comes back as a 4xx naming the problem (``STATUS`` maps each kind),
+``neuroanimator.sim.bundle`` comes back as a 4xx naming the problem (``STATUS`` maps each kind),
 and so does a model the trainer could not make an emulator of: no degrees of freedom, no actuators,
 or actuators without a ``ctrlrange`` (the emulator is trained over the range of each control; the
 command line would guess one, a service asks). Nothing is written: the caller removes the upload.
@@ -15,9 +15,9 @@ from pathlib import Path
 
 import mujoco
 
-from neuroanimator.physics.bundle import Limits, SourceError, SourceProblem
 from neuroanimator.physics.mjcf import load_mjcf
 from neuroanimator.physics.model import ModelError, PhysicalModel
+from neuroanimator.sim.bundle import Limits, SourceError, SourceProblem
 
 STATUS: dict[SourceProblem, int] = {
     "not_found": 422,

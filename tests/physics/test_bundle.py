@@ -1,4 +1,4 @@
-"""Models as shipped (``neuroanimator.physics.bundle``): an MJCF with includes and assets, a model folder,
+"""Models as shipped (``neuroanimator.sim.bundle``): an MJCF with includes and assets, a model folder,
 a .zip or .tar.gz of one, dm_control's suite XMLs; and every kind of bad input, refused with a message
 that names the problem."""
 
@@ -15,8 +15,8 @@ from pathlib import Path
 import mujoco
 import pytest
 
-from neuroanimator.physics.bundle import Limits, SourceError, load_source
 from neuroanimator.physics.mjcf import load_mjcf
+from neuroanimator.sim.bundle import Limits, SourceError, load_source
 
 ROOT = Path(__file__).resolve().parents[2]
 TINYBOT = ROOT / "tests" / "data" / "tinybot"
@@ -67,9 +67,14 @@ def test_the_entry_file_a_zip_and_a_tar_gz_give_the_same_bundle(tmp_path: Path) 
         assert b.xml == folder.xml and b.vfs() == folder.vfs(), source
 
 
-def test_a_self_contained_mjcf_is_kept_as_written(arm_path: Path) -> None:
+def test_a_self_contained_mjcf_becomes_mujocos_own_and_the_same_model(arm_path: Path) -> None:
+    """Never kept as written: what is stored is what MuJoCo parsed (no DOCTYPE, comments or includes)."""
     b = load_source(arm_path)
-    assert b.xml == arm_path.read_text() and b.assets == ()
+    assert b.assets == () and "<!--" not in b.xml
+    ours = mujoco.MjModel.from_xml_string(b.xml)
+    theirs = mujoco.MjModel.from_xml_path(str(arm_path))
+    assert (ours.nq, ours.nv, ours.nu, ours.nbody) == (theirs.nq, theirs.nv, theirs.nu, theirs.nbody)
+    assert ours.body_mass.tolist() == theirs.body_mass.tolist() and ours.opt.timestep == theirs.opt.timestep
 
 
 def test_load_mjcf_builds_the_model_from_the_bundle(tmp_path: Path) -> None:
