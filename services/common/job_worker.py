@@ -267,12 +267,22 @@ class Watch(threading.Thread):
         self.renew_every = ttl / 3.0
         self.poll_s = min(0.25, ttl / 6.0)
         self.cancelled = self.yielding = self.superseded = False
+        self.parent = os.getppid()  # the worker that forked this job process
         self._done = threading.Event()
 
     def run(self) -> None:
         renewed = time.monotonic()
         failing = False
         while not self._done.wait(self.poll_s):
+            if (
+                os.getppid() != self.parent
+            ):  # the worker died (SIGKILL, OOM): yield, never run on as an orphan
+                if not self.yielding:
+                    log.warning(
+                        "the job's worker is gone: the job goes back on the queue", extra={"job": self.job_id}
+                    )
+                self.yielding = True
+                continue
             renew = time.monotonic() - renewed >= self.renew_every
             try:
                 cancel, yld, current = self.store.heartbeat(self.job_id, self.worker, renew)

@@ -161,8 +161,8 @@ def queue_app(
         responses=readiness_responses(f"Redis does not answer, or {not_ready}"),
     )
     def readyz() -> Response:
-        """Ready when Redis answers and the service has what it needs (503 with the reason if not).
-        ``workers`` counts the workers heard from lately (``WORKER_ALIVE_S``)."""
+        """Ready when Redis answers, the service has what it needs and a worker was heard from lately
+        (``WORKER_ALIVE_S``; 503 with the reason if not). ``workers`` counts them."""
         fields, problem = ready()
         try:
             conn.ping()
@@ -174,6 +174,10 @@ def queue_app(
             return JSONResponse({"status": "redis unavailable", "message": msg}, status_code=503)
         if problem is not None:
             return JSONResponse({"status": problem[0], "message": problem[1]}, status_code=503)
+        if workers == 0:  # jobs would be accepted and wait: not ready until a worker is heard from
+            body = {"status": "no workers", **fields, "workers": 0, "queue_depth": depth}
+            body["message"] = "no worker has been heard from lately: queued jobs wait until one starts"
+            return JSONResponse(body, status_code=503)
         return JSONResponse({"status": "ready", **fields, "workers": workers, "queue_depth": depth})
 
     @app.get("/metrics", tags=["ops"], response_class=PlainTextResponse, responses=METRICS_RESPONSES)

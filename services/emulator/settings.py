@@ -24,6 +24,12 @@ class Settings(ApiSettings):
         65_536, ge=1024, description="the largest body of the endpoints that take small ones (sessions)"
     )
     max_batch: int = Field(4096, ge=1, description="most rows in one ORT call, and items in one POST /step")
+    max_json_body_bytes: int = Field(
+        4 * 1024 * 1024,
+        ge=1024,
+        description="the largest JSON body of POST /step, refused before it is parsed (the binary form may "
+        "use up to MAX_BODY_BYTES)",
+    )
     max_wait_ms: float = Field(
         1.0,
         ge=0.0,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 from typing import Any
 
 from fastapi import FastAPI
@@ -43,7 +44,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 return {}, ("not writable", f"cannot write to {name}'s folder ({why})")
         return {}, None
 
-    return queue_app(
+    app = queue_app(
         settings,
         title="NeuroAnimator trainer service",
         store=store,
@@ -54,3 +55,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         not_ready="the artifact registry or the uploads folder cannot be written",
         per_path_limits=[(r"/trainings", settings.max_upload_bytes)],
     )
+    # the uploads being checked at once (each in a sandbox process): a bound, not a queue of threads
+    app.state.checks = threading.BoundedSemaphore(settings.max_validations)
+    return app

@@ -50,13 +50,12 @@ def claim(root: Path, name: str, owner: str) -> bool:
         except OSError:
             shutil.rmtree(tmp, ignore_errors=True)
     found = tenancy.read(root, name)
-    if found is None:
+    if found is None or found.owner != owner:
+        # the same words for the catalog's names and for other keys': whose it is stays theirs to know
         raise NameTaken(
-            f"the name {name!r} is taken by a model that was not uploaded (the catalog's, or one trained "
-            "on the server): choose another name (the form field name)"
+            f"the name {name!r} is not available (it names a model that is not yours): choose another "
+            "name (the form field name)"
         )
-    if found.owner != owner:
-        raise NameTaken(f"the name {name!r} is taken by another API key's model: choose another name")
     return False
 
 

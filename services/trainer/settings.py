@@ -48,6 +48,27 @@ class Settings(QueueSettings):
     )
     max_file_bytes: int = Field(64 * _MiB, ge=1024, description="one XML or asset file of a model")
     max_mesh_vertices: int = Field(200_000, ge=3, description="vertices of one mesh")
+    max_xml_bytes: int = Field(8 * _MiB, ge=1024, description="one .xml file of a model")
+    min_timestep: float = Field(
+        1e-4, gt=0.0, description="the smallest <option timestep> accepted, in seconds"
+    )
+    compile_seconds: float = Field(
+        10.0, gt=0.0, description="wall-clock time to read and compile a model in the sandbox: refused beyond"
+    )
+    compile_memory_mb: int = Field(
+        2048, ge=256, description="address space of the sandbox that compiles a model, in MiB: refused beyond"
+    )
+    max_validations: int = Field(
+        2, ge=1, description="uploads checked at once by one API process (each in a sandbox process)"
+    )
+    validation_wait_s: float = Field(
+        20.0, gt=0.0, description="how long an upload waits for a free check before a 503"
+    )
+    require_landlock: bool = Field(
+        True,
+        description="compile models only where MuJoCo is confined by Linux Landlock (5.13+); false lets "
+        "a server without it accept uploads, with MuJoCo able to read the server's files",
+    )
     max_queue: int = Field(20, ge=1, description="queued trainings; beyond, POST /trainings is 503")
     job_timeout_s: float = Field(
         1800.0,
@@ -102,4 +123,8 @@ class Settings(QueueSettings):
             max_ratio=self.max_archive_ratio,
             max_file_bytes=self.max_file_bytes,
             max_mesh_vertices=self.max_mesh_vertices,
+            max_xml_bytes=self.max_xml_bytes,
+            min_timestep=self.min_timestep,
+            compile_seconds=self.compile_seconds,
+            compile_memory_bytes=self.compile_memory_mb * _MiB,
         )

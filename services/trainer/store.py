@@ -10,13 +10,27 @@ What is stored, and how every change of a training's state is one transaction, i
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Sequence
 from typing import Any
 
+import redis
+
 from services.common.jobs import FINAL
 from services.common.jobs import JobStore as BaseStore
+from services.trainer.settings import Settings
 
 PERFORM = "services.trainer.execution.perform"
+RESERVATION_GRACE_S = 900.0  # an upload being received and checked holds its place this long at most
+
+# KEYS[1]: the owner's places (a sorted set: training id -> when it was taken); ARGV: id, now, limit.
+# 1 when the id holds a place (taken now, or before), 0 when every place is taken.
+_RESERVE = """
+if redis.call('ZSCORE', KEYS[1], ARGV[1]) then return 1 end
+if redis.call('ZCARD', KEYS[1]) >= tonumber(ARGV[3]) then return 0 end
+redis.call('ZADD', KEYS[1], ARGV[2], ARGV[1])
+return 1
+"""
 
 
 class TrainingStore(BaseStore):
@@ -24,6 +38,55 @@ class TrainingStore(BaseStore):
 
     perform = PERFORM
     noun = "training"
+
+    def __init__(self, conn: redis.Redis, settings: Any) -> None:
+        super().__init__(conn, settings)
+        self._reserve = conn.register_script(_RESERVE)
+
+    # ------------------------------------------------------------ an owner's places
+    def _places(self, owner: str) -> str:
+        return f"{self.keys.prefix}:places:{owner}"
+
+    def reserve(self, owner: str, job_id: str, limit: int) -> tuple[bool, int]:
+        """Take one of the owner's ``limit`` places for a training, atomically (an upload takes it before
+        it is received and checked, so concurrent uploads cannot all pass the limit): (taken, places
+        held). A place is held until the training ends (``settle`` gives it back then) or the upload is
+        refused (``unreserve``)."""
+        self.settle(owner)
+        taken = bool(self._reserve(keys=[self._places(owner)], args=[job_id, time.time(), limit]))
+        return taken, int(self.r.zcard(self._places(owner)))
+
+    def unreserve(self, owner: str, job_id: str) -> None:
+        self.r.zrem(self._places(owner), job_id)
+
+    def settle(self, owner: str) -> None:
+        """Give back the places of trainings that ended, and of uploads that never became one."""
+        key = self._places(owner)
+        now = time.time()
+        held: list[tuple[Any, float]] = self.r.zrange(key, 0, -1, withscores=True)  # type: ignore[assignment]
+        for raw, taken in held:
+            job_id = raw.decode() if isinstance(raw, bytes) else str(raw)
+            status = self.r.hget(self.keys.job(job_id), "status")
+            status = status.decode() if isinstance(status, bytes) else status
+            if (status is not None and status in FINAL) or (
+                status is None and now - float(taken) > RESERVATION_GRACE_S
+            ):
+                self.r.zrem(key, job_id)
+
+    def reap(self) -> list[str]:
+        """Re-queue (or fail) trainings whose lease expired, then remove what dead trainings left on
+        disk (``leftovers``)."""
+        from services.trainer import leftovers  # it reads the registry: workers only
+
+        reaped = super().reap()
+        if isinstance(self.settings, Settings):
+            leftovers.reap(self.settings, self)
+        return reaped
+
+    def owner_lock(self, owner: str) -> Any:
+        """A lock of the owner's (Redis, so across API processes) held while their stored models and
+        bytes are counted and a name is claimed: concurrent uploads see each other's claims."""
+        return self.r.lock(f"{self.keys.prefix}:lock:{owner}", timeout=30.0, blocking_timeout=15.0)
 
     def summary(self, spec: dict[str, Any]) -> dict[str, Any]:
         return {"model": spec.get("model")}

@@ -1,7 +1,8 @@
 """Checking an uploaded model before it is queued: what ``POST /trainings`` answers at once.
 
 The model is read as ``neuro train --mjcf`` reads it (``mjcf.load_mjcf``: the includes and assets of an
-MJCF file, or a .zip / .tar.gz of a model folder, under the service's caps), so every refusal of
+MJCF file, or a .zip / .tar.gz of a model folder, under the service's caps, compiled in the sandbox
+where MuJoCo can read nothing but the upload: ``neuroanimator.sim.sandbox``), so every refusal of
 ``neuroanimator.sim.bundle`` comes back as a 4xx naming the problem (``STATUS`` maps each kind),
 and so does a model the trainer could not make an emulator of: no degrees of freedom, no actuators,
 or actuators without a ``ctrlrange`` (the emulator is trained over the range of each control; the
@@ -18,6 +19,7 @@ import mujoco
 from neuroanimator.physics.mjcf import load_mjcf
 from neuroanimator.physics.model import ModelError, PhysicalModel
 from neuroanimator.sim.bundle import Limits, SourceError, SourceProblem
+from neuroanimator.sim.sandbox import Unconfined
 
 STATUS: dict[SourceProblem, int] = {
     "not_found": 422,
@@ -31,6 +33,8 @@ STATUS: dict[SourceProblem, int] = {
     "mesh_too_large": 422,
     "plugin_refused": 422,
     "entry": 422,
+    "bad_timestep": 422,
+    "too_costly": 422,
 }
 """The HTTP status of each kind of refusal of a model's files: 413 for what is too large, else 422."""
 
@@ -85,10 +89,16 @@ def check_trainable(model: PhysicalModel) -> None:
         )
 
 
-def check_model(path: Path, entry: str | None, name: str | None, limits: Limits) -> Checked:
+def check_model(
+    path: Path, entry: str | None, name: str | None, limits: Limits, require_landlock: bool = True
+) -> Checked:
     """Read and check an uploaded model (see the module's text); ``Refused`` with the status."""
     try:
-        model = load_mjcf(path, entry=entry, name=name, limits=limits, stabilise=False)
+        model = load_mjcf(
+            path, entry=entry, name=name, limits=limits, stabilise=False, require_landlock=require_landlock
+        )
+    except Unconfined as exc:
+        raise Refused(503, "sandbox_unavailable", str(exc)) from exc
     except SourceError as exc:
         raise Refused(
             STATUS[exc.kind], exc.kind, str(exc), "entry" if exc.kind == "entry" else "file"

@@ -12,14 +12,17 @@ artifact registry and the trainer's work folder (``WORK_DIR``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+import redis
+
 from services.common import job_worker, logs
-from services.trainer import execution
+from services.trainer import execution, leftovers
 from services.trainer.settings import Settings
 from services.trainer.store import TrainingStore
 
@@ -61,6 +64,8 @@ def run(args: argparse.Namespace, settings: Settings | None = None) -> int:
     niceness = lower_priority(settings.worker_nice, settings.worker_idle)
     store = TrainingStore(job_worker.connect(settings), settings)
     execution.configure(settings)  # the forked job processes inherit these settings
+    with contextlib.suppress(redis.RedisError):  # what trainings killed with the last worker left
+        leftovers.reap(settings, store)
     return job_worker.work(store, args, "training worker", nice=niceness)
 
 

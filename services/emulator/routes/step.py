@@ -23,8 +23,9 @@ from services.common.errors import json_error
 from services.emulator.binary import MEDIA_TYPE as OCTET
 from services.emulator.deps import ServiceDep
 from services.emulator.error_mapping import error_body, invalid
-from services.emulator.errors import BadInput, EmulatorError, UnsupportedMediaType
+from services.emulator.errors import BadInput, EmulatorError, TooLarge, UnsupportedMediaType
 from services.emulator.fastpath import binary_step
+from services.emulator.settings import Settings
 
 router = APIRouter(tags=["step"])
 
@@ -64,6 +65,31 @@ _OPENAPI: dict[str, Any] = {
 }
 
 
+def _refuse_large_json(body: bytes, settings: Settings) -> None:
+    """``TooLarge`` for a JSON batch over ``MAX_JSON_BODY_BYTES`` or with more items than ``MAX_BATCH``,
+    before it is parsed: parsing and validating 300,000 items takes seconds of CPU, counting their
+    ``"session"`` keys a millisecond (an over-count only refuses a body no client sends). Large batches
+    belong to the binary form."""
+    limit = settings.max_json_body_bytes
+    if len(body) > limit:
+        raise TooLarge(
+            f"a JSON batch may have at most {limit:,} bytes (MAX_JSON_BODY_BYTES), got {len(body):,}; send "
+            f"large batches in the binary form ({OCTET})",
+            code="body_too_large",
+            field="body",
+            expected=f"<= {limit}",
+            got=len(body),
+        )
+    items = body.count(b'"session"')
+    if items > settings.max_batch:
+        raise TooLarge(
+            f"a batch may hold at most {settings.max_batch} items (MAX_BATCH), got about {items}",
+            field="items",
+            expected=f"<= {settings.max_batch}",
+            got=items,
+        )
+
+
 @router.post(
     "/step",
     response_model=BatchStepResponse,
@@ -84,6 +110,7 @@ async def batch_step(request: Request, service: ServiceDep) -> Response:
             expected=["application/json", OCTET],
             got=ctype,
         )
+    _refuse_large_json(body, service.settings)
     try:
         raw = json.loads(body)
     except (ValueError, RecursionError) as exc:  # syntax, encoding, a huge integer, too deep

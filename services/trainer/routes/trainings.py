@@ -2,28 +2,34 @@
 ``GET /trainings/{id}/events`` (server-sent events) and ``DELETE /trainings/{id}``.
 
 ``POST /trainings`` answers in this order, so that what can be refused early is refused before the
-upload is read whole: the caller's concurrent trainings (429), the content type (415), the body's
-size (413, by ``limits.BodyLimitMiddleware`` while it streams), the form's fields (422), the file's
-type (415), then the model itself (``validation``: 4xx naming the problem), its name (409 when it is
-another key's), the caller's stored models and bytes (429). Nothing is kept of a refused upload.
+upload is read whole: the caller's concurrent trainings (429: a place taken atomically in Redis before
+anything else, given back if the upload is refused), the content type (415), the body's size (413, by
+``limits.BodyLimitMiddleware`` while it streams), the form's fields (422), the file's type (415), then
+the model itself (``validation``, in a sandbox process, ``MAX_VALIDATIONS`` at once: 4xx naming the
+problem), then under the caller's lock its name (409 when it is not available) and the caller's stored
+models and bytes (429). Nothing is kept of a refused upload.
 
 A training belongs to the API key that made it: any other key gets 404 for it, as if it did not exist.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import re
 import shutil
+import threading
 from pathlib import Path, PurePosixPath
 from typing import Annotated, Any
 
+import redis
 import redis.asyncio as aioredis
 from fastapi import APIRouter, Header, Query, Request, Response
 from fastapi.responses import StreamingResponse
 from pydantic import ValidationError
 from python_multipart.exceptions import MultipartParseError
+from redis.exceptions import LockError
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException
@@ -49,7 +55,7 @@ from services.trainer.deps import SettingsDep, StoreDep
 from services.trainer.metrics import Metrics
 from services.trainer.settings import Settings
 from services.trainer.store import TrainingStore
-from services.trainer.validation import Refused, check_model
+from services.trainer.validation import Checked, Refused, check_model
 
 log = logging.getLogger(__name__)
 router = APIRouter(tags=["trainings"])
@@ -128,15 +134,16 @@ def limit_error(name: str, what: str, limit: int, got: int) -> ApiError:
     )
 
 
-def _concurrency(store: TrainingStore, owner: str, s: Settings) -> None:
-    active = store.active(owner)
-    if active >= s.max_trainings_per_key:
+def _reserve(store: TrainingStore, owner: str, s: Settings, job_id: str) -> None:
+    """Take one of the caller's places for trainings (atomic in Redis), else 429."""
+    taken, held = store.reserve(owner, job_id, s.max_trainings_per_key)
+    if not taken:
         who = "this API key has" if CALLER.get() else "there are"
         raise limit_error(
             "MAX_TRAININGS_PER_KEY",
-            f"{who} {active} trainings queued or running; wait for one to end (or cancel one)",
+            f"{who} {held} trainings queued, running or being uploaded; wait for one to end (or cancel one)",
             s.max_trainings_per_key,
-            active,
+            held,
         )
 
 
@@ -223,37 +230,66 @@ async def read_form(request: Request) -> tuple[UploadFile, TrainingOptions, Any]
     return file, opts, form
 
 
-def _accept(
-    store: TrainingStore, s: Settings, owner: str, job_id: str, path: Path, opts: TrainingOptions
-) -> TrainingAccepted:
-    """Check the stored upload and queue its training (in a worker thread: it reads files, compiles
-    the model and talks to Redis)."""
+def _check(s: Settings, path: Path, opts: TrainingOptions, checks: threading.BoundedSemaphore) -> Checked:
+    """The model checked in the sandbox, at most ``MAX_VALIDATIONS`` at once (503 when none frees up
+    within ``VALIDATION_WAIT_S``)."""
+    if not checks.acquire(timeout=s.validation_wait_s):
+        raise ApiError(
+            503,
+            "busy",
+            f"the service is checking {s.max_validations} other uploads (MAX_VALIDATIONS); try again shortly",
+        )
     try:
-        checked = check_model(path, opts.entry, opts.name, s.limits())
+        return check_model(path, opts.entry, opts.name, s.limits(), s.require_landlock)
     except Refused as exc:
         raise ApiError(exc.status, exc.error, str(exc), field=exc.field) from exc
+    finally:
+        checks.release()
+
+
+def _accept(
+    store: TrainingStore,
+    s: Settings,
+    owner: str,
+    job_id: str,
+    path: Path,
+    opts: TrainingOptions,
+    checks: threading.BoundedSemaphore,
+) -> TrainingAccepted:
+    """Check the stored upload and queue its training (in a worker thread: the check runs in a sandbox
+    process, then the owner's models and bytes are counted and the name claimed under the owner's lock)."""
+    checked = _check(s, path, opts, checks)
     name = checked.model
-    _storage(s, owner, name, path.stat().st_size)
+    lock = store.owner_lock(owner)
+    if not lock.acquire():
+        raise ApiError(503, "busy", "another upload of this API key is being queued; try again shortly")
     try:
-        new = models.claim(s.artifacts_dir, name, owner)
-    except models.NameTaken as exc:
-        raise ApiError(409, "name_taken", str(exc), field="name", got=name) from exc
-    spec = {
-        "model": name,
-        "source": path.relative_to(s.uploads()).as_posix(),
-        "entry": opts.entry,
-        "super_step": opts.super_step,
-        "examples": opts.examples or s.default_examples,
-        "epochs": opts.epochs,
-        "hidden": opts.hidden,
-        "rollout_steps": opts.rollout_steps,
-        "force": opts.force,
-    }
-    try:
-        store.submit_spec(json.dumps(spec, sort_keys=True), owner, job_id=job_id, log_extra={"model": name})
-    except BaseException:
-        release(store, s, name, owner, job_id)
-        raise
+        _storage(s, owner, name, path.stat().st_size)
+        try:
+            new = models.claim(s.artifacts_dir, name, owner)
+        except models.NameTaken as exc:
+            raise ApiError(409, "name_taken", str(exc), field="name", got=name) from exc
+        spec = {
+            "model": name,
+            "source": path.relative_to(s.uploads()).as_posix(),
+            "entry": opts.entry,
+            "super_step": opts.super_step,
+            "examples": opts.examples or s.default_examples,
+            "epochs": opts.epochs,
+            "hidden": opts.hidden,
+            "rollout_steps": opts.rollout_steps,
+            "force": opts.force,
+        }
+        try:
+            store.submit_spec(
+                json.dumps(spec, sort_keys=True), owner, job_id=job_id, log_extra={"model": name}
+            )
+        except BaseException:
+            release(store, s, name, owner, job_id)
+            raise
+    finally:
+        with contextlib.suppress(redis.RedisError, LockError):
+            lock.release()
     what = "a new model" if new else f"a new version of your model {name!r}"
     dofs = f"{checked.dofs} degrees of freedom, {len(checked.controls)} controls"
     return TrainingAccepted(
@@ -281,21 +317,29 @@ async def create_training(
     The model is checked before this answers: a 4xx names what is wrong with it (which file is missing,
     MuJoCo's compile error with the file and line, which actuator has no ``ctrlrange``, ...)."""
     metrics: Metrics = request.app.state.metrics
+    checks: threading.BoundedSemaphore = request.app.state.checks
+    job_id = new_id()
     try:
-        await run_in_threadpool(_concurrency, store, owner, settings)
-        file, opts, form = await read_form(request)
-        job_id = new_id()
-        folder = settings.uploads() / job_id
+        await run_in_threadpool(_reserve, store, owner, settings, job_id)
         try:
-            path = folder / upload_name(file.filename)
-            folder.mkdir(parents=True)
-            with path.open("wb") as out:
-                await run_in_threadpool(shutil.copyfileobj, file.file, out, 1 << 20)
-            await form.close()
-            accepted = await run_in_threadpool(_accept, store, settings, owner, job_id, path, opts)
+            file, opts, form = await read_form(request)
+            folder = settings.uploads() / job_id
+            try:
+                path = folder / upload_name(file.filename)
+                folder.mkdir(parents=True)
+                with path.open("wb") as out:
+                    await run_in_threadpool(shutil.copyfileobj, file.file, out, 1 << 20)
+                await form.close()
+                accepted = await run_in_threadpool(
+                    _accept, store, settings, owner, job_id, path, opts, checks
+                )
+            except BaseException:
+                await form.close()
+                shutil.rmtree(folder, ignore_errors=True)
+                raise
         except BaseException:
-            await form.close()
-            shutil.rmtree(folder, ignore_errors=True)
+            with contextlib.suppress(redis.RedisError):
+                await run_in_threadpool(store.unreserve, owner, job_id)
             raise
     except QueueFull as exc:
         metrics.rejected.labels("queue_full").inc()

@@ -190,10 +190,10 @@ def test_cors_preflight_and_headers(ctl: Controller) -> None:
 
 def test_readyz_and_metrics(ctl: Controller, tmp_path: Path) -> None:
     api = ctl.client()
-    ready = api.get("/readyz")
-    assert ready.status_code == 200, ready.text
+    ready = api.get("/readyz")  # no worker started: not ready, and it says why
+    assert ready.status_code == 503, ready.text
     body = ready.json()
-    assert body["status"] == "ready" and "pendulum-active" in body["models"] and body["workers"] == 0
+    assert body["status"] == "no workers" and "pendulum-active" in body["models"] and body["workers"] == 0
     text = api.get("/metrics").text
     for name in (
         "controller_redis_up 1.0",

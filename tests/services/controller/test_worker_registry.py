@@ -30,7 +30,7 @@ from tests.services.private_redis import PrivateRedis, private_redis_fixture  # 
 
 def _workers(api: object) -> int:
     r = api.get("/readyz")  # type: ignore[attr-defined]
-    assert r.status_code == 200, r.text
+    assert r.status_code == 200 or r.json()["status"] == "no workers", r.text  # 503 while none is heard
     return int(r.json()["workers"])
 
 
@@ -38,7 +38,7 @@ def _answered(api: Any, path: str) -> Any:
     """The JSON of a GET that succeeded, else None (the API's first call after a Redis restart may
     find its connection gone)."""
     r = api.get(path)
-    return r.json() if r.status_code == 200 else None
+    return r.json() if r.status_code == 200 or "workers" in r.text else None
 
 
 @pytest.fixture

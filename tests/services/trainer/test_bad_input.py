@@ -186,7 +186,7 @@ def test_names_of_models_that_were_not_uploaded_are_taken(api: TestClient, trn: 
     catalog.mkdir()
     try:
         body = refused(api, trn, 409, "name_taken", "tinybot.zip", zipped(TINYBOT))
-        assert "was not uploaded" in body["message"] and body["field"] == "name"
+        assert "is not available" in body["message"] and body["field"] == "name"
     finally:
         catalog.rmdir()
 

@@ -28,8 +28,8 @@ def trn_fixture(redis_url: str, tmp_path: Path) -> Iterator[Trainer]:
 
 
 def _workers(api: TestClient) -> int:
-    r = api.get("/readyz")
-    assert r.status_code == 200, r.text
+    r = api.get("/readyz")  # 503 "no workers" while none is heard from
+    assert r.status_code == 200 or r.json()["status"] == "no workers", r.text
     return int(r.json()["workers"])
 
 

@@ -8,12 +8,18 @@ texture in assets/) and variants of it written by the tests.
 
 from __future__ import annotations
 
+import contextlib
 import io
+import socket
 import tarfile
+import threading
+import time
 import zipfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import uvicorn
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
@@ -22,7 +28,19 @@ from services.trainer.app import create_app
 from services.trainer.settings import Settings
 from tests.services.queues import Deployment, wait_for
 
-__all__ = ["KEYS", "TINY", "TINYBOT", "Trainer", "auth", "ended", "tarred", "upload", "wait_for", "zipped"]
+__all__ = [
+    "KEYS",
+    "TINY",
+    "TINYBOT",
+    "Trainer",
+    "auth",
+    "ended",
+    "serve",
+    "tarred",
+    "upload",
+    "wait_for",
+    "zipped",
+]
 
 ROOT = Path(__file__).resolve().parents[3]
 TINYBOT = ROOT / "tests" / "data" / "tinybot"
@@ -113,3 +131,24 @@ def ended(
 
     found: dict[str, Any] = wait_for(f"training {training_id} to end", check, timeout, every=0.25)
     return found
+
+
+@contextlib.contextmanager
+def serve(app: FastAPI) -> Iterator[str]:
+    """The app under a real uvicorn on a free port (for concurrent clients); its base URL."""
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    port = int(sock.getsockname()[1])
+    sock.close()
+    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not srv.started:
+        assert time.monotonic() < deadline, "the server did not start"
+        time.sleep(0.01)
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        srv.should_exit = True
+        thread.join(timeout=20)
