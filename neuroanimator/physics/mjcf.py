@@ -42,7 +42,7 @@ def load_mjcf(
     name: str | None = None,
     limits: Limits | None = None,
     stabilise: bool = True,
-    require_landlock: bool = False,
+    require_landlock: bool | None = None,
 ) -> PhysicalModel:
     """Build a model from an MJCF file, a model folder or an archive of one (``entry``: the MJCF in a
     folder or archive; see ``bundle``): name from ``name``, else the MJCF's ``model`` attribute, else

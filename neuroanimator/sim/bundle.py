@@ -249,7 +249,18 @@ def extract(archive: Path, limits: Limits) -> dict[str, bytes]:
                         continue
                     with zf.open(info) as stream:
                         ex.add(rel, stream, info.file_size)
-        except (zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError, EOFError, zlib.error) as exc:
+        except SourceError:
+            raise
+        except (  # what a damaged zip makes zipfile raise: its own errors, zlib's, seeks, bad headers
+            zipfile.BadZipFile,
+            zipfile.LargeZipFile,
+            NotImplementedError,
+            EOFError,
+            zlib.error,
+            OSError,
+            ValueError,
+            struct.error,
+        ) as exc:
             raise SourceError(
                 "unsafe_archive", f"{archive.name}: not a readable zip archive ({exc})"
             ) from exc
@@ -270,7 +281,9 @@ def extract(archive: Path, limits: Limits) -> dict[str, bytes]:
                 content = tf.extractfile(member)
                 if content is not None:
                     ex.add(rel, content, member.size)
-    except (tarfile.TarError, EOFError, OSError, zlib.error) as exc:
+    except SourceError:
+        raise
+    except (tarfile.TarError, EOFError, OSError, zlib.error, ValueError, struct.error) as exc:
         raise SourceError(
             "unsafe_archive", f"{archive.name}: not a readable .tar.gz archive ({exc})"
         ) from exc

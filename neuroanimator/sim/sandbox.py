@@ -198,11 +198,19 @@ def _model_of(mjb: bytes) -> mujoco.MjModel:
     return mujoco.MjModel.from_binary_path(MJB, {MJB: mjb})
 
 
+def required() -> bool:
+    """Whether this process (and what it starts) must refuse to compile unconfined: ``REQUIRE_LANDLOCK``
+    in the environment (the trainer's services set it from their settings)."""
+    return os.environ.get("REQUIRE_LANDLOCK", "").strip().lower() in ("1", "true", "yes")
+
+
 def load_source(
-    path: str | Path, entry: str | None, limits: Limits, require_landlock: bool = False
+    path: str | Path, entry: str | None, limits: Limits, require_landlock: bool | None = None
 ) -> tuple[Bundle, mujoco.MjModel]:
     """The bundle of a source (``bundle`` tells how it is read) and its compiled model, made in a child
-    that can read nothing else."""
+    that can read nothing else (``Unconfined`` where Landlock is missing and ``require_landlock``,
+    by default ``required()``)."""
+    require_landlock = required() if require_landlock is None else require_landlock
     src = Path(path).absolute()
     header, blobs = _run({"mode": "source", "path": str(src), "entry": entry}, [], limits, require_landlock)
     *datas, mjb = blobs
@@ -245,7 +253,7 @@ def compile_xml(
             {"mode": "compile", "assets": names},
             [xml.encode(), *(assets[n] for n in names)],
             limits or Limits(),
-            False,
+            required(),
         )
         mjb = blobs[0]
         with _cache_lock:

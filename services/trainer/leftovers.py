@@ -69,7 +69,8 @@ def reap(s: Settings, store: TrainingStore, grace: float = GRACE_S) -> list[str]
                         removed.append(f"{model_dir.name}/{p.name}")
             for name in models.uploaded(root):
                 found = tenancy.read(root, name)
-                if found is None or registry.versions(root, name) or not _old(root / name, now, grace):
+                claimed = root / name / tenancy.OWNER_FILE  # written when the name was claimed
+                if found is None or registry.versions(root, name) or not _old(claimed, now, grace):
                     continue
                 if store.active(found.owner, name):
                     continue

@@ -61,6 +61,8 @@ def lower_priority(nice: int, idle: bool = False) -> int:
 
 def run(args: argparse.Namespace, settings: Settings | None = None) -> int:
     settings = settings or Settings()
+    # the trainings this worker starts compile the upload in the sandbox, refusing where it cannot confine
+    os.environ["REQUIRE_LANDLOCK"] = "true" if settings.require_landlock else "false"
     niceness = lower_priority(settings.worker_nice, settings.worker_idle)
     store = TrainingStore(job_worker.connect(settings), settings)
     execution.configure(settings)  # the forked job processes inherit these settings
