@@ -57,7 +57,7 @@ def trainer(redis_url: str, log_dir: Path, registry: Path | None = None) -> Iter
     own = registry is None
     root = Path(tempfile.mkdtemp(prefix="bench-registry-")) if registry is None else registry
     try:
-        with serve(str(root), "services.trainer", **env) as (url, _pid):
+        with serve(str(root), "services.trainer", ready="/healthz", **env) as (url, _pid):
             log = (log_dir / "training-worker.log").open("wb")
             worker = subprocess.Popen(
                 [sys.executable, "-m", "services.trainer.worker"],

@@ -170,7 +170,10 @@ def main() -> int:
         }
         env = {**os.environ, **settings}
         try:
-            with serve(settings["ARTIFACTS_DIR"], "services.controller", **settings) as (url, _pid):
+            with serve(settings["ARTIFACTS_DIR"], "services.controller", ready="/healthz", **settings) as (
+                url,
+                _pid,
+            ):
                 for w in counts:
                     rows.append(run(url, env, w, bodies))
         finally:

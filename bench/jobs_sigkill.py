@@ -72,7 +72,7 @@ def main() -> int:
         r = redis.Redis.from_url(redis_url)
         kills = 0
         with (
-            serve(args.artifacts, "services.controller", **env) as (url, _pid),
+            serve(args.artifacts, "services.controller", ready="/healthz", **env) as (url, _pid),
             httpx.Client(base_url=url, timeout=30) as api,
         ):
             for _ in range(args.workers):

@@ -340,7 +340,7 @@ def main() -> int:
                 emu_url,
                 emu_pid,
             ),
-            serve(args.artifacts, "services.controller", **env) as (ctl_url, ctl_pid),
+            serve(args.artifacts, "services.controller", ready="/healthz", **env) as (ctl_url, ctl_pid),
         ):
             worker = subprocess.Popen(
                 [sys.executable, "-m", "services.controller.worker"],

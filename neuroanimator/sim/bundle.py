@@ -76,7 +76,7 @@ class SourceError(ModelError):
 class Limits:
     """Caps on what a source may hold and cost. An archive's files are counted (folders too) and
     measured while extracting, against the archive's own size for the compression ratio; compiling
-    runs in a process with ``compile_seconds`` of wall-clock time and ``compile_memory_bytes`` of
+    runs in a process with ``compile_seconds`` of CPU time and ``compile_memory_bytes`` of
     address space (``sandbox``)."""
 
     max_bytes: int = 256 * _MiB  # everything extracted from an archive (or read from a folder)
@@ -184,10 +184,11 @@ class _Extractor:
     def add(self, rel: str, stream: IO[bytes], declared: int) -> None:
         lim = self.limits
         self.count()
-        if declared > lim.max_file_bytes:
+        # an MJCF is parsed whole by MuJoCo (about 50 bytes of memory per byte): its own, smaller cap
+        cap = lim.max_xml_bytes if rel.lower().endswith(".xml") else lim.max_file_bytes
+        if declared > cap:
             raise SourceError(
-                "file_too_large",
-                f"{self.name}: {rel} is {declared:,} bytes; one file may have {lim.max_file_bytes:,}",
+                "file_too_large", f"{self.name}: {rel} is {declared:,} bytes; one such file may have {cap:,}"
             )
         if rel in self.files:
             raise SourceError("unsafe_archive", f"{self.name}: {rel} appears twice")
@@ -203,10 +204,9 @@ class _Extractor:
         while chunk := stream.read(1 << 16):
             written += len(chunk)
             self.bytes += len(chunk)
-            if written > lim.max_file_bytes:
+            if written > cap:
                 raise SourceError(
-                    "file_too_large",
-                    f"{self.name}: {rel} is over {lim.max_file_bytes:,} bytes once extracted",
+                    "file_too_large", f"{self.name}: {rel} is over {cap:,} bytes once extracted"
                 )
             if self.bytes > lim.max_bytes:
                 raise SourceError(

@@ -145,17 +145,27 @@ class BodyLimitMiddleware:
         max_bytes: int,
         per_path: Sequence[tuple[str, int]] = (),
         max_depth: int = MAX_JSON_DEPTH,
+        json_per_path: Sequence[tuple[str, int, str]] = (),
     ) -> None:
         self.app = app
         self.max_bytes = max_bytes
         self.per_path = [(re.compile(p), n) for p, n in per_path]
         self.max_depth = max_depth
+        self.json_per_path = [(re.compile(p), n, why) for p, n, why in json_per_path]
 
     def limit(self, path: str) -> int:
         for pattern, n in self.per_path:
             if pattern.fullmatch(path):
                 return n
         return self.max_bytes
+
+    def json_limit(self, path: str) -> tuple[int, str] | None:
+        """A smaller limit for JSON bodies of ``path`` (a path with a binary form for large bodies), and
+        what to say when it is passed."""
+        for pattern, n, why in self.json_per_path:
+            if pattern.fullmatch(path):
+                return n, why
+        return None
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -181,6 +191,15 @@ class BodyLimitMiddleware:
         if length is not None and length.isdigit() and int(length) > limit:
             await self._too_large(send, limit, path, got=f"Content-Length: {int(length)}")
             return
+        smaller = self.json_limit(path) if _is_json(ctype) else None
+        if smaller is not None:  # checked before a byte is read: parsing a large JSON body costs seconds
+            limit = min(limit, smaller[0])
+            if length is not None and length.isdigit() and int(length) > limit:
+                body = error_json(
+                    413, "body_too_large", smaller[1], f"<= {limit} bytes", f"Content-Length: {int(length)}"
+                )
+                await respond(send, 413, body)
+                return
         if ctypes > 1:
             msg = f"the request has {ctypes} Content-Type headers; send one, naming the body's type"
             body = error_json(400, "bad_request", msg, "one Content-Type header", ctypes, "content-type")
@@ -257,6 +276,14 @@ class BodyLimitMiddleware:
             await self._too_large(send, exc.limit, scope["path"], got=f"more than {exc.limit} bytes")
 
 
-def limit_bodies(app: Starlette, max_bytes: int, per_path: Sequence[tuple[str, int]] = ()) -> None:
-    """Add ``BodyLimitMiddleware`` to ``app`` (outside every middleware added before this call)."""
-    app.add_middleware(BodyLimitMiddleware, max_bytes=max_bytes, per_path=per_path)
+def limit_bodies(
+    app: Starlette,
+    max_bytes: int,
+    per_path: Sequence[tuple[str, int]] = (),
+    json_per_path: Sequence[tuple[str, int, str]] = (),
+) -> None:
+    """Add ``BodyLimitMiddleware`` to ``app`` (outside every middleware added before this call);
+    ``json_per_path``: (path regex, limit, message) for JSON bodies smaller than the path's others."""
+    app.add_middleware(
+        BodyLimitMiddleware, max_bytes=max_bytes, per_path=per_path, json_per_path=json_per_path
+    )

@@ -151,7 +151,7 @@ def queue_app(
         app.include_router(r)
 
     @app.get("/healthz", tags=["ops"])
-    def healthz() -> dict[str, str]:
+    async def healthz() -> dict[str, str]:  # on the event loop: no thread to wait for
         return {"status": "ok"}
 
     @app.get(

@@ -85,7 +85,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # every body bounded before it is read (even by a caller without a key): large ones on the stepping
     # and pose endpoints only
     big = settings.max_body_bytes
-    limit_bodies(app, settings.small_body_bytes, per_path=[("/step", big), ("/models/[^/]+/poses", big)])
+    json_step = settings.max_json_body_bytes
+    limit_bodies(
+        app,
+        settings.small_body_bytes,
+        per_path=[("/step", big), ("/models/[^/]+/poses", big)],
+        json_per_path=[("/step", json_step, step.json_batch_too_large(json_step))],
+    )
     origins = settings.cors_list()
     if origins:  # added last, so outermost: preflight requests are answered before the key check
         app.add_middleware(

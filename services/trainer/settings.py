@@ -53,7 +53,9 @@ class Settings(QueueSettings):
         1e-4, gt=0.0, description="the smallest <option timestep> accepted, in seconds"
     )
     compile_seconds: float = Field(
-        10.0, gt=0.0, description="wall-clock time to read and compile a model in the sandbox: refused beyond"
+        10.0,
+        gt=0.0,
+        description="CPU seconds to read and compile a model in the sandbox (and three times that of wall-clock time): refused beyond",
     )
     compile_memory_mb: int = Field(
         2048, ge=256, description="address space of the sandbox that compiles a model, in MiB: refused beyond"

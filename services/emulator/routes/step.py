@@ -65,16 +65,22 @@ _OPENAPI: dict[str, Any] = {
 }
 
 
+def json_batch_too_large(limit: int) -> str:
+    return (
+        f"a JSON batch may have at most {limit:,} bytes (MAX_JSON_BODY_BYTES); send large batches in the "
+        f"binary form ({OCTET})"
+    )
+
+
 def _refuse_large_json(body: bytes, settings: Settings) -> None:
     """``TooLarge`` for a JSON batch over ``MAX_JSON_BODY_BYTES`` or with more items than ``MAX_BATCH``,
     before it is parsed: parsing and validating 300,000 items takes seconds of CPU, counting their
     ``"session"`` keys a millisecond (an over-count only refuses a body no client sends). Large batches
     belong to the binary form."""
     limit = settings.max_json_body_bytes
-    if len(body) > limit:
+    if len(body) > limit:  # normally refused by its Content-Length before it is read (app.py)
         raise TooLarge(
-            f"a JSON batch may have at most {limit:,} bytes (MAX_JSON_BODY_BYTES), got {len(body):,}; send "
-            f"large batches in the binary form ({OCTET})",
+            json_batch_too_large(limit),
             code="body_too_large",
             field="body",
             expected=f"<= {limit}",
