@@ -58,9 +58,10 @@ PROBE_SAMPLING_S = 20.0  # the most a probe's examples may take to simulate ...
 PROBE_LEAST = (1000, 500)  # ... unless it would have fewer than these (training, held out)
 REFUSE_ERROR = 0.05  # above this one-step error, an emulator is refused ...
 REFUSE_GAIN = 2.0  # ... as it is when it is not this many times below the linear baseline
-# Below this one-step error an emulator is exact to float32's precision, and is kept whatever the linear
-# baseline does: a linear system (dm_control's LQR) is fitted exactly by both, with nothing to beat
-EXACT = 1e-6
+# Below this one-step error an emulator is kept whatever the linear baseline does: a model that a linear
+# map already predicts well (a small pendulum: 1.07e-5 against a linear 1.78e-5) is not a failed
+# emulator, and a linear system (dm_control's LQR) is fitted exactly by both, with nothing to beat
+ACCEPT_ERROR = 1e-3
 CONSTRAINED_HIDDEN = (128, 128)  # the network of a model whose contacts or limits engage ...
 CONSTRAINED_ACTIVATION = "silu"  # ... and its units
 USER_HIDDEN = (128, 128, 128)  # the network of a model of the user's own (--mjcf) ...
@@ -273,14 +274,14 @@ def check_useful(
     name: str, substeps: int, one_step: float, linear: float, sampling: str | None = None
 ) -> None:
     """Refuse an emulator far off the target or hardly better than a linear fit (``ModelOutOfReach``),
-    unless it is exact (``EXACT``). ``sampling``: why the training had fewer examples than it asked
-    for (``training.sampling_plan``), the first thing to try then."""
-    if math.isfinite(one_step) and one_step <= EXACT:
+    unless its error is below ``ACCEPT_ERROR`` whatever the ratio. ``sampling``: why the training had
+    fewer examples than it asked for (``training.sampling_plan``), the first thing to try then."""
+    if math.isfinite(one_step) and one_step <= ACCEPT_ERROR:
         return
     if not math.isfinite(one_step) or one_step > REFUSE_ERROR or linear < REFUSE_GAIN * one_step:
         raise ModelOutOfReach(
             f"{name} n={substeps}: one-step relative error {one_step:.3g} (linear baseline {linear:.3g}) misses "
-            f"the bar (≤ {REFUSE_ERROR:g} and ≥ {REFUSE_GAIN:g}× below linear): nothing written. "
+            f"the bar (≤ {ACCEPT_ERROR:g}, or ≤ {REFUSE_ERROR:g} and ≥ {REFUSE_GAIN:g}× below linear): nothing written. "
             + (f"The time budget cut its data: {sampling}. " if sampling else "")
             + "Try a shorter super-step (--substeps), more examples (--examples) or a wider network (--hidden); "
             "--force writes it anyway"

@@ -265,6 +265,30 @@ def train_argv(spec: dict[str, Any], staging: Path) -> list[str]:
     return argv
 
 
+# ``neuro``'s advice names its flags; a training through the service is asked for with the form's fields
+# (the dashboard's Add-a-model labels in brackets)
+SERVICE_WORDS = (
+    (
+        "--force writes it anyway",
+        'force=true keeps it anyway ("keep the emulator even if it misses the accuracy bar")',
+    ),
+    ("--substeps", "super_step (Super-step)"),
+    ("--examples", "examples (Sample budget)"),
+    ("--hidden", "hidden (Hidden layers)"),
+    ("--epochs", "epochs (Epochs)"),
+    ("--rollout-steps", "rollout_steps (Rollout steps)"),
+    ("--entry", "entry (Entry XML)"),
+    ("--name", "name (Name)"),
+)
+
+
+def in_service_words(message: str) -> str:
+    """A message of ``neuro``'s with its flags named as the service's form fields."""
+    for flag, words in SERVICE_WORDS:
+        message = message.replace(flag, words)
+    return message
+
+
 def run_command(argv: list[str], errors: LastError) -> str:
     """Run a ``neuro`` command in this process; its standard output. ``Failed`` with its reason."""
     from neuroanimator import cli, registry
@@ -372,7 +396,7 @@ def main() -> int:
     try:
         result = run(spec, channel, errors)
     except (Failed, ModelError) as exc:
-        channel.send({"error": str(exc)})
+        channel.send({"error": in_service_words(str(exc))})
         return 2
     channel.send({"result": result})
     return 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from neuroanimator.sim.bundle import Limits
 from services.common.jobs import QueueSettings
@@ -105,6 +105,13 @@ class Settings(QueueSettings):
         "the services leave, so a training does not lengthen their latency",
     )
     port: Port = 8002
+
+    @field_validator("artifacts_dir", "work_dir")
+    @classmethod
+    def _absolute(cls, path: Path | None) -> Path | None:
+        """Folders are made absolute where the settings are read: a training runs in a folder of its
+        own, where a relative path would name another place."""
+        return None if path is None else path.expanduser().absolute()
 
     def work(self) -> Path:
         return self.work_dir if self.work_dir is not None else self.artifacts_dir / ".trainer"

@@ -110,6 +110,14 @@ async function playground(page) {
   const gap = await page.$eval('#pg-divergence', (el) => ({ position: Number(el.dataset.position), text: el.querySelector('.gap-now').textContent, points: Number(el.querySelector('.plot').dataset.points) }));
   log(`divergence: ${gap.text} (${gap.points} points plotted)`);
   check(Number.isFinite(gap.position) && /root position error: .* m · root attitude error: .*°/.test(gap.text) && gap.points >= 2, 'the gap to MuJoCo is shown as a number and a curve');
+  // the ticked checkbox keeps the focus, and the keys still drive
+  const focused = await page.evaluate(() => document.activeElement?.id ?? '');
+  await page.keyboard.down('ArrowUp');
+  await page.waitForTimeout(800);
+  const jet2 = await page.$eval('[data-control="main_jet"]', (el) => el.closest('.slider').querySelector('.value').textContent);
+  await page.keyboard.up('ArrowUp');
+  log(`main jet with the focus on #${focused} and ↑ held: ${jet2}`);
+  check(focused === 'pg-ghost' && Number(jet2) > 30, 'holding ↑ after ticking the ghost still drives the main jet');
   await shot(page, 'playground');
   const rate = await frameRate(page, 5);
   log(`dashboard frame rate with a live session: ${rate.fps.toFixed(1)} fps at resolution scale ${rate.scale}`);
@@ -228,8 +236,14 @@ async function outcomeMatchesResult(page) {
     emulator: el.dataset.successEmulator,
     physics: el.dataset.successPhysics,
     criterion: el.querySelector('.criterion').textContent,
-    rows: [...el.querySelectorAll('tr.check')].map((tr) => [tr.children[0].textContent, tr.children[1].dataset.passed, tr.children[2].dataset.passed]),
+    rows: [...el.querySelectorAll('tr.check-row')].map((tr) => [tr.children[0].textContent, tr.children[1].dataset.passed, tr.children[2].dataset.passed]),
+    // each value sits under its column's heading ("emulator", "MuJoCo"), not beside the check's text
+    aligned: [...el.querySelectorAll('tr.check-row')].every((tr) => {
+      const heads = el.querySelectorAll('table.checks tr:first-child th');
+      return [1, 2].every((k) => Math.abs(tr.children[k].getBoundingClientRect().left - heads[k].getBoundingClientRect().left) < 2);
+    }),
   }));
+  check(shown.aligned, "the checks table's values are under their columns");
   const status = await page.$eval('#job-status', (el) => el.textContent);
   log(`status: ${status}`);
   log(`criterion: ${shown.criterion}; checks ${JSON.stringify(shown.rows)}`);

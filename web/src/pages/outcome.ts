@@ -50,7 +50,7 @@ export function outcomeView(r: JobResult): HTMLElement {
           'table',
           { class: 'grid checks' },
           h('tr', {}, h('th', {}, 'check at the end'), h('th', {}, 'emulator'), h('th', {}, 'MuJoCo')),
-          ...Array.from({ length: rows }, (_, i) => h('tr', { class: 'check' }, h('td', {}, (phys[i] ?? emu[i])!.check), cell(emu[i]), cell(phys[i]))),
+          ...Array.from({ length: rows }, (_, i) => h('tr', { class: 'check-row' }, h('td', {}, (phys[i] ?? emu[i])!.check), cell(emu[i]), cell(phys[i]))),
           h(
             'tr',
             { class: 'verdict' },

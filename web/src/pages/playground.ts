@@ -136,8 +136,14 @@ export const playgroundPage: Page = (root, ctx) => {
     live.ghost.visible = ghostBox.checked;
     divergence.reset(ghostBox.checked);
   });
+  // keys drive the session unless they are typing into a field: a ticked checkbox or a moved slider
+  // keeps the focus, and driving must go on
+  const typing = (t: EventTarget | null): boolean =>
+    (t instanceof HTMLInputElement && !['range', 'checkbox', 'radio', 'button'].includes(t.type)) ||
+    t instanceof HTMLSelectElement ||
+    t instanceof HTMLTextAreaElement;
   const onKey = (ev: KeyboardEvent): void => {
-    if (!live || (ev.target instanceof HTMLInputElement && ev.target.type !== 'range') || ev.target instanceof HTMLSelectElement) return;
+    if (!live || typing(ev.target)) return;
     const used = ev.type === 'keydown' ? live.drive.press(ev.code) : live.drive.release(ev.code);
     if (used) ev.preventDefault();
   };

@@ -1,0 +1,23 @@
+"""The trainer's folders are absolute once read: a training runs in a staging folder of its own, where
+``ARTIFACTS_DIR=artifacts`` (the default) would name another place (the trainer started apart, as the
+README says, from the repository root, failed every training so)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from services.trainer.settings import Settings
+
+
+def test_relative_folders_are_made_absolute(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    s = Settings(artifacts_dir=Path("artifacts"))
+    assert s.artifacts_dir == tmp_path / "artifacts"
+    assert s.uploads().is_absolute() and s.staging().is_absolute()
+    assert s.uploads() == tmp_path / "artifacts" / ".trainer" / "uploads"
+    monkeypatch.setenv("WORK_DIR", "work")
+    assert Settings().work() == tmp_path / "work"
+    assert os.path.isabs(Settings(work_dir=Path("~/x")).work())
