@@ -213,4 +213,6 @@ def test_a_file_over_the_per_file_cap(tmp_path: Path) -> None:
     archive = tmp_path / "big.zip"
     with zipfile.ZipFile(archive, "w", zipfile.ZIP_STORED) as zf:
         zf.writestr("m/a.obj", bytes(3 << 20))
-    assert "one such file may have" in refused("file_too_large", archive, limits=Limits(max_file_bytes=1 << 20))
+    assert "one such file may have" in refused(
+        "file_too_large", archive, limits=Limits(max_file_bytes=1 << 20)
+    )

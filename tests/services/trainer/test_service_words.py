@@ -16,4 +16,7 @@ def test_the_acceptance_refusal_names_the_form_fields() -> None:
         raise AssertionError("an emulator hardly better than linear was kept")
     assert "--" not in text, text
     assert "super_step (Super-step)" in text and "examples (Sample budget)" in text
-    assert "force=true keeps it anyway" in text and "keep the emulator even if it misses the accuracy bar" in text
+    assert (
+        "force=true keeps it anyway" in text
+        and "keep the emulator even if it misses the accuracy bar" in text
+    )
