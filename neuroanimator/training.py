@@ -606,6 +606,8 @@ def train_core(
             best=f"{best:.2e}",
             worst=f"{worst:.1e}",
             lr=f"{opt.param_groups[0]['lr']:.1e}",
+            # the time cap usually ends a run before its epochs do: what is left of it (progress reads it)
+            left=f"{max(0.0, cfg.max_seconds - (time.perf_counter() - t0)):.0f}s",
             **({"loop": f"{loop:.3g}"} if loop is not None else {}),
         )
         # under the cosine schedule a stalled validation loss early on is the noise of a high learning

@@ -118,6 +118,8 @@ class Bar:
             total = len(iterable)  # type: ignore[arg-type]
         self.total = float(total or 0)
         self.n = 0
+        self.started = time.monotonic()
+        self.left_s: float | None = None  # of the time cap, when the loop says (``left`` in its postfix)
         self._report()
 
     def __iter__(self) -> Iterator[Any]:
@@ -146,6 +148,8 @@ class Bar:
         c = CHANNEL
         if c is not None and self.desc == "training" and "val" in values and not self.quiet:
             c.losses.append([self.n + 1, _number(values["val"])])
+        if "left" in values:  # seconds left of the training's time cap
+            self.left_s = _number(str(values["left"]).rstrip("s"))
         self._report()
 
     def set_description(self, desc: str | None = None, refresh: bool = True) -> None:
@@ -168,6 +172,19 @@ class Bar:
     def write(cls, s: str, *args: Any, **kw: Any) -> None:
         sys.stderr.write(s + "\n")
 
+    def fraction(self) -> float:
+        """How far the training loop is, by whichever of its epochs and its time cap runs out first."""
+        by_epochs = self.n / self.total if self.total else 0.0
+        if self.left_s is None:
+            return by_epochs
+        spent = time.monotonic() - self.started
+        return max(by_epochs, spent / max(1e-9, spent + self.left_s))
+
+    def training_detail(self) -> str:
+        if self.left_s is not None and self.total and self.fraction() > self.n / self.total:
+            return f"epoch {self.n}; about {self.left_s:.0f} s of the training's time cap left"
+        return f"epoch {self.n} of at most {int(self.total)}"
+
     def _report(self, force: bool = False) -> None:
         c = CHANNEL
         if c is None:
@@ -189,12 +206,7 @@ class Bar:
                     "training", EPOCHS_SHARE, f"sampling rollouts: {self.n:,} of {int(self.total):,}", force
                 )
             elif c.stage == "train" and self.desc == "training" and self.total:
-                c.progress(
-                    "training",
-                    EPOCHS_SHARE * self.n / self.total,
-                    f"epoch {self.n} of at most {int(self.total)}",
-                    force,
-                )
+                c.progress("training", EPOCHS_SHARE * self.fraction(), self.training_detail(), force)
 
 
 def install_bars() -> None:

@@ -52,6 +52,7 @@ class Connection:
         self.period_s = self.emu.super_timestep * s.ws_realtime_scale
         zeros = [0.0] * self.emu.num_controls, [0.0] * self.emu.num_forces
         self.held = HeldInputs(service.stepper.check(self.emu, *zeros))
+        self.last_fast: list[float] | None = None  # the inputs of the last fast lock-step frame
         self.sender = Sender(socket, s.ws_send_timeout_s)
         self.queue: LatestQueue[Frame] = LatestQueue(s.ws_queue_size)
         self.realtime: Realtime | None = None
@@ -115,7 +116,9 @@ class Connection:
         return self.state_frame(sess, out, held)
 
     async def lockstep(self, held: HeldInputs) -> Frame:
-        """A lock-step step: the state frame (or the error) answering it."""
+        """A lock-step step: the state frame (or the error) answering it. Its inputs are held: real
+        time, started next, goes on with them until a ``controls`` message changes them."""
+        self.held, self.last_fast = held, None
         try:
             return await self.advance(held, self.lane)
         except EmulatorError as exc:
@@ -124,6 +127,7 @@ class Connection:
     async def lockstep_fast(self, seq: int | None, values: list[float]) -> Frame:
         """A binary lock-step frame whose inputs are all in range, without a shadow: ``lockstep`` in
         fewer operations (no arrays for one session's inputs)."""
+        self.last_fast = values  # made the held inputs only if real time starts next
         try:
             sess = self.service.store.get(self.sid)
             out = await self.lane.step(sess, values)
@@ -209,6 +213,9 @@ class Connection:
         elif msg.shadow is False:
             self.shadow = None
         if msg.mode == "realtime":
+            if self.last_fast is not None:  # the last lock-step inputs, held on into real time
+                row = np.asarray(self.last_fast, dtype=np.float32)
+                self.held, self.last_fast = HeldInputs(self.emu.inputs.check_row(row)), None
             if self.realtime is None:
                 self.realtime = Realtime(self)
             self.realtime.start()

@@ -96,6 +96,32 @@ def test_realtime_latest_controls_win(make_client: Callable[..., TestClient]) ->
     np.testing.assert_allclose(np.asarray(b["state"], np.float32), want, rtol=0, atol=1e-6)
 
 
+@pytest.mark.parametrize("frames", ["json", "binary"])
+def test_realtime_goes_on_with_the_last_lockstep_inputs(
+    make_client: Callable[..., TestClient], frames: str
+) -> None:
+    """The README's example: lock-step steps, then real time with no controls message: each real-time
+    step uses the last lock-step step's controls (not zeros), in JSON and in binary frames."""
+    client = make_client(ws_realtime_scale=0.1)
+    emu = service_of(client).registry.get("pendulum-active").emulator
+    sid = client.post("/sessions", json={"model": "pendulum-active", "seed": 3}).json()["id"]
+    c = np.array([0.5, -1.0, 1.5], np.float32)
+    with client.websocket_connect(f"/ws/sessions/{sid}") as ws:
+        for seq in range(3):
+            if frames == "json":
+                ws.send_json({"type": "step", "controls": c.tolist(), "seq": seq})
+                ws.receive_json()
+            else:
+                ws.send_bytes(binary.encode_ws_frame(seq, c))  # the answer: a JSON state
+                ws.receive_json()
+        ws.send_json({"type": "start", "mode": "realtime", "format": "json"})
+        _drain_until_started(ws)
+        a, b = ws.receive_json(), ws.receive_json()
+    assert b["steps"] == a["steps"] + 1
+    want = emu.step(np.asarray([a["state"]], np.float32), c[None])[0]
+    np.testing.assert_allclose(np.asarray(b["state"], np.float32), want, rtol=0, atol=1e-6)
+
+
 def test_realtime_binary_frames(make_client: Callable[..., TestClient]) -> None:
     client = make_client(ws_realtime_scale=0.1)
     sid = client.post("/sessions", json={"model": "pendulum-active", "seed": 3}).json()["id"]
