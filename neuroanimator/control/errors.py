@@ -8,7 +8,8 @@ class JobSpecError(ValueError):
     ones, e.g. ``optimizer.learning_rate`` or ``terms[1].variable``); the message says what was
     expected and what was got."""
 
-    def __init__(self, field: str, message: str) -> None:
+    def __init__(self, field: str, message: str, expected: object = None) -> None:
         super().__init__(f"{field}: {message}")
         self.field = field
         self.message = message
+        self.expected = expected  # what would have been accepted (the known tasks, ...), when a list says it

@@ -195,12 +195,13 @@ class Bar:
                     c.progress("sampling", 0.0, "choosing the super-step: short probe trainings", force)
             elif c.stage == "train" and self.desc.startswith("sampling"):
                 done = c.sampled_before + self.n
-                c.progress(
-                    "sampling",
-                    done / c.sampling_total,
-                    f"sampling: {done:,} of {c.sampling_total:,} examples",
-                    force,
+                train = c.sampling_total - TEST_EXAMPLES  # the budget asked for; the held-out set after it
+                detail = (
+                    f"sampling: {done:,} of {train:,} training examples"
+                    if done <= train
+                    else f"sampling the held-out set: {done - train:,} of {TEST_EXAMPLES:,} examples"
                 )
+                c.progress("sampling", done / c.sampling_total, detail, force)
             elif c.stage == "train" and self.desc.startswith("sequences"):
                 c.progress(
                     "training", EPOCHS_SHARE, f"sampling rollouts: {self.n:,} of {int(self.total):,}", force

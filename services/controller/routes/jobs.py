@@ -125,7 +125,7 @@ def hidden(req: JobCreate, root: Path) -> None:
         return
     seen = tenancy.visible_models(root)
     if model not in seen:
-        raise JobSpecError("model", f"unknown model {model!r}; trained models are {seen}")
+        raise JobSpecError("model", f"unknown model {model!r}; trained models are {seen}", seen)
 
 
 def owned(store: JobStore, job_id: str, owner: str) -> dict[str, Any]:
@@ -153,7 +153,8 @@ def create_job(
     except JobSpecError as exc:
         metrics.rejected.labels("invalid").inc()
         got = _lookup(req.spec(), exc.field)
-        raise ApiError(422, "invalid_job", str(exc), field=exc.field, expected=exc.message, got=got) from exc
+        expected = exc.expected if exc.expected is not None else exc.message
+        raise ApiError(422, "invalid_job", str(exc), field=exc.field, expected=expected, got=got) from exc
     try:
         job_id, status, created = store.submit(spec, owner, req.idempotency_key)
     except QueueFull as exc:

@@ -81,6 +81,14 @@ def test_bad_input_is_422_naming_the_field(
     assert text.lower() in err["message"].lower(), err
 
 
+def test_an_unknown_task_lists_the_known_ones_as_expected(ctl: Controller) -> None:
+    api = ctl.client(redis_url=f"redis://127.0.0.1:{_closed_port()}/0")
+    err = api.post("/jobs", json={"task": "pendulum-fly"}).json()
+    tasks = {t["name"] for t in api.get("/tasks").json()["tasks"]}
+    assert isinstance(err["expected"], list) and set(err["expected"]) == tasks, err
+    assert err["got"] == "pendulum-fly"
+
+
 def test_non_finite_numbers_are_refused(ctl: Controller) -> None:
     api = ctl.client()
     for raw, field in (

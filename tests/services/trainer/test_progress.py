@@ -45,3 +45,16 @@ def test_epochs_drive_it_when_they_bind(channel: tuple[run.Channel, io.StringIO]
     bar.n = 8
     bar.set_postfix(val="1e-3", left="500s")
     assert c.detail == "epoch 8 of at most 10"
+
+
+def test_sampling_names_the_budget_asked_for_then_the_held_out_set(
+    channel: tuple[run.Channel, io.StringIO],
+) -> None:
+    c, _ = channel
+    c.phase = "sampling"
+    c.sampling_total = 20_000 + run.TEST_EXAMPLES
+    bar = run.Bar(total=20_000, desc="sampling")
+    bar.update(20_000)
+    assert c.detail == "sampling: 20,000 of 20,000 training examples"
+    bar.update(1_000)
+    assert c.detail == f"sampling the held-out set: 1,000 of {run.TEST_EXAMPLES:,} examples"
