@@ -7,14 +7,20 @@ Here rather than in ``conftest.py``, which pytest imports itself and tests shoul
 
 from __future__ import annotations
 
+import contextlib
 import json
+import socket
 import subprocess
 import sys
+import threading
+import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import torch
+import uvicorn
 from fastapi import FastAPI
 
 from neuroanimator.physics.model import PhysicalModel
@@ -135,3 +141,24 @@ def truck_emulator() -> StructuredEmulator:
 
     torch.manual_seed(0)
     return training.build_emulator(physics.get("truck"), TrainConfig(hidden=(16,)))
+
+
+@contextlib.contextmanager
+def uvicorn_serving(app: Any) -> Iterator[int]:
+    """The app under a real uvicorn on a free port (for concurrent clients and raw sockets); the port."""
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    port = int(sock.getsockname()[1])
+    sock.close()
+    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not srv.started:
+        assert time.monotonic() < deadline, "the server did not start"
+        time.sleep(0.01)
+    try:
+        yield port
+    finally:
+        srv.should_exit = True
+        thread.join(timeout=20)

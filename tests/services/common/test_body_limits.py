@@ -5,18 +5,17 @@ from __future__ import annotations
 
 import json
 import socket
-import threading
 import time
 from collections.abc import Iterator
 
 import pytest
-import uvicorn
 from fastapi import FastAPI, Request
 from fastapi.testclient import TestClient
 from pydantic import BaseModel
 
 from services.common.errors import add_error_handlers
 from services.common.limits import MAX_JSON_DEPTH, limit_bodies, too_deep
+from tests.helpers import uvicorn_serving
 
 KEYS = {"error", "message", "field", "expected", "got"}
 
@@ -140,20 +139,8 @@ def test_too_deep_against_a_plain_walk() -> None:
 @pytest.fixture
 def server() -> Iterator[int]:
     """The test app under a real uvicorn on a free port."""
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    port = int(sock.getsockname()[1])
-    sock.close()
-    srv = uvicorn.Server(uvicorn.Config(_app(), host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 10
-    while not srv.started:
-        assert time.monotonic() < deadline, "the server did not start"
-        time.sleep(0.01)
-    yield port
-    srv.should_exit = True
-    thread.join(timeout=10)
+    with uvicorn_serving(_app()) as port:
+        yield port
 
 
 def test_an_oversized_content_length_is_answered_before_the_body_is_sent(server: int) -> None:

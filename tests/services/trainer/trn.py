@@ -10,22 +10,19 @@ from __future__ import annotations
 
 import contextlib
 import io
-import socket
 import tarfile
-import threading
-import time
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import uvicorn
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from neuroanimator import registry
 from services.trainer.app import create_app
 from services.trainer.settings import Settings
+from tests.helpers import uvicorn_serving
 from tests.services.queues import Deployment, wait_for
 
 __all__ = [
@@ -136,19 +133,5 @@ def ended(
 @contextlib.contextmanager
 def serve(app: FastAPI) -> Iterator[str]:
     """The app under a real uvicorn on a free port (for concurrent clients); its base URL."""
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    port = int(sock.getsockname()[1])
-    sock.close()
-    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not srv.started:
-        assert time.monotonic() < deadline, "the server did not start"
-        time.sleep(0.01)
-    try:
+    with uvicorn_serving(app) as port:
         yield f"http://127.0.0.1:{port}"
-    finally:
-        srv.should_exit = True
-        thread.join(timeout=20)
