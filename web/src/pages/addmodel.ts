@@ -60,7 +60,7 @@ export function addModelPanel(trainer: TrainerApi | null, emulator: EmulatorApi,
   const drop = h('label', { class: 'drop', id: 'am-drop', for: 'am-file' }, chosen, file);
   const name = h('input', { type: 'text', id: 'am-name', placeholder: 'from the MJCF', pattern: '[A-Za-z0-9][A-Za-z0-9._-]*', maxlength: 64 });
   const superStep = h('input', { type: 'text', id: 'am-super-step', value: 'auto', size: 6 });
-  const examples = h('input', { type: 'number', id: 'am-examples', min: 100, max: 1000000, step: 100, placeholder: "the service's default" });
+  const examples = h('input', { type: 'number', id: 'am-examples', min: 100, max: 1000000, step: 100, placeholder: 'default' });
   const epochs = h('input', { type: 'number', id: 'am-epochs', min: 1, max: 5000, placeholder: 'default' });
   const hidden = h('input', { type: 'text', id: 'am-hidden', placeholder: 'e.g. 64,64', size: 10 });
   const rollout = h('input', { type: 'number', id: 'am-rollout-steps', min: 0, max: 64, placeholder: 'default' });
