@@ -60,12 +60,37 @@ class ControlInfo(BaseModel):
 
 
 class ForceInfo(BaseModel):
-    """One external-force input (a body's force or torque component) and its trained range."""
+    """One external-force input (a body's force or torque component) and its trained range, with what
+    it is in words and its unit."""
 
     model_config = ConfigDict(extra="allow")
     name: str
     low: float
     high: float
+    body: str | None = Field(None, description="the body it is applied to (at its centre of mass)")
+    component: int | None = Field(None, description="0-2: force along world x, y, z; 3-5: torque about them")
+    unit: str | None = Field(None, description="N for a force, N·m for a torque")
+    description: str | None = Field(None, description="what it applies, in words")
+
+    @classmethod
+    def of(cls, name: str, body: str, component: int, low: float, high: float) -> ForceInfo:
+        """The wire form of a manifest's force input, its unit and words derived from its component."""
+        axis = "xyz"[component % 3]
+        what = (
+            f"a push along the world {axis} axis"
+            if component < 3
+            else f"a torque about the world {axis} axis"
+        )
+        unit = "N" if component < 3 else "N·m"
+        return cls(
+            name=name,
+            low=low,
+            high=high,
+            body=body,
+            component=component,
+            unit=unit,
+            description=f"{what} on {body} at its centre of mass, in {unit}",
+        )
 
 
 class ModelSummary(BaseModel):

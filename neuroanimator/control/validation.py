@@ -131,7 +131,9 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: P
     if spec.get("task") is not None:
         name = spec["task"]
         if not isinstance(name, str) or name not in TASKS:
-            raise JobSpecError("task", f"unknown task {name!r}; known tasks are {sorted(TASKS)}", sorted(TASKS))
+            raise JobSpecError(
+                "task", f"unknown task {name!r}; known tasks are {sorted(TASKS)}", sorted(TASKS)
+            )
         task = TASKS[name]
     model = spec.get("model")
     if model is None:

@@ -136,6 +136,10 @@ async function playground(page) {
   const px = await canvasStats(page, '#pg-view canvas', [0.2, 0.5, 0.8].map((f) => [box.w * f, box.h - 6]));
   log(`colours along the bottom of the view: ${JSON.stringify(px.colours)}`);
   check(px.colours.every(([r, g, bl]) => Math.abs(r - bl) < 45 && r + g + bl > 150), 'the ground is drawn below the pendulum');
+  // its pushes say what they apply and in what unit
+  const meanings = await page.$$eval('.slider', (els) => els.filter((el) => el.querySelector('[data-force]')).map((el) => el.querySelector('.meaning')?.textContent ?? ''));
+  log(`what the pushes apply: ${JSON.stringify(meanings)}`);
+  check(meanings.length === 3 && meanings.every((t) => /push along the world x axis .* in N$/.test(t)), 'each push names its axis, its body and its unit');
   // pendulum-force: sliders for its pushes drive the session's forces; it hangs at rest until pushed
   const still = JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.state));
   const pushes = await page.$$eval('[data-force]', (els) => els.map((e) => e.dataset.force));

@@ -66,7 +66,7 @@ async def get_model(model: str, service: ServiceDep, version: str | None = None)
         layout=m.layout,
         state_labels=m.state_labels,
         controls=[ControlInfo(**c.model_dump()) for c in m.controls],
-        forces=[ForceInfo(**f.model_dump()) for f in m.forces],
+        forces=[ForceInfo.of(f.name, f.body, f.component, f.low, f.high) for f in m.forces],
         metrics=m.metrics.model_dump(),
         envelope=m.envelope,
         driver=None if m.spec.driver is None else DriverInfo(**m.spec.driver.model_dump(exclude={"factory"})),

@@ -49,3 +49,13 @@ def test_cors_for_the_dashboard(make_client: Callable[..., TestClient]) -> None:
     assert "access-control-allow-origin" not in other.headers
     plain = make_client().get("/models", headers={"Origin": "http://127.0.0.1:8080"})
     assert "access-control-allow-origin" not in plain.headers
+
+
+def test_a_models_forces_say_what_they_apply_and_in_what_unit(make_client: Callable[..., TestClient]) -> None:
+    root = Path(__file__).resolve().parents[3] / "artifacts"  # the committed pendulum-force
+    client = make_client(artifacts_dir=root)
+    forces = client.get("/models/pendulum-force").json()["forces"]
+    assert len(forces) == 3
+    for f in forces:
+        assert f["unit"] == "N" and f["component"] == 0 and f["body"], f
+        assert f["description"].startswith("a push along the world x axis on ") and "in N" in f["description"]

@@ -329,7 +329,8 @@ export interface EnvelopeGroup {
   high: (number | null)[];
 }
 /**
- * One external-force input (a body's force or torque component) and its trained range.
+ * One external-force input (a body's force or torque component) and its trained range, with what
+ * it is in words and its unit.
  *
  * This interface was referenced by `EmulatorWire`'s JSON-Schema
  * via the `definition` "ForceInfo".
@@ -338,6 +339,22 @@ export interface ForceInfo {
   name: string;
   low: number;
   high: number;
+  /**
+   * the body it is applied to (at its centre of mass)
+   */
+  body?: string | null;
+  /**
+   * 0-2: force along world x, y, z; 3-5: torque about them
+   */
+  component?: number | null;
+  /**
+   * N for a force, N·m for a torque
+   */
+  unit?: string | null;
+  /**
+   * what it applies, in words
+   */
+  description?: string | null;
   [k: string]: unknown;
 }
 /**

@@ -232,7 +232,7 @@ function drawDriverSliders(host: HTMLElement, driver: DriverInfo, values: Record
 }
 
 /** Sliders for every control and force, with their keys and (as a tooltip) what they do. */
-function drawSliders(host: HTMLElement, drive: Drive, controls: ControlInfo[], driven = false): HTMLElement[] {
+function drawSliders(host: HTMLElement, drive: Drive, controls: ControlInfo[], driven = false, forces: ForceInfo[] = []): HTMLElement[] {
   const labels: HTMLElement[] = [];
   if (!driven) host.textContent = '';
   if (!drive.bindings.length && !driven) host.append(h('p', { class: 'muted' }, 'This model has no inputs: watch it move.'));
@@ -251,10 +251,13 @@ function drawSliders(host: HTMLElement, drive: Drive, controls: ControlInfo[], d
     const keys = b.keyHigh ? h('span', { class: 'keys' }, `${keyLabel(b.keyHigh)} / ${keyLabel(b.keyLow)}`) : null;
     // what it applies under the name; the sign convention too when pointed at
     const control = b.kind === 'control' ? controls[b.index] : undefined;
-    const short = control ? controlMeaning(control, false) : '';
-    const head = h('div', { class: 'slider-head' }, h('b', {}, b.name), ' ', value, ' ', keys);
-    const meaning = short ? h('div', { class: 'meaning', title: controlMeaning(control!) }, short) : null;
-    host.append(h('div', { class: 'slider', title: control ? controlMeaning(control) : '' }, head, meaning, range));
+    const force = b.kind === 'force' ? forces[b.index] : undefined;
+    const short = control ? controlMeaning(control, false) : (force?.description ?? '');
+    const long = control ? controlMeaning(control) : (force?.description ?? '');
+    const unit = force?.unit ? h('span', { class: 'muted' }, ` ${force.unit}`) : null;
+    const head = h('div', { class: 'slider-head' }, h('b', {}, b.name), ' ', value, unit, ' ', keys);
+    const meaning = short ? h('div', { class: 'meaning', title: long }, short) : null;
+    host.append(h('div', { class: 'slider', title: long }, head, meaning, range));
   });
   return labels;
 }
@@ -342,7 +345,7 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
   });
   s.sliders.textContent = '';
   if (driver) drawDriverSliders(s.sliders, driver, driverValues);
-  const valueLabels = drawSliders(s.sliders, drive, detail.controls, !!driver);
+  const valueLabels = drawSliders(s.sliders, drive, detail.controls, !!driver, detail.forces);
   if (!viewer) {
     return { info, socket, drive, model, ghost, dispose: () => socket.close() };
   }
