@@ -6,6 +6,7 @@ failure reproduces."""
 
 from __future__ import annotations
 
+import gzip
 import io
 import random
 import tarfile
@@ -38,15 +39,24 @@ HOSTILE = [
 
 
 def _archive(kind: str) -> bytes:
+    """The tinybot folder archived with fixed times and owners: the same bytes in every clone, so
+    that the seeded mutations are the same everywhere."""
+    files = [
+        (f"tinybot/{p.relative_to(TINYBOT).as_posix()}", p.read_bytes())
+        for p in sorted(TINYBOT.rglob("*"))
+        if p.is_file()
+    ]
     buf = io.BytesIO()
     if kind == "zip":
         with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
-            for p in sorted(TINYBOT.rglob("*")):
-                if p.is_file():
-                    zf.write(p, "tinybot/" + p.relative_to(TINYBOT).as_posix())
+            for name, data in files:
+                zf.writestr(zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0)), data)
     else:
-        with tarfile.open(fileobj=buf, mode="w:gz") as tf:
-            tf.add(TINYBOT, arcname="tinybot")
+        with gzip.GzipFile(fileobj=buf, mode="wb", mtime=0) as gz, tarfile.open(fileobj=gz, mode="w") as tf:
+            for name, data in files:
+                info = tarfile.TarInfo(name)
+                info.size, info.mtime, info.mode = len(data), 0, 0o644
+                tf.addfile(info, io.BytesIO(data))
     return buf.getvalue()
 
 
