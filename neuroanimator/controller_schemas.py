@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from neuroanimator.control.criteria import CheckKind
 from neuroanimator.control.spec import (
@@ -30,6 +30,7 @@ from neuroanimator.control.spec import (
     JobSpec,
 )
 from neuroanimator.control.terms import MAX_VALUE
+from neuroanimator.control.verdict import verdict as verdict_of
 from neuroanimator.emulator_schemas import Flag, Integer, Number
 
 MAX_VECTOR = 1024
@@ -304,6 +305,15 @@ class JobOutcome(BaseModel):
 
     model_config = ConfigDict(extra="allow")
     status: Literal["succeeded", "failed", "cancelled"]
+    verdict: str | None = Field(
+        None,
+        description=(
+            "how the job ended, in words for a report (``status`` only says the run ended normally): "
+            "succeeded (the controller meets the success criterion on MuJoCo) | done, no criterion | "
+            "done, criterion met on the emulator only | done, criterion missed | failed | cancelled; "
+            "worked out from the status and the success fields when not given"
+        ),
+    )
     reason: str | None = None
     stop: str | None = Field(
         None,
@@ -363,6 +373,15 @@ class JobOutcome(BaseModel):
     state_labels: list[str] | None = None
     spec: JobSpec | None = Field(None, description="the validated job that ran")
     wall_s: float | None = None
+
+    @model_validator(mode="after")
+    def _verdict(self) -> JobOutcome:
+        # every outcome says it, stored results from before the field too: they are read through here
+        if self.verdict is None:
+            self.verdict = verdict_of(
+                self.status, self.success_criterion, self.success_emulator, self.success_physics
+            )
+        return self
 
 
 class JobResult(JobOutcome):

@@ -260,6 +260,10 @@ async function outcomeMatchesResult(page) {
   });
   check(/meets the success criterion on MuJoCo/.test(status) === (result.success_physics === true), 'the status line agrees with the result on MuJoCo');
   check(!/succeeded/.test(status), 'the status line does not call a job "succeeded" (that is its run, not the criterion)');
+  const verdict = await page.$eval('#outcome', (el) => [el.dataset.verdict, el.querySelector('#verdict')?.textContent ?? '']);
+  log(`verdict: ${result.verdict}; shown ${JSON.stringify(verdict)}`);
+  check(verdict[0] === result.verdict && verdict[1].includes(result.verdict), "the verdict shown is the result's");
+  check((result.verdict === 'succeeded') === (result.success_physics === true), 'a job succeeds only when its controller meets the criterion on MuJoCo');
   return result.success_physics;
 }
 
@@ -357,6 +361,14 @@ async function controllers(page) {
   check(swim.bptt_networks === 'global' && swim.iterations <= 20, 'dolphin-swim learns through the global network in at most 20 iterations');
   const said = await page.$eval('#outcome', (el) => el.textContent);
   check(/global network alone/.test(said) && /No goal state/.test(said), 'the outcome says there is no goal state and that BPTT used the global network');
+  // a task without a success criterion: its run ended normally ("succeeded" to the job's state) but
+  // the report says it is done with no criterion, and still gives what the controller reached
+  const swimStatus = await page.$eval('#job-status', (el) => ({ text: el.textContent, state: el.dataset.status, verdict: el.dataset.verdict }));
+  const swimVerdict = await page.$eval('#verdict', (el) => el.textContent);
+  log(`dolphin-swim: job ${swimStatus.state}, verdict ${swim.verdict}; status line: ${swimStatus.text}`);
+  check(swim.status === 'succeeded' && swim.verdict === 'done, no criterion', 'the job without a criterion ran to its end and its verdict is "done, no criterion"');
+  check(/Done, no criterion/.test(swimStatus.text) && !/succeeded/.test(swimStatus.text) && /objective is .* on MuJoCo/.test(swimStatus.text), 'the status line says done, no criterion, with what the controller reached');
+  check(swimStatus.verdict === 'done, no criterion' && /done, no criterion/.test(swimVerdict), 'the outcome shows the verdict "done, no criterion"');
   for (const side of ['Emulator', 'MuJoCo (physics)']) await onScreen(page, `#replay .replay-view[data-side="${side}"]`, 'model');
   await page.locator('#replay').scrollIntoViewIfNeeded();
   await page.waitForTimeout(500);

@@ -2,7 +2,7 @@ import { describe, expect, it } from 'vitest';
 import { ResolutionGovernor } from '../src/scene/quality';
 import { angleBetween, gapLabel, poseGap, rootMoves } from '../src/scene/divergence';
 import { envelopeText } from '../src/session/realtime';
-import { outcomeSummary, verdictText } from '../src/pages/outcome';
+import { outcomeSummary, verdictOf, verdictText } from '../src/pages/outcome';
 import type { LayoutGroup } from '../src/api/emulator.gen';
 
 /** Frames at `fps` for `seconds`, from `t0` (ms); returns the time after the last one. */
@@ -122,5 +122,17 @@ describe('outcome', () => {
     expect(outcomeSummary({ success_criterion: 'c', success_emulator: true, success_physics: true })).toMatch(/on MuJoCo and on the emulator/);
     expect(outcomeSummary({ success_criterion: 'c', success_emulator: false, success_physics: false })).toMatch(/misses/);
     expect(outcomeSummary({ success_criterion: null, success_emulator: null, success_physics: null })).toMatch(/no success criterion/);
+  });
+  it('calls a job without a criterion done, not succeeded, and still gives its error', () => {
+    // the run ended normally (status "succeeded") with the pendulum 2.83 rad from its goal
+    const r = { success_criterion: null, success_emulator: null, success_physics: null, final_error_physics: 2.83, final_error_emulator: 0.4 };
+    expect(verdictOf(r)).toBe('done, no criterion');
+    const line = outcomeSummary(r);
+    expect(line).toMatch(/^Done, no criterion/);
+    expect(line).toMatch(/2\.83 on MuJoCo/);
+    expect(line).not.toMatch(/succeed/);
+    expect(verdictOf({ ...r, verdict: 'done, no criterion' })).toBe('done, no criterion');
+    expect(verdictOf({ success_criterion: 'c', success_emulator: true, success_physics: false })).toBe('done, criterion met on the emulator only');
+    expect(verdictOf({ success_criterion: 'c', success_emulator: false, success_physics: true })).toBe('succeeded');
   });
 });

@@ -376,6 +376,10 @@ export interface JobSummary {
  */
 export interface JobOutcome {
   status: 'succeeded' | 'failed' | 'cancelled';
+  /**
+   * how the job ended, in words for a report (``status`` only says the run ended normally): succeeded (the controller meets the success criterion on MuJoCo) | done, no criterion | done, criterion met on the emulator only | done, criterion missed | failed | cancelled; worked out from the status and the success fields when not given
+   */
+  verdict?: string | null;
   reason?: string | null;
   /**
    * success | converged | stalled | max_iterations | missed_on_physics (met on the emulator, neither on the returned controller's emulation nor on MuJoCo) | diverged | cancelled
@@ -688,6 +692,10 @@ export interface OptimizerSettings {
  */
 export interface JobResult {
   status: 'succeeded' | 'failed' | 'cancelled';
+  /**
+   * how the job ended, in words for a report (``status`` only says the run ended normally): succeeded (the controller meets the success criterion on MuJoCo) | done, no criterion | done, criterion met on the emulator only | done, criterion missed | failed | cancelled; worked out from the status and the success fields when not given
+   */
+  verdict?: string | null;
   reason?: string | null;
   /**
    * success | converged | stalled | max_iterations | missed_on_physics (met on the emulator, neither on the returned controller's emulation nor on MuJoCo) | diverged | cancelled

@@ -16,7 +16,7 @@ import { clearNotice, notify } from '../ui/notices';
 import { LinePlot } from '../ui/plot';
 import type { Page } from './context';
 import { GOAL_COLOR, MODEL_TRAIL } from './divergence';
-import { outcomeSummary } from './outcome';
+import { outcomeSummary, verdictOf } from './outcome';
 import { Replay } from './replay';
 
 const QUEUED_WARN_S = 8;
@@ -222,6 +222,7 @@ export const controllersPage: Page = (root, ctx) => {
     delete jobStatus.dataset.status;
     delete jobStatus.dataset.job;
     delete jobStatus.dataset.successPhysics;
+    delete jobStatus.dataset.verdict;
     clearNotice('job');
   };
 
@@ -257,6 +258,7 @@ export const controllersPage: Page = (root, ctx) => {
       // the verdict is the result's own (success_physics, success_emulator): never judged again here
       jobStatus.textContent = `${ran} ${outcomeSummary(result)}`;
       jobStatus.dataset.successPhysics = String(result.success_physics ?? '');
+      jobStatus.dataset.verdict = verdictOf(result);
       replay?.dispose();
       replay = new Replay(ctx.emulator, s.geometry, s.detail.layout, result, s.detail.super_timestep);
       replayHost.append(replay.el);

@@ -13,9 +13,33 @@ export function verdictText(ok: Verdict): string {
   return ok === true ? 'meets the criterion' : ok === false ? 'misses the criterion' : 'has no criterion to meet';
 }
 
-/** One line on a finished job: how it ended and where its controller meets the criterion. */
-export function outcomeSummary(r: Pick<JobResult, 'success_emulator' | 'success_physics' | 'success_criterion'>): string {
-  if (!r.success_criterion && r.success_physics == null && r.success_emulator == null) return 'The task states no success criterion.';
+type Summarised = Pick<JobResult, 'success_emulator' | 'success_physics' | 'success_criterion'> &
+  Partial<Pick<JobResult, 'verdict' | 'final_error_physics' | 'final_error_emulator' | 'objective' | 'objective_physics' | 'spec'>>;
+
+/** The job's verdict as the service words it ("succeeded" only when the controller meets the criterion
+ * on MuJoCo; "done, no criterion" when the task states none), or the same worked out for a service
+ * that does not send it. */
+export function verdictOf(r: Summarised): string {
+  if (r.verdict) return r.verdict;
+  if (!r.success_criterion && r.success_physics == null && r.success_emulator == null) return 'done, no criterion';
+  return r.success_physics === true ? 'succeeded' : r.success_emulator === true ? 'done, criterion met on the emulator only' : 'done, criterion missed';
+}
+
+/** How far the controller ends from its goal (or, without a goal state, its objective), on MuJoCo and on
+ * the emulator: without a criterion this number is the only measure of what the controller did. */
+function endError(r: Summarised): string {
+  if (r.spec && !hasGoalState(r.spec.state_weights)) return `its objective is ${fmt(r.objective_physics)} on MuJoCo (${fmt(r.objective)} on the emulator)`;
+  if (r.final_error_physics === undefined && r.final_error_emulator === undefined) return '';
+  return `its final error to the target is ${fmt(r.final_error_physics)} on MuJoCo (${fmt(r.final_error_emulator)} on the emulator)`;
+}
+
+/** One line on a finished job: its verdict and where its controller meets the criterion. A run that
+ * ended normally is not called a success when there was no criterion to meet. */
+export function outcomeSummary(r: Summarised): string {
+  if (verdictOf(r) === 'done, no criterion') {
+    const err = endError(r);
+    return `Done, no criterion: the task states no success criterion${err ? `; ${err}` : ''}.`;
+  }
   const e = r.success_emulator;
   const p = r.success_physics;
   if (p === true && e === true) return 'The controller meets the success criterion on MuJoCo and on the emulator.';
@@ -40,10 +64,12 @@ export function outcomeView(r: JobResult): HTMLElement {
     id: 'outcome',
     'data-success-emulator': String(r.success_emulator ?? ''),
     'data-success-physics': String(r.success_physics ?? ''),
+    'data-verdict': verdictOf(r),
   };
   return h(
     'div',
     attrs,
+    h('p', { class: 'verdict', id: 'verdict' }, h('b', {}, 'Verdict: '), verdictOf(r)),
     h('p', { class: 'criterion' }, h('b', {}, 'Success criterion: '), r.success_criterion ?? 'none stated by the task'),
     rows
       ? h(
