@@ -75,6 +75,29 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.warning("cannot read %s: %s", what, exc)
         return JSONResponse({"error": "unreadable", "message": f"{what} cannot be read"}, status_code=500)
 
+    def model_result(model: str, name: str) -> BaseModel | None:
+        return (
+            registry.model_eval(root, model)
+            if name == registry.EVAL_FILE
+            else registry.model_bench(root, model)
+        )
+
+    @app.get("/artifacts/{model}")
+    def measured(model: str) -> JSONResponse:
+        """Which of a model's measurements ``/artifacts/{model}/{name}`` has (``{"model", "measured":
+        ["eval.json", "bench.json"]}``), so that the dashboard asks for those alone: a model uploaded
+        and trained has an evaluation but no benchmark, and a 404 per model is noise in the console."""
+        listed = []
+        for name in MEASUREMENTS if shown(model) else ():
+            try:
+                if model_result(model, name) is None:
+                    continue
+            except registry.ArtifactError as exc:
+                if exc.what in ("model", "version", "substeps"):
+                    continue  # unreadable ones are listed: asking for them says what is wrong
+            listed.append(name)
+        return JSONResponse({"model": model, "measured": listed}, headers={"Cache-Control": "no-cache"})
+
     @app.get("/artifacts/{model}/{name}")
     def measurements(model: str, name: str) -> Response:
         """A model's evaluation or benchmark over its current versions (``eval.json``: ``ModelEval``,
@@ -83,11 +106,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if name not in MEASUREMENTS or not shown(model):
             return answer(None, what)
         try:
-            found = (
-                registry.model_eval(root, model)
-                if name == registry.EVAL_FILE
-                else registry.model_bench(root, model)
-            )
+            found = model_result(model, name)
         except registry.ArtifactError as exc:
             return unreadable(exc, what)
         return answer(found, what)

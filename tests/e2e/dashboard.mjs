@@ -8,6 +8,11 @@
 import { canvasStats, changed, check, frameRate, frameWindows, log, main, noErrorNotice, onScreen, out, shot, url } from './browser.mjs';
 
 async function models(page) {
+  // every request the page makes is for something that exists (no 404 for a result not measured)
+  const failed = [];
+  page.on('response', (r) => {
+    if (r.status() >= 400) failed.push(`${r.status()} ${r.url()}`);
+  });
   await page.goto(url('models'));
   await page.waitForSelector('.model-card .facts', { timeout: 30000 });
   // every card is filled in by its own calls: wait for the ones checked below, whatever their order
@@ -43,6 +48,28 @@ async function models(page) {
     const notLoaded = c.series.filter((n) => /not loaded/.test(n)).length;
     check(c.series.length - notLoaded <= Math.max(1, c.loaded.split(', ').length), `${c.model}: only loaded versions are unlabelled (${c.series} vs ${c.loaded})`);
   }
+  for (const c of cards) {
+    const served = c.loaded.split(', ');
+    check(c.series.every((n) => !/not loaded/.test(n)) || c.series.length === c.series.filter((n) => /not loaded/.test(n)).length, `${c.model}: versions not loaded are named, not drawn beside the loaded ones (${c.series})`);
+    check(c.physical.every((r) => served.includes(r.version)) || c.physical.every((r) => !r.served), `${c.model}: the physical table shows the loaded versions`);
+  }
+  // what the numbers mean, in words, beside each measured curve
+  await page.waitForFunction(() => document.querySelectorAll('.model-card').length === document.querySelectorAll('.model-card .cols').length, null, { timeout: 30000 });
+  const meanings = await page.$$eval('.error-meaning', (els) => els.map((e) => e.textContent));
+  log(`error explanations: ${meanings.length}; the lander's: ${meanings.find((t) => /N\^50/.test(t))?.slice(-90)}`);
+  check(meanings.length === cards.filter((c) => c.series.length).length && meanings.length > 0, 'every rollout curve has an explanation of what its error means');
+  check(meanings.every((t) => /About 1 means the emulated state is as far from MuJoCo's as two unrelated typical states/.test(t) && /decorrelated/.test(t)), 'the explanation says what an error of about 1 means');
+  const ball = await page.$eval('.model-card[data-model="ball"] .error-meaning .here', (el) => el.textContent).catch(() => '');
+  log(`ball: ${ball}`);
+  // long state layouts are folded, and the page is short enough to read down
+  const layouts = await page.$$eval('.model-card', (els) => els.map((c) => ({ model: c.dataset.model, open: [...c.querySelectorAll('.cols table.grid')].filter((t) => !t.closest('details') || t.closest('details').open).reduce((n, t) => Math.max(n, t.querySelectorAll('tr').length), 0) })));
+  log(`longest open table per card: ${layouts.map((l) => `${l.model} ${l.open}`).join(', ')}`);
+  check(layouts.every((l) => l.open <= 14), 'no card shows a table longer than a dozen rows unfolded');
+  const height = await page.evaluate(() => document.documentElement.scrollHeight);
+  log(`page height: ${height} px at 1280×800; failed requests: ${failed.length}`);
+  out.page_height = height;
+  check(height < 6000, `the Models page is under 6000 px long (${height})`);
+  check(failed.length === 0, `the page asks only for what exists (${failed.join(', ')})`);
   const lander = cards.find((c) => c.model === 'lander');
   log(`rollout curves: ${curves}; lander physical rows: ${lander.physical.map((r) => `${r.quantity}@${r.version}`).join(', ')}`);
   check(lander.physical.some((r) => r.quantity === 'root_position_m' && r.cells.length === 4 && r.cells.every((x) => / \/ /.test(x))), 'the lander shows its root position error (mean / p90) at 4 times');

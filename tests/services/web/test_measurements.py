@@ -86,3 +86,14 @@ def test_an_uploaded_models_results_are_hidden_while_it_is_private_with_keys_on(
     assert keys_on.get("/artifacts/lander/eval.json").status_code == 200  # not uploaded: everybody's
     tenancy.write(root, "truck", tenancy.Ownership("some-key-id", published=True))
     assert keys_on.get("/artifacts/truck/eval.json").status_code == 200
+
+
+def test_a_model_lists_the_measurements_it_has(client: TestClient, root: Path) -> None:
+    """The dashboard asks only for what ``/artifacts/{model}`` lists: a model trained without a
+    benchmark (an upload) lists its evaluation alone, and its page makes no request that fails."""
+    r = client.get("/artifacts/lander")
+    assert r.status_code == 200 and r.json() == {"model": "lander", "measured": ["eval.json", "bench.json"]}
+    for n in (25, 50, 100):
+        (registry.resolve(root, "truck", substeps=n) / registry.BENCH_FILE).unlink()
+    assert client.get("/artifacts/truck").json()["measured"] == ["eval.json"]
+    assert client.get("/artifacts/submarine").json() == {"model": "submarine", "measured": []}

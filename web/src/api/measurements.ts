@@ -55,10 +55,36 @@ async function fetchOptional<T>(url: string): Promise<T | null> {
   }
 }
 
-export function loadEval(model: string): Promise<ModelEval | null> {
+/** The measurements the dashboard's server has for a model (`GET artifacts/{model}`: eval.json,
+ * bench.json), so that only those are asked for: a model uploaded and trained has an evaluation but no
+ * benchmark, and asking for what is not there puts a failed request in the console. null: the server
+ * cannot say (it answers both then, as before). */
+export async function measuredFiles(model: string): Promise<string[] | null> {
+  const listed = await fetchOptional<{ measured?: unknown }>(`artifacts/${encodeURIComponent(model)}`);
+  return listed && Array.isArray(listed.measured) ? listed.measured.filter((f): f is string => typeof f === 'string') : null;
+}
+
+export function loadEval(model: string, measured: string[] | null = null): Promise<ModelEval | null> {
+  if (measured && !measured.includes('eval.json')) return Promise.resolve(null);
   return fetchOptional<ModelEval>(`artifacts/${encodeURIComponent(model)}/eval.json`);
 }
 
-export function loadBench(model: string): Promise<ModelBench | null> {
+export function loadBench(model: string, measured: string[] | null = null): Promise<ModelBench | null> {
+  if (measured && !measured.includes('bench.json')) return Promise.resolve(null);
   return fetchOptional<ModelBench>(`artifacts/${encodeURIComponent(model)}/bench.json`);
+}
+
+/** When a rollout error curve first reaches `level` (linearly between its points), or null if it never
+ * does within the curve. */
+export function timeToReach(curve: RolloutCurve, level: number): number | null {
+  const { t, error } = curve;
+  for (let i = 0; i < t.length; i++) {
+    const e = error[i];
+    if (e === undefined || !Number.isFinite(e) || e < level) continue;
+    if (i === 0) return t[0]!;
+    const e0 = error[i - 1]!;
+    const t0 = t[i - 1]!;
+    return Number.isFinite(e0) && e > e0 ? t0 + ((level - e0) / (e - e0)) * (t[i]! - t0) : t[i]!;
+  }
+  return null;
 }
