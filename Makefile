@@ -63,9 +63,9 @@ train-all: install
 	@test -n "$(MODELS)" || { echo "neuro models --catalog listed no models" >&2; exit 1; }
 	for m in $(MODELS); do \
 	  opts="$(N100_OPTS)"; [ "$$m" = quadrotor ] && opts="$(N100_OPTS_QUADROTOR)"; \
-	  $(BIN)/neuro train $$m --substeps 25 || exit 1; \
-	  $(BIN)/neuro train $$m --substeps 100 $$opts || exit 1; \
-	  $(BIN)/neuro train $$m --substeps 50 || exit 1; \
+	  $(BIN)/neuro train $$m --substeps 25 --out artifacts || exit 1; \
+	  $(BIN)/neuro train $$m --substeps 100 $$opts --out artifacts || exit 1; \
+	  $(BIN)/neuro train $$m --substeps 50 --out artifacts || exit 1; \
 	done
 
 eval: install

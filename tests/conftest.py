@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+import shutil
 import signal
+import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -12,12 +14,24 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, physics, training
+from neuroanimator import artifacts, physics, registry, training
 from neuroanimator.physics.model import PhysicalModel
 from neuroanimator.structured import StructuredEmulator
 from neuroanimator.training import TrainConfig
 from services.stack import RedisUnavailable, find_redis
 from tests.helpers import ARM_XML, Trained
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Every service and command started by a test reads and writes a data directory of this test
+    session, empty at first: never the user's own (``~/.local/share/neuroanimator``), and the
+    committed defaults are only read."""
+    os.environ[registry.DATA_DIR_ENV] = tempfile.mkdtemp(prefix="neuroanimator-test-data-")
+    os.environ.pop("DATA_DIR", None)
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    shutil.rmtree(os.environ.pop(registry.DATA_DIR_ENV, ""), ignore_errors=True)
 
 
 @pytest.fixture(autouse=True)

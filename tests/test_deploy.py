@@ -106,8 +106,9 @@ def test_trainer_services_match_their_settings(compose: dict[str, Any]) -> None:
         assert set(env) <= known, (name, set(env) - known)  # every variable is a trainer setting
         assert env["REDIS_URL"].startswith("redis://redis:"), name
         assert "redis" in svc["depends_on"], name
-        # both write the registry (uploads, claimed names, exported emulators): mounted read-write
-        assert f"./artifacts:{env['ARTIFACTS_DIR']}" in svc["volumes"], name
+        # both write the data directory (uploads, claimed names, exported emulators), never the defaults
+        assert f"data:{env['DATA_DIR']}" in svc["volumes"], name
+        assert f"./artifacts:{env['ARTIFACTS_DIR']}:ro" in svc["volumes"], name
     assert api["build"]["target"] == "emulator"  # the API needs no PyTorch
     assert api["command"] == ["python", "-m", "services.trainer"]
     assert api["environment"]["PORT"] == str(Settings.model_fields["port"].default)
@@ -148,6 +149,25 @@ def test_replicas_have_distinct_ids_and_use_redis(compose: dict[str, Any]) -> No
         assert env["ARTIFACTS_DIR"] == "/artifacts"
         assert any(v.split(":")[1] == "/artifacts" for v in svc["volumes"])
     assert len(set(ids)) == len(ids)
+
+
+def test_users_data_is_a_volume_that_only_the_trainer_writes(compose: dict[str, Any]) -> None:
+    """Uploads and trainings live in a volume of their own; the committed defaults are mounted read-only
+    everywhere, and only the trainer's API and workers (and the one-shot ``neuro train``) write data."""
+    assert "data" in compose["volumes"]
+    writers = {"trainer-api", "trainer-worker", "trainer"}
+    for name, svc in compose["services"].items():
+        mounts = svc.get("volumes", [])
+        for m in mounts:
+            if m.startswith("./artifacts:"):
+                assert m.endswith(":ro"), (name, m)
+            if m.startswith("data:"):
+                assert m.endswith(":ro") != (name in writers), (name, m)
+        env = svc.get("environment", {})
+        if "ARTIFACTS_DIR" in env:  # a service that reads the defaults reads the users' models too
+            assert any(m == f"data:{env['DATA_DIR']}" or m == f"data:{env['DATA_DIR']}:ro" for m in mounts), (
+                name
+            )
 
 
 def test_dockerfile_targets(compose: dict[str, Any]) -> None:

@@ -30,7 +30,7 @@ def lander(tmp_path: Path) -> Path:
     return tmp_path
 
 
-def _eval(root: Path, n: int, at_20s: float) -> VersionEval:
+def _eval(root: registry.Root, n: int, at_20s: float) -> VersionEval:
     version = registry.latest_version(root, "lander", n)
     t = [0.0, 10.0, 20.0, 30.0]
     return VersionEval(
@@ -159,3 +159,42 @@ def test_an_unreadable_result_names_its_file(lander: Path) -> None:
     with pytest.raises(registry.ArtifactError, match=r"bench\.json") as exc:
         registry.read_bench(path)
     assert exc.value.what == "results"
+
+
+def test_the_data_directory_is_read_over_the_committed_defaults(lander: Path, tmp_path: Path) -> None:
+    """Uploads and a user's trainings live in a data directory of their own; a service reads it first,
+    then the committed defaults, as one registry."""
+    data = tmp_path / "data"
+    data.mkdir()
+    roots = registry.Roots(data, lander)
+    assert registry.list_models(roots) == ["lander"] and roots.read_only_has("lander")
+    shutil.copytree(lander / "lander", data / "mine")  # a user's model: listed beside the defaults
+    assert registry.list_models(roots) == ["lander", "mine"] and not roots.read_only_has("mine")
+    assert registry.resolve(roots, "mine").parent == data / "mine"
+    assert registry.list_models(lander) == ["lander"]  # the defaults alone are what they were
+    (data / "lander").mkdir()  # half written (no latest yet): it does not hide the default
+    assert registry.resolve(roots, "lander").parent == lander / "lander"
+    assert registry.list_models(roots) == ["lander", "mine"]
+    shutil.copytree(lander / "lander", data / "lander", dirs_exist_ok=True)  # a user's own training of it
+    assert registry.resolve(roots, "lander").parent == data / "lander"
+    assert registry.available_substeps(roots, "lander") == [25, 50, 100]
+    with pytest.raises(registry.ArtifactError, match=r"trained models are \['lander', 'mine'\]"):
+        registry.resolve(roots, "submarine")
+    assert roots / "new" == data / "new"  # a new model is written to the data directory
+    written = registry.write_eval(roots, _eval(roots, 25, 0.01))  # results go beside their version
+    assert written.is_relative_to(data / "lander")
+
+
+def test_the_default_data_directory_is_outside_the_source_tree(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv(registry.DATA_DIR_ENV, str(tmp_path / "mine"))
+    assert registry.default_data_dir() == tmp_path / "mine"
+    monkeypatch.delenv(registry.DATA_DIR_ENV)
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    assert registry.default_data_dir() == tmp_path / "xdg" / "neuroanimator"
+    monkeypatch.delenv("XDG_DATA_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert registry.default_data_dir() == tmp_path / "home" / ".local" / "share" / "neuroanimator"
+    assert registry.DEFAULTS_DIR == ARTIFACTS
+    assert registry.Roots.default().folders == (tmp_path / "home/.local/share/neuroanimator", ARTIFACTS)

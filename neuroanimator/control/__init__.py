@@ -24,9 +24,9 @@ whose modules define their tasks with this package's types.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from neuroanimator import registry
 from neuroanimator.control.errors import JobSpecError
 from neuroanimator.control.spec import JobSpec, Task
 
@@ -48,7 +48,7 @@ def __getattr__(name: str) -> Any:
 
 def run_job(
     spec: JobSpec | Mapping[str, Any],
-    artifacts_root: Path,
+    artifacts_root: registry.Root,
     on_progress: Callable[[dict[str, Any]], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
     threads: int = 1,

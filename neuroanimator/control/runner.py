@@ -86,16 +86,16 @@ def reported(states: np.ndarray, layout: list[LayoutGroup]) -> np.ndarray:
     return out
 
 
-def load_problem(spec: JobSpec, artifacts_root: Path) -> tuple[ControlProblem, Manifest, Path]:
+def load_problem(spec: JobSpec, artifacts_root: registry.Root) -> tuple[ControlProblem, Manifest, Path]:
     """The emulator objective of a validated spec, the artifact's manifest and its folder."""
-    path = registry.resolve(Path(artifacts_root), spec.model, spec.version)
+    path = registry.resolve(artifacts_root, spec.model, spec.version)
     manifest = registry.read_manifest(path)
     return ControlProblem(artifacts.load_emulator(path), spec, manifest), manifest, path
 
 
 def run_job(
     job: JobSpec | Mapping[str, Any],
-    artifacts_root: Path,
+    artifacts_root: registry.Root,
     on_progress: Callable[[dict[str, Any]], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
     threads: int = 1,
@@ -116,18 +116,18 @@ def run_job(
     numbers that were not finite are None.
     """
     t0 = time.perf_counter()
-    spec = validate_job(job, Path(artifacts_root))
+    spec = validate_job(job, artifacts_root)
     previous_threads = torch.get_num_threads()
     torch.set_num_threads(max(1, int(threads)))
     try:
-        return _run(spec, Path(artifacts_root), on_progress, should_stop, t0)
+        return _run(spec, artifacts_root, on_progress, should_stop, t0)
     finally:
         torch.set_num_threads(previous_threads)
 
 
 def _run(
     spec: JobSpec,
-    root: Path,
+    root: registry.Root,
     on_progress: Callable[[dict[str, Any]], None] | None,
     should_stop: Callable[[], bool] | None,
     t0: float,

@@ -47,7 +47,9 @@ JOB_FIELDS = frozenset(JobCreate.model_fields) - {"idempotency_key"}
 OPTIMIZER_FIELDS = frozenset(OptimizerSettings.model_fields)
 
 
-def find_artifact(root: Path, model: str, version: str | None, substeps: int | None) -> tuple[Path, Manifest]:
+def find_artifact(
+    root: registry.Root, model: str, version: str | None, substeps: int | None
+) -> tuple[Path, Manifest]:
     """The version folder and manifest of a model (``registry.resolve`` + ``read_manifest``); a missing
     model, version or super-step is a ``JobSpecError`` on that field."""
     try:
@@ -106,7 +108,7 @@ def default_state(layout: Sequence[LayoutGroup], size: int) -> list[float]:
     return s
 
 
-def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: Path) -> JobSpec:
+def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: registry.Root) -> JobSpec:
     """Check a job and return its ``JobSpec``, every default filled in (the task's first).
 
     ``job`` is an API body, a spec validated before (``validate_job(spec) == spec`` while the
@@ -150,7 +152,7 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: P
     substeps = spec.get("substeps", task.substeps if task and version is None else None)
     if substeps is not None:
         substeps = _int("substeps", substeps, 1, MAX_SUBSTEPS)
-    _, manifest = find_artifact(Path(artifacts_root), model, version, substeps)
+    _, manifest = find_artifact(artifacts_root, model, version, substeps)
     layout = manifest.layout
     labels = manifest.state_labels
     size = len(labels)

@@ -38,7 +38,6 @@ import math
 import time
 import uuid
 from collections.abc import Callable, Iterable
-from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
 import redis
@@ -49,7 +48,7 @@ from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job
 from rq.serializers import JSONSerializer
 
-from services.common.settings import ApiSettings
+from services.common.settings import ApiSettings, RegistrySettings
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +73,7 @@ return redis.call('ZCOUNT', KEYS[1], now - tonumber(ARGV[1]), '+inf')
 """
 
 
-class QueueSettings(ApiSettings):
+class QueueSettings(ApiSettings, RegistrySettings):
     """The knobs of a service with a job queue and its workers (the controller's, the trainer's);
     environment variables have the upper-case names. A service gives its own prefix, queue and port."""
 
@@ -85,7 +84,6 @@ class QueueSettings(ApiSettings):
         description="the RQ queue (RQ's keys are rq:queue:<name>, rq:wip:<name>, ...)",
     )
     redis_timeout_s: float = Field(2.0, gt=0.0, description="connect and command timeout of the API's Redis")
-    artifacts_dir: Path = Path("artifacts")
     max_queue: int = Field(
         100, ge=1, description="queued (not yet running) jobs; beyond, a submission is 503"
     )

@@ -6,10 +6,13 @@ with keys and CORS), adds its own knobs and gives its default port: ``port: Port
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated
 
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from neuroanimator import registry
 
 Port = Annotated[int, Field(ge=1, le=65535, description="the TCP port to listen on")]
 
@@ -60,3 +63,31 @@ class ApiSettings(ServiceSettings):
     def cors_list(self) -> list[str]:
         """``CORS_ORIGINS`` as a list, blanks dropped: ``"a, b,"`` -> ``["a", "b"]``."""
         return [o.strip() for o in self.cors_origins.split(",") if o.strip()]
+
+
+class RegistrySettings(BaseSettings):
+    """Where a service finds trained emulators: the committed defaults (read-only) under a data directory
+    of uploads and trainings (``registry.Roots``)."""
+
+    model_config = SettingsConfigDict(env_prefix="", case_sensitive=False, extra="ignore")
+
+    artifacts_dir: Path = Field(
+        registry.DEFAULTS_DIR,
+        description="the committed default emulators (the catalog's), read-only: nothing is written there",
+    )
+    data_dir: Path = Field(
+        default_factory=registry.default_data_dir,
+        description="uploads, trainings and their emulators (default $NEUROANIMATOR_DATA_DIR, else "
+        "$XDG_DATA_HOME/neuroanimator, else ~/.local/share/neuroanimator); a model here takes precedence "
+        "over a committed one of the same name",
+    )
+
+    @field_validator("artifacts_dir", "data_dir")
+    @classmethod
+    def _absolute_dir(cls, path: Path) -> Path:
+        """Made absolute where the settings are read: a worker may run in another folder."""
+        return path.expanduser().absolute()
+
+    def roots(self) -> registry.Roots:
+        """The registries this service reads: the data directory first, then the committed defaults."""
+        return registry.Roots(self.data_dir, self.artifacts_dir)

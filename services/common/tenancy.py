@@ -2,11 +2,12 @@
 publishes them.
 
 A model uploaded through the trainer service has an owner file beside its versions,
-``<artifacts>/<model>/owner.json``: ``{"owner": "<key id>", "published": false, "uploaded": "<UTC
+``<data dir>/<model>/owner.json``: ``{"owner": "<key id>", "published": false, "uploaded": "<UTC
 time>"}``. Every service that lists or serves models (the emulator's registry, the controller's jobs,
 the trainer's model list) asks ``can_see`` for the caller of the request (``auth.CALLER``):
 
-- a model without an owner file (the catalog's, one trained with ``neuro train``) is everybody's;
+- a model without an owner file (the committed catalog's, one trained with ``neuro train``) is
+  everybody's;
 - a published model is everybody's;
 - otherwise only its owner's key, and operators (``OPERATOR_KEYS``), see it; to any other key it
   does not exist (404 or "unknown model", never 403, and its name is in no list).
@@ -48,9 +49,9 @@ class Ownership:
 _cache: dict[Path, tuple[tuple[int, int], Ownership | None]] = {}
 
 
-def read(root: Path, model: str) -> Ownership | None:
+def read(root: registry.Root, model: str) -> Ownership | None:
     """The owner file of a model; None when it has none (everybody's) or it cannot be read."""
-    path = Path(root) / model / OWNER_FILE
+    path = root / model / OWNER_FILE
     try:
         st = path.stat()
     except OSError:
@@ -73,9 +74,9 @@ def read(root: Path, model: str) -> Ownership | None:
     return found
 
 
-def write(root: Path, model: str, ownership: Ownership) -> None:
+def write(root: registry.Root, model: str, ownership: Ownership) -> None:
     """Write (or replace) a model's owner file, atomically; the model's folder is made if need be."""
-    folder = Path(root) / model
+    folder = root / model
     folder.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-owner-")
     os.fchmod(fd, 0o644)  # readable by the services, whichever user they run as
@@ -91,22 +92,22 @@ def visible(found: Ownership | None, caller: str | None, operator: bool) -> bool
     return found is None or found.published or caller is None or operator or found.owner == caller
 
 
-def can_see(root: Path, model: str) -> bool:
+def can_see(root: registry.Root, model: str) -> bool:
     """Whether the current request's caller sees ``model`` (``auth.CALLER``, ``auth.OPERATOR``)."""
     if CALLER.get() is None:
         return True
     return visible(read(root, model), CALLER.get(), OPERATOR.get())
 
 
-def visible_models(root: Path) -> list[str]:
+def visible_models(root: registry.Root) -> list[str]:
     """The trained models the current request's caller sees, sorted."""
-    return [m for m in registry.list_models(Path(root)) if can_see(root, m)]
+    return [m for m in registry.list_models(root) if can_see(root, m)]
 
 
-def public_models(root: Path) -> list[str]:
+def public_models(root: registry.Root) -> list[str]:
     """The trained models everybody sees (no owner file, or published), sorted."""
     out = []
-    for m in registry.list_models(Path(root)):
+    for m in registry.list_models(root):
         found = read(root, m)
         if found is None or found.published:
             out.append(m)

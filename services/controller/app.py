@@ -29,9 +29,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     def ready() -> tuple[dict[str, Any], tuple[str, str] | None]:
         # an open endpoint: the models everybody sees (uploaded ones only once published)
-        models = tenancy.public_models(settings.artifacts_dir)
+        models = tenancy.public_models(settings.roots())
         if not models:  # the folder is named by its setting: its path goes to the log, not to anybody
-            log.warning("readyz: no trained models", extra={"artifacts_dir": str(settings.artifacts_dir)})
+            log.warning("readyz: no trained models", extra={"registries": str(settings.roots())})
             return {}, (
                 "no artifacts",
                 "no trained models in ARTIFACTS_DIR (train one: neuro train pendulum-active)",

@@ -96,7 +96,7 @@ def perform(job_id: str, delivery: int) -> str:
         try:
             result = run_job(
                 spec,
-                s.artifacts_dir,
+                s.roots(),
                 on_progress=on_progress,
                 should_stop=should_stop,
                 threads=s.worker_threads,

@@ -1,4 +1,5 @@
-"""The emulators this service serves, loaded from the artifact registry (``neuroanimator.registry``).
+"""The emulators this service serves, loaded from the artifact registries (``neuroanimator.registry``:
+the data directory's uploads and trainings over the committed defaults).
 
 It loads every model's ``latest`` version into an ``OnnxEmulator`` and re-reads the pointer files at
 most every ``poll_s`` seconds, so a new version (or a new model, e.g. one the trainer service just
@@ -102,8 +103,8 @@ class LoadedEmulator:
 class Registry:
     """Loaded emulators by (model, version); ``latest`` maps a model to its current version."""
 
-    def __init__(self, root: Path, threads: int = 1, poll_s: float = 2.0) -> None:
-        self.root = Path(root)
+    def __init__(self, root: registry.Root, threads: int = 1, poll_s: float = 2.0) -> None:
+        self.root = root
         self.threads = threads
         self.poll_s = poll_s
         self.loaded: dict[tuple[str, str], LoadedEmulator] = {}

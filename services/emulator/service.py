@@ -37,7 +37,7 @@ class EmulatorService:
 
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
-        self.registry = Registry(settings.artifacts_dir, settings.ort_threads, settings.registry_poll_s)
+        self.registry = Registry(settings.roots(), settings.ort_threads, settings.registry_poll_s)
         self.store = SessionStore(
             settings.replica_id, settings.session_ttl_s, settings.max_sessions, settings.max_sessions_per_key
         )

@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from pydantic import Field
 
-from services.common.settings import ApiSettings, Port
+from services.common.settings import ApiSettings, Port, RegistrySettings
 
 
-class Settings(ApiSettings):
+class Settings(ApiSettings, RegistrySettings):
     """Every knob of the emulator service (beside host, port, log level, API keys and CORS origins);
     environment variables have the upper-case names."""
 
-    artifacts_dir: Path = Path("artifacts")
     max_body_bytes: int = Field(
         8 * 1024 * 1024,
         ge=1024,

@@ -17,6 +17,7 @@ from typing import Any
 from fastapi import FastAPI
 
 from services.common.queue_app import connect, queue_app
+from services.trainer import models as stored_models
 from services.trainer.metrics import Metrics
 from services.trainer.routes import models, trainings
 from services.trainer.settings import Settings
@@ -32,7 +33,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     def ready() -> tuple[dict[str, Any], tuple[str, str] | None]:
         # /readyz answers anybody: the folders are named by their settings, their paths go to the log
-        for name, folder in (("ARTIFACTS_DIR", settings.artifacts_dir), ("WORK_DIR", settings.uploads())):
+        for name, folder in (("DATA_DIR", settings.data_dir), ("WORK_DIR", settings.uploads())):
             try:
                 folder.mkdir(parents=True, exist_ok=True)
                 writable = os.access(folder, os.W_OK)
@@ -52,9 +53,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         routers=(trainings.router, models.router),
         submit_path="/trainings",
         ready=ready,
-        not_ready="the artifact registry or the uploads folder cannot be written",
+        not_ready="the data directory or the uploads folder cannot be written",
         per_path_limits=[(r"/trainings", settings.max_upload_bytes)],
     )
     # the uploads being checked at once (each in a sandbox process): a bound, not a queue of threads
     app.state.checks = threading.BoundedSemaphore(settings.max_validations)
+    stray = stored_models.uploaded(settings.artifacts_dir)
+    if stray:  # uploads of an older version, beside the committed defaults: still served, not managed
+        log.warning(
+            "uploaded models among the committed defaults: move them into DATA_DIR to manage them here",
+            extra={"models": stray, "from": str(settings.artifacts_dir), "to": str(settings.data_dir)},
+        )
     return app

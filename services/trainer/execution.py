@@ -253,7 +253,7 @@ def _export(
     t0 = time.monotonic()
     staging = s.staging() / job_id
     try:
-        version = models.export(staging, s.artifacts_dir, spec["model"], owner)
+        version = models.export(staging, s.data_dir, spec["model"], owner)
     except models.ExportError as exc:
         store.end(job_id, delivery, "failed", str(exc), {})
         _cleanup(s, store, job_id, spec, rec)
@@ -280,4 +280,4 @@ def _cleanup(
         owner = rec.get("owner", "")
         with contextlib.suppress(OSError, redis.RedisError):
             if not store.active(owner, spec["model"], but=job_id):
-                models.release(s.artifacts_dir, spec["model"], owner)
+                models.release(s.data_dir, spec["model"], owner)

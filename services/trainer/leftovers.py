@@ -60,7 +60,7 @@ def reap(s: Settings, store: TrainingStore, grace: float = GRACE_S) -> list[str]
                 if (status is not None and status in FINAL) or (status is None and _old(p, now, grace)):
                     shutil.rmtree(p, ignore_errors=True)
                     removed.append(f"{folder.name}/{p.name}")
-        root = s.artifacts_dir
+        root = s.data_dir
         if root.is_dir():
             for model_dir in [root, *(root / m for m in models.uploaded(root))]:
                 for p in model_dir.iterdir():

@@ -7,7 +7,8 @@ the training is queued. The folder is not listed as a model until a version is e
 ``latest`` pointers name it), so the emulator and controller services see a new model or version
 whole or not at all, and a failed or cancelled first training gives its name back (``release``). The
 same key's later uploads under the name add versions; another key's are refused (409), as are names of
-models that were not uploaded (the catalog's, or trained with ``neuro train``).
+models that were not uploaded (the committed catalog's, or trained with ``neuro train``). Uploads live
+in the data directory (``registry.Roots.data``), never beside the committed defaults.
 
 Deleting renames the model's folder out of the registry (a dot name, which no listing shows) before
 removing it, so readers never see half a model; sessions already running on it keep their emulator.
@@ -35,12 +36,13 @@ class ExportError(Exception):
     """The trained version cannot be exported (its model was deleted or its name taken meanwhile)."""
 
 
-def claim(root: Path, name: str, owner: str) -> bool:
-    """Make ``name`` the owner's: True when it is new, False when the owner's model gets a new version;
-    ``NameTaken`` when it is not the owner's to use."""
+def claim(roots: registry.Roots, name: str, owner: str) -> bool:
+    """Make ``name`` the owner's in the data directory: True when it is new, False when the owner's model
+    gets a new version; ``NameTaken`` when it is not the owner's to use (a committed model's name too)."""
+    root = roots.data
     root.mkdir(parents=True, exist_ok=True)
     folder = root / name
-    if not folder.exists():
+    if not folder.exists() and not roots.read_only_has(name):
         tmp = Path(tempfile.mkdtemp(dir=root, prefix=".tmp-claim-"))
         tmp.chmod(0o755)
         tenancy.write(tmp.parent, tmp.name, Ownership.new(owner))
@@ -49,7 +51,7 @@ def claim(root: Path, name: str, owner: str) -> bool:
             return True
         except OSError:
             shutil.rmtree(tmp, ignore_errors=True)
-    found = tenancy.read(root, name)
+    found = None if roots.read_only_has(name) else tenancy.read(root, name)
     if found is None or found.owner != owner:
         # the same words for the catalog's names and for other keys': whose it is stays theirs to know
         raise NameTaken(

@@ -28,7 +28,7 @@ class Settings(QueueSettings):
     )
     work_dir: Path | None = Field(
         None,
-        description="uploads waiting for a worker, and trainings being made (default: ARTIFACTS_DIR/.trainer); "
+        description="uploads waiting for a worker, and trainings being made (default: DATA_DIR/.trainer); "
         "the API and the workers must share it",
     )
     max_body_bytes: int = Field(
@@ -106,15 +106,15 @@ class Settings(QueueSettings):
     )
     port: Port = 8002
 
-    @field_validator("artifacts_dir", "work_dir")
+    @field_validator("work_dir")
     @classmethod
     def _absolute(cls, path: Path | None) -> Path | None:
-        """Folders are made absolute where the settings are read: a training runs in a folder of its
-        own, where a relative path would name another place."""
+        """Made absolute where the settings are read: a training runs in a folder of its own, where a
+        relative path would name another place."""
         return None if path is None else path.expanduser().absolute()
 
     def work(self) -> Path:
-        return self.work_dir if self.work_dir is not None else self.artifacts_dir / ".trainer"
+        return self.work_dir if self.work_dir is not None else self.data_dir / ".trainer"
 
     def uploads(self) -> Path:
         """Uploads waiting for a worker: ``<work>/uploads/<training id>/<file>``."""

@@ -52,7 +52,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     def healthz() -> dict[str, str]:
         return {"status": "ok"}
 
-    root = settings.artifacts_dir
+    root = settings.roots()
 
     def answer(found: BaseModel | None, what: str) -> Response:
         if found is None:

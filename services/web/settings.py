@@ -6,21 +6,17 @@ from pathlib import Path
 
 from pydantic import Field
 
-from services.common.settings import Port, ServiceSettings
+from services.common.settings import Port, RegistrySettings, ServiceSettings
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-class Settings(ServiceSettings):
+class Settings(ServiceSettings, RegistrySettings):
     """``EMULATOR_URL``, ``CONTROLLER_URL`` and ``TRAINER_URL`` are what the *browser* calls: absolute
     URLs, or paths on this server's origin when a proxy serves everything from one place
     (``/api/emulator``)."""
 
     web_dist: Path = Field(ROOT / "web" / "dist", description="the built dashboard (npm run build)")
-    artifacts_dir: Path = Field(
-        Path("artifacts"),
-        description="the artifact registry whose evaluation and benchmark results are served",
-    )
     emulator_url: str = Field(
         "http://127.0.0.1:8000", description="the emulator service, as the browser sees it"
     )

@@ -46,6 +46,7 @@ def running_stack(log_dir: Path, **config: Any) -> Iterator[Stack]:
     """The whole stack on free ports (``StackConfig`` fields in ``config``); skips the test when there
     is no Redis to be had."""
     env = {"WORKER_THREADS": "1", **config.pop("env", {})}
+    config.setdefault("data_dir", log_dir / "data")  # each stack its own: one test's uploads stay its own
     for attempt in range(1, PORT_ATTEMPTS + 1):
         s = Stack(
             StackConfig(

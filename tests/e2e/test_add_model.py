@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pytest
 
+from neuroanimator import registry
 from services.stack import Stack
 from tests.e2e.harness import ROOT, missing, run_phase, running_stack, update_docs
 
@@ -40,12 +41,15 @@ pytestmark = pytest.mark.skipif(missing() is not None, reason=missing() or "")
 
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
-    """A stack whose registry starts with pendulum-passive alone (so the Playground has a model to
-    choose before the new one); trainings as small as they come (2 evaluation rollouts of 2 s)."""
-    registry = tmp_path_factory.mktemp("registry")
-    shutil.copytree(ROOT / "artifacts" / "pendulum-passive", registry / "pendulum-passive")
+    """A stack whose committed defaults are pendulum-passive alone (so the Playground has a model to
+    choose before the new one), with an empty data directory of its own; trainings as small as they come
+    (2 evaluation rollouts of 2 s)."""
+    defaults = tmp_path_factory.mktemp("registry")
+    shutil.copytree(ROOT / "artifacts" / "pendulum-passive", defaults / "pendulum-passive")
     env = {"EVAL_TRIALS": "2", "EVAL_SECONDS": "2", "REGISTRY_POLL_S": "0.5", "JOB_TIMEOUT_S": "240"}
-    with running_stack(tmp_path_factory.mktemp("stack-logs"), artifacts_dir=registry, env=env) as s:
+    data = tmp_path_factory.mktemp("data")
+    logs = tmp_path_factory.mktemp("stack-logs")
+    with running_stack(logs, artifacts_dir=defaults, data_dir=data, env=env) as s:
         yield s
 
 
@@ -61,6 +65,11 @@ def test_add_a_model_train_it_and_drive_it(stack: Stack, tmp_path: Path) -> None
     model_zip = _zipped(TINYBOT, tmp_path / "tinybot.zip")
     r = run_phase(stack, SCRIPT, "add-model", 360, MODEL_ZIP=str(model_zip))
     assert r["phases"][-1] == "done" and r["one_step_rel_error"] > 0
+    # the upload and its training are in the data directory; the committed defaults are as they were
+    c = stack.config
+    assert sorted(p.name for p in c.artifacts_dir.iterdir()) == ["pendulum-passive"]
+    assert (c.data_dir / "tinybot" / registry.LATEST).is_file()
+    assert registry.list_models(c.artifacts_dir) == ["pendulum-passive"]
     print(f"upload to drive in the browser: training {r['training_s']} s, phase {r['wall_s']} s in all")
     if os.environ.get("E2E_UPDATE_DOCS") == "1":
         update_docs({"models-add-model.png": "models-add-model.png"})

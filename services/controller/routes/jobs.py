@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import json
 import re
-from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response
 
+from neuroanimator import registry
 from neuroanimator.control import TASKS, JobSpecError, validate_job
 from neuroanimator.controller_schemas import (
     FINAL_STATES,
@@ -117,7 +117,7 @@ def _summary(rec: dict[str, Any]) -> JobSummary:
     )
 
 
-def hidden(req: JobCreate, root: Path) -> None:
+def hidden(req: JobCreate, root: registry.Root) -> None:
     """A ``JobSpecError`` on ``model`` when the job names a model the caller does not see (another key's
     upload, not published): as for a model that does not exist, listing only the models it sees."""
     model = req.model or (TASKS[req.task].model if req.task in TASKS else None)
@@ -148,8 +148,8 @@ def create_job(
     """Queue a controller-synthesis job; the same ``idempotency_key`` returns the same job."""
     metrics: Metrics = request.app.state.metrics
     try:
-        hidden(req, settings.artifacts_dir)
-        spec = validate_job(req, settings.artifacts_dir)
+        hidden(req, settings.roots())
+        spec = validate_job(req, settings.roots())
     except JobSpecError as exc:
         metrics.rejected.labels("invalid").inc()
         got = _lookup(req.spec(), exc.field)

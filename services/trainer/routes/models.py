@@ -48,7 +48,7 @@ def stored(root: Path, name: str) -> StoredModel:
 
 
 def _list(store: TrainingStore, s: Settings, owner: str) -> StoredModelList:
-    root = s.artifacts_dir
+    root = s.data_dir
     names = models.uploaded(root) if is_operator() else models.owned(root, owner)
     mine = models.owned(root, owner)
     usage = Usage(
@@ -73,10 +73,11 @@ async def list_models(store: StoreDep, owner: OwnerDep, settings: SettingsDep) -
 def uploaded(s: Settings, name: str, owner: str) -> StoredModel:
     """An uploaded model the caller sees; 404 if none (or another key's, unpublished), 409 if the model
     was not uploaded."""
-    root = s.artifacts_dir
+    root = s.data_dir
     found = tenancy.read(root, name) if registry.is_name(name) else None
     if found is None:
-        if registry.is_name(name) and (root / name).is_dir() and tenancy.can_see(root, name):
+        every = s.roots()
+        if registry.is_name(name) and (every / name).is_dir() and tenancy.can_see(every, name):
             raise ApiError(
                 409,
                 "not_uploaded",
@@ -97,8 +98,8 @@ def _publish(s: Settings, name: str, owner: str) -> StoredModel:
         raise ApiError(
             403, "forbidden", "only an operator's key (OPERATOR_KEYS) publishes models", field="name"
         )
-    models.publish(s.artifacts_dir, name)
-    return stored(s.artifacts_dir, name)
+    models.publish(s.data_dir, name)
+    return stored(s.data_dir, name)
 
 
 @router.post("/models/{name}/publish", response_model=StoredModel, responses=_ERRORS)
@@ -113,7 +114,7 @@ def _delete(s: Settings, name: str, owner: str) -> StoredModel:
         raise ApiError(
             403, "forbidden", f"model {name!r} is published: only an operator's key deletes it", field="name"
         )
-    models.delete(s.artifacts_dir, name)
+    models.delete(s.data_dir, name)
     return model
 
 

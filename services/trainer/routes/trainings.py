@@ -150,14 +150,14 @@ def _reserve(store: TrainingStore, owner: str, s: Settings, job_id: str) -> None
 def release(store: TrainingStore, s: Settings, name: str, owner: str, job_id: str) -> None:
     """Give the name back if nothing was exported under it and no other training of the owner's holds it."""
     if not store.active(owner, name, but=job_id):
-        models.release(s.artifacts_dir, name, owner)
+        models.release(s.data_dir, name, owner)
 
 
 def _storage(s: Settings, owner: str, name: str, upload_bytes: int) -> None:
     """429 when a new model or the upload would pass the caller's stored models or bytes (keys on)."""
     if CALLER.get() is None:
         return
-    mine = models.owned(s.artifacts_dir, owner)
+    mine = models.owned(s.data_dir, owner)
     if name not in mine and len(mine) >= s.max_models_per_key:
         raise limit_error(
             "MAX_MODELS_PER_KEY",
@@ -165,7 +165,7 @@ def _storage(s: Settings, owner: str, name: str, upload_bytes: int) -> None:
             s.max_models_per_key,
             len(mine),
         )
-    used = models.size(s.artifacts_dir, mine)
+    used = models.size(s.data_dir, mine)
     if used + upload_bytes > s.max_bytes_per_key:
         raise limit_error(
             "MAX_BYTES_PER_KEY",
@@ -266,7 +266,7 @@ def _accept(
     try:
         _storage(s, owner, name, path.stat().st_size)
         try:
-            new = models.claim(s.artifacts_dir, name, owner)
+            new = models.claim(s.roots(), name, owner)
         except models.NameTaken as exc:
             raise ApiError(409, "name_taken", str(exc), field="name", got=name) from exc
         spec = {

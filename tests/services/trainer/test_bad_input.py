@@ -181,14 +181,17 @@ def test_models_an_emulator_cannot_be_made_of(
     assert words in body["message"]
 
 
-def test_names_of_models_that_were_not_uploaded_are_taken(api: TestClient, trn: Trainer) -> None:
-    catalog = trn.artifacts / "tinybot"  # a model trained on the server: it has no owner file
-    catalog.mkdir()
+@pytest.mark.parametrize("where", ["data", "defaults"])
+def test_names_of_models_that_were_not_uploaded_are_taken(api: TestClient, trn: Trainer, where: str) -> None:
+    # one trained on the server (no owner file), or a committed default's: neither is an upload's to take
+    taken = (trn.data if where == "data" else trn.defaults) / "tinybot"
+    taken.mkdir()
     try:
         body = refused(api, trn, 409, "name_taken", "tinybot.zip", zipped(TINYBOT))
         assert "is not available" in body["message"] and body["field"] == "name"
+        assert not (trn.data / "tinybot" / "owner.json").exists()  # nothing claimed beside the default
     finally:
-        catalog.rmdir()
+        taken.rmdir()
 
 
 def test_what_is_not_a_model_upload(api: TestClient, trn: Trainer) -> None:
@@ -221,9 +224,9 @@ def test_a_good_upload_is_queued_and_cancelled(api: TestClient, trn: Trainer) ->
     assert r.headers["location"] == f"/trainings/{got['id']}"
     status = api.get(f"/trainings/{got['id']}").json()
     assert (status["super_step"], status["examples"], status["percent"]) == (10, 200, 0.0)
-    assert (trn.artifacts / "tinybot" / "owner.json").is_file()  # the name is claimed
+    assert (trn.data / "tinybot" / "owner.json").is_file()  # the name is claimed
     r = api.delete(f"/trainings/{got['id']}")
     assert r.status_code == 202 and r.json()["status"] == "cancelled", r.text
-    assert not (trn.artifacts / "tinybot").exists()  # given back: nothing was trained under it
+    assert not (trn.data / "tinybot").exists()  # given back: nothing was trained under it
     assert not any(trn.settings().uploads().iterdir())
     assert api.delete(f"/trainings/{got['id']}").status_code == 409

@@ -49,7 +49,11 @@ def trn_fixture(redis_url: str, tmp_path_factory: pytest.TempPathFactory) -> Ite
 
 def test_upload_train_drive_control_publish_delete(trn: Trainer, tmp_path: Path) -> None:
     api = trn.client()
-    common: dict[str, Any] = {"artifacts_dir": trn.artifacts, "api_keys": KEYS["API_KEYS"]}
+    common: dict[str, Any] = {
+        "data_dir": trn.data,
+        "artifacts_dir": trn.defaults,
+        "api_keys": KEYS["API_KEYS"],
+    }
     common |= {"operator_keys": "key-op", "api_key_secret": KEYS["API_KEY_SECRET"]}
     emulator = TestClient(emulator_app(EmulatorSettings(**common, redis_url="", registry_poll_s=0.1)))
     emulator.__enter__()
@@ -138,7 +142,7 @@ def test_upload_train_drive_control_publish_delete(trn: Trainer, tmp_path: Path)
     assert api.delete("/models/tinybot", headers=B).status_code == 404
     assert api.delete("/models/tinybot", headers=A).status_code == 403  # published: operators only
     assert api.delete("/models/tinybot", headers=OP).status_code == 200
-    assert not (trn.artifacts / "tinybot").exists()
+    assert not (trn.data / "tinybot").exists()
     wait_for(
         "the emulator to drop it", lambda: emulator.get("/models", headers=OP).json()["models"] == [], 10
     )

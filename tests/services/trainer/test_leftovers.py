@@ -39,19 +39,19 @@ def test_a_training_killed_during_export_leaves_nothing(trn: Trainer) -> None:
     staging = settings.staging() / job / "dies" / "v1"
     staging.mkdir(parents=True)
     (staging / "emulator.onnx").write_bytes(b"x" * 1000)
-    half = trn.artifacts / "dies" / ".tmp-v1-abc123"
+    half = trn.data / "dies" / ".tmp-v1-abc123"
     half.mkdir()
     (half / "emulator.onnx").write_bytes(b"x" * 1000)
     assert store.end(job, 1, "failed", "abandoned: worker w-gone stopped renewing the training's lease", {})
     old = time.time() - 2 * leftovers.GRACE_S
     os.utime(half, (old, old))
-    os.utime(trn.artifacts / "dies" / tenancy.OWNER_FILE, (old, old))
+    os.utime(trn.data / "dies" / tenancy.OWNER_FILE, (old, old))
     assert api.get("/models", headers=auth("key-a")).json()["usage"]["models"] == 2
 
     removed = leftovers.reap(settings, store)
     assert not (settings.staging() / job).exists() and not (settings.uploads() / job).exists()
-    assert not (trn.artifacts / "dies").exists(), removed  # no .tmp version, no name without versions
-    assert (settings.uploads() / alive.json()["id"]).is_dir() and (trn.artifacts / "waits").is_dir()
+    assert not (trn.data / "dies").exists(), removed  # no .tmp version, no name without versions
+    assert (settings.uploads() / alive.json()["id"]).is_dir() and (trn.data / "waits").is_dir()
     usage = api.get("/models", headers=auth("key-a")).json()["usage"]
     assert usage["models"] == 1 and usage["trainings"] == 1, usage
     # the name is free: another key may take it now

@@ -50,7 +50,7 @@ def test_concurrent_trainings_and_names(trn: Trainer) -> None:
 
     # a cancelled queued training frees its place; the name stays while another training holds it
     assert api.delete(f"/trainings/{first.json()['id']}", headers=auth("key-a")).status_code == 202
-    assert (trn.artifacts / "tinybot").is_dir()
+    assert (trn.data / "tinybot").is_dir()
     assert upload(api, "tinybot.zip", ZIP, key="key-a", **TINY).status_code == 202
 
 
@@ -69,7 +69,7 @@ def test_stored_models_and_bytes(trn: Trainer) -> None:
     small = trn.client(max_bytes_per_key=1024)
     r = upload(small, "tinybot.zip", ZIP, key="key-b", name="big", **TINY)
     assert r.status_code == 429 and r.json()["field"] == "MAX_BYTES_PER_KEY", r.text
-    assert not (trn.artifacts / "big").exists()
+    assert not (trn.data / "big").exists()
 
 
 def test_a_full_queue_is_503_naming_the_limit(trn: Trainer) -> None:
@@ -84,7 +84,7 @@ def test_a_full_queue_is_503_naming_the_limit(trn: Trainer) -> None:
         "<= 1",
         2,
     )
-    assert not (trn.artifacts / "two").exists()  # the name is given back, nothing kept of the upload
+    assert not (trn.data / "two").exists()  # the name is given back, nothing kept of the upload
 
 
 def test_keys_off_share_one_pool_of_trainings(

@@ -79,7 +79,7 @@ def test_redis_down_is_503_without_saying_where_redis_is(trn: Trainer) -> None:
 def test_readyz_names_an_unwritable_folder_by_its_setting(trn: Trainer, tmp_path: Path) -> None:
     blocker = tmp_path / "a-file"
     blocker.write_text("not a folder")
-    api = trn.client(artifacts_dir=blocker / "artifacts")
+    api = trn.client(data_dir=blocker / "data")
     r = api.get("/readyz")
     assert r.status_code == 503 and r.json()["status"] == "not writable", r.text
-    assert "ARTIFACTS_DIR" in r.json()["message"] and str(tmp_path) not in r.text
+    assert "DATA_DIR" in r.json()["message"] and str(tmp_path) not in r.text

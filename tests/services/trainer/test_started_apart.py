@@ -1,6 +1,6 @@
 """The trainer started as the README says, apart from the stack: ``python -m services.trainer`` and
-``python -m services.trainer.worker`` in one folder, with the registry given by a relative path (as the
-default ``ARTIFACTS_DIR=artifacts`` is). A training runs in a staging folder of its own: once, every
+``python -m services.trainer.worker`` in one folder, with the data directory given by a relative path
+(``DATA_DIR=data``). A training runs in a staging folder of its own: once, every
 training failed so ("'artifacts/.trainer/uploads/<id>/...' does not exist")."""
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[3]
 def test_api_and_worker_started_apart_with_a_relative_registry(
     redis_url: str, tmp_path_factory: pytest.TempPathFactory
 ) -> None:
-    trn = Trainer(redis_url, tmp_path_factory.mktemp("apart"), ARTIFACTS_DIR="artifacts", JOB_TIMEOUT_S="120")
+    trn = Trainer(redis_url, tmp_path_factory.mktemp("apart"), DATA_DIR="data", JOB_TIMEOUT_S="120")
     port = free_port()
     env = {
         **os.environ,
@@ -59,7 +59,7 @@ def test_api_and_worker_started_apart_with_a_relative_registry(
 
         done = wait_for("the training", ended, timeout=180, every=0.5)
         assert done["status"] == "succeeded", (done, trn.logs()[-2000:])
-        assert (trn.tmp / "artifacts" / "tinybot" / "latest").is_file()
+        assert (trn.tmp / "data" / "tinybot" / "latest").is_file()
     finally:
         api.terminate()
         api.wait(20)

@@ -48,7 +48,7 @@ def flexcomp(target: str) -> bytes:
 @pytest.fixture(name="trn", scope="module")
 def trn_fixture(redis_url: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Trainer]:
     t = Trainer(redis_url, tmp_path_factory.mktemp("trainer"), MAX_TRAININGS_PER_KEY="2", **KEYS)
-    secret = t.artifacts / "secret-a" / "v1"  # key A's stored model, as the registry keeps it
+    secret = t.data / "secret-a" / "v1"  # key A's stored model, as the registry keeps it
     secret.mkdir(parents=True)
     (secret / "model.xml").write_text(SECRET)
     try:
@@ -94,7 +94,7 @@ def refused(
 def test_key_b_cannot_read_key_as_model_nor_the_servers_files(
     api: TestClient, trn: Trainer, payload: Any
 ) -> None:
-    secret = str(trn.artifacts / "secret-a" / "v1" / "model.xml")
+    secret = str(trn.data / "secret-a" / "v1" / "model.xml")
     bodies = [
         refused(api, trn, "steal.xml", payload(target), echo=target, name="stolen-by-b")
         for target in (secret, "/etc/hostname", "/etc/no-such-file", "../../../../../../../../etc/hostname")

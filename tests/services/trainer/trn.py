@@ -92,10 +92,13 @@ class Trainer(Deployment):
     worker_module = "services.trainer.worker"
 
     def __init__(self, redis_url: str, tmp: Path, **env: str) -> None:
-        self.artifacts = tmp / "artifacts"
-        self.artifacts.mkdir(exist_ok=True)
+        self.data = tmp / "data"  # the data directory: uploads and their trainings
+        self.defaults = tmp / "defaults"  # the committed defaults' place: read, never written
+        self.data.mkdir(exist_ok=True)
+        self.defaults.mkdir(exist_ok=True)
+        folders = {"DATA_DIR": str(self.data), "ARTIFACTS_DIR": str(self.defaults)}
         defaults = {"LEASE_TTL_S": "2", "REAP_INTERVAL_S": "0.5", "EVAL_TRIALS": "2", "EVAL_SECONDS": "2"}
-        super().__init__(redis_url, tmp, {"ARTIFACTS_DIR": str(self.artifacts), **defaults, **env})
+        super().__init__(redis_url, tmp, {**folders, **defaults, **env})
 
     def settings(self, **kw: Any) -> Settings:
         base = {k.lower(): v for k, v in self.env.items()}
@@ -106,7 +109,7 @@ class Trainer(Deployment):
 
     def models(self) -> list[str]:
         """The model folders in the registry (claimed names included)."""
-        return sorted(p.name for p in self.artifacts.iterdir() if registry.is_name(p.name))
+        return sorted(p.name for p in self.data.iterdir() if registry.is_name(p.name))
 
 
 def upload(client: TestClient, filename: str, data: bytes, key: str | None = None, **fields: str) -> Any:
