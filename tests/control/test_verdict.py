@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from neuroanimator.control import criteria
 from neuroanimator.control.verdict import EMULATOR_ONLY, MISSED, NO_CRITERION, SUCCEEDED, verdict
 from neuroanimator.controller_schemas import JobOutcome, JobResult
 
@@ -44,6 +45,14 @@ def test_a_criterion_is_judged_on_mujoco(emulator: bool, physics: bool, expected
 def test_a_run_that_did_not_end_normally_says_so(status: str) -> None:
     assert verdict(status, None, None, None) == status
     assert JobOutcome(status=status, success_criterion="x", success_physics=True).verdict == status
+
+
+def test_a_task_without_criterion_as_the_runner_reports_it() -> None:
+    # run_job describes an empty criterion in words and judges neither side (dolphin-swim)
+    out = JobOutcome(
+        status="succeeded", success_criterion=criteria.describe((), [0.0], ["x"]), objective=-53.9
+    )
+    assert out.success_criterion and out.verdict == "done, no criterion"
 
 
 def test_a_stored_result_without_the_field_gets_its_verdict() -> None:

@@ -132,6 +132,8 @@ describe('outcome', () => {
     expect(line).toMatch(/2\.83 on MuJoCo/);
     expect(line).not.toMatch(/succeed/);
     expect(verdictOf({ ...r, verdict: 'done, no criterion' })).toBe('done, no criterion');
+    // as the service words an empty criterion (dolphin-swim): still no criterion, not "misses" it
+    expect(outcomeSummary({ ...r, success_criterion: 'no success criterion' })).toMatch(/^Done, no criterion/);
     expect(verdictOf({ success_criterion: 'c', success_emulator: true, success_physics: false })).toBe('done, criterion met on the emulator only');
     expect(verdictOf({ success_criterion: 'c', success_emulator: false, success_physics: true })).toBe('succeeded');
   });

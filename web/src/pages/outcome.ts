@@ -21,7 +21,8 @@ type Summarised = Pick<JobResult, 'success_emulator' | 'success_physics' | 'succ
  * that does not send it. */
 export function verdictOf(r: Summarised): string {
   if (r.verdict) return r.verdict;
-  if (!r.success_criterion && r.success_physics == null && r.success_emulator == null) return 'done, no criterion';
+  // no verdict on either side: no criterion (whose text then says so: "no success criterion")
+  if (r.success_physics == null && r.success_emulator == null) return 'done, no criterion';
   return r.success_physics === true ? 'succeeded' : r.success_emulator === true ? 'done, criterion met on the emulator only' : 'done, criterion missed';
 }
 
