@@ -75,12 +75,13 @@ export function changed(a, b) {
   return n;
 }
 
-/** Where an object the view marks is on its canvas: data-screen-<name>="x,y,on" (viewer.mark). */
+/** Where an object the view marks is on its canvas and how big it is drawn: data-screen-<name>="x,y,on,w,h"
+ * (viewer.mark). */
 export async function screenOf(page, view, name) {
   const raw = await page.$eval(view, (el, n) => el.dataset[`screen${n[0].toUpperCase()}${n.slice(1)}`] ?? '', name);
   if (!raw) return null;
-  const [x, y, on] = raw.split(',').map(Number);
-  return { x, y, on: on === 1 };
+  const [x, y, on, w, h] = raw.split(',').map(Number);
+  return { x, y, on: on === 1, w, h };
 }
 
 /** Waits until the view marks `name` on screen, inside the canvas with `inset` pixels to spare. */

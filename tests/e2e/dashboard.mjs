@@ -91,22 +91,36 @@ async function startSession(page, model) {
   await page.waitForTimeout(1200); // the camera glides to the model
 }
 
-/** A lander session started at rest 20 m above its pad (as its MJCF puts it) with hover thrust on the
- * slider (mass 100 under lunar gravity: 16.2), as soon as the sliders are there. */
+/** A lander session started at rest 20 m above its pad (as its MJCF puts it), with the main jet where
+ * the page found that it holds the lander still (hover thrust: mass 100 under lunar gravity, 10 N per
+ * unit: 16.2), and the lander's height once the first state came. */
 async function hoveringLander(page) {
   await page.goto(url('playground', 'model=lander&start=rest'));
   await page.waitForFunction(() => document.querySelector('#pg-model')?.value === 'lander', null, { timeout: 20000 });
   await page.click('#pg-start');
   await page.waitForSelector('[data-control="main_jet"]', { timeout: 20000 });
-  await page.$eval('[data-control="main_jet"]', (el) => {
-    el.value = '16.4';
-    el.dispatchEvent(new Event('input', { bubbles: true }));
-  });
+  const jet = Number(await page.$eval('[data-control="main_jet"]', (el) => el.value));
+  const said = await page.$eval('#pg-hold', (el) => el.textContent).catch(() => '');
+  log(`the main jet starts at ${jet}: ${said}`);
+  check(Math.abs(jet - 16.2) < 1.5, `the lander starts at hover thrust, not with its jet off (${jet})`);
+  check(/hold it still: main_jet/.test(said), 'the page says why the jet starts on');
+  await page.waitForFunction(() => (document.querySelector('#pg-status')?.dataset.state ?? '') !== '', null, { timeout: 20000 });
+  return JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.state))[2];
 }
 
 async function playground(page) {
-  // hover thrust, and full thrust from the key for a second and a half
-  await hoveringLander(page);
+  // hover thrust: a few seconds later the lander is still about where it started, not falling through
+  // its pad, and the camera shows it with the ground and the pad below it
+  const z0 = await hoveringLander(page);
+  await page.waitForTimeout(5000);
+  const z1 = JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.state))[2];
+  const held = Number(await page.$eval('#pg-status', (el) => el.dataset.t));
+  log(`hovering: height ${z0} m -> ${z1} m after ${held} s`);
+  check(held >= 3 && Math.abs(z1 - z0) < 2, `the lander hovers where it starts (${z0} -> ${z1} m over ${held} s)`);
+  await onScreen(page, '#pg-view', 'model');
+  const pad = await onScreen(page, '#pg-view', 'ground');
+  log(`the ground below the lander is on screen at ${pad.x},${pad.y}; framing: ${await page.$eval('#pg-view', (el) => el.dataset.framing)}`);
+  // and full thrust from the key for a second and a half
   await page.focus('body');
   await page.keyboard.down('ArrowUp');
   await page.waitForFunction(() => /t = /.test(document.querySelector('#pg-status')?.textContent ?? ''), null, { timeout: 20000 });
@@ -137,6 +151,18 @@ async function playground(page) {
   const gap = await page.$eval('#pg-divergence', (el) => ({ position: Number(el.dataset.position), text: el.querySelector('.gap-now').textContent, points: Number(el.querySelector('.plot').dataset.points) }));
   log(`divergence: ${gap.text} (${gap.points} points plotted)`);
   check(Number.isFinite(gap.position) && /root position error: .* m · root attitude error: .*°/.test(gap.text) && gap.points >= 2, 'the gap to MuJoCo is shown as a number and a curve');
+  // the gap's readout is a small corner of the view, clear of its middle and of the model
+  const over = await page.evaluate(() => {
+    const r = document.querySelector('#pg-divergence').getBoundingClientRect();
+    const c = document.querySelector('#pg-view canvas').getBoundingClientRect();
+    return { x: r.left - c.left, y: r.top - c.top, w: r.width, h: r.height, cw: c.width, ch: c.height };
+  });
+  const lander = await onScreen(page, '#pg-view', 'model');
+  const share = (over.w * over.h) / (over.cw * over.ch);
+  const covers = (px, py) => px >= over.x && px <= over.x + over.w && py >= over.y && py <= over.y + over.h;
+  log(`gap readout ${over.w.toFixed(0)}×${over.h.toFixed(0)} at ${over.x.toFixed(0)},${over.y.toFixed(0)}: ${(100 * share).toFixed(1)} % of the view; the lander at ${lander.x},${lander.y}`);
+  check(share < 0.08, `the gap readout covers under 8 % of the view (${(100 * share).toFixed(1)} %)`);
+  check(!covers(over.cw / 2, over.ch / 2) && !covers(lander.x, lander.y), 'the gap readout covers neither the middle of the view nor the model');
   // the ticked checkbox keeps the focus, and the keys still drive
   const focused = await page.evaluate(() => document.activeElement?.id ?? '');
   await page.keyboard.down('ArrowUp');
@@ -151,6 +177,21 @@ async function playground(page) {
   out.fps = Number(rate.fps.toFixed(1));
   out.resolution_scale = rate.scale;
   out.changed_cells = moved;
+
+  // driven hard (full thrust, a roll jet) the lander leaves the states the emulator was trained on: the
+  // page says so, beside the sliders and as a notice
+  await page.focus('body');
+  await page.keyboard.down('ArrowUp');
+  await page.keyboard.down('KeyW');
+  await page.waitForFunction(() => !document.querySelector('#pg-envelope')?.hidden, null, { timeout: 40000 });
+  await page.keyboard.up('KeyW');
+  await page.keyboard.up('ArrowUp');
+  const envelope = await page.$eval('#pg-envelope', (el) => el.textContent);
+  const notices = await page.$$eval('.notice-warning', (els) => els.map((e) => e.textContent));
+  const driven = JSON.parse(await page.$eval('#pg-status', (el) => el.dataset.state));
+  log(`out of the envelope at t = ${await page.$eval('#pg-status', (el) => el.dataset.t)} s (velocity ${driven.slice(7, 10)}, rates ${driven.slice(10, 13)}): ${envelope}`);
+  check(envelope.length > 0 && notices.some((n) => /left the emulator's trained envelope/.test(n)), 'leaving the training envelope is shown');
+  await onScreen(page, '#pg-view', 'model');
 
   // a second session without reloading: the camera frames the new model and the ground below it
   await startSession(page, 'pendulum-force');
@@ -294,13 +335,56 @@ async function outcomeMatchesResult(page) {
   return result.success_physics;
 }
 
-/** In each replay view, the model and its goal are on screen. */
-async function replayFramesModelAndGoal(page) {
+/** In each replay view, at the end of the replay, the model and its goal are on screen and the model is
+ * drawn big enough to read (a sixth of the view's height or more across). */
+async function replayFramesModelAndGoal(page, what) {
+  await page.locator('#replay .replay-views').scrollIntoViewIfNeeded(); // a view out of sight is not drawn
+  await page.$eval('#replay-time', (el) => {
+    el.value = '1';
+    el.dispatchEvent(new Event('input', { bubbles: true }));
+  });
+  await page.waitForTimeout(1500); // the camera glides to the end of the path
   for (const side of ['Emulator', 'MuJoCo (physics)']) {
     const view = `#replay .replay-view[data-side="${side}"]`;
-    await onScreen(page, view, 'model');
+    const model = await onScreen(page, view, 'model');
     await onScreen(page, view, 'goal');
+    const box = await page.$eval(view, (el) => ({ w: el.clientWidth, h: el.clientHeight }));
+    log(`${what} replay, ${side}: the model drawn ${model.w}×${model.h} px in ${box.w}×${box.h}`);
+    check(Math.max(model.w, model.h) >= box.h / 6, `${what}: the replayed model is drawn big enough to read (${model.w}×${model.h} px in a view ${box.h} px tall)`);
   }
+}
+
+/** How much more cyan than red the pixels around the model's middle are, in a replay view (the mean of
+ * (g + b) / 2 - r over a 5×5 grid 3 px apart). */
+async function cyanAtModel(page, side) {
+  const view = `#replay .replay-view[data-side="${side}"]`;
+  const m = await onScreen(page, view, 'model');
+  const pts = [];
+  for (let i = -2; i <= 2; i++) for (let j = -2; j <= 2; j++) pts.push([m.x + 3 * i, m.y + 3 * j]);
+  const px = await canvasStats(page, `${view} canvas`, pts);
+  return px.colours.reduce((s, [r, g, b]) => s + (g + b) / 2 - r, 0) / px.colours.length;
+}
+
+/** Mid-flight (away from the goal drawn over the model at the end), the emulated body under the MuJoCo
+ * outline keeps its own colours: it is little more cyan than the same body on the MuJoCo side. */
+async function emulatedBodyReadable(page, what) {
+  const emulator = await cyanAtModel(page, 'Emulator');
+  const physics = await cyanAtModel(page, 'MuJoCo (physics)');
+  log(`${what} replay: cyan excess around the model, emulator ${emulator.toFixed(0)}, MuJoCo ${physics.toFixed(0)}`);
+  check(emulator - physics < 35, `${what}: the emulated body is not washed cyan by the MuJoCo outline (${emulator.toFixed(0)} vs ${physics.toFixed(0)})`);
+}
+
+/** Part way through a replay (for a screenshot of the motion). */
+async function replayAt(page, share) {
+  await page.$eval(
+    '#replay-time',
+    (el, v) => {
+      el.value = String(v);
+      el.dispatchEvent(new Event('input', { bubbles: true }));
+    },
+    share,
+  );
+  await page.waitForTimeout(1500);
 }
 
 async function controllers(page) {
@@ -334,9 +418,10 @@ async function controllers(page) {
   const t2 = Number(await page.$eval('#replay', (el) => el.dataset.t ?? '0'));
   log(`replay clock ${t1} -> ${t2}`);
   check(t2 > t1, 'the replay plays');
-  await replayFramesModelAndGoal(page);
+  await replayFramesModelAndGoal(page, 'truck');
   const gap = await page.$eval('#replay-divergence', (el) => Number(el.querySelector('.plot').dataset.points));
   check(gap >= 10, `the replay plots the gap between the emulator and MuJoCo over time (${gap} points)`);
+  await replayAt(page, 0.6);
   await page.locator('#replay').scrollIntoViewIfNeeded();
   await page.waitForTimeout(500);
   await shot(page, 'replay');
@@ -364,7 +449,9 @@ async function controllers(page) {
   // the lander's job: its outcome as the result states it, its replay with the lander and the pad in view
   await submitAndReplay(page);
   out.lander_success_physics = await outcomeMatchesResult(page);
-  await replayFramesModelAndGoal(page);
+  await replayFramesModelAndGoal(page, 'lander');
+  await replayAt(page, 0.4);
+  await emulatedBodyReadable(page, 'lander');
   await page.locator('#replay').scrollIntoViewIfNeeded();
   await shot(page, 'replay-lander');
   await page.evaluate(() => window.scrollTo(0, 0));
@@ -422,7 +509,7 @@ async function workerDown(page) {
 }
 
 /** The frame rate of the Playground with a live lander session and its MuJoCo ghost (the lander at rest
- * 20 m up, hover thrust: it climbs slowly, the camera following), after FPS_SETTLE seconds, over
+ * 20 m up at hover thrust, the camera on it and its pad), after FPS_SETTLE seconds, over
  * FPS_WINDOWS windows of FPS_SECONDS seconds. */
 async function frameRatePhase(page) {
   const settle = Number(process.env.FPS_SETTLE ?? 10);

@@ -1,6 +1,6 @@
 import * as THREE from 'three';
 import { describe, expect, it } from 'vitest';
-import { aim, boundingSphere, corners, fitDistance, fitPoints, followPoints, inView, placeCamera, toNdc, viewDirection } from '../src/scene/camera';
+import { aboveGround, acrossPath, aim, boundingSphere, replayWindow, corners, fitDistance, fitPoints, followPoints, inView, placeCamera, toNdc, viewDirection } from '../src/scene/camera';
 
 const v = (x: number, y: number, z: number): THREE.Vector3 => new THREE.Vector3(x, y, z);
 
@@ -60,6 +60,28 @@ describe('framing', () => {
     expect(followPoints(new THREE.Box3(v(-1, -9, -1), v(1, -8, 1)), 0, 25)).toHaveLength(8);
   });
 
+  it('does not follow a body down through the ground: it frames the ground above it', () => {
+    // the lander 225 m under its pad (a fall the emulator extrapolated): the camera stays on the ground
+    const sunk = new THREE.Box3(v(2, -226, -1), v(4, -224, 1));
+    const kept = aboveGround(sunk, -0.9);
+    expect(kept.min.y).toBeCloseTo(-0.9);
+    expect(kept.max.y).toBeCloseTo(1.1);
+    expect([kept.min.x, kept.max.x, kept.min.z, kept.max.z]).toEqual([2, 4, -1, 1]);
+    const pts = followPoints(kept, -0.9, 30);
+    expect(pts).toHaveLength(9); // with the ground below it
+    expect(Math.min(...pts.map((p) => p.y))).toBeCloseTo(-0.9);
+    const cam = camera(1.6);
+    const dir = viewDirection(-62, 15);
+    const f = fitPoints(pts, dir, cam.fov, cam.aspect);
+    aim(cam, f.target, dir, f.distance);
+    expect(cam.position.y).toBeGreaterThan(-0.9); // above the ground, looking at it
+    expect(inView(cam, v(3, -0.9, 0))).toBe(true);
+    // half through: kept from the ground up; in the air: unchanged
+    expect(aboveGround(new THREE.Box3(v(0, -1, 0), v(1, 1, 1)), 0).min.y).toBe(0);
+    const air = new THREE.Box3(v(0, 19, 0), v(1, 21, 1));
+    expect(aboveGround(air, 0)).toBe(air);
+  });
+
   it('a second framing forgets the first: a pendulum after a lander is centred on the pendulum', () => {
     const cam = camera(1.6);
     placeCamera(cam, boundingSphere(corners(new THREE.Box3(v(-1, 19, -1), v(1, 21, 1)))), viewDirection(-62, 24));
@@ -89,5 +111,43 @@ describe('fitting points', () => {
     expect(f.target.toArray()).toEqual([1, 2, 3]);
     expect(f.distance).toBeGreaterThan(0);
     expect(fitPoints([], viewDirection(0, 30), 40, 1).distance).toBe(1);
+  });
+});
+
+describe('replay framing', () => {
+  const m = (x: number, y: number, z: number) => new THREE.Vector3(x, y, z);
+  const angle = (a: number, b: number) => Math.abs(((a - b + 540) % 360) - 180);
+
+  it('looks across a path, never along it', () => {
+    // the truck drives along +x, then turns 90° to +y: seen from above, across the diagonal of the turn
+    const truck = [...Array.from({ length: 10 }, (_, i) => m(i, 0, 0.5)), ...Array.from({ length: 10 }, (_, i) => m(10, i, 0.5))];
+    const t = acrossPath(truck);
+    expect(t.elevation).toBeGreaterThanOrEqual(45);
+    // not along the turn's main direction, from its start (0, 0) towards its end (10, 9): about 42°
+    expect(angle(t.azimuth, 42)).toBeGreaterThan(80);
+    expect(angle(t.azimuth, -138)).toBeGreaterThan(80);
+    // a straight path along x is seen from the side (azimuth ±90°)
+    const straight = acrossPath(Array.from({ length: 10 }, (_, i) => m(i * 3, 0, 0)));
+    expect(angle(straight.azimuth, -90)).toBeLessThan(1);
+    // the lander's descent: 25 m down while drifting 12 m along x: from the side, low, its drift across
+    const lander = acrossPath(Array.from({ length: 20 }, (_, i) => m(12 - 12 * (i / 19) ** 2, 0.2 * i, 25 - 25 * (i / 19))));
+    expect(lander.elevation).toBeLessThan(20);
+    expect(Math.abs(Math.cos(THREE.MathUtils.degToRad(lander.azimuth)))).toBeLessThan(0.3);
+  });
+
+  it('keeps a body on a long path a fair share of the view, sliding the window towards the goal', () => {
+    const region = new THREE.Box3(m(-1, -1, -1), m(13, 25, 1)); // three's frame: y up, 26 m tall
+    const body = new THREE.Box3(m(11, 23, -0.9), m(12.9, 24.6, 0.9));
+    const w = replayWindow(body, region, 12);
+    expect(w.max.y - w.min.y).toBeCloseTo(12);
+    expect(w.max.y).toBeCloseTo(25); // slid inside the region, the body in it
+    expect(w.containsBox(body)).toBe(true);
+    expect(w.max.x - w.min.x).toBeCloseTo(12);
+    expect(w.max.z - w.min.z).toBeCloseTo(2); // the region where it is smaller than the window
+    const landed = replayWindow(new THREE.Box3(m(-0.9, -0.9, -0.9), m(0.9, 0.7, 0.9)), region, 12);
+    expect(landed.min.y).toBeCloseTo(-1); // at the end the window reaches the goal on the ground
+    // a short path (the truck's) is framed whole
+    const small = new THREE.Box3(m(0, 0, 0), m(8, 2, 8));
+    expect(replayWindow(new THREE.Box3(m(1, 0, 1), m(3, 1.5, 2)), small, 20)).toEqual(small);
   });
 });

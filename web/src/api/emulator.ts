@@ -1,6 +1,8 @@
 // The emulator service's REST calls and websocket URL (types generated from proto/ in emulator.gen.ts).
 import { wsUrl } from '../config';
 import type {
+  BatchStepRequest,
+  BatchStepResponse,
   ModelDetail,
   ModelGeometry,
   ModelList,
@@ -50,6 +52,11 @@ export class EmulatorApi {
 
   createSession(req: SessionCreate): Promise<SessionInfo> {
     return this.post('/sessions', req);
+  }
+
+  /** One super-step of many sessions (POST /step): a result per item, in order. */
+  stepBatch(req: BatchStepRequest): Promise<BatchStepResponse> {
+    return this.post('/step', req);
   }
 
   async deleteSession(id: string): Promise<void> {

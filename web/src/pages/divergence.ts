@@ -5,6 +5,10 @@ import { fmt, h } from '../ui/dom';
 import { LinePlot } from '../ui/plot';
 
 export const GHOST_COLOR = 0x4dd0e1; // MuJoCo: a cyan outline
+// the MuJoCo outline drawn over the emulated body, which it mostly covers: its faces barely there and
+// its lines half see-through, so that the body under it keeps its own colours (at the usual 0.22 and
+// 0.9 the lander's many small parts turned it cyan)
+export const GHOST_LOOK = { ghost: true, color: GHOST_COLOR, opacity: 0.04, edgeOpacity: 0.5 } as const;
 export const GOAL_COLOR = 0x7dffb0; // a goal: green
 export const MODEL_TRAIL = 0xffb74d; // the emulated model's path: amber
 const CAPACITY = 2400;
@@ -23,7 +27,8 @@ export class DivergencePanel {
   constructor(id: string, opts: { marker?: boolean; overlay?: boolean } = {}) {
     this.now = h('p', { class: 'gap-now' });
     this.title = h('h3', {}, 'Emulator vs MuJoCo');
-    this.plot = new LinePlot({ height: opts.overlay ? 140 : 160, xLabel: 'time (s)', marker: opts.marker ?? false, legend: false, fromZero: true });
+    // over the view it is a small corner readout (the model stays in sight); beside it, a full plot
+    this.plot = new LinePlot({ height: opts.overlay ? 64 : 160, xLabel: opts.overlay ? '' : 'time (s)', marker: opts.marker ?? false, legend: false, fromZero: true });
     const cls = `card divergence${opts.overlay ? ' overlay' : ''}`;
     this.el = h('section', { class: cls, id, hidden: true }, this.title, this.now, this.plot.el);
   }

@@ -12,12 +12,13 @@ import { groundHeight, ModelView, type MeshesDrawn } from '../scene/model';
 import { makeViewer, meshFilesOf } from '../scene/setup';
 import { DropLine, Trail } from '../scene/trail';
 import type { Viewer } from '../scene/viewer';
-import { bindingsFor, controlMeaning, Drive, keyLabel } from '../session/inputs';
+import { bindingsFor, controlMeaning, Drive, keyLabel, restValue } from '../session/inputs';
 import { envelopeText, RealtimeSession } from '../session/realtime';
+import { holdControls } from '../session/hover';
 import { driveNow, restState, startFromQuery } from '../session/start';
 import { fmt, h } from '../ui/dom';
 import { clearNotice, notify } from '../ui/notices';
-import { DivergencePanel, GHOST_COLOR, MODEL_TRAIL } from './divergence';
+import { DivergencePanel, GHOST_COLOR, GHOST_LOOK, MODEL_TRAIL } from './divergence';
 import type { Ctx, Page } from './context';
 
 interface Live {
@@ -110,11 +111,15 @@ export const playgroundPage: Page = (root, ctx) => {
       const rest = startFrom.value === 'rest' ? (geometry.rest_state ?? restState(detail.layout, geometry.rest_poses[0])) : null;
       const { seed } = startFromQuery(location.hash.split('?')[1] ?? '');
       const driven = startFrom.value === 'driver' && detail.driver;
+      // a model that falls at rest (the lander 20 m above its pad) starts with the controls that hold
+      // it still, measured before its session starts so that it does not fall meanwhile
+      const hold = driven ? null : await hoverControls(ctx, detail, geometry.rest_state ?? restState(detail.layout, geometry.rest_poses[0]));
+      if (!alive) return;
       const info = await ctx.emulator.createSession(
         driven ? { model: name, driver: {} } : rest ? { model: name, state: rest } : seed !== null ? { model: name, seed } : { model: name },
       );
       if (!alive) return;
-      live = begin(ctx, viewer, { info, detail, geometry, ghostOn: ghostBox.checked, sliders, status, envelope, divergence }, () => void stop());
+      live = begin(ctx, viewer, { info, detail, geometry, hold, ghostOn: ghostBox.checked, sliders, status, envelope, divergence }, () => void stop());
       stopBtn.disabled = false;
       clearNotice('playground');
     } catch (e) {
@@ -202,10 +207,32 @@ export const playgroundPage: Page = (root, ctx) => {
   };
 };
 
+/** The controls that hold a falling model still at its rest state (session/hover.ts), measured on
+ * sessions of its own that are ended at once; null when it does not fall or the measure fails (it then
+ * starts with its controls at rest, as any other model). */
+async function hoverControls(ctx: Ctx, detail: ModelDetail, rest: number[] | null): Promise<number[] | null> {
+  if (!rest || !detail.controls.length) return null;
+  const base = detail.controls.map((c) => restValue(c.low, c.high));
+  try {
+    return await holdControls(detail.layout, detail.controls, base, detail.super_timestep, async (controls) => {
+      const sessions = await Promise.all(controls.map(() => ctx.emulator.createSession({ model: detail.model, version: detail.version, state: rest })));
+      try {
+        const { results } = await ctx.emulator.stepBatch({ items: sessions.map((s, i) => ({ session: s.id, controls: controls[i] })) });
+        return results.map((r) => r.state ?? []);
+      } finally {
+        for (const s of sessions) void ctx.emulator.deleteSession(s.id).catch(() => undefined);
+      }
+    });
+  } catch {
+    return null; // the session still starts, with its controls at rest
+  }
+}
+
 interface Setup {
   info: SessionInfo;
   detail: ModelDetail;
   geometry: ModelGeometry;
+  hold: number[] | null; // the controls that hold the model still, where it starts (null: at rest)
   ghostOn: boolean;
   sliders: HTMLElement;
   status: HTMLElement;
@@ -311,10 +338,12 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
   // a driven session: the model's controller sets the controls, the person its parameters and the forces
   const driver = info.driver && detail.driver ? detail.driver : null;
   const driverValues: Record<string, number> = { ...(info.driver ?? {}) };
-  const drive = new Drive(bindingsFor(driver ? [] : detail.controls, detail.forces));
+  const hold = driver ? null : s.hold;
+  const bindings = bindingsFor(driver ? [] : detail.controls, detail.forces).map((b) => (hold && b.kind === 'control' ? { ...b, rest: hold[b.index] ?? b.rest } : b));
+  const drive = new Drive(bindings);
   const files = meshFilesOf(ctx.emulator, geometry);
   const model = new ModelView(geometry, {}, files);
-  const ghost = new ModelView(geometry, { ghost: true, color: GHOST_COLOR }, files);
+  const ghost = new ModelView(geometry, GHOST_LOOK, files);
   ghost.visible = s.ghostOn;
   const rooted = rootMoves(detail.layout);
   divergence.configure(gapLabel(detail.layout), s.ghostOn);
@@ -346,6 +375,12 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
   s.sliders.textContent = '';
   if (driver) drawDriverSliders(s.sliders, driver, driverValues);
   const valueLabels = drawSliders(s.sliders, drive, detail.controls, !!driver, detail.forces);
+  if (hold) {
+    const held = detail.controls.map((c, i) => ({ c, v: hold[i] ?? 0 })).filter(({ c, v }) => v !== restValue(c.low, c.high));
+    s.sliders.prepend(
+      h('p', { class: 'meaning hold', id: 'pg-hold' }, `It falls with its controls at rest, so they start where they hold it still: ${held.map(({ c, v }) => `${c.name} ${fmt(v)}`).join(', ')}.`),
+    );
+  }
   if (!viewer) {
     return { info, socket, drive, model, ghost, dispose: () => socket.close() };
   }

@@ -8,6 +8,7 @@ import type { EmulatorApi } from '../api/emulator';
 import type { JobResult } from '../api/controller';
 import { gapLabel, poseGap, rootMoves, type Gap } from '../scene/divergence';
 import { locate, lerpPoses, type Pose } from '../scene/interp';
+import { acrossPath, replayWindow } from '../scene/camera';
 import { groundHeight, ModelView } from '../scene/model';
 import type { MeshFiles } from '../scene/meshes';
 import { makeViewer, meshFilesOf } from '../scene/setup';
@@ -15,8 +16,11 @@ import { DropLine, Trail } from '../scene/trail';
 import type { Viewer } from '../scene/viewer';
 import { hasGoalState } from '../session/target';
 import { h } from '../ui/dom';
-import { DivergencePanel, GHOST_COLOR, GOAL_COLOR, MODEL_TRAIL } from './divergence';
+import { DivergencePanel, GHOST_LOOK, GOAL_COLOR, MODEL_TRAIL } from './divergence';
 import { outcomeView } from './outcome';
+
+// how many of the body's sizes a replay's view spans at most: the body stays a fifth of it or more
+const BODY_SIZES_IN_VIEW = 4;
 
 /** Rows with a non-finite value (a diverged physics run) are replaced by the last finite row. */
 export function finiteRows(states: (number | null)[][]): number[][] {
@@ -133,7 +137,8 @@ export class Replay {
       }
       let ghost: Side['ghost'] = null;
       if (ghostPoses?.length) {
-        const g = new ModelView(this.geometry, { ghost: true, color: GHOST_COLOR }, this.files);
+        // an outline with the faintest faces: the emulator's body under it keeps its own colours
+        const g = new ModelView(this.geometry, GHOST_LOOK, this.files);
         viewer.world.add(g.group);
         ghost = { view: g, poses: ghostPoses };
         this.disposables.push(g);
@@ -151,7 +156,21 @@ export class Replay {
         viewer.world.add(drop.group);
         this.disposables.push(drop);
       }
-      viewer.frameObjects(framed, { points: path.map((p) => viewer.toScene(p[0] ?? 0, p[1] ?? 0, p[2] ?? 0)) });
+      // seen across the path (a turn is not foreshortened, a descent is seen from the side), framing
+      // the path, its goal and the body at both ends; on a path many times the body's size the camera
+      // keeps a window of a few body sizes around the body instead, slid along the path as it moves
+      const points = path.map((p) => viewer.toScene(p[0] ?? 0, p[1] ?? 0, p[2] ?? 0));
+      const across = acrossPath(path.map((p) => new THREE.Vector3(p[0] ?? 0, p[1] ?? 0, p[2] ?? 0)));
+      viewer.frameObjects(framed, { points, ...across });
+      const region = viewer.boxOf(...framed);
+      view.setPoses(poses[poses.length - 1] ?? []);
+      region.union(viewer.boxOf(...view.moving));
+      for (const p of points) region.expandByPoint(p);
+      view.setPoses(poses[0] ?? []);
+      const body = viewer.boxOf(...view.moving).getSize(new THREE.Vector3());
+      const window = BODY_SIZES_IN_VIEW * Math.max(body.x, body.y, body.z, 0.2);
+      // the window is what is framed (no room added around it), the ground only where the path goes
+      viewer.follow(() => replayWindow(viewer.boxOf(...view.moving), region, window), { groundReach: 0, margin: 0 });
       viewer.animating = true;
       this.stops.push(viewer.mark('model', () => view.root), viewer.mark('goal', () => goal?.root ?? null));
       this.views.push({ viewer, model: view, drop, poses, ghost });

@@ -110,10 +110,85 @@ export function followPoints(model: THREE.Box3, groundY: number, groundReach: nu
   return pts;
 }
 
+/**
+ * A followed box kept on or above the ground (y >= groundY): a body that went through the ground (an
+ * emulator extrapolating a fall far outside what it learnt) is not followed down there, where there is
+ * nothing but fog to see, but shown as the spot on the ground above it, its size kept, with the ground
+ * and what stands on it in view.
+ */
+export function aboveGround(box: THREE.Box3, groundY: number): THREE.Box3 {
+  if (box.isEmpty() || box.min.y >= groundY) return box;
+  const out = box.clone();
+  const height = box.max.y - box.min.y;
+  out.min.y = groundY;
+  out.max.y = Math.max(box.max.y, groundY + Math.min(height, 5));
+  return out;
+}
+
 /** The eight corners of a box. */
 export function corners(box: THREE.Box3): THREE.Vector3[] {
   if (box.isEmpty()) return [];
   const out: THREE.Vector3[] = [];
   for (const x of [box.min.x, box.max.x]) for (const y of [box.min.y, box.max.y]) for (const z of [box.min.z, box.max.z]) out.push(new THREE.Vector3(x, y, z));
   return out;
+}
+
+/**
+ * Where to look at a path from (`path`: points in MuJoCo's frame, z up): across its main direction,
+ * never along it. A path that is mostly vertical (the lander's descent) is seen from the side, low, with
+ * its sideways drift across the view; a path on the ground (the truck's parking turn) from above at an
+ * angle, across its main direction, so a turn is not foreshortened. Of the two sides, the one nearer
+ * `preferredAzimuth` (the usual view); that azimuth alone for a path that barely moves sideways.
+ */
+export function acrossPath(path: THREE.Vector3[], preferredAzimuth = -62): { azimuth: number; elevation: number } {
+  const pts = path.filter((p) => Number.isFinite(p.x + p.y + p.z));
+  if (pts.length < 2) return { azimuth: preferredAzimuth, elevation: 15 };
+  const n = pts.length;
+  const mx = pts.reduce((s, p) => s + p.x, 0) / n;
+  const my = pts.reduce((s, p) => s + p.y, 0) / n;
+  let sxx = 0;
+  let syy = 0;
+  let sxy = 0;
+  for (const p of pts) {
+    sxx += (p.x - mx) ** 2;
+    syy += (p.y - my) ** 2;
+    sxy += (p.x - mx) * (p.y - my);
+  }
+  const zs = pts.map((p) => p.z);
+  const vertical = Math.max(...zs) - Math.min(...zs);
+  // the spread along the main horizontal direction (the larger eigenvalue's root, as a range)
+  const spread = 2 * Math.sqrt((sxx + syy) / 2 / n + Math.sqrt(((sxx - syy) / 2 / n) ** 2 + (sxy / n) ** 2));
+  const elevation = vertical > spread ? 12 : 50;
+  if (spread < 1e-3) return { azimuth: preferredAzimuth, elevation };
+  const main = THREE.MathUtils.radToDeg(0.5 * Math.atan2(2 * sxy, sxx - syy)); // the main direction, degrees from +x
+  const gap = (a: number): number => Math.abs(((a - preferredAzimuth + 540) % 360) - 180);
+  const azimuth = [main + 90, main - 90].sort((a, b) => gap(a) - gap(b))[0]!;
+  return { azimuth: ((azimuth + 540) % 360) - 180, elevation };
+}
+
+/**
+ * What a replay's camera keeps framed while the body moves: the whole region (the path, its goal,
+ * the body at both ends) when it is no more than `size` across on an axis, and on an axis where it is
+ * larger a window `size` wide around the body, slid to stay inside the region. A body on a long path (the
+ * lander 25 m above its pad) is then a sixth of the view, not a few pixels, and the view still ends on
+ * the goal. Boxes in three's frame.
+ */
+export function replayWindow(body: THREE.Box3, region: THREE.Box3, size: number): THREE.Box3 {
+  if (body.isEmpty()) return region.clone();
+  if (region.isEmpty()) return body.clone();
+  const c = body.getCenter(new THREE.Vector3());
+  const out = new THREE.Box3();
+  for (const axis of ['x', 'y', 'z'] as const) {
+    const lo = region.min[axis];
+    const hi = region.max[axis];
+    if (hi - lo <= size) {
+      out.min[axis] = lo;
+      out.max[axis] = hi;
+    } else {
+      const mid = THREE.MathUtils.clamp(c[axis], lo + size / 2, hi - size / 2);
+      out.min[axis] = mid - size / 2;
+      out.max[axis] = mid + size / 2;
+    }
+  }
+  return out.union(body);
 }

@@ -22,6 +22,7 @@ export interface Look {
   ghost?: boolean;
   color?: number; // a ghost's colour
   opacity?: number; // a ghost's faces
+  edgeOpacity?: number; // a ghost's outline (0.9)
 }
 
 const HIDDEN_GROUP = 3;
@@ -82,7 +83,7 @@ export class ModelView {
     if (look.ghost) {
       const color = new THREE.Color(look.color ?? 0x9be7ff);
       this.faces = new THREE.MeshBasicMaterial({ color, transparent: true, opacity: look.opacity ?? 0.22, depthWrite: false });
-      this.edges = new THREE.LineBasicMaterial({ color, transparent: true, opacity: 0.9 });
+      this.edges = new THREE.LineBasicMaterial({ color, transparent: true, opacity: look.edgeOpacity ?? 0.9 });
     }
     this.bodies = geometry.bodies.map((body) => {
       const g = new THREE.Group();

@@ -4,7 +4,7 @@
 // something moves. Throws WebGLUnavailable when the browser has no WebGL.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
-import { corners, fitPoints, followPoints, viewDirection } from './camera';
+import { aboveGround, corners, fitPoints, followPoints, viewDirection } from './camera';
 import { onFrame, resolutionScale } from './loop';
 
 export class WebGLUnavailable extends Error {
@@ -255,6 +255,8 @@ function redraw(canvas: HTMLCanvasElement): boolean {
 interface Follow {
   box: () => THREE.Box3 | null; // the object's box in three's world frame, each frame
   zoom: number; // the person's zoom relative to the automatic distance
+  groundReach: number | null; // how near the ground the box must be to frame the ground too (null: the usual)
+  margin: number; // room framed around the box's middle, in its sizes (0.5: half its diagonal each way)
 }
 
 export class Viewer {
@@ -413,16 +415,21 @@ export class Viewer {
 
   /** Keep `box()` (three's world frame) framed as it moves, with the ground below it while it is near;
    * the person may still orbit and zoom. null stops following. */
-  follow(box: (() => THREE.Box3 | null) | null): void {
+  follow(box: (() => THREE.Box3 | null) | null, opts: { groundReach?: number; margin?: number } = {}): void {
     if (!box) {
       this.following = null;
       this.framing = '';
       delete this.host.dataset.framing;
       return;
     }
-    this.following = { box, zoom: 1 };
+    // never below the ground: a body that falls through it leaves the camera on the ground above it
+    const kept = (): THREE.Box3 | null => {
+      const b = box();
+      return b && aboveGround(b, this.groundZ);
+    };
+    this.following = { box: kept, zoom: 1, groundReach: opts.groundReach ?? null, margin: opts.margin ?? 0.5 };
     this.followed.set(NaN, NaN, NaN);
-    const b = box();
+    const b = kept();
     if (b && !b.isEmpty()) this.frameFit(this.followPoints(b), this.direction());
   }
 
@@ -432,15 +439,16 @@ export class Viewer {
     return dir.lengthSq() > 1e-12 ? dir.normalize() : viewDirection(-62, 15);
   }
 
-  /** What a followed box is framed with: itself, and the ground below it while it is within a few of
-   * its sizes of it (higher up the model alone, big enough to see, with the horizon for up and down),
-   * never less than a couple of metres across (a small model does not fill the view). */
+  /** What a followed box is framed with: itself, and the ground below it while it is within 30 m or a
+   * few of its sizes of it (the lander 20 m above its pad is seen with the pad; higher up the model
+   * alone, big enough to see, with the horizon for up and down), never less than a couple of metres
+   * across (a small model does not fill the view). */
   private followPoints(b: THREE.Box3): THREE.Vector3[] {
     const size = b.getSize(new THREE.Vector3()).length();
-    const pts = followPoints(b, this.groundZ, Math.max(12, 6 * size));
+    const pts = followPoints(b, this.groundZ, this.following?.groundReach ?? Math.max(30, 6 * size));
     this.framing = `${pts.length > 8 ? 'model and ground' : 'model'} (${(b.min.y - this.groundZ).toFixed(1)} m above the ground)`;
     const c = b.getCenter(new THREE.Vector3());
-    const r = Math.max(1, size * 0.5);
+    const r = Math.max(1, size * (this.following?.margin ?? 0.5));
     pts.push(c.clone().addScalar(r), c.clone().subScalar(r));
     return pts;
   }
@@ -492,8 +500,9 @@ export class Viewer {
     }
   }
 
-  /** Tests and people alike: `data-screen-<name>="x,y,on"` on the view's host, in CSS pixels of the
-   * canvas, for the object `get()` returns (refreshed four times a second). */
+  /** Tests and people alike: `data-screen-<name>="x,y,on,w,h"` on the view's host, in CSS pixels of the
+   * canvas, for the object `get()` returns: where its middle is, whether that is in view, and how wide
+   * and tall its box is drawn (refreshed four times a second). */
   mark(name: string, get: () => THREE.Object3D | null): () => void {
     this.marks.set(name, get);
     return () => {
@@ -531,7 +540,10 @@ export class Viewer {
       const box = new THREE.Box3().setFromObject(o);
       const c = box.isEmpty() ? o.getWorldPosition(new THREE.Vector3()) : box.getCenter(new THREE.Vector3());
       const s = this.screenOf(c);
-      this.host.dataset[key] = `${s.x.toFixed(0)},${s.y.toFixed(0)},${s.on ? 1 : 0}`;
+      const drawn = corners(box).map((p) => this.screenOf(p));
+      const w = drawn.length ? Math.max(...drawn.map((p) => p.x)) - Math.min(...drawn.map((p) => p.x)) : 0;
+      const h = drawn.length ? Math.max(...drawn.map((p) => p.y)) - Math.min(...drawn.map((p) => p.y)) : 0;
+      this.host.dataset[key] = `${s.x.toFixed(0)},${s.y.toFixed(0)},${s.on ? 1 : 0},${w.toFixed(0)},${h.toFixed(0)}`;
     }
   }
 
