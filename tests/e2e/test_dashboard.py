@@ -2,18 +2,23 @@
 free ports with a Redis found or started as ``make up`` does, then ``tests/e2e/dashboard.mjs`` drives
 the browser phase by phase at 1280×800:
 
-- Models: every model, its rollout curves labelled by whether the emulator serves their version, the
-  lander's errors in physical units;
-- Playground: a live lander session driven by the keyboard, on screen with the ground below it, the
-  MuJoCo ghost and the gap to it (number and curve), the frame rate; then, without reloading, a
+- Models: every model, the rollout curves of the versions the emulator serves with what their error
+  means in words, the lander's errors in physical units, long tables folded, the page under 6000 px
+  and no request for a result that does not exist;
+- Playground: a live lander session that starts at hover thrust and stays where it starts, on screen
+  with the ground and its pad below it, driven by the keyboard, the MuJoCo ghost and the gap to it
+  (number and curve, in a small corner clear of the model), the frame rate, then driven out of its
+  training envelope, which the page reports; then, without reloading, a
   pendulum-force session framed with its ground and driven through its force sliders; then the dolphin,
   drawn as a skin over its nodes and bent by its muscle sliders; then the runner, driven by its own
   running controller at the target speed its slider sets, beside its MuJoCo ghost;
-- Controllers: a truck-parking job (goal dragged, objective curve live and falling), its outcome
-  checked against the job's result check by check, the replay with model and goal on screen and the
-  gap plotted; switching to lander-landing clears the job and frames the lander and its goal, and its
-  job's outcome and replay are checked the same way; dolphin-swim shows no goal, says its gradients
-  went through the global network, and is replayed on both sides;
+- Controllers: a truck-parking job (goal dragged, objective curve live and falling), its outcome and
+  verdict checked against the job's result check by check, the replay with model and goal on screen,
+  the model drawn big enough to read, and the gap plotted; switching to lander-landing clears the job
+  and frames the lander and its goal, and its job's outcome and replay are checked the same way (the
+  emulated lander not tinted by the MuJoCo outline); dolphin-swim shows no goal, says its gradients
+  went through the global network, is "done, no criterion" (not "succeeded"), and is replayed on both
+  sides;
 - with the worker stopped, the message that no worker is taking jobs.
 
 Screenshots go to ``tests/e2e/screenshots/`` (ignored by git); ``E2E_UPDATE_DOCS=1`` copies those the
@@ -76,7 +81,7 @@ def test_models_page(stack: Stack) -> None:
 
 
 def test_playground_drives_a_lander_then_a_pendulum(stack: Stack) -> None:
-    r = _phase(stack, "playground", 180)
+    r = _phase(stack, "playground", 300)
     assert r["changed_cells"] > 20
     print(
         "dashboard fps with a live lander session and its ghost (headless Chromium, software WebGL): "

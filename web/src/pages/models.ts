@@ -130,7 +130,7 @@ function rolloutPlot(m: ModelDetail, e: EvalResult | null, plots: LinePlot[]): H
       ? h(
           'p',
           { class: 'muted also-measured' },
-          `Also measured: ${others.map((c) => `N^${c.substeps}`).join(', ')}, versions the emulator service does not load (neuro serve loads them).`,
+          `Also measured: ${others.map((c) => `N^${c.substeps}`).join(', ')}, versions the emulator service has not loaded (it loads each model's latest).`,
         )
       : null,
   );
