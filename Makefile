@@ -29,10 +29,11 @@ SUDO := $(shell [ "$$(id -u)" -ne 0 ] && command -v sudo)
 chromium:
 	@if [ ! -x /usr/bin/chromium ]; then $(SUDO) apt-get update && $(SUDO) apt-get install -y chromium; fi
 
-# Lint and type checks, the web checks (API types current, tsc, vitest), then pytest (e2e included).
+# Lint, type and layer checks, the web checks (API types current, tsc, vitest), then pytest (e2e included).
 test: install web chromium
 	$(BIN)/ruff check .
 	$(BIN)/mypy
+	$(BIN)/lint-imports
 	cd web && npm run check:api && npx tsc --noEmit && npx vitest run
 	$(BIN)/pytest -q
 
@@ -40,6 +41,7 @@ lint: install
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
+	$(BIN)/lint-imports
 
 # The whole stack (services/stack.py): Redis found or started, emulator :8000, controller API :8001 and a
 # worker, trainer API :8002 and a training worker, dashboard :8080. Ctrl-C stops everything it started.

@@ -135,7 +135,7 @@ def rollout(
     max_s: float,
 ) -> dict[str, Any]:
     """MuJoCo stepping the same sessions under the same held controls, super-step by super-step."""
-    from neuroanimator import registry
+    from neuroanimator.artifacts import registry
 
     path = registry.resolve(artifacts, model, version)
     manifest = registry.read_manifest(path)

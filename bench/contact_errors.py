@@ -29,9 +29,10 @@ import mujoco
 import numpy as np
 import torch
 
-from neuroanimator import artifacts, registry
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.training import held_out_examples, held_out_seed, to_tensors
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training.train import held_out_examples, held_out_seed, to_tensors
 
 log = logging.getLogger("contact_errors")
 KINDS = ("none", "always", "switch")

@@ -46,12 +46,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from neuroanimator import registry
-from neuroanimator.control import TASKS, JobSpec, run_job, validate_job
+from neuroanimator.artifacts import registry
+from neuroanimator.catalog.tasks import TASKS
+from neuroanimator.contracts.controller import JobOutcome
 from neuroanimator.control.gradient_free import Trace, cma_es, nelder_mead, simulated_annealing
-from neuroanimator.control.runner import load_problem
+from neuroanimator.control.job import load_problem, run_job
 from neuroanimator.control.synthesis import Settings, optimize
-from neuroanimator.controller_schemas import JobOutcome
+from neuroanimator.control.validation import validate_job
+from neuroanimator.goals.spec import JobSpec
 
 log = logging.getLogger("bench.control")
 # learning rates tried for the fixed-coefficient curves (raw gradients, so J's scale sets the rate)

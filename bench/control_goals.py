@@ -43,7 +43,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from neuroanimator.control import TASKS, run_job
+from neuroanimator.catalog.tasks import TASKS
+from neuroanimator.control.job import run_job
 
 log = logging.getLogger("bench.control_goals")
 GOAL_TASKS = ("pendulum-swing", "lander-landing", "truck-parking")  # the tasks with a goal range

@@ -15,8 +15,8 @@ import json
 import subprocess
 import sys
 
-from neuroanimator import physics
-from neuroanimator.results import ModelBench, ModelEval
+from neuroanimator import catalog
+from neuroanimator.core.results import ModelBench, ModelEval
 
 
 def _neuro(*args: str) -> str:
@@ -33,7 +33,7 @@ def _neuro(*args: str) -> str:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--artifacts", default="artifacts")
-    p.add_argument("--models", default=",".join(physics.CATALOG))
+    p.add_argument("--models", default=",".join(catalog.CATALOG))
     p.add_argument("--no-save", action="store_true", help="do not write the versions' eval.json / bench.json")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()

@@ -16,7 +16,7 @@ the end, and how far each swam. The PNG is Fig. 6.7: E_d over time, all three, f
 
 Speed: MuJoCo for 20,000 physical steps on one thread against the emulator's ONNX graph with and
 without the regulariser covering the same simulated time (one client), and both batched at B = 1,024
-on two threads (``neuroanimator.speed``). With ``--json`` the last line is one JSON object.
+on two threads (``neuroanimator.evaluation.speed``). With ``--json`` the last line is one JSON object.
 """
 
 from __future__ import annotations
@@ -31,11 +31,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from neuroanimator import artifacts, physics, registry, speed
-from neuroanimator.export import to_onnx
-from neuroanimator.physics import dolphin
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.regularizer import SpringRegularization, deformation_energy
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.catalog import dolphin
+from neuroanimator.emulator.regularizer import SpringRegularization, deformation_energy
+from neuroanimator.evaluation import speed
+from neuroanimator.export.onnx import to_onnx
+from neuroanimator.sim.model import PhysicalModel
 
 log = logging.getLogger("dolphin_regularizer")
 SETTLE_S = 10.0
@@ -174,7 +177,7 @@ def main() -> int:
     model = registry.load_physical_model(version, manifest)
     emu = artifacts.load_emulator(version)
     # the catalog's regulariser (its stiffness and damping as the code sets them now)
-    spec = physics.get("dolphin").spec.regularizer
+    spec = catalog.get("dolphin").spec.regularizer
     assert spec is not None
     stored = manifest.emulator.regularizer
     steps = args.steps if args.steps is not None else (stored.steps if stored else 5)

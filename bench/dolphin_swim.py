@@ -18,13 +18,13 @@ import time
 
 import numpy as np
 
-from neuroanimator import physics
-from neuroanimator.physics import dolphin
+from neuroanimator import catalog
+from neuroanimator.catalog import dolphin
 
 SETTLE_S = 10.0
 
 
-def _swim(model: physics.PhysicalModel, controls: np.ndarray) -> dict[str, float]:
+def _swim(model: catalog.PhysicalModel, controls: np.ndarray) -> dict[str, float]:
     traj = model.simulate(model.rest_state()[None], controls[None])[0]
     com = dolphin.centre_of_mass(traj)
     settle = int(SETTLE_S / model.dt)
@@ -43,7 +43,7 @@ def _swim(model: physics.PhysicalModel, controls: np.ndarray) -> dict[str, float
     }
 
 
-def _steps_per_second(model: physics.PhysicalModel, batch: int, threads: int, steps: int) -> float:
+def _steps_per_second(model: catalog.PhysicalModel, batch: int, threads: int, steps: int) -> float:
     u = dolphin.travelling_wave(np.arange(steps) * model.dt)[None].repeat(batch, axis=0)
     s0 = np.repeat(model.rest_state()[None], batch, axis=0)
     model.simulate(s0[:1], u[:1, :10], threads=1)  # warm the per-thread MjData
@@ -57,7 +57,7 @@ def main() -> int:
     p.add_argument("--seconds", type=float, default=60.0)
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
-    model = physics.get("dolphin")
+    model = catalog.get("dolphin")
     steps = round(args.seconds / model.dt)
     times = np.arange(steps) * model.dt
     smooth = dolphin.travelling_wave(times)

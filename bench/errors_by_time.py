@@ -28,7 +28,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from neuroanimator import artifacts, registry, sampling
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.sim import sampling
 
 log = logging.getLogger("errors_by_time")
 

@@ -29,16 +29,17 @@ from typing import Any
 import numpy as np
 import torch
 
-from neuroanimator import physics, sampling
-from neuroanimator.hierarchy_training import _normalised, build_hierarchy, fit_network, network_data
-from neuroanimator.structured import StructuredEmulator
-from neuroanimator.train_config import TrainConfig
-from neuroanimator.training import apply_linear, relative_error, to_tensors
+from neuroanimator import catalog
+from neuroanimator.core.train_config import TrainConfig
+from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.sim import sampling
+from neuroanimator.training.hierarchy import _normalised, build_hierarchy, fit_network, network_data
+from neuroanimator.training.train import apply_linear, relative_error, to_tensors
 
 log = logging.getLogger("hierarchy_errors")
 
 
-def _examples(model: physics.PhysicalModel, count: int, seed: int, path: Path | None) -> sampling.Examples:
+def _examples(model: catalog.PhysicalModel, count: int, seed: int, path: Path | None) -> sampling.Examples:
     if path is not None and path.exists():
         z = np.load(path)
         return sampling.Examples(z["s"], z["u"], z["f"], z["n"])
@@ -66,7 +67,7 @@ def _group_shares(
     return sorted(rows, key=lambda r: -float(r["share"]))[:top]
 
 
-def full_state_linear(model: physics.PhysicalModel, ex: sampling.Examples, n_test: int) -> dict[str, Any]:
+def full_state_linear(model: catalog.PhysicalModel, ex: sampling.Examples, n_test: int) -> dict[str, Any]:
     """Per kind of state group: the held-out error of a least-squares map (state, controls) -> change,
     and the share of it in the worst 1% and 5% of examples."""
     s, u, nx = ex.states, ex.controls, ex.next_states
@@ -111,7 +112,7 @@ def main() -> None:
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
 
-    model = physics.get(args.model)
+    model = catalog.get(args.model)
     ex = _examples(model, args.examples + args.test, args.seed, args.data)
     cfg = TrainConfig(
         substeps=model.spec.substeps,

@@ -15,7 +15,7 @@ The emulator is the latest ``runner`` artifact (``neuro train runner``). Three t
   10 s and the end; mean forward speed of each; the largest relative difference of their forward speeds over
   5-second windows; whether and when each fell. Errors and speeds are compared while both are up
   ("–" after a fall);
-- speed against MuJoCo for 20,000 physical steps, one client and batched (``neuroanimator.speed``:
+- speed against MuJoCo for 20,000 physical steps, one client and batched (``neuroanimator.evaluation.speed``:
   the same open-loop controls for both, on the same cores in the same run).
 
 With ``--json`` the last line is one JSON object with every number.
@@ -30,11 +30,12 @@ from typing import Any
 
 import numpy as np
 
-from neuroanimator import registry, speed
-from neuroanimator.export import OnnxEmulator
-from neuroanimator.physics import runner_control as rc
-from neuroanimator.physics import runner_data
-from neuroanimator.physics.model import PhysicalModel
+from neuroanimator.artifacts import registry
+from neuroanimator.catalog.runner import data as runner_data
+from neuroanimator.catalog.runner import gait as rc
+from neuroanimator.evaluation import speed
+from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.sim.model import PhysicalModel
 
 TRAINED_SPEED = 2.2
 PUSH = rc.Push(force=(0.0, 250.0, 0.0), start_s=5.0, duration_s=0.2)  # 50 N·s; data: random pushes ≤ 300 N

@@ -24,10 +24,10 @@ from typing import Any
 
 import numpy as np
 
-from neuroanimator import registry
-from neuroanimator.export import OnnxEmulator
-from neuroanimator.physics import runner_control as rc
-from neuroanimator.physics import runner_data
+from neuroanimator.artifacts import registry
+from neuroanimator.catalog.runner import data as runner_data
+from neuroanimator.catalog.runner import gait as rc
+from neuroanimator.export.runtime import OnnxEmulator
 
 log = logging.getLogger("runner_falls")
 TRAINED_SPEED = 2.2

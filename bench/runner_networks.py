@@ -28,13 +28,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from neuroanimator import registry
-from neuroanimator.articulated import ArticulatedCore, articulated_core
-from neuroanimator.artifacts import load_torch
-from neuroanimator.physics import runner_data
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.structured import StructuredEmulator
-from neuroanimator.training import network_errors, to_tensors
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts.store import load_torch
+from neuroanimator.catalog.runner import data as runner_data
+from neuroanimator.emulator.articulated import ArticulatedCore, articulated_core
+from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training.train import network_errors, to_tensors
 
 log = logging.getLogger("runner_networks")
 

@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from neuroanimator import physics
-from neuroanimator.physics import runner_control as rc
+from neuroanimator import catalog
+from neuroanimator.catalog.runner import gait as rc
 
 
 def _speeds(result: rc.RunResult, seconds: float) -> tuple[float, float]:
@@ -94,7 +94,7 @@ def main() -> int:
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     args.gait = rc.Gait(**json.loads(args.gait.read_text())) if args.gait else None
-    m = physics.get("runner").mj_model
+    m = catalog.get("runner").mj_model
     speeds = [float(s) for s in args.speeds.split(",")]
     every = args.control_every
     out: dict[str, Any] = {

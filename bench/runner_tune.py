@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from neuroanimator import physics
-from neuroanimator.physics import runner_control as rc
+from neuroanimator import catalog
+from neuroanimator.catalog.runner import gait as rc
 
 RANGES: dict[str, tuple[float, float]] = {
     "stance_s": (0.15, 0.45),
@@ -74,7 +74,7 @@ def score(
 
     With ``starts`` > 1 each condition runs ``starts`` times per candidate from perturbed starts and
     the score and the seconds up are means over them."""
-    m = physics.get("runner").mj_model
+    m = catalog.get("runner").mj_model
     rng = rng or np.random.default_rng(0)
     conditions: list[tuple[float, rc.Push | None]] = [(v, None) for v in speeds]
     if push_n:  # sideways both ways, and forwards and backwards at 0.8 of the force

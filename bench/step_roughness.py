@@ -41,10 +41,11 @@ from typing import Any
 
 import numpy as np
 
-from neuroanimator import physics, sampling
-from neuroanimator.physics.mjcf import load_mjcf
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.state import QUATERNION_KINDS
+from neuroanimator import catalog
+from neuroanimator.core.state import QUATERNION_KINDS
+from neuroanimator.sim import sampling
+from neuroanimator.sim.mjcf import load_mjcf
+from neuroanimator.sim.model import PhysicalModel
 
 SCALES = (1e-4, 3e-4, 1e-3, 3e-3)
 LIKE = 400_000  # about what `neuro train --mjcf` trains a model of one's own on (10 × 41,000 weights)
@@ -53,10 +54,10 @@ SEED = 7_000_003  # the held-out draw: independent of every training seed
 
 def load(source: str) -> PhysicalModel:
     """A catalog model by name, else an MJCF file, folder or archive."""
-    if source in physics.CATALOG:
-        return physics.get(source)
+    if source in catalog.CATALOG:
+        return catalog.get(source)
     if not Path(source).exists():
-        raise SystemExit(f"{source!r} is neither a catalog model ({sorted(physics.CATALOG)}) nor a file")
+        raise SystemExit(f"{source!r} is neither a catalog model ({sorted(catalog.CATALOG)}) nor a file")
     return load_mjcf(source)
 
 

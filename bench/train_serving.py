@@ -37,7 +37,7 @@ import httpx
 from _trainer import trainer
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_MODEL = ROOT / "neuroanimator" / "physics" / "lander.xml"
+DEFAULT_MODEL = ROOT / "neuroanimator" / "catalog" / "lander.xml"
 
 
 def ws_load(clients: int, rate: float, duration: float, replicas: int) -> dict[str, Any]:

@@ -109,7 +109,8 @@ def _error_line(text: str) -> str:
 
 
 def _physical(row: ZooRow, root: Path, name: str, trials: int) -> None:
-    from neuroanimator import evaluation, registry
+    from neuroanimator.artifacts import registry
+    from neuroanimator.evaluation import evaluate as evaluation
 
     path = registry.resolve(root, name)
     manifest = registry.read_manifest(path)
@@ -134,7 +135,7 @@ def bar(row: ZooRow) -> bool:
         return False
     if row.contact:
         return row.one_step <= TARGET and row.substeps >= 10
-    from neuroanimator.super_step import ACCEPT_ERROR
+    from neuroanimator.training.super_step import ACCEPT_ERROR
 
     # an emulator under the absolute floor (an exact one of a linear system) has no baseline to beat
     beats_linear = row.linear >= LINEAR_GAIN * row.one_step or row.one_step <= ACCEPT_ERROR
@@ -172,18 +173,19 @@ def train_suite_model(name: str, xml: Path, root: Path, quick: bool, timeout: fl
 
 def catalog_rows(artifacts: Path, trials: int) -> list[ZooRow]:
     """The catalog's committed emulators (the latest version of each), as trained for the catalog."""
-    from neuroanimator import physics, registry
-    from neuroanimator.super_step import constraint_activity
+    from neuroanimator import catalog
+    from neuroanimator.artifacts import registry
+    from neuroanimator.training.super_step import constraint_activity
 
     rows = []
-    for name in physics.CATALOG:
+    for name in catalog.CATALOG:
         try:
             path = registry.resolve(artifacts, name)
         except registry.ArtifactError as exc:
             rows.append(ZooRow(name, "catalog", False, reason=str(exc)))
             continue
         m = registry.read_manifest(path)
-        activity = constraint_activity(physics.get(name))
+        activity = constraint_activity(catalog.get(name))
         row = ZooRow(
             model=name,
             source="catalog",

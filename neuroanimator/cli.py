@@ -18,11 +18,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from neuroanimator import physical_errors, physics, registry, sampling
-from neuroanimator.physics.mjcf import load_mjcf
-from neuroanimator.physics.model import ModelError, PhysicalModel
-from neuroanimator.results import NetworkSize, VersionEval, split_bench, summarize_eval
-from neuroanimator.train_config import TrainConfig
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.core.results import NetworkSize, VersionEval, split_bench, summarize_eval
+from neuroanimator.core.train_config import TrainConfig
+from neuroanimator.evaluation import physical_errors
+from neuroanimator.sim import sampling
+from neuroanimator.sim.mjcf import load_mjcf
+from neuroanimator.sim.model import ModelError, PhysicalModel
 
 log = logging.getLogger("neuroanimator")
 
@@ -98,7 +101,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     model: PhysicalModel = (
         load_mjcf(args.mjcf, substeps=fixed, entry=args.entry, name=args.name)
         if args.mjcf
-        else physics.get(args.model)
+        else catalog.get(args.model)
     )
     cfg = TrainConfig(
         substeps=fixed if fixed is not None else model.spec.substeps,
@@ -167,9 +170,10 @@ def cmd_train(args: argparse.Namespace) -> int:
             )
         cfg.state_noise = args.state_noise
     # torch loads only for the commands that need it
-    from neuroanimator import artifacts, data_cache, super_step
-    from neuroanimator.hierarchy_training import HierarchyResult, small_defaults, train_hierarchy
-    from neuroanimator.training import TrainingDiverged, TrainResult, source_defaults, train
+    from neuroanimator.artifacts import store as artifacts
+    from neuroanimator.training import data_cache, super_step
+    from neuroanimator.training.hierarchy import HierarchyResult, small_defaults, train_hierarchy
+    from neuroanimator.training.train import TrainingDiverged, TrainResult, source_defaults, train
 
     try:
         # a hierarchy over parts, or a model whose data come from its own source (a controller), keeps
@@ -248,7 +252,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------- eval
 def cmd_eval(args: argparse.Namespace) -> int:
-    from neuroanimator import evaluation
+    from neuroanimator.evaluation import evaluate as evaluation
 
     root = _registries(args.artifacts)
     latest = registry.read_manifest(registry.resolve(root, args.model))
@@ -319,7 +323,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------- bench
 def cmd_bench(args: argparse.Namespace) -> int:
-    from neuroanimator import speed
+    from neuroanimator.evaluation import speed
 
     batches = tuple(int(b) for b in args.batches.split(",")) if args.batches else speed.BATCHES
     root = _registries(args.artifacts)
@@ -361,10 +365,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------- models
 def cmd_models(args: argparse.Namespace) -> int:
     if args.catalog:  # for scripts (the Makefile, the stack): the built-in names, one per line
-        _out("\n".join(physics.CATALOG))
+        _out("\n".join(catalog.CATALOG))
         return 0
     root = _registries(args.artifacts)
-    names = list(physics.CATALOG) + [m for m in registry.list_models(root) if m not in physics.CATALOG]
+    names = list(catalog.CATALOG) + [m for m in registry.list_models(root) if m not in catalog.CATALOG]
     rows = []
     for name in names:
         trained = ",".join(map(str, registry.available_substeps(root, name))) or None
@@ -454,7 +458,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     t = sub.add_parser("train", help="simulate data, train an emulator, export it to the artifact registry")
-    t.add_argument("model", nargs="?", help=f"catalog model: {', '.join(physics.CATALOG)}")
+    t.add_argument("model", nargs="?", help=f"catalog model: {', '.join(catalog.CATALOG)}")
     t.add_argument(
         "--mjcf",
         help="train on your own model instead of a catalog one: an MJCF file (its includes and assets are "

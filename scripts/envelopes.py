@@ -3,7 +3,7 @@
     python scripts/envelopes.py [--artifacts artifacts] [--examples 20000] [--force]
 
 An emulator trained now has the envelope of its training states in its manifest (``envelope``, from
-``neuroanimator/envelope.py``). For an older version this regenerates its training data (the same
+``neuroanimator/training/envelope.py``). For an older version this regenerates its training data (the same
 sampler, seed and super-step, so these are the first ``--examples`` of the examples it was trained
 on), computes the envelope of their states and next states, and adds it to ``manifest.json``; the
 rest of the file is left as it is, byte for byte.
@@ -19,8 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from neuroanimator import registry, sampling
-from neuroanimator.envelope import training_envelope
+from neuroanimator.artifacts import registry
+from neuroanimator.sim import sampling
+from neuroanimator.training.envelope import training_envelope
 
 log = logging.getLogger("envelopes")
 

@@ -20,8 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from neuroanimator import artifacts, registry
-from neuroanimator.export import OnnxEmulator, to_onnx
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.export.onnx import to_onnx
+from neuroanimator.export.runtime import OnnxEmulator
 
 log = logging.getLogger("reexport")
 CHECK_ROWS = 256

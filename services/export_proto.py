@@ -1,9 +1,9 @@
-"""Write the wire contract into ``proto/``: JSON Schemas of the models in ``neuroanimator.emulator_schemas``
+"""Write the wire contract into ``proto/``: JSON Schemas of the models in ``neuroanimator.contracts.emulator``
 (``proto/schemas/<Name>.json``) and the emulator service's OpenAPI document
-(``proto/emulator.openapi.json``); the controller service's models (``neuroanimator.controller_schemas``,
+(``proto/emulator.openapi.json``); the controller service's models (``neuroanimator.contracts.controller``,
 ``proto/schemas/controller/<Name>.json``) and OpenAPI document (``proto/controller.openapi.json``); the
-evaluation and benchmark results the dashboard shows (``neuroanimator.results``,
-``proto/schemas/results/<Name>.json``); the trainer service's models (``neuroanimator.trainer_schemas``,
+evaluation and benchmark results the dashboard shows (``neuroanimator.core.results``,
+``proto/schemas/results/<Name>.json``); the trainer service's models (``neuroanimator.contracts.trainer``,
 ``proto/schemas/trainer/<Name>.json``) and OpenAPI document (``proto/trainer.openapi.json``).
 ``proto/frames.md`` (the binary layouts) is written by hand.
 
@@ -29,7 +29,10 @@ from typing import Any
 
 from pydantic import BaseModel, TypeAdapter
 
-from neuroanimator import controller_schemas, emulator_schemas, results, trainer_schemas
+from neuroanimator.contracts import controller as controller_schemas
+from neuroanimator.contracts import emulator as emulator_schemas
+from neuroanimator.contracts import trainer as trainer_schemas
+from neuroanimator.core import results
 
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[1] / "proto"
@@ -45,7 +48,7 @@ def _dump(obj: Any) -> str:
 
 
 def wire_schemas() -> dict[str, dict[str, Any]]:
-    """Every pydantic model defined in ``neuroanimator.emulator_schemas`` or listed in its
+    """Every pydantic model defined in ``neuroanimator.contracts.emulator`` or listed in its
     ``WIRE_MODELS_FROM_ELSEWHERE``, plus the websocket message unions."""
     out: dict[str, dict[str, Any]] = {}
     for name, obj in vars(emulator_schemas).items():
@@ -64,17 +67,17 @@ def wire_schemas() -> dict[str, dict[str, Any]]:
 
 
 def controller_wire_schemas() -> dict[str, dict[str, Any]]:
-    """Every pydantic model defined in ``neuroanimator.controller_schemas``."""
+    """Every pydantic model defined in ``neuroanimator.contracts.controller``."""
     return _module_schemas(controller_schemas)
 
 
 def trainer_wire_schemas() -> dict[str, dict[str, Any]]:
-    """Every pydantic model defined in ``neuroanimator.trainer_schemas``."""
+    """Every pydantic model defined in ``neuroanimator.contracts.trainer``."""
     return _module_schemas(trainer_schemas)
 
 
 def results_wire_schemas() -> dict[str, dict[str, Any]]:
-    """Every pydantic model defined in ``neuroanimator.results``."""
+    """Every pydantic model defined in ``neuroanimator.core.results``."""
     return _module_schemas(results)
 
 

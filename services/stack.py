@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 
-from neuroanimator import registry
+from neuroanimator.artifacts import registry
 from services.common import logs
 
 log = logging.getLogger("stack")
@@ -260,14 +260,14 @@ class Stack:
             log.info("using the Redis at %s", self.redis_url)
 
     def _train_missing(self) -> None:
-        from neuroanimator import physics  # the default emulators: one per catalog model
+        from neuroanimator import catalog  # the default emulators: one per catalog model
 
         c = self.config
         known = registry.list_models(registry.Roots(c.data_dir, c.artifacts_dir))
         root = c.data_dir  # never the committed defaults: what is trained here is this machine's
-        missing = [m for m in physics.CATALOG if m not in known]
+        missing = [m for m in catalog.CATALOG if m not in known]
         for model in missing:
-            if not physics.get(model).spec.train_at_start:
+            if not catalog.get(model).spec.train_at_start:
                 log.info("no emulator for %s: served once trained (neuro train %s)", model, model)
                 continue
             log.info("no emulator for %s: training one into %s (a few minutes)", model, root)

@@ -14,10 +14,13 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, physics, registry, training
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.structured import StructuredEmulator
-from neuroanimator.training import TrainConfig
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training import train as training
+from neuroanimator.training.train import TrainConfig
 from services.stack import RedisUnavailable, find_redis
 from tests.helpers import ARM_XML, Trained
 
@@ -67,7 +70,7 @@ def make_emulator() -> Callable[..., StructuredEmulator]:
 
 
 def _train_and_save(root: Path, name: str, substeps: int) -> Trained:
-    model = physics.get(name)
+    model = catalog.get(name)
     cfg = TrainConfig(
         substeps=substeps,
         examples=300,

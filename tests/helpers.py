@@ -23,10 +23,10 @@ import torch
 import uvicorn
 from fastapi import FastAPI
 
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.structured import StructuredEmulator
-from neuroanimator.train_config import TrainConfig
-from neuroanimator.training import TrainResult
+from neuroanimator.core.train_config import TrainConfig
+from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training.train import TrainResult
 
 if TYPE_CHECKING:
     from fastapi.testclient import TestClient
@@ -137,10 +137,11 @@ def regression_problem(seed: int = 0) -> tuple[torch.Tensor, ...]:
 
 def truck_emulator() -> StructuredEmulator:
     """The truck's emulator with one hidden layer of 16, random weights from seed 0."""
-    from neuroanimator import physics, training
+    from neuroanimator import catalog
+    from neuroanimator.training import train as training
 
     torch.manual_seed(0)
-    return training.build_emulator(physics.get("truck"), TrainConfig(hidden=(16,)))
+    return training.build_emulator(catalog.get("truck"), TrainConfig(hidden=(16,)))
 
 
 @contextlib.contextmanager

@@ -10,20 +10,24 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, physics, registry, training
-from neuroanimator.articulated import TRUNK, ArticulatedCore, articulated_core, check_branches
-from neuroanimator.export import OnnxEmulator, to_onnx
-from neuroanimator.model_spec import Branch
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.structured import StructuredEmulator
-from neuroanimator.train_config import TrainConfig
-from neuroanimator.training import TrainResult
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.core.model_spec import Branch
+from neuroanimator.core.train_config import TrainConfig
+from neuroanimator.emulator.articulated import TRUNK, ArticulatedCore, articulated_core, check_branches
+from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.export.onnx import to_onnx
+from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training import train as training
+from neuroanimator.training.train import TrainResult
 from tests.helpers import METRICS, ROOT
 
 
 @pytest.fixture(scope="module")
 def runner() -> PhysicalModel:
-    return physics.get("runner")
+    return catalog.get("runner")
 
 
 def _random(model: PhysicalModel, seed: int = 0) -> StructuredEmulator:
@@ -184,13 +188,13 @@ CART_WITH_TWO_ARMS = """
 def test_a_small_articulated_emulator_trains_below_its_linear_baselines(members: int) -> None:
     """A cart with two swinging arms, each arm a branch: every network learns, and beats a linear map of
     its own inputs; the same with every network an ensemble of two."""
-    probe = PhysicalModel(CART_WITH_TWO_ARMS, physics.ModelSpec(name="cart-arms"))
+    probe = PhysicalModel(CART_WITH_TWO_ARMS, catalog.ModelSpec(name="cart-arms"))
     groups = [g.name for g in probe.layout]
     arms = [
         Branch(name=side, groups=[g for g in groups if g.startswith(f"{side}.")], controls=[side])
         for side in ("left", "right")
     ]
-    model = PhysicalModel(CART_WITH_TWO_ARMS, physics.ModelSpec(name="cart-arms", branches=arms, substeps=10))
+    model = PhysicalModel(CART_WITH_TWO_ARMS, catalog.ModelSpec(name="cart-arms", branches=arms, substeps=10))
     # ends by its epochs and patience in a few seconds; the cap is only a guard, so a loaded machine
     # trains the same epochs rather than fewer
     cfg = TrainConfig(substeps=10, hidden=(32,), examples=3000, test_examples=500, max_seconds=120,
@@ -208,7 +212,7 @@ def test_the_committed_runner_emulator_runs_a_short_closed_loop_finite_and_uprig
 ) -> None:
     """The catalog's runner emulator (``neuro train runner``) driven by the running controller for half
     a second from a running start: it stays finite and up, and close to MuJoCo's run."""
-    from neuroanimator.physics import runner_control as rc
+    from neuroanimator.catalog.runner import gait as rc
 
     path = registry.resolve(ROOT / "artifacts", "runner")
     manifest = registry.read_manifest(path)
@@ -295,4 +299,4 @@ def test_each_member_learns_on_its_own_error(runner: PhysicalModel) -> None:
 
 def test_members_are_for_a_hierarchy() -> None:
     with pytest.raises(ValueError, match="members"):
-        training.build_emulator(physics.get("lander"), TrainConfig(members=2))
+        training.build_emulator(catalog.get("lander"), TrainConfig(members=2))

@@ -11,16 +11,19 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, physics, registry, training
-from neuroanimator.export import OnnxEmulator
-from neuroanimator.manifest import FORMAT, TrainMetrics
-from neuroanimator.training import TrainConfig, TrainResult
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.core.manifest import FORMAT, TrainMetrics
+from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.training import train as training
+from neuroanimator.training.train import TrainConfig, TrainResult
 from tests.helpers import METRICS, Trained
 
 FILES = {"emulator.onnx", "weights.pt", "linear_baseline.npy", "model.xml", "manifest.json"}
 
 
-def _untrained_result(model: physics.PhysicalModel, substeps: int) -> TrainResult:
+def _untrained_result(model: catalog.PhysicalModel, substeps: int) -> TrainResult:
     """A TrainResult without training (random weights): enough to exercise the registry."""
     cfg = TrainConfig(substeps=substeps, hidden=(8,), progress=False)
     emu = training.build_emulator(model, cfg)
@@ -158,7 +161,7 @@ def test_saved_onnx_matches_saved_weights(trained_lander: Trained) -> None:
 
 
 def test_latest_stays_on_first_version_and_per_n_pointers_move(tmp_path: Path) -> None:
-    model = physics.get("truck")  # default substeps 50
+    model = catalog.get("truck")  # default substeps 50
     first = artifacts.save(tmp_path, model, _untrained_result(model, 10))
     second = artifacts.save(tmp_path, model, _untrained_result(model, 20))
     assert first != second
@@ -173,7 +176,7 @@ def test_latest_stays_on_first_version_and_per_n_pointers_move(tmp_path: Path) -
 
 
 def test_failed_write_leaves_nothing_behind(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     result = _untrained_result(model, 10)
 
     def boom(*args: object, **kwargs: object) -> None:
@@ -191,7 +194,7 @@ def test_failed_write_leaves_nothing_behind(tmp_path: Path, monkeypatch: pytest.
 
 
 def test_failed_write_keeps_the_previous_latest(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     good = artifacts.save(tmp_path, model, _untrained_result(model, 10))
 
     def boom(*args: object, **kwargs: object) -> None:
@@ -208,8 +211,8 @@ def test_failed_write_keeps_the_previous_latest(tmp_path: Path, monkeypatch: pyt
 
 
 def test_model_name_that_cannot_be_a_folder_is_refused(tmp_path: Path) -> None:
-    model = physics.get("truck")
-    bad = physics.PhysicalModel(model.xml, model.spec.model_copy(update={"name": "../escape"}))
-    with pytest.raises(physics.ModelError, match="folder"):
+    model = catalog.get("truck")
+    bad = catalog.PhysicalModel(model.xml, model.spec.model_copy(update={"name": "../escape"}))
+    with pytest.raises(catalog.ModelError, match="folder"):
         artifacts.save(tmp_path, bad, _untrained_result(bad, 10))
     assert list(tmp_path.iterdir()) == []

@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import physics, quaternion
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.structured import StructuredEmulator
+from neuroanimator import catalog
+from neuroanimator.core import quaternion
+from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.sim.model import PhysicalModel
 
 MakeEmulator = Callable[..., StructuredEmulator]
 FREE_FLYERS = ["lander", "quadrotor"]
@@ -61,7 +62,7 @@ def _sphere_of_attitudes(model: PhysicalModel, count: int, seed: int) -> tuple[n
 
 @pytest.mark.parametrize("name", FREE_FLYERS)
 def test_free_roots_use_the_body_frame_by_default(name: str, make_emulator: MakeEmulator) -> None:
-    emu = make_emulator(physics.get(name))
+    emu = make_emulator(catalog.get(name))
     assert emu.architecture()["frame"]["body"] is True  # type: ignore[index]
 
 
@@ -70,7 +71,7 @@ def test_free_roots_use_the_body_frame_by_default(name: str, make_emulator: Make
 def test_equivariant_under_translation_and_rotation_about_gravity_at_every_attitude(
     name: str, seed: int, make_emulator: MakeEmulator
 ) -> None:
-    model = physics.get(name)
+    model = catalog.get(name)
     emu = make_emulator(model, seed=seed).double()
     s, u = _sphere_of_attitudes(model, 64, seed)
     rng = np.random.default_rng(10 + seed)
@@ -85,7 +86,7 @@ def test_equivariant_under_translation_and_rotation_about_gravity_at_every_attit
 @pytest.mark.parametrize("name", FREE_FLYERS)
 def test_not_equivariant_under_tilt(name: str, make_emulator: MakeEmulator) -> None:
     """Gravity points down: turning the scene about a horizontal axis changes the prediction."""
-    model = physics.get(name)
+    model = catalog.get(name)
     emu = make_emulator(model).double()
     s, u = _sphere_of_attitudes(model, 32, 3)
     q_x = quaternion.from_axis_angle(np.array([1.0, 0.0, 0.0]), 0.7)
@@ -98,7 +99,7 @@ def test_prediction_is_continuous_through_upside_down(axis: np.ndarray, make_emu
     """Sweep the attitude through a full turn about a horizontal axis (upside down half way): the
     predicted state changes by at most a small multiple of the step, in the body frame; the heading
     frame jumps where the heading is undefined."""
-    model = physics.get("quadrotor")
+    model = catalog.get("quadrotor")
     angles = np.linspace(0.0, 2.0 * np.pi, 721)
     base = np.repeat(model.initial_states(np.random.default_rng(4), 1), angles.size, axis=0)
     att = model.layout.find("quaternion")
@@ -117,7 +118,7 @@ def test_prediction_is_continuous_through_upside_down(axis: np.ndarray, make_emu
 
 def test_quadrotor_physics_shares_the_symmetry() -> None:
     """Translation and rotation about gravity are true of MuJoCo's quadrotor, upside down too."""
-    model = physics.get("quadrotor")
+    model = catalog.get("quadrotor")
     s, u = _sphere_of_attitudes(model, 6, 7)
     q_z = quaternion.from_axis_angle(np.array([0.0, 0.0, 1.0]), 1.1)
     shift = np.array([3.0, -4.0, 2.0])
@@ -127,7 +128,7 @@ def test_quadrotor_physics_shares_the_symmetry() -> None:
 
 def test_body_frame_inputs_written_out(make_emulator: MakeEmulator) -> None:
     """T'_x in the body frame: velocity turned by Rᵀ, the attitude as Rᵀ e_z, translation dropped."""
-    model = physics.get("quadrotor")
+    model = catalog.get("quadrotor")
     emu = make_emulator(model).double()
     s, u = _sphere_of_attitudes(model, 8, 8)
     lay = model.layout
@@ -152,10 +153,11 @@ def test_body_frame_inputs_written_out(make_emulator: MakeEmulator) -> None:
 def test_a_tumbling_body_is_learned_as_well_upside_down_as_upright() -> None:
     """A small quadrotor emulator: its held-out one-step error on states turned upside down is close
     to its error on upright ones (in the heading frame, the upside-down half is much worse)."""
-    from neuroanimator import sampling, training
-    from neuroanimator.training import TrainConfig, relative_error, to_tensors
+    from neuroanimator.sim import sampling
+    from neuroanimator.training import train as training
+    from neuroanimator.training.train import TrainConfig, relative_error, to_tensors
 
-    model = physics.get("quadrotor")
+    model = catalog.get("quadrotor")
     cfg = TrainConfig(
         substeps=10, hidden=(32, 32), examples=6000, max_epochs=40, rollout_steps=0, progress=False, threads=1
     )
@@ -183,7 +185,7 @@ def test_the_attitude_target_is_continuous_through_a_half_turn_in_one_step(
     """A tumbling body can turn by more than π in one long super-step (the quadrotor's N^100: 7% of its
     examples). The training target for the attitude, the body-frame increment q⁻¹ ⊗ q' − 1, follows the
     turn φ continuously from 0 to 2π (the simulation's q' keeps its sign), and maps back to q'."""
-    model = physics.get("quadrotor")
+    model = catalog.get("quadrotor")
     emu = make_emulator(model).double()
     att = model.layout.find("quaternion")
     assert att is not None

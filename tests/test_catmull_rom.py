@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neuroanimator import catmull_rom
+from neuroanimator.core import catmull_rom
 
 SPACING = 0.7
 

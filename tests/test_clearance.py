@@ -1,4 +1,4 @@
-"""Ground clearance features (``neuroanimator.clearance``): the forward kinematics inside the graph puts
+"""Ground clearance features (``neuroanimator.emulator.clearance``): the forward kinematics inside the graph puts
 every geom's lowest point where MuJoCo's own distance to the floor does, for every joint and geom kind;
 the state is extrapolated as MuJoCo integrates positions; the runner's legs read their own feet; the
 features survive ONNX export and an artifact's save and load."""
@@ -12,15 +12,19 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, physics, registry, training
-from neuroanimator.articulated import articulated_core, branch_geoms
-from neuroanimator.clearance import FRACTIONS, Clearance, ground_geoms, near_geoms
-from neuroanimator.export import OnnxEmulator, to_onnx
-from neuroanimator.model_spec import ModelSpec
-from neuroanimator.physics import runner_control
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.train_config import TrainConfig
-from neuroanimator.training import TrainResult
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.catalog.runner import gait as runner_control
+from neuroanimator.core.model_spec import ModelSpec
+from neuroanimator.core.train_config import TrainConfig
+from neuroanimator.emulator.articulated import articulated_core, branch_geoms
+from neuroanimator.emulator.clearance import FRACTIONS, Clearance, ground_geoms, near_geoms
+from neuroanimator.export.onnx import to_onnx
+from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training import train as training
+from neuroanimator.training.train import TrainResult
 from tests.helpers import METRICS
 
 # every joint kind (free root, ball, hinge with an offset anchor, slide) and every geom kind
@@ -58,7 +62,7 @@ def kinds() -> PhysicalModel:
 
 @pytest.fixture(scope="module")
 def runner() -> PhysicalModel:
-    return physics.get("runner")
+    return catalog.get("runner")
 
 
 def _random_states(model: PhysicalModel, n: int, seed: int = 0) -> np.ndarray:
@@ -154,7 +158,7 @@ def test_probing_and_transforming_in_chunks_equals_all_at_once(
     u = torch.linspace(-1.0, 1.0, 50)[:, None]
     with torch.no_grad():
         x_all, y_all = emu.local_inputs(s, u, None), emu.delta_to_local(s, n - s)
-        monkeypatch.setattr("neuroanimator.clearance.PROBE_CHUNK", 7)
+        monkeypatch.setattr("neuroanimator.emulator.clearance.PROBE_CHUNK", 7)
         monkeypatch.setattr(training, "LOCAL_CHUNK", 7)
         x, y = training.local_examples(emu, s, u, None, n)
     assert near_geoms(kinds, states, 0.05) == whole and whole  # some geoms come near the floor

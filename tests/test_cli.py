@@ -12,10 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from neuroanimator import physics, registry
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
 from neuroanimator.cli import CONFIG_OPTIONS, build_parser, given_fields, main
-from neuroanimator.results import ModelBench, ModelEval
-from neuroanimator.train_config import TrainConfig
+from neuroanimator.core.results import ModelBench, ModelEval
+from neuroanimator.core.train_config import TrainConfig
 from tests.helpers import ARM_XML, Trained
 
 
@@ -242,7 +243,7 @@ def test_models_lists_catalog_and_user_models(user_train: CliRun, capsys: pytest
 def test_models_catalog_prints_only_the_catalog_names(capsys: pytest.CaptureFixture[str]) -> None:
     """What the Makefile and the stack read: one catalog name per line, nothing else."""
     assert main(["models", "--catalog"]) == 0
-    assert capsys.readouterr().out.splitlines() == list(physics.CATALOG)
+    assert capsys.readouterr().out.splitlines() == list(catalog.CATALOG)
 
 
 # ---------------------------------------------------------------------------- bad input

@@ -9,12 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from neuroanimator import evaluation, physics, quaternion, registry
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
 from neuroanimator.cli import main
-from neuroanimator.physics.mjcf import load_mjcf
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.structured import StructuredEmulator
-from neuroanimator.super_step import (
+from neuroanimator.core import quaternion
+from neuroanimator.core.train_config import TrainConfig
+from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.evaluation import evaluate as evaluation
+from neuroanimator.sim.mjcf import load_mjcf
+from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training.super_step import (
     ACCEPT_ERROR,
     ModelOutOfReach,
     check_useful,
@@ -24,7 +28,6 @@ from neuroanimator.super_step import (
     probe_config,
     user_defaults,
 )
-from neuroanimator.train_config import TrainConfig
 from tests.helpers import ROOT
 from tests.test_body_frame import _move, _predict, _sphere_of_attitudes
 
@@ -44,7 +47,7 @@ def test_the_ball_touches_the_ground_and_nothing_limits_it() -> None:
 
 
 def test_a_pendulum_has_neither_contact_nor_limits() -> None:
-    activity = constraint_activity(physics.get("pendulum-active"))
+    activity = constraint_activity(catalog.get("pendulum-active"))
     assert not activity.any
 
 
@@ -93,7 +96,7 @@ def test_a_world_axis_control_without_its_partner_breaks_the_rotation(tmp_path: 
 
 
 def test_a_model_in_contact_gets_a_wider_network_of_units_that_do_not_saturate() -> None:
-    activity = constraint_activity(physics.get("ball"))
+    activity = constraint_activity(catalog.get("ball"))
     assert activity.contact > 0.5
     cfg, why = constrained_defaults(TrainConfig(), activity, hidden_given=False, activation_given=False)
     assert (cfg.hidden, cfg.activation, cfg.schedule) == ((128, 128), "silu", "cosine")
@@ -114,7 +117,7 @@ def test_a_model_in_contact_gets_a_wider_network_of_units_that_do_not_saturate()
     both = TrainConfig(hidden=(32,), activation="tanh")
     assert constrained_defaults(both, activity, hidden_given=True, activation_given=True) == (both, None)
     # a smooth model keeps the defaults
-    smooth = constraint_activity(physics.get("pendulum-active"))
+    smooth = constraint_activity(catalog.get("pendulum-active"))
     assert constrained_defaults(TrainConfig(), smooth, hidden_given=False, activation_given=False) == (
         TrainConfig(),
         None,
@@ -122,7 +125,7 @@ def test_a_model_in_contact_gets_a_wider_network_of_units_that_do_not_saturate()
 
 
 def test_a_model_of_ones_own_gets_the_deeper_network_unless_the_user_chose() -> None:
-    smooth = constraint_activity(physics.get("pendulum-active"))
+    smooth = constraint_activity(catalog.get("pendulum-active"))
     cfg, why = user_defaults(TrainConfig(), smooth, hidden_given=False, activation_given=False)
     assert (cfg.hidden, cfg.activation, cfg.schedule, cfg.batch_size) == (
         (128, 128, 128),
@@ -166,7 +169,7 @@ def test_the_catalog_ball_is_emulated_within_the_bar_on_held_out_contact_data() 
     """The committed ball emulator (n = 10, 0.02 s) on the trainer's held-out typical motion (4,000
     examples: landing, rolling and sliding on the floor, pushed along world axes). A third of the
     error is in the 1% of landings, so a smaller sample swings by ±20%."""
-    model = physics.get("ball")
+    model = catalog.get("ball")
     assert model.frame.translate == (True, True, False)  # its height above the floor is no symmetry
     assert model.world_control_vectors == ((0, 1),) and model.frame.rotate
     path = registry.resolve(ARTIFACTS, "ball")

@@ -9,9 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from neuroanimator import data_cache, physics, sampling, training
+from neuroanimator import catalog
 from neuroanimator.cli import main
-from neuroanimator.training import TrainConfig
+from neuroanimator.sim import sampling
+from neuroanimator.training import data_cache
+from neuroanimator.training import train as training
+from neuroanimator.training.train import TrainConfig
 
 
 def _cfg(**kw: object) -> TrainConfig:
@@ -25,12 +28,12 @@ def _cfg(**kw: object) -> TrainConfig:
 def test_a_second_training_reads_the_first_ones_examples(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    model = physics.get("pendulum-active")
+    model = catalog.get("pendulum-active")
     first = training.train(model, _cfg(), data_cache=tmp_path)
     kept = sorted(p.name for p in tmp_path.iterdir())
     assert len(kept) == 2  # the training runs and the held-out examples
     assert [n.split("-n50-")[0] for n in kept] == ["pendulum-active-examples", "pendulum-active-sequences"]
-    with caplog.at_level(logging.INFO, logger="neuroanimator.data_cache"):
+    with caplog.at_level(logging.INFO, logger="neuroanimator.training.data_cache"):
         second = training.train(model, _cfg(lr=1e-2), data_cache=tmp_path)  # a training setting changed
     assert second.data_sha256 == first.data_sha256
     assert sum("read from" in r.message for r in caplog.records) == 2
@@ -38,7 +41,7 @@ def test_a_second_training_reads_the_first_ones_examples(
 
 
 def test_other_data_settings_simulate_their_own(tmp_path: Path) -> None:
-    model = physics.get("pendulum-active")
+    model = catalog.get("pendulum-active")
     first = training.train(model, _cfg(), data_cache=tmp_path)
     other = training.train(model, _cfg(seed=5), data_cache=tmp_path)
     assert other.data_sha256 != first.data_sha256
@@ -49,12 +52,12 @@ def test_other_data_settings_simulate_their_own(tmp_path: Path) -> None:
                                         (50, 400, 1, "runs"), (50, 400, 0, "spaced")]
     }  # fmt: skip
     assert len(keys) == 5
-    assert data_cache.cache_key(physics.get("lander"), 50, 400, 0, "runs") not in keys
+    assert data_cache.cache_key(catalog.get("lander"), 50, 400, 0, "runs") not in keys
     assert data_cache.cache_key(model, 50, 400, 0, "runs", "sequences") not in keys
 
 
 def test_a_file_whose_key_differs_is_simulated_again(tmp_path: Path) -> None:
-    model = physics.get("pendulum-active")
+    model = catalog.get("pendulum-active")
     calls: list[int] = []
 
     def simulate() -> sampling.Examples:

@@ -8,14 +8,15 @@ import json
 import numpy as np
 import pytest
 
-from neuroanimator import physics, registry
-from neuroanimator.envelope import MARGIN, training_envelope, unbounded
-from neuroanimator.manifest import ManifestError, parse_manifest
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.core.manifest import ManifestError, parse_manifest
+from neuroanimator.training.envelope import MARGIN, training_envelope, unbounded
 from tests.helpers import Trained
 
 
 def test_lander_bounds_its_velocities_not_its_pose() -> None:
-    model = physics.get("lander")  # no floor: translation-invariant along x, y and z
+    model = catalog.get("lander")  # no floor: translation-invariant along x, y and z
     free = unbounded(model.layout, model.frame.translate, model.frame.rotate)
     sl = {g.name: model.layout.slice_of(g.name) for g in model.layout}
     assert free[sl["position"]].all() and free[sl["orientation"]].all()
@@ -23,18 +24,18 @@ def test_lander_bounds_its_velocities_not_its_pose() -> None:
 
 
 def test_truck_heading_and_pendulum_angles_are_free() -> None:
-    truck = physics.get("truck")
+    truck = catalog.get("truck")
     free = unbounded(truck.layout, truck.frame.translate, truck.frame.rotate)
     assert free[truck.layout.slice_of("heading")].all()
     assert not free[truck.layout.slice_of("velocity")].any()
-    pendulum = physics.get("pendulum-active")  # hinge angles enter as sin and cos
+    pendulum = catalog.get("pendulum-active")  # hinge angles enter as sin and cos
     free = unbounded(pendulum.layout, pendulum.frame.translate, pendulum.frame.rotate)
     assert free[pendulum.layout.slice_of("angles")].all()
     assert not free[pendulum.layout.slice_of("rates")].any()
 
 
 def test_the_range_of_the_data_widened_by_the_margin() -> None:
-    model = physics.get("pendulum-active")
+    model = catalog.get("pendulum-active")
     rates = np.array([[-1.0, 0.0, 2.0], [3.0, 0.0, 4.0]])
     states = np.concatenate([np.zeros((2, 3)), rates], axis=1)
     env = {g.group: g for g in training_envelope(model.layout, states, (), False)}

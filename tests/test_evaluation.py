@@ -7,8 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from neuroanimator import evaluation, physics, registry
-from neuroanimator.results import RolloutCurve
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.core.results import RolloutCurve
+from neuroanimator.evaluation import evaluate as evaluation
 from tests.helpers import Trained
 
 
@@ -22,7 +24,7 @@ def test_one_step_errors_reproduce_the_training_metrics(trained_pendulum: Traine
 
 
 def test_held_controls_are_the_same_functions_for_every_n() -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     u25, _ = evaluation.held_controls(model, np.random.default_rng(1), 3, 400, 25)
     u50, _ = evaluation.held_controls(model, np.random.default_rng(1), 3, 400, 50)
     assert u25.shape == (3, 16, 2) and u50.shape == (3, 8, 2)
@@ -70,7 +72,7 @@ def test_plot_curves_writes_a_png(tmp_path: Path) -> None:
 def test_a_model_with_a_driver_is_evaluated_in_its_closed_loop() -> None:
     """The runner's controller closes its loop through the committed emulator and through MuJoCo from
     the same perturbed starts: both run forward, close together over the first strides."""
-    from neuroanimator.export import OnnxEmulator
+    from neuroanimator.export.runtime import OnnxEmulator
 
     path = registry.resolve(Path(__file__).resolve().parents[1] / "artifacts", "runner")
     model = registry.load_physical_model(path, registry.read_manifest(path))

@@ -11,11 +11,12 @@ import onnx
 import pytest
 import torch
 
-from neuroanimator import physics
-from neuroanimator.export import OnnxEmulator, input_names, to_onnx
-from neuroanimator.structured import StructuredEmulator
+from neuroanimator import catalog
+from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.export.onnx import input_names, to_onnx
+from neuroanimator.export.runtime import OnnxEmulator
 
-NAMES = sorted(physics.CATALOG)
+NAMES = sorted(catalog.CATALOG)
 MakeEmulator = Callable[..., StructuredEmulator]
 InputsOf = Callable[..., tuple[np.ndarray, np.ndarray | None, np.ndarray | None]]
 
@@ -33,7 +34,7 @@ def export_of(
 
     def get(name: str) -> tuple[StructuredEmulator, bytes]:
         if name not in exported:
-            emu = make_emulator(physics.get(name), seed=5)
+            emu = make_emulator(catalog.get(name), seed=5)
             exported[name] = (emu, to_onnx(emu))
         return exported[name]
 
@@ -55,7 +56,7 @@ def test_onnx_matches_torch_on_realistic_states(
     name: str, export_of: Callable[[str], tuple[StructuredEmulator, bytes]], inputs_of: InputsOf
 ) -> None:
     emu, data = export_of(name)
-    s, u, f = inputs_of(physics.get(name), 64, seed=21)
+    s, u, f = inputs_of(catalog.get(name), 64, seed=21)
     ort_out = OnnxEmulator(data).step(s, u, f)
     torch_out = _torch_step(emu, s, u, f)
     assert ort_out.shape == s.shape
@@ -81,7 +82,7 @@ def test_graph_inputs_and_output_are_named(
     graph = onnx.load_from_string(data).graph
     assert [i.name for i in graph.input] == inputs == input_names(emu)
     assert [o.name for o in graph.output] == ["next_state"]
-    model = physics.get(name)
+    model = catalog.get(name)
     widths = {"state": model.state_size, "controls": model.num_controls, "forces": model.num_forces}
     for value in [*graph.input, *graph.output]:
         dims = value.type.tensor_type.shape.dim
@@ -100,7 +101,7 @@ def test_any_batch_size_works(
     name: str, batch: int, export_of: Callable[[str], tuple[StructuredEmulator, bytes]], inputs_of: InputsOf
 ) -> None:
     emu, data = export_of(name)
-    s, u, f = inputs_of(physics.get(name), batch, seed=batch)
+    s, u, f = inputs_of(catalog.get(name), batch, seed=batch)
     out = OnnxEmulator(data).step(s, u, f)
     assert out.shape == (batch, s.shape[1])
     np.testing.assert_allclose(out, _torch_step(emu, s, u, f), atol=1e-4 * max(1.0, float(np.abs(s).max())))
@@ -112,7 +113,7 @@ def test_batched_step_equals_loop_of_single_steps(
 ) -> None:
     _, data = export_of(name)
     emu = OnnxEmulator(data)
-    s, u, f = inputs_of(physics.get(name), 12, seed=31)
+    s, u, f = inputs_of(catalog.get(name), 12, seed=31)
     batched = emu.step(s, u, f)
     for i in range(s.shape[0]):
         one = emu.step(s[i : i + 1], None if u is None else u[i : i + 1], None if f is None else f[i : i + 1])
@@ -126,7 +127,7 @@ def test_single_rows_are_kept_and_threads_do_not_share_buffers(
     keep after the next step, and threads stepping the same emulator get their own rows."""
     _, data = export_of("pendulum-force")
     emu = OnnxEmulator(data)
-    s, u, f = inputs_of(physics.get("pendulum-force"), 8, seed=3)
+    s, u, f = inputs_of(catalog.get("pendulum-force"), 8, seed=3)
     assert u is not None and f is not None
     expected = emu.step(s, u, f)
     kept = [emu.step(s[i : i + 1], u[i : i + 1], f[i : i + 1]) for i in range(8)]
@@ -155,7 +156,7 @@ def test_step_without_required_controls_raises(
 ) -> None:
     _, data = export_of("lander")
     with pytest.raises(ValueError, match="controls"):
-        OnnxEmulator(data).step(physics.get("lander").rest_state()[None])
+        OnnxEmulator(data).step(catalog.get("lander").rest_state()[None])
 
 
 def test_step_without_required_forces_raises(
@@ -170,7 +171,7 @@ def test_passive_model_steps_on_state_alone(
     export_of: Callable[[str], tuple[StructuredEmulator, bytes]], inputs_of: InputsOf
 ) -> None:
     emu, data = export_of("pendulum-passive")
-    s, _, _ = inputs_of(physics.get("pendulum-passive"), 4)
+    s, _, _ = inputs_of(catalog.get("pendulum-passive"), 4)
     np.testing.assert_allclose(OnnxEmulator(data).step(s), _torch_step(emu, s, None, None), atol=1e-4)
 
 
@@ -179,7 +180,7 @@ def test_rollout_iterates_the_step(
 ) -> None:
     _, data = export_of("truck")
     emu = OnnxEmulator(data)
-    model = physics.get("truck")
+    model = catalog.get("truck")
     s, _, _ = inputs_of(model, 3)
     u = model.typical_controls(np.random.default_rng(0), 3, np.arange(4.0) * 0.5)
     states = emu.rollout(s, u)
@@ -243,5 +244,5 @@ def test_unvalidated_step_gives_the_same_result(
 ) -> None:
     _, data = export_of("pendulum-force")
     emu = OnnxEmulator(data)
-    s, u, f = inputs_of(physics.get("pendulum-force"), 5)
+    s, u, f = inputs_of(catalog.get("pendulum-force"), 5)
     np.testing.assert_array_equal(emu.step(s, u, f, validate=False), emu.step(s, u, f))

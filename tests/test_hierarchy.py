@@ -11,17 +11,25 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, physics, registry, sampling
-from neuroanimator.export import OnnxEmulator, to_onnx
-from neuroanimator.hierarchy import (
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.core.manifest import ManifestError, parse_manifest
+from neuroanimator.core.train_config import TrainConfig
+from neuroanimator.emulator.hierarchy import (
     LOCAL_FRAME_INPUTS,
     VECTORS,
     HierarchicalEmulator,
     check_parts,
     neighbour_inputs,
 )
-from neuroanimator.hierarchy_export import StackedStep
-from neuroanimator.hierarchy_training import (
+from neuroanimator.emulator.regularizer import regularization
+from neuroanimator.export.onnx import to_onnx
+from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.export.stacked import StackedStep
+from neuroanimator.sim import sampling
+from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training.hierarchy import (
     HierarchyResult,
     drifted,
     group_scale,
@@ -29,16 +37,12 @@ from neuroanimator.hierarchy_training import (
     small_defaults,
     train_hierarchy,
 )
-from neuroanimator.manifest import ManifestError, parse_manifest
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.regularizer import regularization
-from neuroanimator.train_config import TrainConfig
 from services.emulator.registry import Registry as ServiceRegistry
 
 
 @pytest.fixture(scope="module")
 def dolphin() -> PhysicalModel:
-    return physics.get("dolphin")
+    return catalog.get("dolphin")
 
 
 @pytest.fixture(scope="module")
@@ -288,7 +292,7 @@ def test_a_hierarchy_keeps_its_data_in_the_cache_and_reads_them_back(
     first = train_hierarchy(dolphin, cfg, data_cache=tmp_path)
     kept = sorted(p.name for p in tmp_path.glob("*.npz"))
     assert len(kept) == 2 and all(name.startswith("dolphin-examples-n50-") for name in kept), kept
-    with caplog.at_level(logging.INFO, logger="neuroanimator.data_cache"):
+    with caplog.at_level(logging.INFO, logger="neuroanimator.training.data_cache"):
         again = train_hierarchy(dolphin, cfg, data_cache=tmp_path)
     assert caplog.text.count("read from") == 2
     assert sorted(p.name for p in tmp_path.glob("*.npz")) == kept
@@ -355,7 +359,7 @@ def test_a_saved_hierarchy_is_evaluated_network_by_network(
 ) -> None:
     """``neuro eval`` of a hierarchy: every network on fresh held-out data beside a linear fit of the
     same inputs; the emulator's one-step error is its worst network's."""
-    from neuroanimator import evaluation
+    from neuroanimator.evaluation import evaluate as evaluation
 
     path = artifacts.save(tmp_path, dolphin, trained)
     each = evaluation.hierarchy_one_step_errors(path, dolphin, examples)
@@ -376,7 +380,7 @@ def test_training_over_rollouts_goes_through_the_composed_step_and_the_regularis
 ) -> None:
     """The rollout phase fine-tunes every network through the step as served (global network, local
     networks on its predicted frames, the regulariser): from random networks the rollout loss falls."""
-    from neuroanimator.hierarchy_rollouts import composed_rollout_loss, train_hierarchy_over_rollouts
+    from neuroanimator.training.hierarchy_rollouts import composed_rollout_loss, train_hierarchy_over_rollouts
 
     emu = make(dolphin, seed=3)
     emu.regularizer = regularization(dolphin.layout, dolphin.spec.regularizer, dolphin.num_controls, 5)

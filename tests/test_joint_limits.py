@@ -11,13 +11,16 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, registry, sampling
-from neuroanimator.export import OnnxEmulator, to_onnx
-from neuroanimator.physics.mjcf import load_mjcf
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.structured import LIMIT_FRACTIONS, JointLimit, StructuredEmulator, limit_margin
-from neuroanimator.train_config import TrainConfig
-from neuroanimator.training import build_emulator, joint_limits, train
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.core.train_config import TrainConfig
+from neuroanimator.emulator.structured import LIMIT_FRACTIONS, JointLimit, StructuredEmulator, limit_margin
+from neuroanimator.export.onnx import to_onnx
+from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.sim import sampling
+from neuroanimator.sim.mjcf import load_mjcf
+from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training.train import build_emulator, joint_limits, train
 from tests.helpers import ARM_XML, RAIL_XML
 
 MakeEmulator = Callable[..., StructuredEmulator]

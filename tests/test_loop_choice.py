@@ -1,4 +1,4 @@
-"""The kept epoch weighed by a closed loop (``neuroanimator.loop_choice``): the candidates within the
+"""The kept epoch weighed by a closed loop (``neuroanimator.training.loop_choice``): the candidates within the
 tolerance of the best validation loss, the one with the lowest loop error kept, its weights restored;
 the runner's own loop check on the committed emulator."""
 
@@ -11,10 +11,13 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, physics, registry, training
-from neuroanimator.loop_choice import LoopChoice, Step, loop_choice, numpy_step
-from neuroanimator.physics import runner_data
-from neuroanimator.training import TrainConfig
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.catalog.runner import data as runner_data
+from neuroanimator.training import train as training
+from neuroanimator.training.loop_choice import LoopChoice, Step, loop_choice, numpy_step
+from neuroanimator.training.train import TrainConfig
 from tests.helpers import regression_problem, truck_emulator
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,12 +84,12 @@ def test_train_core_keeps_the_epoch_the_choice_names_and_records_every_epoch() -
 
 
 def test_a_loop_tolerance_needs_a_model_with_a_loop_check() -> None:
-    pendulum = physics.get("pendulum-active")
+    pendulum = catalog.get("pendulum-active")
     assert loop_choice(pendulum, TrainConfig()) is None  # off by default
     with pytest.raises(ValueError, match="no loop check"):
         loop_choice(pendulum, TrainConfig(loop_tolerance=0.05))
     with pytest.raises(ValueError, match="at least 0"):
-        loop_choice(physics.get("runner"), TrainConfig(loop_tolerance=-0.1))
+        loop_choice(catalog.get("runner"), TrainConfig(loop_tolerance=-0.1))
 
 
 def test_the_runner_loop_check_on_the_committed_emulator_is_within_half_a_metre() -> None:

@@ -12,10 +12,17 @@ from typing import Any
 import pytest
 from pydantic import ValidationError
 
-from neuroanimator import registry
-from neuroanimator.manifest import FORMAT, READABLE_FORMATS, Manifest, ManifestError, Network, parse_manifest
-from neuroanimator.physics.model import derive_layout
-from neuroanimator.state import StateLayout
+from neuroanimator.artifacts import registry
+from neuroanimator.core.manifest import (
+    FORMAT,
+    READABLE_FORMATS,
+    Manifest,
+    ManifestError,
+    Network,
+    parse_manifest,
+)
+from neuroanimator.core.state import StateLayout
+from neuroanimator.sim.model import derive_layout
 
 ROOT = Path(__file__).resolve().parents[1]
 ARTIFACTS = ROOT / "artifacts"
@@ -252,7 +259,7 @@ def test_networks_read_only_what_the_model_has() -> None:
 def test_reading_manifests_and_results_imports_neither_torch_nor_mujoco() -> None:
     """Nor numpy: the dashboard's server reads results with pydantic alone."""
     code = (
-        "import sys; from pathlib import Path; from neuroanimator import registry\n"
+        "import sys; from pathlib import Path; from neuroanimator.artifacts import registry\n"
         f"root = Path({str(ARTIFACTS)!r})\n"
         "for model in registry.list_models(root):\n"
         "    for n in registry.available_substeps(root, model):\n"

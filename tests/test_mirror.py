@@ -9,15 +9,15 @@ import mujoco
 import numpy as np
 import pytest
 
-from neuroanimator import physics
-from neuroanimator.mirror import MirrorError, check_mirror, mirror_map, partner_name, with_mirror_images
-from neuroanimator.physics import runner_data
-from neuroanimator.physics.mjcf import load_mjcf
-from neuroanimator.physics.model import ModelError, PhysicalModel, derive_layout
-from neuroanimator.physics.runner import runner
-from neuroanimator.sampling import Examples
-from neuroanimator.train_config import TrainConfig
-from neuroanimator.training import train
+from neuroanimator import catalog
+from neuroanimator.catalog.runner import data as runner_data
+from neuroanimator.catalog.runner.body import runner
+from neuroanimator.core.train_config import TrainConfig
+from neuroanimator.sim.mirror import MirrorError, check_mirror, mirror_map, partner_name, with_mirror_images
+from neuroanimator.sim.mjcf import load_mjcf
+from neuroanimator.sim.model import ModelError, PhysicalModel, derive_layout
+from neuroanimator.sim.sampling import Examples
+from neuroanimator.training.train import train
 
 
 @pytest.fixture(scope="module")
@@ -115,7 +115,7 @@ def test_mirror_images_follow_their_transitions(figure: PhysicalModel) -> None:
 def test_training_with_mirror_images_refuses_a_model_that_is_not_symmetric() -> None:
     # the lander's thrusters act on sites, not joints: there is no mirror to take
     with pytest.raises(ModelError, match=r"not left-right symmetric.*main_jet.*does not act on a joint"):
-        train(physics.get("lander"), TrainConfig(examples=200, test_examples=50, mirror=True, progress=False))
+        train(catalog.get("lander"), TrainConfig(examples=200, test_examples=50, mirror=True, progress=False))
 
 
 def test_an_asymmetry_the_names_do_not_show_is_found_by_stepping(tmp_path: Path) -> None:

@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from neuroanimator import artifacts, registry
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
 from neuroanimator.cli import main
 from neuroanimator.control.replay import simulate_held
-from neuroanimator.export import OnnxEmulator
+from neuroanimator.export.runtime import OnnxEmulator
 
 ROOT = Path(__file__).resolve().parents[1]
 TINYBOT = ROOT / "tests" / "data" / "tinybot"

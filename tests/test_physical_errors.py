@@ -6,13 +6,15 @@ import math
 
 import numpy as np
 
-from neuroanimator import physical_errors, physics, quaternion
-from neuroanimator.state import StateGroup, StateLayout
+from neuroanimator import catalog
+from neuroanimator.core import quaternion
+from neuroanimator.core.state import StateGroup, StateLayout
+from neuroanimator.evaluation import physical_errors
 
 
 def test_lander_position_and_attitude_errors_in_metres_and_degrees() -> None:
-    layout = physics.get("lander").layout
-    truth = np.tile(physics.get("lander").rest_state(), (2, 3, 1))  # (N=2, M=3, S)
+    layout = catalog.get("lander").layout
+    truth = np.tile(catalog.get("lander").rest_state(), (2, 3, 1))  # (N=2, M=3, S)
     pred = truth.copy()
     pos, att = layout.slice_of("position"), layout.slice_of("orientation")
     pred[0, :, pos] += [3.0, 4.0, 0.0]  # 5 m away

@@ -1,4 +1,4 @@
-"""Distances between pairs of geoms (``neuroanimator.proximity`` through ``clearance.Clearance``): the
+"""Distances between pairs of geoms (``neuroanimator.emulator.proximity`` through ``clearance.Clearance``): the
 graph puts two spheres and capsules as far apart as MuJoCo measures them, wherever the joints put them
 and whichever body (or the world) holds them; a bounding capsule stands in for other shapes; the pairs
 are the ones that touch in the data, not the floor's; a limited string's slack is what MuJoCo's tendon
@@ -14,14 +14,18 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, proximity, registry, training
-from neuroanimator.clearance import FRACTIONS, Clearance, limited_site_tendons
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
 from neuroanimator.cli import main
-from neuroanimator.export import OnnxEmulator, to_onnx
-from neuroanimator.model_spec import ModelSpec
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.train_config import TrainConfig
-from neuroanimator.training import TrainResult
+from neuroanimator.core.model_spec import ModelSpec
+from neuroanimator.core.train_config import TrainConfig
+from neuroanimator.emulator import proximity
+from neuroanimator.emulator.clearance import FRACTIONS, Clearance, limited_site_tendons
+from neuroanimator.export.onnx import to_onnx
+from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training import train as training
+from neuroanimator.training.train import TrainResult
 from tests.helpers import METRICS
 
 # a two-link arm (hinges with offset anchors) whose tip reaches a ball on two slides and a fixed post;

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import quaternion as quat
+from neuroanimator.core import quaternion as quat
 
 
 def random_unit(rng: np.random.Generator, n: int) -> np.ndarray:

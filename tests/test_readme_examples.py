@@ -18,7 +18,7 @@ from typing import Any
 import httpx
 import pytest
 
-from neuroanimator import registry
+from neuroanimator.artifacts import registry
 from services.emulator.app import create_app as emulator_app
 from services.emulator.settings import Settings as EmulatorSettings
 from tests.helpers import uvicorn_serving

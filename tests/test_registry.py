@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from neuroanimator import registry
-from neuroanimator.results import (
+from neuroanimator.artifacts import registry
+from neuroanimator.core.results import (
     BatchedSpeed,
     ModelBench,
     NetworkSize,

@@ -1,4 +1,4 @@
-"""The spring regulariser of thesis 6.1.3 (neuroanimator.regularizer) on the dolphin's body."""
+"""The spring regulariser of thesis 6.1.3 (neuroanimator.emulator.regularizer) on the dolphin's body."""
 
 from __future__ import annotations
 
@@ -6,19 +6,21 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import physics, sampling
-from neuroanimator.export import OnnxEmulator, to_onnx
-from neuroanimator.hierarchy import HierarchicalEmulator
-from neuroanimator.model_spec import HingeAlignment, SpringRegularizer
-from neuroanimator.physics import dolphin as body
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.regularizer import SpringRegularization, deformation_energy, regularization
-from neuroanimator.state import StateGroup, StateLayout
+from neuroanimator import catalog
+from neuroanimator.catalog import dolphin as body
+from neuroanimator.core.model_spec import HingeAlignment, SpringRegularizer
+from neuroanimator.core.state import StateGroup, StateLayout
+from neuroanimator.emulator.hierarchy import HierarchicalEmulator
+from neuroanimator.emulator.regularizer import SpringRegularization, deformation_energy, regularization
+from neuroanimator.export.onnx import to_onnx
+from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.sim import sampling
+from neuroanimator.sim.model import PhysicalModel
 
 
 @pytest.fixture(scope="module")
 def dolphin() -> PhysicalModel:
-    return physics.get("dolphin")
+    return catalog.get("dolphin")
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neuroanimator import physics, sampling
+from neuroanimator import catalog
+from neuroanimator.sim import sampling
 
 
 @pytest.mark.parametrize("n", [1, 10, 50])
@@ -37,13 +38,13 @@ def test_lags_are_uniform() -> None:
     ],
     ids=lambda p: f"{p[0]}-{p[1]}",
 )
-def data(request: pytest.FixtureRequest) -> tuple[physics.PhysicalModel, sampling.Examples]:
+def data(request: pytest.FixtureRequest) -> tuple[catalog.PhysicalModel, sampling.Examples]:
     name, sampler = request.param
-    model = physics.get(name)
+    model = catalog.get(name)
     return model, sampling.generate(model, 10, 300, seed=4, runs=64, progress=False, sampler=sampler)
 
 
-def test_shapes(data: tuple[physics.PhysicalModel, sampling.Examples]) -> None:
+def test_shapes(data: tuple[catalog.PhysicalModel, sampling.Examples]) -> None:
     model, ex = data
     assert len(ex) == 300
     assert ex.states.shape == (300, model.state_size)
@@ -52,13 +53,13 @@ def test_shapes(data: tuple[physics.PhysicalModel, sampling.Examples]) -> None:
     assert ex.next_states.shape == (300, model.state_size)
 
 
-def test_all_finite(data: tuple[physics.PhysicalModel, sampling.Examples]) -> None:
+def test_all_finite(data: tuple[catalog.PhysicalModel, sampling.Examples]) -> None:
     _, ex = data
     for a in (ex.states, ex.controls, ex.forces, ex.next_states):
         assert np.all(np.isfinite(a))
 
 
-def test_controls_are_in_the_useful_range(data: tuple[physics.PhysicalModel, sampling.Examples]) -> None:
+def test_controls_are_in_the_useful_range(data: tuple[catalog.PhysicalModel, sampling.Examples]) -> None:
     model, ex = data
     assert np.all(ex.controls >= model.control_range[:, 0]) and np.all(
         ex.controls <= model.control_range[:, 1]
@@ -66,7 +67,7 @@ def test_controls_are_in_the_useful_range(data: tuple[physics.PhysicalModel, sam
 
 
 def test_next_states_are_held_control_super_steps(
-    data: tuple[physics.PhysicalModel, sampling.Examples],
+    data: tuple[catalog.PhysicalModel, sampling.Examples],
 ) -> None:
     model, ex = data
     pick = np.array([0, 7, 42, 123, 299])
@@ -76,7 +77,7 @@ def test_next_states_are_held_control_super_steps(
     np.testing.assert_allclose(model.step_held(ex.states[pick], u, f, 10), ex.next_states[pick], atol=1e-9)
 
 
-def test_examples_are_distinct_states(data: tuple[physics.PhysicalModel, sampling.Examples]) -> None:
+def test_examples_are_distinct_states(data: tuple[catalog.PhysicalModel, sampling.Examples]) -> None:
     _, ex = data
     assert np.unique(ex.states, axis=0).shape[0] == len(ex)
     assert not np.allclose(ex.states, ex.next_states)
@@ -84,7 +85,7 @@ def test_examples_are_distinct_states(data: tuple[physics.PhysicalModel, samplin
 
 @pytest.mark.parametrize("sampler", sampling.SAMPLERS)
 def test_generate_is_deterministic_for_a_seed(sampler: str) -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     a = sampling.generate(model, 5, 120, seed=7, runs=32, progress=False, sampler=sampler)
     b = sampling.generate(model, 5, 120, seed=7, runs=32, progress=False, sampler=sampler)
     for x, y in ((a.states, b.states), (a.controls, b.controls), (a.next_states, b.next_states)):
@@ -93,7 +94,7 @@ def test_generate_is_deterministic_for_a_seed(sampler: str) -> None:
 
 
 def test_generate_differs_for_another_seed() -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     a = sampling.generate(model, 5, 120, seed=7, runs=32, progress=False)
     c = sampling.generate(model, 5, 120, seed=8, runs=32, progress=False)
     assert not np.allclose(a.states, c.states)
@@ -101,7 +102,7 @@ def test_generate_differs_for_another_seed() -> None:
 
 
 def test_passive_model_has_empty_controls() -> None:
-    ex = sampling.generate(physics.get("pendulum-passive"), 5, 50, seed=0, progress=False)
+    ex = sampling.generate(catalog.get("pendulum-passive"), 5, 50, seed=0, progress=False)
     assert ex.controls.shape == (50, 0)
     assert ex.forces.shape == (50, 0)
 
@@ -109,16 +110,16 @@ def test_passive_model_has_empty_controls() -> None:
 @pytest.mark.parametrize("count", [0, -3])
 def test_non_positive_count_raises(count: int) -> None:
     with pytest.raises(ValueError, match="count"):
-        sampling.generate(physics.get("truck"), 5, count, seed=0, progress=False)
+        sampling.generate(catalog.get("truck"), 5, count, seed=0, progress=False)
 
 
 def test_non_positive_substeps_raise() -> None:
     with pytest.raises(ValueError, match="substeps"):
-        sampling.generate(physics.get("truck"), 0, 10, seed=0, progress=False)
+        sampling.generate(catalog.get("truck"), 0, 10, seed=0, progress=False)
 
 
 def test_subset_and_check_finite() -> None:
-    ex = sampling.generate(physics.get("pendulum-active"), 5, 20, seed=0, progress=False)
+    ex = sampling.generate(catalog.get("pendulum-active"), 5, 20, seed=0, progress=False)
     sub = ex.subset(np.array([3, 5]))
     np.testing.assert_array_equal(sub.states, ex.states[[3, 5]])
     np.testing.assert_array_equal(sub.next_states, ex.next_states[[3, 5]])
@@ -129,7 +130,7 @@ def test_subset_and_check_finite() -> None:
 
 def test_sequences_are_held_super_steps_of_the_physics() -> None:
     """Each super-step of a sequence is the physics stepped n times with its controls held."""
-    model = physics.get("lander")
+    model = catalog.get("lander")
     seq = sampling.generate_sequences(model, 10, 12, 3, seed=5, progress=False)
     assert seq.states.shape == (12, 4, model.state_size)
     assert seq.controls.shape == (12, 3, model.num_controls)
@@ -142,13 +143,13 @@ def test_sequences_are_held_super_steps_of_the_physics() -> None:
 
 def test_unknown_sampler_is_named() -> None:
     with pytest.raises(ValueError, match="sampler must be one of runs, spaced, got 'dense'"):
-        sampling.generate(physics.get("truck"), 5, 10, seed=0, progress=False, sampler="dense")
+        sampling.generate(catalog.get("truck"), 5, 10, seed=0, progress=False, sampler="dense")
 
 
 def test_runs_are_consecutive_held_super_steps_from_typical_states() -> None:
     """Every super-step of a run is an example; a run is an episode long and its controls change only
     at super-step starts (the emulator's contract), taking the smooth controls' values there."""
-    model = physics.get("truck")
+    model = catalog.get("truck")
     n = 10
     runs = sampling.generate_runs(model, n, 500, seed=3, runs=16, progress=False)
     k = sampling.run_horizon(model, n, 500, 16)
@@ -164,7 +165,7 @@ def test_runs_are_consecutive_held_super_steps_from_typical_states() -> None:
 
 
 def test_examples_of_runs_are_every_super_step_once() -> None:
-    model = physics.get("pendulum-active")
+    model = catalog.get("pendulum-active")
     runs = sampling.generate_runs(model, 5, 200, seed=1, runs=8, progress=False)
     total = len(runs) * (runs.states.shape[1] - 1)
     every = runs.examples(seed=2)
@@ -182,7 +183,7 @@ def test_examples_of_runs_are_every_super_step_once() -> None:
 
 
 def test_windows_are_cut_from_the_runs_without_overlap() -> None:
-    model = physics.get("lander")
+    model = catalog.get("lander")
     runs = sampling.generate_runs(model, 10, 300, seed=5, runs=4, progress=False)
     k = runs.states.shape[1] - 1
     win = runs.windows(8, seed=1)
@@ -203,7 +204,7 @@ def test_run_horizon_spreads_examples_over_runs_and_keeps_batches_small() -> Non
     """A run is an episode long where the count fills ``runs`` runs of it; shorter so that a small
     count still comes from ``runs`` independent runs; shorter where a batch would pass
     MAX_TRAJECTORY_VALUES physical states; never below one super-step."""
-    model = physics.get("lander")
+    model = catalog.get("lander")
     episode = round(model.spec.episode_s / model.dt) // 10
     assert sampling.run_horizon(model, 10, 10**6, 256) == episode
     assert sampling.run_horizon(model, 10, 4000, 256) == 16  # 250 runs of 16 super-steps
@@ -217,7 +218,7 @@ def test_run_horizon_spreads_examples_over_runs_and_keeps_batches_small() -> Non
 def test_small_counts_come_from_many_runs() -> None:
     """3,000 held-out examples of the tumbling quadrotor: from about 256 runs, not a dozen episodes,
     so that upright and upside-down states are both well represented."""
-    model = physics.get("quadrotor")
+    model = catalog.get("quadrotor")
     runs = sampling.generate_runs(model, 10, 3000, seed=77, progress=False)
     assert len(runs) >= 250 and np.unique(runs.states[:, 0], axis=0).shape[0] == len(runs)
 
@@ -226,7 +227,7 @@ def test_held_out_examples_are_drawn_like_the_training_set() -> None:
     """A held-out set of 500 examples, like a training set of 256 episodes: from the same stretch of
     the runs (the truck drives away from its start, so its distance says how far into a run a state
     is), where 500 examples of their own come from the first super-steps of 256 runs."""
-    model = physics.get("truck")
+    model = catalog.get("truck")
     like = 256 * (round(model.spec.episode_s / model.dt) // 10)
     train = sampling.generate(model, 10, like, seed=1, progress=False)
     held = sampling.generate_held_out(model, 10, 500, seed=2, like=like, progress=False)
@@ -245,7 +246,7 @@ def test_held_out_examples_are_drawn_like_the_training_set() -> None:
 # ----------------------------------------------------------------------------- the cost of sampling
 def test_a_model_knows_its_step_rate_only_after_simulating() -> None:
     """``step_rate`` is None for a fresh model (nothing measured) and counts every thread's steps."""
-    model = physics.get("pendulum-force")
+    model = catalog.get("pendulum-force")
     assert model.step_rate is None
     rate = model.measure_step_rate()
     assert rate > 0 and model.step_rate == rate
@@ -268,7 +269,7 @@ def test_the_cost_estimate_is_the_steps_that_sampling_simulates(
     """``steps_to_sample`` predicts the physical steps ``generate`` takes (which ``plan_within`` turns
     into seconds), and ``held_out_steps`` those of ``generate_held_out`` (``like``): within 25% for both
     samplers, long runs and short."""
-    model = physics.get("lander")
+    model = catalog.get("lander")
     before = model._steps_simulated
     if like is None:
         sampling.generate(model, 10, count, seed=3, progress=False, sampler=sampler)
@@ -281,7 +282,7 @@ def test_the_cost_estimate_is_the_steps_that_sampling_simulates(
 
 
 def test_a_plan_that_fits_keeps_every_example() -> None:
-    model = physics.get("pendulum-force")
+    model = catalog.get("pendulum-force")
     plan = sampling.plan_within(model, 10, 500, 200, seconds=60.0)
     assert (plan.examples, plan.test_examples, plan.reason) == (500, 200, None)
 
@@ -289,7 +290,7 @@ def test_a_plan_that_fits_keeps_every_example() -> None:
 def test_a_plan_that_does_not_fit_is_cut_to_the_seconds_and_says_why() -> None:
     """Both counts shrink in proportion until their estimated steps fit the seconds at the measured
     rate; the reason names the rate, the cut and what to do; never below ``least``."""
-    model = physics.get("lander")
+    model = catalog.get("lander")
     rate = model.measure_step_rate()
     seconds = 2_000_000 / rate  # about 2 M physical steps: 400,000 examples at n = 50 do not fit
     plan = sampling.plan_within(model, 50, 400_000, 4000, seconds)

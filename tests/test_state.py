@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from neuroanimator.state import GROUP_KINDS, LayoutGroup, StateGroup, StateLayout
+from neuroanimator.core.state import GROUP_KINDS, LayoutGroup, StateGroup, StateLayout
 
 
 def group(

@@ -10,12 +10,15 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import physics, quaternion, sampling, training
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.structured import StructuredEmulator, make_core
-from neuroanimator.training import TrainConfig
+from neuroanimator import catalog
+from neuroanimator.core import quaternion
+from neuroanimator.emulator.structured import StructuredEmulator, make_core
+from neuroanimator.sim import sampling
+from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training import train as training
+from neuroanimator.training.train import TrainConfig
 
-NAMES = sorted(physics.CATALOG)
+NAMES = sorted(catalog.CATALOG)
 MakeEmulator = Callable[..., StructuredEmulator]
 InputsOf = Callable[..., tuple[np.ndarray, np.ndarray | None, np.ndarray | None]]
 
@@ -51,7 +54,7 @@ def rot_z(angle: float) -> np.ndarray:
 def test_delta_to_world_inverts_delta_to_local(
     name: str, make_emulator: MakeEmulator, inputs_of: InputsOf
 ) -> None:
-    model = physics.get(name)
+    model = catalog.get(name)
     emu = make_emulator(model).double()
     s, _, _ = inputs_of(model, 32, seed=1)
     delta = torch.from_numpy(np.random.default_rng(2).normal(size=s.shape))
@@ -66,7 +69,7 @@ def test_delta_to_world_inverts_delta_to_local(
 
 
 def test_lander_delta_to_local_rotates_by_minus_heading(make_emulator: MakeEmulator) -> None:
-    model = physics.get("lander")
+    model = catalog.get("lander")
     emu = make_emulator(model, frame="heading").double()
     lay = model.layout
     s = model.rest_state()[None].copy()
@@ -101,7 +104,7 @@ def test_lander_delta_to_local_rotates_by_minus_heading(make_emulator: MakeEmula
 def test_forward_is_finish_of_core_of_network_inputs(
     name: str, make_emulator: MakeEmulator, inputs_of: InputsOf
 ) -> None:
-    model = physics.get(name)
+    model = catalog.get(name)
     emu = make_emulator(model)
     ins = inputs_of(model, 16, seed=3)
     s, u, f = t32(ins[0]), t32(ins[1]), t32(ins[2])
@@ -116,7 +119,7 @@ def test_forward_is_the_composition_of_eq_4_14(
     name: str, mode: str, make_emulator: MakeEmulator, inputs_of: InputsOf
 ) -> None:
     """s' = T^Δ_y T'_y T^σ_y N T^σ_x T'_x [s, u, f], each transform written out here."""
-    model = physics.get(name)
+    model = catalog.get(name)
     emu = make_emulator(model, seed=4, mode=mode).double()
     ins = inputs_of(model, 16, seed=4)
     s, u, f = t64(ins[0]), t64(ins[1]), t64(ins[2])
@@ -140,7 +143,7 @@ def test_forward_is_the_composition_of_eq_4_14(
 def test_lander_local_inputs_written_out(make_emulator: MakeEmulator, inputs_of: InputsOf) -> None:
     """T'_x for the lander in the heading frame: heading removed from the orientation (z dropped) and
     from the velocity."""
-    model = physics.get("lander")
+    model = catalog.get("lander")
     emu = make_emulator(model, frame="heading").double()
     s, u, _ = inputs_of(model, 8, seed=5)
     assert u is not None  # the model has controls
@@ -164,7 +167,7 @@ def test_lander_local_inputs_written_out(make_emulator: MakeEmulator, inputs_of:
 
 
 def test_truck_local_inputs_written_out(make_emulator: MakeEmulator, inputs_of: InputsOf) -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     emu = make_emulator(model).double()
     s, u, _ = inputs_of(model, 8, seed=6)
     assert u is not None  # the model has controls
@@ -176,7 +179,7 @@ def test_truck_local_inputs_written_out(make_emulator: MakeEmulator, inputs_of: 
 
 
 def test_pendulum_angles_are_encoded_as_sin_and_cos(make_emulator: MakeEmulator, inputs_of: InputsOf) -> None:
-    model = physics.get("pendulum-active")
+    model = catalog.get("pendulum-active")
     emu = make_emulator(model).double()
     s, u, _ = inputs_of(model, 8, seed=7)
     x = emu.local_inputs(t64(s), t64(u), None).numpy()
@@ -184,7 +187,7 @@ def test_pendulum_angles_are_encoded_as_sin_and_cos(make_emulator: MakeEmulator,
 
 
 def test_pendulum_full_turn_gives_the_same_change(make_emulator: MakeEmulator, inputs_of: InputsOf) -> None:
-    model = physics.get("pendulum-active")
+    model = catalog.get("pendulum-active")
     emu = make_emulator(model).double()
     s, u, _ = inputs_of(model, 8, seed=8)
     turned = s.copy()
@@ -198,7 +201,7 @@ def test_pendulum_full_turn_gives_the_same_change(make_emulator: MakeEmulator, i
 # ---------------------------------------------------------------------------- (c) targets invert finish
 @pytest.mark.parametrize("name", NAMES)
 def test_network_targets_through_finish_give_next_state(name: str, make_emulator: MakeEmulator) -> None:
-    model = physics.get(name)
+    model = catalog.get(name)
     emu = make_emulator(model).double()
     ex = sampling.generate(model, 10, 64, seed=9, runs=32, progress=False)
     s, nxt = t64(ex.states), t64(ex.next_states)
@@ -209,7 +212,7 @@ def test_network_targets_through_finish_give_next_state(name: str, make_emulator
 
 
 def test_lander_finish_renormalises_quaternion(make_emulator: MakeEmulator, inputs_of: InputsOf) -> None:
-    model = physics.get("lander")
+    model = catalog.get("lander")
     emu = make_emulator(model)
     s, u, _ = inputs_of(model, 32, seed=10)
     q = predict(emu, s, u, None)[:, model.layout.slice_of("orientation")]
@@ -239,7 +242,7 @@ def _assert_close_scaled(a: np.ndarray, b: np.ndarray, rel: float) -> None:
 def test_lander_is_equivariant_under_translation_and_yaw(
     seed: int, make_emulator: MakeEmulator, inputs_of: InputsOf
 ) -> None:
-    model = physics.get("lander")
+    model = catalog.get("lander")
     emu = make_emulator(model, seed=seed)
     s, u, _ = inputs_of(model, 32, seed=seed)
     rng = np.random.default_rng(100 + seed)
@@ -252,7 +255,7 @@ def test_lander_is_equivariant_under_translation_and_yaw(
 
 def test_lander_is_not_equivariant_under_tilt(make_emulator: MakeEmulator, inputs_of: InputsOf) -> None:
     """Gravity points down: turning the whole scene about a horizontal axis is not a symmetry."""
-    model = physics.get("lander")
+    model = catalog.get("lander")
     emu = make_emulator(model)
     s, u, _ = inputs_of(model, 32, seed=11)
     angle = 0.7
@@ -266,7 +269,7 @@ def test_lander_is_not_equivariant_under_tilt(make_emulator: MakeEmulator, input
 
 def test_lander_physics_shares_the_emulator_symmetry() -> None:
     """The symmetry the emulator builds in is true of MuJoCo's lander (and the tilt one is not)."""
-    model = physics.get("lander")
+    model = catalog.get("lander")
     rng = np.random.default_rng(12)
     s = model.initial_states(rng, 4)
     u = model.typical_controls(rng, 4, np.zeros(1))[:, 0]
@@ -290,7 +293,7 @@ def _truck_transform(s: np.ndarray, angle: float, shift: np.ndarray) -> np.ndarr
 def test_truck_is_equivariant_under_translation_and_yaw(
     seed: int, make_emulator: MakeEmulator, inputs_of: InputsOf
 ) -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     emu = make_emulator(model, seed=seed)
     s, u, _ = inputs_of(model, 32, seed=seed)
     rng = np.random.default_rng(200 + seed)
@@ -300,7 +303,7 @@ def test_truck_is_equivariant_under_translation_and_yaw(
 
 
 def test_pendulum_emulator_has_no_frame(make_emulator: MakeEmulator) -> None:
-    emu = make_emulator(physics.get("pendulum-force"))
+    emu = make_emulator(catalog.get("pendulum-force"))
     assert emu.frame.rotate is False
     assert emu.frame.translate == ()
 
@@ -335,7 +338,7 @@ def expected_input_size(model: PhysicalModel) -> int:
     ],
 )
 def test_constant_inputs_are_dropped(name: str, size: int) -> None:
-    model = physics.get(name)
+    model = catalog.get(name)
     emu = training.build_emulator(model, TrainConfig(hidden=(16,)))
     assert emu.input_size == size == expected_input_size(model)
     arch = emu.architecture()
@@ -348,7 +351,7 @@ def test_constant_inputs_are_dropped(name: str, size: int) -> None:
 
 @pytest.mark.parametrize("name", NAMES)
 def test_local_inputs_have_input_size_columns(name: str, inputs_of: InputsOf) -> None:
-    model = physics.get(name)
+    model = catalog.get(name)
     emu = training.build_emulator(model, TrainConfig(hidden=(16,)))
     s, u, f = inputs_of(model, 5)
     with torch.no_grad():
@@ -357,7 +360,7 @@ def test_local_inputs_have_input_size_columns(name: str, inputs_of: InputsOf) ->
 
 # ---------------------------------------------------------------------------- normalisation and core
 def test_group_normalization_shares_statistics_within_a_group() -> None:
-    model = physics.get("lander")
+    model = catalog.get("lander")
     emu = training.build_emulator(model, TrainConfig(hidden=(16,)))
     x = torch.randn(200, emu.input_size) * torch.linspace(0.5, 3.0, emu.input_size) + 2.0
     y = torch.randn(200, model.state_size)
@@ -371,7 +374,7 @@ def test_group_normalization_shares_statistics_within_a_group() -> None:
 
 
 def test_variable_normalization_standardises_every_column() -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     emu = training.build_emulator(model, TrainConfig(hidden=(16,)))
     x = torch.randn(500, emu.input_size) * 4.0 + 1.0
     emu.set_normalization(x, torch.randn(500, model.state_size), "variable")
@@ -381,7 +384,7 @@ def test_variable_normalization_standardises_every_column() -> None:
 
 
 def test_constant_variable_is_left_unscaled() -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     emu = training.build_emulator(model, TrainConfig(hidden=(16,)))
     x = torch.randn(100, emu.input_size)
     x[:, 0] = 3.0
@@ -391,7 +394,7 @@ def test_constant_variable_is_left_unscaled() -> None:
 
 
 def test_bad_normalization_mode_raises() -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     emu = training.build_emulator(model, TrainConfig(hidden=(16,)))
     with pytest.raises(ValueError, match="normalization"):
         emu.set_normalization(torch.randn(10, emu.input_size), torch.randn(10, 6), "global")
@@ -408,7 +411,7 @@ def test_make_core_layers_and_bad_activation() -> None:
 def test_bilinear_tables_give_the_outer_and_the_hamilton_product() -> None:
     """The export's quaternion arithmetic without reshapes: (q E₁)·(p E₂) is q pᵀ flattened, and that
     times the product table is q ⊗ p."""
-    from neuroanimator.structured import _pair_expansions, _product_table
+    from neuroanimator.emulator.structured import _pair_expansions, _product_table
 
     g = torch.Generator().manual_seed(4)
     q, p = torch.randn(32, 4, generator=g), torch.randn(32, 4, generator=g)
@@ -427,12 +430,13 @@ def test_the_body_frame_step_is_a_small_graph(
     import onnx
     import onnxruntime as ort
 
-    from neuroanimator.export import session_options, to_onnx
+    from neuroanimator.export.onnx import to_onnx
+    from neuroanimator.export.runtime import session_options
 
     options = session_options()
     options.optimized_model_filepath = str(tmp_path / "optimised.onnx")
     ort.InferenceSession(
-        to_onnx(make_emulator(physics.get("lander"))), options, providers=["CPUExecutionProvider"]
+        to_onnx(make_emulator(catalog.get("lander"))), options, providers=["CPUExecutionProvider"]
     )
     nodes = [n.op_type for n in onnx.load(str(tmp_path / "optimised.onnx")).graph.node]
     assert len(nodes) <= 36, nodes

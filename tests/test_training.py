@@ -10,8 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, physics, sampling, training
-from neuroanimator.training import TrainConfig, TrainingDiverged
+from neuroanimator import catalog
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.sim import sampling
+from neuroanimator.training import train as training
+from neuroanimator.training.train import TrainConfig, TrainingDiverged
 from tests.helpers import regression_problem, truck_emulator
 
 
@@ -27,7 +30,7 @@ def pendulum_result() -> training.TrainResult:
         threads=1,
         progress=False,
     )
-    return training.train(physics.get("pendulum-active"), cfg)
+    return training.train(catalog.get("pendulum-active"), cfg)
 
 
 def test_trained_emulator_beats_the_linear_baseline(pendulum_result: training.TrainResult) -> None:
@@ -48,7 +51,7 @@ def test_metrics_describe_the_run(pendulum_result: training.TrainResult) -> None
 
 def test_trained_emulator_predicts_fresh_physics(pendulum_result: training.TrainResult) -> None:
     """One super-step from new states: the emulator is closer to MuJoCo than 'nothing moves' is."""
-    model = physics.get("pendulum-active")
+    model = catalog.get("pendulum-active")
     rng = np.random.default_rng(77)
     s = model.initial_states(rng, 200)
     u = model.typical_controls(rng, 200, np.zeros(1))[:, 0]
@@ -66,7 +69,7 @@ def test_thesis_preset_is_one_sigmoid_layer_of_thesis_width() -> None:
     cfg = TrainConfig(preset="thesis", thesis_hidden=20, hidden=(64, 64), activation="tanh").resolved()
     assert cfg.hidden == (20,)
     assert cfg.activation == "sigmoid"
-    emu = training.build_emulator(physics.get("pendulum-active"), cfg)
+    emu = training.build_emulator(catalog.get("pendulum-active"), cfg)
     layers = [type(m).__name__ for m in emu.core]
     assert layers == ["Linear", "Sigmoid", "Linear"]
     assert emu.core[0].out_features == 20
@@ -154,7 +157,7 @@ def test_huge_learning_rate_raises_training_diverged() -> None:
 
 
 def test_diverged_training_writes_no_artifact(tmp_path: Path) -> None:
-    model = physics.get("pendulum-active")
+    model = catalog.get("pendulum-active")
     cfg = TrainConfig(
         substeps=10,
         examples=300,
@@ -190,17 +193,17 @@ def test_linear_baseline_recovers_an_affine_map() -> None:
 
 
 def test_frame_config_of_catalog_models() -> None:
-    lander = training.frame_config(physics.get("lander"))
+    lander = training.frame_config(catalog.get("lander"))
     assert lander.rotate and lander.translate == (True, True, True)
-    truck = training.frame_config(physics.get("truck"))
+    truck = training.frame_config(catalog.get("truck"))
     assert truck.rotate and truck.translate == (True, True)
-    pend = training.frame_config(physics.get("pendulum-force"))
+    pend = training.frame_config(catalog.get("pendulum-force"))
     assert not pend.rotate and pend.force_pairs == ()
 
 
 def test_training_over_rollouts_lowers_the_rollout_loss() -> None:
     """From a one-step solution, the rollout phase lowers the error of emulated rollouts."""
-    model = physics.get("pendulum-active")
+    model = catalog.get("pendulum-active")
     cfg = TrainConfig(
         substeps=10, hidden=(16,), examples=600, max_epochs=15, rollout_steps=0, progress=False, threads=1
     )
@@ -216,7 +219,7 @@ def test_training_over_rollouts_lowers_the_rollout_loss() -> None:
 def test_training_over_rollouts_keeps_the_one_step_accuracy() -> None:
     """Given the one-step data, the rollout phase keeps a state only where the two losses, each
     relative to its start, sum lower than they started: the one-step error cannot double."""
-    model = physics.get("pendulum-active")
+    model = catalog.get("pendulum-active")
     cfg = TrainConfig(
         substeps=10, hidden=(16,), examples=600, max_epochs=15, rollout_steps=0, progress=False, threads=1
     )
@@ -275,8 +278,8 @@ def test_time_spent_before_the_training_comes_off_its_budget(caplog: pytest.LogC
         rollout_steps=0,
         progress=False,
     )
-    with caplog.at_level("INFO", logger="neuroanimator.training"):
-        result = training.train(physics.get("pendulum-passive"), cfg, spent=200.0)
+    with caplog.at_level("INFO", logger="neuroanimator.training.train"):
+        result = training.train(catalog.get("pendulum-passive"), cfg, spent=200.0)
     # 285 s less the 200 spent and the 10 kept for what follows: 75 s for the one-step phase
     assert any("the one-step phase gets 75 s" in r.getMessage() for r in caplog.records), caplog.text
     assert result.config.time_budget == 285.0
@@ -285,9 +288,9 @@ def test_time_spent_before_the_training_comes_off_its_budget(caplog: pytest.LogC
 def test_sampling_keeps_to_its_share_of_the_time_budget() -> None:
     """Without a count from the user, the examples are what the budget's sampling share (less what set-up
     spent, down to its floor) simulates; a count the user set, or no budget, keeps every example."""
-    from neuroanimator.training import SAMPLING_FLOOR, SAMPLING_SHARE, sampling_plan
+    from neuroanimator.training.train import SAMPLING_FLOOR, SAMPLING_SHARE, sampling_plan
 
-    model = physics.get("lander")
+    model = catalog.get("lander")
     rate = model.measure_step_rate()
     # a share of 10 M physical steps: 17 batches of 256 runs of 45 × 50 steps (a batch is the grain)
     budget = 10_000_000 / rate / SAMPLING_SHARE

@@ -25,14 +25,14 @@ from torch import Tensor, nn
 
 from neuroanimator.control.objectives import Objective, control_scale
 from neuroanimator.control.replay import simulate_held
-from neuroanimator.control.spec import JobSpec, num_points
 from neuroanimator.control.splines import ControlSpline
-from neuroanimator.export import fold_normalization
-from neuroanimator.hierarchy import HierarchicalEmulator
-from neuroanimator.hierarchy_export import StackedStep, stackable
-from neuroanimator.manifest import Manifest
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.structured import StructuredEmulator
+from neuroanimator.core.manifest import Manifest
+from neuroanimator.emulator.folding import fold_normalization
+from neuroanimator.emulator.hierarchy import HierarchicalEmulator
+from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.export.stacked import StackedStep, stackable
+from neuroanimator.goals.spec import JobSpec, num_points
+from neuroanimator.sim.model import PhysicalModel
 
 FloatArray = NDArray[np.float64]
 

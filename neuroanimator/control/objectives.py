@@ -28,9 +28,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from neuroanimator.control.criteria import SuccessCheck
-from neuroanimator.control.spec import JobSpec
-from neuroanimator.control.terms import (
+from neuroanimator.core.state import QUATERNION_KINDS, LayoutGroup, labels_of
+from neuroanimator.goals.criteria import SuccessCheck
+from neuroanimator.goals.spec import JobSpec
+from neuroanimator.goals.terms import (
     ControlEffortTerm,
     ControlSmoothnessTerm,
     FinalStateTerm,
@@ -41,7 +42,6 @@ from neuroanimator.control.terms import (
     SuccessMarginTerm,
     Term,
 )
-from neuroanimator.state import QUATERNION_KINDS, LayoutGroup, labels_of
 
 
 class StateDistance:

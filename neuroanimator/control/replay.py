@@ -15,10 +15,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.control import criteria
-from neuroanimator.control.spec import JobSpec
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.state import QUATERNION_KINDS, LayoutGroup
+from neuroanimator.core.state import QUATERNION_KINDS, LayoutGroup
+from neuroanimator.goals import criteria
+from neuroanimator.goals.spec import JobSpec
+from neuroanimator.sim.model import PhysicalModel
 
 FloatArray = NDArray[np.float64]
 

@@ -1,7 +1,7 @@
 """Controls as Catmull-Rom splines over control points (thesis appendix G), in torch.
 
 Control ``i`` is a spline through points ``p_i^0 .. p_i^{M-1}`` spread evenly over the start times
-of the K super-steps, ``[0, (K-1)·Δt]``, end points duplicated (``neuroanimator.catmull_rom.basis``).
+of the K super-steps, ``[0, (K-1)·Δt]``, end points duplicated (``neuroanimator.core.catmull_rom.basis``).
 The emulator was trained with controls held for the n physical steps of each super-step, so the
 value used in super-step k is the spline *sampled at the super-step's start* and held; the MuJoCo
 replay holds the very same values. Sampling is one constant matrix, so it is differentiable:
@@ -17,7 +17,7 @@ import torch
 from numpy.typing import NDArray
 from torch import Tensor
 
-from neuroanimator import catmull_rom
+from neuroanimator.core import catmull_rom
 
 
 def spacing_of(horizon: int, num_points: int, super_dt: float) -> float:

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.control.spec import OptimizerSettings
+from neuroanimator.goals.spec import OptimizerSettings
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]

@@ -1,7 +1,7 @@
 """Job specs: ``validate_job`` turns a request into a ``JobSpec``, without importing torch or MuJoCo.
 
 An API process calls it on every submission, so it reads only numpy and the artifact manifests,
-through the torch-free ``neuroanimator.registry``. The spec it
+through the torch-free ``neuroanimator.artifacts.registry``. The spec it
 returns is itself a valid request, so validating twice changes nothing: a worker validates the
 queued spec again against its own artifacts.
 """
@@ -15,11 +15,15 @@ from typing import Any
 
 import numpy as np
 
-from neuroanimator import registry
-from neuroanimator.control import criteria
-from neuroanimator.control.criteria import SuccessCheck
-from neuroanimator.control.errors import JobSpecError
-from neuroanimator.control.spec import (
+from neuroanimator.artifacts import registry
+from neuroanimator.catalog.tasks import TASKS
+from neuroanimator.contracts.controller import JobCreate
+from neuroanimator.core.manifest import Manifest
+from neuroanimator.core.state import QUATERNION_KINDS, LayoutGroup
+from neuroanimator.goals import criteria
+from neuroanimator.goals.criteria import SuccessCheck
+from neuroanimator.goals.errors import JobSpecError
+from neuroanimator.goals.spec import (
     DEFAULT_HORIZON,
     DEFAULT_MU_S,
     DEFAULT_MU_U,
@@ -36,11 +40,7 @@ from neuroanimator.control.spec import (
     OptimizerSettings,
     Task,
 )
-from neuroanimator.control.tasks import TASKS
-from neuroanimator.control.terms import MAX_WEIGHT, finite_number, normalize_terms, shown, unit, vector
-from neuroanimator.controller_schemas import JobCreate
-from neuroanimator.manifest import Manifest
-from neuroanimator.state import QUATERNION_KINDS, LayoutGroup
+from neuroanimator.goals.terms import MAX_WEIGHT, finite_number, normalize_terms, shown, unit, vector
 
 # what a request may set: the API body's fields, less what only the API uses
 JOB_FIELDS = frozenset(JobCreate.model_fields) - {"idempotency_key"}

@@ -650,11 +650,3 @@ def bundle_files(sf: SourceFiles, limits: Limits) -> tuple[Bundle, mujoco.MjMode
     given = (first.get("model") or "").strip() or None
     bundle = Bundle(xml=xml, assets=tuple(assets.values()), entry=entry, files=tuple(xml_files), name=given)
     return bundle, m
-
-
-def load_source(path: str | Path, entry: str | None = None, limits: Limits | None = None) -> Bundle:
-    """The bundle of an MJCF file, a model folder or an archive of one, made in the sandbox (see the
-    module's text)."""
-    from neuroanimator.sim import sandbox
-
-    return sandbox.load_source(path, entry, limits or Limits())[0]

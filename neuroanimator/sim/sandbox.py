@@ -355,3 +355,9 @@ def _memory_message(limits: Limits) -> str:
         f"the model could not be compiled within {limits.compile_memory_bytes >> 20:,} MiB of memory "
         "(COMPILE_MEMORY_MB): make it smaller"
     )
+
+
+def load_bundle(path: str | Path, entry: str | None = None, limits: Limits | None = None) -> Bundle:
+    """The bundle of an MJCF file, a model folder or an archive of one, made in the sandbox
+    (``load_source`` without the compiled model)."""
+    return load_source(path, entry, limits or Limits())[0]

@@ -35,7 +35,7 @@ from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
 from starlette.websockets import WebSocket
 
-from neuroanimator.emulator_schemas import ErrorBody
+from neuroanimator.contracts.emulator import ErrorBody
 from services.common.settings import ApiSettings
 
 log = logging.getLogger(__name__)

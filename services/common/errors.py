@@ -17,7 +17,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 
-from neuroanimator.emulator_schemas import ErrorBody
+from neuroanimator.contracts.emulator import ErrorBody
 
 HTTP_ERRORS = {
     400: "bad_request",

@@ -16,7 +16,7 @@ from typing import Any
 from fastapi import FastAPI
 from prometheus_client import CONTENT_TYPE_LATEST
 
-from neuroanimator.emulator_schemas import ErrorBody
+from neuroanimator.contracts.emulator import ErrorBody
 from services.common.auth import OPEN_PATHS
 
 ERROR_REF = {"$ref": "#/components/schemas/ErrorBody"}

@@ -25,7 +25,7 @@ from fastapi.responses import JSONResponse, PlainTextResponse
 from redis.asyncio.retry import Retry
 from redis.backoff import ExponentialBackoff
 
-from neuroanimator.emulator_schemas import ErrorBody
+from neuroanimator.contracts.emulator import ErrorBody
 from services.common.auth import ApiKeyMiddleware, ApiKeys
 from services.common.docs import add_offline_docs
 from services.common.errors import ApiError, add_error_handlers

@@ -12,7 +12,7 @@ from typing import Annotated
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from neuroanimator import registry
+from neuroanimator.artifacts import registry
 
 Port = Annotated[int, Field(ge=1, le=65535, description="the TCP port to listen on")]
 

@@ -27,7 +27,7 @@ import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from neuroanimator import registry
+from neuroanimator.artifacts import registry
 from services.common.auth import CALLER, OPERATOR
 
 OWNER_FILE = "owner.json"

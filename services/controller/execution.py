@@ -24,7 +24,7 @@ from typing import Any
 
 import redis
 
-from neuroanimator.controller_schemas import JobOutcome
+from neuroanimator.contracts.controller import JobOutcome
 from services.common.job_worker import Watch, connect_job
 from services.controller.settings import Settings
 from services.controller.store import JobStore
@@ -91,7 +91,8 @@ def perform(job_id: str, delivery: int) -> str:
 
     log.info("job started", extra={"job": job_id, "attempt": attempt, "task": spec.get("task")})
     try:
-        from neuroanimator.control import JobSpecError, run_job
+        from neuroanimator.control.job import run_job
+        from neuroanimator.goals.errors import JobSpecError
 
         try:
             result = run_job(

@@ -13,8 +13,8 @@ from typing import Any
 
 from redis.client import Pipeline
 
-from neuroanimator.control.spec import JobSpec
-from neuroanimator.controller_schemas import JobOutcome
+from neuroanimator.contracts.controller import JobOutcome
+from neuroanimator.goals.spec import JobSpec
 from services.common.jobs import DURATION_BUCKETS, IdempotencyConflict, Keys, QueueFull, clean, observe, rq_id
 from services.common.jobs import JobStore as BaseStore
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.manifest import EnvelopeGroup
-from neuroanimator.state import StateLayout
+from neuroanimator.core.manifest import EnvelopeGroup
+from neuroanimator.core.state import StateLayout
 from services.emulator.bounds import RowBounds
 
 GROUP_FLOOR = 0.01

@@ -12,7 +12,7 @@ from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 
-from neuroanimator.emulator_schemas import ErrorBody, WsError
+from neuroanimator.contracts.emulator import ErrorBody, WsError
 from services.common.errors import add_error_handlers, from_validation, jsonable
 from services.emulator.errors import (
     BadInput,

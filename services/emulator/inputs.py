@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.manifest import ControlInput
-from neuroanimator.model_spec import ForceInput
+from neuroanimator.core.manifest import ControlInput
+from neuroanimator.core.model_spec import ForceInput
 from services.emulator.bounds import RowBounds
 from services.emulator.errors import BadInput
 

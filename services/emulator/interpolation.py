@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.quaternion import slerp, wrap_angle
+from neuroanimator.core.quaternion import slerp, wrap_angle
 
 
 def frames(

@@ -37,7 +37,7 @@ from redis.asyncio.retry import Retry
 from redis.backoff import ExponentialBackoff
 from redis.exceptions import RedisError, ResponseError
 
-from neuroanimator.driver import load_driver
+from neuroanimator.sim.driver import load_driver
 from services.emulator.errors import EmulatorError
 from services.emulator.service import EmulatorService
 from services.emulator.sessions import Session

@@ -1,4 +1,4 @@
-"""The emulators this service serves, loaded from the artifact registries (``neuroanimator.registry``:
+"""The emulators this service serves, loaded from the artifact registries (``neuroanimator.artifacts.registry``:
 the data directory's uploads and trainings over the committed defaults).
 
 It loads every model's ``latest`` version into an ``OnnxEmulator`` and re-reads the pointer files at
@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator import registry
-from neuroanimator.export import OnnxEmulator
-from neuroanimator.manifest import Manifest
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.state import QUATERNION_KINDS, heading_columns
+from neuroanimator.artifacts import registry
+from neuroanimator.core.manifest import Manifest
+from neuroanimator.core.state import QUATERNION_KINDS, heading_columns
+from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.sim.model import PhysicalModel
 from services.common import tenancy
 from services.emulator.envelope import StateEnvelope
 from services.emulator.errors import UnknownModel

@@ -20,8 +20,7 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.driver import Driver
-from neuroanimator.emulator_schemas import (
+from neuroanimator.contracts.emulator import (
     BodyInfo,
     GeomInfo,
     MaterialInfo,
@@ -30,8 +29,9 @@ from neuroanimator.emulator_schemas import (
     SkinBone,
     SkinInfo,
 )
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.quaternion import wrap_angle
+from neuroanimator.core.quaternion import wrap_angle
+from neuroanimator.sim.driver import Driver
+from neuroanimator.sim.model import PhysicalModel
 from services.emulator.errors import BadInput
 
 _PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS

@@ -11,12 +11,12 @@ import asyncio
 import logging
 import secrets
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
-from neuroanimator.driver import Driver, DriverError, check_params, load_driver
-from neuroanimator.emulator_schemas import SessionCreate
+from neuroanimator.contracts.emulator import SessionCreate
+from neuroanimator.sim.driver import Driver, DriverError, check_params, load_driver
 from services.common.auth import CALLER
 from services.emulator.errors import BadInput, UnknownSession
 from services.emulator.inputs import CheckedInputs, check_vector
@@ -26,10 +26,13 @@ from services.emulator.sessions import Session, SessionStore
 from services.emulator.settings import Settings
 from services.emulator.stepping import Stepper
 
-if TYPE_CHECKING:
-    from services.emulator.ws.connection import Connection
-
 log = logging.getLogger(__name__)
+
+
+class OpenSocket(Protocol):
+    """An open websocket connection, as the service keeps count of them (``ws.connection``)."""
+
+    sid: str
 
 
 class EmulatorService:
@@ -43,7 +46,7 @@ class EmulatorService:
         )
         self.metrics = Metrics()
         self.stepper = Stepper(settings, self.store, self.metrics)
-        self.connections: set[Connection] = set()  # open websocket connections (services/emulator/ws/)
+        self.connections: set[OpenSocket] = set()  # open websocket connections (services/emulator/ws/)
         self.registry.refresh()
 
     async def close(self) -> None:

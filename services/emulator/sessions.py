@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.driver import Driver
+from neuroanimator.sim.driver import Driver
 from services.common.auth import CALLER
 from services.emulator.binary import decode_ids
 from services.emulator.errors import BadInput, QuotaExceeded, UnknownSession
@@ -174,7 +174,7 @@ class Session:
     # what its row said when it was deleted (a step in flight may still report on it)
     final_steps: int = 0
     final_diverged: bool = False
-    # the model's controller setting the controls each super-step (``neuroanimator.driver``), and its
+    # the model's controller setting the controls each super-step (``neuroanimator.sim.driver``), and its
     # parameters as the client set them; None: the client's controls
     driver: Driver | None = None
     driver_params: dict[str, float] | None = None

@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.emulator_schemas import BatchStepItem
+from neuroanimator.contracts.emulator import BatchStepItem
 from services.emulator import binary
 from services.emulator.batcher import ROW_DIVERGED, ROW_GONE, Batcher
 from services.emulator.errors import BadInput, Diverged, EmulatorError, TooLarge

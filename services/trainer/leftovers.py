@@ -21,15 +21,15 @@ import logging
 import shutil
 import time
 from pathlib import Path
+from typing import Protocol
 
 import redis
 
-from neuroanimator import registry
+from neuroanimator.artifacts import registry
 from services.common import tenancy
-from services.common.jobs import FINAL
+from services.common.jobs import FINAL, Keys
 from services.trainer import models
 from services.trainer.settings import Settings
-from services.trainer.store import TrainingStore
 
 log = logging.getLogger(__name__)
 GRACE_S = 900.0
@@ -42,12 +42,21 @@ def _old(path: Path, now: float, grace: float) -> bool:
         return False
 
 
-def _status(store: TrainingStore, job_id: str) -> str | None:
+class Trainings(Protocol):
+    """What reaping reads of the trainer's store (``store.TrainingStore``, which calls ``reap``)."""
+
+    r: redis.Redis
+    keys: Keys
+
+    def active(self, owner: str, model: str | None = None, but: str | None = None) -> int: ...
+
+
+def _status(store: Trainings, job_id: str) -> str | None:
     raw = store.r.hget(store.keys.job(job_id), "status")
     return raw.decode() if isinstance(raw, bytes) else raw
 
 
-def reap(s: Settings, store: TrainingStore, grace: float = GRACE_S) -> list[str]:
+def reap(s: Settings, store: Trainings, grace: float = GRACE_S) -> list[str]:
     """Remove the leftovers (see the module's text); what was removed, for the log."""
     now = time.time()
     removed: list[str] = []

@@ -23,7 +23,7 @@ import uuid
 from dataclasses import replace
 from pathlib import Path
 
-from neuroanimator import registry
+from neuroanimator.artifacts import registry
 from services.common import tenancy
 from services.common.tenancy import Ownership
 

@@ -244,7 +244,7 @@ def probe(model: Any, spec: dict[str, Any], substeps: int) -> None:
     s0 = model.initial_states(rng, PROBE_RUNS)
     u = model.typical_controls(rng, PROBE_RUNS, times)
     f = model.typical_forces(rng, PROBE_RUNS, times)
-    from neuroanimator import sampling  # after main has put Bar in tqdm's place
+    from neuroanimator.sim import sampling  # after main has put Bar in tqdm's place
 
     model.simulate(s0[:1], u[:1, :10], f[:1, :10] if model.num_forces else None, check=True)  # warm up
     model.simulate(s0, u, f if model.num_forces else None, check=True)
@@ -304,8 +304,9 @@ def in_service_words(message: str) -> str:
 
 def run_command(argv: list[str], errors: LastError) -> str:
     """Run a ``neuro`` command in this process; its standard output. ``Failed`` with its reason."""
-    from neuroanimator import cli, registry
-    from neuroanimator.physics.model import ModelError
+    from neuroanimator import cli
+    from neuroanimator.artifacts import registry
+    from neuroanimator.sim.model import ModelError
 
     args = cli.build_parser().parse_args(argv)
     buffer = io.StringIO()
@@ -330,9 +331,9 @@ def last_json(text: str) -> dict[str, Any]:
 
 def run(spec: dict[str, Any], channel: Channel, errors: LastError) -> dict[str, Any]:
     """The phases (see the module's text); the result."""
-    from neuroanimator import registry
-    from neuroanimator.physics.mjcf import load_mjcf
+    from neuroanimator.artifacts import registry
     from neuroanimator.sim.bundle import Limits
+    from neuroanimator.sim.mjcf import load_mjcf
     from services.trainer.validation import check_trainable
 
     seconds: dict[str, float] = {}
@@ -401,8 +402,8 @@ def main() -> int:
     errors = LastError()
     logging.getLogger().addHandler(errors)
     spec = json.load(sys.stdin)
-    from neuroanimator.physics.model import ModelError
-    from neuroanimator.train_config import TrainConfig
+    from neuroanimator.core.train_config import TrainConfig
+    from neuroanimator.sim.model import ModelError
 
     TEST_EXAMPLES = TrainConfig().test_examples
     CHANNEL = channel = Channel(events)

@@ -18,6 +18,7 @@ import redis
 
 from services.common.jobs import FINAL
 from services.common.jobs import JobStore as BaseStore
+from services.trainer import leftovers
 from services.trainer.settings import Settings
 
 PERFORM = "services.trainer.execution.perform"
@@ -76,8 +77,6 @@ class TrainingStore(BaseStore):
     def reap(self) -> list[str]:
         """Re-queue (or fail) trainings whose lease expired, then remove what dead trainings left on
         disk (``leftovers``)."""
-        from services.trainer import leftovers  # it reads the registry: workers only
-
         reaped = super().reap()
         if isinstance(self.settings, Settings):
             leftovers.reap(self.settings, self)

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import mujoco
 
-from neuroanimator.physics.mjcf import load_mjcf
-from neuroanimator.physics.model import ModelError, PhysicalModel
 from neuroanimator.sim.bundle import Limits, SourceError, SourceProblem
+from neuroanimator.sim.mjcf import load_mjcf
+from neuroanimator.sim.model import ModelError, PhysicalModel
 from neuroanimator.sim.sandbox import Unconfined
 
 STATUS: dict[SourceProblem, int] = {

@@ -14,7 +14,7 @@ from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel
 
-from neuroanimator import registry
+from neuroanimator.artifacts import registry
 from services.common import tenancy
 from services.common.docs import add_offline_docs
 from services.common.limits import limit_bodies

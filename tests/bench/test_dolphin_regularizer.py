@@ -5,14 +5,15 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from neuroanimator import artifacts, physics
-from neuroanimator.hierarchy_training import train_hierarchy
+from neuroanimator import catalog
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.training.hierarchy import train_hierarchy
 from tests.helpers import run_bench
 from tests.test_hierarchy import TINY
 
 
 def test_dolphin_regularizer_small(tmp_path: Path) -> None:
-    dolphin = physics.get("dolphin")
+    dolphin = catalog.get("dolphin")
     artifacts.save(
         tmp_path, dolphin, train_hierarchy(dolphin, dataclasses.replace(TINY, regularizer_steps=0))
     )

@@ -9,21 +9,22 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, physics, registry
-from neuroanimator.control import run_job
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.catalog import dolphin as body
+from neuroanimator.catalog.tasks import TASKS
 from neuroanimator.control.bptt import ControlProblem, FrozenStep, GlobalStep
-from neuroanimator.control.runner import load_problem
-from neuroanimator.control.tasks import TASKS
+from neuroanimator.control.job import load_problem, run_job
 from neuroanimator.control.validation import validate_job
-from neuroanimator.hierarchy_training import train_hierarchy
-from neuroanimator.physics import dolphin as body
+from neuroanimator.training.hierarchy import train_hierarchy
 from tests.test_hierarchy import TINY
 
 
 @pytest.fixture(scope="module")
 def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("dolphin-artifacts")
-    model = physics.get("dolphin")
+    model = catalog.get("dolphin")
     artifacts.save(out, model, train_hierarchy(model, TINY))
     return out
 
@@ -31,7 +32,7 @@ def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_the_task_has_60_control_variables_in_0_1() -> None:
     task = TASKS["dolphin-swim"]
     assert task.control_variables(6) == 60
-    model = physics.get("dolphin")
+    model = catalog.get("dolphin")
     np.testing.assert_allclose(task.initial_state, model.rest_state())
     assert [(lo, hi) for lo, hi in model.control_range] == [(0.0, 1.0)] * 6
     # the forward-distance term weighs each node's x by its mass: the centre of mass

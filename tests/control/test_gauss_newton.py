@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator.control import run_job
 from neuroanimator.control.gauss_newton import levenberg_marquardt, steps
-from neuroanimator.control.runner import load_problem
+from neuroanimator.control.job import load_problem, run_job
 from neuroanimator.control.synthesis import Settings, optimize
 from neuroanimator.control.validation import validate_job
 

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import registry
-from neuroanimator.control import JobSpec
+from neuroanimator.artifacts import registry
+from neuroanimator.catalog.lander import LABELS as LANDER_LABELS
 from neuroanimator.control.objectives import Objective, StateDistance, control_scale
 from neuroanimator.control.validation import validate_job
-from neuroanimator.physics.lander import LABELS as LANDER_LABELS
-from neuroanimator.state import LayoutGroup
+from neuroanimator.core.state import LayoutGroup
+from neuroanimator.goals.spec import JobSpec
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts"
 

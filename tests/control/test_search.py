@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from neuroanimator.control import run_job
+from neuroanimator.control.job import run_job
 from neuroanimator.control.search import cross_entropy, descend_starts, starting_points
 from neuroanimator.control.synthesis import Settings
 from tests.helpers import run_bench

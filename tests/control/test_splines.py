@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import catmull_rom
 from neuroanimator.control.splines import ControlSpline, spacing_of
+from neuroanimator.core import catmull_rom
 
 
 @pytest.fixture

@@ -11,13 +11,17 @@ import numpy as np
 import pytest
 import torch
 
-from neuroanimator import artifacts, physics, registry
-from neuroanimator.control import JobSpec, run_job, validate_job
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
 from neuroanimator.control.bptt import ControlProblem, FastStep
+from neuroanimator.control.job import run_job
 from neuroanimator.control.replay import simulate_held
 from neuroanimator.control.synthesis import Settings, optimize
-from neuroanimator.export import OnnxEmulator
-from neuroanimator.structured import StructuredEmulator
+from neuroanimator.control.validation import validate_job
+from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.goals.spec import JobSpec
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts"
 
@@ -76,7 +80,7 @@ def test_momentum_descent_on_a_tiny_emulator_lowers_the_objective(
     """A random-weight emulator of the active pendulum (16 hidden units): plain thesis updates
     (fixed η and α, no line search) still go downhill."""
     spec = short_spec(optimizer={"learning_rate": 0.02, "momentum": 0.5, "line_search": False})
-    emu = make_emulator(physics.get("pendulum-active"))
+    emu = make_emulator(catalog.get("pendulum-active"))
     path = registry.resolve(ARTIFACTS, spec.model, spec.version)
     problem = ControlProblem(emu, spec, registry.read_manifest(path))
     seen: list[tuple[int, float, float, bool]] = []
@@ -170,7 +174,7 @@ def test_should_stop_cancels_and_progress_is_reported() -> None:
 
 
 def test_replay_holds_each_value_for_its_super_step() -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     s0 = model.rest_state()[None]
     held = np.array([[[2.0, 3.0], [-1.0, 1.0], [0.5, -2.0]]])  # (1, K=3, U=2)
     states = simulate_held(model, s0, held, 50)

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from neuroanimator.control import TASKS, run_job
-from neuroanimator.controller_schemas import JobOutcome
+from neuroanimator.catalog.tasks import TASKS
+from neuroanimator.contracts.controller import JobOutcome
+from neuroanimator.control.job import run_job
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts"
 # the tasks with a success criterion (dolphin-swim has none, as far as it can: test_dolphin_swim.py)

@@ -13,10 +13,14 @@ from typing import Any
 
 import pytest
 
-from neuroanimator import physics
-from neuroanimator.control import TASKS, JobSpec, JobSpecError, run_job, validate_job
-from neuroanimator.control.terms import ForwardDistanceTerm, StayWithinBoundsTerm
-from neuroanimator.controller_schemas import JobCreate, OptimizerSpec
+from neuroanimator import catalog
+from neuroanimator.catalog.tasks import TASKS
+from neuroanimator.contracts.controller import JobCreate, OptimizerSpec
+from neuroanimator.control.job import run_job
+from neuroanimator.control.validation import validate_job
+from neuroanimator.goals.errors import JobSpecError
+from neuroanimator.goals.spec import JobSpec
+from neuroanimator.goals.terms import ForwardDistanceTerm, StayWithinBoundsTerm
 
 ROOT = Path(__file__).resolve().parents[2]
 ARTIFACTS = ROOT / "artifacts"
@@ -311,9 +315,10 @@ def test_bad_specs_name_the_field_the_expected_and_the_got(
 
 def test_validate_job_imports_neither_torch_nor_mujoco() -> None:
     code = (
-        "import sys; from pathlib import Path; import neuroanimator.control as c; "
-        f"c.validate_job({{'task': 'lander-landing'}}, Path({str(ARTIFACTS)!r})); "
-        "[c.TASKS[t].to_dict() for t in c.TASKS]; "
+        "import sys; from pathlib import Path; from neuroanimator.control.validation import validate_job; "
+        "from neuroanimator.catalog.tasks import TASKS; "
+        f"validate_job({{'task': 'lander-landing'}}, Path({str(ARTIFACTS)!r})); "
+        "[TASKS[t].to_dict() for t in TASKS]; "
         "bad = [m for m in ('torch', 'mujoco', 'onnxruntime') if m in sys.modules]; "
         "assert not bad, bad"
     )
@@ -359,12 +364,12 @@ def test_thesis_control_variable_counts() -> None:
 
 
 def test_the_registry_collects_every_systems_tasks_once(monkeypatch: pytest.MonkeyPatch) -> None:
-    from neuroanimator.control import tasks
+    from neuroanimator.catalog import tasks
 
     assert list(tasks.collect()) == [*THESIS_TASKS, "dolphin-swim"]
-    assert all(t in s.TASKS for s in physics.SYSTEMS for t in s.TASKS if t.name in TASKS)
-    pendulum = physics.SYSTEMS[0]
-    monkeypatch.setattr(physics, "SYSTEMS", (*physics.SYSTEMS, pendulum))
+    assert all(t in s.TASKS for s in catalog.SYSTEMS for t in s.TASKS if t.name in TASKS)
+    pendulum = catalog.SYSTEMS[0]
+    monkeypatch.setattr(catalog, "SYSTEMS", (*catalog.SYSTEMS, pendulum))
     with pytest.raises(ValueError, match="task 'pendulum-swing' is defined twice"):
         tasks.collect()
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from neuroanimator.control import criteria
-from neuroanimator.control.verdict import EMULATOR_ONLY, MISSED, NO_CRITERION, SUCCEEDED, verdict
-from neuroanimator.controller_schemas import JobOutcome, JobResult
+from neuroanimator.goals import criteria
+from neuroanimator.contracts.controller import JobOutcome, JobResult
+from neuroanimator.goals.verdict import EMULATOR_ONLY, MISSED, NO_CRITERION, SUCCEEDED, verdict
 
 
 def test_a_job_without_criterion_is_done_not_succeeded() -> None:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from neuroanimator import registry
+from neuroanimator.artifacts import registry
 from services.stack import Stack
 from tests.e2e.harness import ROOT, missing, run_phase, running_stack, update_docs
 

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from neuroanimator.physics import mjcf
-from neuroanimator.physics.model import PhysicalModel
-from neuroanimator.state import StateGroup
+from neuroanimator.core.state import StateGroup
+from neuroanimator.sim import mjcf
+from neuroanimator.sim.model import PhysicalModel
 
 FILTERED = """
 <mujoco model="filtered">

@@ -15,8 +15,9 @@ from pathlib import Path
 import mujoco
 import pytest
 
-from neuroanimator.physics.mjcf import load_mjcf
-from neuroanimator.sim.bundle import Limits, SourceError, load_source
+from neuroanimator.sim.bundle import Limits, SourceError
+from neuroanimator.sim.mjcf import load_mjcf
+from neuroanimator.sim.sandbox import load_bundle
 
 ROOT = Path(__file__).resolve().parents[2]
 TINYBOT = ROOT / "tests" / "data" / "tinybot"
@@ -44,7 +45,7 @@ def tar_folder(folder: Path, archive: Path) -> Path:
 
 # ---------------------------------------------------------------------------- what loads
 def test_a_folder_with_an_include_a_mesh_and_a_texture(tmp_path: Path) -> None:
-    b = load_source(TINYBOT)
+    b = load_bundle(TINYBOT)
     assert b.entry == "robot.xml" and b.files == ("robot.xml", "parts/arm.xml")
     kinds = sorted((a.kind, a.source) for a in b.assets)
     assert kinds == [("mesh", "assets/knob.obj"), ("texture", "assets/checker.png")]  # not unused.obj
@@ -56,20 +57,20 @@ def test_a_folder_with_an_include_a_mesh_and_a_texture(tmp_path: Path) -> None:
 
 
 def test_the_entry_file_a_zip_and_a_tar_gz_give_the_same_bundle(tmp_path: Path) -> None:
-    folder = load_source(TINYBOT)
+    folder = load_bundle(TINYBOT)
     for source, entry in (
         (TINYBOT / "robot.xml", None),
         (zip_folder(TINYBOT, tmp_path / "tinybot.zip"), None),
         (tar_folder(TINYBOT, tmp_path / "tinybot.tar.gz"), "robot.xml"),
         (zip_folder(TINYBOT, tmp_path / "named.zip"), "tinybot/robot.xml"),
     ):
-        b = load_source(source, entry)
+        b = load_bundle(source, entry)
         assert b.xml == folder.xml and b.vfs() == folder.vfs(), source
 
 
 def test_a_self_contained_mjcf_becomes_mujocos_own_and_the_same_model(arm_path: Path) -> None:
     """Never kept as written: what is stored is what MuJoCo parsed (no DOCTYPE, comments or includes)."""
-    b = load_source(arm_path)
+    b = load_bundle(arm_path)
     assert b.assets == () and "<!--" not in b.xml
     ours = mujoco.MjModel.from_xml_string(b.xml)
     theirs = mujoco.MjModel.from_xml_path(str(arm_path))
@@ -80,7 +81,7 @@ def test_a_self_contained_mjcf_becomes_mujocos_own_and_the_same_model(arm_path: 
 def test_load_mjcf_builds_the_model_from_the_bundle(tmp_path: Path) -> None:
     model = load_mjcf(zip_folder(TINYBOT, tmp_path / "tinybot.zip"))
     assert model.name == "tinybot" and model.control_names == ["motor"]
-    assert sorted(model.assets) == sorted(load_source(TINYBOT).vfs())
+    assert sorted(model.assets) == sorted(load_bundle(TINYBOT).vfs())
     assert model.mj_model.nmesh == 1
 
 
@@ -103,7 +104,7 @@ def test_dm_control_suite_xmls_load_as_shipped(name: str) -> None:
 # ---------------------------------------------------------------------------- what is refused
 def refused(kind: str, source: Path, entry: str | None = None, limits: Limits | None = None) -> str:
     with pytest.raises(SourceError) as info:
-        load_source(source, entry, limits)
+        load_bundle(source, entry, limits)
     assert info.value.kind == kind, str(info.value)
     return str(info.value)
 
@@ -158,7 +159,7 @@ def test_the_entry_must_be_found(tmp_path: Path) -> None:
     folder = copy_tinybot(tmp_path)
     shutil.copy(folder / "robot.xml", folder / "robot2.xml")
     assert "--entry" in refused("entry", folder)
-    assert load_source(folder, "robot2.xml").entry == "robot2.xml"
+    assert load_bundle(folder, "robot2.xml").entry == "robot2.xml"
     assert "no MJCF" in refused("entry", folder, "nothere.xml")
 
 

@@ -10,20 +10,21 @@ import mujoco
 import numpy as np
 import pytest
 
-from neuroanimator import physics, sampling
-from neuroanimator.physics import lander
-from neuroanimator.physics.model import PhysicalModel
+from neuroanimator import catalog
+from neuroanimator.catalog import lander
+from neuroanimator.sim import sampling
+from neuroanimator.sim.model import PhysicalModel
 
-NAMES = sorted(physics.CATALOG)
+NAMES = sorted(catalog.CATALOG)
 
 
 @pytest.fixture(params=NAMES)
 def model(request: pytest.FixtureRequest) -> PhysicalModel:
-    return physics.get(request.param)
+    return catalog.get(request.param)
 
 
 def test_every_model_loads_under_its_catalog_name(model: PhysicalModel) -> None:
-    assert model.name in physics.CATALOG
+    assert model.name in catalog.CATALOG
     assert model.spec.name == model.name
     assert model.dt > 0
 
@@ -152,14 +153,14 @@ def test_state_matches_single_mujoco_step(model: PhysicalModel) -> None:
     ],
 )
 def test_layout_sizes_match_the_thesis(name: str, state: int, controls: int, forces: int) -> None:
-    model = physics.get(name)
+    model = catalog.get(name)
     assert (model.state_size, model.num_controls, model.num_forces) == (state, controls, forces)
     assert len(model.control_names) == controls
     assert len(model.force_names) == forces
 
 
 def test_lander_physical_constants_match_the_thesis() -> None:
-    m = physics.get("lander").mj_model
+    m = catalog.get("lander").mj_model
     np.testing.assert_allclose(m.opt.gravity, [0.0, 0.0, -1.62])
     assert m.opt.timestep == pytest.approx(0.01)
     ship = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "ship")
@@ -168,7 +169,7 @@ def test_lander_physical_constants_match_the_thesis() -> None:
 
 
 def test_lander_hovers_in_place_at_hover_thrust() -> None:
-    model = physics.get("lander")
+    model = catalog.get("lander")
     s0 = model.rest_state()[None]
     s0[0, model.layout.slice_of("position")] = [3.0, -2.0, 15.0]
     u = np.array([[lander.HOVER_THRUST, 0.0, 0.0, 0.0]])
@@ -179,20 +180,20 @@ def test_lander_hovers_in_place_at_hover_thrust() -> None:
 
 
 def test_lander_falls_without_thrust() -> None:
-    model = physics.get("lander")
+    model = catalog.get("lander")
     s0 = model.rest_state()[None]
     end = model.step_held(s0, np.zeros((1, 4)), None, 100)[0]
     assert end[model.layout.slice_of("velocity")][2] < -1.0  # about -1.62 m/s after 1 s, less drag
 
 
 def test_truck_friction_actuators_are_not_controls() -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     assert model.control_names == ["steer", "gas"]
     assert model.mj_model.nu == 4  # the two friction actuators are in the MJCF, in the passive group
 
 
 def test_truck_sideways_friction_resists_sliding() -> None:
-    model = physics.get("truck")
+    model = catalog.get("truck")
     s0 = model.rest_state()[None]
     s0[0, model.layout.slice_of("velocity")] = [0.0, 2.0]  # heading 0: pure sideways slide
     end = model.step_held(s0, np.zeros((1, 2)), None, 100)[0]
@@ -200,14 +201,14 @@ def test_truck_sideways_friction_resists_sliding() -> None:
 
 
 def test_passive_pendulum_has_no_controls() -> None:
-    model = physics.get("pendulum-passive")
+    model = catalog.get("pendulum-passive")
     assert model.num_controls == 0
     assert model.control_names == []
     assert model.mj_model.nu == 0
 
 
 def test_pendulum_force_inputs_push_their_links() -> None:
-    model = physics.get("pendulum-force")
+    model = catalog.get("pendulum-force")
     assert model.force_names == ["push0", "push1", "push2"]
     s0 = model.rest_state()[None]
     pushed = model.step_held(s0, np.zeros((1, 3)), np.array([[0.0, 0.0, 2.0]]), 50)
@@ -217,29 +218,29 @@ def test_pendulum_force_inputs_push_their_links() -> None:
 
 
 def test_unknown_model_raises_model_error_naming_it() -> None:
-    with pytest.raises(physics.ModelError, match="no-such-model"):
-        physics.get("no-such-model")
+    with pytest.raises(catalog.ModelError, match="no-such-model"):
+        catalog.get("no-such-model")
 
 
 def test_bad_input_width_is_rejected() -> None:
-    model = physics.get("truck")
-    with pytest.raises(physics.ModelError, match="controls"):
+    model = catalog.get("truck")
+    with pytest.raises(catalog.ModelError, match="controls"):
         model.check_batch("controls", np.zeros((2, 3)), model.num_controls)
-    with pytest.raises(physics.ModelError, match="finite"):
+    with pytest.raises(catalog.ModelError, match="finite"):
         model.check_batch("controls", np.full((2, 2), np.nan), model.num_controls)
 
 
 def _truck_with_layout(change: dict[str, object], group: int) -> PhysicalModel:
-    truck = physics.get("truck")
+    truck = catalog.get("truck")
     assert truck.spec.layout is not None
     layout = [g.model_dump() for g in truck.spec.layout]
     layout[group].update(change)
-    spec = physics.ModelSpec.model_validate({**truck.spec.model_dump(), "layout": layout})
+    spec = catalog.ModelSpec.model_validate({**truck.spec.model_dump(), "layout": layout})
     return PhysicalModel(truck.xml, spec)
 
 
 def test_layout_reading_past_mujoco_arrays_raises_naming_the_group() -> None:
-    with pytest.raises(physics.ModelError, match="'yaw_rate'"):
+    with pytest.raises(catalog.ModelError, match="'yaw_rate'"):
         _truck_with_layout({"address": 3}, group=3)  # the truck has 3 qvel values
 
 
@@ -256,9 +257,9 @@ def test_layout_with_unknown_source_raises_naming_the_group() -> None:
 
 
 def test_simulate_rejects_controls_for_a_model_without_actuators() -> None:
-    model = physics.get("pendulum-passive")
+    model = catalog.get("pendulum-passive")
     s0 = model.initial_states(np.random.default_rng(0), 2)
-    with pytest.raises(physics.ModelError, match="takes no controls"):
+    with pytest.raises(catalog.ModelError, match="takes no controls"):
         model.simulate(s0, np.zeros((2, 5, 3)))
 
 
@@ -274,20 +275,20 @@ def test_simulate_rejects_controls_for_a_model_without_actuators() -> None:
 def test_simulate_names_the_bad_argument(
     states_shape: tuple[int, int], controls: np.ndarray, match: str
 ) -> None:
-    model = physics.get("pendulum-active")
-    with pytest.raises(physics.ModelError, match=match):
+    model = catalog.get("pendulum-active")
+    with pytest.raises(catalog.ModelError, match=match):
         model.simulate(np.zeros(states_shape), controls)
 
 
-TASK_NAMES = sorted(t.name for system in physics.SYSTEMS for t in system.TASKS)
+TASK_NAMES = sorted(t.name for system in catalog.SYSTEMS for t in system.TASKS)
 
 
 @pytest.mark.parametrize("name", TASK_NAMES)
 def test_tasks_live_beside_their_model_and_speak_its_layout(name: str) -> None:
     """A task is defined in the module of its model's system, and its labels are that model's layout's."""
-    (system, task) = next((s, t) for s in physics.SYSTEMS for t in s.TASKS if t.name == name)
-    assert physics.CATALOG[task.model].__module__ == system.__name__
-    model = physics.get(task.model)
+    (system, task) = next((s, t) for s in catalog.SYSTEMS for t in s.TASKS if t.name == name)
+    assert catalog.CATALOG[task.model].__module__ == system.__name__
+    model = catalog.get(task.model)
     assert list(task.labels) == model.layout.labels()
     assert len(task.initial_controls) == model.num_controls
     assert all(set(check.variables) <= set(task.labels) for check in task.success)
@@ -295,9 +296,9 @@ def test_tasks_live_beside_their_model_and_speak_its_layout(name: str) -> None:
 
 def test_the_catalog_lists_its_names_and_tasks_without_mujoco() -> None:
     code = (
-        "import sys; from neuroanimator import physics; "
-        "assert [t.name for s in physics.SYSTEMS for t in s.TASKS]; assert physics.CATALOG; "
+        "import sys; from neuroanimator import catalog; "
+        "assert [t.name for s in catalog.SYSTEMS for t in s.TASKS]; assert catalog.CATALOG; "
         "assert 'mujoco' not in sys.modules, 'mujoco loaded'; "
-        "physics.get('truck'); assert 'mujoco' in sys.modules"
+        "catalog.get('truck'); assert 'mujoco' in sys.modules"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60, cwd=Path(__file__).parents[2])

@@ -9,20 +9,21 @@ from pathlib import Path
 import mujoco
 import pytest
 
-from neuroanimator import physics, registry
-from neuroanimator.manifest import parse_manifest
-from neuroanimator.model_spec import ControlInfo, ModelSpec
-from neuroanimator.physics.controls import describe_actuator
-from neuroanimator.physics.model import ModelError, PhysicalModel
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.core.manifest import parse_manifest
+from neuroanimator.core.model_spec import ControlInfo, ModelSpec
+from neuroanimator.sim.controls import describe_actuator
+from neuroanimator.sim.model import ModelError, PhysicalModel
 from tests.helpers import ARM_XML, Trained
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMITTED = sorted(p.parent for p in (ROOT / "artifacts").glob("*/*/manifest.json"))
 
 
-@pytest.mark.parametrize("name", sorted(physics.CATALOG))
+@pytest.mark.parametrize("name", sorted(catalog.CATALOG))
 def test_every_catalog_control_says_what_it_means(name: str) -> None:
-    model = physics.get(name)
+    model = catalog.get(name)
     assert len(model.control_info) == model.num_controls
     for control, info in zip(model.control_names, model.control_info, strict=True):
         assert info.label and info.unit and info.sign and info.gain, (control, info)
@@ -33,7 +34,7 @@ def test_every_catalog_control_says_what_it_means(name: str) -> None:
 def test_committed_manifests_carry_the_catalog_meaning(path: Path) -> None:
     manifest = registry.read_manifest(path)
     infos = dict(
-        zip(physics.get(manifest.model).control_names, physics.get(manifest.model).control_info, strict=True)
+        zip(catalog.get(manifest.model).control_names, catalog.get(manifest.model).control_info, strict=True)
     )
     for c in manifest.controls:
         got = ControlInfo(label=c.label, unit=c.unit, gain=c.gain, sign=c.sign)
@@ -41,7 +42,7 @@ def test_committed_manifests_carry_the_catalog_meaning(path: Path) -> None:
 
 
 def test_truck_controls_are_steer_then_gas() -> None:
-    truck = physics.get("truck")
+    truck = catalog.get("truck")
     assert truck.control_names == ["steer", "gas"]
     steer, gas = truck.control_info
     assert (steer.unit, steer.gain, gas.unit, gas.gain) == ("N", 2.0, "N", 10.0)

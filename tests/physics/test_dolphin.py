@@ -6,14 +6,14 @@ import mujoco
 import numpy as np
 import pytest
 
-from neuroanimator import physics
-from neuroanimator.physics import dolphin
-from neuroanimator.physics.model import PhysicalModel
+from neuroanimator import catalog
+from neuroanimator.catalog import dolphin
+from neuroanimator.sim.model import PhysicalModel
 
 
 @pytest.fixture(scope="module")
 def model() -> PhysicalModel:
-    return physics.get("dolphin")
+    return catalog.get("dolphin")
 
 
 def _deformed(model: PhysicalModel, seed: int) -> tuple[np.ndarray, np.ndarray]:

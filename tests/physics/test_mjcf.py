@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from neuroanimator import sampling
 from neuroanimator.cli import main
-from neuroanimator.physics.mjcf import load_mjcf
-from neuroanimator.physics.model import ModelError, SimulationDiverged
+from neuroanimator.sim import sampling
+from neuroanimator.sim.mjcf import load_mjcf
+from neuroanimator.sim.model import ModelError, SimulationDiverged
 
 FREE_BODY = """<mujoco>
   <option gravity="0 0 -9.81"/>

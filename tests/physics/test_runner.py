@@ -8,15 +8,16 @@ import mujoco
 import numpy as np
 import pytest
 
-from neuroanimator import physics
-from neuroanimator.physics import runner, runner_control
+from neuroanimator import catalog
+from neuroanimator.catalog.runner import body as runner
+from neuroanimator.catalog.runner import gait as runner_control
 
 pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")
 
 
 @pytest.fixture(scope="module")
 def m() -> mujoco.MjModel:
-    return physics.get("runner").mj_model
+    return catalog.get("runner").mj_model
 
 
 def _standing_start(m: mujoco.MjModel) -> np.ndarray:
@@ -27,7 +28,7 @@ def _standing_start(m: mujoco.MjModel) -> np.ndarray:
 
 
 def test_the_figure_is_a_70_kg_human_of_35_degrees_of_freedom(m: mujoco.MjModel) -> None:
-    model = physics.get("runner")
+    model = catalog.get("runner")
     assert m.nv == 35 and m.nu == 29
     assert (model.state_size, model.num_controls, model.num_forces) == (
         71,
@@ -160,9 +161,9 @@ def test_noise_and_per_run_pushes_perturb_the_runs(m: mujoco.MjModel) -> None:
 
 
 def test_training_data_come_from_running_its_neighbourhood_and_pushes() -> None:
-    from neuroanimator.physics import runner_data
+    from neuroanimator.catalog.runner import data as runner_data
 
-    model = physics.get("runner")
+    model = catalog.get("runner")
     ex = runner_data.examples(model, 6, 600, seed=2, progress=False)
     assert ex.states.shape == (600, 71) and ex.forces.shape == (600, 2)
     ex.check_finite()
@@ -185,9 +186,9 @@ def test_training_data_come_from_running_its_neighbourhood_and_pushes() -> None:
 def test_rollout_windows_replayed_open_loop_are_the_runs_they_came_from(m: mujoco.MjModel) -> None:
     """A window of a closed-loop run, its servo targets and pushes replayed without the controller,
     is the same window: what training over rollouts compares the emulator with."""
-    from neuroanimator.physics import runner_data
+    from neuroanimator.catalog.runner import data as runner_data
 
-    model = physics.get("runner")
+    model = catalog.get("runner")
     seq = runner_data.sequences(model, 6, 8, 4, seed=3, progress=False)
     assert (
         seq.states.shape == (8, 5, 71) and seq.controls.shape == (8, 4, 29) and seq.forces.shape == (8, 4, 2)

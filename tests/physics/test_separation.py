@@ -1,4 +1,4 @@
-"""Typical starts that do not begin inside the floor or inside each other (``physics.separation``): a
+"""Typical starts that do not begin inside the floor or inside each other (``catalog.separation``): a
 start in the floor is lifted by its root and keeps its joint angles and velocities; two bodies drawn
 into each other with no root to lift are drawn nearer the rest pose; starts that touch nothing are
 exactly as drawn."""
@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from neuroanimator import physics
-from neuroanimator.physics import mjcf, separation
-from neuroanimator.physics.model import PhysicalModel
+from neuroanimator import catalog
+from neuroanimator.sim import mjcf, separation
+from neuroanimator.sim.model import PhysicalModel
 
 HOPPER = """
 <mujoco model="stilt">
@@ -110,5 +110,5 @@ def test_bodies_drawn_into_each_other_start_nearer_rest(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("name", ["ball", "quadrotor"])
 def test_catalog_starts_that_touch_nothing_are_as_drawn(name: str) -> None:
-    model = physics.get(name)
+    model = catalog.get(name)
     assert np.array_equal(model.initial_states(np.random.default_rng(9), 128), drawn_as_before(model, 9, 128))

@@ -11,8 +11,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from neuroanimator import physics, registry
-from neuroanimator.physics.model import PhysicalModel
+from neuroanimator import catalog
+from neuroanimator.artifacts import registry
+from neuroanimator.sim.model import PhysicalModel
 
 ROOT = Path(__file__).resolve().parents[2]
 VISUAL_GROUP = 2
@@ -30,7 +31,7 @@ def _without_visuals(xml: str) -> tuple[str, int]:
 
 @pytest.mark.parametrize("name", DRESSED)
 def test_visual_geoms_are_visual_only(name: str) -> None:
-    model = physics.get(name)
+    model = catalog.get(name)
     m = model.mj_model
     visual = [g for g in range(m.ngeom) if m.geom_group[g] == VISUAL_GROUP]
     assert len(visual) >= 3, f"{name} has {len(visual)} visual geoms"
@@ -42,7 +43,7 @@ def test_visual_geoms_are_visual_only(name: str) -> None:
 
 @pytest.mark.parametrize("name", DRESSED)
 def test_visual_geoms_change_no_physics(name: str) -> None:
-    dressed = physics.get(name)
+    dressed = catalog.get(name)
     bare_xml, removed = _without_visuals(dressed.xml)
     assert removed > 0
     bare = PhysicalModel(bare_xml, dressed.spec)

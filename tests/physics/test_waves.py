@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from neuroanimator import physics
-from neuroanimator.model_spec import TravellingWaves
-from neuroanimator.physics import dolphin
-from neuroanimator.physics.model import ModelError
-from neuroanimator.physics.waves import mix_waves, wave_controls
+from neuroanimator import catalog
+from neuroanimator.catalog import dolphin
+from neuroanimator.core.model_spec import TravellingWaves
+from neuroanimator.sim.model import ModelError
+from neuroanimator.sim.waves import mix_waves, wave_controls
 
 LOHI = np.array([[0.0, 1.0]] * 6)
 TIMES = np.arange(0.0, 20.0, 0.05)
@@ -44,7 +44,7 @@ def test_a_share_of_runs_are_waves_and_all_stay_in_range() -> None:
 
 
 def test_the_dolphins_typical_controls_hold_strokes() -> None:
-    model = physics.get("dolphin")
+    model = catalog.get("dolphin")
     u = model.typical_controls(np.random.default_rng(3), 200, TIMES)
     # per run, the correlation of dorsal and ventral muscle 1: near −1 for strokes (blended 4:1 with
     # random activations), near 0 for independent random ones

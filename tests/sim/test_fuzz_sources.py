@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 from neuroanimator.sim import sandbox
-from neuroanimator.sim.bundle import Limits, SourceError, extract, load_source
+from neuroanimator.sim.bundle import Limits, SourceError, extract
+from neuroanimator.sim.sandbox import load_bundle
 
 ROOT = Path(__file__).resolve().parents[2]
 TINYBOT = ROOT / "tests" / "data" / "tinybot"
@@ -115,7 +116,7 @@ def test_mutated_mjcfs_bundle_or_are_refused(tmp_path: Path) -> None:
                 del xml[at : at + rng.randint(1, 40)]
         (folder / "robot.xml").write_bytes(bytes(xml))
         try:
-            b = load_source(folder, "robot.xml", Limits(compile_seconds=20.0))
+            b = load_bundle(folder, "robot.xml", Limits(compile_seconds=20.0))
         except SourceError as exc:
             assert str(tmp_path) not in str(exc), str(exc)
             assert "root:" not in str(exc)  # nothing of /etc/passwd

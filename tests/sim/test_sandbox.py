@@ -18,7 +18,8 @@ import mujoco
 import pytest
 
 from neuroanimator.sim import landlock, sandbox
-from neuroanimator.sim.bundle import Limits, SourceError, load_source
+from neuroanimator.sim.bundle import Limits, SourceError
+from neuroanimator.sim.sandbox import load_bundle
 
 pytestmark = pytest.mark.skipif(not sandbox.available(), reason="this kernel has no Linux Landlock")
 
@@ -71,7 +72,7 @@ def refusal(tmp_path: Path, name: str, xml: str) -> SourceError:
     upload.mkdir(parents=True)
     (upload / "upload.xml").write_text(xml)
     with pytest.raises(SourceError) as info:
-        load_source(upload / "upload.xml")
+        load_bundle(upload / "upload.xml")
     return info.value
 
 
@@ -113,7 +114,7 @@ def test_a_flexcomp_mesh_inside_the_upload_still_loads(tmp_path: Path) -> None:
     folder.mkdir()
     (folder / "model.xml").write_text(flexcomp("cloth.obj"))
     (folder / "cloth.obj").write_bytes(OBJ)
-    b = load_source(folder)
+    b = load_bundle(folder)
     assert "<include" not in b.xml
     assert mujoco.MjModel.from_xml_string(b.xml, b.vfs()).nflex == 1
 
@@ -158,14 +159,14 @@ def test_costly_models_are_stopped_by_the_caps(tmp_path: Path) -> None:
     (tmp_path / "rep.xml").write_text(replicate)
     t0 = time.monotonic()
     with pytest.raises(SourceError) as info:
-        load_source(tmp_path / "rep.xml", limits=Limits(compile_seconds=3.0))
+        load_bundle(tmp_path / "rep.xml", limits=Limits(compile_seconds=3.0))
     assert info.value.kind == "too_costly" and "COMPILE_SECONDS" in str(info.value)
     assert time.monotonic() - t0 < 10.0
     big = tmp_path / "big.zip"
     with zipfile.ZipFile(big, "w", zipfile.ZIP_DEFLATED) as zf:
         zf.writestr("m/model.xml", DECOY.replace("<worldbody>", "<worldbody>" + " " * (9 << 20), 1))
     with pytest.raises(SourceError) as info:
-        load_source(big, limits=Limits(max_ratio=1e6))
+        load_bundle(big, limits=Limits(max_ratio=1e6))
     assert info.value.kind == "file_too_large" and "m/model.xml" in str(info.value)
 
 

@@ -26,7 +26,7 @@ from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.websockets import WebSocketDisconnect
 
-from neuroanimator.emulator_schemas import ErrorBody
+from neuroanimator.contracts.emulator import ErrorBody
 from services.common import job_events as sse
 from services.common.auth import OwnerDep, get_owner
 from services.common.job_events import REDIS_GONE, SSE_RESPONSES, follow

@@ -11,9 +11,9 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response
 
-from neuroanimator import registry
-from neuroanimator.control import TASKS, JobSpecError, validate_job
-from neuroanimator.controller_schemas import (
+from neuroanimator.artifacts import registry
+from neuroanimator.catalog.tasks import TASKS
+from neuroanimator.contracts.controller import (
     FINAL_STATES,
     BestSoFar,
     JobAccepted,
@@ -23,7 +23,9 @@ from neuroanimator.controller_schemas import (
     JobStatus,
     JobSummary,
 )
-from neuroanimator.emulator_schemas import ErrorBody
+from neuroanimator.contracts.emulator import ErrorBody
+from neuroanimator.control.validation import validate_job
+from neuroanimator.goals.errors import JobSpecError
 from services.common import tenancy
 from services.common.auth import CALLER, OwnerDep
 from services.common.errors import ApiError

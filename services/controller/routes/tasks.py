@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from neuroanimator.control import TASKS
-from neuroanimator.controller_schemas import TaskInfo, TaskList
+from neuroanimator.catalog.tasks import TASKS
+from neuroanimator.contracts.controller import TaskInfo, TaskList
 from services.controller.store import clean
 
 router = APIRouter(tags=["tasks"])

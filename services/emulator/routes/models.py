@@ -9,8 +9,8 @@ from typing import Any
 from fastapi import APIRouter
 from fastapi.responses import FileResponse
 
-from neuroanimator import registry
-from neuroanimator.emulator_schemas import (
+from neuroanimator.artifacts import registry
+from neuroanimator.contracts.emulator import (
     ControlInfo,
     DriverInfo,
     ErrorBody,

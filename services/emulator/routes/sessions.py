@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from fastapi import APIRouter, Response
 
-from neuroanimator.driver import Driver
-from neuroanimator.emulator_schemas import ErrorBody, SessionCreate, SessionInfo, StepRequest, StepResponse
+from neuroanimator.contracts.emulator import ErrorBody, SessionCreate, SessionInfo, StepRequest, StepResponse
+from neuroanimator.sim.driver import Driver
 from services.emulator.deps import ServiceDep
 from services.emulator.interpolation import frames
 from services.emulator.service import EmulatorService

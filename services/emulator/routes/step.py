@@ -18,7 +18,7 @@ from typing import Any
 from fastapi import APIRouter, Request, Response
 from pydantic import ValidationError
 
-from neuroanimator.emulator_schemas import BatchStepRequest, BatchStepResponse, BatchStepResult, ErrorBody
+from neuroanimator.contracts.emulator import BatchStepRequest, BatchStepResponse, BatchStepResult, ErrorBody
 from services.common.errors import json_error
 from services.emulator.binary import MEDIA_TYPE as OCTET
 from services.emulator.deps import ServiceDep

@@ -5,36 +5,25 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from neuroanimator.driver import load_driver
-from neuroanimator.emulator_schemas import WsControls, WsPing, WsStart
+from neuroanimator.contracts.emulator import WsControls, WsPing, WsStart
+from neuroanimator.sim.driver import load_driver
 from services.emulator import binary
 from services.emulator.error_mapping import ws_error
 from services.emulator.errors import BadInput, EmulatorError, WrongMode
-from services.emulator.inputs import CheckedInputs
 from services.emulator.scene import MujocoShadow
 from services.emulator.service import EmulatorService
 from services.emulator.sessions import Session
 from services.emulator.stepping import Lane, outside_groups
 from services.emulator.ws import protocol
-from services.emulator.ws.realtime import Realtime
+from services.emulator.ws.realtime import HeldInputs, Realtime
 from services.emulator.ws.transport import AsgiSocket, ClientGone, Disconnected, Frame, LatestQueue, Sender
 
 log = logging.getLogger(__name__)
 _NO_CLIP: list[int] = []
-
-
-@dataclass(slots=True)
-class HeldInputs:
-    """Checked inputs and the ``seq`` of the message they came with (real-time mode steps with the
-    latest of them; its state messages echo that ``seq``)."""
-
-    inputs: CheckedInputs
-    seq: int | None = None
 
 
 class Connection:

@@ -1,5 +1,5 @@
 """The websocket protocol: client messages parsed, server messages encoded (JSON text or the binary
-frames of proto/frames.md); the wire models are ``neuroanimator.emulator_schemas``'s ``Ws*``."""
+frames of proto/frames.md); the wire models are ``neuroanimator.contracts.emulator``'s ``Ws*``."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import TypeAdapter, ValidationError
 
-from neuroanimator.emulator_schemas import ClientMessage, ShadowState, WsPong, WsStart, WsStarted, WsState
+from neuroanimator.contracts.emulator import ClientMessage, ShadowState, WsPong, WsStart, WsStarted, WsState
 from services.common.errors import json_error
 from services.emulator import binary
 from services.emulator.error_mapping import invalid

@@ -12,22 +12,49 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
+from typing import Protocol
 
 from services.emulator.error_mapping import ws_error
 from services.emulator.errors import EmulatorError
-from services.emulator.ws.transport import ClientGone, Disconnected
-
-if TYPE_CHECKING:
-    from services.emulator.ws.connection import Connection
+from services.emulator.inputs import CheckedInputs
+from services.emulator.registry import LoadedEmulator
+from services.emulator.service import EmulatorService
+from services.emulator.stepping import Lane
+from services.emulator.ws.transport import ClientGone, Disconnected, Frame, LatestQueue, Sender
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(slots=True)
+class HeldInputs:
+    """Checked inputs and the ``seq`` of the message they came with (real-time mode steps with the
+    latest of them; its state messages echo that ``seq``)."""
+
+    inputs: CheckedInputs
+    seq: int | None = None
+
+
+class Host(Protocol):
+    """What real-time mode uses of its connection (``ws.connection.Connection``)."""
+
+    service: EmulatorService
+    emu: LoadedEmulator
+    sid: str
+    sender: Sender
+    queue: LatestQueue[Frame]
+    period_s: float
+    held: HeldInputs
+
+    async def advance(self, held: HeldInputs, lane: Lane) -> Frame: ...
+
+    def end(self) -> None: ...
 
 
 class Realtime:
     """The ticker and pusher tasks of one connection in real-time mode."""
 
-    def __init__(self, conn: Connection) -> None:
+    def __init__(self, conn: Host) -> None:
         self.conn = conn
         self.lane = conn.service.stepper.lane(conn.emu, "ws-realtime")
         self._ticker: asyncio.Task[None] | None = None

@@ -16,9 +16,9 @@ from typing import Any
 from fastapi import APIRouter
 from starlette.concurrency import run_in_threadpool
 
-from neuroanimator import registry
-from neuroanimator.emulator_schemas import ErrorBody
-from neuroanimator.trainer_schemas import StoredModel, StoredModelList, Usage
+from neuroanimator.artifacts import registry
+from neuroanimator.contracts.emulator import ErrorBody
+from neuroanimator.contracts.trainer import StoredModel, StoredModelList, Usage
 from services.common import tenancy
 from services.common.auth import CALLER, OPERATOR, OwnerDep
 from services.common.errors import ApiError

@@ -34,8 +34,8 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException
 
-from neuroanimator.emulator_schemas import ErrorBody
-from neuroanimator.trainer_schemas import (
+from neuroanimator.contracts.emulator import ErrorBody
+from neuroanimator.contracts.trainer import (
     LossPoint,
     TrainingAccepted,
     TrainingList,

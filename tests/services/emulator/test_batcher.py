@@ -11,7 +11,7 @@ import httpx
 import numpy as np
 from fastapi.testclient import TestClient
 
-from neuroanimator.export import OnnxEmulator
+from neuroanimator.export.runtime import OnnxEmulator
 from services.emulator.app import create_app
 from services.emulator.settings import Settings
 from tests.helpers import service_of

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from neuroanimator.driver import DriverError, check_params
-from neuroanimator.physics import get as physics_get
+from neuroanimator.catalog import get as physics_get
+from neuroanimator.sim.driver import DriverError, check_params
 
 ARTIFACTS = Path(__file__).resolve().parents[3] / "artifacts"
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from fastapi.testclient import TestClient
 
-from neuroanimator.state import heading_columns
+from neuroanimator.core.state import heading_columns
 from services.emulator.app import create_app
 from services.emulator.scene import MujocoShadow
 from services.emulator.settings import Settings
@@ -39,9 +39,9 @@ def test_truck_heading_is_wrapped_in_steps_and_frames() -> None:
 
 
 def test_the_mujoco_shadow_reports_its_heading_wrapped() -> None:
-    from neuroanimator import physics
+    from neuroanimator import catalog
 
-    truck = physics.get("truck")
+    truck = catalog.get("truck")
     twin = MujocoShadow(truck, 50, np.array([0.0, 0.0, 3.0, 0.0, 0.0, 0.0]))
     seen = [twin.step(np.array([10.0, 5.0], np.float32), np.zeros(0, np.float32))[2] for _ in range(40)]
     assert all(-np.pi <= h < np.pi for h in seen)

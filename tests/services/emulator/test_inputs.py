@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from neuroanimator.manifest import ControlInput
-from neuroanimator.model_spec import ForceInput
+from neuroanimator.core.manifest import ControlInput
+from neuroanimator.core.model_spec import ForceInput
 from services.emulator import binary
 from services.emulator.errors import BadInput
 from services.emulator.inputs import InputRange

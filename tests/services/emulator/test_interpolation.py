@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from neuroanimator import quaternion as quat
+from neuroanimator.core import quaternion as quat
 from services.emulator.interpolation import frames
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from neuroanimator.physics import get as physics_get
+from neuroanimator.catalog import get as physics_get
 
 
 def test_geometry_lists_bodies_and_geoms(client: TestClient) -> None:
@@ -168,7 +168,7 @@ def test_the_dolphin_is_drawn_as_a_skin_that_follows_its_nodes(
     its vertices where MuJoCo's own skinning does (before inflation), for a bent and moved body."""
     import mujoco
 
-    from neuroanimator.physics import dolphin
+    from neuroanimator.catalog import dolphin
 
     client = make_client(
         artifacts_dir=Path(__file__).resolve().parents[3] / "artifacts"

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from neuroanimator.emulator_schemas import SessionCreate
+from neuroanimator.contracts.emulator import SessionCreate
 from services.emulator import binary
 from services.emulator.fastpath import binary_step
 from services.emulator.service import EmulatorService

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from neuroanimator.super_step import ModelOutOfReach, check_useful
+from neuroanimator.training.super_step import ModelOutOfReach, check_useful
 from services.trainer.run import in_service_words
 
 

@@ -19,7 +19,7 @@ from typing import Any
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from neuroanimator import registry
+from neuroanimator.artifacts import registry
 from services.trainer.app import create_app
 from services.trainer.settings import Settings
 from tests.helpers import uvicorn_serving

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from neuroanimator import registry
-from neuroanimator.results import ModelBench, ModelEval, VersionBench, VersionEval
+from neuroanimator.artifacts import registry
+from neuroanimator.core.results import ModelBench, ModelEval, VersionBench, VersionEval
 from services.web.app import create_app
 from services.web.settings import Settings
 

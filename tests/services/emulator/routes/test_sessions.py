@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from fastapi.testclient import TestClient
 
-from neuroanimator.export import OnnxEmulator
+from neuroanimator.export.runtime import OnnxEmulator
 from tests.helpers import service_of
 
 

@@ -22,7 +22,7 @@ from fastapi.testclient import TestClient
 from starlette.types import Message, Receive, Scope, Send
 from websockets.sync.client import connect
 
-from neuroanimator.emulator_schemas import SessionCreate
+from neuroanimator.contracts.emulator import SessionCreate
 from services.emulator import binary
 from services.emulator.app import create_app
 from services.emulator.service import EmulatorService

@@ -1,0 +1,452 @@
+"""The artifact registry, write side (and the torch emulator of an artifact): needs torch.
+
+``save`` writes a trained emulator as a new version folder (the files and pointers described in
+``neuroanimator.artifacts.registry``, which finds and reads them). A version folder is renamed into place only
+when complete, and pointers are replaced atomically, so a crash never leaves a half-written version
+marked latest. ``load_torch`` rebuilds the torch emulator of a version (the same weights as its ONNX
+graph) for the processes that differentiate through it.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import os
+import shutil
+import tempfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+
+from neuroanimator.artifacts import registry
+from neuroanimator.emulator.articulated import TRUNK, articulated_core, branch_geoms, make_articulated
+from neuroanimator.emulator.clearance import Clearance
+from neuroanimator.export.onnx import to_onnx
+from neuroanimator.emulator.hierarchy import GLOBAL, VECTORS, HierarchicalEmulator
+from neuroanimator.training.hierarchy import HierarchyResult
+from neuroanimator.core.manifest import ControlInput, EmulatorGraph, GraphInput, GraphIO, Hashes, InputGroup, Manifest, ModelAsset, Network, NetworkClearance, NetworkFrame, NetworkLimit, NetworkReads, Normalization, Symmetries, TrainMetrics
+from neuroanimator.sim.model import ModelError, PhysicalModel
+from neuroanimator.emulator.regularizer import regularization
+from neuroanimator.emulator.structured import FrameConfig, JointLimit, StructuredEmulator
+from neuroanimator.training.train import TrainResult
+
+CORE = "core"  # the network of a one-network emulator (StructuredEmulator.core)
+
+
+def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -> Network:
+    """The manifest's description of a one-network emulator: ``core`` in the root frame, writing every
+    state group; ``mode`` is the normalisation mode it was fitted with."""
+    read = {name for name, _ in emu.input_groups}
+    fr = emu.frame
+    return _describe(
+        emu,
+        mode,
+        name=CORE,
+        frame=NetworkFrame(
+            translate=list(fr.translate),
+            rotate=fr.rotate,
+            force_pairs=[list(p) for p in fr.force_pairs],
+            control_pairs=[list(p) for p in fr.control_pairs],
+            body=emu.architecture()["frame"]["body"],  # type: ignore[index]
+        ),
+        reads=NetworkReads(
+            state=[g.name for g in model.layout if g.name in read],
+            controls=list(model.control_names) if "controls" in read else [],
+            forces=list(model.force_names) if "forces" in read else [],
+        ),
+        writes=[g.name for g in model.layout],
+    )
+
+
+def describe_hierarchy(emu: HierarchicalEmulator, model: PhysicalModel, mode: str) -> EmulatorGraph:
+    """The manifest's description of a hierarchical emulator: ``global`` writing every part's frame
+    quantities, then one network per part, in its frame, reading its groups, its neighbours' points
+    and its predicted frame."""
+    controls = list(model.control_names)
+    points = {g for p in emu.parts for pt in p.points for g in pt}
+    networks = [
+        _describe(
+            emu.glob,
+            mode,
+            name=GLOBAL,
+            frame=NetworkFrame(),
+            reads=NetworkReads(state=[g.name for g in model.layout if g.name in points], controls=controls),
+            writes=[g.name for g in emu.glob.layout],
+        )
+    ]
+    for part, (name, net) in zip(emu.parts, emu.networks[1:], strict=True):
+        networks.append(
+            _describe(
+                net,
+                mode,
+                name=name,
+                frame=NetworkFrame(part=name),
+                reads=NetworkReads(
+                    state=[*part.groups, *(g for pt in part.neighbours for g in pt)],
+                    predicted=[f"{name}.{q}" for q in VECTORS],
+                    controls=controls,
+                ),
+                writes=list(part.groups),
+            )
+        )
+    return EmulatorGraph(
+        networks=networks,
+        stages=[[GLOBAL], [p.name for p in emu.parts]],
+        parts=list(emu.parts),
+        regularizer=None if emu.regularizer is None else emu.regularizer.spec,
+    )
+
+
+def describe_articulated(emu: StructuredEmulator, model: PhysicalModel, mode: str) -> EmulatorGraph:
+    """The manifest's description of an articulated hierarchy (``neuroanimator.emulator.articulated``): the trunk
+    network, then one network per branch, all in the root frame; a branch reads the trunk's predicted
+    change of the trunk's groups. Each network's normalisation is its slice of the emulator's."""
+    core = articulated_core(emu)
+    assert core is not None
+    base = describe_network(emu, model, mode)
+    frame = base.frame
+    outputs = core.output_columns()
+    trunk_cols = outputs[TRUNK]
+    x_mean, x_std = emu.x_mean, emu.x_std
+    y_mean, y_std = emu.y_mean, emu.y_std
+    starts, at = {}, 0
+    for group, width in emu.input_groups:
+        starts[group] = (at, width)
+        at += width
+
+    def network(name: str, hidden: tuple[int, ...], net: torch.nn.Module, cols: list[int], reads: NetworkReads,
+                writes: list[str], inputs: list[int], groups: list[InputGroup],
+                clearance: NetworkClearance | None) -> Network:  # fmt: skip
+        norm = Normalization(
+            mode=mode,  # checked by the manifest
+            input_groups=groups,
+            x_mean=[float(v) for v in x_mean[inputs]] + [0.0] * (0 if name == TRUNK else len(trunk_cols)),
+            x_std=[float(v) for v in x_std[inputs]] + [1.0] * (0 if name == TRUNK else len(trunk_cols)),
+            y_mean=[float(v) for v in y_mean[cols]],
+            y_std=[float(v) for v in y_std[cols]],
+        )
+        size = len(norm.x_mean)
+        return Network(
+            name=name,
+            frame=frame,
+            reads=reads,
+            writes=writes,
+            hidden=list(hidden),
+            activation=emu.activation,  # checked by the manifest
+            normalization=norm,
+            input_size=size,
+            output_size=len(cols),
+            weights=sum(p.numel() for p in net.parameters()),
+            skip=True,
+            limits=base.limits if name == TRUNK else [],
+            clearance=clearance,
+            members=core.members,
+        )
+
+    trunk_reads = base.reads
+    networks = [
+        network(
+            TRUNK,
+            core.trunk_hidden,
+            core.trunk,
+            trunk_cols,
+            trunk_reads,
+            list(core.trunk_writes),
+            list(range(emu.input_size)),
+            list(base.normalization.input_groups),
+            base.clearance,
+        )
+    ]
+    for k, b in enumerate(core.branches):
+        sel = core.input_columns(k)  # the emulator's input columns it reads, in order
+        groups = []
+        for group, (start, width) in starts.items():
+            n = sum(1 for c in sel if start <= c < start + width)
+            if n:
+                groups.append(InputGroup(name=group, size=n))
+        groups.append(InputGroup(name=f"{TRUNK}.change", size=len(trunk_cols)))
+        state_groups = [g for g in [*b.groups, *core.trunk_writes, *b.reads] if g in starts]
+        networks.append(
+            network(
+                b.name,
+                core.branch_hidden,
+                core.branch_net(k),
+                outputs[b.name],
+                NetworkReads(
+                    state=list(dict.fromkeys(state_groups)),
+                    predicted=list(core.trunk_writes),
+                    controls=list(model.control_names) if b.controls is None else list(b.controls),
+                ),
+                list(b.groups),
+                sel,
+                groups,
+                None
+                if emu.clearance is None or not branch_geoms(emu, b)
+                else NetworkClearance(geoms=branch_geoms(emu, b), horizon=emu.clearance.horizon),
+            )
+        )
+    return EmulatorGraph(
+        networks=networks,
+        stages=[[TRUNK], [b.name for b in core.branches]],
+        regularizer=None if emu.regularizer is None else emu.regularizer.spec,
+    )
+
+
+def _describe(
+    emu: StructuredEmulator, mode: str, name: str, frame: NetworkFrame, reads: NetworkReads, writes: list[str]
+) -> Network:
+    """One network of an emulator as the manifest lists it (sizes, normalisation, limits from ``emu``)."""
+    return Network(
+        name=name,
+        frame=frame,
+        reads=reads,
+        writes=writes,
+        hidden=list(emu.hidden),
+        activation=emu.activation,  # checked by the manifest
+        normalization=Normalization(
+            mode=mode,  # checked by the manifest
+            input_groups=[InputGroup(name=name, size=size) for name, size in emu.input_groups],
+            x_mean=emu.x_mean.tolist(),
+            x_std=emu.x_std.tolist(),
+            y_mean=emu.y_mean.tolist(),
+            y_std=emu.y_std.tolist(),
+        ),
+        input_size=emu.input_size,
+        output_size=emu.layout.size,
+        weights=sum(p.numel() for p in emu.parameters()),
+        skip=emu.skip is not None,
+        limits=[
+            NetworkLimit(
+                position=lim.position,
+                velocity=lim.velocity,
+                low=lim.low,
+                high=lim.high,
+                horizon=emu.horizon,
+                margin=lim.margin,
+            )
+            for lim in emu.limits
+        ],
+        clearance=None
+        if emu.clearance is None
+        else NetworkClearance(
+            geoms=list(emu.clearance.geoms),
+            pairs=list(emu.clearance.pairs),
+            tendons=list(emu.clearance.tendons),
+            horizon=emu.clearance.horizon,
+        ),
+    )
+
+
+def asset_kinds(xml: str) -> dict[str, Literal["mesh", "texture", "hfield", "skin"]]:
+    """Which kind of asset each file the MJCF names is (``file`` of a mesh, height field, skin, texture,
+    and a texture's cube faces ``file*``)."""
+    kinds: dict[str, Literal["mesh", "texture", "hfield", "skin"]] = {}
+    for el in ET.fromstring(xml).iter():
+        if el.tag in ("mesh", "hfield", "skin", "texture"):
+            for key, value in el.attrib.items():
+                if key.startswith("file") and value:
+                    kinds[value] = el.tag  # type: ignore[assignment]
+    return kinds
+
+
+def describe_assets(model: PhysicalModel) -> list[ModelAsset]:
+    """The manifest's list of the files a model's MJCF names, by content (``ModelAsset``)."""
+    kinds = asset_kinds(model.xml) if model.assets else {}
+    out = []
+    for name, data in sorted(model.assets.items()):
+        if name not in kinds:
+            raise ModelError(f"model {model.name}: asset {name!r} is not named by its MJCF")
+        sha = hashlib.sha256(data).hexdigest()
+        if not name.startswith(sha):
+            raise ModelError(f"model {model.name}: asset {name!r} is not named by its content ({sha})")
+        source = model.asset_sources.get(name, "")
+        out.append(ModelAsset(name=name, sha256=sha, kind=kinds[name], size=len(data), source=source))
+    return out
+
+
+def write_assets(model_dir: Path, model: PhysicalModel) -> None:
+    """Store the model's assets in ``<model>/assets/`` by content: a file already there is the same
+    file (its name is its hash), so versions share it; a new one appears whole or not at all."""
+    if not model.assets:
+        return
+    folder = model_dir / registry.ASSETS_DIR
+    folder.mkdir(exist_ok=True)
+    for name, data in model.assets.items():
+        target = folder / name
+        if target.is_file() and target.stat().st_size == len(data):
+            continue
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-asset-")
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, target)
+
+
+def build_manifest(
+    model: PhysicalModel,
+    result: TrainResult | HierarchyResult,
+    version: str,
+    onnx_sha256: str,
+    created: dt.datetime,
+) -> Manifest:
+    """The manifest of a trained emulator of ``model`` saved as ``version``."""
+    cfg = result.config
+    inputs: list[GraphInput] = ["state"]
+    inputs += ["controls"] if model.num_controls else []
+    inputs += ["forces"] if model.num_forces else []
+    return Manifest(
+        model=model.name,
+        version=version,
+        created=created.isoformat(timespec="seconds"),
+        substeps=cfg.substeps,
+        timestep=model.dt,
+        super_timestep=model.dt * cfg.substeps,
+        description=model.spec.description,
+        state_size=model.state_size,
+        layout=model.layout.placed(),
+        state_labels=model.layout.labels(),
+        controls=[
+            ControlInput(
+                name=n,
+                low=float(lo),
+                high=float(hi),
+                limit_low=float(a),
+                limit_high=float(b),
+                **info.model_dump(),
+            )
+            for n, (lo, hi), (a, b), info in zip(
+                model.control_names,
+                model.control_range,
+                model.control_limits,
+                model.control_info,
+                strict=True,
+            )
+        ],
+        forces=list(model.spec.forces),
+        frame=Symmetries(translate=list(model.frame.translate), rotate=model.frame.rotate),
+        io=GraphIO(inputs=inputs),
+        emulator=describe_hierarchy(result.emulator, model, cfg.normalization)
+        if isinstance(result.emulator, HierarchicalEmulator)
+        else describe_articulated(result.emulator, model, cfg.normalization)
+        if articulated_core(result.emulator) is not None
+        else EmulatorGraph(
+            networks=[describe_network(result.emulator, model, cfg.normalization)],
+            stages=[[CORE]],
+            regularizer=None if result.emulator.regularizer is None else result.emulator.regularizer.spec,
+        ),
+        train_config=cfg,
+        metrics=TrainMetrics(**result.metrics),
+        hashes=Hashes(
+            mjcf_sha256=model.mjcf_sha256(),
+            training_data_sha256=result.data_sha256,
+            onnx_sha256=onnx_sha256,
+        ),
+        spec=model.spec,
+        assets=describe_assets(model),
+        envelope=result.envelope,
+    )
+
+
+def save(root: Path, model: PhysicalModel, result: TrainResult | HierarchyResult) -> Path:
+    """Write a trained emulator as a new version of ``model``; returns the version folder."""
+    if not registry.is_name(model.name):
+        raise ModelError(
+            f"model name {model.name!r} cannot name a folder: use letters, digits, '.', '_' or '-'"
+        )
+    substeps = result.config.substeps
+    model_dir = root / model.name
+    model_dir.mkdir(parents=True, exist_ok=True)
+    now = dt.datetime.now(dt.UTC)
+    repeat = 1
+    while (model_dir / registry.version_name(substeps, now, repeat)).exists():
+        repeat += 1
+    version = registry.version_name(substeps, now, repeat)
+    onnx_bytes = to_onnx(result.emulator)
+    manifest = build_manifest(model, result, version, hashlib.sha256(onnx_bytes).hexdigest(), now)
+    write_assets(model_dir, model)  # before the version appears: a version always has its assets
+    tmp = Path(tempfile.mkdtemp(dir=model_dir, prefix=f".tmp-{version}-"))
+    try:
+        (tmp / registry.ONNX_FILE).write_bytes(onnx_bytes)
+        torch.save(result.emulator.state_dict(), tmp / registry.WEIGHTS_FILE)
+        np.save(tmp / registry.LINEAR_FILE, result.linear)
+        (tmp / registry.MJCF_FILE).write_text(model.xml)
+        (tmp / registry.MANIFEST_FILE).write_text(manifest.model_dump_json(indent=2) + "\n")
+        os.rename(tmp, model_dir / version)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    registry.write_pointer(model_dir, registry.pointer_name(substeps), version)
+    if substeps == model.spec.substeps or not (model_dir / registry.pointer_name()).exists():
+        registry.write_pointer(model_dir, registry.pointer_name(), version)
+    return model_dir / version
+
+
+def load_torch(path: Path) -> StructuredEmulator:
+    """The torch emulator of an artifact (same weights as its ONNX graph): one network, or an articulated
+    hierarchy (one structured emulator too); ``load_hierarchy`` builds a hierarchy over parts."""
+    manifest = registry.read_manifest(path)
+    model = registry.load_physical_model(path, manifest)
+    branches = manifest.spec.branches
+    by_name = {n.name: n for n in manifest.emulator.networks}
+    net = by_name[TRUNK] if branches else manifest.emulator.only()
+    fr = net.frame
+    emu = StructuredEmulator(
+        model.layout,
+        model.num_controls,
+        model.num_forces,
+        FrameConfig(
+            translate=tuple(fr.translate),
+            rotate=fr.rotate,
+            force_pairs=tuple(tuple(p) for p in fr.force_pairs),
+            body=fr.body,
+            control_pairs=tuple(tuple(p) for p in fr.control_pairs),
+        ),
+        tuple(net.hidden),
+        net.activation,
+        skip=net.skip and not branches,
+        limits=[JointLimit(lim.position, lim.velocity, lim.low, lim.high, lim.margin) for lim in net.limits],
+        horizon=net.limits[0].horizon if net.limits else 0.0,
+        clearance=None
+        if net.clearance is None
+        else Clearance(
+            model, net.clearance.geoms, net.clearance.horizon, net.clearance.pairs, net.clearance.tendons
+        ),
+    )
+    if branches:
+        branch_hidden = by_name[branches[0].name].hidden
+        make_articulated(
+            emu, branches, model.control_names, tuple(net.hidden), tuple(branch_hidden), net.members
+        )
+    emu.load_state_dict(torch.load(path / registry.WEIGHTS_FILE, weights_only=True))
+    emu.regularizer = regularization(model.layout, manifest.emulator.regularizer, model.num_controls)
+    return emu.eval()
+
+
+def load_hierarchy(path: Path) -> HierarchicalEmulator:
+    """The torch emulator of an artifact whose emulator is a hierarchy over parts (``describe_hierarchy``)."""
+    manifest = registry.read_manifest(path)
+    graph = manifest.emulator
+    if not graph.parts:
+        raise ValueError(f"{path}: this emulator is not a hierarchy over parts")
+    model = registry.load_physical_model(path, manifest)
+    by_name = {n.name: n for n in graph.networks}
+    glob, local = by_name[GLOBAL], by_name[graph.parts[0].name]
+    emu = HierarchicalEmulator(
+        model.layout,
+        model.num_controls,
+        graph.parts,
+        tuple(glob.hidden),
+        tuple(local.hidden),
+        glob.activation,
+        skip=glob.skip,
+    )
+    emu.load_state_dict(torch.load(path / registry.WEIGHTS_FILE, weights_only=True))
+    emu.regularizer = regularization(model.layout, graph.regularizer, model.num_controls)
+    return emu.eval()
+
+
+def load_emulator(path: Path) -> StructuredEmulator | HierarchicalEmulator:
+    """The torch emulator of an artifact, whichever its structure."""
+    return load_hierarchy(path) if registry.read_manifest(path).emulator.parts else load_torch(path)

@@ -1,0 +1,438 @@
+"""The controller service's wire contract: pydantic v2 models of its requests, replies and events.
+
+A job is a controller-synthesis problem (thesis ch. 5): a built-in ``task`` (``GET /tasks``) with
+optional overrides, or a custom objective over a ``model``. The service checks the request's types
+here (finite JSON numbers, positive sizes) and the job against the model and task with
+``neuroanimator.control.validation.validate_job``; both answer 422 naming the field.
+
+    JobCreate --validate_job--> JobSpec (neuroanimator.goals.spec) --run_job--> JobOutcome
+    --stored with the job's id--> JobResult
+
+Numbers that are not finite (an objective that diverged to NaN) travel as ``null``.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from neuroanimator.contracts.emulator import Flag, Integer, Number
+from neuroanimator.goals.criteria import CheckKind
+from neuroanimator.goals.spec import (
+    MAX_GLOBAL_GENERATIONS,
+    MAX_HORIZON,
+    MAX_ITERATIONS,
+    MAX_LEARNING_RATE,
+    MAX_MU,
+    MAX_PHYSICS_ROUNDS,
+    MAX_STARTS,
+    MAX_SUBSTEPS,
+    JobSpec,
+)
+from neuroanimator.goals.terms import MAX_VALUE
+from neuroanimator.goals.verdict import verdict as verdict_of
+
+MAX_VECTOR = 1024
+"""The longest state, weight or control vector a request may carry (the service then checks it
+against the model's own size)."""
+MAX_LABEL = 128
+"""The longest state label, term name or model name."""
+Vector = Annotated[list[Number], Field(max_length=MAX_VECTOR)]
+"""A list of finite JSON numbers, at most ``MAX_VECTOR`` of them."""
+Bounded = Annotated[Number, Field(ge=-MAX_VALUE, le=MAX_VALUE)]
+"""A finite number of magnitude at most ``terms.MAX_VALUE`` (a state value, target or bound)."""
+Label = Annotated[str, Field(min_length=1, max_length=MAX_LABEL)]
+
+JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+"""queued (waiting for a worker, also after a re-queue) → running → succeeded | failed | cancelled."""
+FINAL_STATES: tuple[str, ...] = ("succeeded", "failed", "cancelled")
+MaybeFloat = float | None
+"""A number that is ``null`` where it was not finite (NaN, ±inf)."""
+
+
+class _Wire(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+def _absent(value: object) -> bool:
+    return value is None
+
+
+# ---------------------------------------------------------------- requests
+class OptimizerSpec(_Wire):
+    """Gradient descent with momentum (thesis eq. 5.4): ``u ← u − η∇J + α·δu_prev``; it stops after
+    ``max_iterations`` or when the objective improves by less than ``tolerance``."""
+
+    learning_rate: Number | None = Field(None, gt=0, le=MAX_LEARNING_RATE, description="η")
+    momentum: Number | None = Field(None, ge=0, lt=1, description="α")
+    max_iterations: Integer | None = Field(
+        None,
+        ge=1,
+        le=MAX_ITERATIONS,
+        description="cap on the gradient-descent updates (the Levenberg-Marquardt ones after them have their own)",
+    )
+    tolerance: Number | None = Field(None, ge=0, le=1, description="stop when the objective changes less")
+    stop_on_success: Flag | None = Field(None, description="stop once the success criterion holds")
+    line_search: Flag | None = Field(
+        None, description="pick η and α afresh each iteration from a batch of candidates (off: fixed η, α)"
+    )
+    polish_iterations: Integer | None = Field(
+        None, ge=0, le=MAX_ITERATIONS, description="updates after the success criterion first holds"
+    )
+    physics_rounds: Integer | None = Field(
+        None,
+        ge=0,
+        le=MAX_PHYSICS_ROUNDS,
+        description="rounds of re-optimising on an emulator corrected by the MuJoCo replay",
+    )
+    starts: Integer | None = Field(
+        None,
+        ge=1,
+        le=MAX_STARTS,
+        description="controllers descended at once, from a global search's best and fixed starts",
+    )
+    global_generations: Integer | None = Field(
+        None,
+        ge=0,
+        le=MAX_GLOBAL_GENERATIONS,
+        description="generations of the cross-entropy search before gradient descent (0: none)",
+    )
+    gauss_newton_iterations: Integer | None = Field(
+        None,
+        ge=0,
+        le=MAX_ITERATIONS,
+        description=(
+            "Levenberg-Marquardt updates when gradient descent ends without meeting the success "
+            "criterion on the emulator (0: none)"
+        ),
+    )
+
+
+class ObjectiveTerm(BaseModel):
+    """One term of a custom objective: ``term`` names it, its other keys are the term's parameters
+    (``GET /tasks`` and the README list them; the service checks each against the model, 422 naming it)."""
+
+    model_config = ConfigDict(extra="allow")
+    term: str = Field(min_length=1, max_length=64)
+
+
+class SuccessCheckSpec(_Wire):
+    """One check on the final state (``neuroanimator.goals.criteria``): ``variables`` are state labels
+    of the model; ``target`` (one value per variable) overrides the job's target state; ``max`` bounds
+    the measured value (``range``: ``min`` and/or ``max``)."""
+
+    check: CheckKind
+    variables: list[Label] = Field(min_length=1, max_length=MAX_VECTOR)
+    max: Bounded | None = None
+    min: Bounded | None = None
+    target: Annotated[list[Bounded], Field(max_length=MAX_VECTOR)] | None = None
+
+
+class JobCreate(_Wire):
+    """A controller-synthesis job: a built-in ``task`` and/or a ``model`` with the objective's pieces;
+    every field left out takes the task's (or the default) value."""
+
+    task: str | None = Field(None, max_length=64, description="a built-in task of GET /tasks")
+    model: str | None = Field(None, max_length=128, description="an emulator in the artifact registry")
+    version: str | None = Field(None, max_length=128, description="an artifact version (default: latest)")
+    substeps: Integer | None = Field(
+        None, ge=1, le=MAX_SUBSTEPS, description="the emulator's super timestep n"
+    )
+    initial_state: Vector | None = None
+    target_state: Vector | None = Field(None, description="s_d of the final-state term")
+    state_weights: Vector | None = Field(None, description="weight of each state variable in that term")
+    horizon: Integer | None = Field(
+        None, ge=1, le=MAX_HORIZON, description="length of the controller, in super-steps"
+    )
+    points_per_step: Number | None = Field(None, gt=0, le=1, description="control points per super-step")
+    initial_controls: Vector | None = Field(None, description="the controls the optimisation starts from")
+    mu_u: Number | None = Field(None, ge=0, le=MAX_MU, description="μ_u, weight of the control effort")
+    mu_s: Number | None = Field(None, ge=0, le=MAX_MU, description="μ_s, weight of the final-state error")
+    terms: list[ObjectiveTerm] | None = Field(None, max_length=32, description="a custom objective")
+    success: list[SuccessCheckSpec] | None = Field(
+        None, max_length=32, description="checks on the final state that define success"
+    )
+    optimizer: OptimizerSpec | None = None
+    idempotency_key: str | None = Field(
+        None,
+        min_length=1,
+        max_length=128,
+        pattern=r"^[\x21-\x7e]+$",
+        description="the same key (and body) returns the same job instead of a new one",
+    )
+
+    def spec(self) -> dict[str, Any]:
+        """The job's request as JSON (what ``validate_job`` checks): the set fields, less the key."""
+        return self.model_dump(exclude_none=True, exclude={"idempotency_key"})
+
+
+# ---------------------------------------------------------------- replies
+class JobAccepted(BaseModel):
+    """A job on the queue (or, for a repeated idempotency key, the job it already made)."""
+
+    id: str
+    status: JobState
+    created: bool = Field(True, description="false when an idempotency key returned an existing job")
+
+
+class BestSoFar(BaseModel):
+    """The best controller found so far (lowest finite objective)."""
+
+    model_config = ConfigDict(extra="allow")
+    iteration: int | None = None
+    objective: MaybeFloat = None
+
+
+class JobStatus(BaseModel):
+    """A job as it runs: the progress of its current attempt and, once it ended, how."""
+
+    id: str
+    status: JobState
+    task: str | None = None
+    model: str | None = None
+    version: str | None = None
+    created_at: float = Field(description="Unix time")
+    started_at: float | None = None
+    ended_at: float | None = None
+    attempt: int = Field(0, description="runs started (a re-queued job starts again)")
+    failures: int = Field(0, description="runs that crashed, raised or were abandoned by their worker")
+    worker: str | None = None
+    iteration: int = 0
+    max_iterations: int | None = None
+    objective: MaybeFloat = None
+    best_objective: MaybeFloat = None
+    success_emulator: bool | None = None
+    elapsed_s: float | None = None
+    objective_history: list[MaybeFloat] = []
+    best: BestSoFar | None = Field(None, description="the best controller so far")
+    error: str | None = Field(None, description="why it failed or was cancelled (or why it was re-queued)")
+    result: str | None = Field(None, description="where the result is, once the job ended")
+
+
+class JobSummary(BaseModel):
+    """One line of GET /jobs."""
+
+    id: str
+    status: JobState
+    task: str | None = None
+    model: str | None = None
+    created_at: float
+    ended_at: float | None = None
+    iteration: int = 0
+    best_objective: MaybeFloat = None
+
+
+class JobList(BaseModel):
+    """The caller's jobs, newest first."""
+
+    jobs: list[JobSummary]
+
+
+class Trajectory(BaseModel):
+    """States at ``times``: one row of S numbers per time."""
+
+    model_config = ConfigDict(extra="allow")
+    states: list[list[MaybeFloat]] = []
+
+
+class CheckOutcome(BaseModel):
+    """One success check on a final state: its text, whether it held, and the value measured."""
+
+    check: str
+    passed: bool
+    value: MaybeFloat = None
+
+
+class EmulatorPhase(BaseModel):
+    """The controller found on the emulator alone, before any physics refinement, and its replay."""
+
+    objective: MaybeFloat = None
+    success_emulator: bool | None = None
+    success_physics: bool | None = None
+    final_error_emulator: MaybeFloat = None
+    final_error_physics: MaybeFloat = None
+
+
+class RefinementRound(BaseModel):
+    """One round of re-optimising on the emulator corrected along the last MuJoCo replay."""
+
+    round: int
+    iterations: int
+    stop: str
+    # a diverged round has a reason; the others an objective and a success on MuJoCo
+    reason: str | None = Field(None, description="why the round ended early", exclude_if=_absent)
+    objective_physics: MaybeFloat = Field(None, exclude_if=_absent)
+    success_physics: bool | None = Field(None, exclude_if=_absent)
+
+
+class Refinement(BaseModel):
+    """The physics-refinement rounds of a run (none when the first replay met the criterion)."""
+
+    rounds: list[RefinementRound] = []
+    iterations: int = 0
+    physics_replays: int = Field(1, description="MuJoCo replays, the first one included")
+
+
+class GaussNewtonInfo(BaseModel):
+    """The Levenberg-Marquardt updates that followed gradient descent when it ended short of the
+    criterion on the emulator (``neuroanimator.control.gauss_newton``), over the whole run."""
+
+    runs: int = Field(0, description="times it ran: after the emulator descent and per refinement round")
+    iterations: int = Field(0, description="updates made, all runs together")
+    rollouts: int = Field(0, description="emulator trajectories it scored (Jacobians and damping candidates)")
+    success: bool = Field(
+        False, description="whether a run reached the criterion that the descent before it missed"
+    )
+
+
+class SearchInfo(BaseModel):
+    """The search before single-start descent: a cross-entropy pass and several starts descended at
+    once, all batched on the emulator (``neuroanimator.control.search``)."""
+
+    starts: int = Field(1, description="controllers descended at once")
+    global_rollouts: int = Field(0, description="controllers the global (cross-entropy) pass scored")
+    start_iterations: int = Field(0, description="batched descent iterations over all starts")
+    chosen: str = Field("initial controls", description="the start the returned controller came from")
+
+
+class JobOutcome(BaseModel):
+    """What ``run_job`` returns (a job that crashed has only ``status``, ``reason`` and what was known):
+    the controller (control points and the sampled ``controls`` at ``times``), the trajectory it gives
+    on the emulator and on the physics (MuJoCo), and their errors against the target.
+
+    Shapes: M control points and K super-steps per controller, U controls, S state variables."""
+
+    model_config = ConfigDict(extra="allow")
+    status: Literal["succeeded", "failed", "cancelled"]
+    verdict: str | None = Field(
+        None,
+        description=(
+            "how the job ended, in words for a report (``status`` only says the run ended normally): "
+            "succeeded (the controller meets the success criterion on MuJoCo) | done, no criterion | "
+            "done, criterion met on the emulator only | done, criterion missed | failed | cancelled; "
+            "worked out from the status and the success fields when not given"
+        ),
+    )
+    reason: str | None = None
+    stop: str | None = Field(
+        None,
+        description=(
+            "success | converged | stalled | max_iterations | missed_on_physics (met on the emulator, "
+            "neither on the returned controller's emulation nor on MuJoCo) | diverged | cancelled"
+        ),
+    )
+    task: str | None = None
+    model: str | None = None
+    version: str | None = None
+    substeps: int | None = None
+    iterations: int | None = None
+    iterations_to_success: int | None = None
+    emulator_rollouts: int | None = None
+    bptt_networks: Literal["all", "global"] | None = Field(
+        None,
+        description=(
+            "the networks the gradients went through: all (the emulator's whole step) or global (a "
+            "hierarchy's global network alone, as the objective depends only on the parts' frames)"
+        ),
+    )
+    objective: MaybeFloat = None
+    objective_physics: MaybeFloat = None
+    objective_history: list[MaybeFloat] = []
+    best_objective: MaybeFloat = Field(None, description="of a job that ended before it returned")
+    control_names: list[str] | None = None
+    control_points: list[list[MaybeFloat]] | None = Field(None, description="M × U, in the controls' units")
+    control_spacing_s: float | None = None
+    super_timestep: float | None = None
+    times: list[float] | None = Field(None, description="the K super-steps' start times")
+    controls: list[list[MaybeFloat]] | None = Field(None, description="K × U held values")
+    emulated: Trajectory | None = None
+    physical: Trajectory | None = None
+    final_error_emulator: MaybeFloat = None
+    final_error_physics: MaybeFloat = None
+    final_errors_emulator: dict[str, MaybeFloat] | None = Field(
+        None, description="|error| per weighted variable"
+    )
+    final_errors_physics: dict[str, MaybeFloat] | None = None
+    transfer_error: MaybeFloat = Field(None, description="how far MuJoCo ends from the emulator's end")
+    success_criterion: str | None = None
+    success_emulator: bool | None = None
+    success_physics: bool | None = None
+    checks_emulator: list[CheckOutcome] | None = None
+    checks_physics: list[CheckOutcome] | None = None
+    reachable: bool | None = Field(
+        None, description="whether a controller meets the criterion (null: the job has none)"
+    )
+    reachability: str | None = Field(None, description="why the goal counts as reached or unreachable")
+    search: SearchInfo | None = None
+    gauss_newton: GaussNewtonInfo | None = None
+    emulator_phase: EmulatorPhase | None = None
+    refinement: Refinement | None = None
+    target_state: list[MaybeFloat] | None = None
+    initial_state: list[MaybeFloat] | None = None
+    state_labels: list[str] | None = None
+    spec: JobSpec | None = Field(None, description="the validated job that ran")
+    wall_s: float | None = None
+
+    @model_validator(mode="after")
+    def _verdict(self) -> JobOutcome:
+        # every outcome says it, stored results from before the field too: they are read through here
+        if self.verdict is None:
+            self.verdict = verdict_of(
+                self.status, self.success_criterion, self.success_emulator, self.success_physics
+            )
+        return self
+
+
+class JobResult(JobOutcome):
+    """A job's result (``GET /jobs/{id}/result``): what its run returned, and the job's id."""
+
+    id: str
+
+
+class TaskInfo(BaseModel):
+    """A built-in task: its model and default parameters (whatever the task defines)."""
+
+    model_config = ConfigDict(extra="allow")
+    name: str
+
+
+class TaskList(BaseModel):
+    tasks: list[TaskInfo]
+
+
+# ---------------------------------------------------------------- events (SSE and websocket)
+class ProgressEvent(BaseModel):
+    """``event: progress``: one optimisation iteration of the current attempt."""
+
+    model_config = ConfigDict(extra="allow")
+    iteration: int
+    objective: MaybeFloat = None
+    best_objective: MaybeFloat = None
+    success_emulator: bool | None = None
+    elapsed_s: float | None = None
+    attempt: int | None = None
+
+
+class StatusEvent(BaseModel):
+    """``event: status``: the job was queued, started, or re-queued (with why)."""
+
+    status: JobState
+    attempt: int | None = None
+    reason: str | None = None
+
+
+class EndEvent(BaseModel):
+    """``event: end``: the last event of a job's stream."""
+
+    status: Literal["succeeded", "failed", "cancelled", "expired"]
+    reason: str | None = None
+    iterations: int | None = None
+    best_objective: MaybeFloat = None
+
+
+class WsEvent(BaseModel):
+    """A websocket message of ``/ws/jobs/{id}``: the SSE event's name and its data."""
+
+    event: Literal["progress", "status", "end"]
+    data: dict[str, Any]
