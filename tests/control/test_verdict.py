@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from neuroanimator.goals import criteria
 from neuroanimator.contracts.controller import JobOutcome, JobResult
+from neuroanimator.goals import criteria
 from neuroanimator.goals.verdict import EMULATOR_ONLY, MISSED, NO_CRITERION, SUCCEEDED, verdict
 
 

@@ -268,7 +268,7 @@ export interface ObjectiveTerm {
   [k: string]: unknown;
 }
 /**
- * One check on the final state (``neuroanimator.control.criteria``): ``variables`` are state labels
+ * One check on the final state (``neuroanimator.goals.criteria``): ``variables`` are state labels
  * of the model; ``target`` (one value per variable) overrides the job's target state; ``max`` bounds
  * the measured value (``range``: ``min`` and/or ``max``).
  *
