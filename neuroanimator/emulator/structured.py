@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor, nn
 
-from neuroanimator.core.state import StateLayout
+from neuroanimator.core.state import StateGroup, StateLayout
 from neuroanimator.emulator.clearance import Clearance
 from neuroanimator.emulator.regularizer import SpringRegularization
 
@@ -238,6 +238,60 @@ class _Rotation(nn.Module):
         return c * (values @ self.xy) + s * (values @ self.yx)
 
 
+def _turns_as_vector(g: StateGroup, translate: tuple[bool, ...]) -> bool:
+    """Whether the local frame turns state group ``g`` as a world vector: a world vector, or a root
+    position of two or three axes whose horizontal axes are not translated away."""
+    return (g.kind == "position" and g.size >= 2 and not any(translate[:2])) or g.kind == "world_vector"
+
+
+@dataclass(frozen=True)
+class _InputColumns:
+    """The blocks of T'_x's unplaced input columns (B, E), in order: the base [state (S), controls (U),
+    forces (F)], the heading-rotated pairs (all x', then all y': 2P) from ``rot_at``, sin and cos of
+    the angles (A each) from ``sin_at`` and ``cos_at``, the body-rotated vectors (3 columns each) from
+    ``vec_at``, the body-frame up (3) from ``up_at``, the joint-limit ramps (all "past high", then all
+    "past low") from ``lim_at``, the ground clearances and then how far below the floor each is from
+    ``clr_at``."""
+
+    pairs: list[tuple[int, int, int]]  # heading frame: (x, y, half) base columns turned together
+    vecs: list[tuple[int, int, int]]  # body frame: (x, y, z) base columns, -1 for a zero
+    vec_of: dict[int, int]  # first base column of a body-rotated vector -> its index in ``vecs``
+    angles: list[int]  # state columns of the hinge angles
+    replaced: dict[int, int]  # base column -> its index in the heading-rotated block
+    rot_at: int
+    sin_at: int
+    cos_at: int
+    vec_at: int
+    up_at: int
+    lim_at: int
+    lim_width: int
+    clr_at: int
+    clr_width: int
+
+    @property
+    def width(self) -> int:
+        """E, the number of unplaced columns."""
+        return self.clr_at + 2 * self.clr_width
+
+    def col(self, c: int) -> int:
+        """The column base column ``c`` is read from: its rotated copy where it has one."""
+        return self.rot_at + self.replaced[c] if c in self.replaced else c
+
+    def vec_cols(self, first: int) -> list[int]:
+        """The three columns of the body-rotated vector whose first base column is ``first``."""
+        k = self.vec_of[first]
+        return [self.vec_at + 3 * k + i for i in range(3)]
+
+    def inputs_between(self, lo: int, hi: int) -> list[int]:
+        """The columns read for base columns ``lo`` to ``hi`` (the controls or the forces): those in no
+        body-rotated vector, then the rotated vectors that start among them."""
+        in_a_vec = {c for v in self.vecs for c in v if lo <= c < hi}
+        picked = [self.col(c) for c in range(lo, hi) if c not in in_a_vec]
+        for first in sorted(f for f in self.vec_of if lo <= f < hi):
+            picked += self.vec_cols(first)
+        return picked
+
+
 class StructuredEmulator(nn.Module):
     """One super-step of a model: ``forward(state (B,S), controls (B,U), forces (B,F)) -> (B,S)``."""
 
@@ -320,138 +374,176 @@ class StructuredEmulator(nn.Module):
         is a handful of graph nodes whatever the model (a small graph is what makes one ONNX call
         cheap).
         """
-        lay, fr = self.layout, self.frame
-        S, U, F = lay.size, self.num_controls, self.num_forces
+        self._plan_root_frame()
+        cols = self._input_columns()
+        gather, groups = self._input_gather(cols)
+        self._plan_limits(self.layout.size)
+        self._place_inputs(cols, gather, groups)
+        self._plan_outputs()
+        self._plan_quaternions()
+        self._plan_frame()
+
+    def _plan_root_frame(self) -> None:
+        """Find the root's orientation in the state and choose the local frame: the body frame (a root
+        quaternion and ``FrameConfig.body``), the heading frame (a root quaternion or heading angle and
+        ``FrameConfig.rotate``), or none."""
         self._quat: tuple[int, int] | None = None  # columns of the root quaternion's w and z
         self._heading: int | None = None
-        for g, sl in lay.group_slices():
+        for g, sl in self.layout.group_slices():
             if g.kind == "quaternion":
                 self._quat = (sl.start, sl.start + 3)
             elif g.kind == "heading":
                 self._heading = sl.start
+        fr = self.frame
         self._body = bool(fr.body and fr.rotate and self._quat is not None)
         self._rotate = fr.rotate and (self._quat is not None or self._heading is not None) and not self._body
-        rot, body = self._rotate, self._body
-        translate = fr.translate
 
-        def rotated_root(g_size: int) -> bool:
-            # a root position is rotated only when its horizontal axes are not translated away
-            return g_size >= 2 and not any(translate[:2])
-
-        # ---- inputs: columns of base = [state (S), controls (U), forces (F)]
-        in_pairs: list[tuple[int, int, int]] = []
-        in_vecs: list[tuple[int, int, int]] = []  # body frame: (x, y, z) base columns, -1 for a zero
-        angles: list[int] = []
-        for g, sl in lay.group_slices():
-            if g.kind == "angle":
-                angles.extend(range(sl.start, sl.stop))
+    # ---- T'_x: the network inputs, picked from the base [state (S), controls (U), forces (F)] and what the
+    # frame and the features add to it
+    def _input_columns(self) -> _InputColumns:
+        """Where each block of T'_x's unplaced input columns starts (see ``_InputColumns``)."""
+        S, U, F = self.layout.size, self.num_controls, self.num_forces
+        pairs = self._heading_pairs()
+        vecs, vec_of = self._body_vectors()
+        angles = [
+            c for g, sl in self.layout.group_slices() if g.kind == "angle" for c in range(sl.start, sl.stop)
+        ]
         replaced: dict[int, int] = {}  # base column -> index in the rotated block
-        if rot:
-            for g, sl in lay.group_slices():
-                a = sl.start
-                if (g.kind == "position" and rotated_root(g.size)) or g.kind == "world_vector":
-                    in_pairs.append((a, a + 1, 0))
-                elif g.kind == "quaternion":
-                    in_pairs += [(a, a + 3, 1), (a + 1, a + 2, 1)]  # (w, z) and (x, y)
-            for pair in fr.control_pairs:
-                in_pairs.append((S + pair[0], S + pair[1], 0))
-            for pair in fr.force_pairs:
-                in_pairs.append((S + U + pair[0], S + U + pair[1], 0))
-        vec_of: dict[int, int] = {}  # first column of a body-rotated vector -> its index
-        if body:
-            for g, sl in lay.group_slices():
-                a = sl.start
-                if (g.kind == "position" and rotated_root(g.size)) or g.kind == "world_vector":
-                    vec_of[a] = len(in_vecs)
-                    in_vecs.append((a, a + 1, a + 2 if g.size == 3 else -1))
-            for vec in fr.control_pairs:
-                vec_of[S + vec[0]] = len(in_vecs)
-                in_vecs.append(tuple(S + c for c in vec) + ((-1,) if len(vec) == 2 else ()))  # type: ignore[arg-type]
-            for vec in fr.force_pairs:
-                vec_of[S + U + vec[0]] = len(in_vecs)
-                in_vecs.append(tuple(S + U + c for c in vec) + ((-1,) if len(vec) == 2 else ()))  # type: ignore[arg-type]
-        p = len(in_pairs)
-        for k, (ix, iy, _h) in enumerate(in_pairs):
+        for k, (ix, iy, _h) in enumerate(pairs):
             replaced[ix] = k
-            replaced[iy] = p + k
+            replaced[iy] = len(pairs) + k
         rot_at = S + U + F  # rotated columns follow the base: first all x', then all y'
-        sin_at = rot_at + 2 * p
+        sin_at = rot_at + 2 * len(pairs)
         cos_at = sin_at + len(angles)
         vec_at = cos_at + len(angles)  # body frame: the rotated vectors, 3 columns each
-        up_at = vec_at + 3 * len(in_vecs)  # body frame: the up direction in the body frame
-        lim_at = up_at + (3 if body else 0)  # joint-limit ramps: first all "past high", then all "past low"
+        up_at = vec_at + 3 * len(vecs)  # body frame: the up direction in the body frame
+        lim_at = up_at + (
+            3 if self._body else 0
+        )  # joint-limit ramps: first all "past high", then all "past low"
         lim_width = 2 * len(LIMIT_FRACTIONS) * len(self.limits)
-        clr_at = lim_at + lim_width  # ground clearances, then how far below the floor each is
-        clr_width = 0 if self.clearance is None else self.clearance.width
-        width = clr_at + 2 * clr_width
+        return _InputColumns(
+            pairs, vecs, vec_of, angles, replaced,
+            rot_at=rot_at, sin_at=sin_at, cos_at=cos_at, vec_at=vec_at, up_at=up_at,
+            lim_at=lim_at, lim_width=lim_width,
+            clr_at=lim_at + lim_width,  # ground clearances, then how far below the floor each is
+            clr_width=0 if self.clearance is None else self.clearance.width,
+        )  # fmt: skip
 
-        def col(c: int) -> int:
-            return rot_at + replaced[c] if c in replaced else c
+    def _heading_pairs(self) -> list[tuple[int, int, int]]:
+        """The heading frame's pairs of base columns turned together, (x, y, half) each: root positions,
+        world vectors, the root quaternion's (w, z) and (x, y) (turned by ψ/2), world-axis controls and
+        forces. None without a heading frame."""
+        if not self._rotate:
+            return []
+        S, U, translate = self.layout.size, self.num_controls, self.frame.translate
+        pairs: list[tuple[int, int, int]] = []
+        for g, sl in self.layout.group_slices():
+            a = sl.start
+            if _turns_as_vector(g, translate):
+                pairs.append((a, a + 1, 0))
+            elif g.kind == "quaternion":
+                pairs += [(a, a + 3, 1), (a + 1, a + 2, 1)]  # (w, z) and (x, y)
+        for pair in self.frame.control_pairs:
+            pairs.append((S + pair[0], S + pair[1], 0))
+        for pair in self.frame.force_pairs:
+            pairs.append((S + U + pair[0], S + U + pair[1], 0))
+        return pairs
 
-        def vec_cols(first: int) -> list[int]:
-            k = vec_of[first]
-            return [vec_at + 3 * k + i for i in range(3)]
+    def _body_vectors(self) -> tuple[list[tuple[int, int, int]], dict[int, int]]:
+        """The body frame's vectors of base columns, (x, y, z) each with -1 for a zero (a planar vector):
+        root positions, world vectors, world-axis controls and forces; and the index of each by its first
+        column. None without a body frame."""
+        vecs: list[tuple[int, int, int]] = []
+        vec_of: dict[int, int] = {}
+        if not self._body:
+            return vecs, vec_of
+        S, U, translate = self.layout.size, self.num_controls, self.frame.translate
+        for g, sl in self.layout.group_slices():
+            a = sl.start
+            if _turns_as_vector(g, translate):
+                vec_of[a] = len(vecs)
+                vecs.append((a, a + 1, a + 2 if g.size == 3 else -1))
+        for vec in self.frame.control_pairs:
+            vec_of[S + vec[0]] = len(vecs)
+            vecs.append(tuple(S + c for c in vec) + ((-1,) if len(vec) == 2 else ()))  # type: ignore[arg-type]
+        for vec in self.frame.force_pairs:
+            vec_of[S + U + vec[0]] = len(vecs)
+            vecs.append(tuple(S + U + c for c in vec) + ((-1,) if len(vec) == 2 else ()))  # type: ignore[arg-type]
+        return vecs, vec_of
 
+    def _input_gather(self, cols: _InputColumns) -> tuple[list[int], list[tuple[str, int]]]:
+        """The unplaced column of each network input, in order, and the input groups (name, width) for
+        the normalisation: the state groups, the controls, the forces, the limit ramps, the clearances
+        and the contact ramps."""
+        S, U, F = self.layout.size, self.num_controls, self.num_forces
         gather: list[int] = []
-        groups: list[tuple[str, int]] = []  # network input groups (name, width) for normalisation
-        for g, sl in lay.group_slices():
-            cols: list[int] = []
-            if body and sl.start in vec_of:
-                cols = vec_cols(sl.start)
-            elif g.kind == "position":
-                kept = [i for i in range(g.size) if not (translate and translate[i])]
-                cols = [col(sl.start + i) for i in kept]  # translated axes are 0: dropped (App. F.1)
-            elif g.kind == "heading":
-                cols = [] if rot else [sl.start]  # the heading defines the frame: 0, dropped
-            elif g.kind == "quaternion" and body:
-                cols = [up_at, up_at + 1, up_at + 2]  # the attitude, as the direction of "up"
-            elif g.kind == "quaternion" and rot:
-                cols = [col(sl.start), col(sl.start + 1), col(sl.start + 2)]  # z' is exactly 0: dropped
-            elif g.kind == "angle":
-                idx = [angles.index(c) for c in range(sl.start, sl.stop)]
-                cols = [sin_at + i for i in idx] + [cos_at + i for i in idx]
-            else:
-                cols = [col(c) for c in range(sl.start, sl.stop)]
-            if cols:
-                gather += cols
-                groups.append((g.name, len(cols)))
-        if U:
-            in_a_vec = {c for v in in_vecs for c in v if S <= c < S + U}
-            control_cols = [col(c) for c in range(S, S + U) if c not in in_a_vec]
-            for first in sorted(f for f in vec_of if S <= f < S + U):
-                control_cols += vec_cols(first)
-            gather += control_cols
-            groups.append(("controls", len(control_cols)))
-        if F:
-            in_a_vec = {c for v in in_vecs for c in v if c >= S + U}
-            force_cols = [col(c) for c in range(S + U, S + U + F) if c not in in_a_vec]
-            for first in sorted(f for f in vec_of if f >= S + U):
-                force_cols += vec_cols(first)
-            gather += force_cols
-            groups.append(("forces", len(force_cols)))
-        if lim_width:
-            gather += list(range(lim_at, lim_at + lim_width))
-            groups.append(("limits", lim_width))
-        if clr_width:
-            gather += list(range(clr_at, width))
-            groups += [("clearance", clr_width), ("contact", clr_width)]
-        self._plan_limits(S)
-        in_plan = _PairPlan(*map(tuple, zip(*in_pairs, strict=True))) if in_pairs else _PairPlan()
-        self._rot_in = _Rotation(S + U + F, in_plan) if in_pairs else None
-        self._angles = tuple(angles)
-        self._num_in_vecs = len(in_vecs)
-        self.register_buffer("_angle_sel", select_columns(S, angles), persistent=False)  # (S, A)
+        groups: list[tuple[str, int]] = []
+        for g, sl in self.layout.group_slices():
+            picked = self._group_inputs(g, sl, cols)
+            if picked:
+                gather += picked
+                groups.append((g.name, len(picked)))
+        for name, lo, hi in (("controls", S, S + U), ("forces", S + U, S + U + F)):
+            if hi > lo:
+                picked = cols.inputs_between(lo, hi)
+                gather += picked
+                groups.append((name, len(picked)))
+        if cols.lim_width:
+            gather += list(range(cols.lim_at, cols.lim_at + cols.lim_width))
+            groups.append(("limits", cols.lim_width))
+        if cols.clr_width:
+            gather += list(range(cols.clr_at, cols.width))
+            groups += [("clearance", cols.clr_width), ("contact", cols.clr_width)]
+        return gather, groups
+
+    def _group_inputs(self, g: StateGroup, sl: slice, cols: _InputColumns) -> list[int]:
+        """The unplaced columns the network reads for state group ``g`` (state columns ``sl``)."""
+        body, rot, translate = self._body, self._rotate, self.frame.translate
+        if body and sl.start in cols.vec_of:
+            return cols.vec_cols(sl.start)
+        if g.kind == "position":
+            kept = [i for i in range(g.size) if not (translate and translate[i])]
+            return [cols.col(sl.start + i) for i in kept]  # translated axes are 0: dropped (App. F.1)
+        if g.kind == "heading":
+            return [] if rot else [sl.start]  # the heading defines the frame: 0, dropped
+        if g.kind == "quaternion" and body:
+            return [cols.up_at, cols.up_at + 1, cols.up_at + 2]  # the attitude, as the direction of "up"
+        if g.kind == "quaternion" and rot:
+            return [
+                cols.col(sl.start),
+                cols.col(sl.start + 1),
+                cols.col(sl.start + 2),
+            ]  # z' is exactly 0: dropped
+        if g.kind == "angle":
+            idx = [cols.angles.index(c) for c in range(sl.start, sl.stop)]
+            return [cols.sin_at + i for i in idx] + [cols.cos_at + i for i in idx]
+        return [cols.col(c) for c in range(sl.start, sl.stop)]
+
+    def _place_inputs(self, cols: _InputColumns, gather: list[int], groups: list[tuple[str, int]]) -> None:
+        """Keep T'_x's constants: the heading rotation, the angle and body-vector selections (B, S+U+F) ->
+        (B, A) and (B, 3K), and the placement of the unplaced columns (E, D)."""
+        S, U, F = self.layout.size, self.num_controls, self.num_forces
+        in_plan = _PairPlan(*map(tuple, zip(*cols.pairs, strict=True))) if cols.pairs else _PairPlan()
+        self._rot_in = _Rotation(S + U + F, in_plan) if cols.pairs else None
+        self._angles = tuple(cols.angles)
+        self._num_in_vecs = len(cols.vecs)
+        self.register_buffer("_angle_sel", select_columns(S, cols.angles), persistent=False)  # (S, A)
         self.register_buffer(
-            "_vec_in_sel", _select_or_zero(S + U + F, [c for v in in_vecs for c in v]), persistent=False
+            "_vec_in_sel", _select_or_zero(S + U + F, [c for v in cols.vecs for c in v]), persistent=False
         )  # (S+U+F, 3K)
-        self.register_buffer("_in_place", select_columns(width, gather), persistent=False)
+        self.register_buffer("_in_place", select_columns(cols.width, gather), persistent=False)
         self.input_groups = groups
         self.input_size = len(gather)
 
-        # ---- outputs: state changes, rotated back to world axes
+    # ---- T'_y: state changes, rotated back to world axes
+    def _plan_outputs(self) -> None:
+        """``[delta (S), heading-rotated pairs (2Q), body-rotated vectors (3K'), root quaternion increment
+        (4, body frame)] @ _out_place`` (W, S) is the world state change; a column that no rotation
+        touches is read from ``delta`` as it is."""
+        S, rot, body = self.layout.size, self._rotate, self._body
         out_pairs: list[tuple[int, int, int]] = []
         out_vecs: list[tuple[int, int, int]] = []
-        for g, sl in lay.group_slices():
+        for g, sl in self.layout.group_slices():
             a = sl.start
             if g.kind in ("position", "world_vector") and g.size >= 2:
                 if rot:
@@ -484,8 +576,10 @@ class StructuredEmulator(nn.Module):
         out_width = quat_out_at + (4 if body else 0)
         self.register_buffer("_out_place", select_columns(out_width, out_gather), persistent=False)  # (W, S)
 
-        # ---- quaternion renormalisation: next = nxt @ keep + normalised(nxt @ quat) @ place
-        quats = [sl for g, sl in lay.group_slices() if g.kind in ("quaternion", "local_quaternion")]
+    def _plan_quaternions(self) -> None:
+        """Quaternion renormalisation: next = nxt @ keep + normalised(nxt @ quat) @ place."""
+        S = self.layout.size
+        quats = [sl for g, sl in self.layout.group_slices() if g.kind in ("quaternion", "local_quaternion")]
         self.quaternion_slices = quats
         qcols = [c for sl in quats for c in range(sl.start, sl.stop)]
         self._num_quats = len(quats)
@@ -498,8 +592,11 @@ class StructuredEmulator(nn.Module):
             "_quat_place", select_columns(S, qcols).T.contiguous(), persistent=False
         )  # (4k, S)
 
-        # ---- the frame: the root quaternion's (w, z), the heading angle, or the whole root quaternion
-        if body:
+    def _plan_frame(self) -> None:
+        """The frame's constants: the state columns it is read from (the root quaternion's (w, z), the
+        heading angle, or the whole root quaternion) and the tables of ``frame_of`` and ``_map_delta_body``."""
+        S = self.layout.size
+        if self._body:
             assert self._quat is not None
             self.register_buffer(
                 "_frame_sel", select_columns(S, range(self._quat[0], self._quat[0] + 4)), persistent=False
