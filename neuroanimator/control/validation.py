@@ -18,7 +18,7 @@ import numpy as np
 from neuroanimator.artifacts import registry
 from neuroanimator.catalog.tasks import TASKS
 from neuroanimator.contracts.controller import JobCreate
-from neuroanimator.core.manifest import Manifest
+from neuroanimator.core.manifest import ControlInput, Manifest
 from neuroanimator.core.state import QUATERNION_KINDS, LayoutGroup
 from neuroanimator.goals import criteria
 from neuroanimator.goals.criteria import SuccessCheck
@@ -118,6 +118,55 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: r
     [1, 10000], learning_rate outside (0, 100], momentum outside [0, 1), and the like. Imports
     neither torch nor MuJoCo.
     """
+    spec = _request(job)
+    task = _task(spec)
+    model = _model(spec, task)
+    manifest = _manifest(spec, task, model, artifacts_root)
+    layout = manifest.layout
+    labels = manifest.state_labels
+    initial, target, weights = _states(spec, task, layout, len(labels), model)
+    horizon = _int("horizon", spec.get("horizon", task.horizon if task else DEFAULT_HORIZON), 1, MAX_HORIZON)
+    pps = _float(
+        "points_per_step",
+        spec.get("points_per_step", task.points_per_step if task else DEFAULT_POINTS_PER_STEP),
+        low=0.0,
+        high=1.0,
+        low_open=True,
+    )
+    mu_u = _float("mu_u", spec.get("mu_u", task.mu_u if task else DEFAULT_MU_U), low=0.0, high=MAX_MU)
+    mu_s = _float("mu_s", spec.get("mu_s", task.mu_s if task else DEFAULT_MU_S), low=0.0, high=MAX_MU)
+    terms = normalize_terms(
+        spec.get("terms", [dict(t) for t in task.terms] if task else []),
+        labels=labels,
+        layout=layout,
+        target=target,
+        weights=weights,
+        horizon=horizon,
+        super_dt=manifest.super_timestep,
+    )
+    if mu_u == 0 and mu_s == 0 and not terms:
+        raise JobSpecError("terms", "the objective is empty: mu_u = mu_s = 0 and no terms")
+    return JobSpec(
+        task=task.name if task else None,
+        model=model,
+        version=manifest.version,
+        substeps=manifest.substeps,
+        initial_state=initial,
+        target_state=target,
+        state_weights=weights,
+        horizon=horizon,
+        points_per_step=pps,
+        mu_u=mu_u,
+        mu_s=mu_s,
+        terms=terms,
+        initial_controls=_initial_controls(spec, task, manifest.controls, model),
+        success=_success(spec, task, labels),
+        optimizer=_optimizer(spec.get("optimizer", {}), task),
+    )
+
+
+def _request(job: Any) -> Mapping[str, Any]:
+    """The job as the JSON object of a request, with no key a job does not take."""
     if isinstance(job, JobCreate):
         spec: Mapping[str, Any] = job.spec()
     elif isinstance(job, JobSpec):
@@ -129,14 +178,21 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: r
     unknown = sorted(set(spec) - JOB_FIELDS)
     if unknown:
         raise JobSpecError(unknown[0], f"unknown key; a job takes {sorted(JOB_FIELDS)}, got {unknown}")
-    task: Task | None = None
-    if spec.get("task") is not None:
-        name = spec["task"]
-        if not isinstance(name, str) or name not in TASKS:
-            raise JobSpecError(
-                "task", f"unknown task {name!r}; known tasks are {sorted(TASKS)}", sorted(TASKS)
-            )
-        task = TASKS[name]
+    return spec
+
+
+def _task(spec: Mapping[str, Any]) -> Task | None:
+    """The built-in task the job names, if it names one."""
+    if spec.get("task") is None:
+        return None
+    name = spec["task"]
+    if not isinstance(name, str) or name not in TASKS:
+        raise JobSpecError("task", f"unknown task {name!r}; known tasks are {sorted(TASKS)}", sorted(TASKS))
+    return TASKS[name]
+
+
+def _model(spec: Mapping[str, Any], task: Task | None) -> str:
+    """The model the job runs on: the one it names, else its task's (a task's job names no other)."""
     model = spec.get("model")
     if model is None:
         if task is None:
@@ -146,21 +202,30 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: r
         raise JobSpecError("model", f"expected a model name, got {model!r}")
     if task is not None and model != task.model:
         raise JobSpecError("model", f"task {task.name!r} runs on model {task.model!r}, got {model!r}")
+    return model
+
+
+def _manifest(spec: Mapping[str, Any], task: Task | None, model: str, root: registry.Root) -> Manifest:
+    """The manifest of the artifact the job runs on: the version it names, else the latest (of its
+    task's super-step when it names neither version nor super-step); a model without controls has
+    nothing to synthesise."""
     version = spec.get("version")
     if version is not None and not isinstance(version, str):
         raise JobSpecError("version", f"expected a version name, got {version!r}")
     substeps = spec.get("substeps", task.substeps if task and version is None else None)
     if substeps is not None:
         substeps = _int("substeps", substeps, 1, MAX_SUBSTEPS)
-    _, manifest = find_artifact(artifacts_root, model, version, substeps)
-    layout = manifest.layout
-    labels = manifest.state_labels
-    size = len(labels)
-    super_dt = manifest.super_timestep
-    controls = manifest.controls
-    if not controls:
+    _, manifest = find_artifact(root, model, version, substeps)
+    if not manifest.controls:
         raise JobSpecError("model", f"model {model!r} has no controls: there is nothing to synthesise")
+    return manifest
 
+
+def _states(
+    spec: Mapping[str, Any], task: Task | None, layout: Sequence[LayoutGroup], size: int, model: str
+) -> tuple[list[float], list[float], list[float]]:
+    """The initial state (S,), the target state (S,) (by default the initial one when there is no
+    task) and the state weights (S,), none negative."""
     initial = _state(
         "initial_state",
         spec.get("initial_state", list(task.initial_state) if task else default_state(layout, size)),
@@ -187,28 +252,13 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: r
         raise JobSpecError(
             f"state_weights[{i}]", f"expected {size} weights >= 0, got {weights[i]:g} at index {i}"
         )
-    horizon = _int("horizon", spec.get("horizon", task.horizon if task else DEFAULT_HORIZON), 1, MAX_HORIZON)
-    pps = _float(
-        "points_per_step",
-        spec.get("points_per_step", task.points_per_step if task else DEFAULT_POINTS_PER_STEP),
-        low=0.0,
-        high=1.0,
-        low_open=True,
-    )
-    mu_u = _float("mu_u", spec.get("mu_u", task.mu_u if task else DEFAULT_MU_U), low=0.0, high=MAX_MU)
-    mu_s = _float("mu_s", spec.get("mu_s", task.mu_s if task else DEFAULT_MU_S), low=0.0, high=MAX_MU)
-    terms = normalize_terms(
-        spec.get("terms", [dict(t) for t in task.terms] if task else []),
-        labels=labels,
-        layout=layout,
-        target=target,
-        weights=weights,
-        horizon=horizon,
-        super_dt=super_dt,
-    )
-    if mu_u == 0 and mu_s == 0 and not terms:
-        raise JobSpecError("terms", "the objective is empty: mu_u = mu_s = 0 and no terms")
+    return initial, target, weights
 
+
+def _initial_controls(
+    spec: Mapping[str, Any], task: Task | None, controls: Sequence[ControlInput], model: str
+) -> list[float]:
+    """The controls (U,) the search starts from, each within its limits (by default 0 clipped to them)."""
     lim = np.array([[c.limit_low, c.limit_high] for c in controls], dtype=np.float64)
     u0 = vector(
         "initial_controls",
@@ -225,30 +275,17 @@ def validate_job(job: JobCreate | JobSpec | Mapping[str, Any], artifacts_root: r
                 "initial_controls",
                 f"control {controls[i].name} must lie in its limits [{lo:g}, {hi:g}], got {v:g}",
             )
+    return u0
 
+
+def _success(spec: Mapping[str, Any], task: Task | None, labels: Sequence[str]) -> list[SuccessCheck]:
+    """The success checks (the task's by default), each naming state variables the model has."""
     success = spec.get("success", [c.model_dump() for c in task.success] if task else [])
     problems = criteria.validate_checks(success, labels)
     if problems:
         where, what = problems[0]
         raise JobSpecError(f"success{where}", what)
-
-    return JobSpec(
-        task=task.name if task else None,
-        model=model,
-        version=manifest.version,
-        substeps=manifest.substeps,
-        initial_state=initial,
-        target_state=target,
-        state_weights=weights,
-        horizon=horizon,
-        points_per_step=pps,
-        mu_u=mu_u,
-        mu_s=mu_s,
-        terms=terms,
-        initial_controls=u0,
-        success=[SuccessCheck.model_validate(c) for c in success],
-        optimizer=_optimizer(spec.get("optimizer", {}), task),
-    )
+    return [SuccessCheck.model_validate(c) for c in success]
 
 
 def _optimizer(given: Any, task: Task | None) -> OptimizerSettings:

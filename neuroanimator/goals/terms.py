@@ -18,7 +18,8 @@ validates to the same value.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -228,6 +229,19 @@ def _bound(field: str, t: dict[str, Any], key: str) -> float | None:
     return None if t.get(key) is None else _number(f"{field}.{key}", t[key])
 
 
+@dataclass(frozen=True)
+class _JobContext:
+    """What a term's defaults and checks read from its job: the model's state labels and layout,
+    the job's target (S,) and state weights (S,), its horizon in super-steps and the super-step."""
+
+    labels: Sequence[str]
+    layout: Sequence[LayoutGroup]
+    target: list[float]
+    weights: list[float]
+    horizon: int
+    super_dt: float
+
+
 def normalize_terms(
     terms: Any,
     *,
@@ -247,89 +261,125 @@ def normalize_terms(
         return []
     if not isinstance(terms, list):
         raise JobSpecError("terms", f"expected a list of term objects, got {type(terms).__name__}")
-    size = len(labels)
-    out: list[Term] = []
-    for i, t in enumerate(terms):
-        at = f"terms[{i}]"
-        if not isinstance(t, dict):
-            raise JobSpecError(at, f"expected an object like {{'term': 'final_state'}}, got {t!r}")
-        name = t.get("term")
-        if name not in TERMS:
-            raise JobSpecError(f"{at}.term", f"unknown term {name!r}; known terms are {sorted(TERMS)}")
-        weight = _number(f"{at}.weight", t.get("weight", 1.0), low=0.0, high=MAX_WEIGHT)
-        allowed = {"term", "weight"}
-        term: Term
-        if name == "final_state":
-            allowed |= {"target", "weights"}
-            term = FinalStateTerm(
-                term="final_state",
-                weight=weight,
-                target=vector(f"{at}.target", t.get("target", target), size),
-                weights=vector(f"{at}.weights", t.get("weights", weights), size, bound=MAX_WEIGHT),
-            )
-        elif name == "control_effort":
-            term = ControlEffortTerm(term="control_effort", weight=weight)
-        elif name == "control_smoothness":
-            term = ControlSmoothnessTerm(term="control_smoothness", weight=weight)
-        elif name == "final_velocity":
-            allowed |= {"variables"}
-            default = [i for g in layout if g.source == "qvel" for i in range(g.offset, g.offset + g.size)]
-            variables = _indices(f"{at}.variables", t.get("variables", default), labels)
-            term = FinalVelocityTerm(term="final_velocity", weight=weight, variables=variables)
-        elif name == "forward_distance":
-            allowed |= {"direction", "variables"}
-            if "variables" in t:
-                variables = _indices(f"{at}.variables", t["variables"], labels)
-            else:
-                root = next((g for g in layout if g.kind == "position"), None)
-                if root is None:
-                    raise JobSpecError(
-                        at,
-                        "forward_distance needs a model with a root position group (this one has "
-                        "none), or variables",
-                    )
-                variables = list(range(root.offset, root.offset + root.size))
-            dim = len(variables)
-            direction = vector(f"{at}.direction", t.get("direction", [1.0] + [0.0] * (dim - 1)), dim)
-            if not any(direction):
-                raise JobSpecError(f"{at}.direction", "expected a non-zero direction, got all zeros")
-            term = ForwardDistanceTerm(
-                term="forward_distance", weight=weight, direction=unit(direction), variables=variables
-            )
-        elif name == "stay_within_bounds":
-            allowed |= {"variable", "low", "high"}
-            if "variable" not in t:
-                raise JobSpecError(f"{at}.variable", "expected a state label, got nothing")
-            variable = variable_index(f"{at}.variable", t["variable"], labels)
-            lo, hi = _bound(at, t, "low"), _bound(at, t, "high")
-            if lo is None and hi is None:
-                raise JobSpecError(at, "expected low and/or high bounds, got neither")
-            if lo is not None and hi is not None and lo > hi:
-                raise JobSpecError(f"{at}.low", f"expected low <= high, got low={lo} > high={hi}")
-            term = StayWithinBoundsTerm(
-                term="stay_within_bounds", weight=weight, variable=variable, low=lo, high=hi
-            )
-        elif name == "success_margin":
-            allowed |= {"margin"}
-            margin = _number(f"{at}.margin", t.get("margin", 0.5), low=0.0)
-            if not 0 < margin <= 1:
-                raise JobSpecError(f"{at}.margin", f"expected a number in (0, 1], got {margin!r}")
-            term = SuccessMarginTerm(term="success_margin", weight=weight, margin=margin)
-        else:  # path_target
-            allowed |= {"waypoints", "weights"}
-            term = PathTargetTerm(
-                term="path_target",
-                weight=weight,
-                weights=vector(f"{at}.weights", t.get("weights", weights), size, bound=MAX_WEIGHT),
-                waypoints=_waypoints(f"{at}.waypoints", t.get("waypoints"), size, horizon, super_dt),
-            )
-        extra = sorted(set(t) - allowed)
-        if extra:
+    job = _JobContext(labels, layout, target, weights, horizon, super_dt)
+    return [_term(f"terms[{i}]", t, job) for i, t in enumerate(terms)]
+
+
+def _term(at: str, t: Any, job: _JobContext) -> Term:
+    """One term of a job (``at`` is where it sits, ``terms[i]``): its name and weight are checked
+    first, then its parameters, then that it has no parameter its kind does not take."""
+    if not isinstance(t, dict):
+        raise JobSpecError(at, f"expected an object like {{'term': 'final_state'}}, got {t!r}")
+    name = t.get("term")
+    if name not in TERMS:
+        raise JobSpecError(f"{at}.term", f"unknown term {name!r}; known terms are {sorted(TERMS)}")
+    weight = _number(f"{at}.weight", t.get("weight", 1.0), low=0.0, high=MAX_WEIGHT)
+    term = _BUILDERS[name](at, t, weight, job)
+    allowed = {"term", "weight", *_PARAMETERS[name]}
+    extra = sorted(set(t) - allowed)
+    if extra:
+        raise JobSpecError(at, f"unknown parameters {extra} for term {name!r}; it takes {sorted(allowed)}")
+    return term
+
+
+def _final_state(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+    size = len(job.labels)
+    return FinalStateTerm(
+        term="final_state",
+        weight=weight,
+        target=vector(f"{at}.target", t.get("target", job.target), size),
+        weights=vector(f"{at}.weights", t.get("weights", job.weights), size, bound=MAX_WEIGHT),
+    )
+
+
+def _control_effort(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+    return ControlEffortTerm(term="control_effort", weight=weight)
+
+
+def _control_smoothness(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+    return ControlSmoothnessTerm(term="control_smoothness", weight=weight)
+
+
+def _final_velocity(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+    """By default every variable read from qvel."""
+    default = [i for g in job.layout if g.source == "qvel" for i in range(g.offset, g.offset + g.size)]
+    variables = _indices(f"{at}.variables", t.get("variables", default), job.labels)
+    return FinalVelocityTerm(term="final_velocity", weight=weight, variables=variables)
+
+
+def _forward_distance(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+    """By default the root position's variables along their first axis; the direction is made unit."""
+    if "variables" in t:
+        variables = _indices(f"{at}.variables", t["variables"], job.labels)
+    else:
+        root = next((g for g in job.layout if g.kind == "position"), None)
+        if root is None:
             raise JobSpecError(
-                at, f"unknown parameters {extra} for term {name!r}; it takes {sorted(allowed)}"
+                at,
+                "forward_distance needs a model with a root position group (this one has none), or variables",
             )
-        out.append(term)
-    return out
+        variables = list(range(root.offset, root.offset + root.size))
+    dim = len(variables)
+    direction = vector(f"{at}.direction", t.get("direction", [1.0] + [0.0] * (dim - 1)), dim)
+    if not any(direction):
+        raise JobSpecError(f"{at}.direction", "expected a non-zero direction, got all zeros")
+    return ForwardDistanceTerm(
+        term="forward_distance", weight=weight, direction=unit(direction), variables=variables
+    )
+
+
+def _stay_within_bounds(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+    """One variable (required) and at least one of low <= high."""
+    if "variable" not in t:
+        raise JobSpecError(f"{at}.variable", "expected a state label, got nothing")
+    variable = variable_index(f"{at}.variable", t["variable"], job.labels)
+    lo, hi = _bound(at, t, "low"), _bound(at, t, "high")
+    if lo is None and hi is None:
+        raise JobSpecError(at, "expected low and/or high bounds, got neither")
+    if lo is not None and hi is not None and lo > hi:
+        raise JobSpecError(f"{at}.low", f"expected low <= high, got low={lo} > high={hi}")
+    return StayWithinBoundsTerm(term="stay_within_bounds", weight=weight, variable=variable, low=lo, high=hi)
+
+
+def _success_margin(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+    margin = _number(f"{at}.margin", t.get("margin", 0.5), low=0.0)
+    if not 0 < margin <= 1:
+        raise JobSpecError(f"{at}.margin", f"expected a number in (0, 1], got {margin!r}")
+    return SuccessMarginTerm(term="success_margin", weight=weight, margin=margin)
+
+
+def _path_target(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+    size = len(job.labels)
+    return PathTargetTerm(
+        term="path_target",
+        weight=weight,
+        weights=vector(f"{at}.weights", t.get("weights", job.weights), size, bound=MAX_WEIGHT),
+        waypoints=_waypoints(f"{at}.waypoints", t.get("waypoints"), size, job.horizon, job.super_dt),
+    )
+
+
+# each term's builder: (where it sits, its JSON object, its checked weight, the job) -> the term
+_BUILDERS: dict[str, Callable[[str, dict[str, Any], float, _JobContext], Term]] = {
+    "final_state": _final_state,
+    "control_effort": _control_effort,
+    "control_smoothness": _control_smoothness,
+    "final_velocity": _final_velocity,
+    "forward_distance": _forward_distance,
+    "stay_within_bounds": _stay_within_bounds,
+    "success_margin": _success_margin,
+    "path_target": _path_target,
+}
+# the parameters each term takes beside "term" and "weight"
+_PARAMETERS: dict[str, frozenset[str]] = {
+    "final_state": frozenset({"target", "weights"}),
+    "control_effort": frozenset(),
+    "control_smoothness": frozenset(),
+    "final_velocity": frozenset({"variables"}),
+    "forward_distance": frozenset({"direction", "variables"}),
+    "stay_within_bounds": frozenset({"variable", "low", "high"}),
+    "success_margin": frozenset({"margin"}),
+    "path_target": frozenset({"waypoints", "weights"}),
+}
 
 
 def _waypoints(field: str, wps: Any, size: int, horizon: int, super_dt: float) -> list[Waypoint]:
