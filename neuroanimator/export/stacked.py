@@ -94,6 +94,70 @@ def _turn(v: Tensor, r: Tensor) -> Tensor:
     return v0 * r0 + v1 * r1 + v2 * r2
 
 
+def _part_vectors(emu: HierarchicalEmulator, k: int, plus: Tensor, minus: Tensor) -> tuple[Tensor, Tensor]:
+    """Fill part k's vectors (V, 3) as rows of z = [state, frames, next frames, 0]: vector j is
+    ``z[plus[j]] - z[minus[j]]``, in the order [points' positions, points' velocities, frame rows 1-5,
+    next frame rows 0-5, neighbours' positions, neighbours' velocities], points and neighbours relative
+    to the part's centre (positions) or its centre's velocity (velocities). Returns the state rows
+    (3p,) of the points' positions and of their velocities."""
+    S, K, Q = emu.layout.size, len(emu.parts), FRAME_SIZE
+    m = emu.part_map(k)
+    p, n = m.points, m.neighbours
+    centre, centre_vel = S + Q * k + _CENTRE, S + Q * k + _CENTRE_VEL
+    nxt = S + K * Q + Q * k
+
+    def put(j: int, rows: Tensor, less: int | None) -> None:
+        """Vector j: the rows ``rows`` (3,) of z, less the frame vector at ``less``."""
+        plus[j] = rows
+        if less is not None:
+            minus[j] = torch.arange(less, less + 3)
+
+    pos_rows = (m.pick @ m.pos).argmax(dim=0)  # (3p,) state index of each point value
+    vel_rows = (m.pick @ m.vel).argmax(dim=0)
+    for i in range(p):
+        put(i, pos_rows[3 * i : 3 * i + 3], centre)
+        put(p + i, vel_rows[3 * i : 3 * i + 3], centre_vel)
+    for r in range(1, 6):  # the frame now, its centre left out (it is the origin)
+        put(2 * p + r - 1, torch.arange(S + Q * k + 3 * r, S + Q * k + 3 * r + 3), None)
+    for r in range(6):  # the next frame; its centre relative to this one
+        put(2 * p + 5 + r, torch.arange(nxt + 3 * r, nxt + 3 * r + 3), centre if r == 0 else None)
+    npos, nvel = m.near_pos.argmax(dim=0), m.near_vel.argmax(dim=0)
+    for i in range(n):
+        put(2 * p + 11 + i, npos[3 * i : 3 * i + 3], centre)
+        put(2 * p + 11 + n + i, nvel[3 * i : 3 * i + 3], centre_vel)
+    return pos_rows, vel_rows
+
+
+def _part_io(emu: HierarchicalEmulator, k: int, V: int, P: int, C_state: int) -> tuple[Tensor, Tensor]:
+    """Part k's maps, float64: ``to_net`` (E, S_k + U + extra) from the stacked input columns
+    X = [turned vectors (3V), kept state values (C_state), controls (U)] to its network's own input
+    columns [part values (S_k), controls, extra (its frame and neighbour vectors)], and ``to_out``
+    (S_k, 6P + C_state) from its values to the stacked output columns [points' positions, points'
+    velocities (6P), kept values]."""
+    m = emu.part_map(k)
+    U, p, s_k = emu.num_controls, m.points, m.keep.shape[0]
+    extra = 3 * (11 + 2 * m.neighbours)
+    to_net = torch.zeros(3 * V + C_state + U, s_k + U + extra, dtype=torch.float64)
+    to_out = torch.zeros(s_k, 6 * P + C_state, dtype=torch.float64)
+    slot = 0
+    for j in range(s_k):
+        pos_hit, vel_hit = m.pos[j].nonzero(), m.vel[j].nonzero()
+        if len(pos_hit):
+            i3 = int(pos_hit[0, 0])  # 3·point + axis
+            to_net[i3, j] = to_out[j, i3] = 1.0
+        elif len(vel_hit):
+            i3 = int(vel_hit[0, 0])
+            to_net[3 * p + i3, j] = to_out[j, 3 * P + i3] = 1.0
+        else:
+            to_net[3 * V + slot, j] = to_out[j, 6 * P + slot] = 1.0
+            slot += 1
+    for i in range(U):
+        to_net[3 * V + C_state + i, s_k + i] = 1.0
+    for e in range(extra):
+        to_net[3 * (2 * p) + e, s_k + U + e] = 1.0
+    return to_net, to_out
+
+
 class StackedStep(nn.Module):
     """``forward(state (B,S), controls (B,U)) -> (B,S)``: the hierarchy's step, parts stacked."""
 
@@ -117,13 +181,16 @@ class StackedStep(nn.Module):
         self.to(dtype)
 
     def _build(self, emu: HierarchicalEmulator) -> None:
-        S, U, K, Q = emu.layout.size, emu.num_controls, len(emu.parts), FRAME_SIZE
-        maps = [emu.part_map(k) for k in range(K)]
-        nets = [net for _, net in emu.networks[1:]]
-        self.num_parts, self.num_controls = K, U
+        self.num_parts, self.num_controls = len(emu.parts), emu.num_controls
+        self._build_global(emu)
+        point_rows, kept_rows = self._build_vectors(emu)
+        self._build_networks(emu)
+        self._build_placement(emu, point_rows, kept_rows)
+        self.regularizer: SpringRegularization | None = emu.regularizer
 
-        # ---- the global stage: the global network with its normalisation folded, on frames minus the
-        # mean centre
+    def _build_global(self, emu: HierarchicalEmulator) -> None:
+        """The global stage: the global network with its normalisation folded, on frames minus the mean
+        centre."""
         self.register_buffer("_frames", emu._frames.T.contiguous(), persistent=False)
         self.register_buffer("_shift", emu._shift.T.contiguous(), persistent=False)
         glob_layers, glob_skip = _folded_layers(emu.glob)
@@ -132,44 +199,25 @@ class StackedStep(nn.Module):
         self.glob_skip_w = _frozen(glob_skip.weight) if glob_skip is not None else None
         self.glob_skip_b = _frozen(glob_skip.bias[:, None]) if glob_skip is not None else None
 
-        # ---- stage 1: each part's vectors, in the order [points' positions, points' velocities,
-        # frame rows 1-5, next frame rows 0-5, neighbours' positions, neighbours' velocities]
-        points = [m.points for m in maps]
-        near = [m.neighbours for m in maps]
-        V = max(2 * p + 11 + 2 * n for p, n in zip(points, near, strict=True))
-        P = max(points)
-        zero_z = S + 2 * K * Q  # the zero row appended to z = [state, frames, next frames]
+    def _build_vectors(
+        self, emu: HierarchicalEmulator
+    ) -> tuple[list[tuple[Tensor, Tensor]], list[list[int]]]:
+        """Stage 1's gathers: each part's vectors as rows of z (``_part_vectors``), each padded to the
+        widest part's V, and each part's kept block [its kept state values (padded), the controls] as rows
+        of [state, controls, 0]. Returns, per part, its points' position and velocity rows (3p,) each
+        and the state rows it keeps."""
+        S, U, K = emu.layout.size, emu.num_controls, len(emu.parts)
+        maps = [emu.part_map(k) for k in range(K)]
+        V = max(2 * m.points + 11 + 2 * m.neighbours for m in maps)
+        zero_z = S + 2 * K * FRAME_SIZE  # the zero row appended to z = [state, frames, next frames]
         plus = torch.full((K, V, 3), zero_z, dtype=torch.long)
         minus = torch.full((K, V, 3), zero_z, dtype=torch.long)
+        point_rows = [_part_vectors(emu, k, plus[k], minus[k]) for k in range(K)]
         kept_rows: list[list[int]] = []  # per part: the state values it keeps as they are
-        point_rows: list[tuple[Tensor, Tensor]] = []  # per part: its points' positions and velocities
-        for k, (m, p, n) in enumerate(zip(maps, points, near, strict=True)):
-            centre, centre_vel = S + Q * k + _CENTRE, S + Q * k + _CENTRE_VEL
-            nxt = S + K * Q + Q * k
-
-            def put(j: int, rows: Tensor, less: int | None, k: int = k) -> None:
-                """Vector j of part k: the rows ``rows`` (3,) of z, less the frame vector at ``less``."""
-                plus[k, j] = rows
-                if less is not None:
-                    minus[k, j] = torch.arange(less, less + 3)
-
-            pos_rows = (m.pick @ m.pos).argmax(dim=0)  # (3p,) state index of each point value
-            vel_rows = (m.pick @ m.vel).argmax(dim=0)
-            point_rows.append((pos_rows, vel_rows))
-            for i in range(p):
-                put(i, pos_rows[3 * i : 3 * i + 3], centre)
-                put(p + i, vel_rows[3 * i : 3 * i + 3], centre_vel)
-            for r in range(1, 6):  # the frame now, its centre left out (it is the origin)
-                put(2 * p + r - 1, torch.arange(S + Q * k + 3 * r, S + Q * k + 3 * r + 3), None)
-            for r in range(6):  # the next frame; its centre relative to this one
-                put(2 * p + 5 + r, torch.arange(nxt + 3 * r, nxt + 3 * r + 3), centre if r == 0 else None)
-            npos, nvel = m.near_pos.argmax(dim=0), m.near_vel.argmax(dim=0)
-            for i in range(n):
-                put(2 * p + 11 + i, npos[3 * i : 3 * i + 3], centre)
-                put(2 * p + 11 + n + i, nvel[3 * i : 3 * i + 3], centre_vel)
+        for m in maps:
             keep_diag = torch.diagonal(m.keep) > 0.5
             kept_rows.append([int(m.pick[:, j].argmax()) for j in range(m.keep.shape[0]) if keep_diag[j]])
-        self.V, self.P = V, P
+        self.V, self.P = V, max(m.points for m in maps)
         self.register_buffer("_vec_plus", plus.reshape(-1), persistent=False)
         self.register_buffer("_vec_minus", minus.reshape(-1), persistent=False)
         C_state = max(len(c) for c in kept_rows)
@@ -180,34 +228,17 @@ class StackedStep(nn.Module):
             kept[k, C_state:] = torch.arange(S, S + U)
         self.C = C
         self.register_buffer("_kept", kept.reshape(-1), persistent=False)
-        E = 3 * V + C
+        return point_rows, kept_rows
 
-        # ---- stage 2: X (E) -> each network's own input columns [part (S_k), controls (U), extra];
-        # its outputs -> O = [points' positions, points' velocities (6P), kept (C_state)], ``width`` wide
-        O_vec = 6 * P
-        width = O_vec + C_state
+    def _build_networks(self, emu: HierarchicalEmulator) -> None:
+        """Stage 2: the K networks' folded weights stacked, each reading X (E) through its map to its own
+        input columns (``_part_io``) and writing its outputs, the state change added to its values and its
+        linear path, to the stacked output columns O."""
+        C_state = self.C - emu.num_controls
         firsts, firsts_b, mids, mids_b, outs, outs_b = [], [], [], [], [], []
-        for k, (m, net, p) in enumerate(zip(maps, nets, points, strict=True)):
-            s_k = m.keep.shape[0]
-            extra = 3 * (11 + 2 * near[k])
-            to_net = torch.zeros(E, s_k + U + extra, dtype=torch.float64)  # X -> the network's input columns
-            to_out = torch.zeros(s_k, width, dtype=torch.float64)  # the part's values -> the output block
-            slot = 0
-            for j in range(s_k):
-                pos_hit, vel_hit = m.pos[j].nonzero(), m.vel[j].nonzero()
-                if len(pos_hit):
-                    i3 = int(pos_hit[0, 0])  # 3·point + axis
-                    to_net[i3, j] = to_out[j, i3] = 1.0
-                elif len(vel_hit):
-                    i3 = int(vel_hit[0, 0])
-                    to_net[3 * p + i3, j] = to_out[j, 3 * P + i3] = 1.0
-                else:
-                    to_net[3 * V + slot, j] = to_out[j, O_vec + slot] = 1.0
-                    slot += 1
-            for i in range(U):
-                to_net[3 * V + C_state + i, s_k + i] = 1.0
-            for e in range(extra):
-                to_net[3 * (2 * p) + e, s_k + U + e] = 1.0
+        for k, (_, net) in enumerate(emu.networks[1:]):
+            to_net, to_out = _part_io(emu, k, self.V, self.P, C_state)
+            s_k = emu.part_map(k).keep.shape[0]
             layers, skip = _folded_layers(net)
             firsts.append((to_net @ layers[0].weight.T).T)  # (H, E)
             firsts_b.append(layers[0].bias[:, None])
@@ -228,13 +259,21 @@ class StackedStep(nn.Module):
             _frozen(torch.stack([b[i] for b in mids_b])) for i in range(len(mids[0]))
         )
         self.out_w, self.out_b = _frozen(torch.stack(outs)), _frozen(torch.stack(outs_b))
-        self.act = nets[0].core[1]  # the shared activation module
+        self.act = emu.networks[1][1].core[1]  # the shared activation module
 
-        # ---- stage 3: output values [turned points (K·O_vec), kept (K·C_state)] -> state values
+    def _build_placement(
+        self, emu: HierarchicalEmulator, point_rows: list[tuple[Tensor, Tensor]], kept_rows: list[list[int]]
+    ) -> None:
+        """Stage 3: output values [turned points (K·6P), kept (K·C_state)] -> state values: the next
+        centre row added to each turned-back point value, the quaternions' rows, and the row of
+        [output values, renormalised quaternions] each state value is read from."""
+        S, K, Q, P = emu.layout.size, self.num_parts, FRAME_SIZE, self.P
+        C_state = self.C - self.num_controls
+        O_vec = 6 * P
         offset = torch.full((K, 2 * P, 3), K * Q, dtype=torch.long)  # of [next frames, 0]
         place = torch.full((S,), -1, dtype=torch.long)
         for k, ((pos_rows, vel_rows), rows) in enumerate(zip(point_rows, kept_rows, strict=True)):
-            for i in range(points[k]):
+            for i in range(emu.part_map(k).points):
                 offset[k, i] = torch.arange(Q * k + _CENTRE, Q * k + _CENTRE + 3)
                 offset[k, P + i] = torch.arange(Q * k + _CENTRE_VEL, Q * k + _CENTRE_VEL + 3)
                 place[pos_rows[3 * i : 3 * i + 3]] = k * O_vec + torch.arange(3 * i, 3 * i + 3)
@@ -244,12 +283,11 @@ class StackedStep(nn.Module):
         qrows = [r for sl in emu.quaternion_slices for r in range(sl.start, sl.stop)]
         self.num_quats = len(qrows) // 4
         quats = place[qrows].clone()  # where each quaternion value sits in the output values
-        place[qrows] = K * width + torch.arange(len(qrows))  # ... and after renormalisation
+        place[qrows] = K * (O_vec + C_state) + torch.arange(len(qrows))  # ... and after renormalisation
         assert (place >= 0).all(), "every state value is some part's"
         self.register_buffer("_offset", offset.reshape(-1), persistent=False)
         self.register_buffer("_quats", quats, persistent=False)
         self.register_buffer("_place", place, persistent=False)
-        self.regularizer: SpringRegularization | None = emu.regularizer
 
     def _global(self, cols: Tensor) -> Tensor:
         """The folded global network, feature-major: (D, B) -> change of the frames (K·Q, B)."""
