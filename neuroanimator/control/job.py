@@ -133,67 +133,145 @@ def _run(
     should_stop: Callable[[], bool] | None,
     t0: float,
 ) -> JobOutcome:
-    problem, manifest, path = load_problem(spec, root)
-    physical = registry.load_physical_model(path, manifest)
-    labels = manifest.state_labels
-    layout = manifest.layout
-    target = np.asarray(spec.target_state, dtype=np.float64)
-    s0 = np.asarray(spec.initial_state, dtype=np.float64)
-    n = spec.substeps
-    phase: dict[str, Any] = {"name": "emulator", "offset": 0}
+    """The emulator phase (search, descent, Levenberg-Marquardt), its replay on MuJoCo, physics
+    refinement, and the outcome of the controller kept."""
+    job = _JobRun(spec, root, on_progress, should_stop, t0)
+    outcome, searched = job.search_and_descend()
+    replayed = job.replay(outcome.z, outcome.extra[1])
+    emulator_phase = job.emulator_phase(outcome, replayed)
+    refined = job.refine(outcome, replayed)
+    return job.result(outcome, searched, refined, emulator_phase)
 
-    def is_success(extra: tuple[np.ndarray, np.ndarray]) -> bool:
-        states = extra[0]
-        return bool(spec.success) and criteria.evaluate(spec.success, states[-1], target, labels)[0]
 
-    def value_and_grad(z: np.ndarray) -> tuple[float, np.ndarray, tuple[np.ndarray, np.ndarray]]:
-        j, g, states, held = problem.value_and_grad(z)
+@dataclass
+class _PhysicsReplay:
+    """A controller z (M, U) replayed on MuJoCo: the controls it holds (K, U), the states (K+1, S),
+    their J and whether they meet the criterion."""
+
+    z: np.ndarray
+    held: np.ndarray
+    states: np.ndarray
+    objective: float
+    success: bool
+
+    def rank(self) -> tuple[bool, float]:
+        """What refinement keeps the highest of: meeting the criterion, then a lower J."""
+        return self.success, -self.objective
+
+
+@dataclass
+class _Refined:
+    """What physics refinement ended with: the job's stop and reason, the controller that did best
+    on MuJoCo, the rounds and the updates they made."""
+
+    stop: str
+    reason: str | None
+    best: _PhysicsReplay
+    rounds: list[RefinementRound]
+    iterations: int
+
+
+class _JobRun:
+    """One job being run: its emulator objective, the MuJoCo model it is replayed on, and what
+    progress reports (``phase`` names the stage, ``offset`` counts the iterations before it)."""
+
+    def __init__(
+        self,
+        spec: JobSpec,
+        root: registry.Root,
+        on_progress: Callable[[dict[str, Any]], None] | None,
+        should_stop: Callable[[], bool] | None,
+        t0: float,
+    ) -> None:
+        self.problem, self.manifest, path = load_problem(spec, root)
+        self.physical = registry.load_physical_model(path, self.manifest)
+        self.spec = spec
+        self.labels = self.manifest.state_labels
+        self.layout = self.manifest.layout
+        self.target = np.asarray(spec.target_state, dtype=np.float64)
+        self.s0 = np.asarray(spec.initial_state, dtype=np.float64)
+        self.on_progress = on_progress
+        self.should_stop = should_stop
+        self.t0 = t0
+        self.phase = "emulator"
+        self.offset = 0
+        self.settings = Settings.from_spec(spec.optimizer)
+        self.gauss_newton = GaussNewtonInfo()
+
+    def meets(self, states: np.ndarray) -> bool:
+        """Whether states (K+1, S) end meeting the job's criterion (never, for a job without one)."""
+        spec = self.spec
+        return bool(spec.success) and criteria.evaluate(spec.success, states[-1], self.target, self.labels)[0]
+
+    def is_success(self, extra: tuple[np.ndarray, np.ndarray]) -> bool:
+        """``meets`` for what the objective returned beside J: the states and the held controls."""
+        return self.meets(extra[0])
+
+    def value_and_grad(self, z: np.ndarray) -> tuple[float, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        """J, ∇J (M, U) and (states (K+1, S), held controls (K, U)) of a controller z (M, U)."""
+        j, g, states, held = self.problem.value_and_grad(z)
         return j, g, (states, held)
 
-    def report(iteration: int, j: float, best: float, ok: bool) -> None:
-        it = iteration + phase["offset"]
-        log.debug("%s iteration %d: J=%.6g best=%.6g success=%s", phase["name"], it, j, best, ok)
-        if on_progress is not None:
-            on_progress(
+    def values_and_grads(self, zs: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[Any]]:
+        """``value_and_grad`` of a batch zs (B, M, U): J (B,), ∇J (B, M, U) and B (states, held)."""
+        j, g, states, held = self.problem.values_and_grads(zs)
+        return j, g, list(zip(states, held, strict=True))
+
+    def report(self, iteration: int, j: float, best: float, ok: bool) -> None:
+        """Logs an iteration of the current phase and hands it to ``on_progress``."""
+        it = iteration + self.offset
+        log.debug("%s iteration %d: J=%.6g best=%.6g success=%s", self.phase, it, j, best, ok)
+        if self.on_progress is not None:
+            self.on_progress(
                 {
                     "iteration": it,
                     "objective": clean(j),
                     "best_objective": clean(best),
                     "success_emulator": ok,
-                    "elapsed_s": elapsed(t0),
-                    "phase": phase["name"],
+                    "elapsed_s": elapsed(self.t0),
+                    "phase": self.phase,
                 }
             )
 
-    def replay(held: np.ndarray) -> tuple[np.ndarray, float, bool]:
-        states = simulate_held(physical, s0[None], held[None], n)[0]
-        ok = bool(spec.success) and criteria.evaluate(spec.success, states[-1], target, labels)[0]
-        return states, problem.score(states, held), ok
+    def replay(self, z: np.ndarray, held: np.ndarray) -> _PhysicsReplay:
+        """The controller z (M, U), holding ``held`` (K, U), replayed on MuJoCo."""
+        states = simulate_held(self.physical, self.s0[None], held[None], self.spec.substeps)[0]
+        return _PhysicsReplay(z, held, states, self.problem.score(states, held), self.meets(states))
 
-    def values_and_grads(zs: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[Any]]:
-        j, g, states, held = problem.values_and_grads(zs)
-        return j, g, list(zip(states, held, strict=True))
+    def descend(
+        self, z0: np.ndarray, settings: Settings, on_iteration: Callable[[int, float, float, bool], None]
+    ) -> Outcome:
+        """Gradient descent on the emulator from z0 (M, U) (``synthesis.optimize``)."""
+        return optimize(
+            self.value_and_grad,
+            z0,
+            settings,
+            project=self.problem.project,
+            evaluate=self.problem.evaluate,
+            is_success=self.is_success,
+            on_iteration=on_iteration,
+            should_stop=self.should_stop,
+        )
 
-    settings = Settings.from_spec(spec.optimizer)
-    gauss_newton = GaussNewtonInfo()
-
-    def finish(out: Outcome, budget: int) -> Outcome:
+    def finish_with_levenberg_marquardt(self, out: Outcome, budget: int) -> Outcome:
         """Levenberg-Marquardt from a descent that ended short of the criterion on the emulator
         (``gauss_newton.py``); the better of the two (meets the criterion, else lower J) is kept."""
+        spec = self.spec
         if not spec.success or out.success or out.stop in ("diverged", "cancelled") or budget <= 0:
             return out
         done = out.iterations
         lm = levenberg_marquardt(
-            problem.residual_jacobian,
-            problem.evaluate,
+            self.problem.residual_jacobian,
+            self.problem.evaluate,
             out.z,
             max_iterations=budget,
-            project=problem.project,
-            is_success=is_success,
-            polish_iterations=settings.polish_iterations,
-            on_iteration=lambda i, j, b, ok: report(done + i, j, b, ok),
-            should_stop=should_stop,
+            project=self.problem.project,
+            is_success=self.is_success,
+            polish_iterations=self.settings.polish_iterations,
+            on_iteration=lambda i, j, b, ok: self.report(done + i, j, b, ok),
+            should_stop=self.should_stop,
         )
+        gauss_newton = self.gauss_newton
         gauss_newton.runs += 1
         gauss_newton.iterations += lm.iterations
         gauss_newton.rollouts += lm.rollouts
@@ -210,187 +288,215 @@ def _run(
             out.stop, out.reason = "cancelled", f"cancelled after {out.iterations} iterations"
         return out
 
-    z0 = problem.initial_points()
-    searched = SearchSummary()
-    if spec.optimizer.starts > 1 or spec.optimizer.global_generations > 0:
-        j_init, ok_init = _initial(problem, z0, is_success)
-        report(0, j_init, j_init, ok_init)
-        z0, searched = _search(
-            problem,
-            spec,
-            settings,
-            values_and_grads,
-            is_success,
-            report,
-            should_stop,
-            [c.name for c in manifest.controls],
+    def search_and_descend(self) -> tuple[Outcome, SearchSummary]:
+        """The emulator phase: the search when the job asks for one (several starts or a global
+        search), descent from the controller it chose, then Levenberg-Marquardt. The outcome counts
+        the search's iterations, rollouts and history."""
+        spec, settings, problem = self.spec, self.settings, self.problem
+        z0 = problem.initial_points()
+        searched = SearchSummary()
+        if spec.optimizer.starts > 1 or spec.optimizer.global_generations > 0:
+            j_init, ok_init = _initial(problem, z0, self.is_success)
+            self.report(0, j_init, j_init, ok_init)
+            z0, searched = _search(
+                problem,
+                spec,
+                settings,
+                self.values_and_grads,
+                self.is_success,
+                self.report,
+                self.should_stop,
+                [c.name for c in self.manifest.controls],
+            )
+            self.offset = searched.iterations
+            # the history is what progress reported: the initial controller, then the best start's J
+            searched.history = [j_init, *searched.history]
+            searched.rollouts += 1
+        outcome = self.descend(
+            z0,
+            replace(settings, max_iterations=max(1, settings.max_iterations - searched.iterations)),
+            lambda i, j, b, ok: self.report(i, j, b, ok) if i > 0 or not searched.ran else None,
         )
-        phase["offset"] = searched.iterations
-        # the history is what progress reported: the initial controller, then the best start's J
-        searched.history = [j_init, *searched.history]
-        searched.rollouts += 1
-    outcome = optimize(
-        value_and_grad,
-        z0,
-        replace(settings, max_iterations=max(1, settings.max_iterations - searched.iterations)),
-        project=problem.project,
-        evaluate=problem.evaluate,
-        is_success=is_success,
-        on_iteration=lambda i, j, b, ok: report(i, j, b, ok) if i > 0 or not searched.ran else None,
-        should_stop=should_stop,
-    )
-    outcome = finish(outcome, spec.optimizer.gauss_newton_iterations)
-    outcome.iterations += searched.iterations
-    if outcome.stop == "cancelled":
-        outcome.reason = f"cancelled after {outcome.iterations} iterations"
-    outcome.rollouts += searched.rollouts
-    if searched.ran:  # the descent's first entry is the search's last
-        outcome.history = searched.history + outcome.history[1:]
-    if outcome.iterations_to_success is not None:
-        outcome.iterations_to_success += searched.iterations
-    elif searched.success:
-        outcome.iterations_to_success = searched.iterations
-    stop, reason = outcome.stop, outcome.reason
-    _, held = outcome.extra
-    phys_states, j_phys, ok_phys = replay(held)
-    # the controller found on the emulator alone, before any physics refinement
-    phase_emu = Replay.of(outcome.extra[0], spec, layout, labels)
-    phase_phys = Replay.of(phys_states, spec, layout, labels)
+        outcome = self.finish_with_levenberg_marquardt(outcome, spec.optimizer.gauss_newton_iterations)
+        _count_search(outcome, searched)
+        return outcome, searched
 
-    # Physics refinement: correct the emulator along the replayed trajectory and optimise again, a
-    # few iterations per round, keeping the controller that does best on MuJoCo itself.
-    z = outcome.z
-    best = (ok_phys, -j_phys, z, held, phys_states)
-    rounds: list[RefinementRound] = []
-    refine_iterations = 0
-    # without a criterion there is nothing for MuJoCo to miss: no refinement rounds
-    rounds_allowed = spec.optimizer.physics_rounds if spec.success else 0
-    for r in range(1, rounds_allowed + 1):
-        if stop in ("diverged", "cancelled") or best[0]:
-            break
-        if should_stop is not None and should_stop():
-            stop, reason = "cancelled", f"cancelled during physics refinement round {r}"
-            break
-        phase.update(name="physics_refinement", offset=outcome.iterations + refine_iterations)
-        problem.set_correction(phys_states, held)
+    def emulator_phase(self, outcome: Outcome, replayed: _PhysicsReplay) -> EmulatorPhase:
+        """The controller found on the emulator alone, before any physics refinement, and how it
+        ends on the emulator and on MuJoCo."""
+        spec = self.spec
+        emu = Replay.of(outcome.extra[0], spec, self.layout, self.labels)
+        phys = Replay.of(replayed.states, spec, self.layout, self.labels)
+        return EmulatorPhase(
+            objective=clean(outcome.objective),
+            success_emulator=emu.success if spec.success else None,
+            success_physics=phys.success if spec.success else None,
+            final_error_emulator=clean(emu.final_error),
+            final_error_physics=clean(phys.final_error),
+        )
+
+    def refine(self, outcome: Outcome, replayed: _PhysicsReplay) -> _Refined:
+        """Physics refinement: rounds of optimisation on the emulator corrected along the last
+        replay, each replayed, until a controller meets the criterion on MuJoCo, a round diverges or
+        is cancelled, or ``physics_rounds`` are done; the controller best on MuJoCo is kept."""
+        stop, reason = outcome.stop, outcome.reason
+        best = last = replayed
+        rounds: list[RefinementRound] = []
+        iterations = 0
+        # without a criterion there is nothing for MuJoCo to miss: no refinement rounds
+        rounds_allowed = self.spec.optimizer.physics_rounds if self.spec.success else 0
+        for r in range(1, rounds_allowed + 1):
+            if stop in ("diverged", "cancelled") or best.success:
+                break
+            if self.should_stop is not None and self.should_stop():
+                stop, reason = "cancelled", f"cancelled during physics refinement round {r}"
+                break
+            self.phase, self.offset = "physics_refinement", outcome.iterations + iterations
+            out_r = self.refine_round(last)
+            iterations += out_r.iterations
+            if out_r.stop == "diverged":
+                rounds.append(
+                    RefinementRound(
+                        round=r, iterations=out_r.iterations, stop=out_r.stop, reason=out_r.reason
+                    )
+                )
+                break
+            _, held = self.problem.trajectory(out_r.z)
+            last = self.replay(out_r.z, held)
+            rounds.append(
+                RefinementRound(
+                    round=r,
+                    iterations=out_r.iterations,
+                    stop=out_r.stop,
+                    objective_physics=clean(last.objective),
+                    success_physics=last.success,
+                )
+            )
+            if last.rank() > best.rank():
+                best = last
+            if out_r.stop == "cancelled":
+                stop, reason = "cancelled", f"cancelled during physics refinement round {r}"
+                break
+        return _Refined(stop, reason, best, rounds, iterations)
+
+    def refine_round(self, last: _PhysicsReplay) -> Outcome:
+        """A few updates from the last replayed controller on the emulator corrected to reproduce
+        that replay exactly (``ControlProblem.set_correction``), then Levenberg-Marquardt."""
+        settings = self.settings
+        self.problem.set_correction(last.states, last.held)
         refine = replace(
             settings,
             max_iterations=min(REFINE_ITERATIONS, settings.max_iterations),
             polish_iterations=min(settings.polish_iterations, REFINE_POLISH),
         )
-        out_r = optimize(
-            value_and_grad,
-            z,
-            refine,
-            project=problem.project,
-            evaluate=problem.evaluate,
-            is_success=is_success,
-            on_iteration=lambda i, j, b, ok: report(i, j, b, ok) if i > 0 else None,
-            should_stop=should_stop,
+        out = self.descend(last.z, refine, lambda i, j, b, ok: self.report(i, j, b, ok) if i > 0 else None)
+        out = self.finish_with_levenberg_marquardt(
+            out, min(REFINE_ITERATIONS, self.spec.optimizer.gauss_newton_iterations)
         )
-        out_r = finish(out_r, min(REFINE_ITERATIONS, spec.optimizer.gauss_newton_iterations))
-        problem.set_correction(None)
-        refine_iterations += out_r.iterations
-        if out_r.stop == "diverged":
-            rounds.append(
-                RefinementRound(round=r, iterations=out_r.iterations, stop=out_r.stop, reason=out_r.reason)
-            )
-            break
-        z = out_r.z
-        _, held = problem.trajectory(z)
-        phys_states, j_phys, ok_phys = replay(held)
-        rounds.append(
-            RefinementRound(
-                round=r,
-                iterations=out_r.iterations,
-                stop=out_r.stop,
-                objective_physics=clean(j_phys),
-                success_physics=ok_phys,
-            )
+        self.problem.set_correction(None)
+        return out
+
+    def result(
+        self, outcome: Outcome, searched: SearchSummary, refined: _Refined, emulator_phase: EmulatorPhase
+    ) -> JobOutcome:
+        """The job's outcome for the controller refinement kept, on the plain emulator and on MuJoCo."""
+        spec, problem, layout, labels = self.spec, self.problem, self.layout, self.labels
+        best = refined.best
+        emulated, _ = problem.trajectory(best.z)  # the plain emulator's prediction for the chosen controller
+        emu = Replay.of(emulated, spec, layout, labels)
+        phys = Replay.of(best.states, spec, layout, labels)
+        # how far the physics ends from where the emulator said it would, in the goal's own metric
+        transfer, _ = final_error(best.states[-1], emulated[-1].tolist(), spec.state_weights, layout)
+        stop, reason = _missed_on_physics(refined, emu, phys, outcome)
+        reachable, reachability = _reachability(spec, emu, phys, outcome, searched)
+        result = JobOutcome(
+            status=STATUS[stop],
+            reason=reason,
+            stop=stop,
+            task=spec.task,
+            model=spec.model,
+            version=spec.version,
+            substeps=spec.substeps,
+            iterations=outcome.iterations,
+            iterations_to_success=outcome.iterations_to_success,
+            emulator_rollouts=outcome.rollouts,
+            bptt_networks=problem.networks,
+            objective=clean(problem.score(emulated, best.held)),
+            objective_physics=clean(best.objective),
+            objective_history=clean(outcome.history),
+            control_names=[c.name for c in self.manifest.controls],
+            control_points=clean(problem.to_physical(best.z)),
+            control_spacing_s=problem.spline.spacing,
+            super_timestep=problem.super_dt,
+            times=problem.spline.times(),
+            controls=clean(best.held),
+            emulated=Trajectory(states=clean(reported(emulated, layout))),
+            physical=Trajectory(states=clean(reported(best.states, layout))),
+            final_error_emulator=clean(emu.final_error),
+            final_error_physics=clean(phys.final_error),
+            final_errors_emulator=clean(emu.final_errors),
+            final_errors_physics=clean(phys.final_errors),
+            transfer_error=clean(transfer),
+            success_criterion=criteria.describe(spec.success, spec.target_state, labels),
+            success_emulator=emu.success if spec.success else None,
+            success_physics=phys.success if spec.success else None,
+            checks_emulator=clean(emu.checks),
+            checks_physics=clean(phys.checks),
+            reachable=reachable,
+            reachability=reachability,
+            search=searched.to_info(),
+            gauss_newton=self.gauss_newton,
+            emulator_phase=emulator_phase,
+            refinement=Refinement(
+                rounds=refined.rounds, iterations=refined.iterations, physics_replays=len(refined.rounds) + 1
+            ),
+            target_state=spec.target_state,
+            initial_state=spec.initial_state,
+            state_labels=labels,
+            spec=spec,
+            wall_s=elapsed(self.t0),
         )
-        if (ok_phys, -j_phys) > best[:2]:
-            best = (ok_phys, -j_phys, z, held, phys_states)
-        if out_r.stop == "cancelled":
-            stop, reason = "cancelled", f"cancelled during physics refinement round {r}"
-            break
-    _, neg_j_phys, z, held, phys_states = best
-    emulated, _ = problem.trajectory(z)  # the plain emulator's prediction for the chosen controller
-    emu = Replay.of(emulated, spec, layout, labels)
-    phys = Replay.of(phys_states, spec, layout, labels)
-    # how far the physics ends from where the emulator said it would, in the goal's own metric
-    transfer, _ = final_error(phys_states[-1], emulated[-1].tolist(), spec.state_weights, layout)
-    if stop == "success" and not (emu.success or phys.success):
-        # the criterion held on the emulator during the search, but the controller returned (the one
-        # best on MuJoCo after refinement) meets it on neither
-        stop = "missed_on_physics"
-        reason = (
+        log.info(
+            "control job %s/%s: %s after %d iterations (+%d refining), success emulator=%s physics=%s, %.2fs",
+            spec.task or "-",
+            spec.model,
+            stop,
+            outcome.iterations,
+            refined.iterations,
+            emu.success,
+            phys.success,
+            result.wall_s,
+        )
+        return result
+
+
+def _count_search(outcome: Outcome, searched: SearchSummary) -> None:
+    """Counts the search's iterations, rollouts and J history into the outcome of the descent that
+    followed it (the descent's first entry is the search's last)."""
+    outcome.iterations += searched.iterations
+    if outcome.stop == "cancelled":
+        outcome.reason = f"cancelled after {outcome.iterations} iterations"
+    outcome.rollouts += searched.rollouts
+    if searched.ran:
+        outcome.history = searched.history + outcome.history[1:]
+    if outcome.iterations_to_success is not None:
+        outcome.iterations_to_success += searched.iterations
+    elif searched.success:
+        outcome.iterations_to_success = searched.iterations
+
+
+def _missed_on_physics(
+    refined: _Refined, emu: Replay, phys: Replay, outcome: Outcome
+) -> tuple[str, str | None]:
+    """The job's stop and reason: ``missed_on_physics`` when the criterion held on the emulator
+    during the search but the controller returned (the one best on MuJoCo after refinement) meets
+    it on neither."""
+    if refined.stop == "success" and not (emu.success or phys.success):
+        return "missed_on_physics", (
             f"the criterion held on the emulator after {outcome.iterations_to_success} iterations but "
-            f"not on MuJoCo, and {len(rounds)} physics-refinement rounds did not reach it"
+            f"not on MuJoCo, and {len(refined.rounds)} physics-refinement rounds did not reach it"
         )
-    reachable, reachability = _reachability(spec, emu, phys, outcome, searched)
-    result = JobOutcome(
-        status=STATUS[stop],
-        reason=reason,
-        stop=stop,
-        task=spec.task,
-        model=spec.model,
-        version=spec.version,
-        substeps=spec.substeps,
-        iterations=outcome.iterations,
-        iterations_to_success=outcome.iterations_to_success,
-        emulator_rollouts=outcome.rollouts,
-        bptt_networks=problem.networks,
-        objective=clean(problem.score(emulated, held)),
-        objective_physics=clean(-neg_j_phys),
-        objective_history=clean(outcome.history),
-        control_names=[c.name for c in manifest.controls],
-        control_points=clean(problem.to_physical(z)),
-        control_spacing_s=problem.spline.spacing,
-        super_timestep=problem.super_dt,
-        times=problem.spline.times(),
-        controls=clean(held),
-        emulated=Trajectory(states=clean(reported(emulated, layout))),
-        physical=Trajectory(states=clean(reported(phys_states, layout))),
-        final_error_emulator=clean(emu.final_error),
-        final_error_physics=clean(phys.final_error),
-        final_errors_emulator=clean(emu.final_errors),
-        final_errors_physics=clean(phys.final_errors),
-        transfer_error=clean(transfer),
-        success_criterion=criteria.describe(spec.success, spec.target_state, labels),
-        success_emulator=emu.success if spec.success else None,
-        success_physics=phys.success if spec.success else None,
-        checks_emulator=clean(emu.checks),
-        checks_physics=clean(phys.checks),
-        reachable=reachable,
-        reachability=reachability,
-        search=searched.to_info(),
-        gauss_newton=gauss_newton,
-        emulator_phase=EmulatorPhase(
-            objective=clean(outcome.objective),
-            success_emulator=phase_emu.success if spec.success else None,
-            success_physics=phase_phys.success if spec.success else None,
-            final_error_emulator=clean(phase_emu.final_error),
-            final_error_physics=clean(phase_phys.final_error),
-        ),
-        refinement=Refinement(rounds=rounds, iterations=refine_iterations, physics_replays=len(rounds) + 1),
-        target_state=spec.target_state,
-        initial_state=spec.initial_state,
-        state_labels=labels,
-        spec=spec,
-        wall_s=elapsed(t0),
-    )
-    log.info(
-        "control job %s/%s: %s after %d iterations (+%d refining), success emulator=%s physics=%s, %.2fs",
-        spec.task or "-",
-        spec.model,
-        stop,
-        outcome.iterations,
-        refine_iterations,
-        emu.success,
-        phys.success,
-        result.wall_s,
-    )
-    return result
+    return refined.stop, refined.reason
 
 
 GLOBAL_POPULATION = 128  # controllers per cross-entropy generation

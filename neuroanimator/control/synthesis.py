@@ -102,6 +102,122 @@ def _finite(x: float | FloatArray) -> bool:
     return bool(np.all(np.isfinite(x)))
 
 
+def _not_finite(j: float, g: FloatArray) -> str | None:
+    """Which of J and ∇J is not finite ("objective" first), or None when both are."""
+    if not _finite(j):
+        return "objective"
+    return None if _finite(g) else "gradient"
+
+
+@dataclass
+class _Progress:
+    """A run so far: the best controllers, the first update that met the criterion, J's history
+    and the emulator rollouts spent."""
+
+    best: Outcome  # lowest J so far
+    best_ok: Outcome | None  # lowest J among controllers that meet the criterion
+    to_success: int | None  # updates made when the criterion was first met
+    history: list[float]
+    rollouts: int
+
+    @classmethod
+    def start(cls, z: FloatArray, j: float, ok: bool, extra: Any) -> _Progress:
+        """The run at the initial controller z (M, U), one rollout spent on it."""
+        first = Outcome("", None, z, j, ok, extra, 0, None)
+        return cls(first, first if ok else None, 0 if ok else None, [j], 1)
+
+    def record(self, z: FloatArray, j: float, ok: bool, extra: Any, done: int) -> None:
+        """The controller z (M, U) after ``done`` updates, with its J and verdict."""
+        self.history.append(j)
+        if ok and self.to_success is None:
+            self.to_success = done
+        current = Outcome("", None, z, j, ok, extra, done, None)
+        if j < self.best.objective:
+            self.best = current
+        if ok and (self.best_ok is None or j < self.best_ok.objective):
+            self.best_ok = current
+
+    def polished(self, done: int, settings: Settings) -> bool:
+        """Whether the run met the criterion and has made its polishing updates since."""
+        return (
+            self.to_success is not None
+            and settings.stop_on_success
+            and done >= self.to_success + settings.polish_iterations
+        )
+
+    def outcome(self, stop: str, reason: str | None, done: int, settings: Settings) -> Outcome:
+        """The controller returned: the best one that meets the criterion, else the lowest J."""
+        if stop == "max_iterations" and self.to_success is not None and settings.stop_on_success:
+            stop = "success"  # the cap fell inside the polishing iterations
+        chosen = self.best_ok if self.best_ok is not None else self.best
+        chosen.stop, chosen.reason = stop, reason
+        chosen.iterations = done
+        chosen.iterations_to_success = self.to_success
+        chosen.history = self.history
+        chosen.rollouts = self.rollouts
+        return chosen
+
+
+def _halt(
+    progress: _Progress,
+    done: int,
+    g: FloatArray,
+    settings: Settings,
+    should_stop: Callable[[], bool] | None,
+) -> tuple[str, str | None] | None:
+    """Why the run ends before its next update (the stop and the reason), or None to go on."""
+    if progress.polished(done, settings):
+        return "success", None
+    if done >= settings.max_iterations:
+        return "max_iterations", None
+    if should_stop is not None and should_stop():
+        return "cancelled", f"cancelled after {done} iterations"
+    if float(np.abs(g).max()) == 0.0:
+        return "converged", "the gradient is zero"
+    return None
+
+
+def _line_search(
+    z: FloatArray,
+    g_hat: FloatArray,
+    delta: FloatArray,
+    j: float,
+    first: bool,
+    settings: Settings,
+    project: Callable[[FloatArray], FloatArray],
+    evaluate: Evaluate,
+) -> tuple[FloatArray | None, int]:
+    """The best of the candidates Π(z − η ĝ + α δ) over ``settings.candidates`` (each (M, U)),
+    scored in one batch, or None when none lowers J below ``j``; and how many were scored."""
+    cands = settings.candidates(first=first)
+    zs = np.stack([project(z - eta * g_hat + alpha * delta) for eta, alpha in cands])
+    values = np.asarray(evaluate(zs), dtype=np.float64)
+    values = np.where(np.isfinite(values), values, np.inf)  # a candidate that diverged is never taken
+    b = int(np.argmin(values))
+    return (zs[b] if values[b] < j else None), len(cands)
+
+
+def _next_point(
+    z: FloatArray,
+    g: FloatArray,
+    delta: FloatArray,
+    j: float,
+    first: bool,
+    settings: Settings,
+    project: Callable[[FloatArray], FloatArray],
+    evaluate: Evaluate | None,
+) -> tuple[FloatArray | None, int]:
+    """The next controller (M, U) from z, its gradient g and the last step δ (both (M, U)): the
+    line search's choice, or the fixed-coefficient update; None when no candidate lowers J. Also
+    how many rollouts choosing it took."""
+    scale = float(np.abs(g).max())
+    g_hat = g / scale if settings.normalize_gradient else g
+    if settings.line_search:
+        assert evaluate is not None
+        return _line_search(z, g_hat, delta, j, first, settings, project, evaluate)
+    return project(z - settings.learning_rate * g_hat + settings.momentum * delta), 0
+
+
 def optimize(
     value_and_grad: ValueAndGrad,
     z0: FloatArray,
@@ -127,91 +243,51 @@ def optimize(
         raise ValueError("line_search needs an evaluate function that scores a batch of controllers")
     z = project(np.asarray(z0, dtype=np.float64))
     j, g, extra = value_and_grad(z)
-    history: list[float] = []
-    rollouts = 1
-    if not (_finite(j) and _finite(g)):
-        what = "objective" if not _finite(j) else "gradient"
+    what = _not_finite(j, g)
+    if what is not None:
         why = f"diverged at iteration 0: the {what} of the initial controller is not finite"
-        return Outcome("diverged", why, z, j, False, extra, 0, None, history, rollouts)
-    history.append(j)
+        return Outcome("diverged", why, z, j, False, extra, 0, None, [], 1)
     ok = is_success(extra)
-    best = Outcome("", None, z, j, ok, extra, 0, None)  # lowest J so far
-    best_ok = best if ok else None  # lowest J among controllers that meet the criterion
-    to_success: int | None = 0 if ok else None
+    progress = _Progress.start(z, j, ok, extra)
     if on_iteration is not None:
         on_iteration(0, j, j, ok)
-    stop: str = "max_iterations"
-    reason: str | None = None
+    stop: str
+    reason: str | None
     delta = np.zeros_like(z)
     done = 0  # updates made
     while True:
-        if (
-            to_success is not None
-            and settings.stop_on_success
-            and done >= to_success + settings.polish_iterations
-        ):
-            stop = "success"
+        halt = _halt(progress, done, g, settings, should_stop)
+        if halt is not None:
+            stop, reason = halt
             break
-        if done >= settings.max_iterations:
+        z_new, scored = _next_point(z, g, delta, j, done == 0, settings, project, evaluate)
+        progress.rollouts += scored
+        if z_new is None:
+            stop, reason = "stalled", "no step along the gradient and the momentum lowers the objective"
             break
-        if should_stop is not None and should_stop():
-            stop, reason = "cancelled", f"cancelled after {done} iterations"
-            break
-        scale = float(np.abs(g).max())
-        if scale == 0.0:
-            stop, reason = "converged", "the gradient is zero"
-            break
-        g_hat = g / scale if settings.normalize_gradient else g
-        if settings.line_search:
-            assert evaluate is not None
-            cands = settings.candidates(first=done == 0)
-            zs = np.stack([project(z - eta * g_hat + alpha * delta) for eta, alpha in cands])
-            values = np.asarray(evaluate(zs), dtype=np.float64)
-            rollouts += len(cands)
-            values = np.where(np.isfinite(values), values, np.inf)
-            b = int(np.argmin(values))
-            if not values[b] < j:
-                stop, reason = "stalled", "no step along the gradient and the momentum lowers the objective"
-                break
-            z_new = zs[b]
-        else:
-            z_new = project(z - settings.learning_rate * g_hat + settings.momentum * delta)
         delta = z_new - z  # the step actually taken (after projection) is the next momentum
         z = z_new
         done += 1
         j_new, g, extra = value_and_grad(z)
-        rollouts += 1
-        if not (_finite(j_new) and _finite(g)):
-            what = "objective" if not _finite(j_new) else "gradient"
+        progress.rollouts += 1
+        what = _not_finite(j_new, g)
+        if what is not None:
             stop, reason = "diverged", f"diverged at iteration {done}: the {what} is not finite ({j_new})"
             log.warning(
-                "control synthesis %s; keeping the best finite controller (J=%g)", reason, best.objective
+                "control synthesis %s; keeping the best finite controller (J=%g)",
+                reason,
+                progress.best.objective,
             )
             break
-        history.append(j_new)
         ok = is_success(extra)
-        if ok and to_success is None:
-            to_success = done
-        current = Outcome("", None, z, j_new, ok, extra, done, None)
-        if j_new < best.objective:
-            best = current
-        if ok and (best_ok is None or j_new < best_ok.objective):
-            best_ok = current
+        progress.record(z, j_new, ok, extra, done)
         if on_iteration is not None:
-            on_iteration(done, j_new, best.objective, ok)
+            on_iteration(done, j_new, progress.best.objective, ok)
         if abs(j_new - j) <= settings.tolerance * max(abs(j), 1e-12):
             stop, reason = "converged", f"relative change of the objective below {settings.tolerance:g}"
             break
         j = j_new
-    if stop == "max_iterations" and to_success is not None and settings.stop_on_success:
-        stop = "success"  # the cap fell inside the polishing iterations
-    chosen = best_ok if best_ok is not None else best
-    chosen.stop, chosen.reason = stop, reason
-    chosen.iterations = done
-    chosen.iterations_to_success = to_success
-    chosen.history = history
-    chosen.rollouts = rollouts
-    return chosen
+    return progress.outcome(stop, reason, done, settings)
 
 
 def elapsed(t0: float) -> float:
