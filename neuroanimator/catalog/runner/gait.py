@@ -34,6 +34,8 @@ if TYPE_CHECKING:
     from neuroanimator.sim.model import PhysicalModel
 
 FloatArray = NDArray[np.float64]
+_Placement = Callable[[FloatArray], tuple[FloatArray, FloatArray]]
+"""A foot's side sign (B,) -> thigh angles (forward, sideways), each (B,), that place the foot."""
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
@@ -210,35 +212,55 @@ class RunnerController:
     def act(self, qpos: FloatArray, qvel: FloatArray, sensordata: FloatArray, dt: float) -> FloatArray:
         """(B, nq), (B, nv), (B, nsensordata) -> (B, U) servo targets for the next ``dt`` seconds."""
         self._advance(self.feet_touch(sensordata), dt)
-        g = self.gait
         at = self.sensor_at
         com_vel = sensordata[:, at["com_vel"] : at["com_vel"] + 3]
         att = Attitude.of(qpos, qvel, com_vel)
         heading_error = np.angle(np.exp(1j * (att.heading - self.target_heading)))
-        q = qpos[:, self.qpos_at]
+        q = qpos[:, self.qpos_at]  # (B, U) the servoed joints' angles and rates, in control order
         qd = qvel[:, self.dof_at]
-        b = q.shape[0]
-        runs = np.arange(b)
-        u = np.repeat(self.stand[None], b, axis=0)
-        ix = self.index
+        # the standing pose, (B, U); each part of the gait writes its joints' targets over it, the
+        # stance hip last among the legs since it blends the stance knee's target with touchdown's
+        u = np.repeat(self.stand[None], q.shape[0], axis=0)
+        pelvis_torque = self._pelvis_torque(att, heading_error)
+        placement = self._placement(att.velocity, heading_error)
+        swing_hip = self._swing_leg(u, att, placement)
+        self._stance_knee_and_ankle(u)
+        hip_torque = self._stance_hip_torque(q, qd, pelvis_torque, swing_hip)
+        self._stance_hip(u, att, placement, self._holding(q, qd, hip_torque))
+        self._arms_and_waist(u, q)
+        standing = ~self.running
+        if standing.any():
+            u[standing] = self._stand(att, standing, sensordata[standing])
+        return np.clip(u, self.low, self.high)
 
-        def col(side: int, joint: str) -> int:
-            return ix[f"{body.SIDES[side]}_{joint}"]
+    def _col(self, side: int, joint: str) -> int:
+        """The column of ``joint`` ("hip_y", "knee", ...) of leg or arm ``side`` (0 left, 1 right) in U."""
+        return self.index[f"{body.SIDES[side]}_{joint}"]
 
+    def _cols(self, sides: NDArray[np.int_], joint: str) -> list[int]:
+        """(B,) sides -> each run's column of ``joint`` on its side."""
+        return [self._col(s, joint) for s in sides]
+
+    def _pelvis_torque(
+        self, att: Attitude, heading_error: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(B,) torques the pelvis needs on pitch, roll and heading: PD servos towards upright, the
+        heading to run in, and (running) a forward lean that grows when the run is slower than its
+        target."""
+        g = self.gait
         speed_error = self.target_speed - att.velocity[:, 0]
-        running = self.running
-        lean = np.where(running, g.lean + g.lean_per_speed * np.clip(speed_error, -1.0, 1.0), 0.0)
-        # the torque that holds the pelvis: on pitch, roll and heading
+        lean = np.where(self.running, g.lean + g.lean_per_speed * np.clip(speed_error, -1.0, 1.0), 0.0)
         t_pitch = -g.pitch_kp * (att.pitch - lean) - g.pitch_kd * att.pitch_rate
         t_roll = -g.roll_kp * att.roll - g.roll_kd * att.roll_rate
         t_yaw = -g.yaw_kp * heading_error - g.yaw_kd * att.yaw_rate
+        return t_pitch, t_roll, t_yaw
 
-        stance = self.stance_leg
-        swing = 1 - stance
-        in_stance = self.phase == STANCE
-        frac = self.phase_time / g.stance_s
-        # the swing leg: foot placement from the speed (Raibert), thigh angle in the world
-        v = att.velocity
+    def _placement(self, velocity: FloatArray, heading_error: FloatArray) -> _Placement:
+        """Raibert's foot placement for the (B, 2) forward and leftward velocity in the pelvis'
+        heading frame: a function of each run's foot side sign (B,) -> its thigh angles (forward,
+        sideways), each (B,), in the pelvis' heading frame."""
+        g = self.gait
+        v = velocity
         # placement in the frame of the target heading (the way to run), turned into the pelvis'
         # heading frame, so that a turned pelvis does not read its own turn as sideways speed
         ce, se = np.cos(heading_error), np.sin(heading_error)
@@ -255,79 +277,141 @@ class RunnerController:
                 np.arcsin(np.clip(side / g.leg_length, -0.5, 0.5)),
             )
 
+        return placement
+
+    def _swing_leg(
+        self, u: FloatArray, att: Attitude, placement: _Placement
+    ) -> tuple[FloatArray, FloatArray]:
+        """Write the swing leg's targets into ``u`` (B, U): thigh towards the placement (an angle in the
+        world), knee folded for most of the other leg's stance, then extended for touchdown. Returns
+        the (B,) targets of its hip's flexion and abduction."""
+        g = self.gait
+        runs = np.arange(u.shape[0])
+        swing = 1 - self.stance_leg
+        in_stance = self.phase == STANCE
+        frac = self.phase_time / g.stance_s
         side_sign = self.sign[swing]
         thigh_fwd, thigh_side = placement(side_sign)
         folded = in_stance & (frac < g.fold_fraction)
         sw_hip_y = thigh_fwd + att.pitch
         sw_hip_x = side_sign * (thigh_side - att.roll)
         sw_knee = np.where(folded, g.swing_knee, g.touchdown_knee)
-        # the swing leg: knee folded for most of the other leg's stance, then extended for touchdown
-        u[runs, [col(s, "hip_y") for s in swing]] = sw_hip_y
-        u[runs, [col(s, "hip_x") for s in swing]] = sw_hip_x
-        u[runs, [col(s, "knee") for s in swing]] = sw_knee
-        u[runs, [col(s, "ankle_y") for s in swing]] = 0.2
+        u[runs, self._cols(swing, "hip_y")] = sw_hip_y
+        u[runs, self._cols(swing, "hip_x")] = sw_hip_x
+        u[runs, self._cols(swing, "knee")] = sw_knee
+        u[runs, self._cols(swing, "ankle_y")] = 0.2
+        return sw_hip_y, sw_hip_x
 
-        # the stance leg (or, in flight, the leg that just left the ground)
+    def _stance_knee_and_ankle(self, u: FloatArray) -> None:
+        """Write the knee and ankle targets of the stance leg (or, in flight, of the leg that just left
+        the ground) into ``u`` (B, U): the knee gives, then extends with the ankle to push off."""
+        g = self.gait
+        runs = np.arange(u.shape[0])
+        stance = self.stance_leg
+        in_stance = self.phase == STANCE
+        frac = self.phase_time / g.stance_s
         st_knee = np.where(
             in_stance, np.where(frac < g.pushoff_from, g.stance_knee, g.pushoff_knee), g.swing_knee
         )
         st_ankle = np.where(in_stance & (frac >= g.pushoff_from), g.pushoff_ankle, 0.0)
         st_ankle = np.where(in_stance, st_ankle, 0.2)
-        u[runs, [col(s, "knee") for s in stance]] = st_knee
-        u[runs, [col(s, "ankle_y") for s in stance]] = st_ankle
+        u[runs, self._cols(stance, "knee")] = st_knee
+        u[runs, self._cols(stance, "ankle_y")] = st_ankle
 
-        # the stance hip holds the pelvis: its torque is what the pelvis needs less what the swing
-        # hip already applies to it (Hodgins; SIMBICON)
-        def servo_torque(cols: list[int], target: FloatArray) -> FloatArray:
-            c = np.asarray(cols)
-            tau = self.kp[c] * (target - q[runs, c]) - self.kv[c] * qd[runs, c]
-            return np.asarray(np.clip(tau, -self.force_limit[c], self.force_limit[c]))
+    def _servo_torque(self, q: FloatArray, qd: FloatArray, cols: list[int], target: FloatArray) -> FloatArray:
+        """(B,) torque each run's servo at its column ``cols`` applies towards ``target`` (B,), from the
+        joint angles ``q`` and rates ``qd`` (B, U), within its force limit."""
+        runs = np.arange(q.shape[0])
+        c = np.asarray(cols)
+        tau = self.kp[c] * (target - q[runs, c]) - self.kv[c] * qd[runs, c]
+        return np.asarray(np.clip(tau, -self.force_limit[c], self.force_limit[c]))
 
-        def hold(cols: list[int], torque: FloatArray) -> FloatArray:
-            c = np.asarray(cols)
-            return np.asarray(q[runs, c] + (torque + self.kv[c] * qd[runs, c]) / self.kp[c])
+    def _hold(self, q: FloatArray, qd: FloatArray, cols: list[int], torque: FloatArray) -> FloatArray:
+        """(B,) the servo target at each run's column ``cols`` under which its servo applies ``torque``."""
+        runs = np.arange(q.shape[0])
+        c = np.asarray(cols)
+        return np.asarray(q[runs, c] + (torque + self.kv[c] * qd[runs, c]) / self.kp[c])
 
-        sw_y = [col(s, "hip_y") for s in swing]
-        sw_x = [col(s, "hip_x") for s in swing]
-        st_y = [col(s, "hip_y") for s in stance]
-        st_x = [col(s, "hip_x") for s in stance]
-        st_z = [col(s, "hip_z") for s in stance]
-        tau_sw_y = servo_torque(sw_y, sw_hip_y)
-        tau_sw_x = servo_torque(sw_x, sw_hip_x)
+    def _stance_hip_torque(
+        self,
+        q: FloatArray,
+        qd: FloatArray,
+        pelvis_torque: tuple[FloatArray, FloatArray, FloatArray],
+        swing_hip: tuple[FloatArray, FloatArray],
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(B,) torques of the stance hip's flexion, abduction and twist: what the pelvis needs less
+        what the swing hip, servoed to ``swing_hip`` (flexion, abduction targets), already applies to
+        it (Hodgins; SIMBICON)."""
+        t_pitch, t_roll, t_yaw = pelvis_torque
+        stance = self.stance_leg
+        swing = 1 - stance
+        side_sign = self.sign[swing]
+        tau_sw_y = self._servo_torque(q, qd, self._cols(swing, "hip_y"), swing_hip[0])
+        tau_sw_x = self._servo_torque(q, qd, self._cols(swing, "hip_x"), swing_hip[1])
         # pelvis pitch gets +flexion torque of each hip; roll gets -sign·abduction; yaw -sign·twist
         st_sign = self.sign[stance]
         stance_pitch = t_pitch - tau_sw_y
         stance_roll = -st_sign * (t_roll + side_sign * tau_sw_x)
         stance_yaw = -st_sign * t_yaw
-        # a stance foot not yet (or no longer) loaded holds nothing: its leg keeps reaching for the
-        # touchdown point; in flight the leaving leg swings forward instead
+        return stance_pitch, stance_roll, stance_yaw
+
+    def _holding(
+        self, q: FloatArray, qd: FloatArray, hip_torque: tuple[FloatArray, FloatArray, FloatArray]
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(B,) servo targets of the stance hip's flexion, abduction and twist under which it applies
+        ``hip_torque``."""
+        stance = self.stance_leg
+        return (
+            self._hold(q, qd, self._cols(stance, "hip_y"), hip_torque[0]),
+            self._hold(q, qd, self._cols(stance, "hip_x"), hip_torque[1]),
+            self._hold(q, qd, self._cols(stance, "hip_z"), hip_torque[2]),
+        )
+
+    def _stance_hip(
+        self,
+        u: FloatArray,
+        att: Attitude,
+        placement: _Placement,
+        holding: tuple[FloatArray, FloatArray, FloatArray],
+    ) -> None:
+        """Write the stance hip's targets into ``u`` (B, U): as far as the stance foot is loaded, the
+        ``holding`` targets (flexion, abduction, twist) that hold the pelvis; a stance foot not yet (or
+        no longer) loaded holds nothing: its leg keeps reaching for the touchdown point. In flight the
+        leaving leg swings forward instead."""
+        g = self.gait
+        runs = np.arange(u.shape[0])
+        stance = self.stance_leg
+        in_stance = self.phase == STANCE
+        st_y = self._cols(stance, "hip_y")
+        st_x = self._cols(stance, "hip_x")
+        st_z = self._cols(stance, "hip_z")
+        st_sign = self.sign[stance]
         w = self.load
         st_fwd, st_lateral = placement(st_sign)
         reach_y = st_fwd + att.pitch
         reach_x = st_sign * (st_lateral - att.roll)
-        held_y = w * hold(st_y, stance_pitch) + (1 - w) * reach_y
-        held_x = w * hold(st_x, stance_roll) + (1 - w) * reach_x
-        held_z = w * hold(st_z, stance_yaw)
+        held_y = w * holding[0] + (1 - w) * reach_y
+        held_x = w * holding[1] + (1 - w) * reach_x
+        held_z = w * holding[2]
         u[runs, st_y] = np.where(in_stance, held_y, g.liftoff_hip + att.pitch)
         u[runs, st_x] = np.where(in_stance, held_x, st_sign * (st_sign * g.width - att.roll))
         u[runs, st_z] = np.where(in_stance, held_z, 0.0)
-        st_knee_now = u[runs, [col(s, "knee") for s in stance]]
-        u[runs, [col(s, "knee") for s in stance]] = np.where(
+        st_knee_now = u[runs, self._cols(stance, "knee")]
+        u[runs, self._cols(stance, "knee")] = np.where(
             in_stance, w * st_knee_now + (1 - w) * g.touchdown_knee, st_knee_now
         )
 
-        # arms swing against the legs; waist leans a little
+    def _arms_and_waist(self, u: FloatArray, q: FloatArray) -> None:
+        """Write the arms' and the waist's targets into ``u`` (B, U), from the joint angles ``q`` (B, U):
+        running, the arms swing against the legs and the waist leans a little."""
+        g = self.gait
+        running = self.running
         for s in (0, 1):
-            u[:, col(s, "shoulder_y")] = (
-                g.arm_swing * 0.5 * (q[:, col(1 - s, "hip_y")] - q[:, col(s, "hip_y")])
+            u[:, self._col(s, "shoulder_y")] = (
+                g.arm_swing * 0.5 * (q[:, self._col(1 - s, "hip_y")] - q[:, self._col(s, "hip_y")])
             )
-            u[:, col(s, "elbow")] = np.where(running, g.elbow, self.stand[col(s, "elbow")])
-        u[:, ix["waist_y"]] = np.where(running, g.waist_lean, 0.0)
-
-        standing = ~running
-        if standing.any():
-            u[standing] = self._stand(att, standing, sensordata[standing])
-        return np.clip(u, self.low, self.high)
+            u[:, self._col(s, "elbow")] = np.where(running, g.elbow, self.stand[self._col(s, "elbow")])
+        u[:, self.index["waist_y"]] = np.where(running, g.waist_lean, 0.0)
 
     def _stand(self, att: Attitude, rows: NDArray[np.bool_], sensordata: FloatArray) -> FloatArray:
         """Servo targets that keep standing runs up: the standing pose, held stiff, with the ankles
@@ -459,6 +543,144 @@ def perturbed_starts(
     return start
 
 
+_QPOS_AT = 1  # where qpos starts in a full-physics state: time, qpos, qvel, ...
+
+
+def _batch_size(start: FloatArray, speeds: FloatArray, gait: Gait | None) -> int:
+    """The batch: one run per start (B|1, nfull), per target speed (B|1,), or per value of a gait
+    parameter given as an array."""
+    sizes = [np.size(v) for v in vars(gait).values()] if gait is not None else []
+    return max(start.shape[0], speeds.size, *sizes)
+
+
+class _Noise:
+    """The noise ``run`` adds: kicks to the state each control period starts from (hinge angles and
+    velocities) and to the servo targets, at per-run levels, all drawn from one generator."""
+
+    def __init__(
+        self,
+        batch: int,
+        control_noise: float | FloatArray,
+        state_noise: tuple[float | FloatArray, float | FloatArray],
+        seed: int,
+    ) -> None:
+        self.rng = np.random.default_rng(seed)
+        # per-run noise levels, (B, 1): a batch's runs may each draw their own
+        self.kick_angle, self.kick_rate, self.target_noise = (
+            np.broadcast_to(np.asarray(level, float), (batch,))[:, None]
+            for level in (*state_noise, control_noise)
+        )
+
+    def kick(self, m: mujoco.MjModel, state: FloatArray) -> None:
+        """Move the (B, nfull) full-physics states off the gait's own, in place: every hinge angle and
+        every velocity."""
+        if self.kick_angle.any() or self.kick_rate.any():
+            batch = state.shape[0]
+            hinges = slice(_QPOS_AT + 7, _QPOS_AT + m.nq)
+            qvel_at = _QPOS_AT + m.nq
+            state[:, hinges] += self.kick_angle * self.rng.standard_normal((batch, m.nq - 7))
+            state[:, qvel_at : qvel_at + m.nv] += self.kick_rate * self.rng.standard_normal((batch, m.nv))
+
+    def targets(self, targets: FloatArray, low: FloatArray, high: FloatArray) -> FloatArray:
+        """(B, U) servo targets with noise added, kept within the control range ``low``..``high``."""
+        if self.target_noise.any():
+            return np.clip(targets + self.target_noise * self.rng.standard_normal(targets.shape), low, high)
+        return targets
+
+
+class _Physics:
+    """MuJoCo's side of ``run``: each control period is one ``mujoco.rollout`` of ``control_every``
+    physical steps of every run, with its servo targets (and a push on ``push_body``) held."""
+
+    def __init__(
+        self,
+        m: mujoco.MjModel,
+        batch: int,
+        control_every: int,
+        threads: int,
+        ctrl_ids: NDArray[np.int_],
+        push_body: str,
+    ) -> None:
+        self.m = m
+        self.models = [m] * batch
+        self.datas = [mujoco.MjData(m) for _ in range(max(1, min(threads, batch)))]
+        self.nstep = control_every
+        nstate = mujoco.mj_stateSize(m, _STATE)
+        ncontrol = mujoco.mj_stateSize(m, _CONTROL)
+        # where the controls lie in a control vector: read from one whose controls are marked
+        self.probe = mujoco.MjData(m)
+        self.probe.ctrl[:] = np.arange(m.nu) + 1000.0
+        cvec = np.empty(ncontrol)
+        mujoco.mj_getState(m, self.probe, cvec, _CONTROL)
+        ctrl_at = int(np.flatnonzero(cvec == 1000.0)[0])
+        self.ctrl_cols = ctrl_at + ctrl_ids
+        self.xfrc_at = ctrl_at + m.nu
+        body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, push_body)
+        self.push_at = self.xfrc_at + 6 * body_id  # the pushed body's force (x, y, z) in xfrc_applied
+        self.control = np.zeros((batch, control_every, ncontrol))
+        self.sensordata = np.zeros((batch, control_every, m.nsensordata))
+        self.out_state = np.zeros((batch, control_every, nstate))
+
+    def first_sensordata(self, state: FloatArray) -> FloatArray:
+        """(B, nfull) -> (B, nsensordata): the first sensor reading, one forward pass per start (with
+        the probe's marked controls still set, as the committed runs were made)."""
+        m, probe = self.m, self.probe
+        sens = np.zeros((state.shape[0], m.nsensordata))
+        for i in range(state.shape[0]):
+            mujoco.mj_setState(m, probe, state[i], _STATE)
+            mujoco.mj_forward(m, probe)
+            sens[i] = probe.sensordata
+        return sens
+
+    def step(
+        self,
+        state: FloatArray,
+        targets: FloatArray,
+        pushed: NDArray[np.bool_] | None,
+        push_force: FloatArray | None,
+    ) -> tuple[FloatArray, FloatArray]:
+        """One control period from the (B, nfull) states with the (B, U) servo targets held, the runs
+        ``pushed`` (B,) pushed by ``push_force`` (B, 3): the (B, nfull) states it ends in and the
+        (B, nsensordata) sensors there."""
+        control = self.control
+        control[:, :, self.ctrl_cols] = targets[:, None, :]
+        control[:, :, self.xfrc_at :] = 0.0
+        if pushed is not None and push_force is not None:
+            control[pushed, :, self.push_at : self.push_at + 3] = push_force[pushed, None, :]
+        rollout.rollout(
+            self.models,
+            self.datas,
+            state,
+            control,
+            control_spec=int(_CONTROL),
+            skip_checks=True,
+            nstep=self.nstep,
+            state=self.out_state,
+            sensordata=self.sensordata,
+        )
+        return self.out_state[:, -1].copy(), self.sensordata[:, -1].copy()
+
+
+@dataclass
+class _Records:
+    """What ``run`` records of each control period: (B, T, ·) arrays, T = 0 when it records nothing."""
+
+    states: FloatArray  # (B, T, nfull) the state each period starts from
+    controls: FloatArray  # (B, T, U) the servo targets held over it
+    sensordata: FloatArray  # (B, T, nsensordata) the sensors the controller read
+    ends: FloatArray  # (B, T, nfull) the state it ends in
+
+    @classmethod
+    def empty(cls, m: mujoco.MjModel, batch: int, periods: int) -> _Records:
+        states = np.zeros((batch, periods, mujoco.mj_stateSize(m, _STATE)))
+        return cls(
+            states,
+            np.zeros((batch, periods, m.nu)),
+            np.zeros((batch, periods, m.nsensordata)),
+            np.zeros_like(states),
+        )
+
+
 def run(
     m: mujoco.MjModel,
     start: FloatArray,
@@ -490,95 +712,50 @@ def run(
     """
     start = np.atleast_2d(np.asarray(start, float))
     speeds = np.atleast_1d(np.asarray(target_speed, float))
-    # the batch: one run per start, per target speed, or per value of a gait parameter given as an array
-    sizes = [np.size(v) for v in vars(gait).values()] if gait is not None else []
-    batch = max(start.shape[0], speeds.size, *sizes)
+    batch = _batch_size(start, speeds, gait)
     state = np.repeat(start, batch // start.shape[0], axis=0)
     ctl = RunnerController(m, gait)
     ctl.reset(batch, speeds)
-    datas = [mujoco.MjData(m) for _ in range(max(1, min(threads, batch)))]
-    models = [m] * batch
-    nstate = mujoco.mj_stateSize(m, _STATE)
-    ncontrol = mujoco.mj_stateSize(m, _CONTROL)
-    probe = mujoco.MjData(m)
-    probe.ctrl[:] = np.arange(m.nu) + 1000.0
-    cvec = np.empty(ncontrol)
-    mujoco.mj_getState(m, probe, cvec, _CONTROL)
-    ctrl_at = int(np.flatnonzero(cvec == 1000.0)[0])
-    xfrc_at = ctrl_at + m.nu
-    qpos_at = 1  # full physics: time, qpos, qvel, ...
-    qvel_at = 1 + m.nq
-    body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, push_body)
+    physics = _Physics(m, batch, control_every, threads, ctl.ctrl_ids, push_body)
     dt = m.opt.timestep * control_every
     periods = round(seconds / dt)
-    control = np.zeros((batch, control_every, ncontrol))
-    sensordata = np.zeros((batch, control_every, m.nsensordata))
-    out_state = np.zeros((batch, control_every, nstate))
-    # the first sensor reading: one forward pass per distinct start
-    sens = np.zeros((batch, m.nsensordata))
-    for i in range(batch):
-        mujoco.mj_setState(m, probe, state[i], _STATE)
-        mujoco.mj_forward(m, probe)
-        sens[i] = probe.sensordata
-    rec_states = np.zeros((batch, periods, nstate)) if record else np.zeros((batch, 0, nstate))
-    rec_ctrl = np.zeros((batch, periods, m.nu)) if record else np.zeros((batch, 0, m.nu))
-    rec_ends = np.zeros_like(rec_states)
-    rec_sens = np.zeros((batch, periods, m.nsensordata)) if record else np.zeros((batch, 0, m.nsensordata))
+    sens = physics.first_sensordata(state)
+    records = _Records.empty(m, batch, periods if record else 0)
     fell_at = np.full(batch, np.inf)
     t0 = time.perf_counter()
     observer = KinematicSensors(m) if kinematic else None
-    noise_rng = np.random.default_rng(seed)
+    noise = _Noise(batch, control_noise, state_noise, seed)
     push_force = None if push is None else np.broadcast_to(np.asarray(push.force, float), (batch, 3))
-    # per-run noise levels, (B, 1): a batch's runs may each draw their own
-    kick_angle, kick_rate, target_noise = (
-        np.broadcast_to(np.asarray(level, float), (batch,))[:, None]
-        for level in (*state_noise, control_noise)
-    )
+    qpos_cols = slice(_QPOS_AT, _QPOS_AT + m.nq)
+    qvel_cols = slice(_QPOS_AT + m.nq, _QPOS_AT + m.nq + m.nv)
     for k in range(periods):
-        if kick_angle.any() or kick_rate.any():  # kicks off the gait's own states (hinges, rates)
-            hinges = slice(qpos_at + 7, qpos_at + m.nq)
-            state[:, hinges] += kick_angle * noise_rng.standard_normal((batch, m.nq - 7))
-            state[:, qvel_at : qvel_at + m.nv] += kick_rate * noise_rng.standard_normal((batch, m.nv))
-        qpos = state[:, qpos_at : qpos_at + m.nq]
-        qvel = state[:, qvel_at : qvel_at + m.nv]
+        noise.kick(m, state)
+        qpos = state[:, qpos_cols]
+        qvel = state[:, qvel_cols]
         if observer is not None:
             sens = observer.read(qpos, qvel)
-        targets = ctl.act(qpos, qvel, sens, dt)
-        if target_noise.any():
-            targets = np.clip(
-                targets + target_noise * noise_rng.standard_normal(targets.shape), ctl.low, ctl.high
-            )
-        control[:, :, ctrl_at + ctl.ctrl_ids] = targets[:, None, :]
-        control[:, :, xfrc_at:] = 0.0
+        targets = noise.targets(ctl.act(qpos, qvel, sens, dt), ctl.low, ctl.high)
         now = k * dt
-        if push is not None and push_force is not None:
-            pushed = push.active(now, batch)
-            at = xfrc_at + 6 * body_id  # the pushed body's force (x, y, z) in xfrc_applied
-            control[pushed, :, at : at + 3] = push_force[pushed, None, :]
+        pushed = push.active(now, batch) if push is not None else None
         if record:
-            rec_states[:, k] = state
-            rec_ctrl[:, k] = targets
-            rec_sens[:, k] = sens
-        rollout.rollout(
-            models,
-            datas,
-            state,
-            control,
-            control_spec=int(_CONTROL),
-            skip_checks=True,
-            nstep=control_every,
-            state=out_state,
-            sensordata=sensordata,
-        )
-        state = out_state[:, -1].copy()
-        sens = sensordata[:, -1].copy()
+            records.states[:, k] = state
+            records.controls[:, k] = targets
+            records.sensordata[:, k] = sens
+        state, sens = physics.step(state, targets, pushed, push_force)
         if record:
-            rec_ends[:, k] = state
-        down = (state[:, qpos_at + 2] < 0.55) & ~np.isfinite(fell_at)
+            records.ends[:, k] = state
+        down = (state[:, _QPOS_AT + 2] < 0.55) & ~np.isfinite(fell_at)
         fell_at[down] = now + dt
     wall = time.perf_counter() - t0
     return RunResult(
-        rec_states, rec_ctrl, rec_sens, dt, fell_at, wall, state[:, qpos_at : qpos_at + m.nq].copy(), rec_ends
+        records.states,
+        records.controls,
+        records.sensordata,
+        dt,
+        fell_at,
+        wall,
+        state[:, qpos_cols].copy(),
+        records.ends,
     )
 
 
