@@ -16,7 +16,7 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from neuroanimator import catalog
 from neuroanimator.artifacts import registry
@@ -26,6 +26,10 @@ from neuroanimator.evaluation import physical_errors
 from neuroanimator.sim import sampling
 from neuroanimator.sim.mjcf import load_mjcf
 from neuroanimator.sim.model import ModelError, PhysicalModel
+
+if TYPE_CHECKING:  # torch loads only for the commands that need it (see ``_fit``)
+    from neuroanimator.training.hierarchy import HierarchyResult
+    from neuroanimator.training.train import TrainResult
 
 log = logging.getLogger("neuroanimator")
 
@@ -92,6 +96,18 @@ def given_fields(args: argparse.Namespace) -> set[str]:
 
 def cmd_train(args: argparse.Namespace) -> int:
     started = time.perf_counter()  # the time budget is over the whole command, probes included
+    model, auto, fixed = _train_model(args)
+    cfg = _train_config(args, model, fixed)
+    trained = _fit(args, model, cfg, auto, started)
+    if trained is None:
+        return 2
+    result, cfg = trained
+    return _accept_and_save(args, model, cfg, result)
+
+
+def _train_model(args: argparse.Namespace) -> tuple[PhysicalModel, bool, int | None]:
+    """The model to train (a catalog model, or one's own ``--mjcf``), whether short probes choose its
+    super-step (``auto``), and the super-step the command line fixed (``None``: none)."""
     if (args.model is None) == (args.mjcf is None):
         raise ModelError("give either a catalog model name or --mjcf PATH (not both)")
     if args.mjcf is None and (args.entry or args.name):
@@ -103,6 +119,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         if args.mjcf
         else catalog.get(args.model)
     )
+    return model, auto, fixed
+
+
+def _train_config(args: argparse.Namespace, model: PhysicalModel, fixed: int | None) -> TrainConfig:
+    """The training settings: the preset's, with what the command line sets (checked in option order)."""
     cfg = TrainConfig(
         substeps=fixed if fixed is not None else model.spec.substeps,
         preset=args.preset,
@@ -111,6 +132,16 @@ def cmd_train(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         thesis_hidden=model.spec.thesis_hidden or max(20, 2 * model.state_size),
     )
+    _set_network_options(cfg, args)
+    _set_optimisation_options(cfg, args)
+    cfg.frame, cfg.skip = args.frame, not args.no_skip
+    _set_input_options(cfg, args)
+    _set_rollout_and_noise_options(cfg, args, model)
+    return cfg
+
+
+def _set_network_options(cfg: TrainConfig, args: argparse.Namespace) -> None:
+    """The network: widths, ensemble, kept epoch and hidden units."""
     if args.hidden is not None:
         cfg.hidden = args.hidden
     if args.branch_hidden is not None:
@@ -121,6 +152,10 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.loop_tolerance = None if args.loop_tolerance == "off" else args.loop_tolerance
     if args.activation is not None:
         cfg.activation = args.activation
+
+
+def _set_optimisation_options(cfg: TrainConfig, args: argparse.Namespace) -> None:
+    """The data and the one-step optimisation: examples, sampler, learning rate and time limits."""
     if args.examples is not None:
         cfg.examples = args.examples
     if args.sampler is not None:
@@ -140,7 +175,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.time_budget = args.time_budget or None
     if args.epochs is not None:
         cfg.max_epochs = args.epochs
-    cfg.frame, cfg.skip = args.frame, not args.no_skip
+
+
+def _set_input_options(cfg: TrainConfig, args: argparse.Namespace) -> None:
+    """What the network reads besides the state (on/off options): clearance, limits, proximity; and
+    mirrored examples."""
     if args.clearance is not None:
         cfg.clearance = args.clearance == "on"
     if args.limits is not None:
@@ -149,6 +188,10 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg.proximity = args.proximity == "on"
     if args.mirror is not None:
         cfg.mirror = args.mirror == "on"
+
+
+def _set_rollout_and_noise_options(cfg: TrainConfig, args: argparse.Namespace, model: PhysicalModel) -> None:
+    """The rollout phase, the regulariser's steps and a hierarchy's state noise, each checked."""
     if args.rollout_steps is not None:
         if args.rollout_steps < 0:
             raise ModelError(f"--rollout-steps must be 0 or more, got {args.rollout_steps}")
@@ -169,61 +212,100 @@ def cmd_train(args: argparse.Namespace) -> int:
                 f"--state-noise trains a hierarchy's networks; {model.name} is emulated by one network"
             )
         cfg.state_noise = args.state_noise
+
+
+def _fit(
+    args: argparse.Namespace, model: PhysicalModel, cfg: TrainConfig, auto: bool, started: float
+) -> tuple[TrainResult | HierarchyResult, TrainConfig] | None:
+    """Choose the network and super-step, then train; the result (its metrics noting how the network
+    and super-step were chosen) and the settings it was trained with, or ``None`` (logged) when
+    training diverged."""
     # torch loads only for the commands that need it
-    from neuroanimator.artifacts import store as artifacts
-    from neuroanimator.training import data_cache, super_step
-    from neuroanimator.training.hierarchy import HierarchyResult, small_defaults, train_hierarchy
-    from neuroanimator.training.train import TrainingDiverged, TrainResult, source_defaults, train
+    from neuroanimator.training.train import TrainingDiverged
 
     try:
-        # a hierarchy over parts, or a model whose data come from its own source (a controller), keeps
-        # the network and super-step its spec gives
-        spec_given = bool(model.spec.parts or model.spec.data_source)
-        activity = None if spec_given else super_step.constraint_activity(model, seed=cfg.seed)
-        network_reason = None
-        if activity is not None:
-            given = {
-                "hidden_given": args.hidden is not None,
-                "activation_given": args.activation is not None,
-                "schedule_given": args.schedule is not None,
-            }
-            if args.mjcf is not None:  # a model of one's own: the deeper network the suite measured
-                batch_given = args.batch_size is not None
-                cfg, network_reason = super_step.user_defaults(
-                    cfg, activity, **given, batch_given=batch_given
-                )
-            else:
-                cfg, network_reason = super_step.constrained_defaults(cfg, activity, **given)
-            if network_reason:
-                log.info("%s: network %s", model.name, network_reason)
-        if auto:
-            choice = super_step.choose_substeps(model, cfg, activity=activity)
-            log.info("%s: super-step %s", model.name, choice.reason)
-            cfg.substeps = choice.substeps
-            model.spec = model.spec.model_copy(update={"substeps": choice.substeps})
-        if model.spec.data_source:  # a model trained on its controller's motion: its own settings
-            cfg = source_defaults(model, cfg, given_fields(args))
-        cache = data_cache.directory(args.data_cache)
-        if model.spec.parts:  # a hierarchy of networks (thesis 4.4)
-            cfg = small_defaults(
-                cfg,
-                hidden_given=args.hidden is not None,
-                examples_given=args.examples is not None,
-                rollout_given=args.rollout_steps is not None,
-            )
-            result: TrainResult | HierarchyResult = train_hierarchy(model, cfg, data_cache=cache)
-        else:
-            result = train(model, cfg, spent=time.perf_counter() - started, data_cache=cache)
+        cfg, notes = _network_and_super_step(args, model, cfg, auto)
+        result, cfg = _train_emulator(args, model, cfg, started)
     except TrainingDiverged as exc:
         log.error("%s", exc)
-        return 2
-    if network_reason:
-        result.metrics["network_reason"] = network_reason
+        return None
+    for key, value in notes.items():
+        result.metrics[key] = value
+    return result, cfg
+
+
+def _network_and_super_step(
+    args: argparse.Namespace, model: PhysicalModel, cfg: TrainConfig, auto: bool
+) -> tuple[TrainConfig, dict[str, Any]]:
+    """The network and (``auto``) the super-step, from short probes of how often contacts and limits
+    engage; a hierarchy over parts, or a model whose data come from its own source (a controller), keeps
+    the network and super-step its spec gives. With ``auto`` the model's spec takes the super-step
+    chosen. Returns the settings and what to note in the result's metrics."""
+    from neuroanimator.training import super_step
+
+    spec_given = bool(model.spec.parts or model.spec.data_source)
+    activity = None if spec_given else super_step.constraint_activity(model, seed=cfg.seed)
+    network_reason = None
     if activity is not None:
-        result.metrics["contact_fraction"] = activity.contact
-        result.metrics["limit_fraction"] = activity.limit
+        given = {
+            "hidden_given": args.hidden is not None,
+            "activation_given": args.activation is not None,
+            "schedule_given": args.schedule is not None,
+        }
+        if args.mjcf is not None:  # a model of one's own: the deeper network the suite measured
+            batch_given = args.batch_size is not None
+            cfg, network_reason = super_step.user_defaults(cfg, activity, **given, batch_given=batch_given)
+        else:
+            cfg, network_reason = super_step.constrained_defaults(cfg, activity, **given)
+        if network_reason:
+            log.info("%s: network %s", model.name, network_reason)
+    notes: dict[str, Any] = {}
+    if network_reason:
+        notes["network_reason"] = network_reason
+    if activity is not None:
+        notes["contact_fraction"] = activity.contact
+        notes["limit_fraction"] = activity.limit
     if auto:
-        result.metrics["substeps_reason"] = choice.reason
+        choice = super_step.choose_substeps(model, cfg, activity=activity)
+        log.info("%s: super-step %s", model.name, choice.reason)
+        cfg.substeps = choice.substeps
+        model.spec = model.spec.model_copy(update={"substeps": choice.substeps})
+        notes["substeps_reason"] = choice.reason
+    return cfg, notes
+
+
+def _train_emulator(
+    args: argparse.Namespace, model: PhysicalModel, cfg: TrainConfig, started: float
+) -> tuple[TrainResult | HierarchyResult, TrainConfig]:
+    """Train the emulator, one network or a hierarchy of them (thesis 4.4), with the settings a model
+    trained on its controller's motion, or a hierarchy, brings where the command line left them; the
+    result and the settings it was trained with."""
+    from neuroanimator.training import data_cache
+    from neuroanimator.training.hierarchy import small_defaults, train_hierarchy
+    from neuroanimator.training.train import source_defaults, train
+
+    if model.spec.data_source:  # a model trained on its controller's motion: its own settings
+        cfg = source_defaults(model, cfg, given_fields(args))
+    cache = data_cache.directory(args.data_cache)
+    if model.spec.parts:  # a hierarchy of networks (thesis 4.4)
+        cfg = small_defaults(
+            cfg,
+            hidden_given=args.hidden is not None,
+            examples_given=args.examples is not None,
+            rollout_given=args.rollout_steps is not None,
+        )
+        return train_hierarchy(model, cfg, data_cache=cache), cfg
+    return train(model, cfg, spent=time.perf_counter() - started, data_cache=cache), cfg
+
+
+def _accept_and_save(
+    args: argparse.Namespace, model: PhysicalModel, cfg: TrainConfig, result: TrainResult | HierarchyResult
+) -> int:
+    """Refuse an emulator that misses the acceptance bar (unless ``--force``), else write it to the
+    artifact registry and report it (with ``--json``, as one JSON object)."""
+    from neuroanimator.artifacts import store as artifacts
+    from neuroanimator.training import super_step
+
     m = result.metrics
     summary = {"model": model.name, "substeps": cfg.substeps, "state_size": model.state_size}
     if not args.force:
@@ -456,8 +538,30 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="neuro", description="NeuroAnimator: neural emulators of MuJoCo models")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = p.add_subparsers(dest="command", required=True)
+    _add_train_parser(sub)
+    _add_eval_parser(sub)
+    _add_bench_parser(sub)
+    _add_worker_parser(sub)
+    _add_models_parser(sub)
+    return p
 
+
+def _add_train_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """``neuro train``: simulate data, train an emulator, export it."""
     t = sub.add_parser("train", help="simulate data, train an emulator, export it to the artifact registry")
+    _add_train_source_options(t)
+    _add_train_network_options(t)
+    _add_train_optimisation_options(t)
+    _add_train_input_options(t)
+    _add_train_rollout_options(t)
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--quiet", action="store_true", help="no progress bars")
+    t.add_argument("--json", action="store_true")
+    t.set_defaults(func=cmd_train)
+
+
+def _add_train_source_options(t: argparse.ArgumentParser) -> None:
+    """``neuro train``'s model (a catalog name, or one's own ``--mjcf``), super-step and where it writes."""
     t.add_argument("model", nargs="?", help=f"catalog model: {', '.join(catalog.CATALOG)}")
     t.add_argument(
         "--mjcf",
@@ -488,6 +592,10 @@ def build_parser() -> argparse.ArgumentParser:
         "for the same ones (model, super-step, count, seed, sampler, simulating code; default: "
         "$NEURO_DATA_CACHE, else none)",
     )
+
+
+def _add_train_network_options(t: argparse.ArgumentParser) -> None:
+    """``neuro train``'s preset, optimiser and network."""
     t.add_argument("--preset", choices=["default", "thesis"], default="default")
     t.add_argument("--optimizer", choices=["adam", "sgd"], default="adam")
     t.add_argument(
@@ -520,6 +628,11 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["sigmoid", "tanh", "silu", "gelu", "relu"],
         help="hidden units (default for --mjcf: silu)",
     )
+
+
+def _add_train_optimisation_options(t: argparse.ArgumentParser) -> None:
+    """``neuro train``'s training data and one-step optimisation: examples, sampler, epochs, learning
+    rate and time limits."""
     t.add_argument(
         "--examples",
         type=_positive_int,
@@ -553,6 +666,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="the whole command's wall-clock budget in seconds, probes and sampling included (default 285; "
         "0: none): the rollout phase gets what is left, the one-step phase is cut only after very slow sampling",
     )
+
+
+def _add_train_input_options(t: argparse.ArgumentParser) -> None:
+    """``neuro train``'s local frame and what the network reads besides the state; mirrored examples."""
     t.add_argument(
         "--frame",
         choices=["auto", "body", "heading"],
@@ -586,6 +703,11 @@ def build_parser() -> argparse.ArgumentParser:
         "each other across the x-z plane): half the examples are simulated, half are their mirror images "
         "(default off); a model that is not symmetric is refused, naming the part",
     )
+
+
+def _add_train_rollout_options(t: argparse.ArgumentParser) -> None:
+    """``neuro train``'s rollout phase, a hierarchy's state noise and a mass-spring model's
+    regulariser."""
     t.add_argument(
         "--rollout-steps",
         type=int,
@@ -610,11 +732,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="a mass-spring model's spring Euler steps after each super-step (thesis 6.1.3; default: "
         "the model's, 2 for the dolphin, with its plates' pull, as measured in BENCHMARKS.md; 0: off)",
     )
-    t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--quiet", action="store_true", help="no progress bars")
-    t.add_argument("--json", action="store_true")
-    t.set_defaults(func=cmd_train)
 
+
+def _add_eval_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """``neuro eval``: one-step and rollout error against MuJoCo."""
     e = sub.add_parser("eval", help="one-step and rollout error against MuJoCo (thesis Fig. 6.6)")
     e.add_argument("model")
     e.add_argument("--substeps", type=_positive_int, help="only this n (default: every trained n)")
@@ -628,6 +749,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--json", action="store_true")
     e.set_defaults(func=cmd_eval)
 
+
+def _add_bench_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """``neuro bench``: speed against MuJoCo."""
     b = sub.add_parser("bench", help="speed against MuJoCo on the same cores (thesis Table 6.2)")
     b.add_argument("model")
     b.add_argument("--artifacts", help=_ARTIFACTS_HELP)
@@ -639,6 +763,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
 
+
+def _add_worker_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """``neuro worker``: run controller-synthesis jobs from the queue."""
     w = sub.add_parser(
         "worker", help="run controller-synthesis jobs from the Redis queue (settings from env)"
     )
@@ -648,12 +775,14 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--max-jobs", type=_positive_int, help="exit after this many jobs")
     w.set_defaults(func=cmd_worker)
 
+
+def _add_models_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """``neuro models``: the catalog and what is trained."""
     ls = sub.add_parser("models", help="the catalog and what is trained")
     ls.add_argument("--artifacts", help=_ARTIFACTS_HELP)
     ls.add_argument("--json", action="store_true")
     ls.add_argument("--catalog", action="store_true", help="only the catalog's model names, one per line")
     ls.set_defaults(func=cmd_models)
-    return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
