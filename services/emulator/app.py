@@ -6,7 +6,7 @@ import asyncio
 import contextlib
 import gc
 import logging
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 
 from fastapi import FastAPI, Response
 from fastapi.middleware.cors import CORSMiddleware
@@ -34,6 +34,30 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     service = EmulatorService(settings)
     keys = ApiKeys.of(settings)
     persistence = Persistence(service)
+    app = FastAPI(
+        title="NeuroAnimator emulator service",
+        version="0.1.0",
+        lifespan=_lifespan(settings, service, persistence, keys),
+        docs_url=None,
+        redoc_url=None,
+    )
+    add_offline_docs(app)  # /docs and /redoc with packaged assets: they work offline
+    app.state.service = service
+    app.state.persistence = persistence
+    _add_middleware(app, settings, service, keys)
+    add_http_handlers(app)
+    for r in (models.router, sessions.router, step.router):
+        app.include_router(r)
+    _add_ops_routes(app, persistence)
+    document_errors(app)
+    return app
+
+
+def _lifespan(
+    settings: Settings, service: EmulatorService, persistence: Persistence, keys: ApiKeys
+) -> Callable[[FastAPI], contextlib.AbstractAsyncContextManager[None]]:
+    """What the app does when it starts (restore sessions, start the sweeper and the checkpoints)
+    and when it stops (stop them, close the service)."""
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -67,16 +91,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await persistence.close()
             await service.close()
 
-    app = FastAPI(
-        title="NeuroAnimator emulator service",
-        version="0.1.0",
-        lifespan=lifespan,
-        docs_url=None,
-        redoc_url=None,
-    )
-    add_offline_docs(app)  # /docs and /redoc with packaged assets: they work offline
-    app.state.service = service
-    app.state.persistence = persistence
+    return lifespan
+
+
+def _add_middleware(app: FastAPI, settings: Settings, service: EmulatorService, keys: ApiKeys) -> None:
+    """The fast paths, the key check, the body limits and CORS, innermost first."""
     # innermost first: the binary POST /step and websocket fast paths see the caller the key check set
     app.add_middleware(BinaryStepRoute, service=service)
     app.add_middleware(SessionSocketRoute, service=service)
@@ -101,9 +120,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_headers=["*"],
             max_age=600,
         )
-    add_http_handlers(app)
-    for r in (models.router, sessions.router, step.router):
-        app.include_router(r)
+
+
+def _add_ops_routes(app: FastAPI, persistence: Persistence) -> None:
+    """``/healthz``, ``/readyz`` and ``/metrics``."""
 
     @app.get("/healthz", tags=["ops"])
     async def healthz() -> dict[str, str]:
@@ -130,6 +150,3 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         """Prometheus metrics: step latency, batch sizes, ORT time, sessions, divergences."""
         service.update_gauges()
         return Response(service.metrics.render(), media_type=METRICS_TYPE)
-
-    document_errors(app)
-    return app

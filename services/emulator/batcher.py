@@ -173,17 +173,8 @@ class Batcher:
             quiet = quiet + 1 if self._pending_rows == before else 0
 
     async def _run(self, batch: list[_SessionEntry | _BlockEntry]) -> None:
-        single: list[_SessionEntry] = []
-        blocks: list[_BlockEntry] = []
-        for r in batch:
-            if r.future.done():
-                continue
-            if isinstance(r, _BlockEntry):
-                blocks.append(r)
-            elif r.session.alive:
-                single.append(r)
-            else:  # deleted or expired while queued
-                r.future.set_exception(_deleted(r.session))
+        """Step one batch: one ORT call over every live entry's rows, then each entry's answer."""
+        single, blocks = self._live(batch)
         ns = len(single)
         parts = [np.fromiter((r.session.slot for r in single), np.intp, ns)]
         parts += [b.slots for b in blocks]
@@ -191,21 +182,7 @@ class Batcher:
         if not slots.size:
             return
         pool = single[0].session.pool if single else blocks[0].pool
-        x = np.take(pool.states, slots, axis=0)  # (B, S) copy
-        nu = self.emu.num_controls
-        parts_in = [np.array([r.inputs for r in single], np.float32)] if ns else []
-        parts_in += [b.inputs for b in blocks]
-        inputs = np.concatenate(parts_in) if len(parts_in) > 1 else parts_in[0]  # (B, U+F)
-        u = inputs[:, :nu] if nu else None
-        f = inputs[:, nu:] if self.emu.num_forces else None
-        t0 = time.perf_counter()
-        if len(slots) <= INLINE_ROWS:
-            out = self.emu.emulator.step(x, u, f, validate=False)
-        else:  # a large one runs in a worker thread so that the event loop keeps serving meanwhile
-            out = await asyncio.to_thread(self.emu.emulator.step, x, u, f, validate=False)
-        self.ort_calls += 1
-        self.rows += len(slots)
-        self.metrics.observe_batch(self.emu.model, len(slots), time.perf_counter() - t0)
+        out = await self._infer(pool, slots, single, blocks)
         # (B,) rows without NaN or Inf; one flat test first, since that is the usual answer
         finite = (
             np.asarray(np.isfinite(out).all(axis=1))
@@ -218,59 +195,131 @@ class Batcher:
         # (rows written back are all inside: flags of earlier steps are cleared, when there are any)
         clear = outside is None and env is not None and bool(pool.outside.any())
         if ns:
-            # Single requests: write back the rows of sessions still alive (one deleted while in flight
-            # may have had its slot reused) in one scatter, then answer each.
-            # (a request cancelled meanwhile has let go of its lock: its session is not advanced)
-            alive = np.fromiter((r.session.alive and not r.future.done() for r in single), bool, ns)
-            keep = alive & finite[:ns]
-            written = slots[:ns][keep]
-            pool.states[written] = out[:ns][keep]
-            pool.steps[written] += 1
-            if outside is not None:
-                pool.outside[written] = outside[:ns][keep]
-            elif clear:
-                pool.outside[written] = False
-            for i, req in enumerate(single):
-                if req.future.done():
-                    continue
-                if finite[i]:
-                    req.future.set_result(out[i])
-                elif req.session.alive:
-                    self._diverge(req.session)
-                    req.future.set_exception(_diverged(req.session))
-                else:
-                    req.future.set_exception(_deleted(req.session))
+            self._answer_single(pool, single, slots[:ns], out[:ns], finite[:ns], outside, clear)
         start = ns
         for b in blocks:
-            k = len(b.slots)
-            part = slice(start, start + k)
-            rows, ok = out[part], finite[part]
-            start += k
-            alive = pool.gen[b.slots] == b.gens
-            good = ok & alive
-            everyone = bool(good.all())
-            moved = b.slots if everyone else b.slots[good]
-            pool.states[moved] = rows if everyone else rows[good]
-            pool.steps[moved] += 1  # no slot twice in one entry: a request's ids are distinct
-            flags = None
-            if outside is not None:
-                flags = outside[part] & good
-                pool.outside[moved] = flags if everyone else flags[good]
-            elif clear:
-                pool.outside[moved] = False
-            status = np.zeros(k, np.uint8)
-            if not everyone:  # rare: rows of diverged or deleted sessions, one by one
-                for j in np.flatnonzero(~good).tolist():
-                    owner = pool.owner[int(b.slots[j])]
-                    if not alive[j] or owner is None:
-                        status[j] = ROW_GONE
-                        rows[j] = np.nan
-                    else:
-                        self._diverge(owner)
-                        status[j] = ROW_DIVERGED
-                        rows[j] = pool.states[owner.slot]
-            if not b.future.done():
-                b.future.set_result((rows, status, flags))
+            part = slice(start, start + len(b.slots))
+            start += len(b.slots)
+            self._answer_block(
+                pool, b, out[part], finite[part], None if outside is None else outside[part], clear
+            )
+
+    @staticmethod
+    def _live(batch: list[_SessionEntry | _BlockEntry]) -> tuple[list[_SessionEntry], list[_BlockEntry]]:
+        """The entries still waiting, single and block apart; a single one whose session was deleted
+        or expired while queued is answered now."""
+        single: list[_SessionEntry] = []
+        blocks: list[_BlockEntry] = []
+        for r in batch:
+            if r.future.done():
+                continue
+            if isinstance(r, _BlockEntry):
+                blocks.append(r)
+            elif r.session.alive:
+                single.append(r)
+            else:  # deleted or expired while queued
+                r.future.set_exception(_deleted(r.session))
+        return single, blocks
+
+    async def _infer(
+        self,
+        pool: StatePool,
+        slots: NDArray[np.intp],
+        single: list[_SessionEntry],
+        blocks: list[_BlockEntry],
+    ) -> NDArray[np.float32]:
+        """The ORT step of the (B,) ``slots`` of ``pool`` under the entries' inputs, single entries'
+        rows first: the (B, S) new states (not yet written back)."""
+        x = np.take(pool.states, slots, axis=0)  # (B, S) copy
+        nu = self.emu.num_controls
+        parts_in = [np.array([r.inputs for r in single], np.float32)] if single else []
+        parts_in += [b.inputs for b in blocks]
+        inputs = np.concatenate(parts_in) if len(parts_in) > 1 else parts_in[0]  # (B, U+F)
+        u = inputs[:, :nu] if nu else None
+        f = inputs[:, nu:] if self.emu.num_forces else None
+        t0 = time.perf_counter()
+        if len(slots) <= INLINE_ROWS:
+            out = self.emu.emulator.step(x, u, f, validate=False)
+        else:  # a large one runs in a worker thread so that the event loop keeps serving meanwhile
+            out = await asyncio.to_thread(self.emu.emulator.step, x, u, f, validate=False)
+        self.ort_calls += 1
+        self.rows += len(slots)
+        self.metrics.observe_batch(self.emu.model, len(slots), time.perf_counter() - t0)
+        return out
+
+    def _answer_single(
+        self,
+        pool: StatePool,
+        single: list[_SessionEntry],
+        slots: NDArray[np.intp],
+        out: NDArray[np.float32],
+        finite: NDArray[np.bool_],
+        outside: NDArray[np.bool_] | None,
+        clear: bool,
+    ) -> None:
+        """Write back the (N, S) new states ``out`` of the single entries' (N,) ``slots`` where they
+        are finite and the session is still alive (one deleted while in flight may have had its slot
+        reused), in one scatter, then answer each entry. ``outside``: the whole batch's (B,) flags,
+        single entries' rows first."""
+        ns = len(single)
+        # (a request cancelled meanwhile has let go of its lock: its session is not advanced)
+        alive = np.fromiter((r.session.alive and not r.future.done() for r in single), bool, ns)
+        keep = alive & finite
+        written = slots[keep]
+        pool.states[written] = out[keep]
+        pool.steps[written] += 1
+        if outside is not None:
+            pool.outside[written] = outside[:ns][keep]
+        elif clear:
+            pool.outside[written] = False
+        for i, req in enumerate(single):
+            if req.future.done():
+                continue
+            if finite[i]:
+                req.future.set_result(out[i])
+            elif req.session.alive:
+                self._diverge(req.session)
+                req.future.set_exception(_diverged(req.session))
+            else:
+                req.future.set_exception(_deleted(req.session))
+
+    def _answer_block(
+        self,
+        pool: StatePool,
+        b: _BlockEntry,
+        rows: NDArray[np.float32],
+        ok: NDArray[np.bool_],
+        outside: NDArray[np.bool_] | None,
+        clear: bool,
+    ) -> None:
+        """Write back a block entry's (K, S) new ``rows`` where they are finite (``ok``) and the slot
+        still holds the session it locked, and answer it: states, ``ROW_*`` outcomes, outside flags."""
+        k = len(b.slots)
+        alive = pool.gen[b.slots] == b.gens
+        good = ok & alive
+        everyone = bool(good.all())
+        moved = b.slots if everyone else b.slots[good]
+        pool.states[moved] = rows if everyone else rows[good]
+        pool.steps[moved] += 1  # no slot twice in one entry: a request's ids are distinct
+        flags = None
+        if outside is not None:
+            flags = outside & good
+            pool.outside[moved] = flags if everyone else flags[good]
+        elif clear:
+            pool.outside[moved] = False
+        status = np.zeros(k, np.uint8)
+        if not everyone:  # rare: rows of diverged or deleted sessions, one by one
+            for j in np.flatnonzero(~good).tolist():
+                owner = pool.owner[int(b.slots[j])]
+                if not alive[j] or owner is None:
+                    status[j] = ROW_GONE
+                    rows[j] = np.nan
+                else:
+                    self._diverge(owner)
+                    status[j] = ROW_DIVERGED
+                    rows[j] = pool.states[owner.slot]
+        if not b.future.done():
+            b.future.set_result((rows, status, flags))
 
     def _diverge(self, sess: Session) -> None:
         sess.diverged = True

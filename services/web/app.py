@@ -8,6 +8,7 @@ server-side fallback. When ``web/dist`` has not been built, ``/`` says how to bu
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 from fastapi import FastAPI
 from fastapi.responses import HTMLResponse, JSONResponse, Response
@@ -35,12 +36,20 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
     app = FastAPI(title="NeuroAnimator dashboard", version="0.1.0", docs_url=None, redoc_url=None)
     add_offline_docs(app)  # /docs and /redoc with packaged assets, before the dashboard's mount at /
+    limit_bodies(app, settings.max_body_bytes)  # the dashboard takes no bodies: any is small
+    _add_config(app, settings)
+    _add_measurements(app, settings.roots(), keys_on=bool(settings.api_keys.strip()))
+    _add_dashboard(app, settings.web_dist)  # last: mounted at /, it would shadow the routes after it
+    return app
+
+
+def _add_config(app: FastAPI, settings: Settings) -> None:
+    """``/config.json`` and ``/healthz``."""
     config = {
         "emulator_url": settings.emulator_url,
         "controller_url": settings.controller_url,
         "trainer_url": settings.trainer_url or None,
     }
-    limit_bodies(app, settings.max_body_bytes)  # the dashboard takes no bodies: any is small
 
     @app.get("/config.json")
     def get_config() -> JSONResponse:
@@ -52,35 +61,40 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     def healthz() -> dict[str, str]:
         return {"status": "ok"}
 
-    root = settings.roots()
 
-    def answer(found: BaseModel | None, what: str) -> Response:
-        if found is None:
-            return JSONResponse({"error": "not_measured", "message": f"no {what}"}, status_code=404)
-        # JSON text from pydantic: a non-finite number is null there (JSON has no NaN)
-        return Response(
-            found.model_dump_json(), media_type="application/json", headers={"Cache-Control": "no-cache"}
-        )
+def _answer(found: BaseModel | None, what: str) -> Response:
+    """A measurement as JSON, or 404 naming ``what`` was not measured."""
+    if found is None:
+        return JSONResponse({"error": "not_measured", "message": f"no {what}"}, status_code=404)
+    # JSON text from pydantic: a non-finite number is null there (JSON has no NaN)
+    return Response(
+        found.model_dump_json(), media_type="application/json", headers={"Cache-Control": "no-cache"}
+    )
 
-    keys_on = bool(settings.api_keys.strip())
+
+def _unreadable(exc: registry.ArtifactError, what: str) -> Response:
+    """404 for a model, version or super-step that is not there; 500 for a measurement that is but
+    cannot be read."""
+    if exc.what in ("model", "version", "substeps"):
+        return JSONResponse({"error": "not_measured", "message": f"no {what}: {exc}"}, status_code=404)
+    log.warning("cannot read %s: %s", what, exc)
+    return JSONResponse({"error": "unreadable", "message": f"{what} cannot be read"}, status_code=500)
+
+
+def _model_result(root: registry.Root, model: str, name: str) -> BaseModel | None:
+    """A model's evaluation (``eval.json``) or benchmark (``bench.json``) over its current versions."""
+    return (
+        registry.model_eval(root, model) if name == registry.EVAL_FILE else registry.model_bench(root, model)
+    )
+
+
+def _add_measurements(app: FastAPI, root: registry.Root, keys_on: bool) -> None:
+    """``/artifacts/{model}[/{version}]/{name}``: the models' evaluations and benchmarks."""
 
     def shown(model: str) -> bool:
         """The dashboard's server takes no API key: with keys on, it answers only for models everybody
         sees (no owner file, or published), as the other services do for a key that is not the owner's."""
         return not keys_on or tenancy.visible(tenancy.read(root, model), caller="", operator=False)
-
-    def unreadable(exc: registry.ArtifactError, what: str) -> Response:
-        if exc.what in ("model", "version", "substeps"):
-            return JSONResponse({"error": "not_measured", "message": f"no {what}: {exc}"}, status_code=404)
-        log.warning("cannot read %s: %s", what, exc)
-        return JSONResponse({"error": "unreadable", "message": f"{what} cannot be read"}, status_code=500)
-
-    def model_result(model: str, name: str) -> BaseModel | None:
-        return (
-            registry.model_eval(root, model)
-            if name == registry.EVAL_FILE
-            else registry.model_bench(root, model)
-        )
 
     @app.get("/artifacts/{model}")
     def measured(model: str) -> JSONResponse:
@@ -90,7 +104,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         listed = []
         for name in MEASUREMENTS if shown(model) else ():
             try:
-                if model_result(model, name) is None:
+                if _model_result(root, model, name) is None:
                     continue
             except registry.ArtifactError as exc:
                 if exc.what in ("model", "version", "substeps"):
@@ -104,27 +118,29 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         ``bench.json``: ``ModelBench``), when measured."""
         what = f"{name} for model {model!r}"
         if name not in MEASUREMENTS or not shown(model):
-            return answer(None, what)
+            return _answer(None, what)
         try:
-            found = model_result(model, name)
+            found = _model_result(root, model, name)
         except registry.ArtifactError as exc:
-            return unreadable(exc, what)
-        return answer(found, what)
+            return _unreadable(exc, what)
+        return _answer(found, what)
 
     @app.get("/artifacts/{model}/{version}/{name}")
     def version_measurements(model: str, version: str, name: str) -> Response:
         """One version's evaluation or benchmark (``VersionEval``, ``VersionBench``), when measured."""
         what = f"{name} for version {version!r} of model {model!r}"
         if name not in MEASUREMENTS or not shown(model):
-            return answer(None, what)
+            return _answer(None, what)
         try:
             path = registry.resolve(root, model, version)
             found = registry.read_eval(path) if name == registry.EVAL_FILE else registry.read_bench(path)
         except registry.ArtifactError as exc:
-            return unreadable(exc, what)
-        return answer(found, what)
+            return _unreadable(exc, what)
+        return _answer(found, what)
 
-    dist = settings.web_dist
+
+def _add_dashboard(app: FastAPI, dist: Path) -> None:
+    """The built dashboard at ``/``, or a page that says how to build it."""
     if (dist / "index.html").is_file():
         app.mount("/", StaticFiles(directory=dist, html=True), name="dashboard")
     else:
@@ -133,5 +149,3 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         @app.get("/", response_class=HTMLResponse)
         def not_built() -> str:
             return NOT_BUILT.format(dist=dist)
-
-    return app
