@@ -33,6 +33,7 @@ from neuroanimator.contracts import controller as controller_schemas
 from neuroanimator.contracts import emulator as emulator_schemas
 from neuroanimator.contracts import trainer as trainer_schemas
 from neuroanimator.core import results
+from services.common.openapi import OpenApiDoc
 
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[1] / "proto"
@@ -47,10 +48,10 @@ def _dump(obj: Any) -> str:
     return json.dumps(obj, indent=2, ensure_ascii=False) + "\n"
 
 
-def wire_schemas() -> dict[str, dict[str, Any]]:
+def wire_schemas() -> dict[str, OpenApiDoc]:
     """Every pydantic model defined in ``neuroanimator.contracts.emulator`` or listed in its
     ``WIRE_MODELS_FROM_ELSEWHERE``, plus the websocket message unions."""
-    out: dict[str, dict[str, Any]] = {}
+    out: dict[str, OpenApiDoc] = {}
     for name, obj in vars(emulator_schemas).items():
         ours = (
             inspect.isclass(obj) and obj.__module__ == emulator_schemas.__name__ and not name.startswith("_")
@@ -66,22 +67,22 @@ def wire_schemas() -> dict[str, dict[str, Any]]:
     return dict(sorted(out.items()))
 
 
-def controller_wire_schemas() -> dict[str, dict[str, Any]]:
+def controller_wire_schemas() -> dict[str, OpenApiDoc]:
     """Every pydantic model defined in ``neuroanimator.contracts.controller``."""
     return _module_schemas(controller_schemas)
 
 
-def trainer_wire_schemas() -> dict[str, dict[str, Any]]:
+def trainer_wire_schemas() -> dict[str, OpenApiDoc]:
     """Every pydantic model defined in ``neuroanimator.contracts.trainer``."""
     return _module_schemas(trainer_schemas)
 
 
-def results_wire_schemas() -> dict[str, dict[str, Any]]:
+def results_wire_schemas() -> dict[str, OpenApiDoc]:
     """Every pydantic model defined in ``neuroanimator.core.results``."""
     return _module_schemas(results)
 
 
-def _module_schemas(mod: Any) -> dict[str, dict[str, Any]]:
+def _module_schemas(mod: Any) -> dict[str, OpenApiDoc]:
     return {
         name: obj.model_json_schema()
         for name, obj in sorted(vars(mod).items())
@@ -92,7 +93,7 @@ def _module_schemas(mod: Any) -> dict[str, dict[str, Any]]:
     }
 
 
-def _job_service_openapi(service: str) -> dict[str, Any]:
+def _job_service_openapi(service: str) -> OpenApiDoc:
     """A job service's document (``controller`` or ``trainer``); its Redis is not contacted, since
     connections are lazy."""
     app_module = importlib.import_module(f"services.{service}.app")
@@ -101,28 +102,28 @@ def _job_service_openapi(service: str) -> dict[str, Any]:
         settings = settings_module.Settings(
             artifacts_dir=Path(empty), api_keys="", cors_origins="", redis_url="redis://127.0.0.1:1/0"
         )
-        doc: dict[str, Any] = app_module.create_app(settings).openapi()
+        doc: OpenApiDoc = app_module.create_app(settings).openapi()
     return doc
 
 
-def controller_openapi() -> dict[str, Any]:
+def controller_openapi() -> OpenApiDoc:
     """The controller API's document."""
     return _job_service_openapi("controller")
 
 
-def trainer_openapi() -> dict[str, Any]:
+def trainer_openapi() -> OpenApiDoc:
     """The trainer API's document."""
     return _job_service_openapi("trainer")
 
 
-def emulator_openapi() -> dict[str, Any]:
+def emulator_openapi() -> OpenApiDoc:
     """The emulator service's document (no Redis: persistence off)."""
     from services.emulator.app import create_app
     from services.emulator.settings import Settings
 
     with tempfile.TemporaryDirectory() as empty:
         settings = Settings(artifacts_dir=Path(empty), api_keys="", redis_url="")
-        doc: dict[str, Any] = create_app(settings).openapi()
+        doc: OpenApiDoc = create_app(settings).openapi()
     return doc
 
 

@@ -23,6 +23,7 @@ from fastapi.responses import StreamingResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from services.common.jobs import JobStore
+from services.common.openapi import Responses
 
 log = logging.getLogger(__name__)
 STREAM_ID = re.compile(r"^\d+-\d+$")
@@ -30,7 +31,7 @@ REDIS_GONE = {
     "error": "redis_unavailable",
     "message": "Redis (the job queue) stopped answering: this stream ends here; reconnect later",
 }
-SSE_RESPONSES: dict[int | str, dict[str, Any]] = {
+SSE_RESPONSES: Responses = {
     200: {
         "content": {"text/event-stream": {}},
         "description": "status, progress and end events (an error event when Redis goes away)",

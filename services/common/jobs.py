@@ -37,17 +37,18 @@ import logging
 import math
 import time
 import uuid
-from collections.abc import Callable, Iterable
-from typing import Any, ClassVar, TypeVar
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any, ClassVar, Literal, TypeVar
 
 import redis
-from pydantic import Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 from redis.client import Pipeline
 from rq import Queue
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job
 from rq.serializers import JSONSerializer
 
+from neuroanimator.contracts.controller import StatusEvent
 from services.common.settings import ApiSettings, RegistrySettings
 
 log = logging.getLogger(__name__)
@@ -121,6 +122,57 @@ class QueueSettings(ApiSettings, RegistrySettings):
         return 3.0 * self.heartbeat_s()
 
 
+JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+class JobRecord(BaseModel):
+    """A job's record: its ``job:<id>`` hash (every value text there; empty: not set), validated once
+    when read, with the current attempt's progress and history when read by ``JobStore.record``."""
+
+    model_config = ConfigDict(extra="ignore")
+    id: str
+    owner: str
+    spec: str = Field(description="the job's spec as JSON (each service reads it with its own type)")
+    spec_hash: str = ""
+    status: JobState
+    created_at: float
+    started_at: float | None = None
+    ended_at: float | None = None
+    attempt: int = 0
+    delivery: int = 1
+    rq_id: str = ""
+    failures: int = 0
+    worker: str | None = None
+    error: str | None = None
+    idempotency_key: str | None = None
+    # free-form: what the service's job reported last (each value a JSON document of its own)
+    progress: dict[str, Any] = Field(default_factory=dict)
+    history: list[Any] = Field(
+        default_factory=list, description="the attempt's curve, one JSON value a point"
+    )
+
+    @field_validator(
+        "started_at", "ended_at", "worker", "error", "idempotency_key", "attempt", "failures", mode="before"
+    )
+    @classmethod
+    def _unset(cls, value: object, info: ValidationInfo) -> object:
+        if value == "":  # the hash keeps an unset field as the empty string
+            return 0 if info.field_name in ("attempt", "failures") else None
+        return value
+
+    @classmethod
+    def of(cls, fields: Mapping[str, str]) -> JobRecord | None:
+        """The record of a ``job:<id>`` hash read as text; None when there is none (expired)."""
+        return cls.model_validate(fields) if fields else None
+
+
+class JobEnd(BaseModel):
+    """The data of a job's ``end`` event, at the least (a service's own says more)."""
+
+    status: str
+    reason: str | None
+
+
 class QueueFull(Exception):
     """The queue holds ``MAX_QUEUE`` jobs already (``limit``; ``depth`` were waiting)."""
 
@@ -153,7 +205,7 @@ def clean(value: Any) -> Any:
     return str(value)
 
 
-def dumps(value: Any) -> str:
+def dumps(value: object) -> str:
     return json.dumps(clean(value), separators=(",", ":"), allow_nan=False)
 
 
@@ -235,31 +287,39 @@ class JobStore:
         self._count = conn.register_script(_WORKER_COUNT)
 
     # ------------------------------------------------------------ what a service says of its jobs
-    def summary(self, spec: dict[str, Any]) -> dict[str, Any]:
-        """What of a job's spec its result repeats (the controller: task, model, version)."""
+    def summary(self, spec: str) -> dict[str, str | None]:
+        """What of a job's spec (JSON) its result repeats (the controller: task, model, version)."""
         return {}
 
-    def end_event(self, body: dict[str, Any]) -> dict[str, Any]:
-        """The data of the ``end`` event from the result's body."""
-        return {"status": body["status"], "reason": body["reason"]}
+    def end_event(
+        self, rec: JobRecord, status: str, reason: str | None, result: BaseModel | None
+    ) -> BaseModel:
+        """The ``end`` event of a job that ends with ``status``, ``reason`` and ``result``."""
+        return JobEnd(status=status, reason=reason)
 
-    def observe_end(self, pipe: Pipeline, body: dict[str, Any]) -> None:
+    def result_fields(self, result: BaseModel) -> Mapping[str, object]:
+        """What of a run's result the stored result holds, in its order."""
+        return result.model_dump()
+
+    def observe_end(self, pipe: Pipeline, result: BaseModel | None) -> None:
         """Statistics of a finished job beyond its count, duration and turnaround."""
 
-    def partial(self, progress: dict[str, str], history: list[Any]) -> dict[str, Any]:
-        """The result of a job given up or cancelled while it ran, from its progress and history."""
-        return {}
+    def partial(self, progress: dict[str, str], history: list[Any]) -> BaseModel | None:
+        """The result of a job given up or cancelled while it ran, from its progress (each value JSON)
+        and history."""
+        return None
 
     # ------------------------------------------------------------ plumbing
-    def _transition(self, job_id: str, change: Callable[[Pipeline, dict[str, str]], T]) -> T:
-        """Run ``change(pipe, record)`` with the record WATCHed; it calls ``pipe.multi()`` before queueing
-        its writes, which then commit only if nobody changed the record since it was read (else retry)."""
+    def _transition(self, job_id: str, change: Callable[[Pipeline, JobRecord | None], T]) -> T:
+        """Run ``change(pipe, record)`` with the record WATCHed (None: there is none); it calls
+        ``pipe.multi()`` before queueing its writes, which then commit only if nobody changed the record
+        since it was read (else retry)."""
         key = self.keys.job(job_id)
         with self.r.pipeline() as pipe:
             while True:
                 try:
                     pipe.watch(key)
-                    out = change(pipe, texts(pipe.hgetall(key)))
+                    out = change(pipe, JobRecord.of(texts(pipe.hgetall(key))))
                     if pipe.explicit_transaction:
                         pipe.execute()
                     else:
@@ -283,7 +343,7 @@ class JobStore:
             pipeline=pipe,
         )
 
-    def _event(self, pipe: Pipeline, job_id: str, event: str, data: dict[str, Any]) -> None:
+    def _event(self, pipe: Pipeline, job_id: str, event: str, data: Mapping[str, object]) -> None:
         pipe.xadd(
             self.keys.events(job_id),
             {"event": event, "data": dumps(data)},
@@ -295,27 +355,28 @@ class JobStore:
         self,
         pipe: Pipeline,
         job_id: str,
-        rec: dict[str, str],
+        rec: JobRecord,
         status: str,
         reason: str | None,
-        result: dict[str, Any],
+        result: BaseModel | None,
     ) -> None:
-        """Queue the writes that end a job: status, result, ``end`` event, expiry and statistics."""
+        """Queue the writes that end a job: status, result, ``end`` event, expiry and statistics. The
+        stored result: the summary of the spec, the ``result``'s fields, then the id, status and reason."""
         k, ttl, now = self.keys, self.settings.result_ttl_s, time.time()
-        spec = json.loads(rec.get("spec", "{}"))
-        body = {**self.summary(spec), **result, "id": job_id, "status": status, "reason": reason}
+        fields = self.result_fields(result) if result is not None else {}
+        body = {**self.summary(rec.spec), **fields, "id": job_id, "status": status, "reason": reason}
         pipe.hset(k.job(job_id), mapping={"status": status, "error": reason or "", "ended_at": repr(now)})
         pipe.set(k.result(job_id), dumps(body), ex=ttl)
-        self._event(pipe, job_id, "end", self.end_event(body))
+        self._event(pipe, job_id, "end", self.end_event(rec, status, reason, result).model_dump())
         pipe.zrem(k.running, job_id)
         pipe.delete(k.lease(job_id), k.yield_(job_id))
         for key in (k.job(job_id), k.progress(job_id), k.history(job_id), k.events(job_id), k.cancel(job_id)):
             pipe.expire(key, ttl)
         pipe.hincrby(k.stats, f"finished:{status}", 1)
-        if rec.get("started_at"):
-            observe(pipe, k.stats, "duration", now - float(rec["started_at"]), DURATION_BUCKETS)
-        observe(pipe, k.stats, "turnaround", now - float(rec.get("created_at", now)), DURATION_BUCKETS)
-        self.observe_end(pipe, body)
+        if rec.started_at:
+            observe(pipe, k.stats, "duration", now - rec.started_at, DURATION_BUCKETS)
+        observe(pipe, k.stats, "turnaround", now - rec.created_at, DURATION_BUCKETS)
+        self.observe_end(pipe, result)
 
     # ------------------------------------------------------------ API side
     def queue_depth(self) -> int:
@@ -327,7 +388,7 @@ class JobStore:
         owner: str,
         idempotency_key: str | None = None,
         job_id: str | None = None,
-        log_extra: dict[str, Any] | None = None,
+        log_extra: Mapping[str, object] | None = None,
     ) -> tuple[str, str, bool]:
         """Queue a validated job (its spec as JSON); returns (id, status, created). A repeated idempotency
         key returns its job; raises ``QueueFull`` or ``IdempotencyConflict``. ``job_id``: an id made by
@@ -369,7 +430,7 @@ class JobStore:
             pipe.hset(k.job(job_id), mapping=rec)
             pipe.expire(k.job(job_id), s.queued_ttl_s)
             pipe.zadd(k.owner(owner), {job_id: now})
-            self._event(pipe, job_id, "status", {"status": "queued", "attempt": 1})
+            self._event(pipe, job_id, "status", _status_event("queued", 1))
             pipe.expire(k.events(job_id), s.queued_ttl_s)
             self._enqueue(pipe, job_id, 1)
             pipe.execute()
@@ -391,7 +452,7 @@ class JobStore:
             )
         return job_id, text_of(status)
 
-    def record(self, job_id: str, owner: str | None = None) -> dict[str, Any] | None:
+    def record(self, job_id: str, owner: str | None = None) -> JobRecord | None:
         """The job's record with its progress and history; None if absent or ``owner`` is not its owner."""
         k = self.keys
         with self.r.pipeline(transaction=False) as pipe:
@@ -399,20 +460,19 @@ class JobStore:
             pipe.hgetall(k.progress(job_id))
             pipe.lrange(k.history(job_id), 0, -1)
             rec_raw, prog_raw, hist = pipe.execute()
-        if not rec_raw:
+        rec = JobRecord.of(texts(rec_raw))
+        if rec is None or (owner is not None and rec.owner != owner):
             return None
-        rec: dict[str, Any] = texts(rec_raw)
-        if owner is not None and rec.get("owner") != owner:
-            return None
-        rec["progress"] = {key: json.loads(v) for key, v in texts(prog_raw).items()}
-        rec["history"] = [json.loads(v) for v in hist]
+        rec.progress = {key: json.loads(v) for key, v in texts(prog_raw).items()}
+        rec.history = [json.loads(v) for v in hist]
         return rec
 
-    def result(self, job_id: str) -> dict[str, Any] | None:
+    def result(self, job_id: str) -> str | None:
+        """The finished job's result as stored (JSON), for the service to read with its own type."""
         raw = self.r.get(self.keys.result(job_id))
-        return None if raw is None else dict(json.loads(text_of(raw)))
+        return None if raw is None else text_of(raw)
 
-    def jobs_of(self, owner: str, limit: int) -> list[dict[str, Any]]:
+    def jobs_of(self, owner: str, limit: int) -> list[JobRecord]:
         """The owner's newest jobs (expired ones are dropped from the list)."""
         ids = [text_of(i) for i in self.r.zrevrange(self.keys.owner(owner), 0, limit - 1)]
         out, gone = [], []
@@ -431,17 +491,17 @@ class JobStore:
         Returns its status after this call."""
         cancelled_delivery: list[str] = []
 
-        def change(pipe: Pipeline, rec: dict[str, str]) -> str:
-            status = rec.get("status", "")
-            if not rec or status in FINAL:
-                return status
+        def change(pipe: Pipeline, rec: JobRecord | None) -> str:
+            if rec is None or rec.status in FINAL:
+                return "" if rec is None else rec.status
+            status = rec.status
             pipe.multi()
             pipe.set(self.keys.cancel(job_id), "1", ex=self.settings.queued_ttl_s)
             if status == "queued":
                 self._final(
                     pipe, job_id, rec, "cancelled", "cancelled before it started", self.partial({}, [])
                 )
-                cancelled_delivery.append(rec.get("rq_id", ""))
+                cancelled_delivery.append(rec.rq_id)
                 return "cancelled"
             return status
 
@@ -469,17 +529,17 @@ class JobStore:
         """A worker that stopped cleanly."""
         self.r.zrem(self.keys.workers, name)
 
-    def start(self, job_id: str, delivery: int, worker: str, pid: int) -> tuple[dict[str, str] | None, str]:
+    def start(self, job_id: str, delivery: int, worker: str, pid: int) -> tuple[JobRecord | None, str]:
         """Mark delivery ``n`` running and take the lease; (record, "started"), or (None, why not)."""
         k, s = self.keys, self.settings
 
-        def change(pipe: Pipeline, rec: dict[str, str]) -> tuple[dict[str, str] | None, str]:
-            if not rec:
+        def change(pipe: Pipeline, rec: JobRecord | None) -> tuple[JobRecord | None, str]:
+            if rec is None:
                 return None, "gone"
-            if rec["status"] in FINAL:
-                return None, f"already {rec['status']}"
-            if rec.get("rq_id") != rq_id(job_id, delivery):
-                return None, f"superseded by {rec.get('rq_id')}"
+            if rec.status in FINAL:
+                return None, f"already {rec.status}"
+            if rec.rq_id != rq_id(job_id, delivery):
+                return None, f"superseded by {rec.rq_id}"
             cancelled = pipe.exists(k.cancel(job_id))
             pipe.multi()
             if cancelled:
@@ -487,7 +547,7 @@ class JobStore:
                     pipe, job_id, rec, "cancelled", "cancelled before it started", self.partial({}, [])
                 )
                 return None, "cancelled"
-            attempt = int(rec.get("attempt", "0")) + 1
+            attempt = rec.attempt + 1
             now = time.time()
             pipe.hset(
                 k.job(job_id),
@@ -504,8 +564,8 @@ class JobStore:
             pipe.set(k.lease(job_id), worker, px=int(s.lease_ttl_s * 1000))
             for key in (k.job(job_id), k.events(job_id)):  # a run may start late: keep the records
                 pipe.expire(key, s.queued_ttl_s)
-            self._event(pipe, job_id, "status", {"status": "running", "attempt": attempt})
-            return {**rec, "attempt": str(attempt)}, "started"
+            self._event(pipe, job_id, "status", _status_event("running", attempt))
+            return rec.model_copy(update={"attempt": attempt}), "started"
 
         return self._transition(job_id, change)
 
@@ -526,12 +586,13 @@ class JobStore:
         self,
         job_id: str,
         attempt: int,
-        p: dict[str, Any],
-        history: Iterable[Any],
-        event_extra: dict[str, Any] | None = None,
+        p: Mapping[str, object],
+        history: Iterable[object],
+        event_extra: Mapping[str, object] | None = None,
     ) -> None:
         """Record progress: the progress hash, values appended to the history and a ``progress`` event
-        (``p``, plus ``event_extra``: what the event carries but the progress hash does not keep)."""
+        (``p``, plus ``event_extra``: what the event carries but the progress hash does not keep). ``p``
+        is the service's report, a JSON object of its own (each value kept as JSON in the hash)."""
         k = self.keys
         data = {**clean(p), "attempt": attempt}
         fields = {key: json.dumps(v) for key, v in data.items()}
@@ -550,12 +611,13 @@ class JobStore:
         self.r.set(self.keys.yield_(job_id), "1", ex=max(60, int(self.settings.job_timeout_s)))
 
     def end(
-        self, job_id: str, delivery: int, status: str, reason: str | None, result: dict[str, Any]
+        self, job_id: str, delivery: int, status: str, reason: str | None, result: BaseModel | None = None
     ) -> bool:
-        """End the job with its outcome; False if it had already ended or was superseded."""
+        """End the job with its outcome (``result``: what the run made, if anything); False if it had
+        already ended or was superseded."""
 
-        def change(pipe: Pipeline, rec: dict[str, str]) -> bool:
-            if not rec or rec["status"] in FINAL or rec.get("rq_id") != rq_id(job_id, delivery):
+        def change(pipe: Pipeline, rec: JobRecord | None) -> bool:
+            if rec is None or rec.status in FINAL or rec.rq_id != rq_id(job_id, delivery):
                 return False
             pipe.multi()
             self._final(pipe, job_id, rec, status, reason, result)
@@ -570,10 +632,10 @@ class JobStore:
         ``JOB_RETRIES`` (or cancelled when that was asked). Returns requeued | failed | cancelled | stale."""
         k, retries = self.keys, self.settings.job_retries
 
-        def change(pipe: Pipeline, rec: dict[str, str]) -> str:
-            if not rec or rec["status"] in FINAL or rec.get("rq_id") != rq_id(job_id, delivery):
+        def change(pipe: Pipeline, rec: JobRecord | None) -> str:
+            if rec is None or rec.status in FINAL or rec.rq_id != rq_id(job_id, delivery):
                 return "stale"
-            failures = int(rec.get("failures", "0")) + int(count_failure)
+            failures = rec.failures + int(count_failure)
             cancelled = pipe.exists(k.cancel(job_id))
             progress = texts(pipe.hgetall(k.progress(job_id)))
             history = [json.loads(v) for v in pipe.lrange(k.history(job_id), 0, -1)]
@@ -602,7 +664,7 @@ class JobStore:
             pipe.zrem(k.running, job_id)
             pipe.delete(k.lease(job_id), k.yield_(job_id))
             pipe.hincrby(k.stats, "requeued", 1)
-            self._event(pipe, job_id, "status", {"status": "queued", "attempt": nxt, "reason": reason})
+            self._event(pipe, job_id, "status", _status_event("queued", nxt, reason))
             self._enqueue(pipe, job_id, nxt)
             return "requeued"
 
@@ -630,6 +692,11 @@ class JobStore:
             if self.requeue_or_fail(job_id, delivery, reason, count_failure=True) != "stale":
                 reaped.append(job_id)
         return reaped
+
+
+def _status_event(status: JobState, attempt: int, reason: str | None = None) -> dict[str, object]:
+    """A ``status`` event's data: ``reason`` only when there is one."""
+    return StatusEvent(status=status, attempt=attempt, reason=reason).model_dump(exclude_none=True)
 
 
 def new_id() -> str:

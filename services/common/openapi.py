@@ -38,11 +38,17 @@ METRICS_TYPE: str = CONTENT_TYPE_LATEST
 """The media type of ``/metrics``: Prometheus's text exposition format."""
 
 
-def error_response(description: str) -> dict[str, Any]:
+OpenApiDoc = dict[str, Any]
+"""An OpenAPI document or JSON Schema, or a part of one (a response, a schema): free-form JSON."""
+Responses = dict[int | str, OpenApiDoc]
+"""What FastAPI's ``responses=`` takes: an OpenAPI response object per status code."""
+
+
+def error_response(description: str) -> OpenApiDoc:
     return {"description": description, "content": {"application/json": {"schema": ERROR_REF}}}
 
 
-def readiness_responses(not_ready: str) -> dict[int | str, dict[str, Any]]:
+def readiness_responses(not_ready: str) -> Responses:
     """The documented answers of a ``/readyz``: 200 ready, 503 with the reason."""
     return {
         200: {"description": "ready", "content": {"application/json": {"schema": OPS_STATUS}}},
@@ -50,7 +56,7 @@ def readiness_responses(not_ready: str) -> dict[int | str, dict[str, Any]]:
     }
 
 
-METRICS_RESPONSES: dict[int | str, dict[str, Any]] = {
+METRICS_RESPONSES: Responses = {
     200: {
         "description": "Prometheus metrics in the text exposition format",
         "content": {METRICS_TYPE: {"schema": {"type": "string"}}},
@@ -58,7 +64,7 @@ METRICS_RESPONSES: dict[int | str, dict[str, Any]] = {
 }
 
 
-def _add(responses: dict[str, Any], codes: Mapping[str, str]) -> None:
+def _add(responses: OpenApiDoc, codes: Mapping[str, str]) -> None:
     for code, description in codes.items():
         responses.setdefault(code, error_response(description))
 
@@ -69,8 +75,8 @@ def _uses_validation_error(response: Mapping[str, Any]) -> bool:
 
 
 def add_errors(
-    schema: dict[str, Any], everywhere: Mapping[str, str] = {}, open_paths: frozenset[str] = OPEN_PATHS
-) -> dict[str, Any]:
+    schema: OpenApiDoc, everywhere: Mapping[str, str] = {}, open_paths: frozenset[str] = OPEN_PATHS
+) -> OpenApiDoc:
     """``schema`` (an OpenAPI document) with the errors of the module's text on every operation;
     ``everywhere`` adds (status, description) to every operation but the open ones."""
     for path, operations in schema.get("paths", {}).items():
@@ -98,9 +104,9 @@ def add_errors(
 
 def document_errors(app: FastAPI, everywhere: Mapping[str, str] = {}) -> None:
     """Make ``app.openapi()`` return its document with ``add_errors`` applied (once, then cached)."""
-    generate: Callable[[], dict[str, Any]] = app.openapi
+    generate: Callable[[], OpenApiDoc] = app.openapi
 
-    def openapi() -> dict[str, Any]:
+    def openapi() -> OpenApiDoc:
         if app.openapi_schema is None:
             app.openapi_schema = add_errors(generate(), everywhere)
         return app.openapi_schema

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import AsyncIterator, Callable, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from typing import Any, Protocol
 from urllib.parse import urlsplit, urlunsplit
 
@@ -45,7 +45,7 @@ class QueueMetrics(Protocol):
     def render(self) -> bytes: ...
 
 
-Ready = Callable[[], tuple[dict[str, Any], tuple[str, str] | None]]
+Ready = Callable[[], tuple[dict[str, object], tuple[str, str] | None]]
 """The service's own readiness: (fields for ``/readyz``, and when it is not ready (status, why))."""
 
 
@@ -89,9 +89,30 @@ def queue_app(
 ) -> FastAPI:
     """The app (see the module's text). ``submit_path``: where jobs are POSTed (a refusal there while
     Redis is down is counted); ``ready``: the service's part of ``/readyz``, described by ``not_ready``."""
-    conn = store.r
     keys = ApiKeys.of(settings)
-    where = redacted(settings.redis_url)
+    lifespan = _lifespan(settings, store.r, title, len(keys))
+    app = FastAPI(title=title, version="0.1.0", lifespan=lifespan, docs_url=None, redoc_url=None)
+    add_offline_docs(app)  # /docs and /redoc with packaged assets: they work offline
+    app.state.settings = settings
+    app.state.store = store
+    app.state.metrics = metrics
+    _add_middleware(app, settings, keys, per_path_limits)
+    add_error_handlers(app)
+    redis_down = _redis_down(metrics, submit_path, redacted(settings.redis_url))
+    app.add_exception_handler(redis.ConnectionError, redis_down)
+    app.add_exception_handler(redis.TimeoutError, redis_down)
+    for r in routers:
+        app.include_router(r)
+    _add_ops_routes(app, store, metrics, ready, not_ready, redacted(settings.redis_url))
+    document_errors(app, everywhere={"503": "Redis (the job queue) does not answer; try again later"})
+    return app
+
+
+def _lifespan(
+    settings: QueueSettings, conn: redis.Redis, title: str, keys: int
+) -> Callable[[FastAPI], contextlib.AbstractAsyncContextManager[None]]:
+    """Open the event streams' async Redis client (``app.state.aredis``) at start; close both clients
+    at the end."""
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -104,18 +125,21 @@ def queue_app(
             socket_timeout=settings.sse_keepalive_s + 10.0,
             retry=Retry(ExponentialBackoff(cap=0.2, base=0.05), retries=1),
         )
-        log.info(f"{title} up", extra={"redis": where, "queue": settings.queue_name, "api_keys": len(keys)})
+        where = redacted(settings.redis_url)
+        log.info(f"{title} up", extra={"redis": where, "queue": settings.queue_name, "api_keys": keys})
         try:
             yield
         finally:
             await app.state.aredis.aclose()
             conn.close()
 
-    app = FastAPI(title=title, version="0.1.0", lifespan=lifespan, docs_url=None, redoc_url=None)
-    add_offline_docs(app)  # /docs and /redoc with packaged assets: they work offline
-    app.state.settings = settings
-    app.state.store = store
-    app.state.metrics = metrics
+    return lifespan
+
+
+def _add_middleware(
+    app: FastAPI, settings: QueueSettings, keys: ApiKeys, per_path_limits: Sequence[tuple[str, int]]
+) -> None:
+    """The key check, the body limits and CORS, innermost first."""
     if keys.enabled:
         app.add_middleware(ApiKeyMiddleware, keys=keys)
         app.add_middleware(QueryKeyMiddleware)
@@ -130,7 +154,12 @@ def queue_app(
             allow_headers=["Authorization", "X-API-Key", "Content-Type", "Last-Event-ID"],
             expose_headers=["Location"],
         )
-    add_error_handlers(app)
+
+
+def _redis_down(
+    metrics: QueueMetrics, submit_path: str, where: str
+) -> Callable[[Request, Exception], Awaitable[JSONResponse]]:
+    """The handler of a Redis that does not answer: 503 ``redis_unavailable`` with ``Retry-After``."""
 
     async def redis_down(request: Request, exc: Exception) -> JSONResponse:
         if request.url.path == submit_path and request.method == "POST":
@@ -144,11 +173,14 @@ def queue_app(
         )
         return JSONResponse(body.model_dump(), status_code=503, headers={"Retry-After": "5"})
 
-    app.add_exception_handler(redis.ConnectionError, redis_down)
-    app.add_exception_handler(redis.TimeoutError, redis_down)
+    return redis_down
 
-    for r in routers:
-        app.include_router(r)
+
+def _add_ops_routes(
+    app: FastAPI, store: JobStore, metrics: QueueMetrics, ready: Ready, not_ready: str, where: str
+) -> None:
+    """``/healthz``, ``/readyz`` and ``/metrics``."""
+    conn = store.r
 
     @app.get("/healthz", tags=["ops"])
     async def healthz() -> dict[str, str]:  # on the event loop: no thread to wait for
@@ -183,6 +215,3 @@ def queue_app(
     @app.get("/metrics", tags=["ops"], response_class=PlainTextResponse, responses=METRICS_RESPONSES)
     def metrics_endpoint() -> Response:
         return Response(metrics.render(), media_type=METRICS_TYPE)
-
-    document_errors(app, everywhere={"503": "Redis (the job queue) does not answer; try again later"})
-    return app

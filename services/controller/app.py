@@ -8,7 +8,6 @@ answer 503 with a message, and ``/readyz`` says why it is not ready (``services.
 from __future__ import annotations
 
 import logging
-from typing import Any
 
 from fastapi import FastAPI
 
@@ -27,7 +26,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
     store = JobStore(connect(settings), settings)
 
-    def ready() -> tuple[dict[str, Any], tuple[str, str] | None]:
+    def ready() -> tuple[dict[str, object], tuple[str, str] | None]:
         # an open endpoint: the models everybody sees (uploaded ones only once published)
         models = tenancy.public_models(settings.roots())
         if not models:  # the folder is named by its setting: its path goes to the log, not to anybody

@@ -16,15 +16,15 @@ How a run ends:
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import time
-from typing import Any
+from collections.abc import Mapping
 
 import redis
 
 from neuroanimator.contracts.controller import JobOutcome
+from neuroanimator.goals.spec import JobSpec
 from services.common.job_worker import Watch, connect_job
 from services.controller.settings import Settings
 from services.controller.store import JobStore
@@ -54,42 +54,14 @@ def perform(job_id: str, delivery: int) -> str:
     if rec is None:
         log.info("job not run", extra={"job": job_id, "delivery": delivery, "reason": why})
         return why
-    attempt = int(rec["attempt"])
     # Before torch loads: its OpenMP pool reads these once.
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = str(s.worker_threads)
-    spec: dict[str, Any] = json.loads(rec["spec"])
+    spec = JobSpec.model_validate_json(rec.spec)
     watch = Watch(store, job_id, delivery, worker)
     watch.start()
-    deadline = time.monotonic() + s.job_timeout_s
-    timed_out = False
-
-    def should_stop() -> bool:
-        nonlocal timed_out
-        if time.monotonic() > deadline:
-            timed_out = True
-        return timed_out or watch.stop_requested
-
-    best_at: dict[str, Any] = {}
-    unrecorded = 0  # iterations in a row whose progress Redis did not take
-
-    def on_progress(p: dict[str, Any]) -> None:
-        nonlocal unrecorded
-        # the iteration of the best objective so far: where "the best controller so far" comes from
-        if p.get("objective") is not None and p.get("objective") == p.get("best_objective"):
-            best_at["best_iteration"] = p.get("iteration")
-        try:
-            store.progress(job_id, attempt, {**p, **best_at})
-        except redis.RedisError as exc:  # progress is best effort; the result is what counts
-            if not unrecorded:  # once while Redis is away, not at every iteration
-                log.warning("progress not recorded", extra={"job": job_id, "error": str(exc)})
-            unrecorded += 1
-        else:
-            if unrecorded:
-                log.info("progress recorded again", extra={"job": job_id, "missed": unrecorded})
-            unrecorded = 0
-
-    log.info("job started", extra={"job": job_id, "attempt": attempt, "task": spec.get("task")})
+    clock = Deadline(watch, s.job_timeout_s)
+    log.info("job started", extra={"job": job_id, "attempt": rec.attempt, "task": spec.task})
     try:
         from neuroanimator.control.job import run_job
         from neuroanimator.goals.errors import JobSpecError
@@ -98,8 +70,8 @@ def perform(job_id: str, delivery: int) -> str:
             result = run_job(
                 spec,
                 s.roots(),
-                on_progress=on_progress,
-                should_stop=should_stop,
+                on_progress=ProgressRecorder(store, job_id, rec.attempt),
+                should_stop=clock.should_stop,
                 threads=s.worker_threads,
             )
         except (
@@ -113,7 +85,60 @@ def perform(job_id: str, delivery: int) -> str:
         raise
     finally:
         watch.stop()
+    return _conclude(store, s, job_id, delivery, worker, watch, clock.timed_out, result)
 
+
+class Deadline:
+    """``should_stop`` of a run: past ``JOB_TIMEOUT_S`` (then ``timed_out``), or asked to stop."""
+
+    def __init__(self, watch: Watch, timeout_s: float) -> None:
+        self.watch = watch
+        self.deadline = time.monotonic() + timeout_s
+        self.timed_out = False
+
+    def should_stop(self) -> bool:
+        if time.monotonic() > self.deadline:
+            self.timed_out = True
+        return self.timed_out or self.watch.stop_requested
+
+
+class ProgressRecorder:
+    """``on_progress`` of a run: each iteration's report (``run_job``'s JSON object, with the iteration
+    of the best objective so far added) into Redis, best effort."""
+
+    def __init__(self, store: JobStore, job_id: str, attempt: int) -> None:
+        self.store, self.job_id, self.attempt = store, job_id, attempt
+        self.best_at: dict[str, object] = {}
+        self.unrecorded = 0  # iterations in a row whose progress Redis did not take
+
+    def __call__(self, p: Mapping[str, object]) -> None:
+        # the iteration of the best objective so far: where "the best controller so far" comes from
+        if p.get("objective") is not None and p.get("objective") == p.get("best_objective"):
+            self.best_at["best_iteration"] = p.get("iteration")
+        try:
+            self.store.progress(self.job_id, self.attempt, {**p, **self.best_at})
+        except redis.RedisError as exc:  # progress is best effort; the result is what counts
+            if not self.unrecorded:  # once while Redis is away, not at every iteration
+                log.warning("progress not recorded", extra={"job": self.job_id, "error": str(exc)})
+            self.unrecorded += 1
+        else:
+            if self.unrecorded:
+                log.info("progress recorded again", extra={"job": self.job_id, "missed": self.unrecorded})
+            self.unrecorded = 0
+
+
+def _conclude(
+    store: JobStore,
+    s: Settings,
+    job_id: str,
+    delivery: int,
+    worker: str,
+    watch: Watch,
+    timed_out: bool,
+    result: JobOutcome,
+) -> str:
+    """End the job with the run's outcome; a run cancelled by anything but DELETE goes back on the queue
+    (its worker shut down), stops (another run took over) or fails (past the time limit)."""
     if result.status == "cancelled" and not watch.cancelled:
         if watch.superseded:  # another run of this job took over (this worker had seemed dead)
             return "superseded"

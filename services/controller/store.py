@@ -9,13 +9,24 @@ What is stored, and how every change of a job's state is one transaction, is tol
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from typing import Any
 
+from pydantic import BaseModel
 from redis.client import Pipeline
 
-from neuroanimator.contracts.controller import JobOutcome
+from neuroanimator.contracts.controller import EndEvent, JobOutcome, MaybeFloat
 from neuroanimator.goals.spec import JobSpec
-from services.common.jobs import DURATION_BUCKETS, IdempotencyConflict, Keys, QueueFull, clean, observe, rq_id
+from services.common.jobs import (
+    DURATION_BUCKETS,
+    IdempotencyConflict,
+    JobRecord,
+    Keys,
+    QueueFull,
+    clean,
+    observe,
+    rq_id,
+)
 from services.common.jobs import JobStore as BaseStore
 
 __all__ = [
@@ -25,6 +36,7 @@ __all__ = [
     "IdempotencyConflict",
     "JobStore",
     "Keys",
+    "PartialRun",
     "QueueFull",
     "clean",
     "rq_id",
@@ -34,37 +46,56 @@ PERFORM = "services.controller.execution.perform"
 ITERATION_BUCKETS = (1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 2000.0, 5000.0)
 
 
+class PartialRun(BaseModel):
+    """The result of a job given up or cancelled while it ran (or before): what its progress knew."""
+
+    iterations: int
+    objective_history: list[MaybeFloat]
+    best_objective: MaybeFloat
+
+
+def _best(result: JobOutcome | PartialRun) -> float | None:
+    """The best objective of a run: as it said, else the least finite one of its history."""
+    if result.best_objective is None and result.objective_history:
+        finite = [v for v in clean(result.objective_history) if v is not None]
+        return min(finite) if finite else None
+    return result.best_objective
+
+
 class JobStore(BaseStore):
     """The controller's jobs (one prefix and one RQ queue), for the API and for workers."""
 
     perform = PERFORM
     noun = "job"
 
-    def summary(self, spec: dict[str, Any]) -> dict[str, Any]:
-        return {"task": spec.get("task"), "model": spec.get("model"), "version": spec.get("version")}
+    def summary(self, spec: str) -> dict[str, str | None]:
+        job = JobSpec.model_validate_json(spec)
+        return {"task": job.task, "model": job.model, "version": job.version}
 
-    def end_event(self, body: dict[str, Any]) -> dict[str, Any]:
-        best = body.get("best_objective")
-        if best is None and body.get("objective_history"):
-            finite = [v for v in clean(body["objective_history"]) if v is not None]
-            best = min(finite) if finite else None
-        return {
-            "status": body["status"],
-            "reason": body["reason"],
-            "iterations": body.get("iterations"),
-            "best_objective": best,
-        }
+    def end_event(
+        self, rec: JobRecord, status: str, reason: str | None, result: BaseModel | None
+    ) -> EndEvent:
+        run = result if isinstance(result, (JobOutcome, PartialRun)) else None
+        return EndEvent.model_validate(
+            {
+                "status": status,
+                "reason": reason,
+                "iterations": None if run is None else run.iterations,
+                "best_objective": None if run is None else _best(run),
+            }
+        )
 
-    def observe_end(self, pipe: Pipeline, body: dict[str, Any]) -> None:
-        if isinstance(body.get("iterations"), int):
-            observe(pipe, self.keys.stats, "iterations", float(body["iterations"]), ITERATION_BUCKETS)
+    def observe_end(self, pipe: Pipeline, result: BaseModel | None) -> None:
+        iterations = getattr(result, "iterations", None)
+        if isinstance(iterations, int):
+            observe(pipe, self.keys.stats, "iterations", float(iterations), ITERATION_BUCKETS)
 
-    def partial(self, progress: dict[str, str], history: list[Any]) -> dict[str, Any]:
-        return {
-            "iterations": json.loads(progress.get("iteration", "0")),
-            "objective_history": history,
-            "best_objective": json.loads(progress.get("best_objective", "null")),
-        }
+    def partial(self, progress: dict[str, str], history: list[Any]) -> PartialRun:
+        return PartialRun(
+            iterations=json.loads(progress.get("iteration", "0")),
+            objective_history=history,
+            best_objective=json.loads(progress.get("best_objective", "null")),
+        )
 
     def submit(self, spec: JobSpec, owner: str, idempotency_key: str | None = None) -> tuple[str, str, bool]:
         """Queue a validated job; returns (id, status, created). A repeated idempotency key returns its
@@ -72,10 +103,11 @@ class JobStore(BaseStore):
         spec_json = json.dumps(spec.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
         return self.submit_spec(spec_json, owner, idempotency_key, log_extra={"task": spec.task})
 
-    def progress(self, job_id: str, attempt: int, p: dict[str, Any]) -> None:
-        """Record one iteration: the progress hash, the objective history and a ``progress`` event."""
+    def progress(self, job_id: str, attempt: int, p: Mapping[str, object]) -> None:
+        """Record one iteration (``run_job``'s report, a JSON object of its own): the progress hash, the
+        objective history and a ``progress`` event."""
         self.record_progress(job_id, attempt, p, [p.get("objective")])
 
     def finish(self, job_id: str, delivery: int, result: JobOutcome) -> bool:
         """End the job with ``run_job``'s outcome; False if it had already ended or was superseded."""
-        return self.end(job_id, delivery, result.status, result.reason, result.model_dump())
+        return self.end(job_id, delivery, result.status, result.reason, result)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import logging
 import os
 import threading
-from typing import Any
 
 from fastapi import FastAPI
 
@@ -31,7 +30,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
     store = TrainingStore(connect(settings), settings)
 
-    def ready() -> tuple[dict[str, Any], tuple[str, str] | None]:
+    def ready() -> tuple[dict[str, object], tuple[str, str] | None]:
         # /readyz answers anybody: the folders are named by their settings, their paths go to the log
         for name, folder in (("DATA_DIR", settings.data_dir), ("WORK_DIR", settings.uploads())):
             try:

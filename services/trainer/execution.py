@@ -22,7 +22,6 @@ first training made nothing.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
 import queue
@@ -35,14 +34,23 @@ import time
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import IO, Any
+from typing import IO
 
 import redis
 
+from neuroanimator.contracts.trainer import TrainingPhase, TrainingResult
 from services.common.job_worker import Watch, connect_job
 from services.common.jobs import FINAL
 from services.trainer import models
 from services.trainer.settings import Settings
+from services.trainer.spec import (
+    ChildMessage,
+    ChildSpec,
+    LossPair,
+    TrainedEmulator,
+    TrainingProgress,
+    TrainingSpec,
+)
 from services.trainer.store import TrainingStore
 
 log = logging.getLogger(__name__)
@@ -61,10 +69,10 @@ def settings() -> Settings:
     return _settings if _settings is not None else Settings()
 
 
-def _read_lines(stream: IO[bytes], out: queue.Queue[dict[str, Any] | None]) -> None:
+def _read_lines(stream: IO[bytes], out: queue.Queue[ChildMessage | None]) -> None:
     for raw in stream:
         try:
-            out.put(json.loads(raw))
+            out.put(ChildMessage.model_validate_json(raw))
         except ValueError:
             log.warning(
                 "unreadable line from the training", extra={"line": raw[:200].decode(errors="replace")}
@@ -93,12 +101,19 @@ class Progress:
         self.phase = "validating"
         self.percent = 0.0
 
-    def report(self, phase: str, percent: float, detail: str, losses: Sequence[Any] = ()) -> None:
+    def report(
+        self, phase: TrainingPhase, percent: float, detail: str, losses: Sequence[LossPair] = ()
+    ) -> None:
         self.phase, self.percent = phase, percent
         elapsed = time.monotonic() - self.t0
         eta = elapsed * (100.0 - percent) / percent if percent >= 3.0 else None
-        p = {"phase": phase, "percent": percent, "detail": detail, "elapsed_s": round(elapsed, 1)}
-        p["eta_s"] = None if eta is None else round(eta, 1)
+        p = TrainingProgress(
+            phase=phase,
+            percent=percent,
+            detail=detail,
+            elapsed_s=round(elapsed, 1),
+            eta_s=None if eta is None else round(eta, 1),
+        )
         try:
             self.store.progress(self.job_id, self.attempt, p, losses)
         except redis.RedisError as exc:  # progress is best effort; the result is what counts
@@ -114,28 +129,28 @@ def perform(job_id: str, delivery: int) -> str:
     if rec is None:
         log.info("training not run", extra={"job": job_id, "delivery": delivery, "reason": why})
         ended = store.record(job_id)
-        if ended is not None and ended["status"] in FINAL:  # cancelled before it started
-            _cleanup(s, store, job_id, json.loads(ended["spec"]), ended)
+        if ended is not None and ended.status in FINAL:  # cancelled before it started
+            _cleanup(s, store, job_id, TrainingSpec.model_validate_json(ended.spec), ended.owner)
         return why
-    spec: dict[str, Any] = json.loads(rec["spec"])
-    owner = rec["owner"]
-    progress = Progress(store, job_id, int(rec["attempt"]))
+    spec = TrainingSpec.model_validate_json(rec.spec)
+    owner = rec.owner
+    progress = Progress(store, job_id, rec.attempt)
     watch = Watch(store, job_id, delivery, worker)
     watch.start()
     deadline = time.monotonic() + s.job_timeout_s
     staging = s.staging() / job_id
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
-    child = {
-        **spec,
-        "source": str(s.uploads() / spec["source"]),
-        "staging": str(staging),
-        "limits": asdict(s.limits()),
-        "time_limit_s": s.job_timeout_s,
-        "eval_trials": s.eval_trials,
-        "eval_seconds": s.eval_seconds,
-    }
-    log.info("training started", extra={"job": job_id, "model": spec["model"], "attempt": rec["attempt"]})
+    child = ChildSpec(
+        **spec.model_dump(exclude={"source"}),
+        source=str(s.uploads() / spec.source),
+        staging=str(staging),
+        limits=asdict(s.limits()),
+        time_limit_s=s.job_timeout_s,
+        eval_trials=s.eval_trials,
+        eval_seconds=s.eval_seconds,
+    )
+    log.info("training started", extra={"job": job_id, "model": spec.model, "attempt": rec.attempt})
     progress.report("validating", 0.0, "starting")
     try:
         outcome, detail = _run_child(child, staging, watch, deadline, progress)
@@ -144,13 +159,13 @@ def perform(job_id: str, delivery: int) -> str:
         state = store.requeue_or_fail(job_id, delivery, f"{type(exc).__name__}: {exc}", count_failure=True)
         log.exception("training raised", extra={"job": job_id, "outcome": state})
         if state in ("failed", "cancelled"):
-            _cleanup(s, store, job_id, spec, rec)
+            _cleanup(s, store, job_id, spec, owner)
         raise
     watch.stop()
     if watch.superseded:  # another run of this training took over (this worker had seemed dead)
         return "superseded"
-    if outcome == "result":
-        return _export(s, store, job_id, delivery, spec, owner, detail, progress, rec)
+    if isinstance(detail, TrainedEmulator):
+        return _export(s, store, job_id, delivery, spec, owner, detail, progress)
     if outcome == "cancelled":
         state = store.requeue_or_fail(
             job_id, delivery, f"stopped in phase {progress.phase}", count_failure=False
@@ -162,21 +177,21 @@ def perform(job_id: str, delivery: int) -> str:
             f"time limit of {s.job_timeout_s:g} s (JOB_TIMEOUT_S) reached in phase {progress.phase} "
             f"({progress.percent:.0f}%); try a smaller sample budget (examples) or fewer epochs"
         )
-        state = "failed" if store.end(job_id, delivery, "failed", reason, {}) else "stale"
+        state = "failed" if store.end(job_id, delivery, "failed", reason) else "stale"
     elif outcome == "failed":
-        state = "failed" if store.end(job_id, delivery, "failed", str(detail), {}) else "stale"
+        state = "failed" if store.end(job_id, delivery, "failed", str(detail)) else "stale"
     else:  # crashed
         state = store.requeue_or_fail(job_id, delivery, str(detail), count_failure=True)
     if state in ("failed", "cancelled"):
-        _cleanup(s, store, job_id, spec, rec)
+        _cleanup(s, store, job_id, spec, owner)
     else:
         shutil.rmtree(staging, ignore_errors=True)
     return state
 
 
 def _run_child(
-    child: dict[str, Any], staging: Path, watch: Watch, deadline: float, progress: Progress
-) -> tuple[str, Any]:
+    child: ChildSpec, staging: Path, watch: Watch, deadline: float, progress: Progress
+) -> tuple[str, TrainedEmulator | str | None]:
     """Run the training's process until it ends or must stop: (outcome, its result or reason)."""
     log_path = staging / "training.log"
     with log_path.open("wb") as log_file:
@@ -196,12 +211,12 @@ def _run_child(
             process_group=0,
         )
     assert proc.stdin is not None and proc.stdout is not None
-    proc.stdin.write(json.dumps(child).encode())
+    proc.stdin.write(child.model_dump_json().encode())
     proc.stdin.close()
-    lines: queue.Queue[dict[str, Any] | None] = queue.Queue()
+    lines: queue.Queue[ChildMessage | None] = queue.Queue()
     reader = threading.Thread(target=_read_lines, args=(proc.stdout, lines), daemon=True)
     reader.start()
-    result: dict[str, Any] | None = None
+    result: TrainedEmulator | None = None
     error: str | None = None
     try:
         while True:
@@ -218,14 +233,12 @@ def _run_child(
                 continue
             if msg is None:
                 break
-            if "result" in msg:
-                result = msg["result"]
-            elif "error" in msg:
-                error = str(msg["error"])
-            else:
-                progress.report(
-                    msg["phase"], float(msg["percent"]), str(msg.get("detail", "")), msg.get("losses", [])
-                )
+            if msg.result is not None:
+                result = msg.result
+            elif msg.error is not None:
+                error = msg.error
+            elif msg.phase is not None:
+                progress.report(msg.phase, msg.percent, msg.detail, msg.losses)
         rc = proc.wait()
     finally:
         if proc.poll() is None:
@@ -243,25 +256,30 @@ def _export(
     store: TrainingStore,
     job_id: str,
     delivery: int,
-    spec: dict[str, Any],
+    spec: TrainingSpec,
     owner: str,
-    result: dict[str, Any],
+    trained: TrainedEmulator,
     progress: Progress,
-    rec: dict[str, str],
 ) -> str:
+    """Export the staged emulator into the artifact registry and end the training with its result."""
     progress.report("exporting", 95.0, "exporting into the artifact registry")
     t0 = time.monotonic()
     staging = s.staging() / job_id
     try:
-        version = models.export(staging, s.data_dir, spec["model"], owner)
+        version = models.export(staging, s.data_dir, spec.model, owner)
     except models.ExportError as exc:
-        store.end(job_id, delivery, "failed", str(exc), {})
-        _cleanup(s, store, job_id, spec, rec)
+        store.end(job_id, delivery, "failed", str(exc))
+        _cleanup(s, store, job_id, spec, owner)
         return "failed"
-    seconds = {**result.get("phase_seconds", {}), "exporting": round(time.monotonic() - t0, 2)}
-    body = {**result, "version": version, "artifact": f"{spec['model']}/{version}", "phase_seconds": seconds}
-    done = store.end(job_id, delivery, "succeeded", None, body)
-    _cleanup(s, store, job_id, spec, rec, release=False)
+    seconds = {**trained.phase_seconds, "exporting": round(time.monotonic() - t0, 2)}
+    result = TrainingResult(
+        **trained.model_dump(exclude={"version", "phase_seconds"}),
+        version=version,
+        artifact=f"{spec.model}/{version}",
+        phase_seconds=seconds,
+    )
+    done = store.end(job_id, delivery, "succeeded", None, result)
+    _cleanup(s, store, job_id, spec, owner, release=False)
     return "succeeded" if done else "stale"
 
 
@@ -269,15 +287,14 @@ def _cleanup(
     s: Settings,
     store: TrainingStore,
     job_id: str,
-    spec: dict[str, Any] | None,
-    rec: dict[str, str] | None,
+    spec: TrainingSpec,
+    owner: str,
     release: bool = True,
 ) -> None:
     """A training that ended for good: remove its upload and staging, give back an unused name."""
     shutil.rmtree(s.staging() / job_id, ignore_errors=True)
     shutil.rmtree(s.uploads() / job_id, ignore_errors=True)
-    if release and spec and rec:
-        owner = rec.get("owner", "")
+    if release:
         with contextlib.suppress(OSError, redis.RedisError):
-            if not store.active(owner, spec["model"], but=job_id):
-                models.release(s.data_dir, spec["model"], owner)
+            if not store.active(owner, spec.model, but=job_id):
+                models.release(s.data_dir, spec.model, owner)

@@ -35,6 +35,10 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
+from pydantic import BaseModel, Field, TypeAdapter
+
+from services.trainer.spec import ChildSpec, TrainedEmulator
+
 # Phases' share of the percent: validating up to 2, sampling up to 30, training up to 85, evaluating up
 # to 95; the job's process exports the artifact (95 to 100).
 SHARES = {
@@ -66,7 +70,7 @@ class Channel:
         self.sampled_before = 0  # examples of earlier sampling bars (the training set, then the test set)
         self.sampling_total = 1
 
-    def send(self, obj: dict[str, Any]) -> None:
+    def send(self, obj: dict[str, object]) -> None:
         with self.lock:
             self.out.write(json.dumps(obj, allow_nan=False, default=str) + "\n")
             self.out.flush()
@@ -233,7 +237,7 @@ class Failed(Exception):
 
 
 # ---------------------------------------------------------------------------- the phases
-def probe(model: Any, spec: dict[str, Any], substeps: int) -> None:
+def probe(model: Any, spec: ChildSpec, substeps: int) -> None:
     """Simulate a few runs of typical motion: ``SimulationDiverged`` (the time and the joint) when the
     model is unstable; ``Failed`` when sampling the budget would take too much of the time limit."""
     import numpy as np
@@ -250,30 +254,34 @@ def probe(model: Any, spec: dict[str, Any], substeps: int) -> None:
     model.simulate(s0, u, f if model.num_forces else None, check=True)
     rate = model.measure_step_rate()  # the warm-up (one run) does not count
     # the runs that hold the examples, then the held-out set; the rollout phase cuts windows of the runs
-    examples = int(spec["examples"])
+    examples = spec.examples
     needed = round(sampling.sampling_steps(model, substeps, examples, TEST_EXAMPLES))
     estimate = needed / rate
-    allowed = SAMPLING_SHARE_OF_LIMIT * float(spec["time_limit_s"])
+    allowed = SAMPLING_SHARE_OF_LIMIT * spec.time_limit_s
     if estimate > allowed:
         raise Failed(
             f"model {model.name} samples too slowly for the time limit: {examples:,} examples at super-step "
             f"{substeps} need about {needed:,} physical steps, about {estimate:,.0f} s at the {rate:,.0f} "
-            f"steps/s it simulates here, and sampling may take {allowed:,.0f} s of the {spec['time_limit_s']:,.0f} s "
+            f"steps/s it simulates here, and sampling may take {allowed:,.0f} s of the {spec.time_limit_s:,.0f} s "
             "limit (JOB_TIMEOUT_S). Try a smaller sample budget (examples), a shorter super-step, a larger "
             "timestep in the MJCF, or fewer contacts"
         )
 
 
-def train_argv(spec: dict[str, Any], staging: Path) -> list[str]:
+def train_argv(spec: ChildSpec, staging: Path) -> list[str]:
     """``neuro train``'s arguments for the spec."""
-    argv = ["train", "--mjcf", spec["source"], "--name", spec["model"], "--out", str(staging), "--json"]
-    argv += ["--examples", str(spec["examples"]), "--substeps", str(spec["super_step"])]
-    if spec.get("entry"):
-        argv += ["--entry", spec["entry"]]
-    for key, flag in (("epochs", "--epochs"), ("hidden", "--hidden"), ("rollout_steps", "--rollout-steps")):
-        if spec.get(key) is not None:
-            argv += [flag, str(spec[key])]
-    if spec.get("force"):
+    argv = ["train", "--mjcf", spec.source, "--name", spec.model, "--out", str(staging), "--json"]
+    argv += ["--examples", str(spec.examples), "--substeps", str(spec.super_step)]
+    if spec.entry:
+        argv += ["--entry", spec.entry]
+    for value, flag in (
+        (spec.epochs, "--epochs"),
+        (spec.hidden, "--hidden"),
+        (spec.rollout_steps, "--rollout-steps"),
+    ):
+        if value is not None:
+            argv += [flag, str(value)]
+    if spec.force:
         argv.append("--force")
     return argv
 
@@ -321,15 +329,27 @@ def run_command(argv: list[str], errors: LastError) -> str:
     return buffer.getvalue()
 
 
-def last_json(text: str) -> dict[str, Any]:
+class Trained(BaseModel):
+    """What ``neuro train --json`` prints last (the fields read here; it prints more)."""
+
+    artifact: str = Field(description="the version's folder")
+    data_seconds: float | None = None
+    one_step_rel_error: float | None = None
+    linear_baseline_rel_error: float | None = None
+    weights: int | None = None
+    examples: int | None = None
+    substeps_reason: str | None = None
+    network_reason: str | None = None
+
+
+def last_json(text: str) -> Trained:
     for line in reversed(text.splitlines()):
         if line.startswith("{"):
-            out: dict[str, Any] = json.loads(line)
-            return out
+            return Trained.model_validate_json(line)
     raise Failed("neuro printed no result")
 
 
-def run(spec: dict[str, Any], channel: Channel, errors: LastError) -> dict[str, Any]:
+def run(spec: ChildSpec, channel: Channel, errors: LastError) -> TrainedEmulator:
     """The phases (see the module's text); the result."""
     from neuroanimator.artifacts import registry
     from neuroanimator.sim.bundle import Limits
@@ -340,57 +360,60 @@ def run(spec: dict[str, Any], channel: Channel, errors: LastError) -> dict[str, 
     t0 = time.monotonic()
     channel.progress("validating", 0.0, "reading the model", force=True)
     model = load_mjcf(
-        spec["source"], entry=spec.get("entry"), name=spec["model"], limits=Limits(**spec["limits"])
+        spec.source,
+        entry=spec.entry,
+        name=spec.model,
+        limits=TypeAdapter(Limits).validate_python(spec.limits),
     )
     check_trainable(model)
     channel.progress("validating", 0.3, "simulating typical motion", force=True)
-    n = spec["super_step"] if isinstance(spec["super_step"], int) else 50
+    n = spec.super_step if isinstance(spec.super_step, int) else 50
     probe(model, spec, n)
     seconds["validating"] = time.monotonic() - t0
 
-    staging = Path(spec["staging"])
+    staging = Path(spec.staging)
     argv = train_argv(spec, staging)
     channel.stage = "train"
-    channel.sampling_total = int(spec["examples"]) + TEST_EXAMPLES
+    channel.sampling_total = spec.examples + TEST_EXAMPLES
     channel.progress("sampling", 0.0, "sampling", force=True)
     t1 = time.monotonic()
     trained = last_json(run_command(argv, errors))
     train_s = time.monotonic() - t1
-    data_s = float(trained.get("data_seconds") or 0.0)
+    data_s = float(trained.data_seconds or 0.0)
     seconds["sampling"], seconds["training"] = data_s, max(0.0, train_s - data_s)
 
     channel.stage = "evaluating"
     channel.progress("evaluating", 0.0, "rollouts against MuJoCo", force=True)
     t2 = time.monotonic()
-    version_dir = Path(trained["artifact"])
+    version_dir = Path(trained.artifact)
     manifest = registry.read_manifest(version_dir)
-    steps = max(1, round(float(spec["eval_seconds"]) / manifest.timestep))
-    evaluate = ["eval", spec["model"], "--artifacts", str(staging), "--substeps", str(manifest.substeps)]
-    evaluate += ["--trials", str(spec["eval_trials"]), "--steps", str(steps), "--save"]
+    steps = max(1, round(spec.eval_seconds / manifest.timestep))
+    evaluate = ["eval", spec.model, "--artifacts", str(staging), "--substeps", str(manifest.substeps)]
+    evaluate += ["--trials", str(spec.eval_trials), "--steps", str(steps), "--save"]
     run_command(evaluate, errors)
     seconds["evaluating"] = time.monotonic() - t2
     found = registry.read_eval(version_dir)
-    return {
-        "model": manifest.model,
-        "version": manifest.version,
-        "substeps": manifest.substeps,
-        "one_step_rel_error": found.one_step_rel_error if found else trained.get("one_step_rel_error"),
-        "linear_baseline_rel_error": (
-            found.linear_baseline_rel_error if found else trained.get("linear_baseline_rel_error")
+    return TrainedEmulator(
+        model=manifest.model,
+        version=manifest.version,
+        substeps=manifest.substeps,
+        one_step_rel_error=found.one_step_rel_error if found else trained.one_step_rel_error,
+        linear_baseline_rel_error=(
+            found.linear_baseline_rel_error if found else trained.linear_baseline_rel_error
         ),
-        "physical_errors": found.physical_errors.model_dump() if found and found.physical_errors else None,
-        "weights": trained.get("weights"),
-        "examples": trained.get("examples"),
-        "phase_seconds": {k: round(v, 2) for k, v in seconds.items()},
-        "notes": [
+        physical_errors=found.physical_errors if found else None,
+        weights=trained.weights,
+        examples=trained.examples,
+        phase_seconds={k: round(v, 2) for k, v in seconds.items()},
+        notes=[
             *(
-                [f"super-step {manifest.substeps}: {trained['substeps_reason']}"]
-                if trained.get("substeps_reason")
+                [f"super-step {manifest.substeps}: {trained.substeps_reason}"]
+                if trained.substeps_reason
                 else []
             ),
-            *([f"network {trained['network_reason']}"] if trained.get("network_reason") else []),
+            *([f"network {trained.network_reason}"] if trained.network_reason else []),
         ],
-    }
+    )
 
 
 def main() -> int:
@@ -401,7 +424,7 @@ def main() -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     errors = LastError()
     logging.getLogger().addHandler(errors)
-    spec = json.load(sys.stdin)
+    spec = ChildSpec.model_validate_json(sys.stdin.read())
     from neuroanimator.core.train_config import TrainConfig
     from neuroanimator.sim.model import ModelError
 
@@ -412,7 +435,7 @@ def main() -> int:
     except (Failed, ModelError) as exc:
         channel.send({"error": in_service_words(str(exc))})
         return 2
-    channel.send({"result": result})
+    channel.send({"result": result.model_dump()})
     return 0
 
 

@@ -9,17 +9,19 @@ What is stored, and how every change of a training's state is one transaction, i
 
 from __future__ import annotations
 
-import json
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import redis
+from pydantic import BaseModel
 
-from services.common.jobs import FINAL
+from neuroanimator.contracts.trainer import TrainingResult
+from services.common.jobs import FINAL, JobRecord
 from services.common.jobs import JobStore as BaseStore
 from services.trainer import leftovers
 from services.trainer.settings import Settings
+from services.trainer.spec import LossPair, TrainingEnd, TrainingProgress, TrainingSpec, stored_order
 
 PERFORM = "services.trainer.execution.perform"
 RESERVATION_GRACE_S = 900.0  # an upload being received and checked holds its place this long at most
@@ -87,27 +89,38 @@ class TrainingStore(BaseStore):
         bytes are counted and a name is claimed: concurrent uploads see each other's claims."""
         return self.r.lock(f"{self.keys.prefix}:lock:{owner}", timeout=30.0, blocking_timeout=15.0)
 
-    def summary(self, spec: dict[str, Any]) -> dict[str, Any]:
-        return {"model": spec.get("model")}
+    def summary(self, spec: str) -> dict[str, str | None]:
+        return {"model": TrainingSpec.model_validate_json(spec).model}
 
-    def end_event(self, body: dict[str, Any]) -> dict[str, Any]:
-        phase = {"succeeded": "done"}.get(body["status"], body["status"])
-        out = {"status": body["status"], "phase": phase, "reason": body["reason"], "model": body.get("model")}
-        if body["status"] == "succeeded":
-            out["result"] = {k: v for k, v in body.items() if k not in ("id", "status", "reason")}
-        return out
+    def result_fields(self, result: BaseModel) -> Mapping[str, object]:
+        return stored_order(result) if isinstance(result, TrainingResult) else result.model_dump()
 
-    def progress(self, job_id: str, attempt: int, p: dict[str, Any], losses: Sequence[Any] = ()) -> None:
+    def end_event(
+        self, rec: JobRecord, status: str, reason: str | None, result: BaseModel | None
+    ) -> TrainingEnd:
+        made = result if isinstance(result, TrainingResult) else None
+        model = made.model if made is not None else TrainingSpec.model_validate_json(rec.spec).model
+        return TrainingEnd(
+            status=status,
+            phase={"succeeded": "done"}.get(status, status),
+            reason=reason,
+            model=model,
+            result=made if status == "succeeded" else None,
+        )
+
+    def progress(
+        self, job_id: str, attempt: int, p: TrainingProgress, losses: Sequence[LossPair] = ()
+    ) -> None:
         """Record the phase, percent and detail, and new points of the loss curve (``[epoch, loss]``,
         also in the ``progress`` event as ``losses``)."""
-        self.record_progress(job_id, attempt, p, losses, {"losses": list(losses)})
+        self.record_progress(job_id, attempt, p.model_dump(), losses, {"losses": list(losses)})
 
     def active(self, owner: str, model: str | None = None, but: str | None = None) -> int:
         """The owner's trainings that are queued or running (of ``model`` only, other than ``but``)."""
         return sum(
             1
             for rec in self.jobs_of(owner, self.settings.max_list)
-            if rec["status"] not in FINAL
-            and rec["id"] != but
-            and (model is None or json.loads(rec["spec"]).get("model") == model)
+            if rec.status not in FINAL
+            and rec.id != but
+            and (model is None or TrainingSpec.model_validate_json(rec.spec).model == model)
         )

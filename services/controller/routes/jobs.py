@@ -5,8 +5,8 @@ A job belongs to the API key that made it: any other key gets 404 for it, as if 
 
 from __future__ import annotations
 
-import json
 import re
+from collections.abc import Mapping
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response
@@ -26,16 +26,19 @@ from neuroanimator.contracts.controller import (
 from neuroanimator.contracts.emulator import ErrorBody
 from neuroanimator.control.validation import validate_job
 from neuroanimator.goals.errors import JobSpecError
+from neuroanimator.goals.spec import JobSpec
 from services.common import tenancy
 from services.common.auth import CALLER, OwnerDep
 from services.common.errors import ApiError
+from services.common.jobs import JobRecord
+from services.common.openapi import Responses
 from services.common.queue_app import queue_full
 from services.controller.deps import SettingsDep, StoreDep
 from services.controller.metrics import Metrics
 from services.controller.store import IdempotencyConflict, JobStore, QueueFull
 
 router = APIRouter(tags=["jobs"])
-_ERRORS: dict[int | str, dict[str, Any]] = {
+_ERRORS: Responses = {
     404: {"model": ErrorBody},
     409: {"model": ErrorBody},
     422: {"model": ErrorBody},
@@ -54,7 +57,7 @@ _PROGRESS_KEYS = {
 }
 
 
-def _lookup(spec: dict[str, Any], field: str) -> Any:
+def _lookup(spec: Mapping[str, object], field: str) -> Any:
     """The value at a dotted field path (``optimizer.learning_rate``, ``terms[1].variable``), or None."""
     value: Any = spec
     for name, index in re.findall(r"([^.\[\]]+)|\[(\d+)\]", field):
@@ -69,43 +72,46 @@ def _float(value: Any) -> float | None:
     return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
 
 
-def job_status(rec: dict[str, Any]) -> JobStatus:
-    """The wire view of a record from ``JobStore.record``."""
-    spec = json.loads(rec["spec"])
-    prog: dict[str, Any] = rec["progress"]
+def _best_so_far(prog: Mapping[str, Any]) -> BestSoFar | None:
+    """The best controller so far from the progress of ``run_job`` (its extra keys describe it)."""
     extra = {k: v for k, v in prog.items() if k not in _PROGRESS_KEYS}
-    best = None
-    if prog.get("best_objective") is not None or extra:
-        best = BestSoFar(
-            iteration=prog.get("best_iteration"), objective=_float(prog.get("best_objective")), **extra
-        )
-    status = rec["status"]
+    if prog.get("best_objective") is None and not extra:
+        return None
+    return BestSoFar(
+        iteration=prog.get("best_iteration"), objective=_float(prog.get("best_objective")), **extra
+    )
+
+
+def job_status(rec: JobRecord) -> JobStatus:
+    """The wire view of a record from ``JobStore.record``."""
+    spec = JobSpec.model_validate_json(rec.spec)
+    prog = rec.progress
     return JobStatus(
-        id=rec["id"],
-        status=status,
-        task=spec.get("task"),
-        model=spec.get("model"),
-        version=spec.get("version"),
-        created_at=float(rec["created_at"]),
-        started_at=float(rec["started_at"]) if rec.get("started_at") else None,
-        ended_at=float(rec["ended_at"]) if rec.get("ended_at") else None,
-        attempt=int(rec.get("attempt") or 0),
-        failures=int(rec.get("failures") or 0),
-        worker=rec.get("worker") or None,
+        id=rec.id,
+        status=rec.status,
+        task=spec.task,
+        model=spec.model,
+        version=spec.version,
+        created_at=rec.created_at,
+        started_at=rec.started_at or None,
+        ended_at=rec.ended_at or None,
+        attempt=rec.attempt,
+        failures=rec.failures,
+        worker=rec.worker or None,
         iteration=int(prog.get("iteration") or 0),
-        max_iterations=(spec.get("optimizer") or {}).get("max_iterations"),
+        max_iterations=spec.optimizer.max_iterations,
         objective=_float(prog.get("objective")),
         best_objective=_float(prog.get("best_objective")),
         success_emulator=prog.get("success_emulator"),
         elapsed_s=_float(prog.get("elapsed_s")),
-        objective_history=[_float(v) for v in rec["history"]],
-        best=best,
-        error=rec.get("error") or None,
-        result=f"/jobs/{rec['id']}/result" if status in FINAL_STATES else None,
+        objective_history=[_float(v) for v in rec.history],
+        best=_best_so_far(prog),
+        error=rec.error or None,
+        result=f"/jobs/{rec.id}/result" if rec.status in FINAL_STATES else None,
     )
 
 
-def _summary(rec: dict[str, Any]) -> JobSummary:
+def _summary(rec: JobRecord) -> JobSummary:
     s = job_status(rec)
     return JobSummary(
         id=s.id,
@@ -130,7 +136,7 @@ def hidden(req: JobCreate, root: registry.Root) -> None:
         raise JobSpecError("model", f"unknown model {model!r}; trained models are {seen}", seen)
 
 
-def owned(store: JobStore, job_id: str, owner: str) -> dict[str, Any]:
+def owned(store: JobStore, job_id: str, owner: str) -> JobRecord:
     """The caller's job, else 404 (also for another key's job)."""
     rec = store.record(job_id, owner)
     if rec is None:
@@ -192,33 +198,33 @@ def get_job(job_id: str, store: StoreDep, owner: OwnerDep) -> JobStatus:
 def get_result(job_id: str, store: StoreDep, owner: OwnerDep) -> JobResult:
     """The finished job's result: the controller, its trajectories and errors (409 until it ends)."""
     rec = owned(store, job_id, owner)
-    if rec["status"] not in FINAL_STATES:
+    if rec.status not in FINAL_STATES:
         raise ApiError(
             409,
             "not_finished",
-            f"job {job_id} is {rec['status']}; its result is here once it ends (watch /jobs/{job_id}/events)",
+            f"job {job_id} is {rec.status}; its result is here once it ends (watch /jobs/{job_id}/events)",
             field="status",
             expected=list(FINAL_STATES),
-            got=rec["status"],
+            got=rec.status,
         )
     result = store.result(job_id)
     if result is None:
         raise ApiError(404, "not_found", f"the result of job {job_id!r} has expired", field="id", got=job_id)
-    return JobResult(**result)
+    return JobResult.model_validate_json(result)
 
 
 @router.delete("/jobs/{job_id}", response_model=JobStatus, status_code=202, responses=_ERRORS)
 def cancel_job(job_id: str, store: StoreDep, owner: OwnerDep) -> JobStatus:
     """Cancel a queued job (it ends now) or a running one (it stops at its next iteration)."""
     rec = owned(store, job_id, owner)
-    if rec["status"] in FINAL_STATES:
+    if rec.status in FINAL_STATES:
         raise ApiError(
             409,
             "already_ended",
-            f"job {job_id} already ended: {rec['status']}",
+            f"job {job_id} already ended: {rec.status}",
             field="status",
             expected=["queued", "running"],
-            got=rec["status"],
+            got=rec.status,
         )
     store.cancel(job_id)
     return job_status(owned(store, job_id, owner))

@@ -4,8 +4,6 @@ states, the mesh and texture files its MJCF names)."""
 
 from __future__ import annotations
 
-from typing import Any
-
 from fastapi import APIRouter
 from fastapi.responses import FileResponse
 
@@ -22,6 +20,7 @@ from neuroanimator.contracts.emulator import (
     PosesRequest,
     PosesResponse,
 )
+from services.common.openapi import Responses
 from services.emulator.deps import ServiceDep
 from services.emulator.errors import UnknownModel
 from services.emulator.registry import LoadedEmulator
@@ -108,7 +107,7 @@ MEDIA_TYPES = {
     ".jpeg": "image/jpeg",
 }
 """The media type of an asset by its extension; any other file is ``application/octet-stream``."""
-_ASSET_RESPONSES: dict[int | str, dict[str, Any]] = {
+_ASSET_RESPONSES: Responses = {
     200: {
         "description": "the file, as the artifact stores it (its ETag is its SHA-256)",
         "content": {t: {} for t in (*dict.fromkeys(MEDIA_TYPES.values()), "application/octet-stream")},

@@ -20,6 +20,7 @@ from pydantic import ValidationError
 
 from neuroanimator.contracts.emulator import BatchStepRequest, BatchStepResponse, BatchStepResult, ErrorBody
 from services.common.errors import json_error
+from services.common.openapi import OpenApiDoc
 from services.emulator.binary import MEDIA_TYPE as OCTET
 from services.emulator.deps import ServiceDep
 from services.emulator.error_mapping import error_body, invalid
@@ -30,7 +31,7 @@ from services.emulator.settings import Settings
 router = APIRouter(tags=["step"])
 
 
-def _inline(schema: dict[str, Any]) -> dict[str, Any]:
+def _inline(schema: OpenApiDoc) -> OpenApiDoc:
     """A pydantic JSON Schema with its ``$defs`` substituted in place (for ``openapi_extra``)."""
     defs = schema.pop("$defs", {})
 
@@ -44,12 +45,12 @@ def _inline(schema: dict[str, Any]) -> dict[str, Any]:
             return [sub(v) for v in node]
         return node
 
-    result: dict[str, Any] = sub(schema)
+    result: OpenApiDoc = sub(schema)
     return result
 
 
 _BINARY_DOC = "little-endian float32 layout of proto/frames.md (all sessions of one model/version)"
-_OPENAPI: dict[str, Any] = {
+_OPENAPI: OpenApiDoc = {
     "requestBody": {
         "required": True,
         "content": {

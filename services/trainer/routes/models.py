@@ -11,7 +11,6 @@ keys off there are no owners: everybody is an operator.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 from fastapi import APIRouter
 from starlette.concurrency import run_in_threadpool
@@ -22,13 +21,14 @@ from neuroanimator.contracts.trainer import StoredModel, StoredModelList, Usage
 from services.common import tenancy
 from services.common.auth import CALLER, OPERATOR, OwnerDep
 from services.common.errors import ApiError
+from services.common.openapi import Responses
 from services.trainer import models
 from services.trainer.deps import SettingsDep, StoreDep
 from services.trainer.settings import Settings
 from services.trainer.store import TrainingStore
 
 router = APIRouter(tags=["models"])
-_ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorBody} for code in (403, 404, 409)}
+_ERRORS: Responses = {code: {"model": ErrorBody} for code in (403, 404, 409)}
 
 
 def is_operator() -> bool:

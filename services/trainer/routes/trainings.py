@@ -15,7 +15,6 @@ A training belongs to the API key that made it: any other key gets 404 for it, a
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import re
 import shutil
@@ -48,23 +47,23 @@ from neuroanimator.contracts.trainer import (
 from services.common import job_events
 from services.common.auth import CALLER, OwnerDep
 from services.common.errors import ApiError, from_validation
-from services.common.jobs import FINAL, QueueFull, new_id
+from services.common.jobs import FINAL, JobRecord, QueueFull, new_id
+from services.common.openapi import Responses
 from services.common.queue_app import queue_full
 from services.trainer import models
 from services.trainer.deps import SettingsDep, StoreDep
 from services.trainer.metrics import Metrics
 from services.trainer.settings import Settings
+from services.trainer.spec import TrainingProgress, TrainingSpec
 from services.trainer.store import TrainingStore
 from services.trainer.validation import Checked, Refused, check_model
 
 log = logging.getLogger(__name__)
 router = APIRouter(tags=["trainings"])
 UPLOAD_SUFFIXES = (".xml", ".zip", ".tar.gz", ".tgz")
-_UPLOAD_ERRORS: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorBody} for code in (409, 413, 415, 422, 429, 503)
-}
-_ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorBody} for code in (404, 503)}
-_CANCEL_ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorBody} for code in (404, 409, 503)}
+_UPLOAD_ERRORS: Responses = {code: {"model": ErrorBody} for code in (409, 413, 415, 422, 429, 503)}
+_ERRORS: Responses = {code: {"model": ErrorBody} for code in (404, 503)}
+_CANCEL_ERRORS: Responses = {code: {"model": ErrorBody} for code in (404, 409, 503)}
 _UPLOAD_BODY = {
     "requestBody": {
         "required": True,
@@ -74,41 +73,40 @@ _UPLOAD_BODY = {
 _PHASE_OF = {"queued": "queued", "succeeded": "done", "failed": "failed", "cancelled": "cancelled"}
 
 
-def training_status(rec: dict[str, Any], result: dict[str, Any] | None) -> TrainingStatus:
-    """The wire view of a record from ``TrainingStore.record`` (and, once it succeeded, its result)."""
-    spec = json.loads(rec["spec"])
-    prog: dict[str, Any] = rec["progress"]
-    status = rec["status"]
-    phase = (prog.get("phase") or "validating") if status == "running" else _PHASE_OF[status]
+def training_status(rec: JobRecord, result: str | None) -> TrainingStatus:
+    """The wire view of a record from ``TrainingStore.record`` (and, once it succeeded, its stored
+    result, JSON)."""
+    spec = TrainingSpec.model_validate_json(rec.spec)
+    prog = TrainingProgress.model_validate(rec.progress)
+    status = rec.status
+    running = status == "running"
     done = None
     if status == "succeeded" and result is not None:
-        done = TrainingResult.model_validate(
-            {k: v for k, v in result.items() if k in TrainingResult.model_fields}
-        )
+        done = TrainingResult.model_validate_json(result)  # the stored id, status and reason are left out
     return TrainingStatus(
-        id=rec["id"],
+        id=rec.id,
         status=status,
-        phase=phase,
-        model=spec["model"],
-        super_step=spec["super_step"],
-        examples=spec["examples"],
-        percent=100.0 if status == "succeeded" else min(100.0, float(prog.get("percent") or 0.0)),
-        eta_s=prog.get("eta_s") if status == "running" else None,
-        elapsed_s=prog.get("elapsed_s"),
-        detail=prog.get("detail") if status == "running" else None,
-        loss_curve=[LossPoint(epoch=int(p[0]), loss=p[1]) for p in rec["history"] if isinstance(p, list)],
-        created_at=float(rec["created_at"]),
-        started_at=float(rec["started_at"]) if rec.get("started_at") else None,
-        ended_at=float(rec["ended_at"]) if rec.get("ended_at") else None,
-        attempt=int(rec.get("attempt") or 0),
-        failures=int(rec.get("failures") or 0),
-        worker=rec.get("worker") or None,
-        error=rec.get("error") or None,
+        phase=(prog.phase or "validating") if running else _PHASE_OF[status],
+        model=spec.model,
+        super_step=spec.super_step,
+        examples=spec.examples,
+        percent=100.0 if status == "succeeded" else min(100.0, prog.percent or 0.0),
+        eta_s=prog.eta_s if running else None,
+        elapsed_s=prog.elapsed_s,
+        detail=prog.detail if running else None,
+        loss_curve=[LossPoint(epoch=int(p[0]), loss=p[1]) for p in rec.history if isinstance(p, list)],
+        created_at=rec.created_at,
+        started_at=rec.started_at or None,
+        ended_at=rec.ended_at or None,
+        attempt=rec.attempt,
+        failures=rec.failures,
+        worker=rec.worker or None,
+        error=rec.error or None,
         result=done,
     )
 
 
-def owned(store: TrainingStore, job_id: str, owner: str) -> dict[str, Any]:
+def owned(store: TrainingStore, job_id: str, owner: str) -> JobRecord:
     """The caller's training, else 404 (also for another key's)."""
     rec = store.record(job_id, owner)
     if rec is None:
@@ -120,7 +118,7 @@ def owned(store: TrainingStore, job_id: str, owner: str) -> dict[str, Any]:
 
 def _status(store: TrainingStore, job_id: str, owner: str) -> TrainingStatus:
     rec = owned(store, job_id, owner)
-    return training_status(rec, store.result(job_id) if rec["status"] == "succeeded" else None)
+    return training_status(rec, store.result(job_id) if rec.status == "succeeded" else None)
 
 
 def limit_error(name: str, what: str, limit: int, got: int) -> ApiError:
@@ -269,21 +267,19 @@ def _accept(
             new = models.claim(s.roots(), name, owner)
         except models.NameTaken as exc:
             raise ApiError(409, "name_taken", str(exc), field="name", got=name) from exc
-        spec = {
-            "model": name,
-            "source": path.relative_to(s.uploads()).as_posix(),
-            "entry": opts.entry,
-            "super_step": opts.super_step,
-            "examples": opts.examples or s.default_examples,
-            "epochs": opts.epochs,
-            "hidden": opts.hidden,
-            "rollout_steps": opts.rollout_steps,
-            "force": opts.force,
-        }
+        spec = TrainingSpec(
+            model=name,
+            source=path.relative_to(s.uploads()).as_posix(),
+            entry=opts.entry,
+            super_step=opts.super_step,
+            examples=opts.examples or s.default_examples,
+            epochs=opts.epochs,
+            hidden=opts.hidden,
+            rollout_steps=opts.rollout_steps,
+            force=opts.force,
+        )
         try:
-            store.submit_spec(
-                json.dumps(spec, sort_keys=True), owner, job_id=job_id, log_extra={"model": name}
-            )
+            store.submit_spec(spec.to_json(), owner, job_id=job_id, log_extra={"model": name})
         except BaseException:
             release(store, s, name, owner, job_id)
             raise
@@ -409,18 +405,18 @@ async def training_events(
 
 def _cancel(store: TrainingStore, s: Settings, job_id: str, owner: str) -> TrainingStatus:
     rec = owned(store, job_id, owner)
-    if rec["status"] in FINAL:
+    if rec.status in FINAL:
         raise ApiError(
             409,
             "already_ended",
-            f"training {job_id} already ended: {rec['status']}",
+            f"training {job_id} already ended: {rec.status}",
             field="status",
             expected=["queued", "running"],
-            got=rec["status"],
+            got=rec.status,
         )
     if store.cancel(job_id) == "cancelled":  # it had not started: nothing else will clean up after it
         shutil.rmtree(s.uploads() / job_id, ignore_errors=True)
-        release(store, s, json.loads(rec["spec"])["model"], owner, job_id)
+        release(store, s, TrainingSpec.model_validate_json(rec.spec).model, owner, job_id)
     return _status(store, job_id, owner)
 
 

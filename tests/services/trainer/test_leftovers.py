@@ -42,7 +42,7 @@ def test_a_training_killed_during_export_leaves_nothing(trn: Trainer) -> None:
     half = trn.data / "dies" / ".tmp-v1-abc123"
     half.mkdir()
     (half / "emulator.onnx").write_bytes(b"x" * 1000)
-    assert store.end(job, 1, "failed", "abandoned: worker w-gone stopped renewing the training's lease", {})
+    assert store.end(job, 1, "failed", "abandoned: worker w-gone stopped renewing the training's lease")
     old = time.time() - 2 * leftovers.GRACE_S
     os.utime(half, (old, old))
     os.utime(trn.data / "dies" / tenancy.OWNER_FILE, (old, old))
