@@ -328,6 +328,8 @@ def train(
     its contact check and super-step probes), so that the whole command keeps to the budget.
     ``data_cache``: a directory where simulated examples are kept and read back
     (``neuroanimator.training.data_cache``; None: simulate every time)."""
+    # the configuration, the network it describes (built before sampling: its size sets how many
+    # examples to simulate), and the clock the time budget counts from
     cfg = cfg.resolved()
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
@@ -338,54 +340,16 @@ def train(
     emu = build_emulator(model, cfg)
     choice = loop_choice(model, cfg)  # before sampling: a model without a loop check fails at once
     weights = sum(p.numel() for p in emu.parameters())
-    count = cfg.examples or math.ceil(cfg.examples_per_weight * weights)
-    plan = sampling_plan(model, cfg, count, time.perf_counter() - t_budget)
-    if plan.reason:
-        log.info("%s: %s", model.name, plan.reason)
+    plan = examples_plan(model, cfg, weights, time.perf_counter() - t_budget)
     count = plan.examples
-    log.info("%s n=%d: %d weights, %d examples", model.name, cfg.substeps, weights, count)
 
     # 1. data: training (+ validation) and an independent held-out test set
-    mirror = mirror_map(model.mj_model, model.layout, model.spec.forces) if cfg.mirror else None
-    simulated = count if mirror is None else (count + 1) // 2
-    runs = own_runs(model, cfg, simulated, data_cache)
-
-    data = (
-        runs.examples(simulated, cfg.seed)
-        if runs is not None
-        else cached_examples(data_cache, model, cfg, simulated)
-    )
-    if mirror is not None:
-        check_mirror(mirror, model, data, cfg.substeps)  # what the names and masses do not show
-        data = with_mirror_images(mirror, data).subset(slice(0, count))
-    # drawn as the training runs are: the same stretch of each run, not only its start
-    test = cached_held_out(data_cache, model, cfg, plan.test_examples, like=simulated)
+    runs, data, test = training_data(model, cfg, plan, data_cache)
     t_data = time.perf_counter() - t_start
-    # probe the geoms that come near the floor or touch each other in these data (the pairs are known
-    # only from data: contact_features searches them there)
-    if cfg.clearance or (cfg.proximity and not model.spec.branches):
-        emu = build_emulator(model, cfg, data.states)
-        if emu.clearance is not None:
-            clr = emu.clearance
-            log.info(
-                "%s: ground clearance of %s; distances between %s; slack of %s",
-                model.name,
-                ", ".join(clr.geoms) or "no geom",
-                ", ".join(f"{a} and {b}" for a, b in clr.pairs) or "no pair of geoms",
-                ", ".join(clr.tendons) or "no tendon",
-            )
+    emu = with_contact_features(model, cfg, emu, data)
 
     # 2. T^σ from the training data (transformed by T'_x and (T'_y T^Δ_y)^-1 first, thesis 4.5.2)
-    s, u, f, nxt = to_tensors(data)
-    if emu.limits:  # predicted positions kept within a margin of each limit that the data never pass
-        emu.set_limit_margins(torch.cat([s, nxt]))
-    with torch.no_grad():
-        x_local, y_local = local_examples(emu, s, u, f, nxt)
-        emu.set_normalization(x_local, y_local, cfg.normalization)
-        x = emu.normalize_inputs(x_local)
-        y = (y_local - emu.y_mean) / emu.y_std
-    n_val = max(1, int(len(data) * cfg.val_fraction))
-    x_tr, y_tr, x_val, y_val = x[n_val:], y[n_val:], x[:n_val], y[:n_val]
+    x_tr, y_tr, x_val, y_val = normalized_examples(emu, data, cfg)
 
     # 3. the linear baseline, fitted on the training inputs; it also starts the network's linear path
     linear = fit_linear(x_tr, y_tr)
@@ -400,32 +364,17 @@ def train(
     final_lr = train_core(emu, x_tr, y_tr, x_val, y_val, core_cfg, choice)
 
     # 5. training over rollouts, from the one-step solution
-    rollout_metrics: dict[str, Any] = {}
-    if cfg.rollout_steps > 0:
-        seqs = rollout_sequences(model, cfg, count, runs)
-        roll_cfg = dataclasses.replace(
-            cfg, rollout_seconds=rollout_seconds(cfg, time.perf_counter() - t_budget)
-        )
-        rollout_metrics = train_over_rollouts(
-            emu, seqs, roll_cfg, lr=final_lr, one_step=(x_tr, y_tr, x_val, y_val)
-        )
+    rollout_metrics = rollout_phase(
+        model, emu, cfg, count, runs, t_budget, final_lr, (x_tr, y_tr, x_val, y_val)
+    )
 
-    # 6. held-out evaluation
-    ts, tu, tf, tn = to_tensors(test)
-    with torch.no_grad():
-        xt = emu.network_inputs(ts, tu, tf)
-        yt = emu.network_targets(ts, tn)
-        one_step = relative_error(emu.network(xt), yt)
-        lin = relative_error(apply_linear(linear, xt), yt)
-        val = relative_error(emu.network(x_val), y_val)
-        per_network = network_errors(composed, x_tr, y_tr, xt, yt) if composed is not None else None
+    # 6. held-out evaluation, and the result
+    errors, per_network = held_out_errors(emu, linear, test, (x_tr, y_tr, x_val, y_val))
     metrics = {
         "weights": weights,
         "examples": count,
         "test_examples": len(test),
-        "one_step_rel_error": one_step,
-        "linear_baseline_rel_error": lin,
-        "validation_rel_error": val,
+        **errors,
         **rollout_metrics,
         **(choice.metrics() if choice is not None else {}),
         **({"networks": per_network} if per_network is not None else {}),
@@ -438,14 +387,136 @@ def train(
         "%s n=%d: one-step relative error %.3g (linear %.3g), %.0f s",
         model.name,
         cfg.substeps,
-        one_step,
-        lin,
+        errors["one_step_rel_error"],
+        errors["linear_baseline_rel_error"],
         metrics["total_seconds"],
     )
     emu.regularizer = regularization(
         model.layout, model.spec.regularizer, model.num_controls, cfg.regularizer_steps
     )
     return TrainResult(emu, cfg, metrics, linear, data.sha256(), examples_envelope(model, data))
+
+
+def examples_plan(
+    model: PhysicalModel, cfg: TrainConfig, weights: int, elapsed: float
+) -> sampling.SamplingPlan:
+    """The training and held-out examples to simulate for an emulator of ``weights`` weights after
+    ``elapsed`` seconds of the budget: ``cfg.examples``, or ``cfg.examples_per_weight`` per weight, as
+    ``sampling_plan`` cuts it."""
+    count = cfg.examples or math.ceil(cfg.examples_per_weight * weights)
+    plan = sampling_plan(model, cfg, count, elapsed)
+    if plan.reason:
+        log.info("%s: %s", model.name, plan.reason)
+    log.info("%s n=%d: %d weights, %d examples", model.name, cfg.substeps, weights, plan.examples)
+    return plan
+
+
+def training_data(
+    model: PhysicalModel, cfg: TrainConfig, plan: sampling.SamplingPlan, data_cache: Path | None
+) -> tuple[sampling.Sequences | None, sampling.Examples, sampling.Examples]:
+    """The runs the training examples were cut from (None when they were not drawn as runs), the
+    ``plan.examples`` training examples (half of them mirror images with ``cfg.mirror``) and the
+    ``plan.test_examples`` held-out ones, drawn as the training runs are: the same stretch of each
+    run, not only its start."""
+    count = plan.examples
+    mirror = mirror_map(model.mj_model, model.layout, model.spec.forces) if cfg.mirror else None
+    simulated = count if mirror is None else (count + 1) // 2
+    runs = own_runs(model, cfg, simulated, data_cache)
+    data = (
+        runs.examples(simulated, cfg.seed)
+        if runs is not None
+        else cached_examples(data_cache, model, cfg, simulated)
+    )
+    if mirror is not None:
+        check_mirror(mirror, model, data, cfg.substeps)  # what the names and masses do not show
+        data = with_mirror_images(mirror, data).subset(slice(0, count))
+    test = cached_held_out(data_cache, model, cfg, plan.test_examples, like=simulated)
+    return runs, data, test
+
+
+def with_contact_features(
+    model: PhysicalModel, cfg: TrainConfig, emu: StructuredEmulator, data: sampling.Examples
+) -> StructuredEmulator:
+    """``emu``, or with ``cfg.clearance`` or ``cfg.proximity`` the emulator built anew to probe the geoms
+    that come near the floor or touch each other in ``data`` (the pairs are known only from data:
+    ``contact_features`` searches them there)."""
+    if not (cfg.clearance or (cfg.proximity and not model.spec.branches)):
+        return emu
+    emu = build_emulator(model, cfg, data.states)
+    if emu.clearance is not None:
+        clr = emu.clearance
+        log.info(
+            "%s: ground clearance of %s; distances between %s; slack of %s",
+            model.name,
+            ", ".join(clr.geoms) or "no geom",
+            ", ".join(f"{a} and {b}" for a, b in clr.pairs) or "no pair of geoms",
+            ", ".join(clr.tendons) or "no tendon",
+        )
+    return emu
+
+
+def normalized_examples(
+    emu: StructuredEmulator, data: sampling.Examples, cfg: TrainConfig
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Fit ``emu``'s T^σ (and its limits' margins) to ``data`` and return its examples as the network
+    sees them, split: training inputs (N, D) and targets (N, S), then the validation rows (the first
+    ``cfg.val_fraction``)."""
+    s, u, f, nxt = to_tensors(data)
+    if emu.limits:  # predicted positions kept within a margin of each limit that the data never pass
+        emu.set_limit_margins(torch.cat([s, nxt]))
+    with torch.no_grad():
+        x_local, y_local = local_examples(emu, s, u, f, nxt)
+        emu.set_normalization(x_local, y_local, cfg.normalization)
+        x = emu.normalize_inputs(x_local)
+        y = (y_local - emu.y_mean) / emu.y_std
+    n_val = max(1, int(len(data) * cfg.val_fraction))
+    return x[n_val:], y[n_val:], x[:n_val], y[:n_val]
+
+
+def rollout_phase(
+    model: PhysicalModel,
+    emu: StructuredEmulator,
+    cfg: TrainConfig,
+    count: int,
+    runs: sampling.Sequences | None,
+    t_budget: float,
+    lr: float,
+    one_step: tuple[Tensor, Tensor, Tensor, Tensor],
+) -> dict[str, Any]:
+    """Training over rollouts (``train_over_rollouts``) when ``cfg.rollout_steps`` asks for it, from
+    ``lr`` and the one-step phase's data ``one_step`` (train x, y, validation x, y), on the
+    ``rollout_sequences`` for ``count`` examples, for what the budget that started at ``t_budget``
+    leaves (``rollout_seconds``); its metrics ({} without the phase)."""
+    if cfg.rollout_steps <= 0:
+        return {}
+    seqs = rollout_sequences(model, cfg, count, runs)
+    roll_cfg = dataclasses.replace(cfg, rollout_seconds=rollout_seconds(cfg, time.perf_counter() - t_budget))
+    return train_over_rollouts(emu, seqs, roll_cfg, lr=lr, one_step=one_step)
+
+
+def held_out_errors(
+    emu: StructuredEmulator,
+    linear: np.ndarray,
+    test: sampling.Examples,
+    fitted: tuple[Tensor, Tensor, Tensor, Tensor],
+) -> tuple[dict[str, float], dict[str, dict[str, float]] | None]:
+    """The relative errors of the trained ``emu`` and the ``linear`` baseline (D+1, S) on the held-out
+    ``test`` examples, and of ``emu`` on the validation rows of ``fitted`` (train x, y, validation x,
+    y); and an articulated hierarchy's errors network by network (``network_errors``; None for one
+    network)."""
+    x_tr, y_tr, x_val, y_val = fitted
+    composed = articulated_core(emu)
+    ts, tu, tf, tn = to_tensors(test)
+    with torch.no_grad():
+        xt = emu.network_inputs(ts, tu, tf)
+        yt = emu.network_targets(ts, tn)
+        errors = {
+            "one_step_rel_error": relative_error(emu.network(xt), yt),
+            "linear_baseline_rel_error": relative_error(apply_linear(linear, xt), yt),
+            "validation_rel_error": relative_error(emu.network(x_val), y_val),
+        }
+        per_network = network_errors(composed, x_tr, y_tr, xt, yt) if composed is not None else None
+    return errors, per_network
 
 
 # The share of ``TrainConfig.time_budget`` that sampling may take (what set-up spent comes off it), and
@@ -550,13 +621,7 @@ def train_core(
     the learning rate it ended with. ``choice``: the kept epoch weighs a closed loop too
     (``neuroanimator.training.loop_choice``); None: the epoch of the lowest validation loss."""
     net = _Network(emu)
-    if cfg.optimizer == "adam":
-        # fused: one kernel for every parameter's update, about a fifth faster a step on the CPU
-        opt: torch.optim.Optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, fused=True)
-    elif cfg.optimizer == "sgd":
-        opt = torch.optim.SGD(net.parameters(), lr=cfg.lr, momentum=cfg.momentum)
-    else:
-        raise ValueError(f"optimizer must be 'adam' or 'sgd', got {cfg.optimizer!r}")
+    opt = _optimizer(net, cfg)
     if cfg.schedule not in ("cosine", "plateau"):
         raise ValueError(f"schedule must be 'cosine' or 'plateau', got {cfg.schedule!r}")
     plateau = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(2, cfg.patience // 4))
@@ -567,37 +632,10 @@ def train_core(
     t0 = time.perf_counter()
     bar = tqdm(range(cfg.max_epochs), desc="training", unit="epoch", disable=not cfg.progress, leave=False)
     for epoch in bar:
-        net.train()
-        perm = torch.randperm(x.shape[0], generator=gen)
-        for i in range(0, x.shape[0], cfg.batch_size):
-            idx = perm[i : i + cfg.batch_size]
-            xb, yb = x[idx], y[idx]
-            if cfg.input_noise > 0:
-                # noise on the state inputs only: the net learns to pull a drifted state back
-                noise = torch.randn(xb.shape[0], n_state_inputs, generator=gen) * cfg.input_noise
-                xb = torch.cat([xb[:, :n_state_inputs] + noise, xb[:, n_state_inputs:]], dim=1)
-            loss = net.loss(xb, yb)
-            if not torch.isfinite(loss):
-                raise TrainingDiverged(
-                    f"training diverged at epoch {epoch} (loss {float(loss.detach())}); lower the learning rate ({cfg.lr})"
-                )
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-        net.eval()
-        with torch.no_grad():
-            per_example = torch.mean((net(x_val) - y_val) ** 2, dim=1)
-            val, worst = float(per_example.mean()), float(per_example.max())
-        if not math.isfinite(val):
-            raise TrainingDiverged(
-                f"training diverged: the validation loss became {val} at epoch {epoch}; lower the learning rate"
-            )
+        _train_epoch(net, opt, x, y, cfg, gen, n_state_inputs, epoch)
+        val, worst = _validation_loss(net, x_val, y_val, epoch)
         if cfg.schedule == "cosine":
-            # anneal over the budget, whichever of epochs or seconds runs out first: a time-capped run
-            # still ends at a small learning rate, where the last digits of the error are won
-            done = max((epoch + 1) / cfg.max_epochs, (time.perf_counter() - t0) / cfg.max_seconds)
-            for group in opt.param_groups:
-                group["lr"] = cfg.lr * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(1.0, done))))
+            done = _anneal(opt, cfg, epoch, time.perf_counter() - t0)
         else:
             plateau.step(val)
         if val < best * (1 - 1e-4):
@@ -631,6 +669,71 @@ def train_core(
     if kept is None and best_state is not None:
         net.load_state_dict(best_state)
     return float(opt.param_groups[0]["lr"])
+
+
+def _optimizer(net: torch.nn.Module, cfg: TrainConfig) -> torch.optim.Optimizer:
+    """``cfg.optimizer`` over the network's parameters at ``cfg.lr``."""
+    if cfg.optimizer == "adam":
+        # fused: one kernel for every parameter's update, about a fifth faster a step on the CPU
+        return torch.optim.Adam(net.parameters(), lr=cfg.lr, fused=True)
+    if cfg.optimizer == "sgd":
+        return torch.optim.SGD(net.parameters(), lr=cfg.lr, momentum=cfg.momentum)
+    raise ValueError(f"optimizer must be 'adam' or 'sgd', got {cfg.optimizer!r}")
+
+
+def _train_epoch(
+    net: _Network,
+    opt: torch.optim.Optimizer,
+    x: Tensor,
+    y: Tensor,
+    cfg: TrainConfig,
+    gen: torch.Generator,
+    n_state_inputs: int,
+    epoch: int,
+) -> None:
+    """One pass over the training inputs x (N, D) and targets y (N, S) in shuffled mini-batches, with
+    ``cfg.input_noise`` on the first ``n_state_inputs`` input columns (the state's)."""
+    net.train()
+    perm = torch.randperm(x.shape[0], generator=gen)
+    for i in range(0, x.shape[0], cfg.batch_size):
+        idx = perm[i : i + cfg.batch_size]
+        xb, yb = x[idx], y[idx]
+        if cfg.input_noise > 0:
+            # noise on the state inputs only: the net learns to pull a drifted state back
+            noise = torch.randn(xb.shape[0], n_state_inputs, generator=gen) * cfg.input_noise
+            xb = torch.cat([xb[:, :n_state_inputs] + noise, xb[:, n_state_inputs:]], dim=1)
+        loss = net.loss(xb, yb)
+        if not torch.isfinite(loss):
+            raise TrainingDiverged(
+                f"training diverged at epoch {epoch} (loss {float(loss.detach())}); lower the learning rate ({cfg.lr})"
+            )
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+
+
+def _validation_loss(net: _Network, x_val: Tensor, y_val: Tensor, epoch: int) -> tuple[float, float]:
+    """The mean squared error on the validation rows x_val (M, D), y_val (M, S): its mean over the rows
+    and its worst row."""
+    net.eval()
+    with torch.no_grad():
+        per_example = torch.mean((net(x_val) - y_val) ** 2, dim=1)
+        val, worst = float(per_example.mean()), float(per_example.max())
+    if not math.isfinite(val):
+        raise TrainingDiverged(
+            f"training diverged: the validation loss became {val} at epoch {epoch}; lower the learning rate"
+        )
+    return val, worst
+
+
+def _anneal(opt: torch.optim.Optimizer, cfg: TrainConfig, epoch: int, elapsed: float) -> float:
+    """Set the cosine schedule's learning rate after ``epoch`` and ``elapsed`` seconds; returns its
+    progress, 0 to 1. It anneals over the budget, whichever of epochs or seconds runs out first: a
+    time-capped run still ends at a small learning rate, where the last digits of the error are won."""
+    done = max((epoch + 1) / cfg.max_epochs, elapsed / cfg.max_seconds)
+    for group in opt.param_groups:
+        group["lr"] = cfg.lr * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(1.0, done))))
+    return done
 
 
 def source_defaults(model: PhysicalModel, cfg: TrainConfig, given: set[str]) -> TrainConfig:
@@ -739,65 +842,102 @@ def train_over_rollouts(
     scale = (s[:, 1:] - s[:, :-1]).reshape(-1, s.shape[2]).std(dim=0)
     scale = torch.where(scale > 1e-8, scale, torch.ones_like(scale))
     n_val = max(1, len(seq) // 10)
-
-    def part(t: Tensor | None, sl: slice | Tensor) -> Tensor | None:
-        return None if t is None else t[sl]
-
     val, tr = slice(0, n_val), slice(n_val, None)
-    s_tr, u_tr, f_tr = s[tr], part(u, tr), part(f, tr)
+    train_seqs = (s[tr], _rows(u, tr), _rows(f, tr))
     net = _Network(emu)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr * 0.1 if lr is None else lr)
     gen = torch.Generator().manual_seed(cfg.seed + 11)
-
-    def one_step_mse(x: Tensor, y: Tensor) -> Tensor:
-        return torch.mean((net(x) - y) ** 2)
-
-    def validate_parts() -> tuple[float, float]:
-        emu.eval()
-        with torch.no_grad():
-            roll = float(rollout_loss(emu, s[val], part(u, val), part(f, val), scale))
-            step = float(one_step_mse(one_step[2], one_step[3])) if one_step is not None else 0.0
-        return roll, step
-
-    roll0, step0 = validate_parts()
-    roll0, step0 = max(roll0, 1e-12), max(step0, 1e-12)
-
-    def validate() -> float:
-        roll, step = validate_parts()
-        return roll / roll0 + (step / step0 if one_step is not None else 0.0)
-
-    before_rollout = roll0
-    keep = KeepBest(net, validate())
+    check = _RolloutValidation(emu, net, (s[val], _rows(u, val), _rows(f, val)), scale, one_step)
+    keep = KeepBest(net, check.relative())
     t0, epochs = time.perf_counter(), 0
     batch = max(32, cfg.batch_size // 4)
     while time.perf_counter() - t0 < cfg.rollout_seconds and keep.stale < 10 and epochs < cfg.max_epochs:
-        emu.train()
-        perm = torch.randperm(s_tr.shape[0], generator=gen)
-        for i in range(0, perm.numel(), batch):
-            idx = perm[i : i + batch]
-            loss = rollout_loss(emu, s_tr[idx], part(u_tr, idx), part(f_tr, idx), scale) / roll0
-            if one_step is not None:
-                rows = torch.randint(0, one_step[0].shape[0], (4 * batch,), generator=gen)
-                loss = loss + one_step_mse(one_step[0][rows], one_step[1][rows]) / step0
-            if not torch.isfinite(loss):
-                raise TrainingDiverged(f"training over rollouts diverged (loss {float(loss.detach())})")
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
+        _rollout_epoch(check, opt, train_seqs, batch, gen)
         epochs += 1
-        keep.offer(validate())
+        keep.offer(check.relative())
     keep.restore()
-    after_rollout, after_step = validate_parts()
+    after_rollout, after_step = check.losses()
     log.info(
         "rollout phase: %d epochs, validation rollout loss %.3g -> %.3g, one-step mse %.3g -> %.3g",
         epochs,
-        before_rollout,
+        check.roll0,
         after_rollout,
-        step0 if one_step is not None else float("nan"),
+        check.step0 if one_step is not None else float("nan"),
         after_step if one_step is not None else float("nan"),
     )
     return {
-        "rollout_loss_before": before_rollout,
+        "rollout_loss_before": check.roll0,
         "rollout_loss_after": after_rollout,
         "rollout_epochs": epochs,
     }
+
+
+def _rows(t: Tensor | None, sl: slice | Tensor) -> Tensor | None:
+    return None if t is None else t[sl]
+
+
+class _RolloutValidation:
+    """The rollout phase's losses and their reference values: the rollout loss of the held-back
+    sequences ``val`` (s (M, K+1, S), u, f), each variable divided by ``scale`` (S,), and with
+    ``one_step`` (train x, y, validation x, y) the one-step loss on its validation rows; ``roll0`` and
+    ``step0`` are their values when the phase starts (at least 1e-12)."""
+
+    def __init__(
+        self,
+        emu: StructuredEmulator,
+        net: _Network,
+        val: tuple[Tensor, Tensor | None, Tensor | None],
+        scale: Tensor,
+        one_step: tuple[Tensor, Tensor, Tensor, Tensor] | None,
+    ) -> None:
+        self.emu, self.net, self.val, self.scale, self.one_step = emu, net, val, scale, one_step
+        roll0, step0 = self.losses()
+        self.roll0, self.step0 = max(roll0, 1e-12), max(step0, 1e-12)
+
+    def one_step_mse(self, x: Tensor, y: Tensor) -> Tensor:
+        return torch.mean((self.net(x) - y) ** 2)
+
+    def losses(self) -> tuple[float, float]:
+        """The validation rollout loss and one-step loss (0 without ``one_step``), the emulator in
+        evaluation mode."""
+        self.emu.eval()
+        with torch.no_grad():
+            roll = float(rollout_loss(self.emu, *self.val, self.scale))
+            step = (
+                float(self.one_step_mse(self.one_step[2], self.one_step[3]))
+                if self.one_step is not None
+                else 0.0
+            )
+        return roll, step
+
+    def relative(self) -> float:
+        """The validation that picks the state kept: each loss relative to its starting value, summed."""
+        roll, step = self.losses()
+        return roll / self.roll0 + (step / self.step0 if self.one_step is not None else 0.0)
+
+
+def _rollout_epoch(
+    check: _RolloutValidation,
+    opt: torch.optim.Optimizer,
+    seqs: tuple[Tensor, Tensor | None, Tensor | None],
+    batch: int,
+    gen: torch.Generator,
+) -> None:
+    """One pass over the training sequences s (N, K+1, S), u, f in shuffled batches of ``batch``: the
+    rollout loss relative to its starting value, plus with ``check.one_step`` the one-step loss of
+    ``4 · batch`` random training rows relative to its own."""
+    emu, one_step = check.emu, check.one_step
+    s, u, f = seqs
+    emu.train()
+    perm = torch.randperm(s.shape[0], generator=gen)
+    for i in range(0, perm.numel(), batch):
+        idx = perm[i : i + batch]
+        loss = rollout_loss(emu, s[idx], _rows(u, idx), _rows(f, idx), check.scale) / check.roll0
+        if one_step is not None:
+            rows = torch.randint(0, one_step[0].shape[0], (4 * batch,), generator=gen)
+            loss = loss + check.one_step_mse(one_step[0][rows], one_step[1][rows]) / check.step0
+        if not torch.isfinite(loss):
+            raise TrainingDiverged(f"training over rollouts diverged (loss {float(loss.detach())})")
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
