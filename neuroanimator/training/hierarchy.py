@@ -26,6 +26,7 @@ from neuroanimator.core.train_config import TrainConfig
 from neuroanimator.emulator.hierarchy import GLOBAL, HierarchicalEmulator
 from neuroanimator.emulator.regularizer import regularization
 from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.sim import sampling
 from neuroanimator.sim.model import ModelError, PhysicalModel
 from neuroanimator.training.envelope import examples_envelope
 from neuroanimator.training.hierarchy_rollouts import train_hierarchy_over_rollouts
@@ -210,57 +211,24 @@ def train_hierarchy(
     emu = build_hierarchy(model, cfg)
     networks = emu.networks
     weights = sum(p.numel() for p in emu.parameters())
-    largest = max(sum(p.numel() for p in net.parameters()) for _, net in networks)
-    count = cfg.examples or math.ceil(cfg.examples_per_weight * largest)  # every network sees every example
-    log.info(
-        "%s n=%d: %d networks, %d weights, %d examples",
-        model.name,
-        cfg.substeps,
-        len(networks),
-        weights,
-        count,
-    )
+    count = _examples(model, cfg, emu, weights)
     data = cached_examples(data_cache, model, cfg, count)
     test = cached_held_out(data_cache, model, cfg, cfg.test_examples, like=count)
     t_data = time.perf_counter() - t_start
 
-    s, u, _, nxt = to_tensors(data)
+    own_data = _own_data(model, emu, cfg, data)
     each = dataclasses.replace(cfg, max_seconds=cfg.max_seconds / len(networks))
-    own_data = network_data(emu, s, u, nxt)
-    if cfg.state_noise > 0:
-        # the global network from drifted states: it carries the body's motion from step to step, so
-        # its drift is what a long rollout integrates (the parts are placed in its frames each step)
-        with torch.no_grad():
-            g_state, g_next = emu.global_inputs(drifted(model, s, nxt, cfg.state_noise, cfg.seed), nxt)
-        own_data[0] = _Targets(g_state, u, None, g_next)
     fitted = {name: fit_network(net, d, each) for (name, net), d in zip(networks, own_data, strict=True)}
     linears = {name: lin for name, (lin, _) in fitted.items()}
     # the step as it is served: a deformable model's ends with the spring regulariser (thesis 6.1.3)
-    regularizer = regularization(
+    emu.regularizer = regularization(
         model.layout, model.spec.regularizer, model.num_controls, cfg.regularizer_steps
     )
-    emu.regularizer = regularizer
     rollout_metrics: dict[str, Any] = {}
     if cfg.rollout_steps > 0:
         rollout_metrics = _train_composed(model, emu, cfg, count, own_data)
 
-    ts, tu, _, tn = to_tensors(test)
-    errors: dict[str, dict[str, float]] = {}
-    with torch.no_grad():
-        for (name, net), d in zip(networks, network_data(emu, ts, tu, tn), strict=True):
-            x, y = _normalised(net, d)
-            errors[name] = {
-                "one_step_rel_error": relative_error(net.network(x), y),
-                "linear_baseline_rel_error": relative_error(apply_linear(linears[name], x), y),
-            }
-        change = tn - ts
-        scale = group_scale(model, change)
-        emu.regularizer = None
-        composed = relative_error((emu(ts, tu) - ts) / scale, change / scale)
-        emu.regularizer = regularizer
-        regularized = (
-            None if regularizer is None else relative_error((emu(ts, tu) - ts) / scale, change / scale)
-        )
+    errors, composed, regularized = _held_out_errors(model, emu, linears, test)
     worst = max(errors, key=lambda n: errors[n]["one_step_rel_error"])
     metrics = {
         "weights": weights,
@@ -291,3 +259,62 @@ def train_hierarchy(
     )
     envelope = examples_envelope(model, data)
     return HierarchyResult(emu.eval(), cfg, metrics, linears[GLOBAL], data.sha256(), envelope)
+
+
+def _examples(model: PhysicalModel, cfg: TrainConfig, emu: HierarchicalEmulator, weights: int) -> int:
+    """How many examples to simulate: ``cfg.examples``, or ``cfg.examples_per_weight`` per weight of
+    the largest network (every network sees every example)."""
+    largest = max(sum(p.numel() for p in net.parameters()) for _, net in emu.networks)
+    count = cfg.examples or math.ceil(cfg.examples_per_weight * largest)
+    log.info(
+        "%s n=%d: %d networks, %d weights, %d examples",
+        model.name,
+        cfg.substeps,
+        len(emu.networks),
+        weights,
+        count,
+    )
+    return count
+
+
+def _own_data(
+    model: PhysicalModel, emu: HierarchicalEmulator, cfg: TrainConfig, data: sampling.Examples
+) -> list[_Targets]:
+    """Every network's training data from ``data`` (``network_data``), the global network's from
+    drifted states with ``cfg.state_noise``."""
+    s, u, _, nxt = to_tensors(data)
+    own_data = network_data(emu, s, u, nxt)
+    if cfg.state_noise > 0:
+        # the global network from drifted states: it carries the body's motion from step to step, so
+        # its drift is what a long rollout integrates (the parts are placed in its frames each step)
+        with torch.no_grad():
+            g_state, g_next = emu.global_inputs(drifted(model, s, nxt, cfg.state_noise, cfg.seed), nxt)
+        own_data[0] = _Targets(g_state, u, None, g_next)
+    return own_data
+
+
+def _held_out_errors(
+    model: PhysicalModel, emu: HierarchicalEmulator, linears: dict[str, np.ndarray], test: sampling.Examples
+) -> tuple[dict[str, dict[str, float]], float, float | None]:
+    """On the held-out ``test`` examples: each network's one-step relative error and its linear
+    baseline's (``linears``, by name), the composed step's error without the regulariser and with it
+    (None without one), each column scaled by its group's change (``group_scale``)."""
+    ts, tu, _, tn = to_tensors(test)
+    regularizer = emu.regularizer
+    errors: dict[str, dict[str, float]] = {}
+    with torch.no_grad():
+        for (name, net), d in zip(emu.networks, network_data(emu, ts, tu, tn), strict=True):
+            x, y = _normalised(net, d)
+            errors[name] = {
+                "one_step_rel_error": relative_error(net.network(x), y),
+                "linear_baseline_rel_error": relative_error(apply_linear(linears[name], x), y),
+            }
+        change = tn - ts
+        scale = group_scale(model, change)
+        emu.regularizer = None
+        composed = relative_error((emu(ts, tu) - ts) / scale, change / scale)
+        emu.regularizer = regularizer
+        regularized = (
+            None if regularizer is None else relative_error((emu(ts, tu) - ts) / scale, change / scale)
+        )
+    return errors, composed, regularized
