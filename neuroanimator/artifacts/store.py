@@ -15,6 +15,7 @@ import os
 import shutil
 import tempfile
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -22,12 +23,35 @@ import numpy as np
 import torch
 
 from neuroanimator.artifacts import registry
-from neuroanimator.emulator.articulated import TRUNK, articulated_core, branch_geoms, make_articulated
+from neuroanimator.emulator.articulated import (
+    TRUNK,
+    ArticulatedCore,
+    articulated_core,
+    branch_geoms,
+    make_articulated,
+)
 from neuroanimator.emulator.clearance import Clearance
 from neuroanimator.export.onnx import to_onnx
 from neuroanimator.emulator.hierarchy import GLOBAL, VECTORS, HierarchicalEmulator
 from neuroanimator.training.hierarchy import HierarchyResult
-from neuroanimator.core.manifest import ControlInput, EmulatorGraph, GraphInput, GraphIO, Hashes, InputGroup, Manifest, ModelAsset, Network, NetworkClearance, NetworkFrame, NetworkLimit, NetworkReads, Normalization, Symmetries, TrainMetrics
+from neuroanimator.core.manifest import (
+    ControlInput,
+    EmulatorGraph,
+    GraphInput,
+    GraphIO,
+    Hashes,
+    InputGroup,
+    Manifest,
+    ModelAsset,
+    Network,
+    NetworkClearance,
+    NetworkFrame,
+    NetworkLimit,
+    NetworkReads,
+    Normalization,
+    Symmetries,
+    TrainMetrics,
+)
 from neuroanimator.sim.model import ModelError, PhysicalModel
 from neuroanimator.emulator.regularizer import regularization
 from neuroanimator.emulator.structured import FrameConfig, JointLimit, StructuredEmulator
@@ -106,93 +130,96 @@ def describe_articulated(emu: StructuredEmulator, model: PhysicalModel, mode: st
     change of the trunk's groups. Each network's normalisation is its slice of the emulator's."""
     core = articulated_core(emu)
     assert core is not None
-    base = describe_network(emu, model, mode)
-    frame = base.frame
-    outputs = core.output_columns()
-    trunk_cols = outputs[TRUNK]
-    x_mean, x_std = emu.x_mean, emu.x_std
-    y_mean, y_std = emu.y_mean, emu.y_std
-    starts, at = {}, 0
-    for group, width in emu.input_groups:
-        starts[group] = (at, width)
-        at += width
+    parts = _Articulated(emu, core, describe_network(emu, model, mode), mode)
+    return EmulatorGraph(
+        networks=[parts.trunk(), *(parts.branch(model, k) for k in range(len(core.branches)))],
+        stages=[[TRUNK], [b.name for b in core.branches]],
+        regularizer=None if emu.regularizer is None else emu.regularizer.spec,
+    )
 
-    def network(name: str, hidden: tuple[int, ...], net: torch.nn.Module, cols: list[int], reads: NetworkReads,
-                writes: list[str], inputs: list[int], groups: list[InputGroup],
-                clearance: NetworkClearance | None) -> Network:  # fmt: skip
-        norm = Normalization(
-            mode=mode,  # checked by the manifest
-            input_groups=groups,
-            x_mean=[float(v) for v in x_mean[inputs]] + [0.0] * (0 if name == TRUNK else len(trunk_cols)),
-            x_std=[float(v) for v in x_std[inputs]] + [1.0] * (0 if name == TRUNK else len(trunk_cols)),
-            y_mean=[float(v) for v in y_mean[cols]],
-            y_std=[float(v) for v in y_std[cols]],
-        )
-        size = len(norm.x_mean)
-        return Network(
-            name=name,
-            frame=frame,
-            reads=reads,
-            writes=writes,
-            hidden=list(hidden),
-            activation=emu.activation,  # checked by the manifest
-            normalization=norm,
-            input_size=size,
-            output_size=len(cols),
-            weights=sum(p.numel() for p in net.parameters()),
-            skip=True,
-            limits=base.limits if name == TRUNK else [],
-            clearance=clearance,
-            members=core.members,
-        )
 
-    trunk_reads = base.reads
-    networks = [
-        network(
-            TRUNK,
-            core.trunk_hidden,
-            core.trunk,
-            trunk_cols,
-            trunk_reads,
-            list(core.trunk_writes),
-            list(range(emu.input_size)),
-            list(base.normalization.input_groups),
+@dataclass(frozen=True)
+class _Articulated:
+    """What the networks of an articulated hierarchy's description share: the emulator ``emu``, its
+    core, ``base`` (the emulator described as one network: its frame, reads, limits, clearance and
+    input groups) and the normalisation ``mode``."""
+
+    emu: StructuredEmulator
+    core: ArticulatedCore
+    base: Network
+    mode: str
+
+    def trunk(self) -> Network:
+        """The trunk: every input of the emulator, writing the trunk's groups."""
+        base, core = self.base, self.core
+        return self.network(
+            TRUNK, core.trunk_hidden, core.trunk, core.output_columns()[TRUNK], base.reads,
+            list(core.trunk_writes), list(range(self.emu.input_size)), list(base.normalization.input_groups),
             base.clearance,
-        )
-    ]
-    for k, b in enumerate(core.branches):
+        )  # fmt: skip
+
+    def branch(self, model: PhysicalModel, k: int) -> Network:
+        """Branch k: the emulator's input columns it reads (``ArticulatedCore.input_columns``), by
+        group, then the trunk's change; the clearance of its own geoms."""
+        emu, core = self.emu, self.core
+        b = core.branches[k]
+        starts, at = {}, 0  # each input group's first column and width
+        for group, width in emu.input_groups:
+            starts[group] = (at, width)
+            at += width
         sel = core.input_columns(k)  # the emulator's input columns it reads, in order
         groups = []
         for group, (start, width) in starts.items():
             n = sum(1 for c in sel if start <= c < start + width)
             if n:
                 groups.append(InputGroup(name=group, size=n))
-        groups.append(InputGroup(name=f"{TRUNK}.change", size=len(trunk_cols)))
+        groups.append(InputGroup(name=f"{TRUNK}.change", size=len(core.output_columns()[TRUNK])))
         state_groups = [g for g in [*b.groups, *core.trunk_writes, *b.reads] if g in starts]
-        networks.append(
-            network(
-                b.name,
-                core.branch_hidden,
-                core.branch_net(k),
-                outputs[b.name],
-                NetworkReads(
-                    state=list(dict.fromkeys(state_groups)),
-                    predicted=list(core.trunk_writes),
-                    controls=list(model.control_names) if b.controls is None else list(b.controls),
-                ),
-                list(b.groups),
-                sel,
-                groups,
-                None
-                if emu.clearance is None or not branch_geoms(emu, b)
-                else NetworkClearance(geoms=branch_geoms(emu, b), horizon=emu.clearance.horizon),
-            )
+        reads = NetworkReads(
+            state=list(dict.fromkeys(state_groups)),
+            predicted=list(core.trunk_writes),
+            controls=list(model.control_names) if b.controls is None else list(b.controls),
         )
-    return EmulatorGraph(
-        networks=networks,
-        stages=[[TRUNK], [b.name for b in core.branches]],
-        regularizer=None if emu.regularizer is None else emu.regularizer.spec,
-    )
+        clearance = (
+            None
+            if emu.clearance is None or not branch_geoms(emu, b)
+            else NetworkClearance(geoms=branch_geoms(emu, b), horizon=emu.clearance.horizon)
+        )
+        return self.network(
+            b.name, core.branch_hidden, core.branch_net(k), core.output_columns()[b.name], reads,
+            list(b.groups), sel, groups, clearance,
+        )  # fmt: skip
+
+    def network(self, name: str, hidden: tuple[int, ...], net: torch.nn.Module, cols: list[int], reads: NetworkReads,
+                writes: list[str], inputs: list[int], groups: list[InputGroup],
+                clearance: NetworkClearance | None) -> Network:  # fmt: skip
+        """One network: its slice of the emulator's normalisation (the emulator's ``inputs`` and output
+        columns ``cols``; a branch's trunk-change inputs unscaled)."""
+        emu, trunk_cols = self.emu, self.core.output_columns()[TRUNK]
+        norm = Normalization(
+            mode=self.mode,  # checked by the manifest
+            input_groups=groups,
+            x_mean=[float(v) for v in emu.x_mean[inputs]] + [0.0] * (0 if name == TRUNK else len(trunk_cols)),
+            x_std=[float(v) for v in emu.x_std[inputs]] + [1.0] * (0 if name == TRUNK else len(trunk_cols)),
+            y_mean=[float(v) for v in emu.y_mean[cols]],
+            y_std=[float(v) for v in emu.y_std[cols]],
+        )
+        return Network(
+            name=name,
+            frame=self.base.frame,
+            reads=reads,
+            writes=writes,
+            hidden=list(hidden),
+            activation=emu.activation,  # checked by the manifest
+            normalization=norm,
+            input_size=len(norm.x_mean),
+            output_size=len(cols),
+            weights=sum(p.numel() for p in net.parameters()),
+            skip=True,
+            limits=self.base.limits if name == TRUNK else [],
+            clearance=clearance,
+            members=self.core.members,
+        )
 
 
 def _describe(
