@@ -193,6 +193,26 @@ class Clearance(nn.Module):
         self.pairs = tuple((a, b) for a, b in pairs)
         self.tendons = tuple(tendons)
         self.horizon = float(horizon)
+        ids, pair_ids, segments, high = self._probed(m)
+        self._plan_state_columns(model)
+        joints = self._plan_bodies(m, ids, pair_ids, segments)
+        self._plan_motion(m, joints)
+        self._const = {
+            b: (torch.tensor(m.body_pos[b], dtype=torch.float32), _mat(m.body_quat[b])) for b in self._bodies
+        }
+        self._plan_levels(joints)
+        self._geom_body = [int(m.geom_bodyid[g]) for g in ids]
+        self._plan_geoms(m, ids)
+        self._plan_pairs(m, [(("geom", i), ("geom", j)) for i, j in pair_ids] + segments)
+        self._plan_tendons(m, len(segments), high)
+        self.width = (len(ids) + len(pair_ids) + len(self.tendons)) * len(FRACTIONS)
+
+    def _probed(
+        self, m: mujoco.MjModel
+    ) -> tuple[list[int], list[tuple[int, int]], list[tuple[Anchor, Anchor]], list[float]]:
+        """The ids of the probed geoms and of the pairs' geoms, the straight segments of the limited
+        tendons through sites (each a pair of points) and each tendon's upper limit; checked: the geoms
+        are on moving bodies, there is something to probe, and each pair has a moving geom."""
         ids = [_geom_id(m, g) for g in self.geoms]
         bad = [g for g, i in zip(self.geoms, ids, strict=True) if m.geom_bodyid[i] == 0]
         if bad or not (ids or self.pairs or self.tendons):
@@ -207,8 +227,13 @@ class Clearance(nn.Module):
         ]
         if still:
             raise ValueError(f"proximity needs a moving geom in each pair; {still} are both fixed")
-        # the state's columns of each qpos and qvel entry (full physics: time, qpos, qvel, ...)
-        S, index, template = model.state_size, model._state_index, model._template
+        return ids, pair_ids, segments, high
+
+    def _plan_state_columns(self, model: PhysicalModel) -> None:
+        """``state @ _qpos_sel + _qpos_const`` (B, nq) is qpos: the state's column of each entry, the
+        model's reference value of those the state does not hold (full physics: time, qpos, qvel, ...);
+        the same for qvel (B, nv)."""
+        m, S, index, template = model.mj_model, model.state_size, model._state_index, model._template
 
         def picks(first: int, n: int) -> tuple[Tensor, Tensor]:
             sel, const = torch.zeros(S, n), torch.zeros(n)
@@ -220,11 +245,19 @@ class Clearance(nn.Module):
                     const[j] = float(template[first + j])
             return sel, const
 
-        self._buffers_from(
-            qpos_sel=picks(1, m.nq)[0], qpos_const=picks(1, m.nq)[1],
-            qvel_sel=picks(1 + m.nq, m.nv)[0], qvel_const=picks(1 + m.nq, m.nv)[1],
-        )  # fmt: skip
-        # the bodies on the way from the world to each probed geom, parents first, and their joints
+        qpos_sel, qpos_const = picks(1, m.nq)
+        qvel_sel, qvel_const = picks(1 + m.nq, m.nv)
+        self._buffers_from(qpos_sel=qpos_sel, qpos_const=qpos_const, qvel_sel=qvel_sel, qvel_const=qvel_const)
+
+    def _plan_bodies(
+        self,
+        m: mujoco.MjModel,
+        ids: list[int],
+        pair_ids: list[tuple[int, int]],
+        segments: list[tuple[Anchor, Anchor]],
+    ) -> list[_Joint]:
+        """The bodies on the way from the world to each probed geom and point, parents first, their
+        parents and their joints; returns the joints, in the bodies' order."""
         need: set[int] = set()
         anchors = [("geom", g) for pair in pair_ids for g in pair] + [a for seg in segments for a in seg]
         for b in [int(m.geom_bodyid[g]) for g in ids] + [_anchor_body(m, a) for a in anchors]:
@@ -247,23 +280,18 @@ class Clearance(nn.Module):
             ]
             for b in self._bodies
         }
-        joints = [j for b in self._bodies for j in self._joints[b]]
-        self._plan_motion(m, joints)
-        self._const = {
-            b: (torch.tensor(m.body_pos[b], dtype=torch.float32), _mat(m.body_quat[b])) for b in self._bodies
-        }
-        self._plan_levels(joints)
-        self._geom_body = [int(m.geom_bodyid[g]) for g in ids]
-        self._plan_geoms(m, ids)
-        self._plan_pairs(m, [(("geom", i), ("geom", j)) for i, j in pair_ids] + segments)
-        seg_sum = torch.zeros(len(segments), len(self.tendons))
+        return [j for b in self._bodies for j in self._joints[b]]
+
+    def _plan_tendons(self, m: mujoco.MjModel, num_segments: int, high: list[float]) -> None:
+        """``slack = high - lengths @ _seg_sum``: ``_seg_sum`` (segments, T) adds up each tendon's
+        segments, ``_tendon_high`` (T,) its upper limit."""
+        seg_sum = torch.zeros(num_segments, len(self.tendons))
         at = 0
         for t, name in enumerate(self.tendons):
             count = len(tendon_segments(m, [name])[0])
             seg_sum[at : at + count, t] = 1.0
             at += count
         self._buffers_from(seg_sum=seg_sum, tendon_high=torch.tensor(high, dtype=torch.float32))
-        self.width = (len(ids) + len(pair_ids) + len(self.tendons)) * len(FRACTIONS)
 
     def _buffers_from(self, **tensors: Tensor) -> None:
         for name, t in tensors.items():
