@@ -38,6 +38,13 @@ def pytest_unconfigure(config: pytest.Config) -> None:
 
 
 @pytest.fixture(autouse=True)
+def _own_data_dir(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each test its own empty data directory: what one test trains or uploads with the defaults (``neuro
+    train`` without ``--out``, a service without ``DATA_DIR``) is never another test's registry."""
+    monkeypatch.setenv(registry.DATA_DIR_ENV, str(tmp_path_factory.mktemp("data")))
+
+
+@pytest.fixture(autouse=True)
 def _one_torch_thread() -> None:
     """Tiny networks: one intra-op thread is fastest and immune to a busy machine (the CLI sets 2)."""
     torch.set_num_threads(1)

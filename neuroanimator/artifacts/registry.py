@@ -34,7 +34,14 @@ from typing import TYPE_CHECKING, Literal, TypeAlias, TypeVar
 from pydantic import BaseModel, ValidationError
 
 from neuroanimator.core.manifest import Manifest, ManifestError, parse_manifest
-from neuroanimator.core.results import ModelBench, ModelEval, VersionBench, VersionEval, summarize_bench, summarize_eval
+from neuroanimator.core.results import (
+    ModelBench,
+    ModelEval,
+    VersionBench,
+    VersionEval,
+    summarize_bench,
+    summarize_eval,
+)
 
 if TYPE_CHECKING:
     from neuroanimator.sim.model import PhysicalModel
@@ -293,8 +300,8 @@ def read_assets(path: Path, manifest: Manifest | None = None) -> dict[str, bytes
 def load_physical_model(path: Path, manifest: Manifest | None = None) -> PhysicalModel:
     """Rebuild the physical model an artifact was trained on, from the artifact alone: its MJCF and the
     assets it names, compiled in the sandbox (``sim.sandbox``; imports MuJoCo)."""
-    from neuroanimator.sim.model import PhysicalModel
     from neuroanimator.sim import sandbox
+    from neuroanimator.sim.model import PhysicalModel
 
     manifest = manifest or read_manifest(path)
     sources = {a.name: a.source for a in manifest.assets}

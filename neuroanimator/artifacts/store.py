@@ -23,17 +23,6 @@ import numpy as np
 import torch
 
 from neuroanimator.artifacts import registry
-from neuroanimator.emulator.articulated import (
-    TRUNK,
-    ArticulatedCore,
-    articulated_core,
-    branch_geoms,
-    make_articulated,
-)
-from neuroanimator.emulator.clearance import Clearance
-from neuroanimator.export.onnx import to_onnx
-from neuroanimator.emulator.hierarchy import GLOBAL, VECTORS, HierarchicalEmulator
-from neuroanimator.training.hierarchy import HierarchyResult
 from neuroanimator.core.manifest import (
     ControlInput,
     EmulatorGraph,
@@ -52,9 +41,20 @@ from neuroanimator.core.manifest import (
     Symmetries,
     TrainMetrics,
 )
-from neuroanimator.sim.model import ModelError, PhysicalModel
+from neuroanimator.emulator.articulated import (
+    TRUNK,
+    ArticulatedCore,
+    articulated_core,
+    branch_geoms,
+    make_articulated,
+)
+from neuroanimator.emulator.clearance import Clearance
+from neuroanimator.emulator.hierarchy import GLOBAL, VECTORS, HierarchicalEmulator
 from neuroanimator.emulator.regularizer import regularization
 from neuroanimator.emulator.structured import FrameConfig, JointLimit, StructuredEmulator
+from neuroanimator.export.onnx import to_onnx
+from neuroanimator.sim.model import ModelError, PhysicalModel
+from neuroanimator.training.hierarchy import HierarchyResult
 from neuroanimator.training.train import TrainResult
 
 CORE = "core"  # the network of a one-network emulator (StructuredEmulator.core)
