@@ -18,7 +18,7 @@ validates to the same value.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
@@ -225,7 +225,7 @@ def _indices(field: str, names: Any, labels: Sequence[str]) -> list[int]:
     return [variable_index(f"{field}[{i}]", n, labels) for i, n in enumerate(names)]
 
 
-def _bound(field: str, t: dict[str, Any], key: str) -> float | None:
+def _bound(field: str, t: Mapping[str, object], key: str) -> float | None:
     return None if t.get(key) is None else _number(f"{field}.{key}", t[key])
 
 
@@ -282,7 +282,7 @@ def _term(at: str, t: Any, job: _JobContext) -> Term:
     return term
 
 
-def _final_state(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+def _final_state(at: str, t: Mapping[str, object], weight: float, job: _JobContext) -> Term:
     size = len(job.labels)
     return FinalStateTerm(
         term="final_state",
@@ -292,22 +292,22 @@ def _final_state(at: str, t: dict[str, Any], weight: float, job: _JobContext) ->
     )
 
 
-def _control_effort(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+def _control_effort(at: str, t: Mapping[str, object], weight: float, job: _JobContext) -> Term:
     return ControlEffortTerm(term="control_effort", weight=weight)
 
 
-def _control_smoothness(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+def _control_smoothness(at: str, t: Mapping[str, object], weight: float, job: _JobContext) -> Term:
     return ControlSmoothnessTerm(term="control_smoothness", weight=weight)
 
 
-def _final_velocity(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+def _final_velocity(at: str, t: Mapping[str, object], weight: float, job: _JobContext) -> Term:
     """By default every variable read from qvel."""
     default = [i for g in job.layout if g.source == "qvel" for i in range(g.offset, g.offset + g.size)]
     variables = _indices(f"{at}.variables", t.get("variables", default), job.labels)
     return FinalVelocityTerm(term="final_velocity", weight=weight, variables=variables)
 
 
-def _forward_distance(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+def _forward_distance(at: str, t: Mapping[str, object], weight: float, job: _JobContext) -> Term:
     """By default the root position's variables along their first axis; the direction is made unit."""
     if "variables" in t:
         variables = _indices(f"{at}.variables", t["variables"], job.labels)
@@ -328,7 +328,7 @@ def _forward_distance(at: str, t: dict[str, Any], weight: float, job: _JobContex
     )
 
 
-def _stay_within_bounds(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+def _stay_within_bounds(at: str, t: Mapping[str, object], weight: float, job: _JobContext) -> Term:
     """One variable (required) and at least one of low <= high."""
     if "variable" not in t:
         raise JobSpecError(f"{at}.variable", "expected a state label, got nothing")
@@ -341,14 +341,14 @@ def _stay_within_bounds(at: str, t: dict[str, Any], weight: float, job: _JobCont
     return StayWithinBoundsTerm(term="stay_within_bounds", weight=weight, variable=variable, low=lo, high=hi)
 
 
-def _success_margin(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+def _success_margin(at: str, t: Mapping[str, object], weight: float, job: _JobContext) -> Term:
     margin = _number(f"{at}.margin", t.get("margin", 0.5), low=0.0)
     if not 0 < margin <= 1:
         raise JobSpecError(f"{at}.margin", f"expected a number in (0, 1], got {margin!r}")
     return SuccessMarginTerm(term="success_margin", weight=weight, margin=margin)
 
 
-def _path_target(at: str, t: dict[str, Any], weight: float, job: _JobContext) -> Term:
+def _path_target(at: str, t: Mapping[str, object], weight: float, job: _JobContext) -> Term:
     size = len(job.labels)
     return PathTargetTerm(
         term="path_target",
@@ -358,8 +358,9 @@ def _path_target(at: str, t: dict[str, Any], weight: float, job: _JobContext) ->
     )
 
 
-# each term's builder: (where it sits, its JSON object, its checked weight, the job) -> the term
-_BUILDERS: dict[str, Callable[[str, dict[str, Any], float, _JobContext], Term]] = {
+# each term's builder: (where it sits, its JSON object, its checked weight, the job) -> the term; the
+# object's values are as the request sent them (any JSON), each checked before it is used
+_BUILDERS: dict[str, Callable[[str, Mapping[str, object], float, _JobContext], Term]] = {
     "final_state": _final_state,
     "control_effort": _control_effort,
     "control_smoothness": _control_smoothness,

@@ -37,9 +37,9 @@ import tempfile
 import threading
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, NoReturn, NotRequired, TypedDict, cast
 
 import mujoco
 import numpy as np
@@ -47,10 +47,12 @@ import numpy as np
 from neuroanimator.sim import landlock
 from neuroanimator.sim.bundle import (
     Asset,
+    AssetKind,
     Bundle,
     Limits,
     SourceError,
     SourceFiles,
+    SourceProblem,
     bundle_files,
     read_source,
 )
@@ -75,16 +77,66 @@ class Unconfined(ModelError):
 
 
 # ---------------------------------------------------------------------------- frames
-def encode_frame(header: dict[str, Any], blobs: Sequence[bytes] = ()) -> bytes:
+class Work(TypedDict):
+    """What the caller asks of a child: ``mode`` "source" reads and bundles ``path`` (with its
+    ``entry``), "compile" compiles the blobs (the MJCF, then the files named by ``assets``)."""
+
+    mode: Literal["source", "compile"]
+    path: NotRequired[str]
+    entry: NotRequired[str | None]
+    assets: NotRequired[list[str]]
+
+
+class Request(Work):
+    """The caller's frame header: the work, the caps (``Limits`` as JSON), whether confinement is
+    required, and the empty folder that becomes the child's root."""
+
+    limits: dict[str, Any]  # asdict(Limits): the fields of Limits by name, read back by Limits(**limits)
+    require_landlock: bool
+    root: str
+
+
+class AssetMeta(TypedDict):
+    """An asset of a bundled source, as the child describes it (its bytes are a blob)."""
+
+    name: str
+    sha256: str
+    kind: AssetKind
+    source: str
+
+
+class ReplyError(TypedDict):
+    """Why a child could not do its work: a ``SourceError`` kind, or "unconfined"."""
+
+    kind: SourceProblem | Literal["unconfined"]
+    message: str
+
+
+class Reply(TypedDict, total=False):
+    """The child's frame header: for "source" the bundle (``xml`` to ``name``; the blobs are the
+    assets' bytes, then the MJB) and ``confined``; for "compile" only ``confined`` (the blob is the
+    MJB); or only ``error``."""
+
+    xml: str
+    entry: str
+    files: list[str]
+    assets: list[AssetMeta]
+    name: str | None
+    confined: bool
+    error: ReplyError
+
+
+def encode_frame(header: Request | Reply, blobs: Sequence[bytes] = ()) -> bytes:
     """One JSON line (with ``blobs``: the byte lengths of what follows), then the blobs. Never pickle:
     the child's reply is read by its caller, and a compromised child must not run code there."""
     head = json.dumps({**header, "blobs": [len(b) for b in blobs]}).encode() + b"\n"
     return b"".join([head, *blobs])
 
 
-def decode_frame(frame: bytes) -> tuple[dict[str, Any], list[bytes]]:
+def decode_frame(frame: bytes) -> tuple[dict[str, object], list[bytes]]:
+    """The JSON object of a frame's first line (``blobs`` taken out) and the blobs that follow it."""
     end = frame.index(b"\n")
-    header: dict[str, Any] = json.loads(frame[:end])
+    header = json.loads(frame[:end])
     blobs, at = [], end + 1
     for n in header.pop("blobs"):
         blobs.append(frame[at : at + int(n)])
@@ -94,19 +146,30 @@ def decode_frame(frame: bytes) -> tuple[dict[str, Any], list[bytes]]:
     return header, blobs
 
 
+def _decode_request(frame: bytes) -> tuple[Request, list[bytes]]:
+    """A request frame, as ``encode_frame`` wrote it in the caller (read as such, not checked)."""
+    header, blobs = decode_frame(frame)
+    return cast(Request, header), blobs
+
+
+def _decode_reply(frame: bytes) -> tuple[Reply, list[bytes]]:
+    """A reply frame; not checked here: what the caller uses of it is (the assets' names and
+    content in ``load_source``, the MJB by MuJoCo)."""
+    header, blobs = decode_frame(frame)
+    return cast(Reply, header), blobs
+
+
 # ---------------------------------------------------------------------------- the caller's side
 def available() -> bool:
     """Whether this kernel lets the sandbox confine MuJoCo (Linux Landlock)."""
     return landlock.abi_version() >= 1
 
 
-def _run(
-    request: dict[str, Any], blobs: list[bytes], limits: Limits, require_landlock: bool
-) -> tuple[dict[str, Any], list[bytes]]:
+def _run(work: Work, blobs: list[bytes], limits: Limits, require_landlock: bool) -> tuple[Reply, list[bytes]]:
     """Run one request in a fresh child; its reply, or ``SourceError`` (``too_costly`` when a cap
     stopped it)."""
     empty = tempfile.mkdtemp(prefix="neuro-sandbox-")  # the child's root: an empty folder
-    request = {**request, "limits": asdict(limits), "require_landlock": require_landlock, "root": empty}
+    request: Request = {**work, "limits": asdict(limits), "require_landlock": require_landlock, "root": empty}
     try:
         return _talk(request, blobs, limits)
     finally:
@@ -126,7 +189,7 @@ def _context() -> Any:
     return _mp
 
 
-def _talk(request: dict[str, Any], blobs: list[bytes], limits: Limits) -> tuple[dict[str, Any], list[bytes]]:
+def _talk(request: Request, blobs: list[bytes], limits: Limits) -> tuple[Reply, list[bytes]]:
     global _warned
     ctx = _context()
     mine, theirs = ctx.Pipe(duplex=True)
@@ -135,10 +198,10 @@ def _talk(request: dict[str, Any], blobs: list[bytes], limits: Limits) -> tuple[
     theirs.close()
     out = _exchange(proc, mine, encode_frame(request, blobs), WALL_FACTOR * limits.compile_seconds + 5.0)
     mine.close()
-    if "reply" not in out:
-        timed_out = bool(out.get("timed_out")) or proc.exitcode == -signal.SIGXCPU
+    if out.reply is None:
+        timed_out = out.timed_out or proc.exitcode == -signal.SIGXCPU
         _no_reply(proc.exitcode, limits, timed_out=timed_out)
-    header, data = decode_frame(out["reply"])
+    header, data = _decode_reply(out.reply)
     if "error" in header:
         kind, message = header["error"]["kind"], header["error"]["message"]
         if kind == "unconfined":
@@ -150,30 +213,40 @@ def _talk(request: dict[str, Any], blobs: list[bytes], limits: Limits) -> tuple[
     return header, data
 
 
-def _exchange(proc: Any, conn: Any, frame: bytes, seconds: float) -> dict[str, Any]:
+@dataclass
+class _Exchanged:
+    """What came of talking to a child: its reply frame, the error that ended the talk, and whether it
+    ran out of time (or was still running with nothing said)."""
+
+    reply: bytes | None = None
+    error: BaseException | None = None
+    timed_out: bool = False
+
+
+def _exchange(proc: Any, conn: Any, frame: bytes, seconds: float) -> _Exchanged:
     """Send the request and read the reply within ``seconds`` (the child is killed past them)."""
-    out: dict[str, Any] = {}
+    out = _Exchanged()
 
     def talk() -> None:
         try:
             conn.send_bytes(frame)
             if conn.poll(seconds):
-                out["reply"] = conn.recv_bytes(MAX_REPLY)
+                out.reply = conn.recv_bytes(MAX_REPLY)
         except (OSError, EOFError, ValueError) as exc:
-            out["error"] = exc
+            out.error = exc
 
     talker = threading.Thread(target=talk, daemon=True)
     talker.start()
     talker.join(seconds)
-    if talker.is_alive() or "reply" not in out:
-        out["timed_out"] = talker.is_alive() or ("error" not in out and proc.exitcode is None)
+    if talker.is_alive() or out.reply is None:
+        out.timed_out = talker.is_alive() or (out.error is None and proc.exitcode is None)
         proc.kill()
     proc.join(10)
     talker.join(1.0)
     return out
 
 
-def _no_reply(exitcode: int | None, limits: Limits, timed_out: bool) -> None:
+def _no_reply(exitcode: int | None, limits: Limits, timed_out: bool) -> NoReturn:
     """``SourceError`` for a child stopped by a cap (or crashed): which cap, and what to do."""
     if timed_out:
         raise SourceError(
@@ -298,24 +371,25 @@ def _confine(require: bool, empty: str | None = None) -> bool:
         return False
 
 
-def _serve(header: dict[str, Any], blobs: list[bytes]) -> tuple[dict[str, Any], list[bytes]]:
+def _serve(header: Request, blobs: list[bytes]) -> tuple[Reply, list[bytes]]:
     limits = Limits(**header["limits"])
     require = bool(header.get("require_landlock"))
     if header["mode"] == "source":
         sf: SourceFiles = read_source(header["path"], header.get("entry"), limits)
         confined = _confine(require, header.get("root"))
         bundle, m = bundle_files(sf, limits)
-        meta = [
+        meta: list[AssetMeta] = [
             {"name": a.name, "sha256": a.sha256, "kind": a.kind, "source": a.source} for a in bundle.assets
         ]
-        reply: dict[str, Any] = {
+        reply: Reply = {
             "xml": bundle.xml,
             "entry": bundle.entry,
             "files": list(bundle.files),
             "assets": meta,
+            "name": bundle.name,
+            "confined": confined,
         }
-        reply |= {"name": bundle.name}
-        return {**reply, "confined": confined}, [*(a.data for a in bundle.assets), _mjb(m)]
+        return reply, [*(a.data for a in bundle.assets), _mjb(m)]
     confined = _confine(require, header.get("root"))
     xml, *datas = blobs
     vfs = dict(zip(header["assets"], datas, strict=True))
@@ -329,13 +403,14 @@ def _serve(header: dict[str, Any], blobs: list[bytes]) -> tuple[dict[str, Any], 
 def _child(conn: Any) -> None:
     """The child: one request from the pipe, one reply to it. It caps its memory and CPU time, lowers
     its priority, then (in ``_serve``) reads what it must and confines itself before MuJoCo parses."""
-    header, blobs = decode_frame(conn.recv_bytes())
+    header, blobs = _decode_request(conn.recv_bytes())
     limits = Limits(**header["limits"])
     resource.setrlimit(resource.RLIMIT_AS, (limits.compile_memory_bytes, limits.compile_memory_bytes))
     cpu = max(1, round(limits.compile_seconds))  # SIGXCPU past it, SIGKILL a second later
     resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu + 1))
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
     os.nice(NICE)
+    reply: Reply
     try:
         reply, data = _serve(header, blobs)
     except Unconfined as exc:
