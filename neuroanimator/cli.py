@@ -29,6 +29,7 @@ from neuroanimator.sim.model import ModelError, PhysicalModel
 
 if TYPE_CHECKING:  # torch loads only for the commands that need it (see ``_fit``)
     from neuroanimator.training.hierarchy import HierarchyResult
+    from neuroanimator.training.metrics import ChoiceNotes
     from neuroanimator.training.train import TrainResult
 
 log = logging.getLogger("neuroanimator")
@@ -43,7 +44,8 @@ def _registries(folder: str | None) -> registry.Root:
 
 
 def _table(rows: list[dict[str, Any]], columns: list[tuple[str, str, str]]) -> str:
-    """Render rows as an aligned text table; columns are (key, header, format)."""
+    """Render rows as an aligned text table; columns are (key, header, format). A row is free-form: any
+    values ``format`` takes, keyed by column (and what ``--json`` prints beside them)."""
     cells = [[h for _, h, _ in columns]]
     for r in rows:
         cells.append([("-" if r.get(k) is None else format(r[k], f)) for k, _, f in columns])
@@ -229,14 +231,13 @@ def _fit(
     except TrainingDiverged as exc:
         log.error("%s", exc)
         return None
-    for key, value in notes.items():
-        result.metrics[key] = value
+    result.metrics.update(notes)
     return result, cfg
 
 
 def _network_and_super_step(
     args: argparse.Namespace, model: PhysicalModel, cfg: TrainConfig, auto: bool
-) -> tuple[TrainConfig, dict[str, Any]]:
+) -> tuple[TrainConfig, ChoiceNotes]:
     """The network and (``auto``) the super-step, from short probes of how often contacts and limits
     engage; a hierarchy over parts, or a model whose data come from its own source (a controller), keeps
     the network and super-step its spec gives. With ``auto`` the model's spec takes the super-step
@@ -259,7 +260,7 @@ def _network_and_super_step(
             cfg, network_reason = super_step.constrained_defaults(cfg, activity, **given)
         if network_reason:
             log.info("%s: network %s", model.name, network_reason)
-    notes: dict[str, Any] = {}
+    notes: ChoiceNotes = {}
     if network_reason:
         notes["network_reason"] = network_reason
     if activity is not None:
@@ -454,6 +455,7 @@ def cmd_models(args: argparse.Namespace) -> int:
     rows = []
     for name in names:
         trained = ",".join(map(str, registry.available_substeps(root, name))) or None
+        # a free-form row of the table (and of --json)
         row: dict[str, Any] = {"model": name, "trained": trained, "versions": None, "size": None}
         if trained is not None:
             versions = registry.versions(root, name)

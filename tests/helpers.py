@@ -26,6 +26,7 @@ from fastapi import FastAPI
 from neuroanimator.core.train_config import TrainConfig
 from neuroanimator.emulator.structured import StructuredEmulator
 from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training.metrics import TrainingMetrics
 from neuroanimator.training.train import TrainResult
 
 if TYPE_CHECKING:
@@ -112,7 +113,7 @@ def service_of(client: TestClient) -> EmulatorService:
 
 
 # Metrics for an artifact saved without training (its manifest needs them; their values do not matter)
-METRICS = {
+METRICS: TrainingMetrics = {
     "weights": 1,
     "examples": 1,
     "test_examples": 1,

@@ -334,7 +334,8 @@ def test_a_saved_hierarchy_is_described_loaded_and_served(
     # the spring regulariser is part of the step, its Euler steps in the manifest (thesis 6.1.3)
     assert graph.regularizer is not None and graph.regularizer.steps == 5
     assert trained.emulator.regularizer is not None
-    assert np.isfinite(trained.metrics["composed_regularized_rel_error"])
+    regularized = trained.metrics["composed_regularized_rel_error"]
+    assert regularized is not None and np.isfinite(regularized)
     with pytest.raises(ManifestError, match="composed of 7 networks"):
         graph.only()
     data = json.loads((path / registry.MANIFEST_FILE).read_text())

@@ -15,7 +15,6 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -30,6 +29,7 @@ from neuroanimator.sim import sampling
 from neuroanimator.sim.model import ModelError, PhysicalModel
 from neuroanimator.training.envelope import examples_envelope
 from neuroanimator.training.hierarchy_rollouts import train_hierarchy_over_rollouts
+from neuroanimator.training.metrics import HierarchyMetrics, RolloutMetrics
 from neuroanimator.training.train import (
     apply_linear,
     cached_examples,
@@ -72,7 +72,7 @@ class HierarchyResult:
 
     emulator: HierarchicalEmulator
     config: TrainConfig
-    metrics: dict[str, Any]
+    metrics: HierarchyMetrics
     linear: np.ndarray
     data_sha256: str
     envelope: list[EnvelopeGroup] | None = None  # per state group, the range of the training states
@@ -179,7 +179,7 @@ def drifted(model: PhysicalModel, s: Tensor, nxt: Tensor, share: float, seed: in
 
 def _train_composed(
     model: PhysicalModel, emu: HierarchicalEmulator, cfg: TrainConfig, count: int, own_data: list[_Targets]
-) -> dict[str, Any]:
+) -> RolloutMetrics:
     """The rollout phase (``hierarchy_rollouts``): simulate sequences, then fine-tune every network
     through the composed step as it is served, keeping each network's one-step loss in the objective."""
     seqs = rollout_sequences(model, cfg, count)
@@ -224,13 +224,13 @@ def train_hierarchy(
     emu.regularizer = regularization(
         model.layout, model.spec.regularizer, model.num_controls, cfg.regularizer_steps
     )
-    rollout_metrics: dict[str, Any] = {}
+    rollout_metrics: RolloutMetrics = {}
     if cfg.rollout_steps > 0:
         rollout_metrics = _train_composed(model, emu, cfg, count, own_data)
 
     errors, composed, regularized = _held_out_errors(model, emu, linears, test)
     worst = max(errors, key=lambda n: errors[n]["one_step_rel_error"])
-    metrics = {
+    metrics: HierarchyMetrics = {
         "weights": weights,
         "examples": count,
         "test_examples": len(test),

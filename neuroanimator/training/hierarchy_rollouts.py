@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any
 
 import torch
 from torch import Tensor
@@ -25,6 +24,7 @@ from torch import Tensor
 from neuroanimator.core.train_config import TrainConfig
 from neuroanimator.emulator.hierarchy import HierarchicalEmulator
 from neuroanimator.sim import sampling
+from neuroanimator.training.metrics import RolloutMetrics
 from neuroanimator.training.train import KeepBest, TrainingDiverged
 
 log = logging.getLogger(__name__)
@@ -46,7 +46,7 @@ def composed_rollout_loss(emu: HierarchicalEmulator, s: Tensor, u: Tensor, scale
 
 def train_hierarchy_over_rollouts(
     emu: HierarchicalEmulator, seq: sampling.Sequences, cfg: TrainConfig, scale: Tensor, one_step: OneStep
-) -> dict[str, Any]:
+) -> RolloutMetrics:
     """Fine-tune every network of ``emu`` through its composed step (with ``emu.regularizer`` when set)
     on the rollouts of ``seq``, for at most ``cfg.rollout_seconds``; returns the validation rollout
     loss before and after, and the epochs run."""

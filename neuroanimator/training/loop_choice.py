@@ -21,7 +21,6 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import torch
@@ -29,6 +28,7 @@ from numpy.typing import NDArray
 
 from neuroanimator.core.train_config import TrainConfig
 from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.training.metrics import LoopChoiceMetrics
 
 log = logging.getLogger(__name__)
 
@@ -124,7 +124,7 @@ class LoopChoice:
         )
         return kept.epoch
 
-    def metrics(self) -> dict[str, Any]:
+    def metrics(self) -> LoopChoiceMetrics:
         """For the training's metrics: the kept epoch, its loop error, and every epoch's
         ``[epoch, validation loss, loop error]``."""
         kept = self._kept()

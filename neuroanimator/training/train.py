@@ -13,7 +13,6 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import mujoco
 import numpy as np
@@ -40,6 +39,7 @@ from neuroanimator.sim.model import PhysicalModel
 from neuroanimator.training.data_cache import cached
 from neuroanimator.training.envelope import examples_envelope
 from neuroanimator.training.loop_choice import LoopChoice, loop_choice
+from neuroanimator.training.metrics import HeldOutErrors, RolloutMetrics, TrainingExtras, TrainingMetrics
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +72,7 @@ class TrainingDiverged(RuntimeError):
 class TrainResult:
     emulator: StructuredEmulator
     config: TrainConfig
-    metrics: dict[str, Any]
+    metrics: TrainingMetrics
     linear: np.ndarray  # (D + 1, S) least-squares baseline in the network's normalised space
     data_sha256: str
     envelope: list[EnvelopeGroup] | None = None  # per state group, the range of the training states
@@ -370,15 +370,13 @@ def train(
 
     # 6. held-out evaluation, and the result
     errors, per_network = held_out_errors(emu, linear, test, (x_tr, y_tr, x_val, y_val))
-    metrics = {
+    metrics: TrainingMetrics = {
         "weights": weights,
         "examples": count,
         "test_examples": len(test),
         **errors,
         **rollout_metrics,
-        **(choice.metrics() if choice is not None else {}),
-        **({"networks": per_network} if per_network is not None else {}),
-        **({"sampling_reason": plan.reason} if plan.reason else {}),
+        **training_extras(choice, per_network, plan.reason),
         "data_seconds": round(t_data, 2),
         "train_seconds": round(time.perf_counter() - t_start - t_data, 2),
         "total_seconds": round(time.perf_counter() - t_start, 2),
@@ -482,7 +480,7 @@ def rollout_phase(
     t_budget: float,
     lr: float,
     one_step: tuple[Tensor, Tensor, Tensor, Tensor],
-) -> dict[str, Any]:
+) -> RolloutMetrics:
     """Training over rollouts (``train_over_rollouts``) when ``cfg.rollout_steps`` asks for it, from
     ``lr`` and the one-step phase's data ``one_step`` (train x, y, validation x, y), on the
     ``rollout_sequences`` for ``count`` examples, for what the budget that started at ``t_budget``
@@ -499,7 +497,7 @@ def held_out_errors(
     linear: np.ndarray,
     test: sampling.Examples,
     fitted: tuple[Tensor, Tensor, Tensor, Tensor],
-) -> tuple[dict[str, float], dict[str, dict[str, float]] | None]:
+) -> tuple[HeldOutErrors, dict[str, dict[str, float]] | None]:
     """The relative errors of the trained ``emu`` and the ``linear`` baseline (D+1, S) on the held-out
     ``test`` examples, and of ``emu`` on the validation rows of ``fitted`` (train x, y, validation x,
     y); and an articulated hierarchy's errors network by network (``network_errors``; None for one
@@ -510,13 +508,28 @@ def held_out_errors(
     with torch.no_grad():
         xt = emu.network_inputs(ts, tu, tf)
         yt = emu.network_targets(ts, tn)
-        errors = {
+        errors: HeldOutErrors = {
             "one_step_rel_error": relative_error(emu.network(xt), yt),
             "linear_baseline_rel_error": relative_error(apply_linear(linear, xt), yt),
             "validation_rel_error": relative_error(emu.network(x_val), y_val),
         }
         per_network = network_errors(composed, x_tr, y_tr, xt, yt) if composed is not None else None
     return errors, per_network
+
+
+def training_extras(
+    choice: LoopChoice | None, per_network: dict[str, dict[str, float]] | None, sampling_reason: str | None
+) -> TrainingExtras:
+    """The metrics a training has only in some cases: the loop check's (with ``choice``), an articulated
+    hierarchy's errors network by network, and why sampling was cut short."""
+    extras: TrainingExtras = {}
+    if choice is not None:
+        extras.update(choice.metrics())
+    if per_network is not None:
+        extras["networks"] = per_network
+    if sampling_reason:
+        extras["sampling_reason"] = sampling_reason
+    return extras
 
 
 # The share of ``TrainConfig.time_budget`` that sampling may take (what set-up spent comes off it), and
@@ -827,7 +840,7 @@ def train_over_rollouts(
     cfg: TrainConfig,
     lr: float | None = None,
     one_step: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
-) -> dict[str, Any]:
+) -> RolloutMetrics:
     """Fine-tune N^σ on the error of emulated rollouts (``rollout_loss``), early stopping on held-back
     sequences, at ``lr`` (default: a tenth of the config's; the one-step phase's last rate is a good
     start); returns the validation rollout loss before and after.
