@@ -33,7 +33,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, TypedDict
 
 import numpy as np
 import torch
@@ -62,6 +62,24 @@ from neuroanimator.goals import criteria
 from neuroanimator.goals.spec import JobSpec
 
 log = logging.getLogger(__name__)
+
+
+Phase = Literal["emulator", "physics_refinement"]  # the search on the emulator, then refinement on MuJoCo
+
+
+class Progress(TypedDict):
+    """What ``on_progress`` receives for an iteration (0: the initial controller) of the current phase:
+    J and the best J so far (None where not finite), whether the controller meets the criterion on
+    the emulator, and the seconds since the job started. The controller service streams it as its
+    ``ProgressEvent`` (``contracts.controller``)."""
+
+    iteration: int
+    objective: float | None
+    best_objective: float | None
+    success_emulator: bool
+    elapsed_s: float
+    phase: Phase
+
 
 REFINE_ITERATIONS = 10  # updates per physics-refinement round
 REFINE_POLISH = 3
@@ -97,7 +115,7 @@ def load_problem(spec: JobSpec, artifacts_root: registry.Root) -> tuple[ControlP
 def run_job(
     job: JobSpec | Mapping[str, Any],
     artifacts_root: registry.Root,
-    on_progress: Callable[[dict[str, Any]], None] | None = None,
+    on_progress: Callable[[Progress], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
     threads: int = 1,
 ) -> JobOutcome:
@@ -129,7 +147,7 @@ def run_job(
 def _run(
     spec: JobSpec,
     root: registry.Root,
-    on_progress: Callable[[dict[str, Any]], None] | None,
+    on_progress: Callable[[Progress], None] | None,
     should_stop: Callable[[], bool] | None,
     t0: float,
 ) -> JobOutcome:
@@ -179,7 +197,7 @@ class _JobRun:
         self,
         spec: JobSpec,
         root: registry.Root,
-        on_progress: Callable[[dict[str, Any]], None] | None,
+        on_progress: Callable[[Progress], None] | None,
         should_stop: Callable[[], bool] | None,
         t0: float,
     ) -> None:
@@ -193,7 +211,7 @@ class _JobRun:
         self.on_progress = on_progress
         self.should_stop = should_stop
         self.t0 = t0
-        self.phase = "emulator"
+        self.phase: Phase = "emulator"
         self.offset = 0
         self.settings = Settings.from_spec(spec.optimizer)
         self.gauss_newton = GaussNewtonInfo()

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -81,7 +80,7 @@ class Replay:
     final_error: float
     final_errors: dict[str, float]
     success: bool
-    checks: list[dict[str, Any]]
+    checks: list[criteria.CheckResult]
 
     @classmethod
     def of(

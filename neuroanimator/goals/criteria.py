@@ -20,7 +20,7 @@ test the code runs cannot drift apart.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, Literal, get_args
+from typing import Any, Literal, TypedDict, get_args
 
 import numpy as np
 from numpy.typing import NDArray
@@ -115,14 +115,23 @@ def check_errors(
     return value <= check.bound, value
 
 
+class CheckResult(TypedDict):
+    """One check's outcome on a final state: what it requires (``describe_check``), whether it held,
+    and the value measured (``check_errors``)."""
+
+    check: str
+    passed: bool
+    value: float
+
+
 def evaluate(
     checks: Sequence[SuccessCheck],
     final: NDArray[np.floating],
     target: NDArray[np.floating],
     labels: Sequence[str],
-) -> tuple[bool, list[dict[str, Any]]]:
+) -> tuple[bool, list[CheckResult]]:
     """Whether a final state (S,) meets every check, and each check's outcome for the report."""
-    details = []
+    details: list[CheckResult] = []
     for c in checks:
         ok, value = check_errors(c, final, target, labels)
         details.append({"check": describe_check(c, target, labels), "passed": ok, "value": value})

@@ -15,7 +15,7 @@ from neuroanimator import catalog
 from neuroanimator.artifacts import registry
 from neuroanimator.artifacts import store as artifacts
 from neuroanimator.control.bptt import ControlProblem, FastStep
-from neuroanimator.control.job import run_job
+from neuroanimator.control.job import Progress, run_job
 from neuroanimator.control.replay import simulate_held
 from neuroanimator.control.synthesis import Settings, optimize
 from neuroanimator.control.validation import validate_job
@@ -155,7 +155,7 @@ def test_run_job_reports_divergence_as_failed_with_the_best_finite_controller(
 
 
 def test_should_stop_cancels_and_progress_is_reported() -> None:
-    events: list[dict[str, Any]] = []
+    events: list[Progress] = []
     result = run_job(
         {"task": "lander-landing", "horizon": 10},
         ARTIFACTS,
@@ -167,7 +167,8 @@ def test_should_stop_cancels_and_progress_is_reported() -> None:
     assert [e["iteration"] for e in events] == [0, 1, 2]
     assert {"iteration", "objective", "best_objective", "success_emulator", "elapsed_s"} <= set(events[0])
     assert events[0]["phase"] == "emulator"
-    assert events[-1]["best_objective"] <= events[0]["objective"]
+    best, first = events[-1]["best_objective"], events[0]["objective"]
+    assert best is not None and first is not None and best <= first
     assert result.emulated is not None
     assert len(result.emulated.states) == 11  # the best controller so far is still replayed
     assert torch.get_num_threads() >= 1
