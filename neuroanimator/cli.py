@@ -18,8 +18,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from pydantic import ValidationError
+
 from neuroanimator import catalog
 from neuroanimator.artifacts import registry
+from neuroanimator.core.operating_spec import OperatingSpec
 from neuroanimator.core.results import NetworkSize, VersionEval, split_bench, summarize_eval
 from neuroanimator.core.train_config import TrainConfig
 from neuroanimator.evaluation import physical_errors
@@ -112,16 +115,38 @@ def _train_model(args: argparse.Namespace) -> tuple[PhysicalModel, bool, int | N
     super-step (``auto``), and the super-step the command line fixed (``None``: none)."""
     if (args.model is None) == (args.mjcf is None):
         raise ModelError("give either a catalog model name or --mjcf PATH (not both)")
-    if args.mjcf is None and (args.entry or args.name):
-        raise ModelError("--entry and --name go with --mjcf")
+    if args.mjcf is None and (args.entry or args.name or args.spec or args.keyframe):
+        raise ModelError("--entry, --name, --spec and --keyframe go with --mjcf")
     auto = args.substeps == "auto" or (args.substeps is None and args.mjcf is not None)
     fixed = None if auto or args.substeps is None else int(args.substeps)
     model: PhysicalModel = (
-        load_mjcf(args.mjcf, substeps=fixed, entry=args.entry, name=args.name)
+        load_mjcf(
+            args.mjcf,
+            substeps=fixed,
+            entry=args.entry,
+            name=args.name,
+            operating_spec=read_operating_spec(args.spec) if args.spec else None,
+            keyframe=args.keyframe,
+        )
         if args.mjcf
         else catalog.get(args.model)
     )
     return model, auto, fixed
+
+
+def read_operating_spec(path: str) -> OperatingSpec:
+    """The operating spec in the JSON file ``path``; ``ModelError`` naming the file and the field."""
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise ModelError(f"--spec {path}: cannot read it ({exc.strerror})") from exc
+    try:
+        return OperatingSpec.model_validate_json(text)
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"{'.'.join(str(x) for x in e['loc']) or 'the file'}: {e['msg']}" for e in exc.errors()
+        )
+        raise ModelError(f"--spec {path}: not an operating spec: {problems}") from exc
 
 
 def _train_config(args: argparse.Namespace, model: PhysicalModel, fixed: int | None) -> TrainConfig:
@@ -266,8 +291,13 @@ def _network_and_super_step(
     if activity is not None:
         notes["contact_fraction"] = activity.contact
         notes["limit_fraction"] = activity.limit
+    motion = None
+    if args.mjcf is not None:  # a model of one's own: runs cut where they spin a body up
+        motion = super_step.spin_up(model, cfg, cfg.substeps if not auto else super_step.CANDIDATES[0])
+        if model.spec.operating is not None:
+            notes["operating_reason"] = model.spec.operating.describe()
     if auto:
-        choice = super_step.choose_substeps(model, cfg, activity=activity)
+        choice = super_step.choose_substeps(model, cfg, activity=activity, motion=motion)
         log.info("%s: super-step %s", model.name, choice.reason)
         cfg.substeps = choice.substeps
         model.spec = model.spec.model_copy(update={"substeps": choice.substeps})
@@ -308,7 +338,9 @@ def _accept_and_save(
     from neuroanimator.training import super_step
 
     m = result.metrics
-    summary = {"model": model.name, "substeps": cfg.substeps, "state_size": model.state_size}
+    summary: dict[str, Any] = {"model": model.name, "substeps": cfg.substeps, "state_size": model.state_size}
+    if model.spec.operating is not None:  # where it was trained to operate, and why (a model of one's own)
+        summary["operating"] = model.spec.operating.model_dump(mode="json")
     if not args.force:
         try:
             super_step.check_useful(
@@ -574,6 +606,15 @@ def _add_train_source_options(t: argparse.ArgumentParser) -> None:
         "--entry", help="with --mjcf FOLDER or ARCHIVE: the MJCF file in it (default: the only one)"
     )
     t.add_argument("--name", help="with --mjcf: the model's name (default: the MJCF's model attribute)")
+    t.add_argument(
+        "--spec",
+        help="with --mjcf: an operating spec (JSON: the controls' centres and spreads, how runs start, the "
+        "controls' time scale, the run length; docs/operating-spec.md); default: the model's keyframes, "
+        "else the controls that hold it still, else every control over its range",
+    )
+    t.add_argument(
+        "--keyframe", help="with --mjcf: train around this keyframe of the model only (default: all of them)"
+    )
     t.add_argument(
         "--substeps",
         type=_substeps,

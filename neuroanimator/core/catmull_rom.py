@@ -59,7 +59,8 @@ def evaluate(
 def random_points(
     rng: np.random.Generator, shape: tuple[int, ...], low: NDArray[np.floating], high: NDArray[np.floating]
 ) -> NDArray[np.float64]:
-    """Control points drawn uniformly over the useful range: shape (..., M, U), low/high (U,)."""
+    """Control points drawn uniformly over the useful range: shape (..., M, U), low/high (U,) or
+    broadcasting against it (one band per run: (..., 1, U))."""
     lo = np.asarray(low, dtype=np.float64)
     hi = np.asarray(high, dtype=np.float64)
-    return lo + (hi - lo) * rng.random((*shape, lo.size))
+    return lo + (hi - lo) * rng.random((*shape, lo.shape[-1]))

@@ -11,6 +11,7 @@ import math
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from neuroanimator.core.operating_spec import OperatingRecord
 from neuroanimator.core.state import StateGroup
 
 
@@ -47,10 +48,11 @@ class ControlInfo(BaseModel):
 
 
 class InitialStates(BaseModel):
-    """Typical initial states: uniform perturbations of the model's rest state.
+    """Typical initial states: uniform perturbations of the model's rest state, or of its operating states.
 
     ``low``/``high`` (S values each, or empty for none) are added to the state built from MuJoCo's
-    ``qpos0`` and zero velocity. For a model with a free root, ``random_yaw`` turns it about the
+    ``qpos0`` and zero velocity, or, where ``centres`` holds operating states (S values each: a model's
+    keyframes), to one of them drawn at random per start. For a model with a free root, ``random_yaw`` turns it about the
     vertical axis uniformly and ``max_tilt`` tilts it about a random horizontal axis (radians).
     """
 
@@ -60,6 +62,7 @@ class InitialStates(BaseModel):
     high: list[float] = Field(default_factory=list)
     random_yaw: bool = False
     max_tilt: float = 0.0
+    centres: list[list[float]] = Field(default_factory=list, description="operating states; empty: rest")
 
 
 FRAME_QUANTITIES = ("centre", "axis1", "axis2", "centre_vel", "axis1_rate", "axis2_rate")
@@ -354,6 +357,12 @@ class ModelSpec(BaseModel):
     def _moved_source(cls, v: object) -> object:
         return current_module(v) if isinstance(v, str) else v
 
+    operating: OperatingRecord | None = Field(
+        None,
+        description="the operating point a model of one's own was trained around (its keyframes, the "
+        "controls that hold it still, the user's operating spec): typical controls are drawn around its "
+        "centres; None: over the control range",
+    )
     regularizer: SpringRegularizer | None = Field(
         None, description="a mass-spring model's regulariser (thesis 6.1.3), on by default in its emulators"
     )

@@ -14,10 +14,12 @@ from pathlib import Path, PurePosixPath
 import mujoco
 import numpy as np
 
-from neuroanimator.core.model_spec import InitialStates, ModelSpec
-from neuroanimator.sim import sandbox
+from neuroanimator.core.model_spec import ModelSpec
+from neuroanimator.core.operating_spec import OperatingSpec
+from neuroanimator.sim import operating, sandbox
 from neuroanimator.sim.bundle import Limits, SourceError
 from neuroanimator.sim.model import PhysicalModel, SimulationDiverged, derive_layout, mujoco_warnings_as_debug
+from neuroanimator.sim.sampling import MAX_DIVERGED
 
 log = logging.getLogger(__name__)
 MAX_NAME = 64  # characters of a model's name (a folder's)
@@ -38,14 +40,18 @@ def load_mjcf(
     limits: Limits | None = None,
     stabilise: bool = True,
     require_landlock: bool | None = None,
+    operating_spec: OperatingSpec | None = None,
+    keyframe: str | None = None,
 ) -> PhysicalModel:
     """Build a model from an MJCF file, a model folder or an archive of one (``entry``: the MJCF in a
     folder or archive; see ``bundle``): name from ``name``, else the MJCF's ``model`` attribute, else
     the entry's file name; state layout from its joints, controls and their ranges from its actuators.
 
-    Typical initial states perturb ``qpos0`` a little (±0.3 on joint angles and slides, ±0.3 on
-    velocities; an actuator's activation anywhere in its control range), and typical controls sweep
-    each actuator's ctrlrange (±1 when unlimited). With ``stabilise``, the velocity perturbations are
+    Typical motion is set around the model's operating point (``operating.typical_motion``): its
+    keyframes (or the one named ``keyframe``), else the controls that hold it still, else today's
+    ranges: starts perturb ``qpos0`` a little (±0.3 on joint angles and slides, ±0.3 on velocities; an
+    actuator's activation anywhere in its control range) and typical controls sweep each actuator's
+    ctrlrange (±1 when unlimited); ``operating_spec`` (``OperatingSpec``) declares more. With ``stabilise``, the velocity perturbations are
     narrowed where MuJoCo cannot simulate them (``stabilise_initial_states``); a quick check of an
     upload may skip that.
     """
@@ -61,7 +67,6 @@ def load_mjcf(
             f"the model's name ({model_name[:40]}...) has {len(model_name)} characters; a name may have "
             f"{MAX_NAME}: give a shorter one (--name, or the form field name)",
         )
-    layout = derive_layout(m)
     unlimited = [
         mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator{i}"
         for i in range(m.nu)
@@ -74,33 +79,21 @@ def load_mjcf(
             bundle.entry,
             ", ".join(unlimited),
         )
-    low, high = np.zeros(layout.size), np.zeros(layout.size)
-    for g, sl in layout.group_slices():
-        if g.source == "act":  # an activation: anywhere its control can drive it
-            a = _actuator_of_activation(m, g.address)
-            if m.actuator_ctrllimited[a]:
-                low[sl], high[sl] = m.actuator_ctrlrange[a]
-            else:
-                low[sl], high[sl] = -1.0, 1.0
-        elif g.kind in ("angle", "scalar", "local_vector", "world_vector"):
-            low[sl], high[sl] = -0.3, 0.3
+    derive_layout(m)  # a model without joints is refused here, in its own words
     origin = bundle.entry if bundle.entry == p.name else f"{bundle.entry} in {p.name}"
     spec = ModelSpec(
         name=model_name,
         description=f"user model from {origin}",
         substeps=50 if substeps is None else substeps,
-        initial=InitialStates(low=low.tolist(), high=high.tolist(), random_yaw=True, max_tilt=0.3),
         episode_s=20.0,
     )
     model = PhysicalModel(bundle.xml, spec, bundle.vfs(), {a.name: a.source for a in bundle.assets}, m)
+    model.spec = operating.typical_motion(model, operating_spec, keyframe)
+    log.info("%s: %s", model_name, model.spec.operating.describe() if model.spec.operating else "")
     if stabilise:
         stabilise_initial_states(model)
+        narrow_typical_motion(model)
     return model
-
-
-def _actuator_of_activation(m: mujoco.MjModel, address: int) -> int:
-    """The actuator whose activation sits at ``act[address]``."""
-    return int(np.flatnonzero(m.actuator_actadr == address)[0])
 
 
 PROBE_RUNS = 256
@@ -108,22 +101,106 @@ PROBE_SECONDS = 1.0
 NARROWINGS = 4
 
 
-def _unstable_runs(model: PhysicalModel, seed: int) -> int:
-    """How many of ``PROBE_RUNS`` runs of typical motion MuJoCo could not simulate (non-finite values,
-    values a thousand times the start's, or MuJoCo's own instability warning)."""
+def _unstable_runs(
+    model: PhysicalModel, seed: int, runs: int = PROBE_RUNS, seconds: float = PROBE_SECONDS
+) -> int:
+    """How many of ``runs`` runs of ``seconds`` of typical motion MuJoCo could not simulate (non-finite
+    values, values a thousand times the start's, or MuJoCo's own instability warning)."""
     rng = np.random.default_rng(seed)
-    steps = max(10, round(PROBE_SECONDS / model.dt))
+    steps = max(10, round(seconds / model.dt))
     times = np.arange(steps, dtype=np.float64) * model.dt
-    s0 = model.initial_states(rng, PROBE_RUNS)
-    u = model.typical_controls(rng, PROBE_RUNS, times)
-    f = model.typical_forces(rng, PROBE_RUNS, times) if model.num_forces else None
+    s0 = model.initial_states(rng, runs)
+    u = model.typical_controls(rng, runs, times)
+    f = model.typical_forces(rng, runs, times) if model.num_forces else None
+    with mujoco_warnings_as_debug():  # instability is what this looks for; the caller reports it
+        _, diverged = model.simulate_runs(s0, u, f, nstep=steps)
+    return int(diverged.sum())
+
+
+MOTION_PROBE_RUNS = 64
+MOTION_PROBE_SECONDS = 5.0
+MOTION_NARROWINGS = 3
+
+
+def _narrowed(spec: ModelSpec, ranges: np.ndarray, scale: float) -> ModelSpec:
+    """``spec`` with its typical controls' spread around the operating point's centres (the middle of
+    each range where it has none) and its starts' spread, tilt included, scaled by ``scale``."""
+    op = spec.operating
+    init = spec.initial
+    update: dict[str, object] = {
+        "initial": init.model_copy(
+            update={
+                "low": [x * scale for x in init.low],
+                "high": [x * scale for x in init.high],
+                "max_tilt": init.max_tilt * scale,
+            }
+        )
+    }
+    if op is not None and ranges.size:
+        centres = np.asarray(op.control_centres or [ranges.mean(axis=1).tolist()], dtype=np.float64)
+        spread = np.asarray(op.control_spread or ((ranges[:, 1] - ranges[:, 0]) / 2).tolist()) * scale
+        update["control_low"] = np.clip(centres.min(axis=0) - spread, ranges[:, 0], ranges[:, 1]).tolist()
+        update["control_high"] = np.clip(centres.max(axis=0) + spread, ranges[:, 0], ranges[:, 1]).tolist()
+        update["operating"] = op.model_copy(
+            update={"control_centres": centres.tolist(), "control_spread": spread.tolist()}
+        )
+    return spec.model_copy(update=update)
+
+
+def narrow_typical_motion(model: PhysicalModel, seed: int = 0) -> str | None:
+    """Narrow the typical motion around the operating point while more than ``sampling.MAX_DIVERGED`` of
+    ``MOTION_PROBE_RUNS`` runs of up to ``MOTION_PROBE_SECONDS`` diverge: controls and starts halved
+    around it, up to ``MOTION_NARROWINGS`` times; what was done (also in the operating record), or None
+    when nothing had to be. ``SimulationDiverged`` says what was tried when even the narrowest fails.
+
+    Why: a drone driven by thrusts over their whole range spins up until MuJoCo gives up (Menagerie's
+    X2 diverged 2.3 s into a run); sampling drops the runs that diverge, but where many do, the typical
+    motion itself is out of MuJoCo's reach."""
+    seconds = min(model.spec.episode_s, MOTION_PROBE_SECONDS)
+    most = int(MAX_DIVERGED * MOTION_PROBE_RUNS)
+    bad = _unstable_runs(model, seed, MOTION_PROBE_RUNS, seconds)
+    if bad <= most:
+        return None
+    original, ranges = model.spec, operating.control_ranges(model)
+    tried = [f"as found: {bad} of {MOTION_PROBE_RUNS}"]
+    for k in range(1, MOTION_NARROWINGS + 1):
+        scale = 0.5**k
+        model.spec = _narrowed(original, ranges, scale)
+        worse = _unstable_runs(model, seed, MOTION_PROBE_RUNS, seconds)
+        tried.append(f"{scale:g}× the spread: {worse}")
+        if worse <= most:
+            said = (
+                f"typical controls and starts narrowed to {scale:g}× their spread around the operating point: "
+                f"{bad} of {MOTION_PROBE_RUNS} runs of {seconds:g} s diverged in MuJoCo at the first spread"
+            )
+            log.warning("%s: %s", model.name, said)
+            op = model.spec.operating
+            if op is not None:
+                model.spec = model.spec.model_copy(
+                    update={"operating": op.model_copy(update={"narrowed": said})}
+                )
+            return said
+    model.spec = original
+    raise SimulationDiverged(
+        f"{_first_divergence(model, seed, seconds)}. Narrowing the typical motion around the operating point did "
+        f"not help: runs of {seconds:g} s that diverged, of {MOTION_PROBE_RUNS}: {'; '.join(tried)}"
+    )
+
+
+def _first_divergence(model: PhysicalModel, seed: int, seconds: float) -> str:
+    """What ``simulate`` says of a diverging run of typical motion: when, and at which joint."""
+    rng = np.random.default_rng(seed)
+    steps = max(10, round(seconds / model.dt))
+    times = np.arange(steps, dtype=np.float64) * model.dt
+    s0 = model.initial_states(rng, MOTION_PROBE_RUNS)
+    u = model.typical_controls(rng, MOTION_PROBE_RUNS, times)
+    f = model.typical_forces(rng, MOTION_PROBE_RUNS, times) if model.num_forces else None
     try:
-        with mujoco_warnings_as_debug():  # instability is what this looks for; the caller reports it
-            traj = model.simulate(s0, u, f, nstep=steps, check=True)
-    except SimulationDiverged:
-        return PROBE_RUNS
-    huge = ~np.isfinite(traj) | (np.abs(traj) > 1e3 * (1.0 + np.abs(s0[:, None, :])))
-    return int(huge.any(axis=(1, 2)).sum())
+        with mujoco_warnings_as_debug():
+            model.simulate(s0, u, f, nstep=steps, check=True)
+    except SimulationDiverged as exc:
+        return str(exc).rstrip(".")
+    return f"the simulation of model {model.name} diverges in runs of typical motion"
 
 
 def stabilise_initial_states(model: PhysicalModel, seed: int = 0) -> str | None:

@@ -221,6 +221,18 @@ class PhysicalModel:
 
     # ------------------------------------------------------------------ description
     @property
+    def spec(self) -> ModelSpec:
+        """What the MJCF does not say (``ModelSpec``); setting it (a super-step chosen, typical motion
+        narrowed) drops what was derived from the previous one."""
+        return self._spec
+
+    @spec.setter
+    def spec(self, spec: ModelSpec) -> None:
+        self._spec = spec
+        for derived in ("control_range", "control_info"):
+            self.__dict__.pop(derived, None)
+
+    @property
     def state_size(self) -> int:
         return self.layout.size
 
@@ -484,6 +496,38 @@ class PhysicalModel:
         MuJoCo found unstable (it then resets the run to its initial pose) raises
         ``SimulationDiverged`` naming the time and the joint.
         """
+        out, diverged, dof, first = self._simulate(states, controls, forces, nstep, threads, check)
+        if check and diverged.any():
+            raise self._diverged(np.asarray(states, dtype=np.float64), out, dof, first)
+        return out
+
+    def simulate_runs(
+        self,
+        states: FloatArray,
+        controls: FloatArray | None = None,
+        forces: FloatArray | None = None,
+        *,
+        nstep: int | None = None,
+        threads: int | None = None,
+    ) -> tuple[FloatArray, NDArray[np.bool_]]:
+        """``simulate``, and which runs diverged (B,): MuJoCo found them unstable and reset them, or they
+        hold a non-finite value or one a thousand times the start's. A sampler drops those and keeps the
+        others; MuJoCo running out of arena memory still raises (``ModelError``)."""
+        out, diverged, _, _ = self._simulate(states, controls, forces, nstep, threads, True)
+        return out, diverged
+
+    def _simulate(
+        self,
+        states: FloatArray,
+        controls: FloatArray | None,
+        forces: FloatArray | None,
+        nstep: int | None,
+        threads: int | None,
+        arena_check: bool,
+    ) -> tuple[FloatArray, NDArray[np.bool_], int, int | None]:
+        """The rollout (B, T, S), which runs diverged (B,), the degree of freedom MuJoCo warned of and
+        the first step at which a run was seen reset (None: none was); with ``arena_check``, raise when
+        MuJoCo dropped contacts for want of arena memory."""
         states = np.asarray(states, dtype=np.float64)
         if states.ndim != 2 or states.shape[1] != self.state_size:
             raise ModelError(
@@ -529,24 +573,25 @@ class PhysicalModel:
             )
         except mujoco.FatalError as exc:  # MuJoCo's stack ran out: too many contacts for the arena
             raise self._arena_too_small(str(exc).strip().replace("\n", "; ")) from exc
-        if check and _arena_full > arena_warnings:  # concurrent checked calls may share this count
+        if arena_check and _arena_full > arena_warnings:  # concurrent checked calls may share this count
             raise self._arena_too_small("it dropped contacts or constraints that did not fit")
         if len(datas) == self._threads and b >= len(datas):  # a rate on every thread
             self._steps_simulated += b * steps
             self._seconds_simulating += time.perf_counter() - started
         result = self.from_physics(out).reshape(b, steps, self.state_size)
-        if check:
-            bad = [d for d in datas if d.warning[_BAD_QACC].number]
-            # rollout clears a thread's warnings before each of its runs, so only the last run of a
-            # thread would show in ``bad``; but an unstable run's clock stops rising (rollout stops
-            # stepping it after MuJoCo's reset), the step after the one that diverged
-            clock = np.concatenate([np.zeros((b, 1)), out[..., self._time_at]], axis=1)
-            stalled = np.diff(clock, axis=1) <= 0  # (B, T)
-            if bad or stalled.any():
-                dof = int(bad[0].warning[_BAD_QACC].lastinfo) if bad else _last_bad_dof
-                first = max(0, int(np.flatnonzero(stalled.any(axis=0))[0]) - 1) if stalled.any() else None
-                raise self._diverged(states, result, dof, first)
-        return result
+        bad = [d for d in datas if d.warning[_BAD_QACC].number]
+        # rollout clears a thread's warnings before each of its runs, so only the last run of a
+        # thread would show in ``bad``; but an unstable run's clock stops rising (rollout stops
+        # stepping it after MuJoCo's reset), the step after the one that diverged
+        clock = np.concatenate([np.zeros((b, 1)), out[..., self._time_at]], axis=1)
+        stalled = np.diff(clock, axis=1) <= 0  # (B, T)
+        huge = ~np.isfinite(result) | (np.abs(result) > 1e3 * (1.0 + np.abs(states[:, None, :])))
+        diverged: NDArray[np.bool_] = np.asarray(stalled.any(axis=1) | huge.any(axis=(1, 2)))
+        dof = int(bad[0].warning[_BAD_QACC].lastinfo) if bad else _last_bad_dof
+        first = max(0, int(np.flatnonzero(stalled.any(axis=0))[0]) - 1) if stalled.any() else None
+        if bad and not diverged.any():  # a thread warned and its runs did not show it: count them all
+            diverged[:] = True
+        return result, diverged, dof, first
 
     def _arena_too_small(self, what: str) -> ModelError:
         """The error for a simulation whose contacts and constraints MuJoCo's arena cannot hold."""
@@ -617,7 +662,15 @@ class PhysicalModel:
         would begin inside the floor or inside another body is lifted or drawn nearer the rest pose
         (``separation``)."""
         init = self.spec.initial
-        rest = self.rest_state()
+        if init.centres:  # operating states (keyframes): one per start, at random
+            centres = np.asarray(init.centres, dtype=np.float64)
+            if centres.shape[1:] != (self.state_size,):
+                raise ModelError(
+                    f"model {self.name}: initial centres must have {self.state_size} values each"
+                )
+            rest = centres[rng.integers(0, len(centres), size=batch)]  # (batch, S)
+        else:
+            rest = np.repeat(self.rest_state()[None, :], batch, axis=0)
         delta = np.zeros((batch, self.state_size))
         if init.low:
             lo, hi = np.asarray(init.low), np.asarray(init.high)
@@ -633,10 +686,16 @@ class PhysicalModel:
             axis_angle = rng.uniform(-np.pi, np.pi, batch)
             axis = np.stack([np.cos(axis_angle), np.sin(axis_angle), np.zeros(batch)], axis=1)
             turn = (self.layout.slice_of(qg.name), yaw, tilt, axis)
+        op = self.spec.operating
+        if init.centres and op is not None and op.held_share > 0:  # these start at an operating state
+            still = rng.random(batch) < op.held_share
+            delta[still] = 0.0
+            if turn is not None:
+                turn[2][still] = 0.0
 
         def build(rows: NDArray[np.int64], scale: float) -> FloatArray:
             """The starts of ``rows`` with their perturbation (tilt included) scaled by ``scale``."""
-            states = rest + scale * delta[rows]
+            states = rest[rows] + scale * delta[rows]
             if turn is not None:
                 sl, yaw, tilt, axis = turn
                 q_yaw = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), yaw[rows])
@@ -682,10 +741,33 @@ class PhysicalModel:
     def typical_controls(self, rng: np.random.Generator, batch: int, times: FloatArray) -> FloatArray:
         """(batch, T, U) smooth Catmull-Rom controls over the useful range, at the given times; where the
         spec has ``travelling_waves``, that share of the runs under a rhythmic gait's waves."""
-        random = self._smooth(rng, batch, times, self.control_range, self.spec.control_spacing_s)
+        bands = self._operating_bands(rng, batch)
+        random = self._smooth(
+            rng, batch, times, self.control_range if bands is None else bands, self.spec.control_spacing_s
+        )
         if self.spec.travelling_waves is None:
             return random
         return mix_waves(self.spec.travelling_waves, rng, random, times, self.control_range)
+
+    def _operating_bands(self, rng: np.random.Generator, batch: int) -> FloatArray | None:
+        """(batch, U, 2) each run's control band around one of the operating point's centres (drawn at
+        random per run; ``held_share`` of the runs with no spread), within the control range; None
+        without an operating point."""
+        op = self.spec.operating
+        if op is None or not op.control_centres or not self.num_controls:
+            return None
+        centres = np.asarray(op.control_centres, dtype=np.float64)  # (K, U)
+        spread = np.asarray(op.control_spread, dtype=np.float64)  # (U,)
+        if centres.shape[1:] != (self.num_controls,) or spread.shape != (self.num_controls,):
+            raise ModelError(
+                f"model {self.name}: operating centres and spread need {self.num_controls} values"
+            )
+        c = centres[rng.integers(0, len(centres), size=batch)]  # (batch, U)
+        half = np.repeat(spread[None, :], batch, axis=0)
+        if op.held_share > 0:  # these runs hold the operating point's own controls
+            half[rng.random(batch) < op.held_share] = 0.0
+        lo, hi = self.control_range[:, 0], self.control_range[:, 1]
+        return np.stack([np.clip(c - half, lo, hi), np.clip(c + half, lo, hi)], axis=-1)
 
     def typical_forces(self, rng: np.random.Generator, batch: int, times: FloatArray) -> FloatArray:
         """(batch, T, F) smooth external forces over their ranges."""
@@ -695,16 +777,21 @@ class PhysicalModel:
     def _smooth(
         rng: np.random.Generator, batch: int, times: FloatArray, rng_lohi: FloatArray, spacing: float
     ) -> FloatArray:
-        width = rng_lohi.shape[0]
+        """(batch, T, W) smooth random values within ``rng_lohi``: (W, 2) for every run, or (batch, W, 2)
+        one band per run."""
+        width = rng_lohi.shape[-2]
         times = np.asarray(times, dtype=np.float64)
         if width == 0:
             return np.zeros((batch, times.size, 0))
         t0 = float(times.min())
         npts = int(np.ceil((float(times.max()) - t0) / spacing)) + 2
-        points = catmull_rom.random_points(rng, (batch, npts), rng_lohi[:, 0], rng_lohi[:, 1])
+        lo, hi = rng_lohi[..., 0], rng_lohi[..., 1]
+        if rng_lohi.ndim == 3:  # per run: (batch, 1, W) against the points' (batch, npts, W)
+            lo, hi = lo[:, None, :], hi[:, None, :]
+        points = catmull_rom.random_points(rng, (batch, npts), lo, hi)
         # Catmull-Rom overshoots a little between points: keep it inside the range
         values = catmull_rom.evaluate(points, times - t0, spacing)
-        return np.clip(values, rng_lohi[:, 0], rng_lohi[:, 1])
+        return np.clip(values, lo, hi)
 
 
 def read_model_name(xml: str, fallback: str) -> str:

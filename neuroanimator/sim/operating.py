@@ -26,7 +26,10 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
+from neuroanimator.core.model_spec import ModelSpec
+from neuroanimator.core.operating_spec import OperatingRecord, OperatingSpec, StartSpread
 from neuroanimator.sim.errors import ModelError
+from neuroanimator.sim.model import PhysicalModel
 
 FloatArray = NDArray[np.float64]
 
@@ -151,3 +154,206 @@ def find(m: mujoco.MjModel, keyframe: str | None = None) -> OperatingPoint:
     point = Keyframe("hold", np.array(m.qpos0, dtype=np.float64), np.zeros(m.nv), u)
     held = ", ".join(f"{x:.4g}" for x in u)
     return OperatingPoint("hold", (point,), f"the controls that hold it still at qpos0: [{held}]")
+
+
+# ---------------------------------------------------------------------------- typical motion
+
+POSITION_SPREAD = 0.3
+"""Default half-width of a start's joint positions (rad or m) and velocities around the operating state."""
+VELOCITY_SPREAD = 0.3
+TILT = 0.3
+"""Default largest tilt of a free root's start, rad."""
+CONTROL_SPREAD_AT_POINT = 0.05
+"""Default half-width of the controls around an operating point found (a keyframe's, a hold's), as a share
+of each ``ctrlrange``: a hovering drone's thrusts within ±5 % of their range of the hover thrust."""
+HELD_SHARE_AT_POINT = 0.2
+"""Default share of runs whose controls stay at an operating point found: holding still is what a user
+asks of a hovering drone or a standing arm first, and an emulator that never saw it drifts there."""
+RUN_S = 20.0
+"""Default seconds of a training run before it restarts from a typical start."""
+
+
+class OperatingSpecError(ModelError):
+    """An operating spec that does not fit the model; ``field`` names the spec's field (dotted)."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"operating spec, {field}: {message}")
+        self.field = field
+
+
+def _names(m: mujoco.MjModel, kind: mujoco.mjtObj, count: int, prefix: str) -> list[str]:
+    return [mujoco.mj_id2name(m, kind, i) or f"{prefix}{i}" for i in range(count)]
+
+
+def _state_of(model: PhysicalModel, point: Keyframe) -> FloatArray:
+    """(S,) the emulator's state at a keyframe (its activations at its controls, as held there)."""
+    m = model.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:], d.qvel[:] = point.qpos, point.qvel
+    if m.na:
+        has_act = m.actuator_actadr >= 0
+        d.act[m.actuator_actadr[has_act]] = point.ctrl[has_act]
+    full = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    mujoco.mj_getState(m, d, full, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    return np.asarray(model.from_physics(full[None, :])[0], dtype=np.float64)
+
+
+def _start_spread(model: PhysicalModel, start: StartSpread) -> tuple[FloatArray, float]:
+    """(S,) half-width of each state value at a start, and the free root's largest tilt."""
+    m = model.mj_model
+    joints = _names(m, mujoco.mjtObj.mjOBJ_JOINT, m.njnt, "joint")
+    position = POSITION_SPREAD if start.position_spread is None else start.position_spread
+    velocity = VELOCITY_SPREAD if start.velocity_spread is None else start.velocity_spread
+    speed = velocity if start.speed is None else start.speed
+    half = np.zeros(model.state_size)
+    for g, sl in model.layout.group_slices():
+        if g.source == "act":  # an activation: anywhere its control can drive it (the band decides)
+            continue
+        if g.kind in ("angle", "scalar") and g.source == "qpos":  # a free root's place: translations
+            half[sl] = position
+        elif g.source == "qvel":
+            half[sl] = speed if g.kind == "world_vector" else velocity
+    for name, spread in start.joints.items():
+        if name not in joints:
+            raise OperatingSpecError(
+                f"start.joints.{name}", f"the model has no joint {name!r}; its joints are {joints}"
+            )
+        j = joints.index(name)
+        if m.jnt_type[j] not in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+            raise OperatingSpecError(
+                f"start.joints.{name}",
+                "a spread per joint is for hinge and slide joints; a free root's is tilt/speed",
+            )
+        if spread < 0:
+            raise OperatingSpecError(f"start.joints.{name}", f"a spread must be 0 or more, got {spread:g}")
+        group = next(g for g in model.layout if g.source == "qpos" and g.address == int(m.jnt_qposadr[j]))
+        half[model.layout.slice_of(group.name)] = spread
+    return half, TILT if start.tilt is None else start.tilt
+
+
+def _control_bands(
+    model: PhysicalModel, spec: OperatingSpec, centres: FloatArray, found: bool
+) -> tuple[FloatArray, FloatArray]:
+    """(K, U) control centres and (U,) half-widths from the spec over the operating point's centres (K, U):
+    a control the spec names takes its band; the others keep their centre, with ``control_spread`` of
+    their range around it (by default ``CONTROL_SPREAD_AT_POINT`` around a point ``found``, else half
+    the range: all of it)."""
+    m = model.mj_model
+    names = list(model.control_names)
+    limits = control_ranges(model)
+    width = limits[:, 1] - limits[:, 0]
+    default = CONTROL_SPREAD_AT_POINT if found else 0.5
+    share = spec.control_spread if spec.control_spread is not None else default
+    spread = share * width
+    centres = centres.copy()
+    for name, band in spec.controls.items():
+        if name not in names:
+            everyone = _names(m, mujoco.mjtObj.mjOBJ_ACTUATOR, m.nu, "actuator")
+            raise OperatingSpecError(
+                f"controls.{name}",
+                f"the model has no actuator {name!r}; its controls are {names or everyone}",
+            )
+        k = names.index(name)
+        lo, hi = limits[k]
+        if band.range is not None:
+            centres[:, k], spread[k] = (
+                (band.range[0] + band.range[1]) / 2,
+                (band.range[1] - band.range[0]) / 2,
+            )
+        else:
+            if band.centre is not None:
+                centres[:, k] = band.centre
+            if band.spread is not None:
+                spread[k] = band.spread
+        low, high = centres[:, k].min() - spread[k], centres[:, k].max() + spread[k]
+        if low < lo - 1e-9 or high > hi + 1e-9:
+            raise OperatingSpecError(
+                f"controls.{name}",
+                f"[{low:g}, {high:g}] lies outside the actuator's ctrlrange [{lo:g}, {hi:g}]",
+            )
+    return centres, spread
+
+
+def _actuator_of(m: mujoco.MjModel, address: int) -> int:
+    """The actuator whose activation sits at ``act[address]``."""
+    return int(np.flatnonzero(m.actuator_actadr == address)[0])
+
+
+def control_ranges(model: PhysicalModel) -> FloatArray:
+    """(U, 2) each control's ctrlrange, ±1 where unlimited (not ``control_range``: the spec's envelope)."""
+    lim = model.control_limits.copy()
+    lim[~np.isfinite(lim[:, 0]), 0] = -1.0
+    lim[~np.isfinite(lim[:, 1]), 1] = 1.0
+    return lim
+
+
+def typical_motion(
+    model: PhysicalModel, spec: OperatingSpec | None = None, keyframe: str | None = None
+) -> ModelSpec:
+    """The model's spec with its typical motion set around its operating point (``find``) and the
+    user's ``spec``: starts spread around the operating states, controls centred on theirs, the
+    controls' time scale and the run length; the record of it in ``ModelSpec.operating``.
+
+    Raises ``OperatingSpecError`` (naming the field) for a spec that does not fit the model."""
+    spec = spec or OperatingSpec()
+    if keyframe is not None and spec.keyframe is not None and keyframe != spec.keyframe:
+        raise OperatingSpecError(
+            "keyframe", f"--keyframe {keyframe!r} and the spec's {spec.keyframe!r} differ"
+        )
+    named = keyframe or spec.keyframe
+    try:
+        point = find(model.mj_model, named)
+    except ModelError as exc:
+        raise OperatingSpecError("keyframe", str(exc)) from exc
+    limits = control_ranges(model)
+    if point.points:
+        centres = np.stack([k.ctrl[model.control_ids] for k in point.points])
+        starts = [_state_of(model, k).tolist() for k in point.points]
+    else:
+        centres, starts = limits.mean(axis=1)[None, :], []
+    centres = np.clip(centres, limits[:, 0], limits[:, 1])
+    centres, spread = _control_bands(model, spec, centres, bool(point.points))
+    half, tilt = _start_spread(model, spec.start)
+    given = spec != OperatingSpec()
+    source = point.source if point.source != "none" or not given else "spec"
+    reason = point.reason if source != "spec" else f"the operating spec given ({point.reason})"
+    record = OperatingRecord(
+        source=source,
+        reason=reason,
+        keyframes=[k.name for k in point.points],
+        # none found and nothing declared: controls over their whole range, as drawn without a point
+        control_centres=centres.tolist() if point.points or given else [],
+        control_spread=spread.tolist() if point.points or given else [],
+        held_share=(
+            spec.held_share if spec.held_share is not None else HELD_SHARE_AT_POINT if point.points else 0.0
+        ),
+        spec=spec if given else None,
+    )
+    low = -half
+    if not point.points and not given:  # today's starts: an activation anywhere in its control's range
+        for g, sl in model.layout.group_slices():
+            if g.source == "act":
+                k = int(np.flatnonzero(model.control_ids == _actuator_of(model.mj_model, g.address))[0])
+                low[sl], half[sl] = limits[k]
+    else:  # around the operating state's activation (its control there), as far as the control's band
+        for g, sl in model.layout.group_slices():
+            if g.source == "act":
+                k = int(np.flatnonzero(model.control_ids == _actuator_of(model.mj_model, g.address))[0])
+                low[sl], half[sl] = -spread[k], spread[k]
+    initial = model.spec.initial.model_copy(
+        update={
+            "low": low.tolist(),
+            "high": half.tolist(),
+            "centres": starts,
+            "max_tilt": tilt,
+            "random_yaw": True,
+        }
+    )
+    update: dict[str, object] = {"initial": initial, "operating": record}
+    if point.points or given:
+        update["control_low"] = np.clip(centres.min(axis=0) - spread, limits[:, 0], limits[:, 1]).tolist()
+        update["control_high"] = np.clip(centres.max(axis=0) + spread, limits[:, 0], limits[:, 1]).tolist()
+    if spec.time_scale_s is not None:
+        update["control_spacing_s"] = spec.time_scale_s
+    update["episode_s"] = spec.run_s if spec.run_s is not None else RUN_S
+    return model.spec.model_copy(update=update)

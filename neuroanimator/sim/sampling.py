@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.sim.model import PhysicalModel, SimulationDiverged
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -169,6 +169,7 @@ class Sequences:
     states: FloatArray
     controls: FloatArray
     forces: FloatArray
+    diverged: int = 0  # runs MuJoCo could not simulate, dropped while sampling
 
     def __len__(self) -> int:
         return int(self.states.shape[0])
@@ -431,27 +432,78 @@ def generate_sequences(
         leave=False,
     )
     rows = np.arange(runs)
+    tally = Divergence()
     while filled < count:
         state = model.initial_states(rng, runs)
         u_traj = model.typical_controls(rng, runs, times)  # (R, T, U)
         f_traj = model.typical_forces(rng, runs, times)
         lags = rng.integers(1, warm + 1, size=runs)
         span = int(lags.max())
-        lead = model.simulate(state, u_traj[:, :span], f_traj[:, :span] if F else None, check=True)
+        lead, lost = model.simulate_runs(state, u_traj[:, :span], f_traj[:, :span] if F else None)
         start = lead[rows, lags - 1]  # (R, S)
         at = lags[:, None] + np.arange(k)[None, :] * n  # (R, K): time index of each super-step start
         u_held = u_traj[rows[:, None], at]  # (R, K, U)
         f_held = f_traj[rows[:, None], at]
-        traj = model.simulate(
-            start, np.repeat(u_held, n, axis=1), np.repeat(f_held, n, axis=1) if F else None, check=True
-        )[:, n - 1 :: n]  # (R, K, S) at the super-step ends
-        take = min(runs, count - filled)
+        full, lost_later = model.simulate_runs(
+            start, np.repeat(u_held, n, axis=1), np.repeat(f_held, n, axis=1) if F else None
+        )
+        traj = full[:, n - 1 :: n]  # (R, K, S) at the super-step ends
+        # a run MuJoCo could not simulate is dropped, and counted: too many, and sampling stops
+        kept = np.flatnonzero(~(lost | lost_later))[: count - filled]
+        try:
+            tally.add(model, runs, runs - int((~(lost | lost_later)).sum()))
+        except SimulationDiverged as exc:  # say when and where, as a checked simulation does
+            try:
+                model.simulate(state, u_traj[:, :span], f_traj[:, :span] if F else None, check=True)
+                model.simulate(
+                    start,
+                    np.repeat(u_held, n, axis=1),
+                    np.repeat(f_held, n, axis=1) if F else None,
+                    check=True,
+                )
+            except SimulationDiverged as where:
+                raise SimulationDiverged(f"{where}; {exc}") from exc
+            raise
+        take = kept.size
         sel = slice(filled, filled + take)
-        out_s[sel, 0], out_s[sel, 1:] = start[:take], traj[:take]
-        out_u[sel], out_f[sel] = u_held[:take], f_held[:take]
+        out_s[sel, 0], out_s[sel, 1:] = start[kept], traj[kept]
+        out_u[sel], out_f[sel] = u_held[kept], f_held[kept]
         filled += take
         bar.update(take * scale)
     bar.close()
+    tally.report(model)
     if not np.all(np.isfinite(out_s)):
         raise ValueError(f"simulated sequences of {model.name} contain NaN or Inf")
-    return Sequences(out_s, out_u, out_f)
+    return Sequences(out_s, out_u, out_f, tally.dropped)
+
+
+MAX_DIVERGED = 0.05
+"""The largest share of sampled runs that may diverge: they are dropped and counted; beyond it, the
+typical motion itself is what MuJoCo cannot simulate, and sampling stops (``SimulationDiverged``)."""
+
+
+@dataclass
+class Divergence:
+    """Runs simulated and runs dropped because MuJoCo could not simulate them."""
+
+    runs: int = 0
+    dropped: int = 0
+
+    def add(self, model: PhysicalModel, runs: int, dropped: int) -> None:
+        self.runs += runs
+        self.dropped += dropped
+        if self.dropped > MAX_DIVERGED * max(self.runs, 64):
+            raise SimulationDiverged(
+                f"it diverged in {self.dropped} of {self.runs} runs of typical motion of model {model.name} (more "
+                f"than {MAX_DIVERGED:.0%}): narrower typical controls or starts (an operating spec: --spec, or the "
+                "form's operating spec), a smaller timestep or more damping"
+            )
+
+    def report(self, model: PhysicalModel) -> None:
+        if self.dropped:
+            log.warning(
+                "%s: %d of %d sampled runs diverged in MuJoCo and were dropped",
+                model.name,
+                self.dropped,
+                self.runs,
+            )

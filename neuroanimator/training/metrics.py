@@ -39,6 +39,9 @@ class ChoiceNotes(TypedDict, total=False):
     """How the network and the super-step were chosen (``neuro train``), noted in the metrics."""
 
     network_reason: str
+    operating_reason: (
+        str  # where a model of one's own was trained to operate, and why (OperatingRecord.describe)
+    )
     contact_fraction: float
     limit_fraction: float
     substeps_reason: str

@@ -44,6 +44,7 @@ import numpy as np
 from neuroanimator.core.train_config import TrainConfig
 from neuroanimator.sim import sampling
 from neuroanimator.sim.model import ModelError, PhysicalModel
+from neuroanimator.training.motion import FastestMotion, bound_super_steps, cut_spin_up, fastest_motion
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +78,8 @@ class ModelOutOfReach(ModelError):
 
 @dataclass(frozen=True)
 class ConstraintActivity:
-    """How often, over sampled states of typical motion, a contact or a limit is engaged (0..1)."""
+    """How often, over sampled super-steps of typical motion (``states`` of them), a contact or a limit
+    engages within one (0..1)."""
 
     contact: float
     limit: float
@@ -88,7 +90,10 @@ class ConstraintActivity:
         return self.contact > 0 or self.limit > 0
 
     def describe(self) -> str:
-        return f"contacts in {self.contact:.0%} and limits engaged in {self.limit:.0%} of {self.states} sampled states"
+        return (
+            f"contacts in {self.contact:.0%} and limits engaged in {self.limit:.0%} of {self.states} sampled "
+            "super-steps"
+        )
 
 
 @dataclass
@@ -102,10 +107,12 @@ class SuperStepChoice:
 
 
 def constraint_activity(
-    model: PhysicalModel, *, seconds: float = 10.0, runs: int = 8, seed: int = 0
+    model: PhysicalModel, *, seconds: float = 10.0, runs: int = 8, seed: int = 0, window: int = CANDIDATES[0]
 ) -> ConstraintActivity:
-    """Simulate ``runs`` typical motions of ``seconds`` and count, at about 200 states, whether a
-    contact or a joint/tendon limit is engaged (``mj_forward`` at each)."""
+    """Simulate ``runs`` typical motions of ``seconds`` and count, over about 200 windows of ``window``
+    physical steps (the longest super-step), whether a contact or a joint/tendon limit engages anywhere
+    within each (``mj_fwdPosition`` at every step): a limit reached in the middle of a super-step kinks
+    its map as much as one engaged at its start."""
     rng = np.random.default_rng(seed)
     steps = max(1, round(seconds / model.dt))
     times = np.arange(steps, dtype=np.float64) * model.dt
@@ -113,18 +120,24 @@ def constraint_activity(
     u = model.typical_controls(rng, runs, times)
     f = model.typical_forces(rng, runs, times)
     traj = model.simulate(s0, u, f if model.num_forces else None)  # (R, T, S)
-    every = max(1, steps // 25)
-    picked = traj[:, ::every].reshape(-1, model.state_size)
-    full = model.to_physics(picked)
+    width = max(1, min(window, steps))
+    starts = np.arange(0, steps - width + 1, max(1, (steps - width + 1) // 25))[:25]  # (W,)
     m = model.mj_model
     d = mujoco.MjData(m)
     contact = limit = 0
-    for row in full:
-        mujoco.mj_setState(m, d, row, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-        mujoco.mj_forward(m, d)
-        contact += d.ncon > 0
-        limit += bool(np.isin(d.efc_type[: d.nefc], _LIMIT_TYPES).any())
-    n = len(full)
+    for run in traj:
+        for start in starts:
+            touched = limited = False
+            for row in model.to_physics(run[start : start + width]):
+                mujoco.mj_setState(m, d, row, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+                mujoco.mj_fwdPosition(m, d)
+                touched = touched or d.ncon > 0
+                limited = limited or bool(np.isin(d.efc_type[: d.nefc], _LIMIT_TYPES).any())
+                if touched and limited:
+                    break
+            contact += touched
+            limit += limited
+    n = len(traj) * len(starts)
     return ConstraintActivity(contact=contact / n, limit=limit / n, states=n)
 
 
@@ -214,30 +227,30 @@ def choose_substeps(
     *,
     candidates: tuple[int, ...] = CANDIDATES,
     activity: ConstraintActivity | None = None,
+    motion: FastestMotion | None = None,
 ) -> SuperStepChoice:
     """The longest super-step in ``candidates`` that the model can be learned at (see the module doc);
-    ``activity``, when measured already, is not measured again."""
+    ``activity`` and ``motion``, when measured already, are not measured again. Candidates over which
+    the fastest typical motion turns over half a turn are left out (``motion.bound_super_steps``: where
+    none is left, the model's runs are cut short, and its operating record says so)."""
     from neuroanimator.training.train import train  # torch: only when probes are needed
 
     activity = activity or constraint_activity(model, seed=cfg.seed)
-    if not activity.any:
-        return SuperStepChoice(
-            candidates[0], f"n={candidates[0]}: no contact or limit engages ({activity.describe()})", activity
-        )
-    if activity.contact == 0:
-        return SuperStepChoice(
-            candidates[0],
-            f"n={candidates[0]}: no contact; the joint-limit ramps carry the limits ({activity.describe()})",
-            activity,
-        )
+    motion = motion or fastest_motion(model, seed=cfg.seed)
+    allowed, bound = bound_super_steps(model, candidates, motion)
+    if bound:
+        log.warning("%s: %s", model.name, bound)
+    said = "; ".join(x for x in (activity.describe(), bound) if x)
+    if len(allowed) == 1:
+        return SuperStepChoice(allowed[0], f"n={allowed[0]}: {said}", activity)
     probes: dict[int, float] = {}
     skipped: list[str] = []
-    for n in candidates:
+    for n in allowed:
         probe = probe_config(cfg, n, model)
         seconds = sampling.sampling_steps(model, n, probe.examples or 0, probe.test_examples, cfg.sampler) / (
             model.step_rate or model.measure_step_rate()
         )
-        if seconds > 2 * PROBE_SAMPLING_S and n != candidates[-1]:  # the shortest is always probed
+        if seconds > 2 * PROBE_SAMPLING_S and n != allowed[-1]:  # the shortest is always probed
             skipped.append(f"n={n} ({seconds:.0f} s to simulate {probe.examples:,} examples)")
             log.info(
                 "%s: no probe at n=%d: its examples would take %.0f s to simulate", model.name, n, seconds
@@ -251,8 +264,22 @@ def choose_substeps(
     chosen, verdict = pick(probes)
     tried = ", ".join(f"n={n}: {e:.3g}" for n, e in probes.items())
     slow = f"; too slow to probe: {', '.join(skipped)}" if skipped else ""
-    reason = f"n={chosen}: {activity.describe()}; probe one-step errors {tried}; {verdict}{slow}"
+    reason = f"n={chosen}: {said}; probe one-step errors {tried}; {verdict}{slow}"
     return SuperStepChoice(chosen, reason, activity, probes)
+
+
+def spin_up(model: PhysicalModel, cfg: TrainConfig, longest: int = CANDIDATES[0]) -> FastestMotion:
+    """Measure how typical motion turns, cut the runs where it spins a body up (``motion.cut_spin_up``:
+    logged, and noted in the model's operating record) and measure again over the runs kept."""
+    motion = fastest_motion(model, seed=cfg.seed)
+    said = cut_spin_up(model, motion, longest)
+    if said is None:
+        return motion
+    log.warning("%s: %s", model.name, said)
+    op = model.spec.operating
+    if op is not None:
+        model.spec = model.spec.model_copy(update={"operating": op.model_copy(update={"spin_up": said})})
+    return fastest_motion(model, seed=cfg.seed)
 
 
 def pick(probes: dict[int, float]) -> tuple[int, str]:

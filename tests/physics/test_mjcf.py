@@ -200,7 +200,10 @@ def test_a_model_that_diverges_is_refused_with_the_time_and_joint(tmp_path: Path
         <actuator><motor name="m" joint="stiff" ctrlrange="-1 1"/></actuator></mujoco>"""
     )
     out = tmp_path / "artifacts"
-    model = load_mjcf(path, substeps=5)
+    said = r"diverged .* s into .*joint 'stiff'.*smaller timestep.*Narrowing .* did not help.*0.125× the spread: 64"
+    with pytest.raises(SimulationDiverged, match=said):  # refused as it is read, saying what was tried
+        load_mjcf(path, substeps=5)
+    model = load_mjcf(path, substeps=5, stabilise=False)
     with pytest.raises(SimulationDiverged, match=r"diverged .* s into .*joint 'stiff'.*smaller timestep"):
         sampling.generate(model, 5, 50, seed=0, progress=False)
     assert main(["train", "--mjcf", str(path), "--substeps", "5", "--out", str(out), "--quiet"]) == 2
@@ -218,7 +221,7 @@ def test_one_unstable_run_among_stable_ones_is_caught_wherever_it_runs(tmp_path:
         <geom type="sphere" size="0.1" mass="1e-6"/></body></worldbody>
         <actuator><motor name="m" joint="stiff" ctrlrange="-1 1"/></actuator></mujoco>"""
     )
-    model = load_mjcf(path, substeps=5)
+    model = load_mjcf(path, substeps=5, stabilise=False)  # (refused when read: see above)
     states = np.zeros((8, model.state_size))
     assert np.isfinite(model.simulate(states, nstep=20, check=True)).all()  # at rest: stable
     for first in (0, 3, 7):  # first, in the middle, last (the case the warnings alone caught)
