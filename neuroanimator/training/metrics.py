@@ -59,6 +59,7 @@ class _Measured(ChoiceNotes, RolloutMetrics, total=False):
     linear_baseline_rel_error: Required[float]
     validation_rel_error: Required[float]
     data_seconds: Required[float]
+    operating_residual: tuple[float, float]  # normalised residual at the operating point, before/after trim
     train_seconds: Required[float]
     total_seconds: Required[float]
     sampling_reason: str

@@ -40,6 +40,7 @@ from neuroanimator.training.data_cache import cached
 from neuroanimator.training.envelope import examples_envelope
 from neuroanimator.training.loop_choice import LoopChoice, loop_choice
 from neuroanimator.training.metrics import HeldOutErrors, RolloutMetrics, TrainingExtras, TrainingMetrics
+from neuroanimator.training.trim import trim
 
 log = logging.getLogger(__name__)
 
@@ -368,7 +369,8 @@ def train(
         model, emu, cfg, count, runs, t_budget, final_lr, (x_tr, y_tr, x_val, y_val)
     )
 
-    # 6. held-out evaluation, and the result
+    # 6. trimmed at the model's operating point (a hover), then held-out evaluation, and the result
+    trimmed = trim(model, emu, cfg.substeps) if articulated_core(emu) is None else None
     errors, per_network = held_out_errors(emu, linear, test, (x_tr, y_tr, x_val, y_val))
     metrics: TrainingMetrics = {
         "weights": weights,
@@ -381,6 +383,8 @@ def train(
         "train_seconds": round(time.perf_counter() - t_start - t_data, 2),
         "total_seconds": round(time.perf_counter() - t_start, 2),
     }
+    if trimmed:
+        metrics["operating_residual"] = trimmed
     log.info(
         "%s n=%d: one-step relative error %.3g (linear %.3g), %.0f s",
         model.name,
