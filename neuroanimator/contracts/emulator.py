@@ -22,9 +22,10 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from neuroanimator.core.manifest import EnvelopeGroup
 from neuroanimator.core.model_spec import DriverParam
+from neuroanimator.core.operating_spec import OperatingRecord
 from neuroanimator.core.state import LayoutGroup
 
-WIRE_MODELS_FROM_ELSEWHERE = (LayoutGroup, EnvelopeGroup, DriverParam)
+WIRE_MODELS_FROM_ELSEWHERE = (LayoutGroup, EnvelopeGroup, DriverParam, OperatingRecord)
 """Wire models owned by another module (the state layout's), exported to proto/ with these."""
 
 Number = Annotated[float, Field(strict=True, allow_inf_nan=False)]
@@ -131,6 +132,12 @@ class ModelDetail(ModelSummary):
         None,
         description="the model's own controller, which a session may ask for (SessionCreate.driver): it sets "
         "every control each super-step, and the client sets its params and the forces",
+    )
+    operating: OperatingRecord | None = Field(
+        None,
+        description="the operating point a model of one's own was trained around (its keyframes, the controls "
+        "that hold it still, or the operating spec given), why, and the controls' centres and spread: the "
+        "motion the emulator knows best (absent for catalog models and older artifacts)",
     )
 
 

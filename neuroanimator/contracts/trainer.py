@@ -82,6 +82,20 @@ class TrainingOptions(_Wire):
         None, ge=0, le=64, description="super-steps of the rollout phase (0: off; default: the trainer's)"
     )
     force: bool = Field(False, description="keep the emulator even when it misses the acceptance bar")
+    operating_spec: str | None = Field(
+        None,
+        max_length=16_000,
+        description="the model's typical motion, an operating spec as JSON text (docs/operating-spec.md: the "
+        "keyframe, the controls' centres and spreads, how runs start); default: an operating.json at the "
+        "top of an uploaded archive, else the operating point found in the model (its keyframes, else the "
+        "controls that hold it still)",
+    )
+    keyframe: str | None = Field(
+        None,
+        min_length=1,
+        max_length=256,
+        description="train around this keyframe of the model only (default: every keyframe it has)",
+    )
 
     @field_validator("super_step", mode="before")
     @classmethod

@@ -5,11 +5,13 @@ the training is cancelled, runs past its time limit or its worker shuts down. It
 spec (JSON) on stdin and goes through the phases:
 
 - **validating**: the model is read from the upload (``mjcf.load_mjcf``: includes, assets, archives,
-  with the service's caps) and checked as the API checked it; then a short probe simulates typical
+  with the service's caps) around its operating point (the training's operating spec and keyframe, as
+  the API checked them) and checked as the API checked it; then a short probe simulates typical
   motion, so that a model that diverges fails now (naming the time and the joint, and what to try), and
   one that would sample too slowly for the time limit fails now too (with the estimate);
 - **sampling** and **training**: ``neuro train`` (the command's own code: the same choices of super-step,
-  network and acceptance bar) into a staging registry;
+  network and acceptance bar; the operating spec in ``SPEC_FILE`` of the staging folder, ``--spec``)
+  into a staging registry;
 - **evaluating**: ``neuro eval --save`` of that version: one-step errors on fresh held-out data and
   rollouts against MuJoCo in physical units (``eval.json`` beside the version).
 
@@ -53,6 +55,7 @@ PROBE_RUNS = 16
 PROBE_SECONDS = 2.0
 SAMPLING_SHARE_OF_LIMIT = 0.6  # sampling may take at most this part of the time limit
 TEST_EXAMPLES = 4000  # TrainConfig's held-out examples (read from it in main)
+SPEC_FILE = "operating-spec.json"  # the training's operating spec, in its staging folder, for neuro train
 
 
 class Channel:
@@ -269,11 +272,16 @@ def probe(model: Any, spec: ChildSpec, substeps: int) -> None:
 
 
 def train_argv(spec: ChildSpec, staging: Path) -> list[str]:
-    """``neuro train``'s arguments for the spec."""
+    """``neuro train``'s arguments for the spec (its operating spec in ``SPEC_FILE`` of ``staging``,
+    where ``write_spec`` puts it)."""
     argv = ["train", "--mjcf", spec.source, "--name", spec.model, "--out", str(staging), "--json"]
     argv += ["--examples", str(spec.examples), "--substeps", str(spec.super_step)]
     if spec.entry:
         argv += ["--entry", spec.entry]
+    if spec.operating_spec is not None:
+        argv += ["--spec", str(staging / SPEC_FILE)]
+    if spec.keyframe is not None:
+        argv += ["--keyframe", spec.keyframe]
     for value, flag in (
         (spec.epochs, "--epochs"),
         (spec.hidden, "--hidden"),
@@ -284,6 +292,12 @@ def train_argv(spec: ChildSpec, staging: Path) -> list[str]:
     if spec.force:
         argv.append("--force")
     return argv
+
+
+def write_spec(spec: ChildSpec, staging: Path) -> None:
+    """Write the training's operating spec (if it has one) where ``train_argv`` names it."""
+    if spec.operating_spec is not None:
+        (staging / SPEC_FILE).write_text(spec.operating_spec)
 
 
 # ``neuro``'s advice names its flags; a training through the service is asked for with the form's fields
@@ -300,6 +314,8 @@ SERVICE_WORDS = (
     ("--rollout-steps", "rollout_steps (Rollout steps)"),
     ("--entry", "entry (Entry XML)"),
     ("--name", "name (Name)"),
+    ("--spec", "operating_spec (Operating spec)"),
+    ("--keyframe", "keyframe"),
 )
 
 
@@ -340,6 +356,7 @@ class Trained(BaseModel):
     examples: int | None = None
     substeps_reason: str | None = None
     network_reason: str | None = None
+    operating_reason: str | None = None
 
 
 def last_json(text: str) -> Trained:
@@ -352,6 +369,7 @@ def last_json(text: str) -> Trained:
 def run(spec: ChildSpec, channel: Channel, errors: LastError) -> TrainedEmulator:
     """The phases (see the module's text); the result."""
     from neuroanimator.artifacts import registry
+    from neuroanimator.core.operating_spec import OperatingSpec
     from neuroanimator.sim.bundle import Limits
     from neuroanimator.sim.mjcf import load_mjcf
     from services.trainer.validation import check_trainable
@@ -364,6 +382,10 @@ def run(spec: ChildSpec, channel: Channel, errors: LastError) -> TrainedEmulator
         entry=spec.entry,
         name=spec.model,
         limits=TypeAdapter(Limits).validate_python(spec.limits),
+        operating_spec=(
+            None if spec.operating_spec is None else OperatingSpec.model_validate_json(spec.operating_spec)
+        ),
+        keyframe=spec.keyframe,
     )
     check_trainable(model)
     channel.progress("validating", 0.3, "simulating typical motion", force=True)
@@ -372,6 +394,7 @@ def run(spec: ChildSpec, channel: Channel, errors: LastError) -> TrainedEmulator
     seconds["validating"] = time.monotonic() - t0
 
     staging = Path(spec.staging)
+    write_spec(spec, staging)
     argv = train_argv(spec, staging)
     channel.stage = "train"
     channel.sampling_total = spec.examples + TEST_EXAMPLES
@@ -412,6 +435,7 @@ def run(spec: ChildSpec, channel: Channel, errors: LastError) -> TrainedEmulator
                 else []
             ),
             *([f"network {trained.network_reason}"] if trained.network_reason else []),
+            *([trained.operating_reason] if trained.operating_reason else []),
         ],
     )
 

@@ -18,7 +18,8 @@ from neuroanimator.core.results import PhysicalErrors
 
 class TrainingSpec(BaseModel):
     """A queued training (the ``spec`` of its record, JSON with sorted keys): the checked upload's name
-    and where it is (``source``, under the uploads folder), and the options, the sample budget filled in."""
+    and where it is (``source``, under the uploads folder), and the options, the sample budget filled in,
+    the operating spec found (the form's, else the archive's ``operating.json``) and the keyframe."""
 
     model: str
     source: str
@@ -29,6 +30,10 @@ class TrainingSpec(BaseModel):
     hidden: str | None = None
     rollout_steps: int | None = None
     force: bool = False
+    operating_spec: str | None = Field(
+        None, description="the operating spec to train with (canonical JSON: the form's or the archive's)"
+    )
+    keyframe: str | None = None
 
     def to_json(self) -> str:
         """The spec as the record keeps it."""

@@ -7,6 +7,11 @@ where MuJoCo can read nothing but the upload: ``neuroanimator.sim.sandbox``), so
 and so does a model the trainer could not make an emulator of: no degrees of freedom, no actuators,
 or actuators without a ``ctrlrange`` (the emulator is trained over the range of each control; the
 command line would guess one, a service asks). Nothing is written: the caller removes the upload.
+
+The model is loaded around its operating point as the training will load it: with the operating spec
+of the form (``operating_spec``, ``keyframe``), else the ``operating.json`` of the archive
+(``services.trainer.operating``), so that a spec that does not fit the model (an actuator, joint or
+keyframe it does not have, a control range outside its ``ctrlrange``) is refused now, naming the field.
 """
 
 from __future__ import annotations
@@ -16,10 +21,13 @@ from pathlib import Path
 
 import mujoco
 
+from neuroanimator.core.operating_spec import OperatingRecord, OperatingSpec
+from neuroanimator.sim import operating
 from neuroanimator.sim.bundle import Limits, SourceError, SourceProblem
 from neuroanimator.sim.mjcf import load_mjcf
 from neuroanimator.sim.model import ModelError, PhysicalModel
 from neuroanimator.sim.sandbox import Unconfined
+from services.trainer import operating as specs
 
 STATUS: dict[SourceProblem, int] = {
     "not_found": 422,
@@ -47,14 +55,23 @@ class Refused(Exception):
         self.status, self.error, self.field = status, error, field
 
 
+SPEC_ERROR = "invalid_operating_spec"
+"""The error code of an operating spec that is not one, or does not fit the model."""
+
+
 @dataclass(frozen=True)
 class Checked:
-    """What the check found: the model's name (from the MJCF unless given) and its size."""
+    """What the check found: the model's name (from the MJCF unless given), its size, the operating
+    point it will be trained around (``operating``) and the spec the training is to use (``spec``:
+    canonical JSON, the form's or the archive's; ``spec_from`` says which)."""
 
     model: str
     dofs: int
     controls: list[str]
     assets: int
+    operating: OperatingRecord | None = None
+    spec: str | None = None
+    spec_from: str | None = None
 
 
 def check_trainable(model: PhysicalModel) -> None:
@@ -89,13 +106,58 @@ def check_trainable(model: PhysicalModel) -> None:
         )
 
 
+def spec_field(field: str, spec: OperatingSpec | None, keyframe: str | None) -> str:
+    """The form field an ``OperatingSpecError``'s field is in: ``keyframe`` when the form's keyframe
+    field named it (and the spec names none), else under ``operating_spec``."""
+    if field == "keyframe" and keyframe is not None and (spec is None or spec.keyframe is None):
+        return "keyframe"
+    return f"{specs.FORM_FIELD}.{field}"
+
+
+def _archive_spec(
+    model: PhysicalModel, path: Path, entry: str | None, keyframe: str | None
+) -> tuple[OperatingRecord | None, str | None, str | None]:
+    """The archive's ``operating.json``, checked against the model: (the record, the spec's canonical
+    JSON, where it was); ``Refused`` naming the file and the field when it is not a spec or does not fit."""
+    try:
+        found = specs.in_archive(path, entry)
+    except specs.SpecProblem as exc:
+        raise Refused(422, SPEC_ERROR, str(exc), "file") from exc
+    if found is None:
+        return model.spec.operating, None, None
+    where = f"{found.path} in {path.name}"
+    try:
+        spec = specs.parse(found.text, found.path)
+        record = operating.typical_motion(model, spec, keyframe).operating
+    except specs.SpecProblem as exc:
+        raise Refused(422, SPEC_ERROR, f"{path.name}: {exc}", "file") from exc
+    except operating.OperatingSpecError as exc:
+        raise Refused(422, SPEC_ERROR, f"{where}: {exc}", "file") from exc
+    return record, specs.canonical(spec), where
+
+
 def check_model(
-    path: Path, entry: str | None, name: str | None, limits: Limits, require_landlock: bool = True
+    path: Path,
+    entry: str | None,
+    name: str | None,
+    limits: Limits,
+    require_landlock: bool = True,
+    spec: OperatingSpec | None = None,
+    keyframe: str | None = None,
 ) -> Checked:
-    """Read and check an uploaded model (see the module's text); ``Refused`` with the status."""
+    """Read and check an uploaded model, around its operating point (``spec``: the form's operating
+    spec; without one, the archive's ``operating.json``; see the module's text); ``Refused`` with the
+    status."""
     try:
         model = load_mjcf(
-            path, entry=entry, name=name, limits=limits, stabilise=False, require_landlock=require_landlock
+            path,
+            entry=entry,
+            name=name,
+            limits=limits,
+            stabilise=False,
+            require_landlock=require_landlock,
+            operating_spec=spec,
+            keyframe=keyframe,
         )
     except Unconfined as exc:
         raise Refused(503, "sandbox_unavailable", str(exc)) from exc
@@ -103,8 +165,25 @@ def check_model(
         raise Refused(
             STATUS[exc.kind], exc.kind, str(exc), "entry" if exc.kind == "entry" else "file"
         ) from exc
+    except operating.OperatingSpecError as exc:  # the spec does not fit the model: an actuator it lacks, ...
+        field = spec_field(exc.field, spec, keyframe)
+        why = str(exc).removeprefix(f"operating spec, {exc.field}: ")
+        raise Refused(422, SPEC_ERROR, f"{field}: {why}", field) from exc
     except ModelError as exc:  # e.g. no joints: no state to emulate
         error = "no_joints" if "no joints" in str(exc) else "invalid_model"
         raise Refused(422, error, str(exc)) from exc
     check_trainable(model)
-    return Checked(model.name, int(model.mj_model.nv), list(model.control_names), len(model.assets))
+    record, text, where = (
+        (model.spec.operating, specs.canonical(spec), f"the form field {specs.FORM_FIELD}")
+        if spec is not None
+        else _archive_spec(model, path, entry, keyframe)
+    )
+    return Checked(
+        model.name,
+        int(model.mj_model.nv),
+        list(model.control_names),
+        len(model.assets),
+        operating=record,
+        spec=text,
+        spec_from=where,
+    )

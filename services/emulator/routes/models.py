@@ -55,7 +55,8 @@ async def list_models(service: ServiceDep) -> ModelList:
 @router.get("/models/{model}", response_model=ModelDetail, responses={404: {"model": ErrorBody}})
 async def get_model(model: str, service: ServiceDep, version: str | None = None) -> ModelDetail:
     """A model version's manifest: state layout and labels, controls and forces with their trained
-    ranges, training metrics."""
+    ranges, training metrics, the envelope of its training states and, for a model of one's own, the
+    operating point it was trained around (``operating``)."""
     reg = service.registry
     emu = reg.get(model, version)
     m = emu.manifest
@@ -69,6 +70,7 @@ async def get_model(model: str, service: ServiceDep, version: str | None = None)
         metrics=m.metrics.model_dump(),
         envelope=m.envelope,
         driver=None if m.spec.driver is None else DriverInfo(**m.spec.driver.model_dump(exclude={"factory"})),
+        operating=m.spec.operating,
     )
 
 

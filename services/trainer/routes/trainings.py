@@ -4,9 +4,10 @@
 ``POST /trainings`` answers in this order, so that what can be refused early is refused before the
 upload is read whole: the caller's concurrent trainings (429: a place taken atomically in Redis before
 anything else, given back if the upload is refused), the content type (415), the body's size (413, by
-``limits.BodyLimitMiddleware`` while it streams), the form's fields (422), the file's type (415), then
-the model itself (``validation``, in a sandbox process, ``MAX_VALIDATIONS`` at once: 4xx naming the
-problem), then under the caller's lock its name (409 when it is not available) and the caller's stored
+``limits.BodyLimitMiddleware`` while it streams), the form's fields (422; an ``operating_spec`` that is
+not JSON or not an operating spec too, naming the field inside it), the file's type (415), then the
+model itself (``validation``, in a sandbox process, ``MAX_VALIDATIONS`` at once: 4xx naming the
+problem, an operating spec that does not fit the model included), then under the caller's lock its name (409 when it is not available) and the caller's stored
 models and bytes (429). Nothing is kept of a refused upload.
 
 A training belongs to the API key that made it: any other key gets 404 for it, as if it did not exist.
@@ -44,6 +45,7 @@ from neuroanimator.contracts.trainer import (
     TrainingSummary,
     TrainingUpload,
 )
+from neuroanimator.core.operating_spec import OperatingSpec
 from services.common import job_events
 from services.common.auth import CALLER, OwnerDep
 from services.common.errors import ApiError, from_validation
@@ -51,12 +53,13 @@ from services.common.jobs import FINAL, JobRecord, QueueFull, new_id
 from services.common.openapi import Responses
 from services.common.queue_app import queue_full
 from services.trainer import models
+from services.trainer import operating as specs
 from services.trainer.deps import SettingsDep, StoreDep
 from services.trainer.metrics import Metrics
 from services.trainer.settings import Settings
 from services.trainer.spec import TrainingProgress, TrainingSpec
 from services.trainer.store import TrainingStore
-from services.trainer.validation import Checked, Refused, check_model
+from services.trainer.validation import SPEC_ERROR, Checked, Refused, check_model
 
 log = logging.getLogger(__name__)
 router = APIRouter(tags=["trainings"])
@@ -192,8 +195,26 @@ def upload_name(filename: str | None) -> str:
     return stem[:64] + suffix
 
 
-async def read_form(request: Request) -> tuple[UploadFile, TrainingOptions, Any]:
-    """The upload and its options from the multipart form (the form, to close when done)."""
+def operating_spec(opts: TrainingOptions) -> OperatingSpec | None:
+    """The form's operating spec, read (None when there is none); 422 naming the field inside it when
+    it is not JSON or not an operating spec."""
+    if opts.operating_spec is None or not opts.operating_spec.strip():
+        return None
+    try:
+        return specs.parse(opts.operating_spec)
+    except specs.SpecProblem as exc:
+        raise ApiError(
+            422,
+            SPEC_ERROR,
+            str(exc),
+            field=exc.field,
+            expected="an operating spec, JSON (docs/operating-spec.md)",
+        ) from exc
+
+
+async def read_form(request: Request) -> tuple[UploadFile, TrainingOptions, OperatingSpec | None, Any]:
+    """The upload, its options and its operating spec from the multipart form (the form, to close when
+    done)."""
     ctype = request.headers.get("content-type", "")
     if not ctype.lower().startswith("multipart/form-data"):
         raise ApiError(
@@ -219,18 +240,25 @@ async def read_form(request: Request) -> tuple[UploadFile, TrainingOptions, Any]
         if any(isinstance(v, UploadFile) for v in fields.values()):
             raise ApiError(422, "invalid_request", "send one file, as field 'file'", field="file")
         opts = TrainingOptions.model_validate(fields)
+        spec = operating_spec(opts)
     except ValidationError as exc:
         await form.close()
         raise from_validation([dict(e) for e in exc.errors()]) from exc
     except ApiError:
         await form.close()
         raise
-    return file, opts, form
+    return file, opts, spec, form
 
 
-def _check(s: Settings, path: Path, opts: TrainingOptions, checks: threading.BoundedSemaphore) -> Checked:
-    """The model checked in the sandbox, at most ``MAX_VALIDATIONS`` at once (503 when none frees up
-    within ``VALIDATION_WAIT_S``)."""
+def _check(
+    s: Settings,
+    path: Path,
+    opts: TrainingOptions,
+    spec: OperatingSpec | None,
+    checks: threading.BoundedSemaphore,
+) -> Checked:
+    """The model checked in the sandbox, around its operating point, at most ``MAX_VALIDATIONS`` at once
+    (503 when none frees up within ``VALIDATION_WAIT_S``)."""
     if not checks.acquire(timeout=s.validation_wait_s):
         raise ApiError(
             503,
@@ -238,7 +266,9 @@ def _check(s: Settings, path: Path, opts: TrainingOptions, checks: threading.Bou
             f"the service is checking {s.max_validations} other uploads (MAX_VALIDATIONS); try again shortly",
         )
     try:
-        return check_model(path, opts.entry, opts.name, s.limits(), s.require_landlock)
+        return check_model(
+            path, opts.entry, opts.name, s.limits(), s.require_landlock, spec=spec, keyframe=opts.keyframe
+        )
     except Refused as exc:
         raise ApiError(exc.status, exc.error, str(exc), field=exc.field) from exc
     finally:
@@ -252,11 +282,12 @@ def _accept(
     job_id: str,
     path: Path,
     opts: TrainingOptions,
+    spec: OperatingSpec | None,
     checks: threading.BoundedSemaphore,
 ) -> TrainingAccepted:
     """Check the stored upload and queue its training (in a worker thread: the check runs in a sandbox
     process, then the owner's models and bytes are counted and the name claimed under the owner's lock)."""
-    checked = _check(s, path, opts, checks)
+    checked = _check(s, path, opts, spec, checks)
     name = checked.model
     lock = store.owner_lock(owner)
     if not lock.acquire():
@@ -267,7 +298,7 @@ def _accept(
             new = models.claim(s.roots(), name, owner)
         except models.NameTaken as exc:
             raise ApiError(409, "name_taken", str(exc), field="name", got=name) from exc
-        spec = TrainingSpec(
+        queued = TrainingSpec(
             model=name,
             source=path.relative_to(s.uploads()).as_posix(),
             entry=opts.entry,
@@ -277,9 +308,11 @@ def _accept(
             hidden=opts.hidden,
             rollout_steps=opts.rollout_steps,
             force=opts.force,
+            operating_spec=checked.spec,
+            keyframe=opts.keyframe,
         )
         try:
-            store.submit_spec(spec.to_json(), owner, job_id=job_id, log_extra={"model": name})
+            store.submit_spec(queued.to_json(), owner, job_id=job_id, log_extra={"model": name})
         except BaseException:
             release(store, s, name, owner, job_id)
             raise
@@ -288,13 +321,15 @@ def _accept(
             lock.release()
     what = "a new model" if new else f"a new version of your model {name!r}"
     dofs = f"{checked.dofs} degrees of freedom, {len(checked.controls)} controls"
+    point = "" if checked.operating is None else f"; {checked.operating.describe()}"
+    given = f", with the operating spec of {checked.spec_from}" if checked.spec_from else ""
     return TrainingAccepted(
         id=job_id,
         status="queued",
         phase="queued",
         model=name,
         new_version=not new,
-        message=f"{name}: {dofs}; queued to train {what}",
+        message=f"{name}: {dofs}{point}{given}; queued to train {what}",
     )
 
 
@@ -311,14 +346,17 @@ async def create_training(
     """Upload a MuJoCo model (an MJCF file, or a .zip / .tar.gz of its folder) and queue its training.
 
     The model is checked before this answers: a 4xx names what is wrong with it (which file is missing,
-    MuJoCo's compile error with the file and line, which actuator has no ``ctrlrange``, ...)."""
+    MuJoCo's compile error with the file and line, which actuator has no ``ctrlrange``, ...), and so
+    does one for an operating spec (``operating_spec``, or the archive's ``operating.json``) that is not
+    one or does not fit the model (``operating_spec.controls.thrust9``: an actuator it does not have).
+    The answer's message says which operating point the training will use and why."""
     metrics: Metrics = request.app.state.metrics
     checks: threading.BoundedSemaphore = request.app.state.checks
     job_id = new_id()
     try:
         await run_in_threadpool(_reserve, store, owner, settings, job_id)
         try:
-            file, opts, form = await read_form(request)
+            file, opts, spec, form = await read_form(request)
             folder = settings.uploads() / job_id
             try:
                 path = folder / upload_name(file.filename)
@@ -327,7 +365,7 @@ async def create_training(
                     await run_in_threadpool(shutil.copyfileobj, file.file, out, 1 << 20)
                 await form.close()
                 accepted = await run_in_threadpool(
-                    _accept, store, settings, owner, job_id, path, opts, checks
+                    _accept, store, settings, owner, job_id, path, opts, spec, checks
                 )
             except BaseException:
                 await form.close()

@@ -19,6 +19,7 @@ export interface EmulatorWire {
   BatchStepResult?: BatchStepResult;
   BodyInfo?: BodyInfo;
   ClientMessage?: ClientMessage;
+  ControlBand?: ControlBand;
   ControlInfo?: ControlInfo;
   DriverInfo?: DriverInfo;
   DriverParam?: DriverParam;
@@ -33,6 +34,8 @@ export interface EmulatorWire {
   ModelGeometry?: ModelGeometry;
   ModelList?: ModelList;
   ModelSummary?: ModelSummary;
+  OperatingRecord?: OperatingRecord;
+  OperatingSpec?: OperatingSpec;
   PosesRequest?: PosesRequest;
   PosesResponse?: PosesResponse;
   ServerMessage?: ServerMessage;
@@ -41,6 +44,7 @@ export interface EmulatorWire {
   ShadowState?: ShadowState;
   SkinBone?: SkinBone;
   SkinInfo?: SkinInfo;
+  StartSpread?: StartSpread;
   StepRequest?: StepRequest;
   StepResponse?: StepResponse;
   WsControls?: WsControls;
@@ -256,6 +260,27 @@ export interface WsControls {
   seq?: number | null;
 }
 /**
+ * The typical values of one control: a ``centre`` and a half-width ``spread`` (either may be left
+ * to the operating point found), or a ``range`` [low, high], not both.
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "ControlBand".
+ */
+export interface ControlBand {
+  /**
+   * the control's typical value, in its own units
+   */
+  centre?: number | null;
+  /**
+   * half-width around the centre, in its own units
+   */
+  spread?: number | null;
+  /**
+   * [low, high], instead of centre and spread
+   */
+  range?: [unknown, unknown] | null;
+}
+/**
  * One control input: ``low``..``high`` is the trained range (inputs are clipped to it). A value
  * ``u`` applies ``gain · u`` of ``unit`` (N, N·m; a servo's target in rad or m); ``sign`` says what a
  * positive value does. Emulators trained before these were recorded leave them null.
@@ -413,6 +438,101 @@ export interface ModelDetail {
    * the model's own controller, which a session may ask for (SessionCreate.driver): it sets every control each super-step, and the client sets its params and the forces
    */
   driver?: DriverInfo | null;
+  /**
+   * the operating point a model of one's own was trained around (its keyframes, the controls that hold it still, or the operating spec given), why, and the controls' centres and spread: the motion the emulator knows best (absent for catalog models and older artifacts)
+   */
+  operating?: OperatingRecord | null;
+}
+/**
+ * The operating point a model was trained around, and how it was found: ``source`` (its keyframes,
+ * the controls that hold it still, the user's spec alone, or none: controls over their ranges),
+ * ``reason`` in words, the keyframes used, the controls' centres (one row per keyframe, U values) and
+ * half-widths (U), what the divergence check narrowed (``narrowed``), a spin-up seen in typical motion
+ * (``spin_up``), and the user's spec as given.
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "OperatingRecord".
+ */
+export interface OperatingRecord {
+  source: 'keyframe' | 'hold' | 'spec' | 'none';
+  reason: string;
+  keyframes?: string[];
+  control_centres?: number[][];
+  control_spread?: number[];
+  /**
+   * share of runs with the controls at their centres
+   */
+  held_share?: number;
+  narrowed?: string | null;
+  spin_up?: string | null;
+  spec?: OperatingSpec | null;
+}
+/**
+ * Typical motion as the user declares it (see the module doc). ``control_spread`` is the half-width
+ * of every control not in ``controls``, as a share of its ``ctrlrange`` (0..1); ``time_scale_s`` the
+ * seconds between the smooth controls' points; ``run_s`` how long a training run goes before it
+ * restarts from a typical start; ``held_share`` the share of runs whose controls stay at their centres
+ * (what holds the model still: an emulator of a hovering drone must hover), and, drawn apart, the share
+ * that start exactly at an operating state.
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "OperatingSpec".
+ */
+export interface OperatingSpec {
+  version?: 1;
+  /**
+   * the keyframe to operate around; None: every keyframe
+   */
+  keyframe?: string | null;
+  /**
+   * actuator name -> band
+   */
+  controls?: {
+    [k: string]: ControlBand;
+  };
+  /**
+   * share of ctrlrange, half-width
+   */
+  control_spread?: number | null;
+  start?: StartSpread;
+  /**
+   * share of runs whose controls stay at their centres (holding still), and apart, of runs that start at an operating state
+   */
+  held_share?: number | null;
+  /**
+   * seconds between control points
+   */
+  time_scale_s?: number | null;
+  /**
+   * seconds a training run goes on
+   */
+  run_s?: number | null;
+}
+/**
+ * How typical runs start around the operating state: a spread (half-width, uniform) per joint by
+ * name, else ``position_spread`` on every joint's position (rad or m) and ``velocity_spread`` on every
+ * velocity; a free root's ``tilt`` (rad, a random horizontal axis) and linear ``speed`` (m/s).
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "StartSpread".
+ */
+export interface StartSpread {
+  /**
+   * joint name -> position spread
+   */
+  joints?: {
+    [k: string]: number;
+  };
+  position_spread?: number | null;
+  velocity_spread?: number | null;
+  /**
+   * a free root's largest tilt, rad
+   */
+  tilt?: number | null;
+  /**
+   * a free root's linear velocity spread, m/s
+   */
+  speed?: number | null;
 }
 /**
  * What a client draws for a model, from the artifact's MJCF: its bodies and their geoms, the geoms

@@ -196,6 +196,14 @@ export interface TrainingOptions {
    * keep the emulator even when it misses the acceptance bar
    */
   force?: boolean;
+  /**
+   * the model's typical motion, an operating spec as JSON text (docs/operating-spec.md: the keyframe, the controls' centres and spreads, how runs start); default: an operating.json at the top of an uploaded archive, else the operating point found in the model (its keyframes, else the controls that hold it still)
+   */
+  operating_spec?: string | null;
+  /**
+   * train around this keyframe of the model only (default: every keyframe it has)
+   */
+  keyframe?: string | null;
 }
 /**
  * What a finished training made.
@@ -326,6 +334,14 @@ export interface TrainingUpload {
    * keep the emulator even when it misses the acceptance bar
    */
   force?: boolean;
+  /**
+   * the model's typical motion, an operating spec as JSON text (docs/operating-spec.md: the keyframe, the controls' centres and spreads, how runs start); default: an operating.json at the top of an uploaded archive, else the operating point found in the model (its keyframes, else the controls that hold it still)
+   */
+  operating_spec?: string | null;
+  /**
+   * train around this keyframe of the model only (default: every keyframe it has)
+   */
+  keyframe?: string | null;
   /**
    * the model: an MJCF .xml file, or a .zip / .tar.gz / .tgz of its folder
    */
