@@ -7,8 +7,10 @@
 // progress shows live (phases, percent, loss curve) to the result, then "Drive it" opens the Playground
 // on it and the model is drawn there, its knob from the folder's OBJ mesh.
 // add-model-refused: bad models are refused at once, in the trainer service's words (an actuator with
-// no ctrlrange; an MJCF uploaded without the file it includes; a file that is no model at all).
-// Environment: browser.mjs's, MODEL_ZIP (add-model), NO_CTRLRANGE_XML and LONE_XML (add-model-refused).
+// no ctrlrange; an MJCF uploaded without the file it includes; a file that is no model at all), and so
+// is an operating spec naming an actuator the model does not have, beside the spec's box.
+// Environment: browser.mjs's, MODEL_ZIP (add-model), NO_CTRLRANGE_XML, LONE_XML and SPEC_XML (a model
+// that trains: add-model-refused).
 import { readFileSync } from 'node:fs';
 import { basename } from 'node:path';
 import { canvasStats, check, log, main, noErrorNotice, onScreen, out, shot, url } from './browser.mjs';
@@ -129,10 +131,23 @@ async function addModelRefused(page) {
   check(/^This model cannot be trained: .*parts\/arm\.xml/.test(lone), 'the missing include is named');
   const other = await refusalOf(page, { name: 'robot.urdf', mimeType: 'text/xml', buffer: Buffer.from('<robot/>') });
   check(/robot\.urdf is not a model the trainer takes/.test(other) && (await page.isDisabled('#am-submit')), 'a file of another kind is refused before it is sent');
+  // a model that trains, with an operating spec that names an actuator it does not have
+  await page.fill('#am-spec', '{"controls": {"thrust9": {"centre": 0.5}}}');
+  await page.setInputFiles('#am-file', xml('slider.xml', 'SPEC_XML'));
+  await page.click('#am-submit');
+  await page.waitForSelector('#am-spec-error:not([hidden])', { timeout: 20000 });
+  const spec = await page.$eval('#am-spec-error', (el) => el.textContent);
+  log(`operating spec: ${spec}`);
+  check(/operating_spec\.controls\.thrust9: the model has no actuator 'thrust9'; its controls are \['push'\]/.test(spec), 'the unknown actuator is named beside the spec');
+  check(await page.isHidden('#am-error'), 'the model itself is not refused');
+  await page.fill('#am-spec', '{"controls": {');
+  await page.click('#am-submit');
+  await page.waitForFunction(() => /not JSON/.test(document.querySelector('#am-spec-error')?.textContent ?? ''), null, { timeout: 5000 });
   const status = await statusOf(page);
   check(!status.training, 'no training was started');
   await noErrorNotice(page, 'refusals');
   out.refusals = [noRange, lone, other];
+  out.spec_refusal = spec;
 }
 
 // Chromium reports on the console every load that fails: a refused upload (a 4xx), and the speed table

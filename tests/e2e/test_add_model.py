@@ -7,7 +7,8 @@ begin with:
   texture), zipped here, is uploaded on the Models page with a tiny budget; its progress shows live to
   the result, and "Drive it" opens the Playground driving it, its knob drawn from the OBJ;
 - bad models are refused at once in plain words: an actuator without a ctrlrange, an MJCF uploaded
-  without the file it includes, a file that is no model.
+  without the file it includes, a file that is no model; and an operating spec naming an actuator the
+  model does not have, beside the spec's box.
 
 ``E2E_UPDATE_DOCS=1`` copies the Models page with the panel into ``docs/models-add-model.png``.
 """
@@ -35,6 +36,7 @@ NO_CTRLRANGE = """<mujoco model="noctrl">
   <actuator><motor name="push" joint="x"/></actuator>
 </mujoco>
 """
+SLIDER = NO_CTRLRANGE.replace('"noctrl"', '"slider"').replace('joint="x"/>', 'joint="x" ctrlrange="-1 1"/>')
 
 pytestmark = pytest.mark.skipif(missing() is not None, reason=missing() or "")
 
@@ -78,6 +80,8 @@ def test_add_a_model_train_it_and_drive_it(stack: Stack, tmp_path: Path) -> None
 def test_bad_models_are_refused_in_plain_words(stack: Stack, tmp_path: Path) -> None:
     no_range = tmp_path / "noctrl.xml"
     no_range.write_text(NO_CTRLRANGE)
+    slider = tmp_path / "slider.xml"
+    slider.write_text(SLIDER)
     r = run_phase(
         stack,
         SCRIPT,
@@ -85,5 +89,8 @@ def test_bad_models_are_refused_in_plain_words(stack: Stack, tmp_path: Path) -> 
         120,
         NO_CTRLRANGE_XML=str(no_range),
         LONE_XML=str(TINYBOT / "robot.xml"),  # without parts/arm.xml, which it includes
+        SPEC_XML=str(slider),
     )
     assert len(r["refusals"]) == 3
+    assert "no actuator 'thrust9'" in r["spec_refusal"]
+    assert not (stack.config.data_dir / "slider").exists()  # nothing kept of it

@@ -4,11 +4,15 @@
 // Its progress comes live from the training's server-sent events (phase, percent, time left, the loss
 // curve); once done, the result (one-step error against the linear baseline, errors in physical units)
 // and "Drive it", which opens the Playground on the new emulator as soon as the emulator service has it.
+// An optional operating spec (JSON: where the model operates, docs/operating-spec.md) goes with the upload;
+// the trainer's refusal of it (an actuator the model does not have, ...) is shown beside its box.
+import SPEC_DOC from '../../../docs/operating-spec.md?raw';
 import type { EmulatorApi } from '../api/emulator';
 import { errorText, ServiceError } from '../api/http';
 import type { TrainerApi } from '../api/trainer';
 import { PHYSICAL_QUANTITIES, type PhysicalQuantity } from '../api/measurements';
 import { driveHash } from '../session/start';
+import { SPEC_PLACEHOLDER, specProblem, specRefused } from '../training/operating';
 import { formFields, fromStatus, isEnded, onEvent, phaseSteps, resultRows, startView, statusLine, uploadProblem, type TrainingView } from '../training/progress';
 import { fmt, h, physicalText } from '../ui/dom';
 import { notify } from '../ui/notices';
@@ -66,6 +70,22 @@ export function addModelPanel(trainer: TrainerApi | null, emulator: EmulatorApi,
   const rollout = h('input', { type: 'number', id: 'am-rollout-steps', min: 0, max: 64, placeholder: 'default' });
   const entry = h('input', { type: 'text', id: 'am-entry', placeholder: 'the only one', size: 14 });
   const force = h('input', { type: 'checkbox', id: 'am-force' });
+  const spec = h('textarea', { id: 'am-spec', rows: 5, spellcheck: false, placeholder: SPEC_PLACEHOLDER, 'aria-describedby': 'am-spec-hint am-spec-error' });
+  const specError = h('div', { class: 'refusal', id: 'am-spec-error', role: 'alert', hidden: true });
+  const specDoc = URL.createObjectURL(new Blob([SPEC_DOC], { type: 'text/plain;charset=utf-8' })); // the format, offline
+  const specField = h(
+    'div',
+    { class: 'field spec' },
+    h('label', { for: 'am-spec' }, 'Operating spec'),
+    spec,
+    h(
+      'small',
+      { class: 'hint', id: 'am-spec-hint' },
+      "Optional: where the model operates, as JSON (its keyframe, the controls' centres and spreads, how runs start). Empty: its keyframes, else the controls that hold it still. ",
+      h('a', { href: specDoc, target: '_blank', rel: 'noopener', id: 'am-spec-doc' }, 'The format: docs/operating-spec.md'),
+    ),
+    specError,
+  );
   const submit = h('button', { id: 'am-submit', class: 'primary', disabled: true }, 'Upload and train');
   const cancel = h('button', { id: 'am-cancel', hidden: true }, 'Cancel the training');
   const problem = h('div', { class: 'refusal', id: 'am-error', role: 'alert', hidden: true });
@@ -85,6 +105,7 @@ export function addModelPanel(trainer: TrainerApi | null, emulator: EmulatorApi,
         { class: 'am-form' },
         drop,
         h('div', { class: 'fields' }, field('Name', name, 'in the registry'), field('Super-step', superStep, 'n physical steps, or auto'), field('Sample budget', examples, 'training examples')),
+        specField,
         h(
           'details',
           { class: 'more' },
@@ -120,6 +141,13 @@ export function addModelPanel(trainer: TrainerApi | null, emulator: EmulatorApi,
     problem.textContent = text;
     problem.hidden = false;
   };
+  /** The operating spec's problem beside its box (null: none). */
+  const specSays = (text: string | null): void => {
+    specError.textContent = text ?? '';
+    specError.hidden = text === null;
+    spec.setAttribute('aria-invalid', String(text !== null));
+  };
+  spec.addEventListener('input', () => specSays(null));
   const stopFollowing = (): void => {
     events?.close();
     events = null;
@@ -213,12 +241,16 @@ export function addModelPanel(trainer: TrainerApi | null, emulator: EmulatorApi,
 
   const upload = async (): Promise<void> => {
     if (!picked) return;
+    const sent = spec.value;
+    const bad = specProblem(sent);
+    specSays(bad);
+    if (bad) return;
     stopFollowing();
     problem.hidden = true;
     result.hidden = true;
     submit.disabled = true;
     line.textContent = `Uploading ${picked.name} and checking it…`;
-    const form = { name: name.value, superStep: superStep.value, examples: examples.value, epochs: epochs.value, hidden: hidden.value, rolloutSteps: rollout.value, entry: entry.value, force: force.checked };
+    const form = { name: name.value, superStep: superStep.value, examples: examples.value, epochs: epochs.value, hidden: hidden.value, rolloutSteps: rollout.value, entry: entry.value, force: force.checked, operatingSpec: sent };
     try {
       const accepted = await trainer.upload(picked, picked.name, formFields(form));
       if (!alive) return;
@@ -229,8 +261,10 @@ export function addModelPanel(trainer: TrainerApi | null, emulator: EmulatorApi,
     } catch (e) {
       submit.disabled = false;
       line.textContent = 'Nothing was uploaded.';
-      // the service's own words say what is wrong with the model; anything else goes to the notices too
-      if (e instanceof ServiceError && e.detail && e.status !== null && e.status < 500) refuse(`This model cannot be trained: ${e.detail}`);
+      // the service's own words say what is wrong with the model (or with the operating spec, shown beside
+      // its box); anything else goes to the notices too
+      if (e instanceof ServiceError && e.detail && e.status !== null && e.status < 500 && specRefused(e.code, sent)) specSays(`The operating spec was refused: ${e.detail}`);
+      else if (e instanceof ServiceError && e.detail && e.status !== null && e.status < 500) refuse(`This model cannot be trained: ${e.detail}`);
       else {
         refuse(errorText(e));
         notify(`Could not upload the model. ${errorText(e)}`, 'error', 'add-model');
@@ -259,6 +293,7 @@ export function addModelPanel(trainer: TrainerApi | null, emulator: EmulatorApi,
       alive = false;
       stopFollowing();
       loss.dispose();
+      URL.revokeObjectURL(specDoc);
     },
   };
 }

@@ -39,6 +39,8 @@ export interface UploadForm {
   rolloutSteps: string;
   entry: string;
   force: boolean;
+  /** The operating spec, JSON as typed (docs/operating-spec.md); blank: none. */
+  operatingSpec?: string;
 }
 
 /** Why a file cannot be uploaded, in words, or null when its type is one the trainer takes. */
@@ -61,6 +63,7 @@ export function formFields(f: UploadForm): Record<string, string> {
   ];
   for (const [k, v] of text) if (v.trim()) out[k] = v.trim();
   if (f.force) out.force = 'true';
+  if (f.operatingSpec?.trim()) out.operating_spec = f.operatingSpec.trim();
   return out;
 }
 
