@@ -269,6 +269,13 @@ def _network_and_super_step(
     chosen. Returns the settings and what to note in the result's metrics."""
     from neuroanimator.training import super_step
 
+    notes: ChoiceNotes = {}
+    motion = None
+    if args.mjcf is not None:  # a model of one's own: runs cut where they spin a body up (first: the
+        # contacts and limits are those of the runs kept)
+        motion = super_step.spin_up(model, cfg, cfg.substeps if not auto else super_step.CANDIDATES[-1])
+        if model.spec.operating is not None:
+            notes["operating_reason"] = model.spec.operating.describe()
     spec_given = bool(model.spec.parts or model.spec.data_source)
     activity = None if spec_given else super_step.constraint_activity(model, seed=cfg.seed)
     network_reason = None
@@ -285,17 +292,11 @@ def _network_and_super_step(
             cfg, network_reason = super_step.constrained_defaults(cfg, activity, **given)
         if network_reason:
             log.info("%s: network %s", model.name, network_reason)
-    notes: ChoiceNotes = {}
     if network_reason:
         notes["network_reason"] = network_reason
     if activity is not None:
         notes["contact_fraction"] = activity.contact
         notes["limit_fraction"] = activity.limit
-    motion = None
-    if args.mjcf is not None:  # a model of one's own: runs cut where they spin a body up
-        motion = super_step.spin_up(model, cfg, cfg.substeps if not auto else super_step.CANDIDATES[0])
-        if model.spec.operating is not None:
-            notes["operating_reason"] = model.spec.operating.describe()
     if auto:
         choice = super_step.choose_substeps(model, cfg, activity=activity, motion=motion)
         log.info("%s: super-step %s", model.name, choice.reason)

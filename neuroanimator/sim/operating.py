@@ -169,6 +169,10 @@ of each ``ctrlrange``: a hovering drone's thrusts within ±5 % of their range of
 HELD_SHARE_AT_POINT = 0.2
 """Default share of runs whose controls stay at an operating point found: holding still is what a user
 asks of a hovering drone or a standing arm first, and an emulator that never saw it drifts there."""
+AT_POINT_SHARE = 1 / 3
+"""Around an operating point found, starts spread a third as far (±0.1 rad or m on joints, ±0.1 on
+velocities, a tilt of 0.1 rad): a drone hovering 1 m over its floor and tilted 0.3 rad reaches the floor
+within a second (the reinmav-gym quadrotor), and its crashes were most of its emulator's error."""
 RUN_S = 20.0
 """Default seconds of a training run before it restarts from a typical start."""
 
@@ -198,12 +202,14 @@ def _state_of(model: PhysicalModel, point: Keyframe) -> FloatArray:
     return np.asarray(model.from_physics(full[None, :])[0], dtype=np.float64)
 
 
-def _start_spread(model: PhysicalModel, start: StartSpread) -> tuple[FloatArray, float]:
-    """(S,) half-width of each state value at a start, and the free root's largest tilt."""
+def _start_spread(model: PhysicalModel, start: StartSpread, found: bool) -> tuple[FloatArray, float]:
+    """(S,) half-width of each state value at a start, and the free root's largest tilt: the spec's,
+    else the defaults, narrower around an operating point ``found``."""
     m = model.mj_model
     joints = _names(m, mujoco.mjtObj.mjOBJ_JOINT, m.njnt, "joint")
-    position = POSITION_SPREAD if start.position_spread is None else start.position_spread
-    velocity = VELOCITY_SPREAD if start.velocity_spread is None else start.velocity_spread
+    near = AT_POINT_SHARE if found else 1.0
+    position = near * POSITION_SPREAD if start.position_spread is None else start.position_spread
+    velocity = near * VELOCITY_SPREAD if start.velocity_spread is None else start.velocity_spread
     speed = velocity if start.speed is None else start.speed
     half = np.zeros(model.state_size)
     for g, sl in model.layout.group_slices():
@@ -219,7 +225,7 @@ def _start_spread(model: PhysicalModel, start: StartSpread) -> tuple[FloatArray,
                 f"start.joints.{name}", f"the model has no joint {name!r}; its joints are {joints}"
             )
         j = joints.index(name)
-        if m.jnt_type[j] not in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+        if int(m.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             raise OperatingSpecError(
                 f"start.joints.{name}",
                 "a spread per joint is for hinge and slide joints; a free root's is tilt/speed",
@@ -228,7 +234,7 @@ def _start_spread(model: PhysicalModel, start: StartSpread) -> tuple[FloatArray,
             raise OperatingSpecError(f"start.joints.{name}", f"a spread must be 0 or more, got {spread:g}")
         group = next(g for g in model.layout if g.source == "qpos" and g.address == int(m.jnt_qposadr[j]))
         half[model.layout.slice_of(group.name)] = spread
-    return half, TILT if start.tilt is None else start.tilt
+    return half, near * TILT if start.tilt is None else start.tilt
 
 
 def _control_bands(
@@ -313,7 +319,7 @@ def typical_motion(
         centres, starts = limits.mean(axis=1)[None, :], []
     centres = np.clip(centres, limits[:, 0], limits[:, 1])
     centres, spread = _control_bands(model, spec, centres, bool(point.points))
-    half, tilt = _start_spread(model, spec.start)
+    half, tilt = _start_spread(model, spec.start, bool(point.points))
     given = spec != OperatingSpec()
     source = point.source if point.source != "none" or not given else "spec"
     reason = point.reason if source != "spec" else f"the operating spec given ({point.reason})"

@@ -417,7 +417,9 @@ def generate_sequences(
     runs = max(1, min(runs, count))
     n, k = substeps, horizon
     S, U, F = model.state_size, model.num_controls, model.num_forces
-    warm = 5 * n  # the longest lag before a sequence starts
+    # the longest lag before a sequence starts: five super-steps, within a run (a run cut short where a
+    # body spins up starts its sequences before it has)
+    warm = max(1, min(5 * n, round(model.spec.episode_s / model.dt)))
     times = np.arange(warm + k * n + 1, dtype=np.float64) * model.dt
     out_s = np.empty((count, k + 1, S))
     out_u = np.empty((count, k, U))

@@ -35,7 +35,7 @@ SPIN_GROWTH = 5.0
 SPIN_FLOOR = 0.2
 """rad/s: starts slower than this count as this fast (a start at rest would make any motion a spin-up)."""
 MIN_RUN_SUPER_STEPS = 4
-"""A run cut for spin-up keeps at least this many of the longest super-steps."""
+"""A run cut for spin-up keeps at least this many of the shortest super-steps."""
 
 
 @dataclass(frozen=True)
@@ -119,16 +119,16 @@ def fastest_motion(
     )
 
 
-def cut_spin_up(model: PhysicalModel, motion: FastestMotion, longest: int) -> str | None:
+def cut_spin_up(model: PhysicalModel, motion: FastestMotion, shortest: int) -> str | None:
     """Where typical motion spins a body up (``FastestMotion.spin_up``), cut the model's runs
     (``spec.episode_s``) to when it has, but to no fewer than ``MIN_RUN_SUPER_STEPS`` super-steps of
-    ``longest`` physical steps: its runs restart from a typical start before they tumble. What was seen
+    ``shortest`` physical steps: its runs restart from a typical start before they tumble. What was seen
     and done, or None."""
     seen = motion.spin_up()
     if seen is None:
         return None
     at, said = seen
-    run = max(at, MIN_RUN_SUPER_STEPS * longest * model.dt)
+    run = max(at, MIN_RUN_SUPER_STEPS * shortest * model.dt)
     if run >= model.spec.episode_s:
         return said
     model.spec = model.spec.model_copy(update={"episode_s": run})

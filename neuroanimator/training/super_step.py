@@ -114,6 +114,9 @@ def constraint_activity(
     within each (``mj_fwdPosition`` at every step): a limit reached in the middle of a super-step kinks
     its map as much as one engaged at its start."""
     rng = np.random.default_rng(seed)
+    if model.spec.episode_s < seconds:  # runs as long as the model's typical runs, as many more
+        runs = math.ceil(runs * seconds / model.spec.episode_s)
+        seconds = model.spec.episode_s
     steps = max(1, round(seconds / model.dt))
     times = np.arange(steps, dtype=np.float64) * model.dt
     s0 = model.initial_states(rng, runs)
@@ -121,7 +124,8 @@ def constraint_activity(
     f = model.typical_forces(rng, runs, times)
     traj = model.simulate(s0, u, f if model.num_forces else None)  # (R, T, S)
     width = max(1, min(window, steps))
-    starts = np.arange(0, steps - width + 1, max(1, (steps - width + 1) // 25))[:25]  # (W,)
+    per_run = max(1, math.ceil(200 / runs))  # about 200 windows in all
+    starts = np.arange(0, steps - width + 1, max(1, (steps - width + 1) // per_run))[:per_run]  # (W,)
     m = model.mj_model
     d = mujoco.MjData(m)
     contact = limit = 0
@@ -268,11 +272,11 @@ def choose_substeps(
     return SuperStepChoice(chosen, reason, activity, probes)
 
 
-def spin_up(model: PhysicalModel, cfg: TrainConfig, longest: int = CANDIDATES[0]) -> FastestMotion:
+def spin_up(model: PhysicalModel, cfg: TrainConfig, shortest: int = CANDIDATES[-1]) -> FastestMotion:
     """Measure how typical motion turns, cut the runs where it spins a body up (``motion.cut_spin_up``:
     logged, and noted in the model's operating record) and measure again over the runs kept."""
     motion = fastest_motion(model, seed=cfg.seed)
-    said = cut_spin_up(model, motion, longest)
+    said = cut_spin_up(model, motion, shortest)
     if said is None:
         return motion
     log.warning("%s: %s", model.name, said)
