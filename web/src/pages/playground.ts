@@ -212,6 +212,11 @@ export const playgroundPage: Page = (root, ctx) => {
  * starts with its controls at rest, as any other model). */
 async function hoverControls(ctx: Ctx, detail: ModelDetail, rest: number[] | null): Promise<number[] | null> {
   if (!rest || !detail.controls.length) return null;
+  // a model trained around an operating point (its keyframe, or the controls that hold it still) starts
+  // with that point's controls: its emulator was trimmed to hold still there, as MuJoCo does
+  const op = detail.operating;
+  const held = op && (op.source === 'keyframe' || op.source === 'hold') ? op.control_centres?.[0] : undefined;
+  if (held && held.length === detail.controls.length) return held;
   const base = detail.controls.map((c) => restValue(c.low, c.high));
   try {
     return await holdControls(detail.layout, detail.controls, base, detail.super_timestep, async (controls) => {
