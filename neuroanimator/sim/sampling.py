@@ -221,6 +221,12 @@ def run_horizon(model: PhysicalModel, substeps: int, count: int, runs: int) -> i
     return int(max(1, min(episode, spread, fits)))
 
 
+def lead_steps(model: PhysicalModel, substeps: int) -> int:
+    """The longest lag (physical steps) before a sampled sequence starts: five super-steps, within a run
+    (a run cut short where a body spins up starts its sequences before it has)."""
+    return max(1, min(5 * substeps, round(model.spec.episode_s / model.dt)))
+
+
 def steps_to_sample(
     model: PhysicalModel, substeps: int, count: int, sampler: str = "runs", runs: int = 256
 ) -> float:
@@ -234,7 +240,7 @@ def steps_to_sample(
     horizon = run_horizon(model, n, count, runs)
     sequences = math.ceil(count / horizon)
     batch = max(1, min(runs, sequences))
-    return math.ceil(sequences / batch) * batch * (5.0 + horizon) * n
+    return math.ceil(sequences / batch) * batch * (lead_steps(model, n) + horizon * n)
 
 
 def sampling_steps(
@@ -268,7 +274,7 @@ def held_out_steps(
     if sampler != "runs":
         return steps_to_sample(model, substeps, count, sampler, runs)
     total, horizon, batch = _held_out_runs(model, substeps, count, like, runs)
-    return math.ceil(total / batch) * batch * (5.0 + horizon) * substeps
+    return math.ceil(total / batch) * batch * (lead_steps(model, substeps) + horizon * substeps)
 
 
 def generate_held_out(
@@ -417,9 +423,7 @@ def generate_sequences(
     runs = max(1, min(runs, count))
     n, k = substeps, horizon
     S, U, F = model.state_size, model.num_controls, model.num_forces
-    # the longest lag before a sequence starts: five super-steps, within a run (a run cut short where a
-    # body spins up starts its sequences before it has)
-    warm = max(1, min(5 * n, round(model.spec.episode_s / model.dt)))
+    warm = lead_steps(model, n)
     times = np.arange(warm + k * n + 1, dtype=np.float64) * model.dt
     out_s = np.empty((count, k + 1, S))
     out_u = np.empty((count, k, U))

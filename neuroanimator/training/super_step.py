@@ -1,21 +1,21 @@
 """Choosing the super-step n for a model the user did not give one for, and refusing a useless emulator.
 
-A smooth model (no contact, no limit that engages) is learned well at the thesis' n = 50. A contact
-or a joint limit that switches on inside a super-step makes the map from state to next state a kink,
-and the longer the super-step, the more of its examples hold one: such a model may only be learnable
-at a shorter super-step. So: measure how often constraints engage in typical motion; if no contact
-does, take 50; else train short probes at n = 50, 25, 10 and take the longest n whose probe reaches
-the target, else the longest within ``PROBE_TIE`` of the best probe, saying why. A probe samples no
-more than ``PROBE_SAMPLING_S`` of simulation; a longer n whose smallest probe would take over twice
-that (a slow model: dm_control's quadruped simulates about 2,600 steps/s here) is not probed, and the
-training's budget goes to the shorter ones.
+A smooth model (no contact, no limit that engages) is often learned well at the thesis' n = 50; a
+contact or a joint limit that switches on inside a super-step makes the map from state to next state a
+kink, and the longer the super-step, the more of its examples hold one; a quadrotor that typical thrusts
+spin up turns further within a longer one. So for every model: leave out the super-steps within which
+the typical body turns a full turn (``motion``), train short probes at n = 50, 25 and 10, longest first,
+and take the longest n whose probe reaches the target, else the longest within ``PROBE_TIE`` of the best
+probe, saying why. A probe samples no more than ``PROBE_SAMPLING_S`` of simulation; a longer n whose
+smallest probe would take over twice that (a slow model: dm_control's quadruped simulates about 2,600
+steps/s here) is not probed, and the training's budget goes to the shorter ones. Contacts and limits
+count where they engage anywhere within a super-step (``constraint_activity``), not only at its start.
 
-A joint limit alone does not shorten the step: the network reads how far past each limit the joint
-would go within the super-step (``structured.JointLimit``), and full trainings at n = 50 meet the
-target where short probes did not (dm_control's cartpole: probe 0.077, full training 0.0054; the
-reacher: probe 0.0128, full 0.00046). A probe of 6,000 examples is too small for the wider network
-such a model gets, so it overstated the error by more than 10×. After the real training, an emulator that is no better than a linear fit, or far
-off the target, is refused rather than written.
+Short probes overstate a full training's error, most for a model whose joint limits engage: the network
+reads how far past each limit the joint would go within the super-step (``structured.JointLimit``), and
+full trainings at n = 50 met the target where probes did not (dm_control's cartpole: probe 0.077, full
+training 0.0054; the reacher: probe 0.0128, full 0.00046). After the real training, an emulator that is
+no better than a linear fit, or far off the target, is refused rather than written.
 
 A model whose constraints engage also gets a wider network of units that do not saturate
 (``constrained_defaults``) where the user chose none: a contact or a limit puts kinks into the step,
