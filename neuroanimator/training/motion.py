@@ -120,14 +120,18 @@ def fastest_motion(
 
 
 def cut_spin_up(model: PhysicalModel, motion: FastestMotion, shortest: int) -> str | None:
-    """Where typical motion spins a body up (``FastestMotion.spin_up``), cut the model's runs
-    (``spec.episode_s``) to when it has, but to no fewer than ``MIN_RUN_SUPER_STEPS`` super-steps of
-    ``shortest`` physical steps: its runs restart from a typical start before they tumble. What was seen
-    and done, or None."""
+    """Where typical motion spins a body up (``FastestMotion.spin_up``) away from an operating point (its
+    keyframes, the controls that hold it still), cut the model's runs (``spec.episode_s``) to when it
+    has, but to no fewer than ``MIN_RUN_SUPER_STEPS`` super-steps of ``shortest`` physical steps: its runs
+    restart near the point before they tumble. A model without one (a ball pushed about its floor, rolling
+    ever faster: 0.4 → 127 rad/s over 20 s) keeps its runs; the spin-up is said. What was seen and done,
+    or None."""
     seen = motion.spin_up()
     if seen is None:
         return None
     at, said = seen
+    if not model.spec.initial.centres:  # no operating point to restart near: a ball rolling ever faster
+        return said
     run = max(at, MIN_RUN_SUPER_STEPS * shortest * model.dt)
     if run >= model.spec.episode_s:
         return said
