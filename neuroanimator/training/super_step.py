@@ -50,11 +50,14 @@ log = logging.getLogger(__name__)
 
 CANDIDATES = (50, 25, 10)  # longest first; never below 10 physical steps per super-step
 TARGET = 0.01  # held-out one-step relative error a chosen n should reach
-PROBE_SLACK = 2.0  # a short probe overstates the error of a full training about this much ...
+# A short probe overstates the error of a full training, by far more than its noise: dm_control's
+# pendulum probed 0.0244 at n = 50 and trains to 1.8e-6 there, ball_in_cup 0.045 and 0.0032; so a probe
+# within this many times the target counts as reaching it ...
+PROBE_SLACK = 5.0
 # ... and, where joint limits engage (no contact), this many times more: the limit ramps' network is too
-# wide for a probe's 6,000 examples (dm_control's cartpole: probe 0.077, full training 0.0054 at n = 50;
+# wide for a probe's 6,000 examples (dm_control's cartpole: probe 0.055, full training 0.0007 at n = 50;
 # the reacher: 0.0128 and 0.00046)
-LIMIT_PROBE_SLACK = 3.0
+LIMIT_PROBE_SLACK = 2.0
 # Probes within this factor of the best are a tie: ball_in_cup's probes of 0.061, 0.053 and 0.056 at
 # n = 50, 25 and 10 were within their noise, and full trainings there gave 0.013 (n = 50), 0.019 (25)
 # and 0.042 (10, with the pair distances on), BENCHMARKS.md
