@@ -106,12 +106,8 @@ def _unstable_runs(
 ) -> int:
     """How many of ``runs`` runs of ``seconds`` of typical motion MuJoCo could not simulate (non-finite
     values, values a thousand times the start's, or MuJoCo's own instability warning)."""
-    rng = np.random.default_rng(seed)
     steps = max(10, round(seconds / model.dt))
-    times = np.arange(steps, dtype=np.float64) * model.dt
-    s0 = model.initial_states(rng, runs)
-    u = model.typical_controls(rng, runs, times)
-    f = model.typical_forces(rng, runs, times) if model.num_forces else None
+    s0, u, f = model.typical_runs(np.random.default_rng(seed), runs, steps)
     with mujoco_warnings_as_debug():  # instability is what this looks for; the caller reports it
         _, diverged = model.simulate_runs(s0, u, f, nstep=steps)
     return int(diverged.sum())
@@ -189,12 +185,8 @@ def narrow_typical_motion(model: PhysicalModel, seed: int = 0) -> str | None:
 
 def _first_divergence(model: PhysicalModel, seed: int, seconds: float) -> str:
     """What ``simulate`` says of a diverging run of typical motion: when, and at which joint."""
-    rng = np.random.default_rng(seed)
     steps = max(10, round(seconds / model.dt))
-    times = np.arange(steps, dtype=np.float64) * model.dt
-    s0 = model.initial_states(rng, MOTION_PROBE_RUNS)
-    u = model.typical_controls(rng, MOTION_PROBE_RUNS, times)
-    f = model.typical_forces(rng, MOTION_PROBE_RUNS, times) if model.num_forces else None
+    s0, u, f = model.typical_runs(np.random.default_rng(seed), MOTION_PROBE_RUNS, steps)
     try:
         with mujoco_warnings_as_debug():
             model.simulate(s0, u, f, nstep=steps, check=True)

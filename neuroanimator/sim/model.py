@@ -471,12 +471,8 @@ class PhysicalModel:
         """``step_rate``, simulating typical motion from typical states first where it is not known yet
         (a fresh model: batches of 16 runs of 100 steps until ``RATE_MIN_SECONDS`` have passed)."""
         rng = np.random.default_rng(seed)
-        times = np.arange(100, dtype=np.float64) * self.dt
         while (rate := self.step_rate) is None:
-            s0 = self.initial_states(rng, 16)
-            u = self.typical_controls(rng, 16, times)
-            f = self.typical_forces(rng, 16, times) if self.num_forces else None
-            self.simulate(s0, u, f)
+            self.simulate(*self.typical_runs(rng, 16, 100))
         return rate
 
     def simulate(
@@ -737,6 +733,18 @@ class PhysicalModel:
             )
         full[:, at] = qpos
         return self.from_physics(full)
+
+    def typical_runs(
+        self, rng: np.random.Generator, batch: int, steps: int
+    ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+        """``batch`` typical starts (B, S) and their controls (B, T, U) and forces (B, T, F; None for a
+        model without force inputs) over ``steps`` physical steps: what ``simulate`` takes for typical
+        motion."""
+        times = np.arange(steps, dtype=np.float64) * self.dt
+        s0 = self.initial_states(rng, batch)
+        u = self.typical_controls(rng, batch, times)
+        f = self.typical_forces(rng, batch, times) if self.num_forces else None
+        return s0, u, f
 
     def typical_controls(self, rng: np.random.Generator, batch: int, times: FloatArray) -> FloatArray:
         """(batch, T, U) smooth Catmull-Rom controls over the useful range, at the given times; where the

@@ -101,13 +101,9 @@ def fastest_motion(
     groups = _turning_groups(model)
     if not groups:
         return FastestMotion(np.zeros(0), np.zeros(0), np.zeros(0), None)
-    rng = np.random.default_rng(seed)
     steps = max(2, round(min(model.spec.episode_s, 20.0) / model.dt))
     times = np.arange(steps, dtype=np.float64) * model.dt
-    s0 = model.initial_states(rng, runs)
-    u = model.typical_controls(rng, runs, times)
-    f = model.typical_forces(rng, runs, times) if model.num_forces else None
-    traj = model.simulate(s0, u, f)  # (R, T, S)
+    traj = model.simulate(*model.typical_runs(np.random.default_rng(seed), runs, steps))  # (R, T, S)
     at = np.arange(0, steps, max(1, round(every_s / model.dt)))
     speed = np.stack([np.linalg.norm(traj[:, at, sl], axis=2) for _, sl in groups])  # (G, R, K)
     fastest = int(np.argmax(np.median(speed, axis=1).max(axis=1)))

@@ -125,11 +125,7 @@ def constraint_activity(
         runs = math.ceil(runs * seconds / model.spec.episode_s)
         seconds = model.spec.episode_s
     steps = max(1, round(seconds / model.dt))
-    times = np.arange(steps, dtype=np.float64) * model.dt
-    s0 = model.initial_states(rng, runs)
-    u = model.typical_controls(rng, runs, times)
-    f = model.typical_forces(rng, runs, times)
-    traj = model.simulate(s0, u, f if model.num_forces else None)  # (R, T, S)
+    traj = model.simulate(*model.typical_runs(rng, runs, steps))  # (R, T, S)
     width = max(1, min(window, steps))
     per_run = max(1, math.ceil(200 / runs))  # about 200 windows in all
     starts = np.arange(0, steps - width + 1, max(1, (steps - width + 1) // per_run))[:per_run]  # (W,)
