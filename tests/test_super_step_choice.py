@@ -37,7 +37,7 @@ def test_a_smooth_model_is_probed_and_gets_the_longest_step_its_probe_learns() -
     cfg = TrainConfig(examples=2000, max_epochs=20, progress=False, seed=0)
     choice = choose_substeps(model, cfg, candidates=(10, 5))
     assert choice.probes and 10 in choice.probes and "probe one-step errors" in choice.reason
-    assert choice.substeps == 10 if choice.probes[10] <= 0.05 else choice.substeps == 5
+    assert choice.substeps == 10 if choice.probes[10] <= 0.1 else choice.substeps == 5
 
 
 def test_a_body_that_turns_a_full_turn_within_a_super_step_is_not_emulated_at_it() -> None:
@@ -70,12 +70,14 @@ def test_an_emulator_is_trimmed_at_its_operating_point() -> None:
     assert float((state[0, :3] - hover[0, :3]).norm()) < 1e-3
 
 
-def test_a_model_whose_limits_engage_keeps_the_longest_step_its_probe_nearly_learns() -> None:
+def test_a_model_without_contact_keeps_the_longest_step_its_probe_nearly_learns() -> None:
     """dm_control's cartpole probed 0.055, 0.034 and 0.0079 at n = 50, 25 and 10, and trains to 0.0007 at
-    n = 50: where limits engage without contact, a probe overstates the error more."""
-    from neuroanimator.training.super_step import LIMIT_PROBE_SLACK, PROBE_SLACK, pick
+    n = 50, the acrobot 0.0726 and 0.0014: where no contact engages, a probe overstates the error more.
+    Gymnasium's double pendulum, driven into its rail's limits, needs the shortest."""
+    from neuroanimator.training.super_step import PROBE_SLACK, SMOOTH_PROBE_SLACK, pick
 
     probes = {50: 0.055, 25: 0.034, 10: 0.0079}
     assert pick(probes)[0] == 25
-    assert pick(probes, PROBE_SLACK * LIMIT_PROBE_SLACK)[0] == 50
-    assert pick({50: 0.305, 25: 0.186, 10: 0.0744}, PROBE_SLACK * LIMIT_PROBE_SLACK)[0] == 10
+    assert pick(probes, PROBE_SLACK * SMOOTH_PROBE_SLACK)[0] == 50
+    assert pick({50: 0.0726, 25: 0.02}, PROBE_SLACK * SMOOTH_PROBE_SLACK)[0] == 50
+    assert pick({50: 0.305, 25: 0.186, 10: 0.0744}, PROBE_SLACK * SMOOTH_PROBE_SLACK)[0] == 10
