@@ -43,11 +43,11 @@ def test_a_smooth_model_is_probed_and_gets_the_longest_step_its_probe_learns() -
 def test_a_body_that_turns_a_full_turn_within_a_super_step_is_not_emulated_at_it() -> None:
     model = load_mjcf(DATA / "skydio_x2", entry="x2.xml", stabilise=False)
     dt = model.dt
-    times = np.arange(10) * 0.1
-    fast = FastestMotion(times, np.full(10, 1.5 * MAX_TURN / (50 * dt)), np.full(10, 20.0), "joint0.angvel")
+    times = np.arange(10, dtype=np.float64) * 0.1
+    fast = FastestMotion(times, np.full(10, 1.5 * MAX_TURN / (50 * dt), dtype=np.float64), np.full(10, 20.0, dtype=np.float64), "joint0.angvel")
     allowed, why = bound_super_steps(model, (50, 25, 10), fast)
     assert allowed == (25, 10) and why is not None and "n=50 left out" in why
-    slow = FastestMotion(times, np.full(10, 0.5 * MAX_TURN / (50 * dt)), np.full(10, 20.0), "joint0.angvel")
+    slow = FastestMotion(times, np.full(10, 0.5 * MAX_TURN / (50 * dt), dtype=np.float64), np.full(10, 20.0, dtype=np.float64), "joint0.angvel")
     assert bound_super_steps(model, (50, 25, 10), slow) == ((50, 25, 10), None)
 
 
@@ -61,8 +61,10 @@ def test_an_emulator_is_trimmed_at_its_operating_point() -> None:
     result = train(model, cfg)
     before, after = result.metrics["operating_residual"]
     assert after < 1e-5 < before
+    op = model.spec.operating
+    assert op is not None
     hover = torch.tensor(model.spec.initial.centres, dtype=torch.float32)
-    thrust = torch.tensor(model.spec.operating.control_centres, dtype=torch.float32)
+    thrust = torch.tensor(op.control_centres, dtype=torch.float32)
     state = hover
     with torch.no_grad():
         for _ in range(8):  # 2 s

@@ -3,6 +3,7 @@ diverged runs dropped or narrowed around the point, spin-up seen (models nobody 
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from neuroanimator.sim.operating import OperatingSpecError
 from neuroanimator.training.motion import cut_spin_up, fastest_motion
 
 DATA = Path(__file__).resolve().parents[1] / "data"
-SUITE = Path(__import__("dm_control").__file__).parent / "suite"
+SUITE = Path(str(importlib.util.find_spec("dm_control").origin)).parent / "suite"  # type: ignore[union-attr]
 HOVER = 3.24956  # the X2's hover keyframe's thrust, as its MJCF is read back (6 significant digits)
 
 
