@@ -44,10 +44,20 @@ def test_a_body_that_turns_a_full_turn_within_a_super_step_is_not_emulated_at_it
     model = load_mjcf(DATA / "skydio_x2", entry="x2.xml", stabilise=False)
     dt = model.dt
     times = np.arange(10, dtype=np.float64) * 0.1
-    fast = FastestMotion(times, np.full(10, 1.5 * MAX_TURN / (50 * dt), dtype=np.float64), np.full(10, 20.0, dtype=np.float64), "joint0.angvel")
+    fast = FastestMotion(
+        times,
+        np.full(10, 1.5 * MAX_TURN / (50 * dt), dtype=np.float64),
+        np.full(10, 20.0, dtype=np.float64),
+        "joint0.angvel",
+    )
     allowed, why = bound_super_steps(model, (50, 25, 10), fast)
     assert allowed == (25, 10) and why is not None and "n=50 left out" in why
-    slow = FastestMotion(times, np.full(10, 0.5 * MAX_TURN / (50 * dt), dtype=np.float64), np.full(10, 20.0, dtype=np.float64), "joint0.angvel")
+    slow = FastestMotion(
+        times,
+        np.full(10, 0.5 * MAX_TURN / (50 * dt), dtype=np.float64),
+        np.full(10, 20.0, dtype=np.float64),
+        "joint0.angvel",
+    )
     assert bound_super_steps(model, (50, 25, 10), slow) == ((50, 25, 10), None)
 
 
