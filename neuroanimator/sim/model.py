@@ -509,7 +509,7 @@ class PhysicalModel:
         """``simulate``, and which runs diverged (B,): MuJoCo found them unstable and reset them, or they
         hold a non-finite value or one a thousand times the start's. A sampler drops those and keeps the
         others; MuJoCo running out of arena memory still raises (``ModelError``)."""
-        out, diverged, _, _ = self._simulate(states, controls, forces, nstep, threads, True)
+        out, diverged, _, _ = self._simulate(states, controls, forces, nstep, threads, True, huge=True)
         return out, diverged
 
     def _simulate(
@@ -520,10 +520,12 @@ class PhysicalModel:
         nstep: int | None,
         threads: int | None,
         arena_check: bool,
+        huge: bool = False,
     ) -> tuple[FloatArray, NDArray[np.bool_], int, int | None]:
         """The rollout (B, T, S), which runs diverged (B,), the degree of freedom MuJoCo warned of and
-        the first step at which a run was seen reset (None: none was); with ``arena_check``, raise when
-        MuJoCo dropped contacts for want of arena memory."""
+        the first step at which a run was seen reset (None: none was). With ``arena_check`` (a checked
+        call), raise when MuJoCo dropped contacts for want of arena memory, and mark the runs MuJoCo
+        found unstable (with ``huge``, also those a thousand times their start); without, mark none."""
         states = np.asarray(states, dtype=np.float64)
         if states.ndim != 2 or states.shape[1] != self.state_size:
             raise ModelError(
@@ -575,14 +577,19 @@ class PhysicalModel:
             self._steps_simulated += b * steps
             self._seconds_simulating += time.perf_counter() - started
         result = self.from_physics(out).reshape(b, steps, self.state_size)
+        if not arena_check:  # unchecked: as MuJoCo gives it, nothing more computed (a speed baseline)
+            return result, np.zeros(b, dtype=bool), -1, None
         bad = [d for d in datas if d.warning[_BAD_QACC].number]
         # rollout clears a thread's warnings before each of its runs, so only the last run of a
         # thread would show in ``bad``; but an unstable run's clock stops rising (rollout stops
         # stepping it after MuJoCo's reset), the step after the one that diverged
         clock = np.concatenate([np.zeros((b, 1)), out[..., self._time_at]], axis=1)
         stalled = np.diff(clock, axis=1) <= 0  # (B, T)
-        huge = ~np.isfinite(result) | (np.abs(result) > 1e3 * (1.0 + np.abs(states[:, None, :])))
-        diverged: NDArray[np.bool_] = np.asarray(stalled.any(axis=1) | huge.any(axis=(1, 2)))
+        diverged: NDArray[np.bool_] = np.asarray(stalled.any(axis=1))
+        if huge:  # values a thousand times the start's: a run on its way to MuJoCo's reset
+            diverged |= (
+                ~np.isfinite(result) | (np.abs(result) > 1e3 * (1.0 + np.abs(states[:, None, :])))
+            ).any(axis=(1, 2))
         dof = int(bad[0].warning[_BAD_QACC].lastinfo) if bad else _last_bad_dof
         first = max(0, int(np.flatnonzero(stalled.any(axis=0))[0]) - 1) if stalled.any() else None
         if bad and not diverged.any():  # a thread warned and its runs did not show it: count them all
