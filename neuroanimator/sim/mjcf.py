@@ -18,8 +18,13 @@ from neuroanimator.core.model_spec import ModelSpec
 from neuroanimator.core.operating_spec import OperatingSpec
 from neuroanimator.sim import operating, sandbox
 from neuroanimator.sim.bundle import Limits, SourceError
-from neuroanimator.sim.model import PhysicalModel, SimulationDiverged, derive_layout, mujoco_warnings_as_debug
-from neuroanimator.sim.sampling import MAX_DIVERGED
+from neuroanimator.sim.model import (
+    MAX_DIVERGED,
+    PhysicalModel,
+    SimulationDiverged,
+    derive_layout,
+    mujoco_warnings_as_debug,
+)
 
 log = logging.getLogger(__name__)
 MAX_NAME = 64  # characters of a model's name (a folder's)
@@ -144,7 +149,7 @@ def _narrowed(spec: ModelSpec, ranges: np.ndarray, scale: float) -> ModelSpec:
 
 
 def narrow_typical_motion(model: PhysicalModel, seed: int = 0) -> str | None:
-    """Narrow the typical motion around the operating point while more than ``sampling.MAX_DIVERGED`` of
+    """Narrow the typical motion around the operating point while more than ``MAX_DIVERGED`` of
     ``MOTION_PROBE_RUNS`` runs of up to ``MOTION_PROBE_SECONDS`` diverge: controls and starts halved
     around it, up to ``MOTION_NARROWINGS`` times; what was done (also in the operating record), or None
     when nothing had to be. ``SimulationDiverged`` says what was tried when even the narrowest fails.

@@ -48,6 +48,11 @@ class SimulationDiverged(ModelError):
     """MuJoCo found NaN, Inf or huge accelerations while simulating; the message says when and where."""
 
 
+MAX_DIVERGED = 0.05
+"""The largest share of sampled runs that may diverge: they are dropped and counted; beyond it, the
+typical motion itself is what MuJoCo cannot simulate, and sampling stops (``SimulationDiverged``)."""
+
+
 _quiet_warnings = 0  # > 0 inside ``mujoco_warnings_as_debug``
 
 

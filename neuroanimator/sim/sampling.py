@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from neuroanimator.sim.model import PhysicalModel, SimulationDiverged
+from neuroanimator.sim.model import MAX_DIVERGED, PhysicalModel, SimulationDiverged
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -481,11 +481,6 @@ def generate_sequences(
     if not np.all(np.isfinite(out_s)):
         raise ValueError(f"simulated sequences of {model.name} contain NaN or Inf")
     return Sequences(out_s, out_u, out_f, tally.dropped)
-
-
-MAX_DIVERGED = 0.05
-"""The largest share of sampled runs that may diverge: they are dropped and counted; beyond it, the
-typical motion itself is what MuJoCo cannot simulate, and sampling stops (``SimulationDiverged``)."""
 
 
 @dataclass
