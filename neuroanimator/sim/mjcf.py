@@ -140,8 +140,7 @@ def _narrowed(spec: ModelSpec, ranges: np.ndarray, scale: float) -> ModelSpec:
     if op is not None and ranges.size:
         centres = np.asarray(op.control_centres or [ranges.mean(axis=1).tolist()], dtype=np.float64)
         spread = np.asarray(op.control_spread or ((ranges[:, 1] - ranges[:, 0]) / 2).tolist()) * scale
-        update["control_low"] = np.clip(centres.min(axis=0) - spread, ranges[:, 0], ranges[:, 1]).tolist()
-        update["control_high"] = np.clip(centres.max(axis=0) + spread, ranges[:, 0], ranges[:, 1]).tolist()
+        update["control_low"], update["control_high"] = operating.control_envelope(centres, spread, ranges)
         update["operating"] = op.model_copy(
             update={"control_centres": centres.tolist(), "control_spread": spread.tolist()}
         )

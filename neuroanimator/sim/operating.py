@@ -183,6 +183,7 @@ class OperatingSpecError(ModelError):
     def __init__(self, field: str, message: str) -> None:
         super().__init__(f"operating spec, {field}: {message}")
         self.field = field
+        self.reason = message  # the problem, without the field
 
 
 def _names(m: mujoco.MjModel, kind: mujoco.mjtObj, count: int, prefix: str) -> list[str]:
@@ -285,6 +286,16 @@ def _actuator_of(m: mujoco.MjModel, address: int) -> int:
     return int(np.flatnonzero(m.actuator_actadr == address)[0])
 
 
+def control_envelope(
+    centres: FloatArray, spread: FloatArray, ranges: FloatArray
+) -> tuple[list[float], list[float]]:
+    """(U,) low and high of every band around the centres (K, U), half-widths ``spread`` (U,), within
+    ``ranges`` (U, 2): the controls an emulator is trained on (``ModelSpec.control_low``/``high``)."""
+    low = np.clip(centres.min(axis=0) - spread, ranges[:, 0], ranges[:, 1])
+    high = np.clip(centres.max(axis=0) + spread, ranges[:, 0], ranges[:, 1])
+    return low.tolist(), high.tolist()
+
+
 def control_ranges(model: PhysicalModel) -> FloatArray:
     """(U, 2) each control's ctrlrange, ±1 where unlimited (not ``control_range``: the spec's envelope)."""
     lim = model.control_limits.copy()
@@ -357,8 +368,7 @@ def typical_motion(
     )
     update: dict[str, object] = {"initial": initial, "operating": record}
     if point.points or given:
-        update["control_low"] = np.clip(centres.min(axis=0) - spread, limits[:, 0], limits[:, 1]).tolist()
-        update["control_high"] = np.clip(centres.max(axis=0) + spread, limits[:, 0], limits[:, 1]).tolist()
+        update["control_low"], update["control_high"] = control_envelope(centres, spread, limits)
     if spec.time_scale_s is not None:
         update["control_spacing_s"] = spec.time_scale_s
     update["episode_s"] = spec.run_s if spec.run_s is not None else RUN_S

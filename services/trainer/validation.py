@@ -167,8 +167,7 @@ def check_model(
         ) from exc
     except operating.OperatingSpecError as exc:  # the spec does not fit the model: an actuator it lacks, ...
         field = spec_field(exc.field, spec, keyframe)
-        why = str(exc).removeprefix(f"operating spec, {exc.field}: ")
-        raise Refused(422, SPEC_ERROR, f"{field}: {why}", field) from exc
+        raise Refused(422, SPEC_ERROR, f"{field}: {exc.reason}", field) from exc
     except ModelError as exc:  # e.g. no joints: no state to emulate
         error = "no_joints" if "no joints" in str(exc) else "invalid_model"
         raise Refused(422, error, str(exc)) from exc
