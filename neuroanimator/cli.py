@@ -513,6 +513,36 @@ def _bytes(n: int) -> str:
     return f"{n / 1e6:.1f} MB" if n >= 1_000_000 else f"{n / 1e3:.1f} kB"
 
 
+# ---------------------------------------------------------------------------- policy
+def cmd_policy(args: argparse.Namespace) -> int:
+    from neuroanimator.control.policy import PolicySettings
+    from neuroanimator.control.policy_job import policy_task, run_policy_job
+
+    task = policy_task(args.task)
+    settings = PolicySettings(
+        seconds=args.seconds or task.train_seconds, refine=not args.no_refine, seed=args.seed
+    )
+    done = run_policy_job(task, _registries(args.artifacts), settings)
+    r = done.result
+    row = {
+        "task": task.name,
+        "success_physics": r.success_physics,
+        "success_emulator": r.success_emulator,
+        "evaluate_runs": r.evaluate_runs,
+        "mujoco_steps": r.mujoco_steps,
+        "iterations": r.iterations,
+        "wall_s": round(r.wall_s, 1),
+        "policy": str(done.folder),
+    }
+    columns = [("task", "task", "s"), ("success_physics", "success (MuJoCo)", ".2f"),
+               ("success_emulator", "success (emulator)", ".2f"), ("mujoco_steps", "MuJoCo steps", "d"),
+               ("wall_s", "wall s", ".0f")]  # fmt: skip
+    _out(_table([row], columns))
+    if args.json:
+        _out(json.dumps(row))
+    return 0
+
+
 # ---------------------------------------------------------------------------- worker
 def cmd_worker(args: argparse.Namespace) -> int:
     # A worker must not fork after torch started its thread pools: run it in a fresh interpreter, whatever
@@ -578,7 +608,22 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bench_parser(sub)
     _add_worker_parser(sub)
     _add_models_parser(sub)
+    _add_policy_parser(sub)
     return p
+
+
+def _add_policy_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """``neuro policy``: train a feedback policy through an emulator."""
+    from neuroanimator.catalog.tasks import POLICY_TASKS
+
+    pp = sub.add_parser("policy", help="train a feedback policy through the emulator and store it")
+    pp.add_argument("task", help=f"policy task: {', '.join(POLICY_TASKS)}")
+    pp.add_argument("--seconds", type=_positive_float, help="training budget (default: the task's)")
+    pp.add_argument("--no-refine", action="store_true", help="no fine-tuning on the policy's MuJoCo runs")
+    pp.add_argument("--artifacts", help=_ARTIFACTS_HELP)
+    pp.add_argument("--seed", type=int, default=0)
+    pp.add_argument("--json", action="store_true")
+    pp.set_defaults(func=cmd_policy)
 
 
 def _add_train_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

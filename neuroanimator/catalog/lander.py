@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from neuroanimator.core.model_spec import ControlInfo, InitialStates, ModelSpec
 from neuroanimator.core.state import StateGroup, StateLayout
 from neuroanimator.goals.criteria import SuccessCheck
+from neuroanimator.goals.policy_task import GoalSpec, PolicyTask, StartBox
 from neuroanimator.goals.spec import Task
 
 if TYPE_CHECKING:
@@ -105,3 +106,32 @@ LANDING = Task(
     optimizer={"learning_rate": 1.5, "momentum": 0.5, "max_iterations": 100, "tolerance": 1e-6},
 )
 TASKS = (LANDING,)
+
+
+# A feedback policy's landing: from anywhere in a 30 m box up to 25 m high, drifting, tilted, land on
+# a pad anywhere within 15 m of the origin (where MuJoCo's lander goes in its typical motion), checked
+# as the landing task checks it, at the end of 20 s. Control every 0.25 s (the n = 25 emulator).
+POLICY_LANDING = PolicyTask(
+    name="lander-landing",
+    model="lander",
+    summary=(
+        "Lunar lander: from anywhere up to 25 m high and 15 m to the side, drifting and tilted, land "
+        "softly on a pad anywhere within 15 m of the origin in 20 s (upright, on the spot, a small "
+        "downward speed)."
+    ),
+    labels=LABELS,
+    substeps=25,
+    episode_s=20.0,
+    starts=StartBox(
+        low=(-15, -15, 8, 1, 0, 0, 0, -1, -1, -2, -0.05, -0.05, -0.05),
+        high=(15, 15, 25, 1, 0, 0, 0, 1, 1, 0.5, 0.05, 0.05, 0.05),
+        random_yaw=True,
+        max_tilt=0.2,
+    ),
+    goal=GoalSpec(variables=("position.x", "position.y"), low=(-15.0, -15.0), high=(15.0, 15.0)),
+    target_state=(0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -0.3, 0.0, 0.0, 0.0),
+    state_weights=(1.0, 1.0, 1.0, 10.0, 10.0, 10.0, 10.0, 2.0, 2.0, 2.0, 2.0, 2.0, 2.0),
+    success=LANDING.success,
+    settle_s=10.0,
+)
+POLICY_TASKS = (POLICY_LANDING,)

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 from neuroanimator.core.model_spec import ControlInfo, ForceInput, InitialStates, ModelSpec
 from neuroanimator.core.state import StateGroup, StateLayout
 from neuroanimator.goals.criteria import SuccessCheck
+from neuroanimator.goals.policy_task import GoalSpec, PolicyTask, StartBox
 from neuroanimator.goals.spec import Task
 
 if TYPE_CHECKING:
@@ -125,3 +126,31 @@ SWING = Task(
     optimizer={"learning_rate": 2.0, "momentum": 0.5, "max_iterations": 100, "tolerance": 1e-6},
 )
 TASKS = (SWING,)
+
+
+# A feedback policy's swing: from near hanging, reach a pose the pendulum itself passes through at rest
+# (a turning point of its typical motion: every rate below 0.3 rad/s) and be there, at rest, 20 s
+# later; checked as the swing task checks it. The policy reads the time left. Control every 0.25 s.
+POLICY_SWING = PolicyTask(
+    name="pendulum-swing",
+    model="pendulum-active",
+    summary=(
+        "Three-link pendulum (pendulum-active): from near hanging, be at a pose it reaches at rest "
+        "(a turning point of its own swinging) with zero velocity after 20 s."
+    ),
+    labels=LABELS,
+    substeps=25,
+    episode_s=20.0,
+    starts=StartBox(low=(-0.2, -0.2, -0.2, -0.2, -0.2, -0.2), high=(0.2, 0.2, 0.2, 0.2, 0.2, 0.2)),
+    goal=GoalSpec(
+        variables=("angles.j0", "angles.j1", "angles.j2"),
+        low=(-1.5, -1.5, -1.5),
+        high=(1.5, 1.5, 1.5),
+        at_rest=True,
+    ),
+    target_state=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    state_weights=(1.0, 1.0, 1.0, 1.0, 1.0, 1.0),
+    success=SWING.success,
+    timed=True,
+)
+POLICY_TASKS = (POLICY_SWING,)

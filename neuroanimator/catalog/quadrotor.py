@@ -11,6 +11,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from neuroanimator.core.model_spec import ControlInfo, InitialStates, ModelSpec
+from neuroanimator.goals.criteria import SuccessCheck
+from neuroanimator.goals.policy_task import GoalSpec, PolicyTask, StartBox
 from neuroanimator.goals.spec import Task
 
 if TYPE_CHECKING:
@@ -62,3 +64,46 @@ def quadrotor() -> PhysicalModel:
         substeps=25,
     )
     return PhysicalModel(XML_PATH.read_text(), spec)
+
+
+_POS = ("root.pos.x", "root.pos.y", "root.pos.z")
+# Follow a target that moves every 5 s to a point within 3 m of where the quadrotor starts (where
+# MuJoCo's quadrotor goes in its typical motion): within 0.3 m of it 2 s after each move. Control
+# every 0.125 s (the n = 25 emulator).
+POLICY_FOLLOW = PolicyTask(
+    name="quadrotor-follow",
+    model="quadrotor",
+    summary=(
+        "Quadrotor: follow a target that moves every 5 s to a point within 3 m: within 0.3 m of it 2 s "
+        "after each move."
+    ),
+    labels=(
+        *_POS,
+        "root.quat.w",
+        "root.quat.x",
+        "root.quat.y",
+        "root.quat.z",
+        "root.vel.x",
+        "root.vel.y",
+        "root.vel.z",
+        "root.angvel.x",
+        "root.angvel.y",
+        "root.angvel.z",
+    ),
+    substeps=25,
+    episode_s=20.0,
+    starts=StartBox(
+        low=(-1.0, -1.0, 9.0, 1, 0, 0, 0, -0.3, -0.3, -0.3, -0.2, -0.2, -0.2),
+        high=(1.0, 1.0, 11.0, 1, 0, 0, 0, 0.3, 0.3, 0.3, 0.2, 0.2, 0.2),
+        random_yaw=True,
+        max_tilt=0.15,
+    ),
+    goal=GoalSpec(variables=_POS, low=(-3.0, -3.0, 7.0), high=(3.0, 3.0, 13.0)),
+    target_state=(0.0, 0.0, 10.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    state_weights=(1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.0, 0.2, 0.2, 0.2, 0.05, 0.05, 0.05),
+    success=(SuccessCheck(check="distance", variables=list(_POS), max=0.3),),
+    goal_period_s=5.0,
+    check_after_s=2.0,
+    settle_s=1.5,
+)
+POLICY_TASKS = (POLICY_FOLLOW,)

@@ -15,6 +15,7 @@ replay, and their text is part of the task's description. Numpy only: no torch, 
 from __future__ import annotations
 
 from neuroanimator import catalog
+from neuroanimator.goals.policy_task import PolicyTask
 from neuroanimator.goals.spec import Task
 
 
@@ -32,6 +33,23 @@ def collect() -> dict[str, Task]:
     return found
 
 
-TASKS: dict[str, Task] = collect()
+def collect_policy_tasks() -> dict[str, PolicyTask]:
+    """Every catalog system's policy tasks (``POLICY_TASKS``: feedback controllers over many starts and
+    goals) by name, in catalog order, checked as ``collect`` checks tasks."""
+    found: dict[str, PolicyTask] = {}
+    for system in catalog.SYSTEMS:
+        for task in getattr(system, "POLICY_TASKS", ()):
+            if task.name in found:
+                raise ValueError(f"policy task {task.name!r} is defined twice (again in {system.__name__})")
+            if task.model not in catalog.CATALOG:
+                raise ValueError(
+                    f"policy task {task.name!r} runs on {task.model!r}, which is not in the catalog"
+                )
+            found[task.name] = task
+    return found
 
-__all__ = ["TASKS", "Task", "collect"]
+
+TASKS: dict[str, Task] = collect()
+POLICY_TASKS: dict[str, PolicyTask] = collect_policy_tasks()
+
+__all__ = ["POLICY_TASKS", "TASKS", "PolicyTask", "Task", "collect", "collect_policy_tasks"]

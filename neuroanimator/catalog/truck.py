@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from neuroanimator.core.model_spec import ControlInfo, InitialStates, ModelSpec
 from neuroanimator.core.state import StateGroup, StateLayout
 from neuroanimator.goals.criteria import SuccessCheck
+from neuroanimator.goals.policy_task import GoalSpec, PolicyTask, StartBox
 from neuroanimator.goals.spec import Task
 
 if TYPE_CHECKING:
@@ -82,3 +83,30 @@ PARKING = Task(
     optimizer={"learning_rate": 1.5, "momentum": 0.5, "max_iterations": 100, "tolerance": 1e-6},
 )
 TASKS = (PARKING,)
+
+
+# A feedback policy's parking: from near the origin, any heading, rolling slowly, park anywhere MuJoCo's
+# truck reaches within 20 m, facing any heading, and stop there; checked as the parking task checks it,
+# at the end of 25 s. Control every 0.25 s (the n = 25 emulator).
+POLICY_PARKING = PolicyTask(
+    name="truck-parking",
+    model="truck",
+    summary=(
+        "Truck: from near the origin, any heading, rolling slowly, park at a spot within 20 m facing a "
+        "given heading and stop there within 25 s."
+    ),
+    labels=LABELS,
+    substeps=25,
+    episode_s=25.0,
+    starts=StartBox(low=(-2.0, -2.0, -math.pi, -0.3, -0.3, -0.05), high=(2.0, 2.0, math.pi, 0.3, 0.3, 0.05)),
+    goal=GoalSpec(
+        variables=("position.x", "position.y", "heading"),
+        low=(-20.0, -20.0, -math.pi),
+        high=(20.0, 20.0, math.pi),
+    ),
+    target_state=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    state_weights=(1.0, 1.0, 10.0, 3.0, 3.0, 1.0),
+    success=PARKING.success,
+    settle_s=12.0,
+)
+POLICY_TASKS = (POLICY_PARKING,)

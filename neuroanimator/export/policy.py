@@ -1,0 +1,54 @@
+"""ONNX export of a policy: ``π(state (B,S), goal (B,G)[, time_left (B,1)]) → controls (B,U)``.
+
+The graph is whatever module is given with that signature (``control.policy_net.PolicyNet``); the
+batch axis is dynamic and ``time_left`` an input only for a timed policy.
+"""
+
+from __future__ import annotations
+
+import io
+import warnings
+
+import torch
+from torch import Tensor, nn
+
+from neuroanimator.export.onnx import OPSET
+
+
+class _Untimed(nn.Module):
+    def __init__(self, net: nn.Module) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, state: Tensor, goal: Tensor) -> Tensor:
+        out: Tensor = self.net(state, goal, torch.zeros(state.shape[0], 1))
+        return out
+
+
+def policy_input_names(timed: bool) -> list[str]:
+    return ["state", "goal", "time_left"] if timed else ["state", "goal"]
+
+
+def policy_to_onnx(net: nn.Module, state_size: int, goal_size: int, timed: bool) -> bytes:
+    """The policy's ONNX graph (bytes)."""
+    net = net.eval()
+    b = 2
+    args: tuple[Tensor, ...] = (torch.zeros(b, state_size), torch.zeros(b, goal_size))
+    module: nn.Module = net if timed else _Untimed(net)
+    if timed:
+        args = (*args, torch.zeros(b, 1))
+    names = policy_input_names(timed)
+    buf = io.BytesIO()
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            module,
+            args,
+            buf,  # type: ignore[arg-type]  # a file-like object is accepted
+            input_names=names,
+            output_names=["controls"],
+            dynamic_axes={n: {0: "batch"} for n in [*names, "controls"]},
+            opset_version=OPSET,
+            dynamo=False,
+        )
+    return buf.getvalue()
