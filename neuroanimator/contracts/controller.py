@@ -8,6 +8,12 @@ here (finite JSON numbers, positive sizes) and the job against the model and tas
     JobCreate --validate_job--> JobSpec (neuroanimator.goals.spec) --run_job--> JobOutcome
     --stored with the job's id--> JobResult
 
+A policy job trains a feedback policy for a built-in policy task (``GET /policy-tasks``) through the
+task's emulator and stores it (``neuroanimator.control.policy_job``):
+
+    PolicyJobCreate --checked at submission--> the job's spec --run_policy_job--> PolicyOutcome
+    --stored with the job's id--> PolicyJobResult (the stored policy's PolicyManifest inside)
+
 Numbers that are not finite (an objective that diverged to NaN) travel as ``null``.
 """
 
@@ -18,6 +24,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from neuroanimator.contracts.emulator import Flag, Integer, Number
+from neuroanimator.core.policy_manifest import PolicyManifest
 from neuroanimator.goals.criteria import CheckKind
 from neuroanimator.goals.spec import (
     MAX_GLOBAL_GENERATIONS,
@@ -436,3 +443,163 @@ class WsEvent(BaseModel):
 
     event: Literal["progress", "status", "end"]
     data: dict[str, Any]
+
+
+# ---------------------------------------------------------------- policy jobs
+MIN_POLICY_SECONDS = 5.0
+"""The shortest training budget a policy job may ask for (the longest is the service's
+``POLICY_MAX_SECONDS``)."""
+MAX_POLICY_BATCH = 4096
+MAX_POLICY_WIDTH = 1024
+MAX_POLICY_LAYERS = 8
+HISTORY_POINTS = 100
+"""The most points of a policy job's loss history (``HistoryPoint``s, each the mean over its stretch)."""
+PolicyWidth = Annotated[int, Field(strict=True, ge=1, le=MAX_POLICY_WIDTH)]
+
+
+class PolicyJobCreate(_Wire):
+    """A feedback policy ``π(state, goal) → controls`` to train through the emulator for a built-in policy
+    task (``GET /policy-tasks``) and store; every field left out takes the task's (or the trainer's)
+    default."""
+
+    task: str = Field(min_length=1, max_length=64, description="a built-in policy task of GET /policy-tasks")
+    seconds: Number | None = Field(
+        None,
+        ge=MIN_POLICY_SECONDS,
+        description="the training budget in seconds (default: the task's; at most POLICY_MAX_SECONDS)",
+    )
+    refine: Flag = Field(
+        True, description="fine-tune the emulator on the policy's own MuJoCo runs as it trains"
+    )
+    seed: Integer | None = Field(None, ge=0, le=2**31 - 1, description="the random seed (default 0)")
+    batch: Integer | None = Field(
+        None, ge=1, le=MAX_POLICY_BATCH, description="starts × goals rolled out per update (default 256)"
+    )
+    hidden: list[PolicyWidth] | None = Field(
+        None,
+        min_length=1,
+        max_length=MAX_POLICY_LAYERS,
+        description="the policy network's hidden layer widths (default: the task's)",
+    )
+    idempotency_key: str | None = Field(
+        None,
+        min_length=1,
+        max_length=128,
+        pattern=r"^[\x21-\x7e]+$",
+        description="the same key (and body) returns the same job instead of a new one",
+    )
+
+
+class HistoryPoint(BaseModel):
+    """One point of a curve: the value at (or, thinned, averaged up to) an iteration."""
+
+    iteration: int
+    value: MaybeFloat = None
+
+
+class PolicyJobStatus(BaseModel):
+    """A policy job as it trains: the progress of its current attempt and, once it ended, how."""
+
+    id: str
+    status: JobState
+    task: str
+    model: str
+    emulator_version: str = Field(
+        description="the emulator at the task's super-step when the job was queued (the run trains "
+        "through the latest at its start: the stored policy names the one it used)"
+    )
+    seconds: float = Field(description="the training budget")
+    refine: bool
+    created_at: float = Field(description="Unix time")
+    started_at: float | None = None
+    ended_at: float | None = None
+    attempt: int = Field(0, description="runs started (a re-queued job starts again)")
+    failures: int = Field(0, description="runs that crashed, raised or were abandoned by their worker")
+    worker: str | None = None
+    iteration: int = 0
+    loss: MaybeFloat = Field(None, description="the last batch's loss")
+    success_physics: float | None = Field(
+        None, description="the share of the last check's MuJoCo runs that met the task (null before one)"
+    )
+    mujoco_steps: int = Field(0, description="MuJoCo steps used so far (goals, checks, refinement)")
+    elapsed_s: float | None = None
+    loss_history: list[HistoryPoint] = Field(
+        [], description=f"the loss per iteration, thinned to at most {HISTORY_POINTS} points"
+    )
+    error: str | None = Field(None, description="why it failed or was cancelled (or why it was re-queued)")
+    result: str | None = Field(None, description="where the result is, once the job ended")
+
+
+class PolicyJobSummary(BaseModel):
+    """One line of GET /policy-jobs."""
+
+    id: str
+    status: JobState
+    task: str
+    model: str
+    created_at: float
+    ended_at: float | None = None
+    iteration: int = 0
+    success_physics: float | None = None
+
+
+class PolicyJobList(BaseModel):
+    """The caller's policy jobs, newest first."""
+
+    jobs: list[PolicyJobSummary]
+
+
+class PolicyOutcome(BaseModel):
+    """How a policy job's run ended: the policy it stored (after a cancel or past the time limit, the
+    best one so far: ``policy.metrics.stop`` says ``cancelled``), its loss and success histories."""
+
+    status: Literal["succeeded", "failed", "cancelled"]
+    reason: str | None = None
+    policy: PolicyManifest | None = Field(
+        None, description="the stored policy (GET /policies/{model}/{name}); null: none was stored"
+    )
+    iterations: int = 0
+    loss_history: list[HistoryPoint] = Field(
+        [], description=f"the batch loss per iteration, thinned to at most {HISTORY_POINTS} points"
+    )
+    success_history: list[HistoryPoint] = Field(
+        [], description="the share of each check's MuJoCo runs that met the task, at its iteration"
+    )
+
+
+class PolicyJobResult(PolicyOutcome):
+    """A policy job's result (``GET /policy-jobs/{id}/result``): its run's outcome and the job's id."""
+
+    id: str
+    task: str | None = None
+    model: str | None = None
+    emulator_version: str | None = Field(None, description="the emulator when the job was queued")
+
+
+class PolicyTaskInfo(BaseModel):
+    """A built-in policy task: its model, goals and success criterion (whatever the task defines)."""
+
+    model_config = ConfigDict(extra="allow")
+    name: str
+    model: str
+
+
+class PolicyTaskList(BaseModel):
+    tasks: list[PolicyTaskInfo]
+
+
+class PolicyList(BaseModel):
+    """Stored policies: the latest version of each, by model and name."""
+
+    policies: list[PolicyManifest]
+
+
+class PolicyProgressEvent(BaseModel):
+    """``event: progress`` of a policy job: one training iteration of the current attempt."""
+
+    iteration: int
+    loss: MaybeFloat = None
+    success_physics: float | None = None
+    mujoco_steps: int = 0
+    elapsed_s: float | None = None
+    attempt: int | None = None

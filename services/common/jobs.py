@@ -309,6 +309,12 @@ class JobStore:
         and history."""
         return None
 
+    def time_limit_s(self) -> float:
+        """How long a delivery may run before it stops itself (RQ kills its process
+        ``JOB_TIMEOUT_GRACE_S`` later): ``JOB_TIMEOUT_S``; a service whose jobs have limits of their own
+        gives the longest of them."""
+        return self.settings.job_timeout_s
+
     # ------------------------------------------------------------ plumbing
     def _transition(self, job_id: str, change: Callable[[Pipeline, JobRecord | None], T]) -> T:
         """Run ``change(pipe, record)`` with the record WATCHed (None: there is none); it calls
@@ -335,8 +341,8 @@ class JobStore:
             func=self.perform,
             args=(job_id, delivery),
             job_id=rq_id(job_id, delivery),
-            # the job stops itself at JOB_TIMEOUT_S; RQ kills its process if it is still there after the grace
-            timeout=math.ceil(s.job_timeout_s + s.job_timeout_grace_s),
+            # the job stops itself at its time limit; RQ kills its process if it is still there after the grace
+            timeout=math.ceil(self.time_limit_s() + s.job_timeout_grace_s),
             result_ttl=s.result_ttl_s,
             failure_ttl=s.result_ttl_s,
             description=f"{self.noun} {job_id} (delivery {delivery})",

@@ -1,7 +1,7 @@
 """``create_app(settings)``: the controller API as a FastAPI app, plus health, readiness and metrics.
 
-The API validates and queues jobs and reads their progress from Redis; it runs none itself (see
-``worker.py``). It never imports PyTorch. When Redis is down it still starts: calls that need Redis
+The API validates and queues jobs (control synthesis at ``/jobs``, policy training at ``/policies``
+and ``/policy-jobs``) and reads their progress from Redis; it runs none itself (see ``worker.py``). It never imports PyTorch. When Redis is down it still starts: calls that need Redis
 answer 503 with a message, and ``/readyz`` says why it is not ready (``services.common.queue_app``).
 """
 
@@ -14,7 +14,7 @@ from fastapi import FastAPI
 from services.common import tenancy
 from services.common.queue_app import connect, queue_app
 from services.controller.metrics import Metrics
-from services.controller.routes import events, jobs, tasks
+from services.controller.routes import events, jobs, policies, policy_jobs, tasks
 from services.controller.settings import Settings
 from services.controller.store import JobStore
 
@@ -42,7 +42,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         title="NeuroAnimator controller service",
         store=store,
         metrics=Metrics(store),
-        routers=(jobs.router, events.router, tasks.router),
+        routers=(jobs.router, events.router, tasks.router, policies.router, policy_jobs.router),
         submit_path="/jobs",
         ready=ready,
         not_ready="there is no trained model",

@@ -1,4 +1,5 @@
-"""``perform(job_id, delivery)``: one run of a controller job, inside the worker's forked job process.
+"""``perform(job_id, delivery)``: one run of a controller job, inside the worker's forked job process
+(a policy job's run: ``policy_execution``).
 
 This is the only module of the service that loads PyTorch (through ``neuroanimator.control``), and it
 does so here, after the fork, with the thread count set first. While ``run_job`` optimises, a small
@@ -26,6 +27,7 @@ import redis
 from neuroanimator.contracts.controller import JobOutcome
 from neuroanimator.goals.spec import JobSpec
 from services.common.job_worker import Watch, connect_job
+from services.controller.policies import POLICY, job_kind
 from services.controller.settings import Settings
 from services.controller.store import JobStore
 
@@ -57,6 +59,10 @@ def perform(job_id: str, delivery: int) -> str:
     # Before torch loads: its OpenMP pool reads these once.
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = str(s.worker_threads)
+    if job_kind(rec.spec) == POLICY:
+        from services.controller.policy_execution import perform_policy  # it imports this module
+
+        return perform_policy(store, s, rec, delivery, worker)
     spec = JobSpec.model_validate_json(rec.spec)
     watch = Watch(store, job_id, delivery, worker)
     watch.start()
@@ -111,12 +117,16 @@ class ProgressRecorder:
         self.best_at: dict[str, object] = {}
         self.unrecorded = 0  # iterations in a row whose progress Redis did not take
 
-    def __call__(self, p: Mapping[str, object]) -> None:
+    def record(self, p: Mapping[str, object]) -> None:
+        """Record one iteration's report (what a run of another kind records: a subclass's)."""
         # the iteration of the best objective so far: where "the best controller so far" comes from
         if p.get("objective") is not None and p.get("objective") == p.get("best_objective"):
             self.best_at["best_iteration"] = p.get("iteration")
+        self.store.progress(self.job_id, self.attempt, {**p, **self.best_at})
+
+    def __call__(self, p: Mapping[str, object]) -> None:
         try:
-            self.store.progress(self.job_id, self.attempt, {**p, **self.best_at})
+            self.record(p)
         except redis.RedisError as exc:  # progress is best effort; the result is what counts
             if not self.unrecorded:  # once while Redis is away, not at every iteration
                 log.warning("progress not recorded", extra={"job": self.job_id, "error": str(exc)})

@@ -33,6 +33,15 @@ class Settings(QueueSettings):
         description="time limit of one job: it then stops and ends failed, best controller kept",
     )
     max_list: int = Field(200, ge=1, description="most jobs listed by GET /jobs")
+    policy_max_seconds: float = Field(
+        1800.0, ge=5.0, description="the longest training budget a policy job may ask for (POST /policies)"
+    )
+    policy_overhead_s: float = Field(
+        300.0,
+        gt=0.0,
+        description="time a policy job may take beyond its budget (drawing goals on MuJoCo, the final "
+        "evaluation, storing): past its budget plus this it stops, ends failed, best policy stored",
+    )
     # workers
     worker_threads: int = Field(1, ge=1, le=64, description="torch threads of one job")
     port: Port = 8001

@@ -1,1 +1,2 @@
-"""The controller API's routers: ``jobs`` (REST), ``events`` (SSE and websocket), ``tasks``."""
+"""The controller API's routers: ``jobs`` (REST), ``events`` (SSE and websocket), ``tasks``, ``policies``
+(policy jobs' submission, stored policies, policy tasks) and ``policy_jobs``."""

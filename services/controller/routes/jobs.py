@@ -35,6 +35,7 @@ from services.common.openapi import Responses
 from services.common.queue_app import queue_full
 from services.controller.deps import SettingsDep, StoreDep
 from services.controller.metrics import Metrics
+from services.controller.policies import POLICY, JobKind, job_kind
 from services.controller.store import IdempotencyConflict, JobStore, QueueFull
 
 router = APIRouter(tags=["jobs"])
@@ -136,12 +137,24 @@ def hidden(req: JobCreate, root: registry.Root) -> None:
         raise JobSpecError("model", f"unknown model {model!r}; trained models are {seen}", seen)
 
 
-def owned(store: JobStore, job_id: str, owner: str) -> JobRecord:
-    """The caller's job, else 404 (also for another key's job)."""
+def owned(store: JobStore, job_id: str, owner: str, kind: JobKind = "control") -> JobRecord:
+    """The caller's job of this kind, else 404 (also for another key's job); a job of the other kind
+    is 404 naming where it is."""
     rec = store.record(job_id, owner)
     if rec is None:
         raise ApiError(404, "not_found", f"no job {job_id!r} (it may have expired)", field="id", got=job_id)
+    found = job_kind(rec.spec)
+    if found != kind:
+        where = f"/policy-jobs/{job_id}" if found == POLICY else f"/jobs/{job_id}"
+        raise ApiError(
+            404, "not_found", f"job {job_id} is a {found} job: see {where}", field="id", got=job_id
+        )
     return rec
+
+
+def jobs_of_kind(store: JobStore, owner: str, kind: JobKind, limit: int, most: int) -> list[JobRecord]:
+    """The owner's newest ``limit`` jobs of a kind, among their newest ``most`` of both kinds."""
+    return [r for r in store.jobs_of(owner, most) if job_kind(r.spec) == kind][:limit]
 
 
 @router.post("/jobs", response_model=JobAccepted, status_code=202, responses=_ERRORS)
@@ -184,8 +197,9 @@ def list_jobs(
     settings: SettingsDep,
     limit: Annotated[int, Query(ge=1, le=1000, description="most jobs to list")] = 50,
 ) -> JobList:
-    """The caller's recent jobs, newest first."""
-    return JobList(jobs=[_summary(r) for r in store.jobs_of(owner, min(limit, settings.max_list))])
+    """The caller's recent control jobs, newest first (policy jobs: ``GET /policy-jobs``)."""
+    recs = jobs_of_kind(store, owner, "control", min(limit, settings.max_list), settings.max_list)
+    return JobList(jobs=[_summary(r) for r in recs])
 
 
 @router.get("/jobs/{job_id}", response_model=JobStatus, responses=_ERRORS)

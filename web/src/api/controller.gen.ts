@@ -12,6 +12,7 @@ export interface ControllerWire {
   FinalVelocityTerm?: FinalVelocityTerm;
   ForwardDistanceTerm?: ForwardDistanceTerm;
   GaussNewtonInfo?: GaussNewtonInfo;
+  HistoryPoint?: HistoryPoint;
   JobAccepted?: JobAccepted;
   JobCreate?: JobCreate;
   JobList?: JobList;
@@ -24,6 +25,18 @@ export interface ControllerWire {
   OptimizerSettings?: OptimizerSettings;
   OptimizerSpec?: OptimizerSpec;
   PathTargetTerm?: PathTargetTerm;
+  PolicyJobCreate?: PolicyJobCreate;
+  PolicyJobList?: PolicyJobList;
+  PolicyJobResult?: PolicyJobResult;
+  PolicyJobStatus?: PolicyJobStatus;
+  PolicyJobSummary?: PolicyJobSummary;
+  PolicyList?: PolicyList;
+  PolicyManifest?: PolicyManifest;
+  PolicyMetrics?: PolicyMetrics;
+  PolicyOutcome?: PolicyOutcome;
+  PolicyProgressEvent?: PolicyProgressEvent;
+  PolicyTaskInfo?: PolicyTaskInfo;
+  PolicyTaskList?: PolicyTaskList;
   ProgressEvent?: ProgressEvent;
   Refinement?: Refinement;
   RefinementRound?: RefinementRound;
@@ -174,6 +187,16 @@ export interface GaussNewtonInfo {
    * whether a run reached the criterion that the descent before it missed
    */
   success?: boolean;
+}
+/**
+ * One point of a curve: the value at (or, thinned, averaged up to) an iteration.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "HistoryPoint".
+ */
+export interface HistoryPoint {
+  iteration: number;
+  value?: number | null;
 }
 /**
  * A job on the queue (or, for a repeated idempotency key, the job it already made).
@@ -825,6 +848,304 @@ export interface JobStatus {
    * where the result is, once the job ended
    */
   result?: string | null;
+}
+/**
+ * A feedback policy ``π(state, goal) → controls`` to train through the emulator for a built-in policy
+ * task (``GET /policy-tasks``) and store; every field left out takes the task's (or the trainer's)
+ * default.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyJobCreate".
+ */
+export interface PolicyJobCreate {
+  /**
+   * a built-in policy task of GET /policy-tasks
+   */
+  task: string;
+  /**
+   * the training budget in seconds (default: the task's; at most POLICY_MAX_SECONDS)
+   */
+  seconds?: number | null;
+  /**
+   * fine-tune the emulator on the policy's own MuJoCo runs as it trains
+   */
+  refine?: boolean;
+  /**
+   * the random seed (default 0)
+   */
+  seed?: number | null;
+  /**
+   * starts × goals rolled out per update (default 256)
+   */
+  batch?: number | null;
+  /**
+   * the policy network's hidden layer widths (default: the task's)
+   */
+  hidden?:
+    | [number]
+    | [number, number]
+    | [number, number, number]
+    | [number, number, number, number]
+    | [number, number, number, number, number]
+    | [number, number, number, number, number, number]
+    | [number, number, number, number, number, number, number]
+    | [number, number, number, number, number, number, number, number]
+    | null;
+  /**
+   * the same key (and body) returns the same job instead of a new one
+   */
+  idempotency_key?: string | null;
+}
+/**
+ * The caller's policy jobs, newest first.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyJobList".
+ */
+export interface PolicyJobList {
+  jobs: PolicyJobSummary[];
+}
+/**
+ * One line of GET /policy-jobs.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyJobSummary".
+ */
+export interface PolicyJobSummary {
+  id: string;
+  status: 'queued' | 'running' | 'succeeded' | 'failed' | 'cancelled';
+  task: string;
+  model: string;
+  created_at: number;
+  ended_at?: number | null;
+  iteration?: number;
+  success_physics?: number | null;
+}
+/**
+ * A policy job's result (``GET /policy-jobs/{id}/result``): its run's outcome and the job's id.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyJobResult".
+ */
+export interface PolicyJobResult {
+  status: 'succeeded' | 'failed' | 'cancelled';
+  reason?: string | null;
+  /**
+   * the stored policy (GET /policies/{model}/{name}); null: none was stored
+   */
+  policy?: PolicyManifest | null;
+  iterations?: number;
+  /**
+   * the batch loss per iteration, thinned to at most 100 points
+   */
+  loss_history?: HistoryPoint[];
+  /**
+   * the share of each check's MuJoCo runs that met the task, at its iteration
+   */
+  success_history?: HistoryPoint[];
+  id: string;
+  task?: string | null;
+  model?: string | null;
+  /**
+   * the emulator when the job was queued
+   */
+  emulator_version?: string | null;
+}
+/**
+ * A stored policy (module doc). Shapes: S state, G goal variables, U controls.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyManifest".
+ */
+export interface PolicyManifest {
+  format?: number;
+  /**
+   * the policy's name: its task's
+   */
+  name: string;
+  version: string;
+  created: string;
+  model: string;
+  /**
+   * the emulator version it was trained through and drives
+   */
+  emulator_version: string;
+  substeps: number;
+  super_timestep: number;
+  state_size: number;
+  state_labels: string[];
+  control_names: string[];
+  goal_variables: string[];
+  goal_low: number[];
+  goal_high: number[];
+  goal_default: number[];
+  timed?: boolean;
+  /**
+   * super-steps a goal is held in training
+   */
+  goal_period_steps: number;
+  /**
+   * super-steps after a goal is set at which it is judged
+   */
+  check_steps: number;
+  description?: string;
+  task?: {
+    [k: string]: unknown;
+  };
+  metrics?: PolicyMetrics;
+}
+/**
+ * How the policy did on held-out starts and goals when it was trained.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyMetrics".
+ */
+export interface PolicyMetrics {
+  /**
+   * share of held-out runs meeting the task on MuJoCo
+   */
+  success_physics?: number | null;
+  /**
+   * the same runs on the emulator
+   */
+  success_emulator?: number | null;
+  return_physics?: number | null;
+  return_emulator?: number | null;
+  evaluate_runs?: number;
+  /**
+   * MuJoCo steps the training used: goals, checks, refinement
+   */
+  mujoco_steps?: number;
+  iterations?: number;
+  wall_s?: number;
+  stop?: string;
+}
+/**
+ * A policy job as it trains: the progress of its current attempt and, once it ended, how.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyJobStatus".
+ */
+export interface PolicyJobStatus {
+  id: string;
+  status: 'queued' | 'running' | 'succeeded' | 'failed' | 'cancelled';
+  task: string;
+  model: string;
+  /**
+   * the emulator at the task's super-step when the job was queued (the run trains through the latest at its start: the stored policy names the one it used)
+   */
+  emulator_version: string;
+  /**
+   * the training budget
+   */
+  seconds: number;
+  refine: boolean;
+  /**
+   * Unix time
+   */
+  created_at: number;
+  started_at?: number | null;
+  ended_at?: number | null;
+  /**
+   * runs started (a re-queued job starts again)
+   */
+  attempt?: number;
+  /**
+   * runs that crashed, raised or were abandoned by their worker
+   */
+  failures?: number;
+  worker?: string | null;
+  iteration?: number;
+  /**
+   * the last batch's loss
+   */
+  loss?: number | null;
+  /**
+   * the share of the last check's MuJoCo runs that met the task (null before one)
+   */
+  success_physics?: number | null;
+  /**
+   * MuJoCo steps used so far (goals, checks, refinement)
+   */
+  mujoco_steps?: number;
+  elapsed_s?: number | null;
+  /**
+   * the loss per iteration, thinned to at most 100 points
+   */
+  loss_history?: HistoryPoint[];
+  /**
+   * why it failed or was cancelled (or why it was re-queued)
+   */
+  error?: string | null;
+  /**
+   * where the result is, once the job ended
+   */
+  result?: string | null;
+}
+/**
+ * Stored policies: the latest version of each, by model and name.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyList".
+ */
+export interface PolicyList {
+  policies: PolicyManifest[];
+}
+/**
+ * How a policy job's run ended: the policy it stored (after a cancel or past the time limit, the
+ * best one so far: ``policy.metrics.stop`` says ``cancelled``), its loss and success histories.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyOutcome".
+ */
+export interface PolicyOutcome {
+  status: 'succeeded' | 'failed' | 'cancelled';
+  reason?: string | null;
+  /**
+   * the stored policy (GET /policies/{model}/{name}); null: none was stored
+   */
+  policy?: PolicyManifest | null;
+  iterations?: number;
+  /**
+   * the batch loss per iteration, thinned to at most 100 points
+   */
+  loss_history?: HistoryPoint[];
+  /**
+   * the share of each check's MuJoCo runs that met the task, at its iteration
+   */
+  success_history?: HistoryPoint[];
+}
+/**
+ * ``event: progress`` of a policy job: one training iteration of the current attempt.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyProgressEvent".
+ */
+export interface PolicyProgressEvent {
+  iteration: number;
+  loss?: number | null;
+  success_physics?: number | null;
+  mujoco_steps?: number;
+  elapsed_s?: number | null;
+  attempt?: number | null;
+}
+/**
+ * A built-in policy task: its model, goals and success criterion (whatever the task defines).
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyTaskInfo".
+ */
+export interface PolicyTaskInfo {
+  name: string;
+  model: string;
+  [k: string]: unknown;
+}
+/**
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyTaskList".
+ */
+export interface PolicyTaskList {
+  tasks: PolicyTaskInfo[];
 }
 /**
  * ``event: progress``: one optimisation iteration of the current attempt.

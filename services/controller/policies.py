@@ -1,0 +1,120 @@
+"""Policy jobs of the controller, torch-free: their spec, how a request becomes one (checked against the
+built-in policy tasks and the artifact registry at submission), and their curves thinned for the wire.
+
+    PolicyJobCreate --policy_spec--> PolicyJobSpec (the queued job's spec, ``"kind": "policy"``)
+    --policy_execution.perform_policy, in the worker's job process--> PolicyOutcome
+
+A job's spec (JSON) says its kind: a policy job's has ``"kind": "policy"``, a control job's is a
+``JobSpec`` (which has no ``kind``). Both kinds share the controller's queue, workers and records.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from neuroanimator.artifacts import registry
+from neuroanimator.catalog.tasks import POLICY_TASKS
+from neuroanimator.contracts.controller import HISTORY_POINTS, HistoryPoint, PolicyJobCreate
+from services.common import tenancy
+
+POLICY: Literal["policy"] = "policy"
+JobKind = Literal["control", "policy"]
+
+
+class PolicyJobSpec(BaseModel):
+    """A checked policy job: the task, the emulator it resolved to when queued, and the training
+    settings (None: the trainer's default, ``neuroanimator.control.policy.PolicySettings``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    kind: Literal["policy"] = POLICY
+    task: str
+    model: str
+    emulator_version: str
+    substeps: int = Field(ge=1)
+    seconds: float = Field(gt=0)
+    refine: bool
+    seed: int | None = None
+    batch: int | None = None
+    hidden: list[int]
+
+
+class PolicySpecError(ValueError):
+    """A policy job that cannot be queued: the request's ``field``, what was expected and what was got."""
+
+    def __init__(self, field: str, message: str, expected: Any = None, got: Any = None) -> None:
+        super().__init__(message)
+        self.field, self.expected, self.got = field, expected, got
+
+
+def job_kind(spec: str) -> JobKind:
+    """A job's kind from its spec (JSON)."""
+    try:
+        data = json.loads(spec)
+    except ValueError:
+        return "control"
+    return POLICY if isinstance(data, dict) and data.get("kind") == POLICY else "control"
+
+
+def policy_spec(req: PolicyJobCreate, root: registry.Root, max_seconds: float) -> PolicyJobSpec:
+    """The job of a request, or ``PolicySpecError``: an unknown task (naming the built-in ones), a budget
+    over ``max_seconds``, or a task whose model has no emulator (that the caller sees) at its
+    super-step."""
+    task = POLICY_TASKS.get(req.task)
+    if task is None:
+        known = sorted(POLICY_TASKS)
+        raise PolicySpecError(
+            "task", f"unknown policy task {req.task!r}; built-in: {', '.join(known)}", known, req.task
+        )
+    seconds = float(req.seconds) if req.seconds is not None else min(task.train_seconds, max_seconds)
+    if seconds > max_seconds:
+        raise PolicySpecError(
+            "seconds",
+            f"seconds: a policy job trains at most {max_seconds:g} s (POLICY_MAX_SECONDS); got {seconds:g}",
+            f"<= {max_seconds:g}",
+            req.seconds,
+        )
+    need = f"an emulator of {task.model!r} at n = {task.substeps}"
+    seen = tenancy.can_see(root, task.model)  # another key's unpublished upload: as if there were none
+    try:
+        if not seen:
+            raise registry.ArtifactError("model", f"unknown model {task.model!r}")
+        path = registry.resolve(root, task.model, None, task.substeps)
+    except registry.ArtifactError as exc:
+        have = registry.available_substeps(root, task.model) if seen else []
+        raise PolicySpecError(
+            "task",
+            f"policy task {task.name!r} needs {need}: {exc}",
+            need,
+            {"model": task.model, "substeps": have},
+        ) from exc
+    return PolicyJobSpec(
+        task=task.name,
+        model=task.model,
+        emulator_version=path.name,
+        substeps=task.substeps,
+        seconds=seconds,
+        refine=req.refine,
+        seed=req.seed,
+        batch=req.batch,
+        hidden=list(req.hidden or task.hidden),
+    )
+
+
+def thin(values: Sequence[float | None], most: int = HISTORY_POINTS) -> list[HistoryPoint]:
+    """A curve of one value per iteration (the first is iteration 1) as at most ``most`` points: each
+    the mean of the finite values of a stretch of iterations, at the stretch's last iteration."""
+    n = len(values)
+    size = max(1, math.ceil(n / most))
+    out = []
+    for start in range(0, n, size):
+        part = [v for v in values[start : start + size] if v is not None and math.isfinite(v)]
+        out.append(
+            HistoryPoint(iteration=min(n, start + size), value=sum(part) / len(part) if part else None)
+        )
+    return out

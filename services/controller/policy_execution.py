@@ -1,0 +1,138 @@
+"""``perform_policy``: one run of a policy job, inside the worker's forked job process (``execution.perform``
+starts the run and hands a policy job over to this).
+
+``run_policy_job`` trains the task's policy through its emulator and stores it beside the emulator,
+under the service's data directory; meanwhile the job's ``Watch`` keeps its lease and reads its flags,
+which ``should_stop`` returns, and each iteration's ``PolicyProgress`` goes to Redis as a ``progress``
+event. PyTorch is loaded here, after the fork, as for a control job.
+
+How a run ends:
+- trained for its budget: succeeded, the result naming the stored policy (its manifest);
+- cancelled by DELETE: cancelled; the best policy so far is stored (``train_policy`` returns it and
+  ``run_policy_job`` stores it) and the result names it (``policy.metrics.stop`` is ``cancelled``);
+- past its budget plus ``POLICY_OVERHEAD_S``: failed ("time limit"), the best policy so far stored;
+- its worker is shutting down: back on the queue, without counting as a failure;
+- ``PolicyJobError`` (no emulator at the task's super-step) or ``GoalsUnreachable`` (MuJoCo reached no
+  goal of the task): failed with the message, nothing stored;
+- any other exception: back on the queue while ``JOB_RETRIES`` allows, else failed.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from typing import Any, Literal
+
+from neuroanimator.artifacts.policies import read_policy
+from neuroanimator.contracts.controller import HistoryPoint, PolicyOutcome
+from neuroanimator.core.policy_manifest import PolicyManifest
+from services.common.job_worker import Watch
+from services.common.jobs import JobRecord
+from services.controller.execution import Deadline, ProgressRecorder
+from services.controller.policies import PolicyJobSpec, thin
+from services.controller.settings import Settings
+from services.controller.store import JobStore
+
+log = logging.getLogger(__name__)
+Ending = Literal["succeeded", "failed", "cancelled"]
+
+
+class PolicyRecorder(ProgressRecorder):
+    """``on_progress`` of a policy's training: each ``PolicyProgress`` into Redis (best effort), and
+    every iteration's loss kept for the result."""
+
+    def __init__(self, store: JobStore, job_id: str, attempt: int) -> None:
+        super().__init__(store, job_id, attempt)
+        self.losses: list[float | None] = []
+
+    def record(self, p: Mapping[str, object]) -> None:
+        loss = p.get("loss")
+        self.losses.append(float(loss) if isinstance(loss, (int, float)) else None)
+        self.store.policy_progress(self.job_id, self.attempt, p)
+
+
+def training_settings(spec: PolicyJobSpec, threads: int) -> dict[str, Any]:
+    """``PolicySettings``'s arguments for a job: what the spec sets (None: the trainer's default)."""
+    given = {"seed": spec.seed, "batch": spec.batch}
+    return {
+        "seconds": spec.seconds,
+        "refine": spec.refine,
+        "hidden": tuple(spec.hidden),
+        "threads": threads,
+        **{k: v for k, v in given.items() if v is not None},
+    }
+
+
+def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, worker: str) -> str:
+    """Run a started delivery of a policy job (``store.start`` made ``rec`` running); returns how it
+    ended (for RQ's log)."""
+    spec = PolicyJobSpec.model_validate_json(rec.spec)
+    job_id = rec.id
+    watch = Watch(store, job_id, delivery, worker)
+    watch.start()
+    limit_s = spec.seconds + s.policy_overhead_s
+    clock = Deadline(watch, limit_s)
+    recorder = PolicyRecorder(store, job_id, rec.attempt)
+    log.info("policy job started", extra={"job": job_id, "attempt": rec.attempt, "policy_task": spec.task})
+    try:
+        from neuroanimator.control.policy import PolicySettings
+        from neuroanimator.control.policy_data import GoalsUnreachable
+        from neuroanimator.control.policy_job import PolicyJobError, run_policy_job
+
+        try:
+            done = run_policy_job(
+                spec.task,
+                s.roots(),
+                PolicySettings(**training_settings(spec, s.worker_threads)),
+                on_progress=recorder,
+                should_stop=clock.should_stop,
+            )
+        except (PolicyJobError, GoalsUnreachable) as exc:  # a re-run would fail the same way
+            failed = PolicyOutcome(
+                status="failed",
+                reason=str(exc),
+                iterations=len(recorder.losses),
+                loss_history=thin(recorder.losses),
+            )
+            store.finish(job_id, delivery, failed)
+            return "failed"
+    except Exception as exc:
+        then = store.requeue_or_fail(job_id, delivery, f"{type(exc).__name__}: {exc}", count_failure=True)
+        log.exception("policy job raised", extra={"job": job_id, "outcome": then})
+        raise
+    finally:
+        watch.stop()
+    stopped = done.result.stop == "cancelled"  # should_stop said so: cancel, shutdown, superseded or time
+    if stopped and not watch.cancelled:
+        if watch.superseded:  # another run of this job took over (this worker had seemed dead)
+            return "superseded"
+        if watch.yielding:
+            store.requeue_or_fail(job_id, delivery, f"worker {worker} shut down", count_failure=False)
+            return "requeued"
+    manifest = read_policy(done.folder)
+    status, reason = _ending(stopped and watch.cancelled, clock.timed_out, limit_s, manifest)
+    outcome = PolicyOutcome(
+        status=status,
+        reason=reason,
+        policy=manifest,
+        iterations=done.result.iterations,
+        loss_history=thin(recorder.losses),
+        success_history=[HistoryPoint(iteration=i, value=v) for i, v in done.result.success_history],
+    )
+    store.finish(job_id, delivery, outcome)
+    return status
+
+
+def _ending(
+    cancelled: bool, timed_out: bool, limit_s: float, policy: PolicyManifest
+) -> tuple[Ending, str | None]:
+    """(status, reason) of a run that stored ``policy``: cancelled by DELETE, past its time limit, or done."""
+    kept = (
+        f"after {policy.metrics.iterations} iterations; the best policy so far is stored as "
+        f"{policy.model}/{policy.name} version {policy.version}"
+    )
+    if cancelled:
+        return "cancelled", f"cancelled {kept}"
+    if timed_out:
+        return "failed", f"time limit of {limit_s:g} s (the budget plus POLICY_OVERHEAD_S) reached {kept}"
+    return "succeeded", None

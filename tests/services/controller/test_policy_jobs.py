@@ -1,0 +1,221 @@
+"""Policy jobs through the API, Redis and a real worker process: a lander policy trained for a few
+seconds, stored and read back; bad requests refused at submission (422 naming the field); cancelling
+a queued and a running policy job; the time limit. Every policy lands in the test's own data
+directory (``NEUROANIMATOR_DATA_DIR``, set per test by the suite's conftest)."""
+
+from __future__ import annotations
+
+import os
+import socket
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+from rq.job import Job
+from rq.serializers import JSONSerializer
+
+from tests.services.controller.ctl import ARTIFACTS, QUICK, Controller, ctl_fixture, wait_for  # noqa: F401
+from tests.services.queues import sse
+
+# a few seconds of training without refinement, a small batch: several iterations in the budget
+QUICK_POLICY = {"task": "lander-landing", "seconds": 6, "refine": False, "batch": 16}
+
+
+def _closed_port() -> int:
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = int(s.getsockname()[1])
+    s.close()  # nothing listens there now
+    return port
+
+
+def policy_job(client: TestClient, job_id: str) -> dict[str, Any]:
+    r = client.get(f"/policy-jobs/{job_id}")
+    assert r.status_code == 200, r.text
+    out: dict[str, Any] = r.json()
+    return out
+
+
+def policy_ended(client: TestClient, job_id: str, timeout: float = 90.0) -> dict[str, Any]:
+    """The policy job once it reached a final status."""
+    out: dict[str, Any] = wait_for(
+        f"policy job {job_id} to end",
+        lambda: (j := policy_job(client, job_id))["status"] in ("succeeded", "failed", "cancelled") and j,
+        timeout,
+        every=0.2,
+    )
+    return out
+
+
+def test_a_policy_job_trains_stores_and_reads_back(ctl: Controller) -> None:
+    api = ctl.client()
+    r = api.post("/policies", json=QUICK_POLICY)
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    assert r.headers["location"] == f"/policy-jobs/{job_id}"
+    queued = policy_job(api, job_id)
+    assert (queued["status"], queued["task"], queued["model"], queued["seconds"], queued["refine"]) == (
+        "queued",
+        "lander-landing",
+        "lander",
+        6.0,
+        False,
+    )
+    assert queued["emulator_version"].startswith("n25-")  # the task's super-step
+    assert api.get(f"/policy-jobs/{job_id}/result").status_code == 409
+    # a policy job is not a control job: /jobs neither lists nor shows it, and says where it is
+    assert api.get("/jobs").json()["jobs"] == []
+    wrong = api.get(f"/jobs/{job_id}")
+    assert wrong.status_code == 404 and f"/policy-jobs/{job_id}" in wrong.json()["message"]
+
+    worker = ctl.worker("--burst", "--name", ctl.name("w-policy"))
+    done = policy_ended(api, job_id)
+    assert worker.wait(timeout=60) == 0, ctl.logs()
+    assert done["status"] == "succeeded", (done, ctl.logs())
+    assert (done["attempt"], done["worker"]) == (1, ctl.name("w-policy"))
+    assert done["iteration"] >= 1 and done["mujoco_steps"] > 0 and done["loss_history"]
+    assert done["result"] == f"/policy-jobs/{job_id}/result"
+
+    # the events: queued, running, one progress per iteration (PolicyProgress), end
+    events = sse(api.get(f"/policy-jobs/{job_id}/events").text)
+    names = [e for e, _ in events]
+    assert names[:2] == ["status", "status"] and names[-1] == "end", names
+    progress = [d for e, d in events if e == "progress"]
+    assert [p["iteration"] for p in progress] == list(range(1, done["iteration"] + 1))
+    assert {"loss", "success_physics", "mujoco_steps", "elapsed_s", "attempt"} <= set(progress[0])
+    assert progress[-1]["mujoco_steps"] == done["mujoco_steps"]
+    assert events[-1][1]["status"] == "succeeded" and events[-1][1]["iterations"] == done["iteration"]
+
+    res = api.get(f"/policy-jobs/{job_id}/result").json()
+    assert (res["id"], res["status"], res["task"], res["model"]) == (
+        job_id,
+        "succeeded",
+        "lander-landing",
+        "lander",
+    )
+    policy = res["policy"]
+    assert (policy["name"], policy["model"], policy["emulator_version"]) == (
+        "lander-landing",
+        "lander",
+        queued["emulator_version"],
+    )
+    metrics = policy["metrics"]
+    assert metrics["iterations"] == res["iterations"] == done["iteration"] and metrics["stop"] == "budget"
+    assert 0.0 <= metrics["success_physics"] <= 1.0 and 0.0 <= metrics["success_emulator"] <= 1.0
+    assert metrics["mujoco_steps"] >= done["mujoco_steps"] and metrics["wall_s"] > 0
+    assert res["loss_history"][-1]["iteration"] == res["iterations"]
+    assert res["success_history"], "the budget's end checks the policy on MuJoCo"
+
+    # stored where the service reads policies, in this test's data directory
+    assert api.get("/policies/lander/lander-landing").json() == policy
+    assert api.get("/policies/lander/lander-landing", params={"version": policy["version"]}).json() == policy
+    assert [p["version"] for p in api.get("/policies").json()["policies"]] == [policy["version"]]
+    assert api.get("/policies", params={"model": "truck"}).json()["policies"] == []
+    folder = Path(os.environ["NEUROANIMATOR_DATA_DIR"]) / "policies" / "lander" / "lander-landing"
+    assert (folder / policy["version"] / "policy.onnx").is_file()
+    assert [j["id"] for j in api.get("/policy-jobs").json()["jobs"]] == [job_id]
+
+
+BAD: list[tuple[dict[str, Any], str, str]] = [
+    ({"task": "lander-hover"}, "task", "lander-landing"),  # the message names the built-in tasks
+    ({"task": "lander-landing", "seconds": 100_000}, "seconds", "1800"),
+    ({"task": "lander-landing", "seconds": 2}, "seconds", "greater than or equal to 5"),
+    ({"task": "lander-landing", "seconds": "60"}, "seconds", "valid number"),
+    ({"task": "lander-landing", "batch": 0}, "batch", "greater than or equal to 1"),
+    ({"task": "lander-landing", "hidden": [64, 0]}, "hidden[1]", "greater than or equal to 1"),
+    ({"task": "lander-landing", "hidden": []}, "hidden", "at least 1"),
+    ({"task": "lander-landing", "refine": "yes"}, "refine", "boolean"),
+    ({"task": "lander-landing", "wings": 2}, "wings", "xtra"),
+    ({}, "task", "required"),
+]
+
+
+@pytest.mark.parametrize(("body", "field", "text"), BAD, ids=[f"{b[1]}-{i}" for i, b in enumerate(BAD)])
+def test_bad_policy_requests_are_422_naming_the_field(
+    ctl: Controller, body: dict[str, Any], field: str, text: str
+) -> None:
+    # refused before Redis is asked: this app's Redis is a closed port
+    api = ctl.client(redis_url=f"redis://127.0.0.1:{_closed_port()}/0")
+    r = api.post("/policies", json=body)
+    assert r.status_code == 422, r.text
+    err = r.json()
+    assert err["field"] == field and text in err["message"], err
+
+
+def test_unknown_task_lists_the_built_in_ones(ctl: Controller) -> None:
+    api = ctl.client(redis_url=f"redis://127.0.0.1:{_closed_port()}/0")
+    err = api.post("/policies", json={"task": "lander-hover"}).json()
+    assert err["error"] == "invalid_job" and err["got"] == "lander-hover"
+    assert {"lander-landing", "pendulum-swing", "truck-parking", "quadrotor-follow"} <= set(err["expected"])
+    tasks = {t["name"]: t for t in api.get("/policy-tasks").json()["tasks"]}
+    assert set(err["expected"]) == set(tasks)
+    assert (tasks["lander-landing"]["model"], tasks["lander-landing"]["substeps"]) == ("lander", 25)
+    assert tasks["lander-landing"]["success_criterion"]
+
+
+def test_a_task_without_an_emulator_at_its_super_step_is_422(ctl: Controller, tmp_path: Path) -> None:
+    """A registry whose lander has only its n = 50 emulator: the task (n = 25) cannot be trained."""
+    arts = tmp_path / "arts" / "lander"
+    arts.mkdir(parents=True)
+    version = (ARTIFACTS / "lander" / "latest-n50").read_text().strip()
+    (arts / version).symlink_to(ARTIFACTS / "lander" / version)
+    for pointer in ("latest", "latest-n50"):
+        (arts / pointer).write_text(version + "\n")
+    api = ctl.client(artifacts_dir=str(tmp_path / "arts"), redis_url=f"redis://127.0.0.1:{_closed_port()}/0")
+    r = api.post("/policies", json={"task": "lander-landing", "seconds": 10})
+    assert r.status_code == 422, r.text
+    err = r.json()
+    assert err["field"] == "task" and "n = 25" in err["message"], err
+    assert err["got"] == {"model": "lander", "substeps": [50]}
+    # a model the registry lacks altogether
+    r = api.post("/policies", json={"task": "truck-parking", "seconds": 10})
+    assert r.status_code == 422 and "unknown model" in r.json()["message"], r.text
+
+
+def test_cancel_a_queued_policy_job_stores_nothing(ctl: Controller) -> None:
+    api = ctl.client()
+    job_id = api.post("/policies", json=QUICK_POLICY).json()["id"]
+    # RQ would kill a delivery past its timeout: it covers the longest policy job, not JOB_TIMEOUT_S's
+    delivery = Job.fetch(f"{job_id}-1", connection=ctl.r, serializer=JSONSerializer)
+    assert delivery.timeout is not None and delivery.timeout >= 1800 + 300
+    r = api.delete(f"/policy-jobs/{job_id}")
+    assert r.status_code == 202 and r.json()["status"] == "cancelled", r.text
+    assert r.json()["error"] == "cancelled before it started"
+    assert api.delete(f"/policy-jobs/{job_id}").status_code == 409  # already ended
+    res = api.get(f"/policy-jobs/{job_id}/result").json()
+    assert (res["status"], res["policy"], res["iterations"]) == ("cancelled", None, 0)
+    assert api.get("/policies").json()["policies"] == []
+    # a control job is not a policy job
+    control = api.post("/jobs", json=QUICK).json()["id"]
+    wrong = api.get(f"/policy-jobs/{control}")
+    assert wrong.status_code == 404 and f"/jobs/{control}" in wrong.json()["message"]
+    assert [j["id"] for j in api.get("/policy-jobs").json()["jobs"]] == [job_id]
+
+
+def test_cancel_a_running_policy_job_stores_the_best_so_far(ctl: Controller) -> None:
+    api = ctl.client()
+    job_id = api.post("/policies", json={**QUICK_POLICY, "seconds": 600}).json()["id"]
+    ctl.worker("--name", ctl.name("w-policy-cancel"))
+    wait_for("an iteration", lambda: policy_job(api, job_id)["iteration"] >= 1, timeout=60)
+    r = api.delete(f"/policy-jobs/{job_id}")
+    assert r.status_code == 202 and r.json()["status"] in ("running", "cancelled"), r.text
+    done = policy_ended(api, job_id, timeout=60)
+    assert done["status"] == "cancelled", (done, ctl.logs())
+    assert "best policy so far is stored" in done["error"]
+    res = api.get(f"/policy-jobs/{job_id}/result").json()
+    policy = res["policy"]
+    assert policy is not None and policy["metrics"]["stop"] == "cancelled"
+    assert 1 <= res["iterations"] == policy["metrics"]["iterations"]
+    assert api.get("/policies/lander/lander-landing").json()["version"] == policy["version"]
+
+
+def test_past_its_time_limit_a_policy_job_fails_with_the_best_so_far(ctl: Controller) -> None:
+    """A budget plus ``POLICY_OVERHEAD_S`` shorter than drawing the goals and training takes."""
+    api = ctl.client()
+    job_id = api.post("/policies", json={**QUICK_POLICY, "seconds": 6}).json()["id"]
+    ctl.worker("--burst", env={"POLICY_OVERHEAD_S": "0.1"})
+    done = policy_ended(api, job_id, timeout=60)
+    assert done["status"] == "failed" and "time limit of 6.1 s" in done["error"], (done, ctl.logs())
+    res = api.get(f"/policy-jobs/{job_id}/result").json()
+    assert res["policy"] is not None and res["policy"]["metrics"]["stop"] == "cancelled"
