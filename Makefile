@@ -9,7 +9,7 @@ MODELS = $(shell $(BIN)/neuro models --catalog)
 
 $(BIN)/neuro: pyproject.toml
 	$(PY) -m venv $(VENV)
-	$(BIN)/pip install --quiet -e '.[dev,stack]'
+	$(BIN)/pip install --quiet -e '.[dev,stack,bench]'
 	touch $(BIN)/neuro
 
 install: $(BIN)/neuro

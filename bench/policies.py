@@ -1,0 +1,312 @@
+"""Feedback policies learned through the emulator, side by side with open-loop synthesis and with
+model-free reinforcement learning on MuJoCo, on the same held-out starts and goals.
+
+    python bench/policies.py [--tasks a,b] [--seconds S] [--held-out 100] [--open-loop-runs 10]
+                             [--algorithm sac|ppo] [--seed 0] [--threads 2] [--quick] [--json]
+
+For each catalog policy task (``catalog.tasks.POLICY_TASKS``; ``--tasks`` some of them), through the
+emulator of the task's super-step (``policy_job.emulator_for``, the data directory over the committed
+defaults):
+
+1. the policy learned through the emulator (``PolicyTrainer``: what ``neuro policy`` trains, for the
+   task's ``train_seconds`` or ``--seconds``), then run on ``--held-out`` starts and goals drawn with a
+   seed of their own (``HELD_OUT_SEED``, never the training's): the starts from the task's box, the
+   goals from a goal pool of their own (``policy_data.reached_goals``, the same distribution as the
+   training's pool, other samples); success on MuJoCo and on the served emulator as the task's checks
+   judge it (``PolicyTrainer.successes``); its MuJoCo steps (the goal pool, its checks on MuJoCo) and
+   wall time are the training's;
+2. ``open_loop``: the control-synthesis job (``control.job.run_job``) for each of the first
+   ``--open-loop-runs`` held-out pairs: the start, the task's target with the goal written in, its
+   weights and checks, a horizon of the run's super-steps on the same emulator, and where the job
+   catalog has a task of the same name and model, that task's effort weights, initial controls,
+   optimizer settings and control spacing (its points per super-step scaled to the emulator's
+   super-step); the job's controller replayed on MuJoCo (after its physics refinement) is judged by
+   the same checks. A job checks only its final state, so a task whose goal moves or whose checks
+   hold before the end of a goal's period (quadrotor-follow) is reported as not applicable, with the
+   reason; the policy's success on the same pairs is given beside the job's;
+3. ``model_free``: Stable-Baselines3 SAC (``--algorithm ppo`` for PPO) trained on MuJoCo itself
+   (``_model_free.PolicyTaskEnv``: the same control period, the policy's own input features, the
+   actions scaled to each control's range, reward minus the policy's loss plus a bonus while the
+   checks hold, the task's episodes, goals from the policy's own training pool) for the same wall time
+   the emulator's policy took, on the same torch threads (``--threads``, as the policy's training
+   and the jobs), then run deterministically on the held-out
+   set on MuJoCo; its MuJoCo steps are its env steps × the task's substeps plus the goal pool's.
+
+Prints a table; with ``--json`` the last line is one JSON object ``{"seed", "held_out", "settings",
+"tasks": [{"task", "success_physics", "success_emulator", "mujoco_steps", "wall_s", "iterations",
+"held_out", "open_loop": {"applicable", "reason", "runs", "success_physics", "policy_success_physics",
+"wall_s", "wall_s_per_job", "mujoco_steps"}, "model_free": {"algorithm", "success_physics",
+"mujoco_steps", "wall_s", "env_steps", "episodes"}}]}``; success values are shares in [0, 1].
+``--quick`` trains for a few seconds on tiny batches, with 16 held-out runs, one short open-loop job:
+a smoke test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import statistics
+import sys
+import time
+from typing import Any
+
+import numpy as np
+import torch
+from _model_free import ALGORITHMS, run_agent, train_model_free
+from numpy.typing import NDArray
+
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.catalog.tasks import POLICY_TASKS, TASKS
+from neuroanimator.control import policy_job
+from neuroanimator.control.job import run_job
+from neuroanimator.control.policy import PolicyResult, PolicySettings, PolicyTrainer, frozen_step
+from neuroanimator.control.policy_data import reached_goals, sample_starts
+from neuroanimator.goals.policy_task import PolicyTask
+
+log = logging.getLogger("bench.policies")
+FloatArray = NDArray[np.float64]
+HELD_OUT_SEED = 90_210  # the held-out starts and goals (training draws with PolicySettings.seed)
+QUICK_SECONDS = 3.0
+QUICK_HELD_OUT = 16
+QUICK_OPTIMIZER = {
+    "max_iterations": 3,
+    "starts": 1,
+    "global_generations": 0,
+    "gauss_newton_iterations": 0,
+    "physics_rounds": 1,
+}
+
+
+def policy_settings(task: PolicyTask, args: argparse.Namespace) -> PolicySettings:
+    """The task's training: its own budget unless ``--seconds``; tiny batches and no emulator
+    refinement with ``--quick``."""
+    seconds = args.seconds if args.seconds is not None else task.train_seconds
+    if args.quick:
+        return PolicySettings(
+            seconds=args.seconds or QUICK_SECONDS,
+            batch=16,
+            refine=False,
+            refine_runs=8,
+            evaluate_runs=8,
+            seed=args.seed,
+            threads=args.threads,
+        )
+    return PolicySettings(seconds=seconds, seed=args.seed, threads=args.threads)
+
+
+def held_out(judge: PolicyTrainer, task: PolicyTask, runs: int, index: int) -> tuple[FloatArray, FloatArray]:
+    """Starts (N, S) and goals (N, P, G) of the held-out set: the task's start box and a goal pool of
+    its own, from ``HELD_OUT_SEED`` (one stream per task)."""
+    rng = np.random.default_rng([HELD_OUT_SEED, index])
+    pool = reached_goals(judge.physical, task, judge.substeps, rng)
+    starts = sample_starts(judge.physical, task, rng, runs)
+    return starts, pool.draw(rng, (runs, judge.schedule.goals))
+
+
+# ---------------------------------------------------------------------------- open-loop synthesis
+def open_loop_reason(task: PolicyTask) -> str | None:
+    """Why a job cannot be judged as the task is (None when it can): a job checks its final state."""
+    if task.goals_per_run > 1:
+        return (
+            f"the goal moves every {task.period_s:g} s and is checked {task.check_s:g} s after each move; "
+            "an open-loop job reaches one target, checked at its final state"
+        )
+    if task.check_s < task.period_s:
+        return f"the checks hold {task.check_s:g} s into the run, a job checks its final state"
+    return None
+
+
+def job_request(
+    task: PolicyTask, version: str, steps: int, start: FloatArray, goal: FloatArray, quick: bool
+) -> dict[str, Any]:
+    """The control-synthesis request for one held-out pair (module doc, 2.)."""
+    request: dict[str, Any] = {
+        "model": task.model,
+        "version": version,
+        "initial_state": [float(v) for v in start],
+        "target_state": task.target_with([float(v) for v in goal]),
+        "state_weights": list(task.state_weights),
+        "horizon": steps,
+        "success": [c.model_dump() for c in task.success],
+    }
+    optimizer: dict[str, Any] = {}
+    same = TASKS.get(task.name)
+    if same is not None and same.model == task.model and not same.terms:
+        request |= {
+            "points_per_step": min(1.0, same.points_per_step * task.substeps / same.substeps),
+            "mu_u": same.mu_u,
+            "mu_s": same.mu_s,
+            "initial_controls": list(same.initial_controls),
+        }
+        optimizer |= same.optimizer
+    if quick:
+        optimizer |= QUICK_OPTIMIZER
+    if optimizer:
+        request["optimizer"] = optimizer
+    return request
+
+
+def open_loop(
+    task: PolicyTask,
+    judge: PolicyTrainer,
+    root: registry.Root,
+    version: str,
+    starts: FloatArray,
+    goals: FloatArray,
+    policy_ok: NDArray[np.bool_],
+    args: argparse.Namespace,
+) -> dict[str, Any]:
+    """Jobs on the first ``--open-loop-runs`` held-out pairs, replayed on MuJoCo and judged by the
+    task's checks, beside the policy's success on the same pairs."""
+    reason = open_loop_reason(task)
+    runs = min(1 if args.quick else args.open_loop_runs, len(starts))
+    if reason is not None or runs == 0:
+        return {"applicable": reason is None, "reason": reason, "runs": 0}
+    sch = judge.schedule
+    ok: list[bool] = []
+    walls: list[float] = []
+    mujoco = 0
+    for i in range(runs):
+        request = job_request(task, version, sch.steps, starts[i], goals[i, 0], args.quick)
+        r = run_job(request, root, threads=judge.settings.threads)
+        if r.physical is None:  # no controller came back to replay
+            ok.append(False)
+        else:
+            replayed = np.array(r.physical.states, dtype=np.float64)  # None (not finite) becomes nan
+            ok.append(bool(judge.successes(replayed[None], goals[i : i + 1])[0]))
+        walls.append(r.wall_s or 0.0)
+        replays = r.refinement.physics_replays if r.refinement is not None else 1
+        mujoco += replays * sch.steps * task.substeps
+        log.info("%s open loop %d: %s, %.1f s", task.name, i, "success" if ok[-1] else "missed", walls[-1])
+    return {
+        "applicable": True,
+        "reason": None,
+        "runs": runs,
+        "success_physics": round(sum(ok) / runs, 4),
+        "policy_success_physics": round(float(policy_ok[:runs].mean()), 4),
+        "wall_s": round(sum(walls), 2),
+        "wall_s_per_job": round(statistics.median(walls), 2),
+        "mujoco_steps": mujoco,
+    }
+
+
+# ---------------------------------------------------------------------------- one task
+def bench_task(name: str, index: int, root: registry.Root, args: argparse.Namespace) -> dict[str, Any]:
+    task = POLICY_TASKS[name]
+    path = policy_job.emulator_for(root, task)
+    settings = policy_settings(task, args)
+    torch.set_num_threads(max(1, settings.threads))  # the same cores for all three
+    trainer = PolicyTrainer(task, path, settings)
+    result: PolicyResult = trainer.train()
+    log.info("%s: trained for %.1f s, %d iterations", name, result.wall_s, result.iterations)
+
+    runs = QUICK_HELD_OUT if args.quick else args.held_out
+    starts, goals = held_out(trainer, task, runs, index)
+    physics = trainer.run(starts, goals, physics=True)
+    trainer.step = frozen_step(artifacts.load_emulator(path))  # the served emulator, not a refined copy
+    emulator = trainer.run(starts, goals, physics=False)
+
+    looped = open_loop(task, trainer, root, path.name, starts, goals, physics.success, args)
+
+    free = train_model_free(args.algorithm, trainer, result.net.shape, result.wall_s, args.seed, args.quick)
+    free_states = run_agent(free.agent, trainer, result.net.shape, starts, goals)
+    free_ok = trainer.successes(free_states, goals)
+    return {
+        "task": name,
+        "held_out": runs,
+        "success_physics": round(physics.rate, 4),
+        "success_emulator": round(emulator.rate, 4),
+        "mujoco_steps": result.mujoco_steps,
+        "wall_s": round(result.wall_s, 2),
+        "iterations": result.iterations,
+        "open_loop": looped,
+        "model_free": {
+            "algorithm": free.algorithm,
+            "success_physics": round(float(free_ok.mean()), 4),
+            "mujoco_steps": free.env_steps * task.substeps + trainer.pool.mujoco_steps,
+            "wall_s": round(free.wall_s, 2),
+            "env_steps": free.env_steps,
+            "episodes": free.episodes,
+        },
+    }
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    head = (
+        "| task | held-out | policy: MuJoCo | policy: emulator | policy: MuJoCo steps | policy: wall s | "
+        "open loop: MuJoCo (runs) | policy on those runs | open loop: s per job | model-free: MuJoCo | "
+        "model-free: MuJoCo steps | model-free: wall s |"
+    )
+    lines = [head, "|" + "---|" * 12]
+    for r in rows:
+        ol, mf = r["open_loop"], r["model_free"]
+        if ol["applicable"] and ol["runs"]:
+            ol_cells = f"{ol['success_physics']:.2f} ({ol['runs']}) | {ol['policy_success_physics']:.2f} | {ol['wall_s_per_job']}"
+        else:
+            ol_cells = "n/a | - | -"
+        lines.append(
+            f"| {r['task']} | {r['held_out']} | {r['success_physics']:.2f} | {r['success_emulator']:.2f} | "
+            f"{r['mujoco_steps']:,} | {r['wall_s']} | {ol_cells} | {mf['success_physics']:.2f} "
+            f"({mf['algorithm']}) | {mf['mujoco_steps']:,} | {mf['wall_s']} |"
+        )
+    notes = [
+        f"{r['task']}: open loop not applicable: {r['open_loop']['reason']}"
+        for r in rows
+        if r["open_loop"]["reason"]
+    ]
+    return "\n".join(lines + notes)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--tasks", default=",".join(POLICY_TASKS))
+    p.add_argument(
+        "--seconds", type=float, default=None, help="each policy's training budget (default: the task's)"
+    )
+    p.add_argument("--held-out", type=int, default=100, help="held-out starts and goals per task")
+    p.add_argument("--open-loop-runs", type=int, default=10, help="held-out pairs given to open-loop jobs")
+    p.add_argument("--algorithm", choices=ALGORITHMS, default="sac", help="the model-free baseline")
+    p.add_argument("--seed", type=int, default=0, help="the training's seed (policy and model-free)")
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=PolicySettings().threads,
+        help="torch threads for all three (the policy's training default)",
+    )
+    p.add_argument("--quick", action="store_true", help="seconds of training, 16 held-out runs: a smoke test")
+    p.add_argument("--json", action="store_true")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
+    logging.getLogger("bench").setLevel(logging.INFO)
+    names = args.tasks.split(",")
+    unknown = [n for n in names if n not in POLICY_TASKS]
+    if unknown:
+        p.error(f"--tasks: unknown policy tasks {unknown}; expected some of {list(POLICY_TASKS)}")
+    if args.held_out < 1 or args.open_loop_runs < 0 or args.threads < 1:
+        p.error(
+            "--held-out and --threads must be >= 1 and --open-loop-runs >= 0, got "
+            f"{args.held_out}, {args.threads} and {args.open_loop_runs}"
+        )
+    root = registry.Roots.default()
+    t0 = time.perf_counter()
+    rows = []
+    for name in names:
+        rows.append(bench_task(name, list(POLICY_TASKS).index(name), root, args))
+        log.info("%s: done (%.0f s)", name, time.perf_counter() - t0)
+    print(table(rows))
+    if args.json:
+        settings = {
+            "seconds": args.seconds,
+            "algorithm": args.algorithm,
+            "threads": args.threads,
+            "quick": args.quick,
+        }
+        held = QUICK_HELD_OUT if args.quick else args.held_out
+        print(json.dumps({"seed": HELD_OUT_SEED, "held_out": held, "settings": settings, "tasks": rows}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
