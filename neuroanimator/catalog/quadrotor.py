@@ -67,8 +67,8 @@ def quadrotor() -> PhysicalModel:
 
 
 _POS = ("root.pos.x", "root.pos.y", "root.pos.z")
-# Follow a target that moves every 5 s to a point within 3 m of where the quadrotor starts (where
-# MuJoCo's quadrotor goes in its typical motion): within 0.3 m of it 2 s after each move. Control
+# Follow a target that moves every 5 s to a point within 3 m of where it was (where MuJoCo's
+# quadrotor goes in its typical motion, within 3 m of its start): within 0.3 m of it 2 s after each move. Control
 # every 0.125 s (the n = 25 emulator).
 POLICY_FOLLOW = PolicyTask(
     name="quadrotor-follow",
@@ -98,7 +98,7 @@ POLICY_FOLLOW = PolicyTask(
         random_yaw=True,
         max_tilt=0.15,
     ),
-    goal=GoalSpec(variables=_POS, low=(-3.0, -3.0, 7.0), high=(3.0, 3.0, 13.0)),
+    goal=GoalSpec(variables=_POS, low=(-3.0, -3.0, 7.0), high=(3.0, 3.0, 13.0), max_move=3.0),
     target_state=(0.0, 0.0, 10.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     state_weights=(1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.0, 0.2, 0.2, 0.2, 0.05, 0.05, 0.05),
     success=(SuccessCheck(check="distance", variables=list(_POS), max=0.3),),

@@ -61,7 +61,7 @@ class PolicySettings:
     seconds: float = 600.0
     batch: int = 256
     learning_rate: float = 1e-3
-    truncate: int = 40
+    truncate: int = 0  # super-steps between cuts of the gradient's path (0: the whole run)
     grad_clip: float = 1.0
     hidden: tuple[int, ...] | None = None  # default: the task's
     refine: bool = True
@@ -70,7 +70,7 @@ class PolicySettings:
     refine_seconds: float = 20.0
     evaluate_runs: int = 100
     seed: int = 0
-    threads: int = 2
+    threads: int = 1  # one: its matrices are small, and a second thread only waits under load
 
 
 class PolicyProgress(TypedDict):
@@ -236,9 +236,9 @@ class PolicyTrainer:
     # ---------------------------------------------------------------- rollouts
     def draw(self, batch: int) -> tuple[FloatArray, FloatArray]:
         """Starts (B, S) and goals (B, P, G), one goal per period of the run."""
-        return sample_starts(self.physical, self.task, self.rng, batch), self.pool.draw(
-            self.rng, (batch, self.schedule.goals)
-        )
+        starts = sample_starts(self.physical, self.task, self.rng, batch)
+        goals = self.pool.draw_moving(self.rng, batch, self.schedule.goals, self.task.goal.max_move)
+        return starts, goals
 
     def targets(self, goals: Tensor) -> Tensor:
         """Targets (B, P, S): the task's target state with each goal written in."""
@@ -254,7 +254,7 @@ class PolicyTrainer:
         targets = self.targets(g)
         total = torch.zeros(())
         for k in range(sch.steps):
-            if k and k % cfg.truncate == 0:
+            if k and cfg.truncate and k % cfg.truncate == 0:
                 s = s.detach()
             i = sch.goal_index(k)
             left = torch.full((len(s), 1), sch.time_left(k))
@@ -401,7 +401,13 @@ class PolicyTrainer:
     def finish(
         self, it: int, losses: list[float], successes: list[tuple[int, float]], stop: str
     ) -> PolicyResult:
-        """The kept policy's success on held-out starts and goals, on MuJoCo and on the emulator."""
+        """The kept policy's success on held-out starts and goals, on MuJoCo and on the emulator (not
+        measured, 0, for a training cancelled before its first check)."""
+        if stop == "cancelled" and not successes:
+            return PolicyResult(
+                self.net, self.task, self.manifest, 0.0, 0.0, self.mujoco_steps, it, self.elapsed(),
+                losses, successes, 0, stop, self.pool.goals,
+            )  # fmt: skip
         held_out = np.random.default_rng(self.settings.seed + 1_000_003)
         rng, self.rng = self.rng, held_out
         starts, goals = self.draw(self.settings.evaluate_runs)

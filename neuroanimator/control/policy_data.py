@@ -61,6 +61,22 @@ class GoalPool:
         idx = rng.integers(0, len(self.goals), size=shape)
         return self.goals[idx]
 
+    def draw_moving(
+        self, rng: np.random.Generator, batch: int, moves: int, max_move: float | None, tries: int = 32
+    ) -> FloatArray:
+        """(batch, moves, G) goals of the pool, each within ``max_move`` of the one before it (the first
+        anywhere); where none of ``tries`` candidates is, the goal stays where it was."""
+        out = self.draw(rng, (batch, moves))
+        if max_move is None or moves < 2:
+            return out
+        for k in range(1, moves):
+            cand = self.draw(rng, (batch, tries))  # (B, T, G)
+            near = np.linalg.norm(cand - out[:, k - 1 : k], axis=2) <= max_move  # (B, T)
+            first = np.argmax(near, axis=1)
+            found = near[np.arange(batch), first]
+            out[:, k] = np.where(found[:, None], cand[np.arange(batch), first], out[:, k - 1])
+        return out
+
 
 def reached_goals(
     model: PhysicalModel,

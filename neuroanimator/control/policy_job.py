@@ -35,10 +35,11 @@ def policy_task(name: str) -> PolicyTask:
     return task
 
 
-def emulator_for(root: registry.Root, task: PolicyTask) -> Path:
-    """The emulator a task's policy is trained through: its model's latest at the task's super-step."""
+def emulator_for(root: registry.Root, task: PolicyTask, version: str | None = None) -> Path:
+    """The emulator a task's policy is trained through: ``version`` of its model (pinned when a job is
+    submitted), else its model's latest at the task's super-step."""
     try:
-        return registry.resolve(root, task.model, None, task.substeps)
+        return registry.resolve(root, task.model, version, None if version else task.substeps)
     except registry.ArtifactError as e:
         raise PolicyJobError(
             f"policy task {task.name!r} needs an emulator of {task.model!r} at n = {task.substeps}: {e}"
@@ -47,10 +48,18 @@ def emulator_for(root: registry.Root, task: PolicyTask) -> Path:
 
 @dataclass
 class PolicyJobOutcome:
-    """The trained policy and where it was stored."""
+    """The trained policy and where it was stored (None: not stored, ``stored_reason`` says why)."""
 
     result: PolicyResult
-    folder: Path
+    folder: Path | None
+    stored_reason: str = ""
+
+
+def worth_storing(result: PolicyResult) -> tuple[bool, str]:
+    """Whether a policy is worth storing: one stopped before it was ever run on MuJoCo is untrained."""
+    if result.stop == "cancelled" and not result.success_history:
+        return False, f"cancelled after {result.iterations} iterations, before its first check on MuJoCo"
+    return True, "stored"
 
 
 def run_policy_job(
@@ -59,11 +68,19 @@ def run_policy_job(
     settings: PolicySettings | None = None,
     on_progress: Callable[[PolicyProgress], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
+    emulator_version: str | None = None,
+    should_store: Callable[[PolicyResult], tuple[bool, str]] = worth_storing,
 ) -> PolicyJobOutcome:
-    """Train the task's policy through its emulator and store it under ``root``'s data directory."""
+    """Train the task's policy through its emulator (``emulator_version``, else the latest at the task's
+    super-step) and store it under ``root``'s data directory, unless ``should_store`` says not to (a
+    worker shutting down, a policy cancelled before it was ever checked)."""
     task = policy_task(task) if isinstance(task, str) else task
-    path = emulator_for(root, task)
+    path = emulator_for(root, task, emulator_version)
     result = train_policy(task, path, settings, on_progress, should_stop)
+    store, why = should_store(result)
+    if not store:
+        log.info("policy %s not stored: %s", task.name, why)
+        return PolicyJobOutcome(result, None, why)
     goals = result.goals if result.goals is not None else np.zeros((1, len(task.goal.variables)))
     folder = save_policy(root, result, goals)
     log.info(
@@ -77,4 +94,4 @@ def run_policy_job(
         result.wall_s,
         folder,
     )
-    return PolicyJobOutcome(result, folder)
+    return PolicyJobOutcome(result, folder, "stored")

@@ -21,7 +21,6 @@ Torch-free and MuJoCo-free; the catalog defines its tasks beside its models (``P
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,13 +45,15 @@ class GoalSpec:
     """A policy's goals: values of ``variables`` (state labels) taken from states MuJoCo reaches in the
     model's typical motion from the task's starts, within [low, high] per variable. ``at_rest`` keeps
     only states whose speeds (every ``qvel`` variable) are below ``rest_speed``: poses the model passes
-    through at rest, the turning points of a swing."""
+    through at rest, the turning points of a swing. A goal that moves (``PolicyTask.goal_period_s``)
+    moves at most ``max_move`` (the Euclidean distance over its variables) each time."""
 
     variables: tuple[str, ...]
     low: tuple[float, ...]
     high: tuple[float, ...]
     at_rest: bool = False
     rest_speed: float = 0.3
+    max_move: float | None = None  # a moving goal's next value within this distance of its last
 
     def __post_init__(self) -> None:
         if not (len(self.variables) == len(self.low) == len(self.high)) or not self.variables:
@@ -171,8 +172,3 @@ def goal_schedule(task: PolicyTask, super_dt: float) -> tuple[int, int, int]:
     """(steps per run, steps per goal, step within a goal's period at which the checks hold)."""
     per_goal = steps_of(task.period_s, super_dt)
     return per_goal * task.goals_per_run, per_goal, min(per_goal, steps_of(task.check_s, super_dt))
-
-
-def angle_distance(a: float, b: float) -> float:
-    """|a − b| wrapped to [0, π]."""
-    return abs(math.remainder(a - b, 2 * math.pi))

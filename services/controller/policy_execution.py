@@ -9,7 +9,8 @@ event. PyTorch is loaded here, after the fork, as for a control job.
 How a run ends:
 - trained for its budget: succeeded, the result naming the stored policy (its manifest);
 - cancelled by DELETE: cancelled; the best policy so far is stored (``train_policy`` returns it and
-  ``run_policy_job`` stores it) and the result names it (``policy.metrics.stop`` is ``cancelled``);
+  ``run_policy_job`` stores it) and the result names it (``policy.metrics.stop`` is ``cancelled``),
+  unless it was cancelled before its first check on MuJoCo: then nothing is stored;
 - past its budget plus ``POLICY_OVERHEAD_S``: failed ("time limit"), the best policy so far stored;
 - its worker is shutting down: back on the queue, without counting as a failure;
 - ``PolicyJobError`` (no emulator at the task's super-step) or ``GoalsUnreachable`` (MuJoCo reached no
@@ -77,7 +78,13 @@ def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, 
     try:
         from neuroanimator.control.policy import PolicySettings
         from neuroanimator.control.policy_data import GoalsUnreachable
-        from neuroanimator.control.policy_job import PolicyJobError, run_policy_job
+        from neuroanimator.control.policy_job import PolicyJobError, run_policy_job, worth_storing
+
+        def should_store(result: Any) -> tuple[bool, str]:
+            """Nothing is stored by a run that hands its job back (shutdown, taken over by another)."""
+            if watch.yielding or watch.superseded:
+                return False, "the run handed its job back"
+            return worth_storing(result)
 
         try:
             done = run_policy_job(
@@ -86,6 +93,8 @@ def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, 
                 PolicySettings(**training_settings(spec, s.worker_threads)),
                 on_progress=recorder,
                 should_stop=clock.should_stop,
+                emulator_version=spec.emulator_version,
+                should_store=should_store,
             )
         except (PolicyJobError, GoalsUnreachable) as exc:  # a re-run would fail the same way
             failed = PolicyOutcome(
@@ -109,6 +118,20 @@ def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, 
         if watch.yielding:
             store.requeue_or_fail(job_id, delivery, f"worker {worker} shut down", count_failure=False)
             return "requeued"
+    if done.folder is None:  # cancelled before its first check on MuJoCo: nothing worth keeping
+        why = (
+            f"time limit of {limit_s:g} s (the budget plus POLICY_OVERHEAD_S) reached"
+            if clock.timed_out
+            else ""
+        )
+        cancelled = PolicyOutcome(
+            status="cancelled" if watch.cancelled else "failed",
+            reason=f"{why + ': ' if why else ''}{done.stored_reason}; nothing stored",
+            iterations=done.result.iterations,
+            loss_history=thin(recorder.losses),
+        )
+        store.finish(job_id, delivery, cancelled)
+        return cancelled.status
     manifest = read_policy(done.folder)
     status, reason = _ending(stopped and watch.cancelled, clock.timed_out, limit_s, manifest)
     outcome = PolicyOutcome(

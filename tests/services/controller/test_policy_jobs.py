@@ -193,7 +193,9 @@ def test_cancel_a_queued_policy_job_stores_nothing(ctl: Controller) -> None:
     assert [j["id"] for j in api.get("/policy-jobs").json()["jobs"]] == [job_id]
 
 
-def test_cancel_a_running_policy_job_stores_the_best_so_far(ctl: Controller) -> None:
+def test_cancel_a_running_policy_job_before_its_first_check_stores_nothing(ctl: Controller) -> None:
+    """Cancelled at its first iterations, long before its first check on MuJoCo: an untrained network
+    is not worth a version (nor moving ``latest`` to it)."""
     api = ctl.client()
     job_id = api.post("/policies", json={**QUICK_POLICY, "seconds": 600}).json()["id"]
     ctl.worker("--name", ctl.name("w-policy-cancel"))
@@ -202,12 +204,10 @@ def test_cancel_a_running_policy_job_stores_the_best_so_far(ctl: Controller) -> 
     assert r.status_code == 202 and r.json()["status"] in ("running", "cancelled"), r.text
     done = policy_ended(api, job_id, timeout=60)
     assert done["status"] == "cancelled", (done, ctl.logs())
-    assert "best policy so far is stored" in done["error"]
+    assert "before its first check on MuJoCo; nothing stored" in done["error"]
     res = api.get(f"/policy-jobs/{job_id}/result").json()
-    policy = res["policy"]
-    assert policy is not None and policy["metrics"]["stop"] == "cancelled"
-    assert 1 <= res["iterations"] == policy["metrics"]["iterations"]
-    assert api.get("/policies/lander/lander-landing").json()["version"] == policy["version"]
+    assert res["policy"] is None and res["iterations"] >= 1
+    assert api.get("/policies/lander/lander-landing").status_code == 404
 
 
 def test_past_its_time_limit_a_policy_job_fails_with_the_best_so_far(ctl: Controller) -> None:
@@ -218,4 +218,5 @@ def test_past_its_time_limit_a_policy_job_fails_with_the_best_so_far(ctl: Contro
     done = policy_ended(api, job_id, timeout=60)
     assert done["status"] == "failed" and "time limit of 6.1 s" in done["error"], (done, ctl.logs())
     res = api.get(f"/policy-jobs/{job_id}/result").json()
-    assert res["policy"] is not None and res["policy"]["metrics"]["stop"] == "cancelled"
+    # stored when it was checked on MuJoCo before the limit (the usual case), else nothing
+    assert res["policy"] is None or res["policy"]["metrics"]["stop"] == "cancelled"
