@@ -12,6 +12,12 @@ in ``clipped_controls`` / ``clipped_forces`` and sets ``clipped: true``.
 A new state outside the envelope of the states the emulator was trained on (the manifest's
 ``envelope``: per state group, the range of the training data) is still returned, but the step's
 response says so: ``outside_envelope: true`` and the groups that are out in ``outside_groups``.
+
+A session may be driven by a trained feedback policy (``SessionCreate.policy``): every super-step the
+policy reads the session's state and goal (G values) and sets its controls; the client sends goals
+and forces, never controls. A goal outside the range the policy was trained for is accepted and
+flagged in every reply (``goal_outside`` names its variables), as a state outside the training
+envelope is.
 """
 
 from __future__ import annotations
@@ -263,6 +269,32 @@ class PosesResponse(BaseModel):
 
 
 # ---------------------------------------------------------------- sessions
+class PolicyDrive(_Wire):
+    """A trained feedback policy of the model (``neuro policy``) that sets a session's controls every
+    super-step from its state and a goal; ``goal`` (G values, the policy's ``goal_variables``)
+    defaults to the policy's ``goal_default``."""
+
+    name: str = Field(description="the policy's name (its task's), e.g. lander-landing")
+    version: str | None = Field(None, description="a stored version of the policy; its latest when absent")
+    goal: Vector | None = Field(None, description="the goal, G values; the policy's default when absent")
+
+
+class PolicyStatus(BaseModel):
+    """The policy driving a session and its goal. ``goal_low``..``goal_high``: the goals it was trained
+    for; ``goal_outside`` names the goal variables outside them (accepted, less reliable)."""
+
+    name: str
+    version: str
+    emulator_version: str = Field(description="the emulator version it was trained through (the session's)")
+    goal_variables: list[str]
+    goal: list[float]
+    goal_low: list[float]
+    goal_high: list[float]
+    goal_default: list[float]
+    goal_outside: list[str] = []
+    timed: bool = Field(False, description="it reads the time left until its goal's check as well")
+
+
 class SessionCreate(_Wire):
     """``state`` (S values) starts the session there; otherwise a random typical start drawn from
     ``seed`` (a fresh seed when absent, returned in the response)."""
@@ -276,6 +308,12 @@ class SessionCreate(_Wire):
         description="run the model's driver (ModelDetail.driver) with these parameters ({} for its "
         "defaults): it sets the controls every super-step; without a state, the session starts where "
         "the driver starts (the runner: a running stride at the target speed)",
+    )
+    policy: PolicyDrive | None = Field(
+        None,
+        description="drive the session with a trained policy of the model: it sets the controls every "
+        "super-step from the state and the goal; the client sends goals and forces. The session runs the "
+        "emulator version the policy was trained through (version, when given, must be that one)",
     )
 
 
@@ -295,10 +333,21 @@ class SessionInfo(BaseModel):
         None,
         description="the driver's parameters when the model's driver sets the controls; null: the client",
     )
+    policy: PolicyStatus | None = Field(None, description="the policy setting the controls, and its goal")
+
+
+_GOAL_DOC = (
+    "a policy-driven session only: its new goal (G values, the policy's goal_variables); the clock of "
+    "a timed policy restarts when the goal changes"
+)
+_CONTROLS_DOC = "the controls the session's driver or policy chose (null: the client's)"
+_GOAL_OUT_DOC = "a policy-driven session's goal (null otherwise)"
+_GOAL_OUTSIDE_DOC = "the goal variables outside the goals the policy was trained for"
 
 
 class StepRequest(_Wire):
-    """Hold ``controls`` (U) and ``forces`` (F) for ``steps`` super-steps."""
+    """Hold ``controls`` (U) and ``forces`` (F) for ``steps`` super-steps. A policy-driven session takes
+    no controls (422): its policy sets them each super-step towards ``goal``."""
 
     controls: Vector = []
     forces: Vector = []
@@ -309,6 +358,7 @@ class StepRequest(_Wire):
         description="a driven session only: new parameters for its driver (the rest keep their values); "
         "its controls come from the driver, so controls may be left out",
     )
+    goal: Vector | None = Field(None, description=_GOAL_DOC)
 
 
 class StepResponse(BaseModel):
@@ -331,12 +381,20 @@ class StepResponse(BaseModel):
         False, description="a new state is outside the envelope of the states the emulator was trained on"
     )
     outside_groups: list[str] = Field([], description="the state groups outside the training envelope")
+    controls: list[list[float]] | None = Field(
+        None, description="(steps, U): the controls of each super-step, when the driver or policy chose them"
+    )
+    goal: list[float] | None = Field(None, description=_GOAL_OUT_DOC)
+    goal_outside: list[str] = Field([], description=_GOAL_OUTSIDE_DOC)
 
 
 class BatchStepItem(_Wire):
+    """One session's inputs; a policy-driven session takes a ``goal`` (optional) and no controls."""
+
     session: str
     controls: Vector = []
     forces: Vector = []
+    goal: Vector | None = Field(None, description=_GOAL_DOC)
 
 
 class BatchStepRequest(_Wire):
@@ -369,6 +427,9 @@ class BatchStepResult(BaseModel):
         False, description="a new state is outside the envelope of the states the emulator was trained on"
     )
     outside_groups: list[str] = Field([], description="the state groups outside the training envelope")
+    controls: list[float] | None = Field(None, description=_CONTROLS_DOC)
+    goal: list[float] | None = Field(None, description=_GOAL_OUT_DOC)
+    goal_outside: list[str] = Field([], description=_GOAL_OUTSIDE_DOC)
     error: ErrorBody | None = None
 
 
@@ -388,6 +449,7 @@ class WsStep(_Wire):
         description="a driven session only: new parameters for its driver (the rest keep their values); "
         "its controls come from the driver, so controls may be left out",
     )
+    goal: Vector | None = Field(None, description=_GOAL_DOC)
     seq: int | None = None
 
 
@@ -431,6 +493,7 @@ class WsControls(_Wire):
         description="a driven session only: new parameters for its driver (the rest keep their values); "
         "its controls come from the driver, so controls may be left out",
     )
+    goal: Vector | None = Field(None, description=_GOAL_DOC)
     seq: int | None = None
 
 
@@ -445,12 +508,17 @@ class ShadowState(BaseModel):
     state: list[float]
     poses: list[list[float]] | None = None
     diverged: bool = False
+    controls: list[float] | None = Field(
+        None, description="the controls its own copy of the session's driver or policy chose"
+    )
 
 
 class WsState(BaseModel):
     """Server → client: the session's new state (``seq`` echoes the request's). ``poses`` (with
     ``poses: true``): per body, ``[x, y, z, qw, qx, qy, qz]`` in the world frame; ``shadow`` (with
-    ``shadow: true``): the MuJoCo twin's state. Both are left out when not asked for."""
+    ``shadow: true``): the MuJoCo twin's state. Both are left out when not asked for. A driven session's
+    state carries the ``controls`` its driver or policy chose for the step; a policy-driven one's also
+    its ``goal`` and ``goal_outside`` (left out for the others)."""
 
     type: Literal["state"] = "state"
     seq: int | None = None
@@ -466,6 +534,9 @@ class WsState(BaseModel):
     outside_groups: list[str] = Field([], description="the state groups outside the training envelope")
     poses: list[list[float]] | None = None
     shadow: ShadowState | None = None
+    controls: list[float] | None = Field(None, description=_CONTROLS_DOC)
+    goal: list[float] | None = Field(None, description=_GOAL_OUT_DOC)
+    goal_outside: list[str] = Field([], description=_GOAL_OUTSIDE_DOC)
 
 
 class WsPong(BaseModel):

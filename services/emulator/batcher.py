@@ -5,6 +5,10 @@ A request is (session, controls (U,), forces (F,)); the batch gathers the sessio
 contiguous state pool into (B, S), stacks the inputs into (B, U) and (B, F), runs
 ``OnnxEmulator.step`` (in a worker thread when the batch is large, so the event loop keeps serving),
 and scatters the finite rows of the (B, S) result back. A row with NaN or Inf marks only its session diverged.
+
+Policy-driven sessions (``policy_rows.py``) get their controls in the same tick: before the emulator's
+call, each policy among the batch's sessions is evaluated ONCE over all its rows (their states and
+goals), and its controls replace those rows' controls. Whatever a client put there is ignored.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from numpy.typing import NDArray
 
 from services.emulator.errors import Diverged, StepFailed, UnknownSession
 from services.emulator.metrics import Metrics
+from services.emulator.policy_rows import PolicyTick
 from services.emulator.registry import LoadedEmulator
 from services.emulator.sessions import Session, StatePool
 
@@ -229,23 +234,41 @@ class Batcher:
         blocks: list[_BlockEntry],
     ) -> NDArray[np.float32]:
         """The ORT step of the (B,) ``slots`` of ``pool`` under the entries' inputs, single entries'
-        rows first: the (B, S) new states (not yet written back)."""
+        rows first, the policy-driven rows' controls set by their policies first: the (B, S) new
+        states (not yet written back)."""
         x = np.take(pool.states, slots, axis=0)  # (B, S) copy
-        nu = self.emu.num_controls
         parts_in = [np.array([r.inputs for r in single], np.float32)] if single else []
         parts_in += [b.inputs for b in blocks]
         inputs = np.concatenate(parts_in) if len(parts_in) > 1 else parts_in[0]  # (B, U+F)
-        u = inputs[:, :nu] if nu else None
-        f = inputs[:, nu:] if self.emu.num_forces else None
+        tick = PolicyTick.plan(pool.driving, pool.steps, slots)
+        if tick is not None and len(parts_in) == 1:
+            inputs = inputs.copy()  # (a block's own rows: the policies' controls go into a copy)
         t0 = time.perf_counter()
         if len(slots) <= INLINE_ROWS:
-            out = self.emu.emulator.step(x, u, f, validate=False)
+            out = self._compute(x, inputs, tick)
         else:  # a large one runs in a worker thread so that the event loop keeps serving meanwhile
-            out = await asyncio.to_thread(self.emu.emulator.step, x, u, f, validate=False)
+            out = await asyncio.to_thread(self._compute, x, inputs, tick)
         self.ort_calls += 1
         self.rows += len(slots)
         self.metrics.observe_batch(self.emu.model, len(slots), time.perf_counter() - t0)
+        if tick is not None:
+            tick.record(pool.driving)
+            if tick.bad is not None:  # a policy's non-finite controls: those sessions diverge
+                out[tick.bad] = np.nan
         return out
+
+    def _compute(
+        self, x: NDArray[np.float32], inputs: NDArray[np.float32], tick: PolicyTick | None
+    ) -> NDArray[np.float32]:
+        """States (B, S) and inputs (B, U+F) -> (B, S): the policies' calls (one per policy), then the
+        emulator's. No pool is touched here (it may run in a worker thread)."""
+        nu = self.emu.num_controls
+        if tick is not None:
+            bounds = self.emu.inputs
+            tick.apply(x, inputs, bounds.low[:nu], bounds.high[:nu])
+        u = inputs[:, :nu] if nu else None
+        f = inputs[:, nu:] if self.emu.num_forces else None
+        return self.emu.emulator.step(x, u, f, validate=False)
 
     def _answer_single(
         self,

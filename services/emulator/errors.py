@@ -58,6 +58,18 @@ class UnknownModel(EmulatorError):
     default_code = "unknown_model"
 
 
+class UnknownPolicy(EmulatorError):
+    """No such policy (or version of it) for the model."""
+
+    default_code = "unknown_policy"
+
+
+class PolicyMismatch(EmulatorError):
+    """A policy asked to drive a session of an emulator version it was not trained through."""
+
+    default_code = "policy_emulator_mismatch"
+
+
 class Diverged(EmulatorError):
     """The session's emulator produced a non-finite state; the session is kept at its last finite one."""
 

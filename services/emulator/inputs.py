@@ -94,6 +94,9 @@ class InputRange:
         self.rows = RowBounds(self.low, self.high)
         # the same float32 bounds as Python floats, for ``fits``
         self.bounds = list(zip(self.low.tolist(), self.high.tolist(), strict=True))
+        # (U,) zero moved into each control's range: what stands in for the controls a session's policy
+        # sets in the batcher (``policy_rows``), so that nothing is reported clipped for them
+        self.neutral_controls = np.clip(0.0, self.low, self.high)[: self.num_controls].astype(np.float32)
 
     def fits(self, values: Sequence[float]) -> bool:
         """Every value in range (NaN is not): the check of one short row of Python floats (a binary

@@ -2,12 +2,13 @@
 
 Layout: one Redis hash per replica, ``<REDIS_PREFIX>:sessions:<REPLICA_ID>``; its fields are session
 ids (which start with the replica id), its values compact records (``encode``): a JSON header
-(model, version, steps, diverged flag, seed, owner key id, last-used wall-clock time) then a NUL byte
-then the state, S little-endian float32 (4·S bytes).
+(model, version, steps, diverged flag, seed, owner key id, last-used wall-clock time; a driven
+session's driver parameters, or its policy's name and version with its goal and the step the goal was
+set at) then a NUL byte then the state, S little-endian float32 (4·S bytes).
 
 Every ``CHECKPOINT_INTERVAL_S`` a background task writes, in one pipeline, the sessions that changed
-since the last successful checkpoint (a new step count or diverged flag; reading a session is not a
-change) and removes the sessions that are gone (deleted or expired). A failed checkpoint changes
+since the last successful checkpoint (a new step count, diverged flag or goal; reading a session is
+not a change) and removes the sessions that are gone (deleted or expired). A failed checkpoint changes
 nothing on this side, so the next one writes everything it missed. Each checkpoint first asks Redis
 whether it still holds what was written: when its server restarted (a new ``run_id``: it may have
 come back empty, or from an append-only file a second behind) or the hash holds fewer records than
@@ -60,6 +61,25 @@ class Record:
     owner: str | None
     last_used: float
     driver: dict[str, float] | None = None  # a driven session's driver parameters
+    policy: PolicyRecord | None = None  # a policy-driven session's policy and goal
+
+
+@dataclass
+class PolicyRecord:
+    """A policy-driven session's policy (name, version), its (G,) goal and the step it was set at."""
+
+    name: str
+    version: str
+    goal: list[float]
+    goal_step: int
+
+
+Mark = tuple[int, bool, int]
+"""What a checkpoint compares to know that a session changed: its steps, diverged flag, goal changes."""
+
+
+def mark_of(sess: Session) -> Mark:
+    return (sess.steps, sess.diverged, sess.goal_rev)
 
 
 def encode(sess: Session, last_used_wall: float) -> bytes:
@@ -74,6 +94,13 @@ def encode(sess: Session, last_used_wall: float) -> bytes:
         "u": round(last_used_wall, 3),
         "r": sess.driver_params,
     }
+    if sess.policy is not None:
+        head["p"] = {
+            "n": sess.policy.name,
+            "v": sess.policy.version,
+            "g": [float(v) for v in sess.goal],
+            "k": sess.goal_step,
+        }
     state = sess.pool.states[sess.slot].astype("<f4")
     return json.dumps(head, separators=(",", ":")).encode() + b"\0" + state.tobytes()
 
@@ -84,6 +111,7 @@ def decode(raw: bytes) -> Record:
     if not sep or len(state) % 4:
         raise ValueError("not a session record")
     head: dict[str, Any] = json.loads(head_bytes)
+    pol = head.get("p")
     return Record(
         model=str(head["m"]),
         version=str(head["v"]),
@@ -94,6 +122,9 @@ def decode(raw: bytes) -> Record:
         owner=None if head["o"] is None else str(head["o"]),
         last_used=float(head["u"]),
         driver=None if head.get("r") is None else {str(k): float(v) for k, v in head["r"].items()},
+        policy=None
+        if pol is None
+        else PolicyRecord(str(pol["n"]), str(pol["v"]), [float(v) for v in pol["g"]], int(pol["k"])),
     )
 
 
@@ -117,7 +148,7 @@ class Persistence:
         self.status: Status = "degraded" if self.client else "off"
         self.restored = self.client is None
         self.last_error: str | None = None
-        self._saved: dict[str, tuple[int, bool]] = {}  # session id -> (steps, diverged) in Redis
+        self._saved: dict[str, Mark] = {}  # session id -> what Redis holds of it (``mark_of``)
         self._run_id: str | None = None  # the Redis server written to (INFO's run_id): new after a restart
         self.rewrites = 0  # times Redis was found to have lost data and every session was written again
         self._lock = asyncio.Lock()  # one checkpoint at a time (the timer, a forced one, the last one)
@@ -208,7 +239,7 @@ class Persistence:
                 continue
             idle = max(0.0, now_wall - rec.last_used)
             if idle > store.ttl_s:
-                self._saved[sid] = (-1, False)  # expired while down: the next checkpoint removes it
+                self._saved[sid] = (-1, False, 0)  # expired while down: the next checkpoint removes it
                 continue
             try:
                 emu = self.service.registry.get(rec.model, rec.version)
@@ -220,15 +251,22 @@ class Persistence:
                     spec = emu.manifest.spec.driver
                     assert spec is not None  # driver_params refuses a model without one
                     driver = load_driver(spec, emu.physical, emu.substeps, params)
+                policy, goal = None, None
+                if rec.policy is not None:  # the same version, checked against the emulator again
+                    policy = self.service.policies.get(rec.model, rec.policy.name, rec.policy.version)
+                    policy.check_emulator(emu.model, emu.version)
+                    goal = policy.check_goal(rec.policy.goal, "goal")
                 sess = store.create(emu, rec.state, rec.seed, owner=rec.owner, sid=sid)
                 if driver is not None:
                     sess.attach_driver(driver, params)
+                if policy is not None and goal is not None and rec.policy is not None:
+                    sess.attach_policy(policy, goal, rec.policy.goal_step)
             except (EmulatorError, ValueError) as exc:
                 log.warning("cannot restore session %s (%s/%s): %s", sid, rec.model, rec.version, exc)
                 continue
             sess.steps, sess.diverged = rec.steps, rec.diverged
             sess.last_used = now_mono - idle
-            self._saved[sid] = (rec.steps, rec.diverged)
+            self._saved[sid] = mark_of(sess)
             n += 1
         self.restored = True
         if n:
@@ -251,7 +289,7 @@ class Persistence:
         why = await self._lost_data(client)
         if why is not None:
             # every record counts as unwritten (the ids are kept: gone sessions are still removed)
-            self._saved = dict.fromkeys(self._saved, (-2, False))
+            self._saved = dict.fromkeys(self._saved, (-2, False, 0))
             self.rewrites += 1
             log.warning(
                 "Redis lost session checkpoints (%s): writing all %d sessions again",
@@ -262,9 +300,9 @@ class Persistence:
         sessions = self.service.store.sessions
         now_wall, now_mono = time.time(), time.monotonic()
         records: dict[str, bytes] = {}
-        marks: dict[str, tuple[int, bool]] = {}
+        marks: dict[str, Mark] = {}
         for sid, sess in sessions.items():  # a synchronous snapshot: no step lands in between
-            mark = (sess.steps, sess.diverged)
+            mark = mark_of(sess)
             if self._saved.get(sid) != mark and sess.alive:
                 records[sid] = encode(sess, now_wall - (now_mono - sess.last_used))
                 marks[sid] = mark

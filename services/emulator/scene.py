@@ -3,7 +3,8 @@
 ``geometry(emu)``: the bodies (with parents), their geoms and the model's skins, as ``GET /models/{model}/geometry``
 answers. ``Kinematics.poses(states)``: every body's world pose for states (K, S), by MuJoCo's forward
 kinematics (``mj_kinematics``). ``MujocoShadow``: a MuJoCo copy of one session stepped with the same
-held inputs (a driven session's copy: with its own instance of the driver), for the websocket's
+held inputs (a driven session's copy: with its own instance of the driver; a policy-driven one's: with
+the policy evaluated on the copy's own state, towards the session's goal), for the websocket's
 ``shadow`` option. Torch-free, like the rest of the service.
 
 A pose is ``[x, y, z, qw, qx, qy, qz]`` in the world frame; bodies are MuJoCo's bodies 1..nbody-1
@@ -33,6 +34,7 @@ from neuroanimator.core.quaternion import wrap_angle
 from neuroanimator.sim.driver import Driver
 from neuroanimator.sim.model import PhysicalModel
 from services.emulator.errors import BadInput
+from services.emulator.policies import LoadedPolicy
 
 _PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -237,7 +239,7 @@ def check_states(states: Sequence[Sequence[float]], width: int, what: str, limit
 class MujocoShadow:
     """A MuJoCo copy of a session: started from a state, stepped one super-step (``substeps`` physical
     steps under held inputs, the emulator's contract) at a time. Stops when its state stops being
-    finite."""
+    finite. ``controls`` (U,): what its driver or policy chose for its last step (None: the client's)."""
 
     def __init__(
         self,
@@ -245,21 +247,39 @@ class MujocoShadow:
         substeps: int,
         state: NDArray[np.floating],
         driver: Driver | None = None,
+        policy: LoadedPolicy | None = None,
     ) -> None:
         self.physical = physical
         self.driver = driver  # a driven session's twin runs its own instance of the controller
+        self.policy = policy  # a policy-driven session's twin: the policy on the twin's own state
+        self.controls: NDArray[np.float32] | None = None
         self.substeps = substeps
         self.state = np.asarray(state, dtype=np.float64).copy()
         self.diverged = False
         # a heading is reported wrapped to [-π, π), as the emulator's (state.heading_columns)
         self.wrap = [sl.start for g, sl in physical.layout.group_slices() if g.kind == "heading"]
 
-    def step(self, controls: NDArray[np.float32], forces: NDArray[np.float32]) -> NDArray[np.float64]:
+    def step(
+        self,
+        controls: NDArray[np.float32],
+        forces: NDArray[np.float32],
+        goal: NDArray[np.float32] | None = None,
+        since_goal: int = 0,
+    ) -> NDArray[np.float64]:
+        """One super-step under held ``controls`` (U,) and ``forces`` (F,); a policy-driven twin's
+        controls are its policy's for its own state, ``goal`` (G,) and the super-steps ``since_goal``
+        was set (the session's)."""
         if self.diverged:
             return self.state
         p = self.physical
         if self.driver is not None:
             controls = self.driver.act(self.state).astype(np.float32)
+            self.controls = controls
+        elif self.policy is not None and goal is not None:
+            state = self.state[None].astype(np.float32)
+            # (already within the controls' limits: the policy's graph ends by clipping to them)
+            controls = self.policy.controls(state, goal[None], np.asarray([since_goal], np.int64))[0]
+            self.controls = controls
         u = controls[None].astype(np.float64) if p.num_controls else None
         f = forces[None].astype(np.float64) if p.num_forces else None
         new = p.step_held(self.state[None], u, f, self.substeps)[0]

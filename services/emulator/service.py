@@ -1,8 +1,9 @@
 """``EmulatorService``: everything one service process holds, shared by every transport.
 
-The artifact registry (loaded emulators), the session store, the stepping core (``stepping.py``),
-metrics and the open websocket connections; sessions are created and deleted here. Transports reach
-it as ``request.app.state.service`` (``deps.ServiceDep``).
+The artifact registry (loaded emulators), the policies (``policies.py``), the session store, the
+stepping core (``stepping.py``), metrics and the open websocket connections; sessions are created and
+deleted here, and given the model's driver or a policy. Transports reach it as
+``request.app.state.service`` (``deps.ServiceDep``).
 """
 
 from __future__ import annotations
@@ -14,13 +15,15 @@ from collections.abc import Mapping, Sequence
 from typing import Protocol
 
 import numpy as np
+from numpy.typing import NDArray
 
-from neuroanimator.contracts.emulator import SessionCreate
+from neuroanimator.contracts.emulator import PolicyDrive, SessionCreate
 from neuroanimator.sim.driver import Driver, DriverError, check_params, load_driver
 from services.common.auth import CALLER
 from services.emulator.errors import BadInput, UnknownSession
 from services.emulator.inputs import CheckedInputs, check_vector
 from services.emulator.metrics import Metrics
+from services.emulator.policies import LoadedPolicy, PolicyRegistry, check_drive
 from services.emulator.registry import LoadedEmulator, Registry
 from services.emulator.sessions import Session, SessionStore
 from services.emulator.settings import Settings
@@ -41,6 +44,7 @@ class EmulatorService:
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
         self.registry = Registry(settings.roots(), settings.ort_threads, settings.registry_poll_s)
+        self.policies = PolicyRegistry(settings.roots(), settings.ort_threads)
         self.store = SessionStore(
             settings.replica_id, settings.session_ttl_s, settings.max_sessions, settings.max_sessions_per_key
         )
@@ -65,8 +69,27 @@ class EmulatorService:
     # ------------------------------------------------------------------ sessions
     def create_session(self, req: SessionCreate) -> Session:
         """A session at the given state (checked; quaternion groups normalised) or at a typical start
-        drawn from the seed, owned by the caller's API key."""
-        emu = self.registry.get(req.model, req.version)
+        drawn from the seed, owned by the caller's API key; driven by the model's driver or by a policy
+        (of the emulator version it was trained through: the session's) when asked."""
+        policy, goal = None, None
+        if req.policy is not None:
+            if req.driver is not None:
+                raise BadInput(
+                    "a session is driven by the model's driver or by a policy, not both",
+                    code="driver_and_policy",
+                    field="policy",
+                    expected="driver or policy",
+                    got="both",
+                )
+            policy = self.policies.get(req.model, req.policy.name, req.policy.version)
+        # a policy drives the emulator version it was trained through: the session's, unless named
+        version = (
+            req.version if req.version is not None or policy is None else policy.manifest.emulator_version
+        )
+        emu = self.registry.get(req.model, version)
+        if policy is not None:
+            assert req.policy is not None
+            goal = self.policy_goal(emu, policy, req.policy)
         seed = None
         if req.state is not None:
             state = check_vector("state", req.state, emu.state_size, f"model {emu.model!r}").copy()
@@ -95,9 +118,22 @@ class EmulatorService:
         sess = self.store.create(emu, state, seed, owner=CALLER.get())
         if driver is not None:
             sess.attach_driver(driver, params)
+        if policy is not None and goal is not None:
+            sess.attach_policy(policy, goal)
         self.update_gauges()
         log.info("session created", extra={"session": sess.id, "model": emu.model, "version": emu.version})
         return sess
+
+    # ------------------------------------------------------------------ policies
+    @staticmethod
+    def policy_goal(emu: LoadedEmulator, policy: LoadedPolicy, req: PolicyDrive) -> NDArray[np.float32]:
+        """The (G,) goal a new session of ``emu`` starts with under ``policy`` (its default when not
+        given); ``PolicyMismatch`` for another emulator version, ``BadInput`` for a bad goal."""
+        policy.check_emulator(emu.model, emu.version)
+        check_drive(policy, emu.state_size, emu.num_controls)
+        if req.goal is None:
+            return policy.default_goal.copy()
+        return policy.check_goal(req.goal, "policy.goal")
 
     # ------------------------------------------------------------------ drivers
     @staticmethod

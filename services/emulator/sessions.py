@@ -3,7 +3,8 @@
 ``StatePool`` holds, per *slot* (one row per session): ``states`` (capacity, S) float32, and
 ``steps``, ``last_used``, ``diverged``, ``outside`` (the last step left the training envelope), ``busy``
 (a step is in flight), ``taken``, ``gen`` (bumped whenever the slot changes hands) and ``owner_code``
-(the API key that owns it) as (capacity,) arrays. Freed
+(the API key that owns it) as (capacity,) arrays, and the columns of policy-driven slots
+(``policy_rows.PolicyColumns``: the policy, its goal, when the goal was set, its last controls). Freed
 slots go on a free list and are reused; the arrays double when full. The batcher gathers the rows
 of a batch with one fancy index and scatters the results back the same way, so stepping N sessions
 costs a few numpy calls, not N Python operations.
@@ -28,6 +29,8 @@ from neuroanimator.sim.driver import Driver
 from services.common.auth import CALLER
 from services.emulator.binary import decode_ids
 from services.emulator.errors import BadInput, QuotaExceeded, UnknownSession
+from services.emulator.policies import LoadedPolicy
+from services.emulator.policy_rows import PolicyColumns
 from services.emulator.registry import LoadedEmulator
 
 log = logging.getLogger(__name__)
@@ -38,7 +41,7 @@ NO_OWNER = -1  # owner_code of a session created without API keys
 class StatePool:
     """Rows of per-session arrays handed out to the sessions of one (model, version)."""
 
-    def __init__(self, state_size: int, capacity: int = 64) -> None:
+    def __init__(self, state_size: int, capacity: int = 64, num_controls: int = 0) -> None:
         self.states = np.zeros((capacity, state_size), dtype=np.float32)
         self.steps = np.zeros(capacity, dtype=np.int64)
         self.last_used = np.zeros(capacity, dtype=np.float64)  # time.monotonic()
@@ -50,6 +53,7 @@ class StatePool:
         self.gen = np.zeros(capacity, dtype=np.uint32)
         self.owner_code = np.full(capacity, NO_OWNER, dtype=np.int32)
         self.owner: list[Session | None] = [None] * capacity
+        self.driving = PolicyColumns(capacity, num_controls)  # the policy-driven slots' columns
         self.free = list(range(capacity - 1, -1, -1))  # pop() hands out low slots first
         # tasks waiting for a busy slot: slot -> futures, woken when it is released
         self.waiters: dict[int, list[asyncio.Future[None]]] = {}
@@ -75,6 +79,7 @@ class StatePool:
             grown[:old] = arr
             setattr(self, name, grown)
         self.owner.extend([None] * old)
+        self.driving.grow(2 * old)
         self.free = list(range(2 * old - 1, old - 1, -1))
 
     def acquire(self, session: Session, state: NDArray[np.float32], owner_code: int) -> int:
@@ -97,6 +102,7 @@ class StatePool:
         """The slot is free again; a step of its old session still in flight sees ``gen`` changed."""
         self.owner[slot] = None
         self.driven[slot] = False
+        self.driving.detach(slot)
         self.gen[slot] += 1
         self.busy[slot] = False
         self.taken[slot] = False
@@ -178,12 +184,51 @@ class Session:
     # parameters as the client set them; None: the client's controls
     driver: Driver | None = None
     driver_params: dict[str, float] | None = None
+    # a trained policy setting the controls each super-step from the state and the goal (``policies``);
+    # the goal lives in the pool's policy columns, ``goal_rev`` counts its changes (for checkpoints)
+    policy: LoadedPolicy | None = None
+    goal_rev: int = 0
 
     def attach_driver(self, driver: Driver, params: dict[str, float]) -> None:
         """From now on ``driver`` sets this session's controls on every transport."""
         self.driver, self.driver_params = driver, params
         if self.slot >= 0:
             self.pool.driven[self.slot] = True
+
+    def attach_policy(
+        self, policy: LoadedPolicy, goal: NDArray[np.float32], goal_step: int | None = None
+    ) -> None:
+        """From now on ``policy`` sets this session's controls towards (G,) ``goal``, set at step
+        ``goal_step`` (now when None), on every transport."""
+        self.policy = policy
+        if self.slot >= 0:
+            self.pool.driving.attach(self.slot, policy, goal, self.steps if goal_step is None else goal_step)
+
+    def set_goal(self, goal: NDArray[np.float32]) -> None:
+        """A new (G,) goal for the policy; the clock of a timed policy restarts only when it changes."""
+        if self.slot < 0 or np.array_equal(goal, self.goal):
+            return
+        self.pool.driving.set_goal(self.slot, goal, self.steps)
+        self.goal_rev += 1
+
+    @property
+    def goal(self) -> NDArray[np.float32]:
+        """(G,) a copy of the policy's goal (empty without a policy or once deleted)."""
+        if self.policy is None or self.slot < 0:
+            return np.zeros(0, np.float32)
+        return self.pool.driving.goals[self.slot, : self.policy.goal_size].copy()
+
+    @property
+    def goal_step(self) -> int:
+        """The step count when the goal was set."""
+        return int(self.pool.driving.goal_step[self.slot]) if self.slot >= 0 else 0
+
+    @property
+    def applied_controls(self) -> NDArray[np.float32]:
+        """(U,) a copy of the controls the policy chose for the last super-step."""
+        if self.slot < 0:
+            return np.full(self.pool.driving.applied.shape[1], np.nan, np.float32)
+        return self.pool.driving.applied[self.slot].copy()
 
     @property
     def alive(self) -> bool:
@@ -326,7 +371,7 @@ class SessionStore:
         key = (emu.model, emu.version)
         pool = self.pools.get(key)
         if pool is None:
-            pool = self.pools[key] = StatePool(emu.state_size)
+            pool = self.pools[key] = StatePool(emu.state_size, num_controls=emu.num_controls)
         sid = sid or f"{self.replica_id}-{secrets.token_urlsafe(12)}"
         sess = Session(sid, emu, pool, seed=seed, owner=owner)
         sess.slot = pool.acquire(sess, state, self._owner_code(owner))

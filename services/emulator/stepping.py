@@ -12,8 +12,10 @@ websockets (``ws/``). They hand this module typed requests:
   ``POST /step``): checked, clipped, locked and stepped as arrays in ONE batcher entry.
 
 Inputs are checked by ``inputs.py`` (lengths, float32, the trained range: the same check for every
-transport); the batcher writes the new states back into the sessions' pool. Problems are typed
-domain errors (``errors.py``); what a client receives for them is ``error_mapping.py``'s business.
+transport); the batcher writes the new states back into the sessions' pool. A policy-driven session's
+request carries a goal and forces, never controls (``Stepper.session_inputs``): its policy sets them in
+the batcher's tick, and a step reports the controls it chose. Problems are typed domain errors
+(``errors.py``); what a client receives for them is ``error_mapping.py``'s business.
 """
 
 from __future__ import annotations
@@ -41,14 +43,16 @@ from services.emulator.settings import Settings
 @dataclass(slots=True)
 class Stepped:
     """A session after a step request: ``states`` (K, S) after each of its K super-steps, the inputs
-    it was stepped with, the state groups of those states outside the training envelope, and
-    ``start`` (S,) its state before them (when the transport needs it)."""
+    it was stepped with, the state groups of those states outside the training envelope,
+    ``start`` (S,) its state before them (when the transport needs it) and ``controls`` (K, U) the
+    controls its driver or policy chose for each super-step (None: the client's)."""
 
     session: Session
     states: NDArray[np.float32]
     inputs: CheckedInputs
     outside: list[str]
     start: NDArray[np.float32] | None = None
+    controls: NDArray[np.float32] | None = None
 
 
 class BlockStepped(NamedTuple):
@@ -94,16 +98,22 @@ class Lane:
 
     async def run(
         self, sess: Session, row: NDArray[np.float32], steps: int
-    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32] | None]:
         """``steps`` super-steps under one held input row, the slot locked throughout: the (S,) state
-        before them and the (steps, S) states after each."""
+        before them, the (steps, S) states after each and, for a policy-driven session, the (steps, U)
+        controls its policy chose for each."""
         t0 = time.perf_counter()
+        chosen: list[NDArray[np.float32]] | None = None if sess.policy is None else []
         async with sess.lock:
             start = sess.state
-            out = [await self.batcher.step(sess, row) for _ in range(steps)]
+            out = []
+            for _ in range(steps):
+                out.append(await self.batcher.step(sess, row))
+                if chosen is not None:
+                    chosen.append(sess.applied_controls)
         if self.latency is not None:
             self.latency.observe((time.perf_counter() - t0) / steps)
-        return start, np.stack(out)
+        return start, np.stack(out), None if chosen is None else np.stack(chosen)
 
 
 class Stepper:
@@ -151,6 +161,50 @@ class Stepper:
         """Controls (U) and forces (F) from JSON, checked against the model and clipped to its range."""
         return emu.inputs.check_lists(controls, forces, f"model {emu.model!r}", prefix)
 
+    @staticmethod
+    def refuse_goal(sess: Session, goal: Sequence[float] | None, prefix: str = "") -> None:
+        """``BadInput`` for a goal sent to a session without a policy."""
+        if goal is not None and sess.policy is None:
+            raise BadInput(
+                f"session {sess.id} has no policy: create it with a policy to set a goal",
+                code="no_policy",
+                field=f"{prefix}goal",
+                expected="no goal",
+                got=list(goal),
+            )
+
+    @staticmethod
+    def session_inputs(
+        sess: Session,
+        controls: Sequence[float],
+        forces: Sequence[float],
+        goal: Sequence[float] | None,
+        prefix: str = "",
+    ) -> CheckedInputs:
+        """The checked inputs of a step request of a session without a driver. A policy-driven one
+        takes no controls (its policy sets them in the batcher; neutral values stand in), the client's
+        forces, and its new goal (set once the request is known to be good). ``BadInput`` for controls
+        sent to a policy-driven session, or a goal sent to a session without a policy."""
+        emu, policy = sess.emu, sess.policy
+        what = f"model {emu.model!r}"
+        if policy is None:
+            Stepper.refuse_goal(sess, goal, prefix)
+            return emu.inputs.check_lists(controls, forces, what, prefix)
+        if controls:
+            raise BadInput(
+                f"session {sess.id} is driven by policy {policy.name!r}, which sets its controls: send a "
+                "goal (and forces), not controls",
+                code="policy_sets_controls",
+                field=f"{prefix}controls",
+                expected=f"no controls (policy {policy.name!r} sets them)",
+                got=len(controls),
+            )
+        new_goal = None if goal is None else policy.check_goal(goal, f"{prefix}goal")
+        inputs = emu.inputs.check_lists(emu.inputs.neutral_controls.tolist(), forces, what, prefix)
+        if new_goal is not None:
+            sess.set_goal(new_goal)
+        return inputs
+
     def check_steps(self, steps: int, frames_per_step: int | None = None) -> None:
         """``BadInput`` beyond MAX_STEPS_PER_REQUEST steps or MAX_FRAMES_PER_REQUEST frames."""
         s = self.settings
@@ -176,15 +230,16 @@ class Stepper:
     ) -> Stepped:
         """``steps`` super-steps of one session under held inputs, each batched with other requests."""
         self.check_steps(steps)
-        start, states = await self.lane(sess.emu, transport).run(sess, inputs.row, steps)
+        start, states, controls = await self.lane(sess.emu, transport).run(sess, inputs.row, steps)
         env = sess.emu.envelope
         outside = [] if env is None else env.groups_outside(states)
-        return Stepped(sess, states, inputs, outside, start)
+        return Stepped(sess, states, inputs, outside, start, controls)
 
     # ------------------------------------------------------------------ sessions by id, any models
     async def step_items(self, items: Sequence[BatchStepItem]) -> list[Stepped | EmulatorError]:
         """One super-step of each item's session. Request-level problems (size, duplicates, input
-        lengths) raise and step nothing; a session that is unknown or diverges is its item's error."""
+        lengths) raise and step nothing; a session that is unknown or diverges is its item's error, as
+        are controls sent to a policy-driven session and a goal it cannot take."""
         limit = self.settings.max_batch
         if len(items) > limit:
             raise TooLarge(
@@ -211,8 +266,17 @@ class Stepper:
             except EmulatorError as exc:
                 prepared.append(exc)
                 continue
+            prefix = f"items[{i}]."
+            if sess.policy is not None or it.goal is not None:
+                try:  # controls for a policy, or a goal it cannot take: this session's own error
+                    inputs = self.session_inputs(sess, it.controls, it.forces, it.goal, prefix)
+                except BadInput as exc:
+                    prepared.append(exc)
+                else:
+                    prepared.append((sess, inputs))
+                continue
             controls = it.controls if sess.driver is None else sess.driver.act(sess.state).tolist()
-            prepared.append((sess, self.check(sess.emu, controls, it.forces, prefix=f"items[{i}].")))
+            prepared.append((sess, self.check(sess.emu, controls, it.forces, prefix=prefix)))
         t0 = time.perf_counter()
 
         async def one(p: tuple[Session, CheckedInputs] | EmulatorError) -> Stepped | EmulatorError:
@@ -223,7 +287,12 @@ class Stepper:
                 out = await Lane(self.batcher(sess.emu), None).step(sess, inputs.row)
             except EmulatorError as exc:
                 return exc
-            return Stepped(sess, out[None], inputs, outside_groups(sess, out))
+            chosen = None
+            if sess.policy is not None:
+                chosen = sess.applied_controls[None]
+            elif sess.driver is not None:
+                chosen = inputs.controls[None]
+            return Stepped(sess, out[None], inputs, outside_groups(sess, out), controls=chosen)
 
         results = await asyncio.gather(*map(one, prepared))
         if items:
@@ -252,6 +321,12 @@ class Stepper:
                 one = pool.owner[int(res.slots[i])]
                 if one is not None and one.driver is not None:
                     rows[i, : emu.num_controls] = one.driver.act(one.state)
+        # a policy's session: its policy sets its controls in the batcher; the row's are ignored
+        if pool.driving.count:
+            policy = res.known & (pool.driving.index[np.where(res.known, res.slots, 0)] >= 0)
+            if policy.any():
+                rows = rows.copy() if not driven.size else rows
+                rows[policy, : emu.num_controls] = emu.inputs.neutral_controls
         inputs, mask = emu.inputs.clip(rows, label)
         status = np.zeros(n, np.uint8)
         if mask is not None:  # (the rows of the clipped values, without a reduction along the short axis)

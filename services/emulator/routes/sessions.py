@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 from fastapi import APIRouter, Response
 
-from neuroanimator.contracts.emulator import ErrorBody, SessionCreate, SessionInfo, StepRequest, StepResponse
+from neuroanimator.contracts.emulator import (
+    ErrorBody,
+    PolicyStatus,
+    SessionCreate,
+    SessionInfo,
+    StepRequest,
+    StepResponse,
+)
 from neuroanimator.sim.driver import Driver
 from services.emulator.deps import ServiceDep
 from services.emulator.interpolation import frames
@@ -34,6 +41,27 @@ def session_info(service: EmulatorService, sess: Session) -> SessionInfo:
         seed=sess.seed,
         ttl_s=service.settings.session_ttl_s,
         driver=sess.driver_params,
+        policy=policy_status(sess),
+    )
+
+
+def policy_status(sess: Session) -> PolicyStatus | None:
+    """The policy driving a session and its goal (None: no policy)."""
+    policy = sess.policy
+    if policy is None:
+        return None
+    m, goal = policy.manifest, sess.goal
+    return PolicyStatus(
+        name=m.name,
+        version=m.version,
+        emulator_version=m.emulator_version,
+        goal_variables=m.goal_variables,
+        goal=goal.tolist(),
+        goal_low=m.goal_low,
+        goal_high=m.goal_high,
+        goal_default=m.goal_default,
+        goal_outside=policy.goal_outside(goal),
+        timed=m.timed,
     )
 
 
@@ -46,12 +74,16 @@ async def drive_steps(
     for _ in range(steps):
         runs.append(await service.stepper.step(sess, service.driven_inputs(sess, driver, forces), 1))
     outside = sorted({g for r in runs for g in r.outside})
-    return Stepped(sess, np.concatenate([r.states for r in runs]), runs[-1].inputs, outside, runs[0].start)
+    controls = np.stack([r.inputs.controls for r in runs])
+    states = np.concatenate([r.states for r in runs])
+    return Stepped(sess, states, runs[-1].inputs, outside, runs[0].start, controls)
 
 
 @router.post("/sessions", response_model=SessionInfo, status_code=201, responses=_ERRORS)
 async def create_session(req: SessionCreate, service: ServiceDep) -> SessionInfo:
-    """Start a session of a model (its latest version unless named) at a given or a seeded typical state."""
+    """Start a session of a model (its latest version unless named) at a given or a seeded typical state;
+    ``driver`` or ``policy`` make the model's driver or a trained policy set its controls (a policy's
+    session runs the emulator version the policy was trained through)."""
     return session_info(service, service.create_session(req))
 
 
@@ -71,13 +103,16 @@ async def delete_session(sid: str, service: ServiceDep) -> Response:
 @router.post("/sessions/{sid}/step", response_model=StepResponse, responses=_ERRORS)
 async def step_session(sid: str, req: StepRequest, service: ServiceDep) -> StepResponse:
     """Advance a session by ``steps`` super-steps under held controls and forces (clipped to the trained
-    range), optionally with interpolated frames between the states."""
+    range), optionally with interpolated frames between the states. A policy-driven session takes a
+    ``goal`` (optional) and no controls: its policy sets them every super-step."""
     stepper = service.stepper
     sess = service.store.get(sid)
     stepper.check_steps(req.steps, req.frames_per_step)
+    stepper.refuse_goal(sess, req.goal)
     service.drive(sess, req.driver)
     if sess.driver is None:
-        stepped = await stepper.step(sess, stepper.check(sess.emu, req.controls, req.forces), req.steps)
+        inputs = stepper.session_inputs(sess, req.controls, req.forces, req.goal)
+        stepped = await stepper.step(sess, inputs, req.steps)
     else:
         stepped = await drive_steps(service, sess, sess.driver, req.forces, req.steps)
     states, inputs = stepped.states, stepped.inputs
@@ -101,4 +136,7 @@ async def step_session(sid: str, req: StepRequest, service: ServiceDep) -> StepR
         clipped_forces=inputs.clipped_forces,
         outside_envelope=bool(stepped.outside),
         outside_groups=stepped.outside,
+        controls=None if stepped.controls is None else stepped.controls.tolist(),
+        goal=None if sess.policy is None else sess.goal.tolist(),
+        goal_outside=[] if sess.policy is None else sess.policy.goal_outside(sess.goal),
     )

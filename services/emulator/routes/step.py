@@ -134,7 +134,7 @@ async def batch_step(request: Request, service: ServiceDep) -> Response:
         if isinstance(out, EmulatorError):
             results.append(BatchStepResult(session=it.session, error=error_body(out)))
             continue
-        inputs = out.inputs
+        inputs, sess = out.inputs, out.session
         results.append(
             BatchStepResult(
                 session=it.session,
@@ -145,6 +145,9 @@ async def batch_step(request: Request, service: ServiceDep) -> Response:
                 clipped_forces=inputs.clipped_forces,
                 outside_envelope=bool(out.outside),
                 outside_groups=out.outside,
+                controls=None if out.controls is None else out.controls[-1].tolist(),
+                goal=None if sess.policy is None else sess.goal.tolist(),
+                goal_outside=[] if sess.policy is None else sess.policy.goal_outside(sess.goal),
             )
         )
     return Response(BatchStepResponse(results=results).model_dump_json(), media_type="application/json")

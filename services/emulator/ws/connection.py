@@ -1,5 +1,9 @@
 """One websocket client of one session: its settings (format, poses, MuJoCo shadow), the lock-step
-mode, and the real-time mode (``realtime.py``) when started. Steps go through the stepping core."""
+mode, and the real-time mode (``realtime.py``) when started. Steps go through the stepping core.
+
+A policy-driven session's client sends goals (in ``step`` and ``controls`` messages) and forces; its
+control values in binary frames are ignored (the policy sets them in the batcher), controls in JSON
+messages are refused. Its JSON state messages carry the controls the policy chose and the goal."""
 
 from __future__ import annotations
 
@@ -39,14 +43,20 @@ class Connection:
         self.poses = False
         self.shadow: MujocoShadow | None = None
         self.period_s = self.emu.super_timestep * s.ws_realtime_scale
-        zeros = [0.0] * self.emu.num_controls, [0.0] * self.emu.num_forces
-        self.held = HeldInputs(service.stepper.check(self.emu, *zeros))
+        # held until the client sends inputs (a policy's session: in-range stand-ins for its controls)
+        controls = (
+            self.emu.inputs.neutral_controls.tolist()
+            if sess.policy is not None
+            else [0.0] * self.emu.num_controls
+        )
+        self.held = HeldInputs(service.stepper.check(self.emu, controls, [0.0] * self.emu.num_forces))
         self.last_fast: list[float] | None = None  # the inputs of the last fast lock-step frame
         self.sender = Sender(socket, s.ws_send_timeout_s)
         self.queue: LatestQueue[Frame] = LatestQueue(s.ws_queue_size)
         self.realtime: Realtime | None = None
         self.frames = protocol.InputFrames(self.emu)
         self.lane = service.stepper.lane(self.emu, "ws")
+        self.policy_driven = sess.policy is not None  # (a session's policy is set when it is created)
         self._main: asyncio.Task[object] | None = None
         self.gone = False
 
@@ -63,22 +73,33 @@ class Connection:
         forces: list[float],
         seq: int | None,
         driver: dict[str, float] | None = None,
+        goal: list[float] | None = None,
     ) -> HeldInputs:
         """Inputs from a JSON message (an unknown session is reported before bad inputs). A driven
-        session takes new driver parameters from it, and only its forces: the driver sets the controls."""
+        session takes new driver parameters from it, and only its forces: the driver sets the controls.
+        A policy-driven one takes its new goal and its forces, and refuses controls."""
         sess = self.session()
+        stepper = self.service.stepper
+        stepper.refuse_goal(sess, goal)
         self.service.drive(sess, driver)
-        if sess.driver is not None:
-            if driver and self.shadow is not None and self.shadow.driver is not None:
-                self.shadow.driver.configure(sess.driver_params or {})
-            controls = [0.0] * self.emu.num_controls  # replaced by the driver's at each step
-        return HeldInputs(self.service.stepper.check(self.emu, controls, forces), seq)
+        if sess.driver is None:
+            return HeldInputs(stepper.session_inputs(sess, controls, forces, goal), seq)
+        if driver and self.shadow is not None and self.shadow.driver is not None:
+            self.shadow.driver.configure(sess.driver_params or {})
+        controls = [0.0] * self.emu.num_controls  # replaced by the driver's at each step
+        return HeldInputs(stepper.check(self.emu, controls, forces), seq)
 
     # ------------------------------------------------------------------ states out
     def state_frame(self, sess: Session, state: NDArray[np.float32], held: HeldInputs) -> Frame:
         inputs = held.inputs
         if self.format == "binary":
             return protocol.state_binary(state, held.seq, sess.steps, inputs.clipped, sess.outside_envelope)
+        drive = None
+        if sess.policy is not None:
+            goal = sess.goal
+            drive = protocol.Drive(sess.applied_controls, goal, tuple(sess.policy.goal_outside(goal)))
+        elif sess.driver is not None:
+            drive = protocol.Drive(inputs.controls)
         return protocol.state_json(
             state,
             held.seq,
@@ -89,6 +110,7 @@ class Connection:
             outside_groups(sess, state),
             self.emu.kinematics if self.poses else None,
             self.shadow,
+            drive,
         )
 
     # ------------------------------------------------------------------ lock-step
@@ -99,9 +121,11 @@ class Connection:
             held = HeldInputs(
                 self.service.driven_inputs(sess, sess.driver, held.inputs.forces.tolist()), held.seq
             )
+        since_goal = sess.steps - sess.goal_step  # (a policy's twin reads the clock of the session's goal)
         out = await lane.step(sess, held.inputs.row)
         if self.shadow is not None:
-            self.shadow.step(held.inputs.controls, held.inputs.forces)
+            goal = sess.goal if sess.policy is not None else None
+            self.shadow.step(held.inputs.controls, held.inputs.forces, goal, since_goal)
         return self.state_frame(sess, out, held)
 
     async def lockstep(self, held: HeldInputs) -> Frame:
@@ -140,7 +164,7 @@ class Connection:
             if isinstance(msg, WsStart):
                 return await self.start(msg)
             if isinstance(msg, WsControls):
-                self.held = self.check(msg.controls, msg.forces, msg.seq, msg.driver)
+                self.held = self.check(msg.controls, msg.forces, msg.seq, msg.driver, msg.goal)
                 return None
             if self.mode == "realtime":
                 raise WrongMode(
@@ -150,14 +174,14 @@ class Connection:
                     expected="controls",
                     got="step",
                 )
-            held = self.check(msg.controls, msg.forces, msg.seq, msg.driver)
+            held = self.check(msg.controls, msg.forces, msg.seq, msg.driver, msg.goal)
         except EmulatorError as exc:
             return ws_error(exc, seq)
         return await self.lockstep(held)
 
     async def on_binary(self, data: bytes) -> Frame | None:
         realtime = self.realtime
-        plain = self.shadow is None and not self.emu.manifest.spec.driver
+        plain = self.shadow is None and not self.emu.manifest.spec.driver and not self.policy_driven
         if plain and (realtime is None or not realtime.ticking):  # lock-step, no shadow, no driver
             fast = self.frames.unpack(data)
             # NaN fails the range check too, so it takes the general path below and is named there
@@ -167,6 +191,9 @@ class Connection:
         try:
             seq, values = self.frames.parse(data)
             self.session()  # an unknown session is reported before bad inputs
+            if self.policy_driven:  # its policy sets the controls: the frame's are ignored
+                values = values.copy()
+                values[: self.emu.num_controls] = self.emu.inputs.neutral_controls
             held = HeldInputs(self.emu.inputs.check_row(values), seq)
         except EmulatorError as exc:
             return ws_error(exc, seq)
@@ -198,7 +225,7 @@ class Connection:
             if sess.driver is not None and sess.emu.manifest.spec.driver is not None:  # its own controller
                 spec = sess.emu.manifest.spec.driver
                 driver = load_driver(spec, sess.emu.physical, sess.emu.substeps, sess.driver_params or {})
-            self.shadow = MujocoShadow(sess.emu.physical, sess.emu.substeps, sess.state, driver)
+            self.shadow = MujocoShadow(sess.emu.physical, sess.emu.substeps, sess.state, driver, sess.policy)
         elif msg.shadow is False:
             self.shadow = None
         if msg.mode == "realtime":

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import struct
 from collections.abc import Mapping
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -109,6 +110,15 @@ def started(
     ).model_dump_json()
 
 
+class Drive(NamedTuple):
+    """What a driven session's state message adds: the (U,) controls its driver or policy chose, and
+    a policy's (G,) goal with the goal variables outside the goals it was trained for."""
+
+    controls: NDArray[np.float32]
+    goal: NDArray[np.float32] | None = None
+    goal_outside: tuple[str, ...] = ()
+
+
 def state_json(
     state: NDArray[np.float32],
     seq: int | None,
@@ -119,10 +129,11 @@ def state_json(
     outside_groups: list[str],
     kinematics: Kinematics | None = None,
     shadow: MujocoShadow | None = None,
+    drive: Drive | None = None,
 ) -> str:
     """A JSON state message (``outside_groups``: the state's groups outside the training envelope);
-    ``kinematics`` adds body poses (of the shadow's state too), ``shadow`` the MuJoCo shadow's state.
-    Fields not asked for are left out."""
+    ``kinematics`` adds body poses (of the shadow's state too), ``shadow`` the MuJoCo shadow's state,
+    ``drive`` a driven session's controls and goal. Fields not asked for are left out."""
     kin = kinematics
     twin = None
     if shadow is not None:
@@ -130,6 +141,7 @@ def state_json(
             state=shadow.state.tolist(),
             poses=None if kin is None else kin.poses(shadow.state[None])[0].tolist(),
             diverged=shadow.diverged,
+            controls=None if shadow.controls is None else shadow.controls.tolist(),
         )
     msg = WsState(
         seq=seq,
@@ -143,8 +155,14 @@ def state_json(
         outside_groups=outside_groups,
         poses=None if kin is None else kin.poses(state[None])[0].tolist(),
         shadow=twin,
+        controls=None if drive is None else drive.controls.tolist(),
+        goal=None if drive is None or drive.goal is None else drive.goal.tolist(),
+        goal_outside=[] if drive is None else list(drive.goal_outside),
     )
-    return msg.model_dump_json(exclude={k for k in ("poses", "shadow") if getattr(msg, k) is None})
+    unasked = {k for k in ("poses", "shadow", "controls", "goal") if getattr(msg, k) is None}
+    if msg.goal is None:
+        unasked.add("goal_outside")
+    return msg.model_dump_json(exclude=unasked)
 
 
 def state_binary(

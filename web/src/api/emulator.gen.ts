@@ -36,6 +36,8 @@ export interface EmulatorWire {
   ModelSummary?: ModelSummary;
   OperatingRecord?: OperatingRecord;
   OperatingSpec?: OperatingSpec;
+  PolicyDrive?: PolicyDrive;
+  PolicyStatus?: PolicyStatus;
   PosesRequest?: PosesRequest;
   PosesResponse?: PosesResponse;
   ServerMessage?: ServerMessage;
@@ -57,6 +59,8 @@ export interface EmulatorWire {
   WsStep?: WsStep;
 }
 /**
+ * One session's inputs; a policy-driven session takes a ``goal`` (optional) and no controls.
+ *
  * This interface was referenced by `EmulatorWire`'s JSON-Schema
  * via the `definition` "BatchStepItem".
  */
@@ -64,6 +68,10 @@ export interface BatchStepItem {
   session: string;
   controls?: number[];
   forces?: number[];
+  /**
+   * a policy-driven session only: its new goal (G values, the policy's goal_variables); the clock of a timed policy restarts when the goal changes
+   */
+  goal?: number[] | null;
 }
 /**
  * One super-step of many sessions (any models) in one request; at most MAX_BATCH items.
@@ -102,6 +110,18 @@ export interface BatchStepResult {
    * the state groups outside the training envelope
    */
   outside_groups?: string[];
+  /**
+   * the controls the session's driver or policy chose (null: the client's)
+   */
+  controls?: number[] | null;
+  /**
+   * a policy-driven session's goal (null otherwise)
+   */
+  goal?: number[] | null;
+  /**
+   * the goal variables outside the goals the policy was trained for
+   */
+  goal_outside?: string[];
   error?: ErrorBody | null;
 }
 /**
@@ -204,6 +224,10 @@ export interface WsStep {
   driver?: {
     [k: string]: number;
   } | null;
+  /**
+   * a policy-driven session only: its new goal (G values, the policy's goal_variables); the clock of a timed policy restarts when the goal changes
+   */
+  goal?: number[] | null;
   seq?: number | null;
 }
 /**
@@ -257,6 +281,10 @@ export interface WsControls {
   driver?: {
     [k: string]: number;
   } | null;
+  /**
+   * a policy-driven session only: its new goal (G values, the policy's goal_variables); the clock of a timed policy restarts when the goal changes
+   */
+  goal?: number[] | null;
   seq?: number | null;
 }
 /**
@@ -615,6 +643,53 @@ export interface ModelSummary {
   versions: string[];
 }
 /**
+ * A trained feedback policy of the model (``neuro policy``) that sets a session's controls every
+ * super-step from its state and a goal; ``goal`` (G values, the policy's ``goal_variables``)
+ * defaults to the policy's ``goal_default``.
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "PolicyDrive".
+ */
+export interface PolicyDrive {
+  /**
+   * the policy's name (its task's), e.g. lander-landing
+   */
+  name: string;
+  /**
+   * a stored version of the policy; its latest when absent
+   */
+  version?: string | null;
+  /**
+   * the goal, G values; the policy's default when absent
+   */
+  goal?: number[] | null;
+}
+/**
+ * The policy driving a session and its goal. ``goal_low``..``goal_high``: the goals it was trained
+ * for; ``goal_outside`` names the goal variables outside them (accepted, less reliable).
+ *
+ * This interface was referenced by `EmulatorWire`'s JSON-Schema
+ * via the `definition` "PolicyStatus".
+ */
+export interface PolicyStatus {
+  name: string;
+  version: string;
+  /**
+   * the emulator version it was trained through (the session's)
+   */
+  emulator_version: string;
+  goal_variables: string[];
+  goal: number[];
+  goal_low: number[];
+  goal_high: number[];
+  goal_default: number[];
+  goal_outside?: string[];
+  /**
+   * it reads the time left until its goal's check as well
+   */
+  timed?: boolean;
+}
+/**
  * States (K, S) of one model version (the latest unless ``version`` is given) to pose.
  *
  * This interface was referenced by `EmulatorWire`'s JSON-Schema
@@ -642,7 +717,9 @@ export interface PosesResponse {
 /**
  * Server → client: the session's new state (``seq`` echoes the request's). ``poses`` (with
  * ``poses: true``): per body, ``[x, y, z, qw, qx, qy, qz]`` in the world frame; ``shadow`` (with
- * ``shadow: true``): the MuJoCo twin's state. Both are left out when not asked for.
+ * ``shadow: true``): the MuJoCo twin's state. Both are left out when not asked for. A driven session's
+ * state carries the ``controls`` its driver or policy chose for the step; a policy-driven one's also
+ * its ``goal`` and ``goal_outside`` (left out for the others).
  *
  * This interface was referenced by `EmulatorWire`'s JSON-Schema
  * via the `definition` "WsState".
@@ -666,6 +743,18 @@ export interface WsState {
   outside_groups?: string[];
   poses?: number[][] | null;
   shadow?: ShadowState | null;
+  /**
+   * the controls the session's driver or policy chose (null: the client's)
+   */
+  controls?: number[] | null;
+  /**
+   * a policy-driven session's goal (null otherwise)
+   */
+  goal?: number[] | null;
+  /**
+   * the goal variables outside the goals the policy was trained for
+   */
+  goal_outside?: string[];
 }
 /**
  * The MuJoCo twin of a session (``shadow: true``): the physics stepped with the same held inputs
@@ -679,6 +768,10 @@ export interface ShadowState {
   state: number[];
   poses?: number[][] | null;
   diverged?: boolean;
+  /**
+   * the controls its own copy of the session's driver or policy chose
+   */
+  controls?: number[] | null;
 }
 /**
  * This interface was referenced by `EmulatorWire`'s JSON-Schema
@@ -744,6 +837,10 @@ export interface SessionCreate {
   driver?: {
     [k: string]: number;
   } | null;
+  /**
+   * drive the session with a trained policy of the model: it sets the controls every super-step from the state and the goal; the client sends goals and forces. The session runs the emulator version the policy was trained through (version, when given, must be that one)
+   */
+  policy?: PolicyDrive | null;
 }
 /**
  * A session: its id names the replica that owns it (``<replica>-<token>``).
@@ -770,9 +867,14 @@ export interface SessionInfo {
   driver?: {
     [k: string]: number;
   } | null;
+  /**
+   * the policy setting the controls, and its goal
+   */
+  policy?: PolicyStatus | null;
 }
 /**
- * Hold ``controls`` (U) and ``forces`` (F) for ``steps`` super-steps.
+ * Hold ``controls`` (U) and ``forces`` (F) for ``steps`` super-steps. A policy-driven session takes
+ * no controls (422): its policy sets them each super-step towards ``goal``.
  *
  * This interface was referenced by `EmulatorWire`'s JSON-Schema
  * via the `definition` "StepRequest".
@@ -788,6 +890,10 @@ export interface StepRequest {
   driver?: {
     [k: string]: number;
   } | null;
+  /**
+   * a policy-driven session only: its new goal (G values, the policy's goal_variables); the clock of a timed policy restarts when the goal changes
+   */
+  goal?: number[] | null;
 }
 /**
  * ``states`` (steps, S) after each super-step, ``state`` the last of them. ``frames`` (when
@@ -817,4 +923,16 @@ export interface StepResponse {
    * the state groups outside the training envelope
    */
   outside_groups?: string[];
+  /**
+   * (steps, U): the controls of each super-step, when the driver or policy chose them
+   */
+  controls?: number[][] | null;
+  /**
+   * a policy-driven session's goal (null otherwise)
+   */
+  goal?: number[] | null;
+  /**
+   * the goal variables outside the goals the policy was trained for
+   */
+  goal_outside?: string[];
 }

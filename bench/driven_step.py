@@ -1,0 +1,252 @@
+"""Driven step: the batched step of policy-driven sessions against undriven ones, in the service's
+stepping core.
+
+    python bench/driven_step.py [--sessions 1,64,1024,4096] [--seconds 2] [--data-dir DIR] [--json]
+
+For each batch size B: B lander sessions (the committed n = 25 emulator) stepped as ONE binary block
+(``Stepper.step_block``, what a binary ``POST /step`` runs after parsing), over and over for
+``--seconds``: undriven (the client's controls), then driven by the ``lander-landing`` policy (the
+policy sets the controls in the batcher's tick: one policy call, then the emulator's). Rows: µs per
+batched step, µs per session-step and ``ratio`` = driven / undriven (the target: at most 1.5).
+
+Then the ONNX Runtime calls alone at each B: the emulator, the policy, both one after the other, and
+the two composed into ONE graph (``onnx.compose.merge_models``: the policy's controls wired into the
+emulator's input), to see whether composing them would pay.
+
+The policy is read from ``--data-dir`` (``NEUROANIMATOR_DATA_DIR`` layout: ``policies/lander/...``);
+without one, a policy is trained here for 3 s into a temporary folder (its quality does not matter
+for its cost). With ``--json`` the last line is one JSON object: ``rows`` (per B: undriven_us,
+driven_us, ratio, and the ORT-only timings) and ``max_ratio``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnx
+import onnx.compose
+import onnxruntime as ort
+from numpy.typing import NDArray
+
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts.policies import POLICY_ONNX, PolicyError, resolve_policy
+from neuroanimator.contracts.emulator import PolicyDrive, SessionCreate
+from neuroanimator.export.runtime import session_options
+from services.emulator.service import EmulatorService
+from services.emulator.settings import Settings
+
+REPO = Path(__file__).resolve().parents[1]
+MODEL, POLICY, SUBSTEPS = "lander", "lander-landing", 25
+log = logging.getLogger("driven_step")
+
+
+def ensure_policy(data: Path) -> Path:
+    """The folder of the lander-landing policy under ``data``, trained here (3 s) when there is none."""
+    roots = registry.Roots(data, REPO / "artifacts")
+    try:
+        return resolve_policy(roots, MODEL, POLICY)
+    except PolicyError:
+        pass
+    from neuroanimator.catalog.tasks import POLICY_TASKS
+    from neuroanimator.control.policy import PolicySettings, train_policy
+    from neuroanimator.control.policy_store import save_policy
+
+    task = POLICY_TASKS[POLICY]
+    path = registry.resolve(roots, MODEL, None, SUBSTEPS)
+    log.info("training a %s policy for 3 s through %s", POLICY, path.name)
+    result = train_policy(task, path, PolicySettings(seconds=3, refine=False, evaluate_runs=4, refine_runs=4))
+    assert result.goals is not None
+    return save_policy(roots, result, result.goals)
+
+
+def timed(fn: Callable[[], object], seconds: float) -> float:
+    """Mean seconds per call of ``fn`` over about ``seconds`` (after one warm-up call)."""
+    fn()
+    n, t0 = 0, time.perf_counter()
+    while True:
+        fn()
+        n += 1
+        spent = time.perf_counter() - t0
+        if spent >= seconds and n >= 3:
+            return spent / n
+
+
+async def stepping_core(
+    service: EmulatorService, sizes: list[int], seconds: float
+) -> dict[int, dict[str, float]]:
+    """µs per batched step of B undriven and B policy-driven sessions, for each B."""
+    out: dict[int, dict[str, float]] = {}
+    version = service.policies.get(MODEL, POLICY).manifest.emulator_version
+    emu = service.registry.get(MODEL, version)
+    rng = np.random.default_rng(0)
+    for b in sizes:
+        row: dict[str, float] = {}
+        for kind in ("undriven", "driven"):
+            policy = PolicyDrive(name=POLICY, goal=[1.0, -2.0]) if kind == "driven" else None
+            ids = []
+            for i in range(b):
+                req = SessionCreate(model=MODEL, version=version, seed=i, policy=policy)
+                ids.append(service.create_session(req).id)
+            _, res = service.store.resolve(ids)
+            lo, hi = emu.inputs.low, emu.inputs.high
+            rows = rng.uniform(lo, hi, (b, len(lo))).astype(np.float32)
+            starts = service.store.pools[(MODEL, version)].states.copy()
+
+            async def once(res: Any = res, rows: NDArray[np.float32] = rows) -> None:
+                await service.stepper.step_block(res, rows, lambda i: ("", ""))
+
+            await once()
+            n, t0 = 0, time.perf_counter()
+            while time.perf_counter() - t0 < seconds or n < 3:
+                await once()
+                n += 1
+                if n % 20 == 0:  # (back to the starts now and then: the lander must not fly off)
+                    pool = service.store.pools[(MODEL, version)]
+                    pool.states[:] = starts
+                    pool.diverged[:] = False
+            row[f"{kind}_us"] = (time.perf_counter() - t0) / n * 1e6
+            for sid in ids:
+                service.delete(sid)
+        row["ratio"] = row["driven_us"] / row["undriven_us"]
+        out[b] = row
+        log.info("B=%d: %s", b, row)
+    return out
+
+
+def composed(policy_onnx: Path, emulator_onnx: Path) -> bytes:
+    """The policy and the emulator as ONE graph: ``(state, goal) -> (controls, next_state)``."""
+    p, e = onnx.load(str(policy_onnx)), onnx.load(str(emulator_onnx))
+    # the emulator reads the same state as the policy: pass it through the policy's graph
+    p.graph.node.append(onnx.helper.make_node("Identity", ["state"], ["state_through"]))
+    state_in = next(i for i in p.graph.input if i.name == "state")
+    through = onnx.ValueInfoProto()
+    through.CopyFrom(state_in)
+    through.name = "state_through"
+    p.graph.output.append(through)
+    if p.ir_version != e.ir_version:
+        p.ir_version = e.ir_version = max(p.ir_version, e.ir_version)
+    opsets = {o.domain: o.version for o in e.opset_import}
+    for o in p.opset_import:
+        opsets[o.domain] = max(o.version, opsets.get(o.domain, 0))
+    for m in (p, e):
+        del m.opset_import[:]
+        m.opset_import.extend(onnx.helper.make_opsetid(d, v) for d, v in opsets.items())
+    out = e.graph.output[0].name
+    merged = onnx.compose.merge_models(
+        p,
+        e,
+        io_map=[("controls", "controls"), ("state_through", "state")],
+        prefix2="e/",
+        outputs=["controls", f"e/{out}"],
+    )
+    return merged.SerializeToString()
+
+
+def ort_only(
+    policy_dir: Path, emulator_onnx: Path, sizes: list[int], seconds: float
+) -> dict[int, dict[str, float]]:
+    """µs per call: the emulator, the policy, both in turn, and the composed graph, at each B."""
+    opts = session_options(1)
+    pol = ort.InferenceSession(str(policy_dir / POLICY_ONNX), opts, providers=["CPUExecutionProvider"])
+    emu = ort.InferenceSession(str(emulator_onnx), opts, providers=["CPUExecutionProvider"])
+    both = ort.InferenceSession(
+        composed(policy_dir / POLICY_ONNX, emulator_onnx), opts, providers=["CPUExecutionProvider"]
+    )
+    s = int(emu.get_inputs()[0].shape[1])
+    u = int(pol.get_outputs()[0].shape[1])
+    g = int(next(i for i in pol.get_inputs() if i.name == "goal").shape[1])
+    rng = np.random.default_rng(0)
+    out = {}
+    for b in sizes:
+        x = rng.normal(size=(b, s)).astype(np.float32)
+        goal = rng.normal(size=(b, g)).astype(np.float32)
+
+        def emulator(x: NDArray[np.float32] = x) -> object:
+            return emu.run(None, {"state": x, "controls": np.zeros((len(x), u), np.float32)})
+
+        def policy(x: NDArray[np.float32] = x, goal: NDArray[np.float32] = goal) -> object:
+            return pol.run(None, {"state": x, "goal": goal})
+
+        def in_turn(x: NDArray[np.float32] = x, goal: NDArray[np.float32] = goal) -> object:
+            c = pol.run(None, {"state": x, "goal": goal})[0]
+            return emu.run(None, {"state": x, "controls": c})
+
+        def merged(x: NDArray[np.float32] = x, goal: NDArray[np.float32] = goal) -> object:
+            return both.run(None, {"state": x, "goal": goal})
+
+        sep = pol.run(None, {"state": x, "goal": goal})[0]
+        one = both.run(None, {"state": x, "goal": goal})
+        np.testing.assert_allclose(one[0], sep, rtol=1e-5, atol=1e-5)  # the same controls either way
+        out[b] = {
+            f"ort_{name}_us": timed(fn, seconds / 4) * 1e6
+            for name, fn in (
+                ("emulator", emulator),
+                ("policy", policy),
+                ("in_turn", in_turn),
+                ("composed", merged),
+            )
+        }
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sessions", default="1,64,1024,4096", help="batch sizes B, comma-separated")
+    ap.add_argument("--seconds", type=float, default=2.0, help="wall time per measurement")
+    ap.add_argument("--data-dir", type=Path, help="a data directory holding a lander-landing policy")
+    ap.add_argument("--json", action="store_true", help="print one JSON object last")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+    sizes = [int(v) for v in args.sessions.split(",")]
+    with tempfile.TemporaryDirectory() as tmp:
+        data = args.data_dir or Path(tmp)
+        folder = ensure_policy(data)
+        settings = Settings(
+            artifacts_dir=REPO / "artifacts",
+            data_dir=data,
+            redis_url="",
+            api_keys="",
+            max_sessions=2 * max(sizes) + 10,
+            max_batch=max(4096, max(sizes)),
+        )
+        service = EmulatorService(settings)
+        core = asyncio.run(stepping_core(service, sizes, args.seconds))
+        emulator_onnx = service.registry.get(
+            MODEL, service.policies.get(MODEL, POLICY).manifest.emulator_version
+        )
+        calls = ort_only(folder, emulator_onnx.path / registry.ONNX_FILE, sizes, args.seconds)
+    rows = [{"sessions": b, **core[b], **calls[b]} for b in sizes]
+    print("| B | undriven µs/step | driven µs/step | ratio | µs/session-step undriven → driven |")
+    print("|---:|---:|---:|---:|---:|")
+    for r in rows:
+        b = r["sessions"]
+        print(
+            f"| {b} | {r['undriven_us']:,.0f} | {r['driven_us']:,.0f} | {r['ratio']:.2f} | "
+            f"{r['undriven_us'] / b:,.2f} → {r['driven_us'] / b:,.2f} |"
+        )
+    print("\nONNX Runtime alone, µs per call (1 thread):")
+    print("| B | emulator | policy | policy then emulator | composed graph |")
+    print("|---:|---:|---:|---:|---:|")
+    for r in rows:
+        print(
+            f"| {r['sessions']} | {r['ort_emulator_us']:,.0f} | {r['ort_policy_us']:,.0f} | "
+            f"{r['ort_in_turn_us']:,.0f} | {r['ort_composed_us']:,.0f} |"
+        )
+    result = {"model": MODEL, "policy": POLICY, "rows": rows, "max_ratio": max(r["ratio"] for r in rows)}
+    print(f"\nlargest ratio driven / undriven: {result['max_ratio']:.2f} (target: at most 1.5)")
+    if args.json:
+        print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
