@@ -15,7 +15,8 @@ The environment is the policy task as the emulator's policy sees it:
   current goal and ``CHECK_BONUS`` more when they hold at a check step; a state that is no longer
   finite ends the episode with ``DIVERGED_PENALTY``;
 - an episode is the task's ``episode_s``; its start from the task's start box and its goals (one per
-  goal period) from the same ``GoalPool`` the emulator's policy was trained with.
+  goal period, a moving one within the task's ``max_move`` of the last) from the same ``GoalPool``
+  the emulator's policy was trained with, drawn as its training draws them.
 
 Shapes: N runs, K super-steps, S state, G goal variables, P goals per run, U controls, D features.
 """
@@ -109,7 +110,7 @@ class PolicyTaskEnv(gymnasium.Env[NDArray[np.float32], NDArray[np.float32]]):
     ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         super().reset(seed=seed)
         self.state = sample_starts(self.judge.physical, self.task, self.np_random, 1)[0]
-        self.goals = self.pool.draw(self.np_random, (self.schedule.goals,))
+        self.goals = self.pool.draw_moving(self.np_random, 1, self.schedule.goals, self.task.goal.max_move)[0]
         self.k = 0
         return self._obs(), {}
 

@@ -2,7 +2,7 @@
 model-free reinforcement learning on MuJoCo, on the same held-out starts and goals.
 
     python bench/policies.py [--tasks a,b] [--seconds S] [--held-out 100] [--open-loop-runs 10]
-                             [--algorithm sac|ppo] [--seed 0] [--threads 2] [--quick] [--json]
+                             [--algorithm sac|ppo] [--seed 0] [--threads N] [--quick] [--json]
 
 For each catalog policy task (``catalog.tasks.POLICY_TASKS``; ``--tasks`` some of them), through the
 emulator of the task's super-step (``policy_job.emulator_for``, the data directory over the committed
@@ -98,11 +98,11 @@ def policy_settings(task: PolicyTask, args: argparse.Namespace) -> PolicySetting
 
 def held_out(judge: PolicyTrainer, task: PolicyTask, runs: int, index: int) -> tuple[FloatArray, FloatArray]:
     """Starts (N, S) and goals (N, P, G) of the held-out set: the task's start box and a goal pool of
-    its own, from ``HELD_OUT_SEED`` (one stream per task)."""
+    its own, from ``HELD_OUT_SEED`` (one stream per task); a moving goal moves as in training."""
     rng = np.random.default_rng([HELD_OUT_SEED, index])
     pool = reached_goals(judge.physical, task, judge.substeps, rng)
     starts = sample_starts(judge.physical, task, rng, runs)
-    return starts, pool.draw(rng, (runs, judge.schedule.goals))
+    return starts, pool.draw_moving(rng, runs, judge.schedule.goals, task.goal.max_move)
 
 
 # ---------------------------------------------------------------------------- open-loop synthesis
