@@ -1,4 +1,4 @@
-// The dashboard: hash routes #/models, #/playground, #/controllers; a health line for the services (the
+// The dashboard: hash routes #/models, #/playground, #/controllers, #/policies; a health line for the services (the
 // trainer's too when there is one);
 // every error reaches the person as a notice in plain words.
 import './style.css';
@@ -11,6 +11,7 @@ import type { Ctx, Page } from './pages/context';
 import { controllersPage } from './pages/controllers';
 import { modelsPage } from './pages/models';
 import { playgroundPage } from './pages/playground';
+import { policiesPage } from './pages/policies';
 import { pinFullResolution } from './scene/loop';
 import { h } from './ui/dom';
 import { keyControl } from './ui/keycontrol';
@@ -20,6 +21,7 @@ const PAGES: Record<string, { title: string; page: Page }> = {
   models: { title: 'Models', page: modelsPage },
   playground: { title: 'Playground', page: playgroundPage },
   controllers: { title: 'Controllers', page: controllersPage },
+  policies: { title: 'Policies', page: policiesPage },
 };
 
 function byId(id: string): HTMLElement {

@@ -7,12 +7,22 @@ import type {
   JobCreate,
   JobResult,
   JobStatus,
+  PolicyJobCreate,
+  PolicyJobResult,
+  PolicyJobStatus,
+  PolicyList,
+  PolicyManifest,
+  PolicyMetrics,
+  PolicyProgressEvent,
+  PolicyTaskInfo as PolicyTaskWire,
+  PolicyTaskList,
   ProgressEvent,
   TaskInfo as TaskInfoWire,
   TaskList,
 } from './controller.gen';
 
 export type { JobAccepted, JobCreate, JobResult, JobStatus, ProgressEvent };
+export type { PolicyJobCreate, PolicyJobResult, PolicyJobStatus, PolicyManifest, PolicyMetrics, PolicyProgressEvent };
 export type JobState = JobStatus['status'];
 export const FINAL_STATES: readonly JobState[] = ['succeeded', 'failed', 'cancelled'];
 
@@ -43,6 +53,19 @@ export function defaultTask(tasks: TaskInfo[], wanted: string | null): TaskInfo 
   let best = tasks[0];
   for (const t of tasks) if (best && controlVariables(t) < controlVariables(best)) best = t;
   return best;
+}
+
+/** A built-in policy task: the wire model names `name` and `model` (a task defines the rest); these
+ * are read here. */
+export interface PolicyTaskInfo extends PolicyTaskWire {
+  description?: string;
+  goal_variables?: string[];
+  goal_low?: number[];
+  goal_high?: number[];
+  success_criterion?: string;
+  episode_s?: number;
+  timed?: boolean;
+  target_state?: number[];
 }
 
 export class ControllerApi {
@@ -76,5 +99,39 @@ export class ControllerApi {
   /** Server-sent events of a job: `progress` per iteration, then one `end`. */
   events(id: string): EventSource {
     return new EventSource(withKeyQuery(`${this.base}/jobs/${encodeURIComponent(id)}/events`));
+  }
+
+  // ---------------------------------------------------------------- policies
+  async policyTasks(): Promise<PolicyTaskInfo[]> {
+    const r = await requestJson<PolicyTaskList>('controller', this.base, '/policy-tasks');
+    return r.tasks as PolicyTaskInfo[];
+  }
+
+  /** The stored policies (the latest version of each), of every model or of `model`. */
+  async policies(model?: string): Promise<PolicyManifest[]> {
+    const query = model ? `?model=${encodeURIComponent(model)}` : '';
+    const r = await requestJson<PolicyList>('controller', this.base, `/policies${query}`);
+    return r.policies;
+  }
+
+  submitPolicy(job: PolicyJobCreate): Promise<JobAccepted> {
+    return requestJson('controller', this.base, '/policies', { method: 'POST', body: JSON.stringify(job) });
+  }
+
+  policyJob(id: string): Promise<PolicyJobStatus> {
+    return requestJson('controller', this.base, `/policy-jobs/${encodeURIComponent(id)}`);
+  }
+
+  policyResult(id: string): Promise<PolicyJobResult> {
+    return requestJson('controller', this.base, `/policy-jobs/${encodeURIComponent(id)}/result`);
+  }
+
+  async cancelPolicy(id: string): Promise<void> {
+    await requestJson('controller', this.base, `/policy-jobs/${encodeURIComponent(id)}`, { method: 'DELETE' });
+  }
+
+  /** Server-sent events of a policy job: `status`, `progress` per iteration, then one `end`. */
+  policyEvents(id: string): EventSource {
+    return new EventSource(withKeyQuery(`${this.base}/policy-jobs/${encodeURIComponent(id)}/events`));
   }
 }

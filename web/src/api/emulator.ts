@@ -13,6 +13,8 @@ import type {
 import { requestBytes, requestJson } from './http';
 import { withKeyQuery } from './key';
 
+const versionQuery = (version?: string): string => (version ? `?version=${encodeURIComponent(version)}` : '');
+
 export class EmulatorApi {
   constructor(readonly base: string) {}
 
@@ -32,12 +34,13 @@ export class EmulatorApi {
     return this.get('/models');
   }
 
-  model(name: string): Promise<ModelDetail> {
-    return this.get(`/models/${encodeURIComponent(name)}`);
+  /** A model's manifest: its latest version's, or `version`'s. */
+  model(name: string, version?: string): Promise<ModelDetail> {
+    return this.get(`/models/${encodeURIComponent(name)}${versionQuery(version)}`);
   }
 
-  geometry(name: string): Promise<ModelGeometry> {
-    return this.get(`/models/${encodeURIComponent(name)}/geometry`);
+  geometry(name: string, version?: string): Promise<ModelGeometry> {
+    return this.get(`/models/${encodeURIComponent(name)}/geometry${versionQuery(version)}`);
   }
 
   /** A file the model's MJCF names (a mesh: /geometry names it), as stored in its artifact. */

@@ -98,6 +98,8 @@ export class ModelView {
     });
     if (!look.ghost) {
       const fixed = new THREE.Group(); // what is fixed to the world
+      fixed.name = 'fixed';
+      fixed.userData.shadowApart = true; // its contact shadow is not the moving bodies' (viewer.ts)
       for (const geom of geometry.world) {
         if (geom.type === 'plane') {
           if (this.floorZ === null || geom.pos[2]! < this.floorZ) this.floorZ = geom.pos[2] ?? 0;

@@ -198,15 +198,17 @@ class BlobShadows {
   private readonly box = new THREE.Box3();
   private readonly part = new THREE.Box3();
 
-  /** Places a disc below each child of `world` with shadow-casting meshes (three's world frame, y up). */
+  /** Places a disc below each child of `world` with shadow-casting meshes (three's world frame, y up),
+   * and one apart below each part of it marked `userData.shadowApart` (what a model has fixed to the
+   * world: the lander's pad stays at the origin while the lander flies 20 m away, and one disc under
+   * both would darken the ground between them). */
   update(world: THREE.Object3D, groundY: number): void {
     let used = 0;
-    for (const child of world.children) {
-      if (!child.visible) continue;
+    const casters = world.children.filter((c) => c.visible);
+    for (let k = 0; k < casters.length; k++) {
+      const child = casters[k]!;
       this.box.makeEmpty();
-      child.traverseVisible((o) => {
-        if ((o as THREE.Mesh).isMesh && o.castShadow) this.box.union(this.part.setFromObject(o, false));
-      });
+      this.casting(child, child, casters);
       if (this.box.isEmpty()) continue;
       const width = Math.max(this.box.max.x - this.box.min.x, this.box.max.z - this.box.min.z);
       const height = Math.max(0, this.box.min.y - groundY);
@@ -218,6 +220,18 @@ class BlobShadows {
       disc.visible = true;
     }
     for (let i = used; i < this.discs.length; i++) this.discs[i]!.visible = false;
+  }
+
+  /** Adds the visible shadow-casting meshes under `o` to the box; a part marked `shadowApart` (other
+   * than `root`) goes to `later`, for a disc of its own. */
+  private casting(o: THREE.Object3D, root: THREE.Object3D, later: THREE.Object3D[]): void {
+    if (!o.visible) return;
+    if (o !== root && o.userData.shadowApart) {
+      later.push(o);
+      return;
+    }
+    if ((o as THREE.Mesh).isMesh && o.castShadow) this.box.union(this.part.setFromObject(o, false));
+    for (const c of o.children) this.casting(c, root, later);
   }
 
   private disc(i: number): THREE.Mesh {

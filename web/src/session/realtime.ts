@@ -84,10 +84,20 @@ export class RealtimeSession {
   /** The inputs held from now on; a driven session takes its driver's parameters (`driver`) and the
    * forces, its controls coming from the driver. Sent only when something changed. */
   setControls(controls: number[], forces: number[] = [], driver?: Record<string, number>): void {
-    const text = JSON.stringify(driver ? { type: 'controls', controls, forces, driver } : { type: 'controls', controls, forces });
+    this.hold(driver ? { type: 'controls', controls, forces, driver } : { type: 'controls', controls, forces });
+  }
+
+  /** A policy-driven session's inputs from now on: its goal (G values) and the forces; its policy sets
+   * the controls, so none are sent. Sent only when something changed. */
+  setGoal(goal: number[], forces: number[] = []): void {
+    this.hold({ type: 'controls', forces, goal });
+  }
+
+  private hold(msg: object): void {
+    const text = JSON.stringify(msg);
     if (text === this.lastSent) return;
     if (this.ws.readyState !== WebSocket.OPEN) {
-      this.ws.addEventListener('open', () => this.setControls(controls, forces, driver), { once: true });
+      this.ws.addEventListener('open', () => this.hold(msg), { once: true });
       return;
     }
     this.lastSent = text;

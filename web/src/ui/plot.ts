@@ -19,6 +19,10 @@ export interface PlotOptions {
   legend?: boolean;
   /** a linear y axis from 0 to a round value above the data (errors, distances) */
   fromZero?: boolean;
+  /** a dot at each point (a few measurements far apart) */
+  points?: boolean;
+  /** a fixed linear y range (a share in percent: [0, 100]) */
+  yRange?: [number, number] | null;
 }
 
 const AXIS = { stroke: '#aab6c2', font: '12px system-ui, sans-serif', labelFont: '12px system-ui, sans-serif' };
@@ -35,7 +39,7 @@ export class LinePlot {
   private readonly empty: HTMLDivElement;
 
   constructor(opts: PlotOptions = {}) {
-    this.o = { height: 220, logY: false, xLabel: '', yLabel: '', marker: false, legend: true, fromZero: false, ...opts };
+    this.o = { height: 220, logY: false, xLabel: '', yLabel: '', marker: false, legend: true, fromZero: false, points: false, yRange: null, ...opts };
     this.el = document.createElement('div');
     this.el.className = 'plot';
     this.el.setAttribute('role', 'img');
@@ -94,7 +98,9 @@ export class LinePlot {
         // the data's range now (it grows as points arrive), on whole decades
         y: logY
           ? { distr: 3, log: 10, range: (_u, lo, hi) => (logRange([lo, hi]) ?? [1e-3, 1]) as uPlot.Range.MinMax }
-          : this.o.fromZero
+          : this.o.yRange
+            ? { range: [this.o.yRange[0], this.o.yRange[1]] as uPlot.Range.MinMax }
+            : this.o.fromZero
             ? { range: (_u, _lo, hi) => [0, roundUp(hi)] as uPlot.Range.MinMax }
             : { auto: true },
       },
@@ -109,7 +115,7 @@ export class LinePlot {
           ...(decades ? { filter: decades, grid: { ...GRID, filter: decades }, ticks: { ...GRID, filter: decades } } : { grid: GRID, ticks: GRID }),
         },
       ],
-      series: [{}, ...this.series.map((s) => ({ label: s.name, stroke: s.color, width: 2, spanGaps: true, dash: s.dash, points: { show: false } }))],
+      series: [{}, ...this.series.map((s) => ({ label: s.name, stroke: s.color, width: 2, spanGaps: true, dash: s.dash, points: { show: this.o.points, size: 7 } }))],
       hooks: this.o.marker ? { draw: [(u: uPlot) => this.drawMarker(u)] } : {},
     };
     this.plot = new uPlot(opts, data, this.el);
