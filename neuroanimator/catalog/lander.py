@@ -133,5 +133,6 @@ POLICY_LANDING = PolicyTask(
     state_weights=(1.0, 1.0, 1.0, 10.0, 10.0, 10.0, 10.0, 2.0, 2.0, 2.0, 2.0, 2.0, 2.0),
     success=LANDING.success,
     settle_s=10.0,
+    timed=True,  # touch down (moving down, slowly) as the run ends, not hover above the pad
 )
 POLICY_TASKS = (POLICY_LANDING,)

@@ -9,8 +9,9 @@ policy gradients, with a learned model as SuperTrack and ControlVAE use one).
    loss the weighted distance of every state to its target (counted from ``settle_s`` after a goal is
    set, lightly before) plus a small control effort, gradients through the whole rollout, truncated
    every ``truncate`` super-steps, clipped in norm, Adam;
-3. every ``refine_every`` seconds, the policy is run on MuJoCo from new starts and goals: its success
-   there is measured, and (``refine``) those runs are added to the emulator's data and the emulator
+3. every ``refine_every`` of the budget, the policy is run on MuJoCo and on the emulator from new
+   starts and goals: its success on both is measured, and where the two verdicts differ by more than
+   ``refine_gap`` (``refine``), the MuJoCo runs are added to the emulator's data and the emulator
    fine-tuned on them (``train_over_rollouts``), so the model is right where the policy goes;
 4. the policy kept is the one that did best on MuJoCo; it ends with its success on held-out starts and
    goals, on MuJoCo and on the emulator.
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -40,7 +42,13 @@ from neuroanimator.artifacts import registry
 from neuroanimator.artifacts import store as artifacts
 from neuroanimator.control.bptt import FastStep, FrozenStep
 from neuroanimator.control.policy_data import GoalPool, reached_goals, sample_starts
-from neuroanimator.control.policy_net import PolicyNet, PolicyShape, describe_columns, wrap
+from neuroanimator.control.policy_net import (
+    PolicyNet,
+    PolicyShape,
+    describe_body_frame,
+    describe_columns,
+    wrap,
+)
 from neuroanimator.core.manifest import Manifest
 from neuroanimator.emulator.hierarchy import HierarchicalEmulator
 from neuroanimator.emulator.structured import StructuredEmulator
@@ -59,13 +67,15 @@ class PolicySettings:
     """How a policy is trained; ``seconds`` is the wall-clock budget of the whole training."""
 
     seconds: float = 600.0
+    max_iterations: int | None = None  # a cap on the updates besides the budget
     batch: int = 256
-    learning_rate: float = 1e-3
+    learning_rate: float = 2e-3  # cosine-annealed to a tenth over the budget
     truncate: int = 0  # super-steps between cuts of the gradient's path (0: the whole run)
     grad_clip: float = 1.0
     hidden: tuple[int, ...] | None = None  # default: the task's
     refine: bool = True
     refine_every: float = 0.2  # share of the budget between MuJoCo evaluations
+    refine_gap: float = 0.1  # refine when success on the emulator and on MuJoCo differ by more
     refine_runs: int = 128
     refine_seconds: float = 20.0
     evaluate_runs: int = 100
@@ -115,6 +125,7 @@ class PolicyResult:
     success_history: list[tuple[int, float]] = field(default_factory=list)
     evaluate_runs: int = 0
     stop: str = "budget"
+    refinements: int = 0  # fine-tunings of the emulator on the policy's MuJoCo runs
     goals: FloatArray | None = None  # (N, G) the goals it was trained for
 
 
@@ -126,13 +137,15 @@ def frozen_step(emu: StructuredEmulator | HierarchicalEmulator) -> nn.Module:
 class Schedule:
     """When goals change and when checks hold over a run of ``steps`` super-steps."""
 
-    def __init__(self, task: PolicyTask, super_dt: float) -> None:
+    def __init__(self, task: PolicyTask, super_dt: float, goals: int | None = None) -> None:
         self.steps, self.per_goal, self.check = goal_schedule(task, super_dt)
+        if goals is not None:  # fewer goals per run than the task's (training on one period at a time)
+            self.steps = self.per_goal * goals
         self.goals = self.steps // self.per_goal
         settle = max(0, min(self.check, round(task.settle_s / super_dt)))
         tau = np.arange(1, self.per_goal + 1)  # steps since the goal was set, after each step
         w = np.where(tau >= settle, 1.0, 0.05)
-        if task.timed:  # only arriving at the check's time counts, and staying there a little
+        if task.timed and task.settle_s <= 0:  # only arriving on time counts, and staying there a little
             w = np.where(np.abs(tau - self.check) <= max(1, self.check // 10), 1.0, 0.0)
         w[self.check - 1] += 2.0
         self.weights = np.tile(w / w.sum(), self.goals)  # (K,)
@@ -199,6 +212,9 @@ class PolicyTrainer:
         self.step = frozen_step(self.emu)
         self.substeps = self.manifest.substeps
         self.schedule = Schedule(task, self.manifest.super_timestep)
+        # a goal that moves is learned one period at a time: the gradient's path is one goal long,
+        # and a batch covers four times the goals in the time of one whole run
+        self.train_schedule = Schedule(task, self.manifest.super_timestep, 1 if task.goal_period_s else None)
         self.rng = np.random.default_rng(settings.seed)
         torch.manual_seed(settings.seed)
         self.on_progress, self.should_stop = on_progress, should_stop
@@ -208,11 +224,13 @@ class PolicyTrainer:
         self.distance = TargetDistance(self.manifest, task.state_weights)
         self.target = torch.tensor(task.target_state, dtype=torch.float32)
         self.goal_cols = task.goal_columns
+        self.refinements = 0  # fine-tunings of the emulator on the policy's MuJoCo runs
         self.t0 = time.perf_counter()
 
     def _shape(self) -> PolicyShape:
         task, m, pool = self.task, self.manifest, self.pool
         angles, plain, goal_angles, heading, planar = describe_columns(m.layout, task.goal_columns)
+        quat, spatial, world_velocity = describe_body_frame(m.layout, task.goal_columns)
         goal_scale = np.maximum(pool.goals.std(axis=0), 0.1 * (np.asarray(task.goal.high) - task.goal.low))
         return PolicyShape(
             state_size=m.state_size,
@@ -231,13 +249,18 @@ class PolicyTrainer:
             limit_high=tuple(min(c.limit_high, 1e9) for c in m.controls),
             timed=task.timed,
             hidden=self.settings.hidden or task.hidden,
+            quat=quat,
+            spatial=tuple(spatial),
+            world_velocity=tuple(world_velocity),
         )
 
     # ---------------------------------------------------------------- rollouts
-    def draw(self, batch: int) -> tuple[FloatArray, FloatArray]:
-        """Starts (B, S) and goals (B, P, G), one goal per period of the run."""
+    def draw(self, batch: int, goals_per_run: int | None = None) -> tuple[FloatArray, FloatArray]:
+        """Starts (B, S) and goals (B, P, G), one goal per period of the run (``goals_per_run`` of them,
+        default the task's)."""
         starts = sample_starts(self.physical, self.task, self.rng, batch)
-        goals = self.pool.draw_moving(self.rng, batch, self.schedule.goals, self.task.goal.max_move)
+        moves = self.schedule.goals if goals_per_run is None else goals_per_run
+        goals = self.pool.draw_moving(self.rng, batch, moves, self.task.goal.max_move)
         return starts, goals
 
     def targets(self, goals: Tensor) -> Tensor:
@@ -248,7 +271,7 @@ class PolicyTrainer:
 
     def rollout_loss(self, starts: FloatArray, goals: FloatArray) -> Tensor:
         """The weighted distance to the targets along a rollout through the emulator, plus control effort."""
-        sch, cfg = self.schedule, self.settings
+        sch, cfg = self.train_schedule, self.settings
         s = torch.as_tensor(starts, dtype=torch.float32)
         g = torch.as_tensor(goals, dtype=torch.float32)
         targets = self.targets(g)
@@ -359,11 +382,15 @@ class PolicyTrainer:
         successes: list[tuple[int, float]] = []
         last_success: float | None = None
         it, stop = 0, "budget"
-        while self.elapsed() < budget:
+        while self.elapsed() < budget and (cfg.max_iterations is None or it < cfg.max_iterations):
             if self.should_stop is not None and self.should_stop():
                 stop = "cancelled"
                 break
-            starts, goals = self.draw(cfg.batch)
+            for group in opt.param_groups:
+                group["lr"] = cfg.learning_rate * (
+                    0.55 + 0.45 * math.cos(math.pi * min(1.0, self.elapsed() / budget))
+                )
+            starts, goals = self.draw(cfg.batch, self.train_schedule.goals)
             loss = self.rollout_loss(starts, goals)
             opt.zero_grad()
             if torch.isfinite(loss):
@@ -378,22 +405,30 @@ class PolicyTrainer:
             value = float(loss.detach()) if bool(torch.isfinite(loss)) else None
             if value is not None:
                 losses.append(value)
-            if self.elapsed() >= next_check or self.elapsed() >= budget:
+            last = self.elapsed() >= budget or (cfg.max_iterations is not None and it >= cfg.max_iterations)
+            if self.elapsed() >= next_check or last:
                 next_check = self.elapsed() + check_every
-                runs = self.run(*self.draw(cfg.refine_runs), physics=True)
+                starts, goals = self.draw(cfg.refine_runs)
+                runs = self.run(starts, goals, physics=True)
+                emulated = self.run(starts, goals, physics=False)
                 last_success = runs.rate
                 successes.append((it, last_success))
+                gap = abs(emulated.rate - runs.rate)
                 log.info(
-                    "%s: iteration %d, loss %.4g, success on MuJoCo %.2f",
+                    "%s: iteration %d, loss %.4g, success on MuJoCo %.2f, on the emulator %.2f",
                     self.task.name,
                     it,
                     value or float("nan"),
                     last_success,
+                    emulated.rate,
                 )
                 if last_success >= best[0]:
                     best = (last_success, copy.deepcopy(self.net.state_dict()))
-                if cfg.refine and self.elapsed() < budget * 0.9:
+                # the model must be right where the policy goes: where the emulator's verdict on the
+                # policy's runs differs from MuJoCo's, it learns from those runs
+                if cfg.refine and gap > cfg.refine_gap and self.elapsed() < budget * 0.9:
                     self.refine_emulator(runs)
+                    self.refinements += 1
             self.report(it, value, last_success)
         self.net.load_state_dict(best[1])
         return self.finish(it, losses, successes, stop)
@@ -406,7 +441,7 @@ class PolicyTrainer:
         if stop == "cancelled" and not successes:
             return PolicyResult(
                 self.net, self.task, self.manifest, 0.0, 0.0, self.mujoco_steps, it, self.elapsed(),
-                losses, successes, 0, stop, self.pool.goals,
+                losses, successes, stop=stop, goals=self.pool.goals,
             )  # fmt: skip
         held_out = np.random.default_rng(self.settings.seed + 1_000_003)
         rng, self.rng = self.rng, held_out
@@ -430,6 +465,7 @@ class PolicyTrainer:
             success_history=successes,
             evaluate_runs=len(starts),
             stop=stop,
+            refinements=self.refinements,
             goals=self.pool.goals,
         )
 

@@ -37,6 +37,9 @@ class PolicyShape:
     their spread and ``goal_angles`` which of them wrap; ``heading`` the heading column (or -1) and
     ``planar`` the goal's indices of the root's x and y (or empty), rotated into the heading's frame.
     ``low``/``high`` (U,) the controls' useful range, ``limit_low``/``limit_high`` their hard limits.
+    A free body's ``quat`` (its quaternion's first column, or -1) gives the body frame: the world's up
+    in it, and in it the goal's ``spatial`` part (the goal's indices of the root's x, y, z) and the
+    ``world_velocity`` columns (a drone steers by what is ahead of it and how it moves in its own frame).
     """
 
     state_size: int
@@ -55,6 +58,9 @@ class PolicyShape:
     limit_high: tuple[float, ...]
     timed: bool
     hidden: tuple[int, ...]
+    quat: int = -1
+    spatial: tuple[int, ...] = ()
+    world_velocity: tuple[int, ...] = ()
 
     @property
     def num_controls(self) -> int:
@@ -71,6 +77,9 @@ class PolicyShape:
             + len(self.plain_columns)
             + self.goal_size
             + (2 if self.planar else 0)
+            + (3 if self.quat >= 0 else 0)
+            + (3 if self.quat >= 0 and self.spatial else 0)
+            + (3 if self.quat >= 0 and self.world_velocity else 0)
             + (1 if self.timed else 0)
         )
 
@@ -115,6 +124,38 @@ def describe_columns(
     return angles, plain, goal_angles, heading, planar
 
 
+def describe_body_frame(
+    layout: Sequence[LayoutGroup], goal_columns: Sequence[int]
+) -> tuple[int, list[int], list[int]]:
+    """From a layout: the first quaternion's column (-1 without one), the goal's indices of the root
+    position's x, y, z (empty unless the goal sets all three) and the columns of the first world-frame
+    velocity of three values (empty without one)."""
+    quat = -1
+    root: list[int] = []
+    velocity: list[int] = []
+    for g in layout:
+        cols = list(range(g.offset, g.offset + g.size))
+        if g.kind in QUATERNION_KINDS and quat < 0:
+            quat = g.offset
+        if g.kind == "position" and g.size == 3 and not root:
+            root = cols
+        if g.kind == "world_vector" and g.size == 3 and not velocity:
+            velocity = cols
+    if quat < 0:
+        return -1, [], []
+    spatial = (
+        [list(goal_columns).index(c) for c in root] if root and all(c in goal_columns for c in root) else []
+    )
+    return quat, spatial, velocity
+
+
+def rotate_into(q: Tensor, v: Tensor) -> Tensor:
+    """World vectors v (B,3) in the frame of unit quaternions q (B,4) [w, x, y, z]: R(q)ᵀ v."""
+    w, u = q[:, 0:1], -q[:, 1:4]  # the conjugate's vector part
+    t = 2 * torch.linalg.cross(u, v, dim=1)
+    return v + w * t + torch.linalg.cross(u, t, dim=1)
+
+
 def wrap(x: Tensor) -> Tensor:
     """Angles wrapped to [-π, π) (exports as Floor, not as an Atan2 ONNX lacks)."""
     return x - 2 * math.pi * torch.floor((x + math.pi) / (2 * math.pi))
@@ -146,6 +187,10 @@ class PolicyFeatures(nn.Module):
         buf("goal_scale", shape.goal_scale, torch.float32)
         buf("goal_wrap", [1.0 if a else 0.0 for a in shape.goal_angles], torch.float32)
 
+    def plain_index(self, column: int) -> int:
+        """Where a plain state column's scale is kept."""
+        return self.shape.plain_columns.index(column)
+
     def forward(self, state: Tensor, goal: Tensor, time_left: Tensor) -> Tensor:
         s = self.shape
         parts: list[Tensor] = []
@@ -162,6 +207,16 @@ class PolicyFeatures(nn.Module):
             c, si = torch.cos(h), torch.sin(h)
             scale = self.goal_scale[s.planar[0]]
             parts += [(c * dx + si * dy) / scale, (-si * dx + c * dy) / scale]
+        if s.quat >= 0:
+            q = state[:, s.quat : s.quat + 4]
+            q = q / torch.sqrt((q * q).sum(dim=1, keepdim=True) + 1e-12)
+            parts.append(rotate_into(q, torch.tensor([[0.0, 0.0, 1.0]]).expand(q.shape[0], 3)))
+            if s.spatial:
+                d = torch.cat([offset[:, i : i + 1] for i in s.spatial], dim=1)
+                parts.append(rotate_into(q, d) / self.goal_scale[s.spatial[0]])
+            if s.world_velocity:
+                v = state[:, s.world_velocity[0] : s.world_velocity[0] + 3]
+                parts.append(rotate_into(q, v) / self.scale[self.plain_index(s.world_velocity[0])])
         if s.timed:
             parts.append(time_left)
         return torch.cat(parts, dim=1)

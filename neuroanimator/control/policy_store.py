@@ -52,6 +52,7 @@ def policy_manifest(result: PolicyResult, version: str, goals: np.ndarray) -> Po
             evaluate_runs=result.evaluate_runs,
             mujoco_steps=result.mujoco_steps,
             iterations=result.iterations,
+            refinements=result.refinements,
             wall_s=round(result.wall_s, 2),
             stop=result.stop,
         ),

@@ -33,6 +33,7 @@ class PolicyMetrics(BaseModel):
     evaluate_runs: int = 0
     mujoco_steps: int = Field(0, description="MuJoCo steps the training used: goals, checks, refinement")
     iterations: int = 0
+    refinements: int = Field(0, description="fine-tunings of its emulator copy on the policy's MuJoCo runs")
     wall_s: float = 0.0
     stop: str = "budget"
 

@@ -13,8 +13,9 @@ then hold ``check_after_s`` after every move.
 The policy is trained to bring the goal variables to the goal and keep them there: the loss of a
 rollout is the weighted distance of every state to the target (``state_weights``), counted from the
 time it can be expected to hold (``settle_s`` after a goal is set) and lightly before. A ``timed``
-task also tells the policy how long is left until the check (a pendulum that must arrive at a pose
-at rest at a given time, at the top of a swing).
+task also tells the policy how long is left until the check (a lander that must touch down as the
+run ends; a pendulum that must arrive at a pose at rest at a given time, at the top of a swing);
+without ``settle_s`` only arriving on time counts.
 
 Torch-free and MuJoCo-free; the catalog defines its tasks beside its models (``POLICY_TASKS``).
 """
@@ -86,7 +87,7 @@ class PolicyTask:
     settle_s: float = 0.0
     timed: bool = False
     control_weight: float = 1e-3
-    hidden: tuple[int, ...] = (128, 128)
+    hidden: tuple[int, ...] = (64, 64)  # small: it runs beside the emulator every served super-step
     train_seconds: float = 600.0
     extra: dict[str, Any] = field(default_factory=dict)
 
