@@ -19,9 +19,19 @@ Numbers that are not finite (an objective that diverged to NaN) travel as ``null
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    TypeAdapter,
+    ValidatorFunctionWrapHandler,
+    WrapValidator,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
 
 from neuroanimator.contracts.emulator import Flag, Integer, Number
 from neuroanimator.core.policy_manifest import PolicyManifest
@@ -37,7 +47,7 @@ from neuroanimator.goals.spec import (
     MAX_SUBSTEPS,
     JobSpec,
 )
-from neuroanimator.goals.terms import MAX_VALUE
+from neuroanimator.goals.terms import MAX_VALUE, MAX_WEIGHT
 from neuroanimator.goals.verdict import verdict as verdict_of
 
 MAX_VECTOR = 1024
@@ -457,12 +467,119 @@ HISTORY_POINTS = 100
 PolicyWidth = Annotated[int, Field(strict=True, ge=1, le=MAX_POLICY_WIDTH)]
 
 
-class PolicyJobCreate(_Wire):
-    """A feedback policy ``π(state, goal) → controls`` to train through the emulator for a built-in policy
-    task (``GET /policy-tasks``) and store; every field left out takes the task's (or the trainer's)
-    default."""
+MAX_POLICY_EPISODE_S = 600.0
+"""The longest run a user's policy task may ask for (the service also caps it at ``MAX_HORIZON``
+super-steps of its emulator)."""
+MAX_POLICY_CHECKS = 32
+PolicyTaskName = Annotated[str, Field(min_length=1, max_length=64)]
+Weight = Annotated[Number, Field(ge=0, le=MAX_WEIGHT)]
+"""A state variable's weight: finite, not negative, at most ``terms.MAX_WEIGHT``."""
+Seconds = Annotated[Number, Field(gt=0, le=MAX_POLICY_EPISODE_S)]
 
-    task: str = Field(min_length=1, max_length=64, description="a built-in policy task of GET /policy-tasks")
+
+class PolicyStartsSpec(_Wire):
+    """Where a user's policy task's runs start: every state variable uniform in [low, high] (S values
+    each, in the model's state order); a model with an orientation quaternion turned by a random yaw
+    (``random_yaw``) and tilted by at most ``max_tilt`` radians from upright."""
+
+    low: Annotated[list[Bounded], Field(min_length=1, max_length=MAX_VECTOR)]
+    high: Annotated[list[Bounded], Field(min_length=1, max_length=MAX_VECTOR)]
+    random_yaw: Flag = Field(False, description="any heading (a model with a quaternion only)")
+    max_tilt: Number = Field(
+        0.0, ge=0, le=math.pi, description="radians from upright (a model with a quaternion only)"
+    )
+
+
+class PolicyGoalSpec(_Wire):
+    """A user's policy task's goals: values of ``variables`` (state labels) that MuJoCo's runs of the
+    model's typical motion from the starts reach, within [low, high] per variable (G values each)."""
+
+    variables: Annotated[list[Label], Field(min_length=1, max_length=MAX_VECTOR)]
+    low: Annotated[list[Bounded], Field(min_length=1, max_length=MAX_VECTOR)]
+    high: Annotated[list[Bounded], Field(min_length=1, max_length=MAX_VECTOR)]
+    at_rest: Flag = Field(False, description="only poses passed through at rest (every speed small)")
+    rest_speed: Number = Field(0.3, gt=0, le=MAX_VALUE, description="what counts as at rest")
+    max_move: Number | None = Field(
+        None,
+        gt=0,
+        le=MAX_VALUE,
+        description="a moving goal's next value within this distance of its last (null: anywhere)",
+    )
+
+
+class PolicyTaskSpec(_Wire):
+    """A user's own policy task (what ``GET /policy-tasks`` lists of a built-in one): a model, where its
+    runs start, which goals it is asked to reach and how success is judged. States are S values in the
+    model's state order (its emulator's ``state_labels``); the target state has the goal written into
+    its goal variables; ``success`` checks are those of a control job (``POST /jobs``)."""
+
+    model: str = Field(min_length=1, max_length=MAX_LABEL, description="a model in the artifact registry")
+    substeps: Integer | None = Field(
+        None,
+        ge=1,
+        le=MAX_SUBSTEPS,
+        description="the emulator's super-step n, the policy's control period (default: the model's latest)",
+    )
+    name: str | None = Field(
+        None,
+        max_length=64,
+        pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$",
+        description="the stored policy's name, a plain name (default: custom-<model>)",
+    )
+    summary: str = Field("", max_length=1000, description="what the task asks, in words")
+    episode_s: Seconds = Field(description="a run's length in seconds")
+    starts: PolicyStartsSpec
+    goal: PolicyGoalSpec
+    target_state: Annotated[list[Bounded], Field(min_length=1, max_length=MAX_VECTOR)] = Field(
+        description="the state to reach, S values (the goal's values replace its goal variables)"
+    )
+    state_weights: Annotated[list[Weight], Field(min_length=1, max_length=MAX_VECTOR)] = Field(
+        description="each state variable's weight in the distance to the target, S values"
+    )
+    success: list[SuccessCheckSpec] = Field(
+        min_length=1, max_length=MAX_POLICY_CHECKS, description="checks that define a run's success"
+    )
+    goal_period_s: Seconds | None = Field(
+        None, description="a new goal every so many seconds (null: one goal per run)"
+    )
+    check_after_s: Number | None = Field(
+        None,
+        ge=0,
+        le=MAX_POLICY_EPISODE_S,
+        description="the checks hold this long after each goal is set (default: at its period's end)",
+    )
+    settle_s: Number = Field(
+        0.0,
+        ge=0,
+        le=MAX_POLICY_EPISODE_S,
+        description="seconds after a goal is set from which the distance to it fully counts",
+    )
+    timed: Flag = Field(False, description="the policy is told how long is left until the check")
+
+
+_TASK_NAME: TypeAdapter[str] = TypeAdapter(PolicyTaskName)
+
+
+def _task_or_definition(value: Any, handler: ValidatorFunctionWrapHandler) -> str | PolicyTaskSpec:
+    """A built-in task's name or a user's task; a user's task's errors name its own fields
+    (``task.goal.low[1]``), not the branch of the union they came from."""
+    if isinstance(value, (dict, PolicyTaskSpec)):
+        return PolicyTaskSpec.model_validate(value)
+    if not isinstance(value, str):
+        raise PydanticCustomError(
+            "policy_task_type", "Input should be a built-in policy task's name or a policy task (an object)"
+        )
+    return _TASK_NAME.validate_python(value)
+
+
+class PolicyJobCreate(_Wire):
+    """A feedback policy ``π(state, goal) → controls`` to train through the emulator for a policy task
+    (a built-in one of ``GET /policy-tasks`` by name, or a user's own ``PolicyTaskSpec``) and store;
+    every field left out takes the task's (or the trainer's) default."""
+
+    task: Annotated[PolicyTaskName | PolicyTaskSpec, WrapValidator(_task_or_definition)] = Field(
+        description="a built-in policy task of GET /policy-tasks, or a task of your own"
+    )
     seconds: Number | None = Field(
         None,
         ge=MIN_POLICY_SECONDS,

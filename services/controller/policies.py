@@ -1,5 +1,6 @@
 """Policy jobs of the controller, torch-free: their spec, how a request becomes one (checked against the
-built-in policy tasks and the artifact registry at submission), and their curves thinned for the wire.
+built-in policy tasks, or a user's task by ``custom_policy``, and the artifact registry at
+submission), and their curves thinned for the wire.
 
     PolicyJobCreate --policy_spec--> PolicyJobSpec (the queued job's spec, ``"kind": "policy"``)
     --policy_execution.perform_policy, in the worker's job process--> PolicyOutcome
@@ -19,8 +20,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from neuroanimator.artifacts import registry
 from neuroanimator.catalog.tasks import POLICY_TASKS
-from neuroanimator.contracts.controller import HISTORY_POINTS, HistoryPoint, PolicyJobCreate
+from neuroanimator.contracts.controller import HISTORY_POINTS, HistoryPoint, PolicyJobCreate, PolicyTaskSpec
 from services.common import tenancy
+from services.controller.custom_policy import TaskDefinitionError, checked_task
 
 POLICY: Literal["policy"] = "policy"
 JobKind = Literal["control", "policy"]
@@ -28,12 +30,18 @@ JobKind = Literal["control", "policy"]
 
 class PolicyJobSpec(BaseModel):
     """A checked policy job: the task, the emulator it resolved to when queued, and the training
-    settings (None: the trainer's default, ``neuroanimator.control.policy.PolicySettings``)."""
+    settings (None: the trainer's default, ``neuroanimator.control.policy.PolicySettings``).
+
+    ``task`` is the task's name; a user's own task travels whole in ``definition`` (its name and
+    super-step filled in) with its model's state ``labels``, so that a worker builds the same
+    ``PolicyTask`` (``custom_policy.build_task``)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     kind: Literal["policy"] = POLICY
     task: str
+    definition: PolicyTaskSpec | None = None
+    labels: list[str] | None = None
     model: str
     emulator_version: str
     substeps: int = Field(ge=1)
@@ -63,22 +71,18 @@ def job_kind(spec: str) -> JobKind:
 
 def policy_spec(req: PolicyJobCreate, root: registry.Root, max_seconds: float) -> PolicyJobSpec:
     """The job of a request, or ``PolicySpecError``: an unknown task (naming the built-in ones), a budget
-    over ``max_seconds``, or a task whose model has no emulator (that the caller sees) at its
-    super-step."""
+    over ``max_seconds``, a task whose model has no emulator (that the caller sees) at its super-step,
+    or a user's task that does not fit its model (``custom_policy.checked_task``: the field is
+    ``task.<its field>``)."""
+    if isinstance(req.task, PolicyTaskSpec):
+        return _custom_spec(req, req.task, root, max_seconds)
     task = POLICY_TASKS.get(req.task)
     if task is None:
         known = sorted(POLICY_TASKS)
         raise PolicySpecError(
             "task", f"unknown policy task {req.task!r}; built-in: {', '.join(known)}", known, req.task
         )
-    seconds = float(req.seconds) if req.seconds is not None else min(task.train_seconds, max_seconds)
-    if seconds > max_seconds:
-        raise PolicySpecError(
-            "seconds",
-            f"seconds: a policy job trains at most {max_seconds:g} s (POLICY_MAX_SECONDS); got {seconds:g}",
-            f"<= {max_seconds:g}",
-            req.seconds,
-        )
+    seconds = _budget(req, task.train_seconds, max_seconds)
     need = f"an emulator of {task.model!r} at n = {task.substeps}"
     seen = tenancy.can_see(root, task.model)  # another key's unpublished upload: as if there were none
     try:
@@ -104,6 +108,44 @@ def policy_spec(req: PolicyJobCreate, root: registry.Root, max_seconds: float) -
         batch=req.batch,
         hidden=list(req.hidden or task.hidden),
     )
+
+
+def _custom_spec(
+    req: PolicyJobCreate, given: PolicyTaskSpec, root: registry.Root, max_seconds: float
+) -> PolicyJobSpec:
+    """The job of a request with a user's own task, checked against its model's emulator."""
+    try:
+        checked = checked_task(given, root)
+    except TaskDefinitionError as exc:
+        field, message = (f"task.{exc.field}", f"task.{exc}") if exc.field else ("task", f"task: {exc}")
+        raise PolicySpecError(field, message, exc.expected, exc.got) from exc
+    task = checked.task
+    return PolicyJobSpec(
+        task=task.name,
+        definition=checked.definition,
+        labels=list(task.labels),
+        model=task.model,
+        emulator_version=checked.emulator.name,
+        substeps=task.substeps,
+        seconds=_budget(req, task.train_seconds, max_seconds),
+        refine=req.refine,
+        seed=req.seed,
+        batch=req.batch,
+        hidden=list(req.hidden or task.hidden),
+    )
+
+
+def _budget(req: PolicyJobCreate, task_seconds: float, max_seconds: float) -> float:
+    """The training budget: the request's, else the task's (at most ``max_seconds``)."""
+    seconds = float(req.seconds) if req.seconds is not None else min(task_seconds, max_seconds)
+    if seconds > max_seconds:
+        raise PolicySpecError(
+            "seconds",
+            f"seconds: a policy job trains at most {max_seconds:g} s (POLICY_MAX_SECONDS); got {seconds:g}",
+            f"<= {max_seconds:g}",
+            req.seconds,
+        )
+    return seconds
 
 
 def thin(values: Sequence[float | None], most: int = HISTORY_POINTS) -> list[HistoryPoint]:

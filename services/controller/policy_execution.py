@@ -1,10 +1,10 @@
 """``perform_policy``: one run of a policy job, inside the worker's forked job process (``execution.perform``
 starts the run and hands a policy job over to this).
 
-``run_policy_job`` trains the task's policy through its emulator and stores it beside the emulator,
-under the service's data directory; meanwhile the job's ``Watch`` keeps its lease and reads its flags,
-which ``should_stop`` returns, and each iteration's ``PolicyProgress`` goes to Redis as a ``progress``
-event. PyTorch is loaded here, after the fork, as for a control job.
+``run_policy_job`` trains the task's policy (a built-in task by name, a user's task built from the
+job's spec) through its emulator and stores it beside the emulator, under the service's data
+directory; meanwhile the job's ``Watch`` keeps its lease and reads its flags, which ``should_stop``
+returns, and each iteration's ``PolicyProgress`` goes to Redis as a ``progress`` event. PyTorch is loaded here, after the fork, as for a control job.
 
 How a run ends:
 - trained for its budget: succeeded, the result naming the stored policy (its manifest);
@@ -13,8 +13,9 @@ How a run ends:
   unless it was cancelled before its first check on MuJoCo: then nothing is stored;
 - past its budget plus ``POLICY_OVERHEAD_S``: failed ("time limit"), the best policy so far stored;
 - its worker is shutting down: back on the queue, without counting as a failure;
-- ``PolicyJobError`` (no emulator at the task's super-step) or ``GoalsUnreachable`` (MuJoCo reached no
-  goal of the task): failed with the message, nothing stored;
+- ``PolicyJobError`` (no emulator at the task's super-step), ``GoalsUnreachable`` (MuJoCo reached no
+  goal of the task) or ``TaskDefinitionError`` (a user's task that no longer builds): failed with the
+  message, nothing stored;
 - any other exception: back on the queue while ``JOB_RETRIES`` allows, else failed.
 """
 
@@ -27,8 +28,10 @@ from typing import Any, Literal
 from neuroanimator.artifacts.policies import read_policy
 from neuroanimator.contracts.controller import HistoryPoint, PolicyOutcome
 from neuroanimator.core.policy_manifest import PolicyManifest
+from neuroanimator.goals.policy_task import PolicyTask
 from services.common.job_worker import Watch
 from services.common.jobs import JobRecord
+from services.controller.custom_policy import TaskDefinitionError, build_task
 from services.controller.execution import Deadline, ProgressRecorder
 from services.controller.policies import PolicyJobSpec, thin
 from services.controller.settings import Settings
@@ -64,6 +67,16 @@ def training_settings(spec: PolicyJobSpec, threads: int) -> dict[str, Any]:
     }
 
 
+def _task(spec: PolicyJobSpec) -> PolicyTask | str:
+    """A user's task built from its queued definition, else the built-in task's name."""
+    if spec.definition is None:
+        return spec.task
+    try:
+        return build_task(spec.definition, spec.labels or [])
+    except ValueError as exc:  # checked when queued: only a change of the code since gets here
+        raise TaskDefinitionError("", f"policy task {spec.task!r} does not build: {exc}") from exc
+
+
 def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, worker: str) -> str:
     """Run a started delivery of a policy job (``store.start`` made ``rec`` running); returns how it
     ended (for RQ's log)."""
@@ -88,7 +101,7 @@ def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, 
 
         try:
             done = run_policy_job(
-                spec.task,
+                _task(spec),
                 s.roots(),
                 PolicySettings(**training_settings(spec, s.worker_threads)),
                 on_progress=recorder,
@@ -96,7 +109,8 @@ def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, 
                 emulator_version=spec.emulator_version,
                 should_store=should_store,
             )
-        except (PolicyJobError, GoalsUnreachable) as exc:  # a re-run would fail the same way
+        except (PolicyJobError, GoalsUnreachable, TaskDefinitionError) as exc:
+            # a re-run would fail the same way
             failed = PolicyOutcome(
                 status="failed",
                 reason=str(exc),

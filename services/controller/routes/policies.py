@@ -1,10 +1,11 @@
 """Policies: ``POST /policies`` (queue a policy job), ``GET /policies`` and ``GET /policies/{model}/{name}``
 (stored policies), ``GET /policy-tasks`` (the built-in policy tasks).
 
-A policy job trains a feedback policy for a built-in policy task through the task's emulator and
-stores it beside the emulator (``GET /policy-jobs/{id}`` follows it). Stored policies are read from
-the service's registries, the data directory's over the committed defaults; a policy of a model the
-caller does not see (another key's upload) is not listed, and is 404.
+A policy job trains a feedback policy for a policy task (a built-in one by name, or a user's own
+``PolicyTaskSpec``, checked against its model's emulator) through the task's emulator and stores it,
+under the task's name, beside the emulator (``GET /policy-jobs/{id}`` follows it). Stored policies
+are read from the service's registries, the data directory's over the committed defaults; a policy
+of a model the caller does not see (another key's upload) is not listed, and is 404.
 """
 
 from __future__ import annotations
@@ -54,8 +55,9 @@ def create_policy_job(
     owner: OwnerDep,
     settings: SettingsDep,
 ) -> JobAccepted:
-    """Queue a policy job: train a policy for a built-in policy task (``GET /policy-tasks``) and store
-    it; follow it at ``/policy-jobs/{id}`` (the ``Location``). The same ``idempotency_key`` returns the
+    """Queue a policy job: train a policy for a built-in policy task (``GET /policy-tasks``) or a task
+    of your own (an object: model, starts, goal, target, weights, success checks) and store it under
+    the task's name; follow it at ``/policy-jobs/{id}`` (the ``Location``). The same ``idempotency_key`` returns the
     same job."""
     metrics: Metrics = request.app.state.metrics
     try:

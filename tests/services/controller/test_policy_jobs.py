@@ -5,6 +5,9 @@ directory (``NEUROANIMATOR_DATA_DIR``, set per test by the suite's conftest)."""
 
 from __future__ import annotations
 
+import copy
+import json
+import math
 import os
 import socket
 from pathlib import Path
@@ -15,6 +18,7 @@ from fastapi.testclient import TestClient
 from rq.job import Job
 from rq.serializers import JSONSerializer
 
+from services.common import tenancy
 from tests.services.controller.ctl import ARTIFACTS, QUICK, Controller, ctl_fixture, wait_for  # noqa: F401
 from tests.services.queues import sse
 
@@ -220,3 +224,146 @@ def test_past_its_time_limit_a_policy_job_fails_with_the_best_so_far(ctl: Contro
     res = api.get(f"/policy-jobs/{job_id}/result").json()
     # stored when it was checked on MuJoCo before the limit (the usual case), else nothing
     assert res["policy"] is None or res["policy"]["metrics"]["stop"] == "cancelled"
+
+
+# ---------------------------------------------------------------- a user's own policy task
+# the truck parks within 5 m of the origin, facing any heading (its heading weighs nothing and is no
+# goal), from near the origin at rest; trained at the truck's latest emulator (n = 50, 0.5 s)
+TRUCK_NEAR: dict[str, Any] = {
+    "model": "truck",
+    "name": "truck-near",
+    "summary": "Truck: park within 5 m of the origin, facing any heading, and stop there in 10 s.",
+    "episode_s": 10,
+    "starts": {"low": [-1, -1, -math.pi, 0, 0, 0], "high": [1, 1, math.pi, 0, 0, 0]},
+    "goal": {"variables": ["position.x", "position.y"], "low": [-5, -5], "high": [5, 5]},
+    "target_state": [0, 0, 0, 0, 0, 0],
+    "state_weights": [1, 1, 0, 3, 3, 0.5],
+    "success": [
+        {"check": "distance", "variables": ["position.x", "position.y"], "max": 1.5},
+        {"check": "norm", "variables": ["velocity.x", "velocity.y"], "max": 0.5},
+    ],
+    "settle_s": 5,
+}
+
+
+def with_task(**changes: Any) -> dict[str, Any]:
+    """TRUCK_NEAR with some of its fields (``starts__low``: a field of a part) replaced."""
+    task = copy.deepcopy(TRUCK_NEAR)
+    for key, value in changes.items():
+        part, _, field = key.rpartition("__")
+        (task[part] if part else task)[field] = value
+    return task
+
+
+def test_a_custom_policy_task_trains_and_stores_under_its_name(ctl: Controller) -> None:
+    api = ctl.client()
+    r = api.post("/policies", json={"task": TRUCK_NEAR, "seconds": 6, "refine": False, "batch": 16})
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    queued = policy_job(api, job_id)
+    assert (queued["task"], queued["model"], queued["seconds"]) == ("truck-near", "truck", 6.0)
+    latest = (ARTIFACTS / "truck" / "latest").read_text().strip()
+    assert queued["emulator_version"] == latest  # no substeps: the model's latest emulator
+
+    worker = ctl.worker("--burst", "--name", ctl.name("w-custom"))
+    done = policy_ended(api, job_id)
+    assert worker.wait(timeout=60) == 0, ctl.logs()
+    assert done["status"] == "succeeded", (done, ctl.logs())
+    policy = api.get(f"/policy-jobs/{job_id}/result").json()["policy"]
+    assert api.get("/policies/truck/truck-near").json() == policy
+    assert (policy["name"], policy["model"], policy["emulator_version"]) == ("truck-near", "truck", latest)
+    assert policy["description"] == TRUCK_NEAR["summary"]
+    # the goals it was trained for are the task's: position only, inside its 5 m box
+    assert policy["goal_variables"] == ["position.x", "position.y"]
+    assert all(-5 <= lo <= hi <= 5 for lo, hi in zip(policy["goal_low"], policy["goal_high"], strict=True))
+    assert policy["task"]["success"] == TRUCK_NEAR["success"]
+    assert policy["task"]["episode_s"] == 10 and policy["metrics"]["iterations"] >= 1
+
+    # no name: custom-<model>; a super-step of its own: the emulator at that n
+    r = api.post("/policies", json={"task": with_task(name=None, substeps=25), "seconds": 6})
+    assert r.status_code == 202, r.text
+    other = policy_job(api, r.json()["id"])
+    assert other["task"] == "custom-truck" and other["emulator_version"].startswith("n25-")
+    assert api.delete(f"/policy-jobs/{other['id']}").json()["status"] == "cancelled"
+
+
+INF = 1e400  # JSON can carry it (a number too large for a double): it reads as infinity
+BAD_TASKS: list[tuple[dict[str, Any], str, str]] = [
+    (with_task(model="nope"), "task.model", "unknown model 'nope'"),
+    (with_task(substeps=7), "task.substeps", "substeps=7"),
+    (with_task(name="truck-parking"), "task.name", "built-in"),
+    (with_task(name="../x"), "task.name", "pattern"),
+    (with_task(target_state=[0, 0, 0]), "task.target_state", "6 values"),
+    (with_task(state_weights=[1] * 7), "task.state_weights", "6 values"),
+    (with_task(state_weights=[0, 0, 1, 1, 1, 1]), "task.state_weights", "weigh 0"),
+    (with_task(state_weights=[1, 1, -1, 1, 1, 1]), "task.state_weights[2]", "greater than or equal to 0"),
+    (with_task(starts__low=[0, 0, 0]), "task.starts.low", "6 values"),
+    (with_task(starts__low=[2, -1, -1, 0, 0, 0]), "task.starts.low[0]", "above high"),
+    (with_task(starts__random_yaw=True), "task.starts.random_yaw", "no orientation quaternion"),
+    (with_task(goal__variables=["position.x", "position.z"]), "task.goal.variables[1]", "position.z"),
+    (with_task(goal__variables=["position.x", "position.x"]), "task.goal.variables[1]", "twice"),
+    (with_task(goal__low=[-5]), "task.goal.low", "2 values"),
+    (with_task(goal__low=[-5, 6]), "task.goal.low[1]", "above high"),
+    (with_task(goal__high=[5, INF]), "task.goal.high[1]", "finite number"),
+    (with_task(target_state=[0, 0, INF, 0, 0, 0]), "task.target_state[2]", "finite number"),
+    (with_task(state_weights=[1, 1, 0, -INF, 1, 1]), "task.state_weights[3]", "finite number"),
+    (with_task(episode_s=INF), "task.episode_s", "finite number"),
+    (
+        with_task(success=[{"check": "norm", "variables": ["speed"], "max": 1}]),
+        "task.success[0].variables",
+        "speed",
+    ),
+    (with_task(success=[{"check": "distance", "variables": ["heading"]}]), "task.success[0].max", "required"),
+    (with_task(success=[]), "task.success", "at least 1"),
+    (with_task(episode_s=0.2), "task.episode_s", "super-step"),
+    (with_task(goal_period_s=12), "task.goal_period_s", "run's 10 s"),
+    (with_task(goal_period_s=5, check_after_s=6), "task.check_after_s", "period (5 s)"),
+    (with_task(settle_s=11), "task.settle_s", "period (10 s)"),
+    (with_task(wings=2), "task.wings", "xtra"),
+    (with_task(starts=None), "task.starts", "valid dictionary"),
+]
+
+
+@pytest.mark.parametrize(
+    ("task", "field", "text"), BAD_TASKS, ids=[f"{b[1]}-{i}" for i, b in enumerate(BAD_TASKS)]
+)
+def test_bad_custom_tasks_are_422_naming_the_field(
+    ctl: Controller, task: dict[str, Any], field: str, text: str
+) -> None:
+    api = ctl.client(redis_url=f"redis://127.0.0.1:{_closed_port()}/0")
+    # json.dumps writes infinity as Infinity, which JSON lacks: send 1e400, as a client's JSON would
+    body = json.dumps({"task": task, "seconds": 6}).replace("Infinity", "1e400")
+    r = api.post("/policies", content=body, headers={"content-type": "application/json"})
+    assert r.status_code == 422, r.text
+    err = r.json()
+    assert err["field"] == field and text in err["message"], err
+
+
+def test_a_custom_task_names_the_expected_and_the_got(ctl: Controller) -> None:
+    api = ctl.client(redis_url=f"redis://127.0.0.1:{_closed_port()}/0")
+    err = api.post("/policies", json={"task": with_task(goal__variables=["position.x", "speed"])}).json()
+    assert (err["error"], err["got"]) == ("invalid_job", "speed")
+    assert err["expected"] == ["position.x", "position.y", "heading", "velocity.x", "velocity.y", "yaw_rate"]
+    err = api.post("/policies", json={"task": with_task(substeps=7)}).json()
+    assert (err["got"], err["expected"]) == (7, [25, 50, 100])
+    err = api.post("/policies", json={"task": 3}).json()
+    assert err["field"] == "task" and "built-in policy task's name or a policy task" in err["message"]
+
+
+def test_a_custom_task_on_a_model_the_caller_does_not_see_is_422(ctl: Controller, tmp_path: Path) -> None:
+    """Another key's upload of a truck: to this key there is no such model, as for a built-in task."""
+    arts = tmp_path / "arts" / "truck"
+    arts.mkdir(parents=True)
+    for entry in (ARTIFACTS / "truck").iterdir():
+        (arts / entry.name).symlink_to(entry)
+    tenancy.write(tmp_path / "arts", "truck", tenancy.Ownership.new("another-key-id"))
+    api = ctl.client(
+        artifacts_dir=str(tmp_path / "arts"),
+        api_keys="key-a",
+        redis_url=f"redis://127.0.0.1:{_closed_port()}/0",
+    )
+    r = api.post("/policies", json={"task": TRUCK_NEAR}, headers={"Authorization": "Bearer key-a"})
+    assert r.status_code == 422, r.text
+    err = r.json()
+    assert err["field"] == "task.model" and "unknown model 'truck'" in err["message"], err
+    assert "truck" not in err["expected"]

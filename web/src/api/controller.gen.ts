@@ -25,6 +25,7 @@ export interface ControllerWire {
   OptimizerSettings?: OptimizerSettings;
   OptimizerSpec?: OptimizerSpec;
   PathTargetTerm?: PathTargetTerm;
+  PolicyGoalSpec?: PolicyGoalSpec;
   PolicyJobCreate?: PolicyJobCreate;
   PolicyJobList?: PolicyJobList;
   PolicyJobResult?: PolicyJobResult;
@@ -35,8 +36,10 @@ export interface ControllerWire {
   PolicyMetrics?: PolicyMetrics;
   PolicyOutcome?: PolicyOutcome;
   PolicyProgressEvent?: PolicyProgressEvent;
+  PolicyStartsSpec?: PolicyStartsSpec;
   PolicyTaskInfo?: PolicyTaskInfo;
   PolicyTaskList?: PolicyTaskList;
+  PolicyTaskSpec?: PolicyTaskSpec;
   ProgressEvent?: ProgressEvent;
   Refinement?: Refinement;
   RefinementRound?: RefinementRound;
@@ -850,18 +853,54 @@ export interface JobStatus {
   result?: string | null;
 }
 /**
- * A feedback policy ``π(state, goal) → controls`` to train through the emulator for a built-in policy
- * task (``GET /policy-tasks``) and store; every field left out takes the task's (or the trainer's)
- * default.
+ * A user's policy task's goals: values of ``variables`` (state labels) that MuJoCo's runs of the
+ * model's typical motion from the starts reach, within [low, high] per variable (G values each).
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyGoalSpec".
+ */
+export interface PolicyGoalSpec {
+  /**
+   * @minItems 1
+   * @maxItems 1024
+   */
+  variables: [string, ...string[]];
+  /**
+   * @minItems 1
+   * @maxItems 1024
+   */
+  low: [number, ...number[]];
+  /**
+   * @minItems 1
+   * @maxItems 1024
+   */
+  high: [number, ...number[]];
+  /**
+   * only poses passed through at rest (every speed small)
+   */
+  at_rest?: boolean;
+  /**
+   * what counts as at rest
+   */
+  rest_speed?: number;
+  /**
+   * a moving goal's next value within this distance of its last (null: anywhere)
+   */
+  max_move?: number | null;
+}
+/**
+ * A feedback policy ``π(state, goal) → controls`` to train through the emulator for a policy task
+ * (a built-in one of ``GET /policy-tasks`` by name, or a user's own ``PolicyTaskSpec``) and store;
+ * every field left out takes the task's (or the trainer's) default.
  *
  * This interface was referenced by `ControllerWire`'s JSON-Schema
  * via the `definition` "PolicyJobCreate".
  */
 export interface PolicyJobCreate {
   /**
-   * a built-in policy task of GET /policy-tasks
+   * a built-in policy task of GET /policy-tasks, or a task of your own
    */
-  task: string;
+  task: string | PolicyTaskSpec;
   /**
    * the training budget in seconds (default: the task's; at most POLICY_MAX_SECONDS)
    */
@@ -895,6 +934,104 @@ export interface PolicyJobCreate {
    * the same key (and body) returns the same job instead of a new one
    */
   idempotency_key?: string | null;
+}
+/**
+ * A user's own policy task (what ``GET /policy-tasks`` lists of a built-in one): a model, where its
+ * runs start, which goals it is asked to reach and how success is judged. States are S values in the
+ * model's state order (its emulator's ``state_labels``); the target state has the goal written into
+ * its goal variables; ``success`` checks are those of a control job (``POST /jobs``).
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyTaskSpec".
+ */
+export interface PolicyTaskSpec {
+  /**
+   * a model in the artifact registry
+   */
+  model: string;
+  /**
+   * the emulator's super-step n, the policy's control period (default: the model's latest)
+   */
+  substeps?: number | null;
+  /**
+   * the stored policy's name, a plain name (default: custom-<model>)
+   */
+  name?: string | null;
+  /**
+   * what the task asks, in words
+   */
+  summary?: string;
+  /**
+   * a run's length in seconds
+   */
+  episode_s: number;
+  starts: PolicyStartsSpec;
+  goal: PolicyGoalSpec;
+  /**
+   * the state to reach, S values (the goal's values replace its goal variables)
+   *
+   * @minItems 1
+   * @maxItems 1024
+   */
+  target_state: [number, ...number[]];
+  /**
+   * each state variable's weight in the distance to the target, S values
+   *
+   * @minItems 1
+   * @maxItems 1024
+   */
+  state_weights: [number, ...number[]];
+  /**
+   * checks that define a run's success
+   *
+   * @minItems 1
+   * @maxItems 32
+   */
+  success: [SuccessCheckSpec, ...SuccessCheckSpec[]];
+  /**
+   * a new goal every so many seconds (null: one goal per run)
+   */
+  goal_period_s?: number | null;
+  /**
+   * the checks hold this long after each goal is set (default: at its period's end)
+   */
+  check_after_s?: number | null;
+  /**
+   * seconds after a goal is set from which the distance to it fully counts
+   */
+  settle_s?: number;
+  /**
+   * the policy is told how long is left until the check
+   */
+  timed?: boolean;
+}
+/**
+ * Where a user's policy task's runs start: every state variable uniform in [low, high] (S values
+ * each, in the model's state order); a model with an orientation quaternion turned by a random yaw
+ * (``random_yaw``) and tilted by at most ``max_tilt`` radians from upright.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyStartsSpec".
+ */
+export interface PolicyStartsSpec {
+  /**
+   * @minItems 1
+   * @maxItems 1024
+   */
+  low: [number, ...number[]];
+  /**
+   * @minItems 1
+   * @maxItems 1024
+   */
+  high: [number, ...number[]];
+  /**
+   * any heading (a model with a quaternion only)
+   */
+  random_yaw?: boolean;
+  /**
+   * radians from upright (a model with a quaternion only)
+   */
+  max_tilt?: number;
 }
 /**
  * The caller's policy jobs, newest first.
@@ -1017,6 +1154,10 @@ export interface PolicyMetrics {
    */
   mujoco_steps?: number;
   iterations?: number;
+  /**
+   * fine-tunings of its emulator copy on the policy's MuJoCo runs
+   */
+  refinements?: number;
   wall_s?: number;
   stop?: string;
 }
