@@ -49,6 +49,7 @@ import logging
 import statistics
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -63,6 +64,7 @@ from neuroanimator.control import policy_job
 from neuroanimator.control.job import run_job
 from neuroanimator.control.policy import PolicyResult, PolicySettings, PolicyTrainer, frozen_step
 from neuroanimator.control.policy_data import reached_goals, sample_starts
+from neuroanimator.control.policy_store import save_policy
 from neuroanimator.goals.policy_task import PolicyTask
 
 log = logging.getLogger("bench.policies")
@@ -201,6 +203,9 @@ def bench_task(name: str, index: int, root: registry.Root, args: argparse.Namesp
     trainer = PolicyTrainer(task, path, settings)
     result: PolicyResult = trainer.train()
     log.info("%s: trained for %.1f s, %d iterations", name, result.wall_s, result.iterations)
+    if args.save_to:  # the policy measured here, stored (the committed defaults are these)
+        goals_seen = result.goals if result.goals is not None else trainer.pool.goals
+        log.info("%s: stored in %s", name, save_policy(Path(args.save_to), result, goals_seen))
 
     runs = QUICK_HELD_OUT if args.quick else args.held_out
     starts, goals = held_out(trainer, task, runs, index)
@@ -276,6 +281,7 @@ def main(argv: list[str] | None = None) -> int:
         help="torch threads for all three (the policy's training default)",
     )
     p.add_argument("--quick", action="store_true", help="seconds of training, 16 held-out runs: a smoke test")
+    p.add_argument("--save-to", help="also store each trained policy in this artifact folder")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")

@@ -105,5 +105,6 @@ POLICY_FOLLOW = PolicyTask(
     goal_period_s=5.0,
     check_after_s=2.0,
     settle_s=1.5,
+    train_seconds=300.0,
 )
 POLICY_TASKS = (POLICY_FOLLOW,)

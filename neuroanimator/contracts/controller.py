@@ -499,6 +499,7 @@ class PolicyGoalSpec(_Wire):
     high: Annotated[list[Bounded], Field(min_length=1, max_length=MAX_VECTOR)]
     at_rest: Flag = Field(False, description="only poses passed through at rest (every speed small)")
     rest_speed: Number = Field(0.3, gt=0, le=MAX_VALUE, description="what counts as at rest")
+    holdable: Flag = Field(False, description="only poses the model's controls can hold still")
     max_move: Number | None = Field(
         None,
         gt=0,

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from neuroanimator.core import quaternion as quat
 from neuroanimator.goals.policy_task import PolicyTask
 from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.sim.operating import hold_controls
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -44,6 +45,22 @@ def sample_starts(model: PhysicalModel, task: PolicyTask, rng: np.random.Generat
         )
         states[:, sl] = q / np.linalg.norm(q, axis=1, keepdims=True)
     return states
+
+
+HOLD_TOLERANCE = 1e-3  # the generalised force a pose may leave unbalanced and count as held (N, N·m)
+
+
+def holdable(model: PhysicalModel, states: FloatArray, limit: int) -> NDArray[np.bool_]:
+    """(N,) which of the states (N, S) their model's controls can hold still (``hold_controls``), the
+    first ``limit`` of them checked (the rest are not kept)."""
+    m = model.mj_model
+    full = model.to_physics(np.asarray(states[:limit], dtype=np.float64))
+    at = model.qpos_slice
+    ok = np.zeros(len(states), dtype=bool)
+    for i, row in enumerate(full):
+        _, _, left = hold_controls(m, row[at])
+        ok[i] = left < HOLD_TOLERANCE
+    return ok
 
 
 @dataclass
@@ -113,6 +130,8 @@ def reached_goals(
         keep = np.all((g >= lo) & (g <= hi), axis=1)
         if task.goal.at_rest and speed_cols.size:
             keep &= np.all(np.abs(flat[:, speed_cols]) < task.goal.rest_speed, axis=1)
+        if task.goal.holdable:
+            keep[keep] = holdable(model, flat[keep], count)
         found.append(g[keep])
         if sum(len(x) for x in found) >= count:
             break

@@ -44,10 +44,11 @@ class StartBox:
 @dataclass(frozen=True)
 class GoalSpec:
     """A policy's goals: values of ``variables`` (state labels) taken from states MuJoCo reaches in the
-    model's typical motion from the task's starts, within [low, high] per variable. ``at_rest`` keeps
-    only states whose speeds (every ``qvel`` variable) are below ``rest_speed``: poses the model passes
-    through at rest, the turning points of a swing. A goal that moves (``PolicyTask.goal_period_s``)
-    moves at most ``max_move`` (the Euclidean distance over its variables) each time."""
+        model's typical motion from the task's starts, within [low, high] per variable. ``at_rest`` keeps
+        only states whose speeds (every ``qvel`` variable) are below ``rest_speed``: poses the model passes
+        through at rest, the turning points of a swing; ``holdable`` only those its controls can then hold
+    still, within their ranges (a pose to go to and stay at). A goal that moves (``PolicyTask.goal_period_s``)
+        moves at most ``max_move`` (the Euclidean distance over its variables) each time."""
 
     variables: tuple[str, ...]
     low: tuple[float, ...]
@@ -55,6 +56,7 @@ class GoalSpec:
     at_rest: bool = False
     rest_speed: float = 0.3
     max_move: float | None = None  # a moving goal's next value within this distance of its last
+    holdable: bool = False  # only poses the model's controls can hold still (within their ranges)
 
     def __post_init__(self) -> None:
         if not (len(self.variables) == len(self.low) == len(self.high)) or not self.variables:

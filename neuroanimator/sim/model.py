@@ -428,6 +428,11 @@ class PhysicalModel:
         """(S,) the state at MuJoCo's qpos0 with zero velocity."""
         return self._rest.copy()
 
+    @property
+    def qpos_slice(self) -> slice:
+        """Where ``qpos`` lies in a full-physics state (``to_physics``)."""
+        return slice(self._qpos_at, self._qpos_at + self.mj_model.nq)
+
     def to_physics(self, states: FloatArray) -> FloatArray:
         """(B, S) emulator states -> (B, nfull) MuJoCo full-physics states."""
         full = np.repeat(self._template[None, :], states.shape[0], axis=0)

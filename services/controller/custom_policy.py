@@ -101,6 +101,7 @@ def build_task(definition: PolicyTaskSpec, labels: Sequence[str]) -> PolicyTask:
             high=tuple(goal.high),
             at_rest=goal.at_rest,
             rest_speed=goal.rest_speed,
+            holdable=goal.holdable,
             max_move=goal.max_move,
         ),
         target_state=tuple(definition.target_state),

@@ -23,6 +23,7 @@ from neuroanimator.control.policy_job import PolicyJobError, emulator_for, polic
 from neuroanimator.control.policy_net import PolicyNet, PolicyShape, describe_columns
 from neuroanimator.control.policy_store import load_policy_net
 from neuroanimator.goals.policy_task import GoalSpec
+from neuroanimator.sim.operating import hold_controls
 
 TINY = PolicySettings(
     seconds=120, max_iterations=6, batch=32, refine=False, refine_every=1.0, refine_runs=8, evaluate_runs=8
@@ -52,13 +53,18 @@ def test_a_task_names_its_wrong_sizes_and_unknown_goal_variables() -> None:
 def test_goals_are_states_mujoco_reaches_within_the_box() -> None:
     model = catalog.CATALOG["pendulum-active"]()
     task = pendulum.POLICY_SWING
-    pool = reached_goals(model, task, task.substeps, np.random.default_rng(0), count=64, runs=64)
-    assert pool.goals.shape == (64, 3)
+    pool = reached_goals(model, task, task.substeps, np.random.default_rng(0), count=16, runs=64)
+    assert pool.goals.shape == (16, 3)
     assert np.all(np.abs(pool.goals) <= 1.5)
     assert pool.mujoco_steps > 0 and np.all(pool.state_scale > 0)
+    # each a pose the motors hold still, within their ±2 N·m
+    for g in pool.goals:
+        full = model.to_physics(np.concatenate([g, np.zeros(3)])[None])[0]
+        controls, _, left = hold_controls(model.mj_model, full[model.qpos_slice])
+        assert left < 1e-3 and np.all(np.abs(controls) <= 2.0)
     # a goal box nothing reaches is refused, naming the variables and the box
     far = dataclasses.replace(
-        task, goal=GoalSpec(variables=("angles.j0",), low=(10.0,), high=(11.0,), at_rest=True)
+        task, goal=GoalSpec(variables=("angles.j0",), low=(10.0,), high=(11.0,), at_rest=True, holdable=True)
     )
     with pytest.raises(GoalsUnreachable, match=r"angles.j0'\] within \[10.0\]..\[11.0\]"):
         reached_goals(model, far, task.substeps, np.random.default_rng(0), count=8, runs=8)
@@ -158,7 +164,7 @@ def test_the_schedule_checks_after_each_move_and_weighs_each_goal_alike() -> Non
     assert (sch.steps, sch.per_goal, sch.check, sch.goals) == (160, 40, 16, 4)
     assert sch.check_steps() == [16, 56, 96, 136]
     assert sch.weights.reshape(4, 40).sum(axis=1) == pytest.approx([1.0] * 4)
-    timed = Schedule(dataclasses.replace(pendulum.POLICY_SWING, settle_s=0.0), 0.25)
+    timed = Schedule(dataclasses.replace(pendulum.POLICY_SWING, settle_s=0.0, timed=True), 0.25)
     assert timed.time_left(0) == 1.0 and timed.time_left(79) == pytest.approx(1 / 80)
     assert timed.weights[:60].sum() == 0.0  # a timed task counts only arriving on time
 

@@ -884,6 +884,10 @@ export interface PolicyGoalSpec {
    */
   rest_speed?: number;
   /**
+   * only poses the model's controls can hold still
+   */
+  holdable?: boolean;
+  /**
    * a moving goal's next value within this distance of its last (null: anywhere)
    */
   max_move?: number | null;
