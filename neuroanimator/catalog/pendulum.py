@@ -155,5 +155,6 @@ POLICY_SWING = PolicyTask(
     state_weights=(1.0, 1.0, 1.0, 1.0, 1.0, 1.0),
     success=SWING.success,
     settle_s=8.0,
+    train_seconds=300.0,
 )
 POLICY_TASKS = (POLICY_SWING,)
