@@ -137,13 +137,14 @@ class CheckPenalty:
         r = self.residuals(final, margin)
         return (r * r).sum(-1)
 
-    def residuals(self, final: Tensor, margin: float) -> Tensor:
+    def residuals(self, final: Tensor, margin: float, targets: Tensor | None = None) -> Tensor:
         """final (..., S) -> (..., C): each check's ``max(0, r − margin)`` (a range check's scaled
-        violation per variable), whose squares sum to the penalty."""
+        violation per variable), whose squares sum to the penalty; ``targets`` (..., S), where given,
+        are each row's own target state (a policy's goals), else the one given when built."""
         parts: list[Tensor] = []
         for c, idx, tgt in self.items:
             x = final[..., idx]
-            t = tgt.to(final.dtype)
+            t = tgt.to(final.dtype) if targets is None or c.target is not None else targets[..., idx]
             if c.check == "range":
                 lo, hi = c.min, c.max
                 width = (hi - lo) if lo is not None and hi is not None else 1.0
@@ -158,7 +159,7 @@ class CheckPenalty:
             b = c.bound
             if c.check == "orientation":
                 q = x / torch.sqrt((x * x).sum(-1, keepdim=True) + 1e-12)
-                qd = t / t.norm()
+                qd = t / t.norm(dim=-1, keepdim=True)
                 dot = (q * qd).sum(-1)
                 r = (1.0 - dot * dot) / max(float(np.sin(b / 2)) ** 2, 1e-12)
             elif c.check == "angle":

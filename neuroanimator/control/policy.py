@@ -41,6 +41,7 @@ from torch import Tensor, nn
 from neuroanimator.artifacts import registry
 from neuroanimator.artifacts import store as artifacts
 from neuroanimator.control.bptt import FastStep, FrozenStep
+from neuroanimator.control.objectives import CheckPenalty
 from neuroanimator.control.policy_data import GoalPool, reached_goals, sample_starts
 from neuroanimator.control.policy_net import (
     PolicyNet,
@@ -59,6 +60,7 @@ from neuroanimator.sim.sampling import Sequences
 from neuroanimator.training.train import train_over_rollouts
 
 log = logging.getLogger(__name__)
+CHECK_MARGIN = 0.25  # a check met with room to spare: its measure within half its bound
 FloatArray = NDArray[np.float64]
 
 
@@ -204,6 +206,7 @@ class PolicyTrainer:
         on_progress: Callable[[PolicyProgress], None] | None = None,
         should_stop: Callable[[], bool] | None = None,
     ) -> None:
+        self.t0 = time.perf_counter()  # the budget counts everything: loading, drawing the goals
         self.task, self.settings = task, settings
         self.manifest = registry.read_manifest(path)
         self.path = path
@@ -222,10 +225,10 @@ class PolicyTrainer:
         self.mujoco_steps = self.pool.mujoco_steps
         self.net = PolicyNet(self._shape())
         self.distance = TargetDistance(self.manifest, task.state_weights)
+        self.checks = CheckPenalty(task.success, self.manifest.layout, list(task.target_state))
         self.target = torch.tensor(task.target_state, dtype=torch.float32)
         self.goal_cols = task.goal_columns
         self.refinements = 0  # fine-tunings of the emulator on the policy's MuJoCo runs
-        self.t0 = time.perf_counter()
 
     def _shape(self) -> PolicyShape:
         task, m, pool = self.task, self.manifest, self.pool
@@ -291,6 +294,13 @@ class PolicyTrainer:
                 + self.task.control_weight * effort.mean() / sch.steps
             )
         return total
+
+    def check_margin(self, states: Tensor, targets: Tensor) -> Tensor:
+        """(B,) how far states (B,S) are from meeting every success check with room to spare (each
+        check's measure within half its bound): Σ_checks √max(0, r − ¼), r the measure over the bound,
+        squared (``objectives.CheckPenalty``); about the measure in units of its bound once outside."""
+        r = self.checks.residuals(states, CHECK_MARGIN, targets.to(states.dtype))
+        return torch.sqrt(r + 1e-6).sum(dim=1)
 
     @torch.no_grad()
     def run(self, starts: FloatArray, goals: FloatArray, physics: bool) -> Evaluation:

@@ -15,7 +15,9 @@ rollout is the weighted distance of every state to the target (``state_weights``
 time it can be expected to hold (``settle_s`` after a goal is set) and lightly before. A ``timed``
 task also tells the policy how long is left until the check (a lander that must touch down as the
 run ends; a pendulum that must arrive at a pose at rest at a given time, at the top of a swing);
-without ``settle_s`` only arriving on time counts.
+without ``settle_s`` only arriving on time counts. At the state the checks judge, the loss also counts
+how far each check is from being met with room to spare (``check_weight``): the distance trades
+its variables against each other, a check does not.
 
 Torch-free and MuJoCo-free; the catalog defines its tasks beside its models (``POLICY_TASKS``).
 """
@@ -89,6 +91,7 @@ class PolicyTask:
     settle_s: float = 0.0
     timed: bool = False
     control_weight: float = 1e-3
+    check_weight: float = 1.0  # the success checks' own margin at the state they judge, beside the distance
     hidden: tuple[int, ...] = (64, 64)  # small: it runs beside the emulator every served super-step
     train_seconds: float = 600.0
     extra: dict[str, Any] = field(default_factory=dict)
