@@ -134,5 +134,6 @@ POLICY_LANDING = PolicyTask(
     success=LANDING.success,
     settle_s=10.0,
     timed=True,  # touch down (moving down, slowly) as the run ends, not hover above the pad
+    train_seconds=900.0,
 )
 POLICY_TASKS = (POLICY_LANDING,)
