@@ -129,3 +129,20 @@ def test_the_websocket_client_keeps_the_lander_up(services: dict[str, str]) -> N
     asyncio.run(scope["main"](sid))
     state = httpx.get(f"{emulator}/sessions/{sid}").json()["state"]
     assert state[2] > 8.0, f"the lander fell to z = {state[2]:.1f} m during the example"
+
+
+def test_the_policy_example_lands_on_the_pad(services: dict[str, str]) -> None:
+    """The README's policy session, as written, on the committed lander-landing policy: after its 80
+    super-steps (20 s) the lander is down on the pad it was given, as the task judges a landing."""
+    commands = curl_commands(the_block("bash", '"policy"'))
+    assert len(commands) == 2
+    with httpx.Client(timeout=120) as http:
+        method, url, headers, body = request(commands[0], services)
+        r = http.request(method, url, headers=headers, content=body)
+        assert r.status_code == 201, r.text
+        method, url, headers, body = request(commands[1], services)
+        r = http.request(method, url.replace(SESSION, r.json()["id"]), headers=headers, content=body)
+        assert r.status_code == 200, r.text
+    final = r.json()["states"][-1]
+    assert abs(final[0] - 5) < 1 and abs(final[1] + 3) < 1 and abs(final[2]) < 1, final[:3]
+    assert -1.0 <= final[9] <= 0.0  # coming down softly
