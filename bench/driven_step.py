@@ -166,25 +166,34 @@ def ort_only(
     g = int(next(i for i in pol.get_inputs() if i.name == "goal").shape[1])
     rng = np.random.default_rng(0)
     out = {}
+    reads_time = any(i.name == "time_left" for i in pol.get_inputs())
     for b in sizes:
         x = rng.normal(size=(b, s)).astype(np.float32)
         goal = rng.normal(size=(b, g)).astype(np.float32)
+        # a timed policy (the landing) also reads the time left until its check
+        extra = {"time_left": np.full((b, 1), 0.5, np.float32)} if reads_time else {}
 
         def emulator(x: NDArray[np.float32] = x) -> object:
             return emu.run(None, {"state": x, "controls": np.zeros((len(x), u), np.float32)})
 
-        def policy(x: NDArray[np.float32] = x, goal: NDArray[np.float32] = goal) -> object:
-            return pol.run(None, {"state": x, "goal": goal})
+        def policy(
+            x: NDArray[np.float32] = x, goal: NDArray[np.float32] = goal, extra: dict[str, Any] = extra
+        ) -> object:
+            return pol.run(None, {"state": x, "goal": goal, **extra})
 
-        def in_turn(x: NDArray[np.float32] = x, goal: NDArray[np.float32] = goal) -> object:
-            c = pol.run(None, {"state": x, "goal": goal})[0]
+        def in_turn(
+            x: NDArray[np.float32] = x, goal: NDArray[np.float32] = goal, extra: dict[str, Any] = extra
+        ) -> object:
+            c = pol.run(None, {"state": x, "goal": goal, **extra})[0]
             return emu.run(None, {"state": x, "controls": c})
 
-        def merged(x: NDArray[np.float32] = x, goal: NDArray[np.float32] = goal) -> object:
-            return both.run(None, {"state": x, "goal": goal})
+        def merged(
+            x: NDArray[np.float32] = x, goal: NDArray[np.float32] = goal, extra: dict[str, Any] = extra
+        ) -> object:
+            return both.run(None, {"state": x, "goal": goal, **extra})
 
-        sep = pol.run(None, {"state": x, "goal": goal})[0]
-        one = both.run(None, {"state": x, "goal": goal})
+        sep = pol.run(None, {"state": x, "goal": goal, **extra})[0]
+        one = both.run(None, {"state": x, "goal": goal, **extra})
         np.testing.assert_allclose(one[0], sep, rtol=1e-5, atol=1e-5)  # the same controls either way
         out[b] = {
             f"ort_{name}_us": timed(fn, seconds / 4) * 1e6
