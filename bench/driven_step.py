@@ -63,7 +63,8 @@ def ensure_policy(data: Path) -> Path:
     task = POLICY_TASKS[POLICY]
     path = registry.resolve(roots, MODEL, None, SUBSTEPS)
     log.info("training a %s policy for 3 s through %s", POLICY, path.name)
-    result = train_policy(task, path, PolicySettings(seconds=3, refine=False, evaluate_runs=4, refine_runs=4))
+    settings = PolicySettings(seconds=60, max_iterations=3, refine=False, evaluate_runs=4, refine_runs=4)
+    result = train_policy(task, path, settings)
     assert result.goals is not None
     return save_policy(roots, result, result.goals)
 

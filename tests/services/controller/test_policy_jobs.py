@@ -18,12 +18,18 @@ from fastapi.testclient import TestClient
 from rq.job import Job
 from rq.serializers import JSONSerializer
 
+from neuroanimator.artifacts.policies import list_policies
 from services.common import tenancy
 from tests.services.controller.ctl import ARTIFACTS, QUICK, Controller, ctl_fixture, wait_for  # noqa: F401
 from tests.services.queues import sse
 
 # a few seconds of training without refinement, a small batch: several iterations in the budget
 QUICK_POLICY = {"task": "lander-landing", "seconds": 6, "refine": False, "batch": 16}
+
+
+def committed_policies() -> dict[tuple[str, str], str]:
+    """(model, name) -> version of the committed default policies (read beside a test's own)."""
+    return {(m.model, m.name): m.version for m in list_policies(ARTIFACTS)}
 
 
 def _closed_port() -> int:
@@ -114,8 +120,10 @@ def test_a_policy_job_trains_stores_and_reads_back(ctl: Controller) -> None:
     # stored where the service reads policies, in this test's data directory
     assert api.get("/policies/lander/lander-landing").json() == policy
     assert api.get("/policies/lander/lander-landing", params={"version": policy["version"]}).json() == policy
-    assert [p["version"] for p in api.get("/policies").json()["policies"]] == [policy["version"]]
-    assert api.get("/policies", params={"model": "truck"}).json()["policies"] == []
+    listed = {(p["model"], p["name"]): p["version"] for p in api.get("/policies").json()["policies"]}
+    assert listed == {**committed_policies(), ("lander", "lander-landing"): policy["version"]}
+    truck = api.get("/policies", params={"model": "truck"}).json()["policies"]
+    assert [p["version"] for p in truck] == [committed_policies()[("truck", "truck-parking")]]
     folder = Path(os.environ["NEUROANIMATOR_DATA_DIR"]) / "policies" / "lander" / "lander-landing"
     assert (folder / policy["version"] / "policy.onnx").is_file()
     assert [j["id"] for j in api.get("/policy-jobs").json()["jobs"]] == [job_id]
@@ -189,7 +197,8 @@ def test_cancel_a_queued_policy_job_stores_nothing(ctl: Controller) -> None:
     assert api.delete(f"/policy-jobs/{job_id}").status_code == 409  # already ended
     res = api.get(f"/policy-jobs/{job_id}/result").json()
     assert (res["status"], res["policy"], res["iterations"]) == ("cancelled", None, 0)
-    assert api.get("/policies").json()["policies"] == []
+    listed = {(p["model"], p["name"]): p["version"] for p in api.get("/policies").json()["policies"]}
+    assert listed == committed_policies()  # the committed defaults, nothing new
     # a control job is not a policy job
     control = api.post("/jobs", json=QUICK).json()["id"]
     wrong = api.get(f"/policy-jobs/{control}")
@@ -211,7 +220,9 @@ def test_cancel_a_running_policy_job_before_its_first_check_stores_nothing(ctl: 
     assert "before its first check on MuJoCo; nothing stored" in done["error"]
     res = api.get(f"/policy-jobs/{job_id}/result").json()
     assert res["policy"] is None and res["iterations"] >= 1
-    assert api.get("/policies/lander/lander-landing").status_code == 404
+    # the lander's latest policy is still the committed default
+    latest = api.get("/policies/lander/lander-landing").json()["version"]
+    assert latest == committed_policies()[("lander", "lander-landing")]
 
 
 def test_past_its_time_limit_a_policy_job_fails_with_the_best_so_far(ctl: Controller) -> None:
