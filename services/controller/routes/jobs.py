@@ -69,7 +69,8 @@ def _lookup(spec: Mapping[str, object], field: str) -> Any:
     return value
 
 
-def _float(value: Any) -> float | None:
+def number(value: Any) -> float | None:
+    """A progress value as a float; None for anything that is not a number (a missing loss, a flag)."""
     return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
 
 
@@ -79,7 +80,7 @@ def _best_so_far(prog: Mapping[str, Any]) -> BestSoFar | None:
     if prog.get("best_objective") is None and not extra:
         return None
     return BestSoFar(
-        iteration=prog.get("best_iteration"), objective=_float(prog.get("best_objective")), **extra
+        iteration=prog.get("best_iteration"), objective=number(prog.get("best_objective")), **extra
     )
 
 
@@ -101,11 +102,11 @@ def job_status(rec: JobRecord) -> JobStatus:
         worker=rec.worker or None,
         iteration=int(prog.get("iteration") or 0),
         max_iterations=spec.optimizer.max_iterations,
-        objective=_float(prog.get("objective")),
-        best_objective=_float(prog.get("best_objective")),
+        objective=number(prog.get("objective")),
+        best_objective=number(prog.get("best_objective")),
         success_emulator=prog.get("success_emulator"),
-        elapsed_s=_float(prog.get("elapsed_s")),
-        objective_history=[_float(v) for v in rec.history],
+        elapsed_s=number(prog.get("elapsed_s")),
+        objective_history=[number(v) for v in rec.history],
         best=_best_so_far(prog),
         error=rec.error or None,
         result=f"/jobs/{rec.id}/result" if rec.status in FINAL_STATES else None,

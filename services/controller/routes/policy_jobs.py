@@ -33,15 +33,11 @@ from services.common.jobs import JobRecord
 from services.common.openapi import Responses
 from services.controller.deps import SettingsDep, StoreDep
 from services.controller.policies import POLICY, PolicyJobSpec, thin
-from services.controller.routes.jobs import jobs_of_kind, owned
+from services.controller.routes.jobs import jobs_of_kind, number, owned
 from services.controller.store import JobStore
 
 router = APIRouter(tags=["policy jobs"])
 _ERRORS: Responses = {404: {"model": ErrorBody}, 409: {"model": ErrorBody}, 503: {"model": ErrorBody}}
-
-
-def _float(value: object) -> float | None:
-    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
 
 
 def policy_job_status(rec: JobRecord) -> PolicyJobStatus:
@@ -63,11 +59,11 @@ def policy_job_status(rec: JobRecord) -> PolicyJobStatus:
         failures=rec.failures,
         worker=rec.worker or None,
         iteration=int(prog.get("iteration") or 0),
-        loss=_float(prog.get("loss")),
-        success_physics=_float(prog.get("success_physics")),
+        loss=number(prog.get("loss")),
+        success_physics=number(prog.get("success_physics")),
         mujoco_steps=int(prog.get("mujoco_steps") or 0),
-        elapsed_s=_float(prog.get("elapsed_s")),
-        loss_history=thin([_float(v) for v in rec.history]),
+        elapsed_s=number(prog.get("elapsed_s")),
+        loss_history=thin([number(v) for v in rec.history]),
         error=rec.error or None,
         result=f"/policy-jobs/{rec.id}/result" if rec.status in FINAL_STATES else None,
     )
