@@ -55,6 +55,7 @@ from typing import Any
 import numpy as np
 import torch
 from _model_free import ALGORITHMS, run_agent, train_model_free
+from _suite import bench_suite_task
 from numpy.typing import NDArray
 
 from neuroanimator.artifacts import registry
@@ -65,6 +66,7 @@ from neuroanimator.control.job import run_job
 from neuroanimator.control.policy import PolicyResult, PolicySettings, PolicyTrainer, frozen_step
 from neuroanimator.control.policy_data import reached_goals, sample_starts
 from neuroanimator.control.policy_store import save_policy
+from neuroanimator.control.suite_tasks import SUITE_TASKS
 from neuroanimator.goals.policy_task import PolicyTask
 
 log = logging.getLogger("bench.policies")
@@ -266,11 +268,37 @@ def table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines + notes)
 
 
+def suite_table(rows: list[dict[str, Any]]) -> str:
+    head = (
+        "| task | n | return: MuJoCo | return: emulator | target | MuJoCo steps | wall s (emulator) | "
+        "SAC: MuJoCo | SAC: MuJoCo steps | SAC: wall s |"
+    )
+    lines = [head, "|" + "---|" * 10]
+    for r in rows:
+        mf = r["model_free"]
+        lines.append(
+            f"| {r['task']} | {r['substeps']} | {r['return_physics']:.1f} | {r['return_emulator']:.1f} | "
+            f"{r['target_return']:g} | {r['mujoco_steps']:,} | {r['wall_s']} ({r['emulator_wall_s']}) | "
+            f"{mf['return_physics']:.1f} | {mf['mujoco_steps']:,} | {mf['wall_s']} |"
+        )
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--tasks", default=",".join(POLICY_TASKS))
+    p.add_argument("--tasks", default=",".join([*POLICY_TASKS, *SUITE_TASKS]))
     p.add_argument(
         "--seconds", type=float, default=None, help="each policy's training budget (default: the task's)"
+    )
+    p.add_argument(
+        "--suite-seconds",
+        type=float,
+        default=None,
+        help="a suite task's budget, all in: its emulator and its policy (default: 30 minutes)",
+    )
+    p.add_argument(
+        "--artifacts",
+        help="where the suite tasks' emulators are found, or trained and kept (default: the data directory)",
     )
     p.add_argument("--held-out", type=int, default=100, help="held-out starts and goals per task")
     p.add_argument("--open-loop-runs", type=int, default=10, help="held-out pairs given to open-loop jobs")
@@ -289,9 +317,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
     logging.getLogger("bench").setLevel(logging.INFO)
     names = args.tasks.split(",")
-    unknown = [n for n in names if n not in POLICY_TASKS]
+    unknown = [n for n in names if n not in POLICY_TASKS and n not in SUITE_TASKS]
     if unknown:
-        p.error(f"--tasks: unknown policy tasks {unknown}; expected some of {list(POLICY_TASKS)}")
+        p.error(f"--tasks: unknown policy tasks {unknown}; expected some of {[*POLICY_TASKS, *SUITE_TASKS]}")
     if args.held_out < 1 or args.open_loop_runs < 0 or args.threads < 1:
         p.error(
             "--held-out and --threads must be >= 1 and --open-loop-runs >= 0, got "
@@ -300,10 +328,19 @@ def main(argv: list[str] | None = None) -> int:
     root = registry.Roots.default()
     t0 = time.perf_counter()
     rows = []
+    suite_root = Path(args.artifacts) if args.artifacts else registry.writable(root)
     for name in names:
-        rows.append(bench_task(name, list(POLICY_TASKS).index(name), root, args))
+        if name in SUITE_TASKS:
+            rows.append(bench_suite_task(name, suite_root, args.suite_seconds, args.seed, args.quick))
+        else:
+            rows.append(bench_task(name, list(POLICY_TASKS).index(name), root, args))
         log.info("%s: done (%.0f s)", name, time.perf_counter() - t0)
-    print(table(rows))
+    catalog_rows = [r for r in rows if r["task"] in POLICY_TASKS]
+    suite_rows = [r for r in rows if r["task"] in SUITE_TASKS]
+    if catalog_rows:
+        print(table(catalog_rows))
+    if suite_rows:
+        print(suite_table(suite_rows))
     if args.json:
         settings = {
             "seconds": args.seconds,

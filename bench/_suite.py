@@ -1,0 +1,215 @@
+"""dm_control's suite tasks in ``bench/policies.py``: a policy learned through the emulator with the
+suite's reward, beside Stable-Baselines3's SAC trained on MuJoCo itself for the same wall time.
+
+For each task (``control.suite_tasks.SUITE_TASKS``), all in, on the same torch threads:
+
+1. the emulator at the task's control period (``SuiteTask.substeps``): the one in ``--artifacts``
+   (the data directory by default), else trained now (``neuro train --mjcf <domain>.xml --substeps
+   n``, the defaults otherwise), its time counted in the task's wall time and its simulated examples in
+   its MuJoCo steps;
+2. the policy (``reward_policy.train_reward_policy``) for what is left of the task's budget
+   (``--suite-seconds``, default the task's ``train_seconds`` = 25 minutes, plus the emulator's);
+3. SAC on MuJoCo (``SuiteEnv``: the same control period, the suite's starts and exact reward summed over
+   each action's control steps, the state with angles as sine and cosine and the task's parameters as
+   observation) for the same wall time;
+
+then both run ``EPISODES`` episodes of 1,000 control steps on MuJoCo from the same held-out starts
+(``HELD_OUT_SEED``), the return their mean.
+
+The model-based returns the field publishes for these tasks are in BENCHMARKS.md beside the results.
+"""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+from _model_free import Deadline
+from numpy.typing import NDArray
+from stable_baselines3 import SAC
+
+from neuroanimator.artifacts import registry
+from neuroanimator.control.reward_policy import (
+    RewardSettings,
+    RewardTrainer,
+    draw_starts,
+    run_on_mujoco,
+)
+from neuroanimator.control.suite_tasks import SUITE_TASKS, Context, SuiteTask
+from neuroanimator.sim.model import PhysicalModel
+
+log = logging.getLogger("bench.suite")
+FloatArray = NDArray[np.float64]
+HELD_OUT_SEED = 90_210
+EPISODES = 10
+
+
+def suite_xml(domain: str) -> Path:
+    from dm_control import suite
+
+    return Path(suite.__file__).parent / f"{domain}.xml"
+
+
+def emulator_for(task: SuiteTask, root: Path, seconds: float | None) -> tuple[Path, float, int]:
+    """The task's emulator in ``root`` (trained now if missing): its path, the seconds training took
+    here (0 if it was there) and the MuJoCo steps of its training data."""
+    t0 = time.perf_counter()
+    try:
+        path = registry.resolve(root, task.domain, substeps=task.substeps)
+        wall = 0.0
+    except (FileNotFoundError, LookupError, ValueError):
+        cmd = [sys.executable, "-m", "neuroanimator.cli", "train", "--mjcf", str(suite_xml(task.domain))]
+        cmd += ["--name", task.domain, "--substeps", str(task.substeps), "--out", str(root), "--quiet"]
+        if seconds is not None:
+            cmd += ["--time-budget", str(seconds)]
+        log.info("%s: training its emulator: %s", task.name, " ".join(cmd))
+        subprocess.run(cmd, check=True)
+        path = registry.resolve(root, task.domain, substeps=task.substeps)
+        wall = time.perf_counter() - t0
+    manifest = registry.read_manifest(path)
+    examples = int(manifest.metrics.examples or 0) if manifest.metrics is not None else 0
+    return path, wall, examples * task.substeps
+
+
+def observe(physical: PhysicalModel, states: FloatArray, params: FloatArray) -> NDArray[np.float32]:
+    """(N, S) states and (N, P) parameters → (N, D) observations: hinge angles as sine and cosine."""
+    parts: list[FloatArray] = []
+    for g, at in zip(physical.layout.groups, physical.layout.offsets, strict=True):
+        cols = states[:, at : at + g.size]
+        parts += [np.sin(cols), np.cos(cols)] if g.kind in ("angle", "heading") else [cols]
+    return np.concatenate([*parts, params], axis=1).astype(np.float32)
+
+
+class SuiteEnv(gymnasium.Env[NDArray[np.float32], NDArray[np.float32]]):
+    """A suite task on MuJoCo as a Gymnasium environment: one step is one policy step (``repeat``
+    control steps with the action held), the reward the suite's summed over them."""
+
+    def __init__(
+        self, task: SuiteTask, physical: PhysicalModel, low: FloatArray, high: FloatArray, seed: int
+    ) -> None:
+        self.task, self.physical = task, physical
+        self.ctx = Context(physical.mj_model, _layout(physical))
+        self.rng = np.random.default_rng(seed)
+        self.low, self.high = low, high
+        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (len(self.low),), np.float32)
+        s, p = draw_starts(task, physical, self.rng, 1)
+        dim = observe(physical, s, p).shape[1]
+        self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (dim,), np.float32)
+        self.steps = 0
+        self.k = 0
+
+    def controls(self, actions: NDArray[Any]) -> FloatArray:
+        a = np.clip(np.asarray(actions, dtype=np.float64), -1, 1)
+        return 0.5 * (self.low + self.high) + 0.5 * (self.high - self.low) * a
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+        super().reset(seed=seed)
+        self.s, self.p = draw_starts(self.task, self.physical, self.rng, 1)
+        self.k = 0
+        return observe(self.physical, self.s, self.p)[0], {}
+
+    def step(
+        self, action: NDArray[np.float32]
+    ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        u = self.controls(action)[None]
+        total = 0.0
+        for _ in range(self.task.repeat):
+            self.s = self.physical.step_held(self.s, u, None, self.task.control_substeps)
+            with torch.no_grad():
+                r = self.task.reward(
+                    self.ctx, torch.as_tensor(self.s), torch.as_tensor(u), torch.as_tensor(self.p), False
+                )
+            total += float(r[0])
+        self.steps += 1
+        self.k += 1
+        truncated = self.k >= self.task.policy_steps
+        return observe(self.physical, self.s, self.p)[0], total, False, truncated, {}
+
+
+def _layout(physical: PhysicalModel) -> list[Any]:
+    from neuroanimator.core.state import LayoutGroup
+
+    return [
+        LayoutGroup(**g.model_dump(), offset=o)
+        for g, o in zip(physical.layout.groups, physical.layout.offsets, strict=True)
+    ]
+
+
+def bench_suite_task(name: str, root: Path, seconds: float | None, seed: int, quick: bool) -> dict[str, Any]:
+    """One suite task's row (module doc)."""
+    task = SUITE_TASKS[name]
+    budget = seconds if seconds is not None else task.train_seconds + 300.0
+    t0 = time.perf_counter()
+    path, emu_wall, emu_steps = emulator_for(task, root, 60.0 if quick else None)
+    settings = RewardSettings(seconds=max(5.0, budget - (time.perf_counter() - t0)), seed=seed)
+    if quick:
+        settings = RewardSettings(
+            seconds=120.0,
+            max_iterations=4,
+            envs=8,
+            horizon=4,
+            eval_episodes=2,
+            final_episodes=2,
+            seed=seed,
+            refine=False,
+        )
+    torch.set_num_threads(max(1, settings.threads))
+    trainer = RewardTrainer(task, path, settings)
+    result = trainer.train()
+    wall = time.perf_counter() - t0
+    log.info("%s: return on MuJoCo %.1f after %.0f s all in", name, result.return_physics, wall)
+
+    physical = trainer.physical
+    episodes = 2 if quick else EPISODES
+    starts, params = draw_starts(task, physical, np.random.default_rng(HELD_OUT_SEED), episodes)
+    ours = run_on_mujoco(task, physical, trainer.ctx, trainer.act, starts, params)
+
+    env = SuiteEnv(task, physical, trainer.low, trainer.high, seed)
+    agent = SAC(
+        "MlpPolicy", env, seed=seed, device="cpu", buffer_size=300_000,
+        learning_starts=50 if quick else 1000, batch_size=64 if quick else 256, verbose=0,
+    )  # fmt: skip
+    f0 = time.perf_counter()
+    agent.learn(total_timesteps=10**9, callback=Deadline(f0 + (6.0 if quick else wall)))
+    free_wall = time.perf_counter() - f0
+
+    def free_act(states: FloatArray, p: FloatArray) -> FloatArray:
+        actions, _ = agent.predict(observe(physical, states, p), deterministic=True)
+        return env.controls(actions)
+
+    theirs = run_on_mujoco(task, physical, trainer.ctx, free_act, starts, params)
+    return {
+        "task": name,
+        "return_physics": round(float(ours.returns.mean()), 1),
+        "return_emulator": round(result.return_emulator, 1),
+        "returns_physics": [round(float(x), 1) for x in ours.returns],
+        "target_return": task.target_return,
+        "episodes": episodes,
+        "mujoco_steps": result.mujoco_steps + emu_steps,
+        "mujoco_steps_emulator_data": emu_steps,
+        "wall_s": round(wall, 1),
+        "emulator_wall_s": round(emu_wall, 1),
+        "iterations": result.iterations,
+        "refinements": result.refinements,
+        "substeps": task.substeps,
+        "open_loop": {
+            "applicable": False,
+            "reason": "a reward over whole episodes has no single goal to synthesise for",
+        },
+        "model_free": {
+            "algorithm": "sac",
+            "return_physics": round(float(theirs.returns.mean()), 1),
+            "mujoco_steps": env.steps * task.substeps,
+            "env_steps": env.steps,
+            "wall_s": round(free_wall, 1),
+        },
+    }

@@ -1,0 +1,528 @@
+"""Policies that maximise a reward, learned through the emulator: short-horizon actor-critic with
+analytic gradients (SHAC, Xu et al. 2022), the simulator replaced by the learned emulator as
+SuperTrack and ControlVAE replace theirs.
+
+A goal-reaching task (``policy.PolicyTrainer``) knows where each run must end; a reward task (the
+suite's ``cartpole-swingup``, ``reacher-hard``, ...) only pays for every step, over episodes much
+longer than a gradient survives through a learned model. So, as SHAC does:
+
+1. ``envs`` episodes run side by side through the frozen emulator under the policy (its controls
+   lightly perturbed); every iteration advances them ``horizon`` super-steps, and the policy's loss is
+   minus the discounted reward of those steps plus the critic's value of where they end, its gradient
+   through the emulator's rollout (clipped in norm);
+2. the critic ``V(state, params)`` learns the discounted return by TD(λ) from the same steps;
+3. an episode that ends, leaves the states the emulator knows or diverges starts again: from the
+   task's own starts, or (``mujoco_share``) from a state the policy reached on MuJoCo, so that the
+   emulator's short rollouts branch from where the policy really goes (MBPO's branching);
+4. every ``eval_every`` of the budget the policy runs its episodes on MuJoCo with the exact reward:
+   the best policy so far is kept, the states join the start pool, and (``refine``) the emulator is
+   fine-tuned on all the policy's MuJoCo runs so far, so the model is right where the policy goes.
+
+Shapes: B episodes, H horizon, S state, U controls, P task parameters.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TypedDict
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from torch import Tensor, nn
+
+from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.control.bptt import FastStep
+from neuroanimator.control.suite_tasks import Context, SuiteTask
+from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.sim.sampling import Sequences
+from neuroanimator.training.train import train_over_rollouts
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+FEATURE_LIMIT = 8.0  # a state this many spreads from the typical motion has left what the emulator knows
+
+
+@dataclass(frozen=True)
+class RewardSettings:
+    """How a reward policy is trained; ``seconds`` is the whole training's wall-clock budget."""
+
+    seconds: float = 1500.0
+    max_iterations: int | None = None
+    envs: int = 64
+    horizon: int = 32
+    actor_lr: float = 2e-3  # cosine-annealed to a tenth
+    critic_lr: float = 2e-3
+    critic_steps: int = 8  # critic updates per iteration, each on a random half of the iteration's steps
+    lam: float = 0.95
+    target_tau: float = 0.2  # the target critic moves this share towards the critic each iteration
+    noise: float = 0.2  # control noise (share of each control's half range) in the training rollouts
+    hidden: tuple[int, ...] = (64, 64)
+    critic_hidden: tuple[int, ...] = (128, 128)
+    grad_clip: float = 1.0
+    eval_every: float = 0.1  # share of the budget between runs on MuJoCo
+    eval_episodes: int = 8
+    mujoco_share: float = 0.5  # share of restarts from states the policy reached on MuJoCo
+    refine: bool = True
+    refine_seconds: float = 15.0
+    final_episodes: int = 10
+    seed: int = 0
+    threads: int = 1
+
+
+class RewardProgress(TypedDict):
+    iteration: int
+    loss: float | None
+    return_physics: float | None
+    mujoco_steps: int
+    elapsed_s: float
+
+
+class Features(nn.Module):
+    """States (B, S) and parameters (B, P) → features: angles as sine and cosine, every other
+    variable centred and scaled by its spread, clamped to ±``FEATURE_LIMIT``."""
+
+    angles: Tensor
+    plain: Tensor
+    mean: Tensor
+    scale: Tensor
+
+    def __init__(
+        self, angles: list[int], plain: list[int], mean: FloatArray, scale: FloatArray, params: int
+    ) -> None:
+        super().__init__()
+        self.register_buffer("angles", torch.tensor(angles, dtype=torch.long))
+        self.register_buffer("plain", torch.tensor(plain, dtype=torch.long))
+        self.register_buffer("mean", torch.tensor(mean[plain], dtype=torch.float32))
+        self.register_buffer("scale", torch.tensor(scale[plain], dtype=torch.float32))
+        self.size = 2 * len(angles) + len(plain) + params
+
+    def plain_z(self, state: Tensor) -> Tensor:
+        return (state[:, self.plain] - self.mean) / self.scale
+
+    def forward(self, state: Tensor, params: Tensor) -> Tensor:
+        a = state[:, self.angles]
+        z = self.plain_z(state).clamp(-FEATURE_LIMIT, FEATURE_LIMIT)
+        return torch.cat([torch.sin(a), torch.cos(a), z, params * 5.0], dim=1)
+
+
+def mlp(inputs: int, hidden: tuple[int, ...], outputs: int) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for width in hidden:
+        layers += [nn.Linear(inputs, width), nn.ELU()]
+        inputs = width
+    layers.append(nn.Linear(inputs, outputs))
+    return nn.Sequential(*layers)
+
+
+class RewardPolicy(nn.Module):
+    """π(state (B,S), params (B,P)) → controls (B,U) inside the controls' ranges."""
+
+    centre: Tensor
+    half_range: Tensor
+
+    def __init__(
+        self, features: Features, low: FloatArray, high: FloatArray, hidden: tuple[int, ...]
+    ) -> None:
+        super().__init__()
+        self.features = features
+        self.net = mlp(features.size, hidden, len(low))
+        self.register_buffer("centre", torch.tensor((low + high) / 2, dtype=torch.float32))
+        self.register_buffer("half_range", torch.tensor((high - low) / 2, dtype=torch.float32))
+
+    def forward(self, state: Tensor, params: Tensor) -> Tensor:
+        return self.centre + self.half_range * torch.tanh(self.net(self.features(state, params)))
+
+
+class Critic(nn.Module):
+    """V(state (B,S), params (B,P)) → (B,) the discounted return from there."""
+
+    def __init__(self, features: Features, hidden: tuple[int, ...]) -> None:
+        super().__init__()
+        self.features = features
+        self.net = mlp(features.size, hidden, 1)
+
+    def forward(self, state: Tensor, params: Tensor) -> Tensor:
+        return self.net(self.features(state, params))[:, 0]
+
+
+@dataclass
+class Episodes:
+    """Episodes run under a policy: returns (N,), states at every policy step (N, K+1, S), controls
+    (N, K, U), parameters (N, P)."""
+
+    returns: FloatArray
+    states: FloatArray
+    controls: FloatArray
+    params: FloatArray
+
+    @property
+    def mean(self) -> float:
+        return float(self.returns.mean()) if len(self.returns) else 0.0
+
+
+@dataclass
+class RewardResult:
+    policy: RewardPolicy
+    task: SuiteTask
+    return_physics: float
+    return_emulator: float
+    returns_physics: list[float]
+    mujoco_steps: int
+    iterations: int
+    wall_s: float
+    refinements: int = 0
+    return_history: list[tuple[float, float]] = field(default_factory=list)  # (elapsed s, return on MuJoCo)
+    stop: str = "budget"
+
+
+def draw_starts(
+    task: SuiteTask, physical: PhysicalModel, rng: np.random.Generator, n: int
+) -> tuple[FloatArray, FloatArray]:
+    """(n, S) states and (n, P) parameters from the task's own ``reset``."""
+    m = physical.mj_model
+    states, params = [], []
+    for _ in range(n):
+        qpos, qvel, p = task.reset(m, rng)
+        full = physical.to_physics(physical.rest_state()[None])
+        full[0, physical.qpos_slice] = qpos
+        at = physical.qpos_slice.stop
+        full[0, at : at + m.nv] = qvel
+        states.append(physical.from_physics(full)[0])
+        params.append(p)
+    return np.array(states), np.array(params).reshape(n, len(task.params))
+
+
+def run_on_mujoco(
+    task: SuiteTask,
+    physical: PhysicalModel,
+    ctx: Context,
+    act: Callable[[FloatArray, FloatArray], FloatArray],
+    starts: FloatArray,
+    params: FloatArray,
+) -> Episodes:
+    """Episodes of the task on MuJoCo from starts (N, S), the policy acting every ``repeat`` control
+    steps, the reward exact (``smooth`` off) after every control step, summed."""
+    n, k = len(starts), task.policy_steps
+    states = np.zeros((n, k + 1, starts.shape[1]))
+    controls = np.zeros((n, k, physical.num_controls))
+    returns = np.zeros(n)
+    s = np.asarray(starts, dtype=np.float64)
+    states[:, 0] = s
+    p_t = torch.as_tensor(params, dtype=torch.float64)
+    done = 0
+    for i in range(k):
+        u = act(s, params)
+        controls[:, i] = u
+        u_t = torch.as_tensor(u, dtype=torch.float64)
+        for _ in range(min(task.repeat, task.episode_steps - done)):
+            s = physical.step_held(s, u, None, task.control_substeps)
+            with torch.no_grad():
+                r = task.reward(ctx, torch.as_tensor(s), u_t, p_t, False).numpy()
+            returns += np.where(np.isfinite(r), r, 0.0)
+            done += 1
+        states[:, i + 1] = s
+    return Episodes(returns, states, controls, np.asarray(params))
+
+
+class RewardTrainer:
+    """One reward policy being trained through an emulator artifact (module doc)."""
+
+    def __init__(
+        self,
+        task: SuiteTask,
+        path: Path,
+        settings: RewardSettings,
+        on_progress: Callable[[RewardProgress], None] | None = None,
+    ) -> None:
+        self.t0 = time.perf_counter()
+        self.task, self.settings, self.path = task, settings, path
+        self.on_progress = on_progress
+        self.manifest = registry.read_manifest(path)
+        if self.manifest.substeps != task.substeps:
+            raise ValueError(
+                f"{task.name} acts every {task.substeps} physical steps; the emulator at {path} steps "
+                f"{self.manifest.substeps}"
+            )
+        self.physical = registry.load_physical_model(path, self.manifest)
+        emu = artifacts.load_emulator(path)
+        if not isinstance(emu, StructuredEmulator):
+            raise ValueError(f"{task.name}: a reward policy needs a single-network emulator")
+        self.emu: StructuredEmulator = emu
+        self.step = FastStep(emu)
+        self.ctx = Context(self.physical.mj_model, list(self.manifest.layout))
+        self.rng = np.random.default_rng(settings.seed)
+        torch.manual_seed(settings.seed)
+        self.gamma = math.exp(-self.manifest.super_timestep / task.discount_s)
+        self.mujoco_steps = 0
+        self.refinements = 0
+        self.start_states, self.start_params = draw_starts(task, self.physical, self.rng, 2048)
+        self.visited: list[tuple[FloatArray, FloatArray]] = []
+        self.runs: list[Episodes] = []
+        self.low = np.array([c.low for c in self.manifest.controls])
+        self.high = np.array([c.high for c in self.manifest.controls])
+        features = self._features()
+        self.policy = RewardPolicy(features, self.low, self.high, settings.hidden)
+        self.critic = Critic(copy.deepcopy(features), settings.critic_hidden)
+        self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
+
+    def _features(self) -> Features:
+        """Angles and plain columns from the layout; centres and spreads from emulated runs of random
+        held controls from the task's starts (no MuJoCo steps)."""
+        angles: list[int] = []
+        plain: list[int] = []
+        for g in self.manifest.layout:
+            cols = list(range(g.offset, g.offset + g.size))
+            (angles if g.kind in ("angle", "heading") else plain).extend(cols)
+        idx = self.rng.integers(len(self.start_states), size=256)
+        s = torch.as_tensor(self.start_states[idx], dtype=torch.float32)
+        seen = [s]
+        with torch.no_grad():
+            for _ in range(self.task.policy_steps // 4):
+                u = torch.as_tensor(
+                    self.rng.uniform(self.low, self.high, (len(s), len(self.low))), dtype=torch.float32
+                )
+                s = self.step(s, u)
+                s = torch.where(torch.isfinite(s), s, seen[0])
+                seen.append(s)
+        allv = torch.cat(seen).double().numpy()
+        mean = allv.mean(axis=0)
+        scale = np.maximum(allv.std(axis=0), 1e-2)
+        return Features(angles, plain, mean, scale, len(self.task.params))
+
+    # ------------------------------------------------------------------ episodes
+    def restart(self, n: int) -> tuple[FloatArray, FloatArray]:
+        """n new starting states and parameters: the task's starts, or states reached on MuJoCo."""
+        from_mujoco = self.rng.random(n) < self.settings.mujoco_share if self.visited else np.zeros(n, bool)
+        idx = self.rng.integers(len(self.start_states), size=n)
+        states, params = self.start_states[idx].copy(), self.start_params[idx].copy()
+        if from_mujoco.any():
+            vs = np.concatenate([v[0] for v in self.visited])
+            vp = np.concatenate([v[1] for v in self.visited])
+            pick = self.rng.integers(len(vs), size=int(from_mujoco.sum()))
+            states[from_mujoco], params[from_mujoco] = vs[pick], vp[pick]
+        return states, params
+
+    def act(self, states: FloatArray, params: FloatArray) -> FloatArray:
+        with torch.no_grad():
+            u = self.policy(
+                torch.as_tensor(states, dtype=torch.float32), torch.as_tensor(params, dtype=torch.float32)
+            )
+        return u.double().numpy()
+
+    def evaluate(self, n: int, seed: int) -> tuple[Episodes, float]:
+        """The policy on MuJoCo over n episodes of new starts (their returns), and on the emulator
+        from the same starts (the mean return)."""
+        starts, params = draw_starts(self.task, self.physical, np.random.default_rng(seed), n)
+        phys = run_on_mujoco(self.task, self.physical, self.ctx, self.act, starts, params)
+        self.mujoco_steps += n * self.task.episode_steps * self.task.control_substeps
+        return phys, self.emulated_return(starts, params)
+
+    @torch.no_grad()
+    def emulated_return(self, starts: FloatArray, params: FloatArray) -> float:
+        """Mean return of episodes on the emulator (the reward at every super-step, times its control steps)."""
+        s = torch.as_tensor(starts, dtype=torch.float32)
+        p = torch.as_tensor(params, dtype=torch.float32)
+        total = torch.zeros(len(s))
+        for _ in range(self.task.policy_steps):
+            u = self.policy(s, p)
+            s = self.step(s, u)
+            r = self.task.reward(self.ctx, s, u, p, False)
+            total += torch.nan_to_num(r) * self.task.repeat
+        return float(total.mean())
+
+    # ------------------------------------------------------------------ one iteration
+    def iterate(
+        self, s: Tensor, p: Tensor, opt_actor: torch.optim.Optimizer, opt_critic: torch.optim.Optimizer
+    ) -> tuple[Tensor, float]:
+        """Advance the episodes (B, S) one horizon, update actor and critic; the states reached and the loss."""
+        cfg, task = self.settings, self.task
+        h_steps, gamma = cfg.horizon, self.gamma
+        half = self.policy.half_range
+        states, rewards = [s], []
+        loss = torch.zeros(())
+        disc = 1.0
+        x = s
+        for _ in range(h_steps):
+            u = self.policy(x, p)
+            if cfg.noise > 0:
+                u = u + cfg.noise * half * torch.randn_like(u)
+            u = torch.maximum(torch.minimum(u, self.policy.centre + half), self.policy.centre - half)
+            x = self.step(x, u)
+            r = task.reward(self.ctx, x, u, p, True)
+            r = torch.nan_to_num(r)
+            loss = loss - disc * r.mean()
+            disc *= gamma
+            states.append(x.detach())
+            rewards.append(r.detach())
+        end_value = self.critic(x, p)
+        loss = (loss - disc * end_value.mean()) / h_steps
+        opt_actor.zero_grad()
+        if torch.isfinite(loss):
+            loss.backward()
+            if all(q.grad is None or bool(torch.isfinite(q.grad).all()) for q in self.policy.parameters()):
+                nn.utils.clip_grad_norm_(self.policy.parameters(), cfg.grad_clip)
+                opt_actor.step()
+        self.critic.zero_grad()  # the actor's loss reached the critic's weights; they learn below
+        self.update_critic(torch.stack(states), torch.stack(rewards), p, opt_critic)
+        return x.detach(), float(loss.detach())
+
+    def update_critic(self, states: Tensor, rewards: Tensor, p: Tensor, opt: torch.optim.Optimizer) -> None:
+        """TD(λ) targets from the horizon's states (H+1, B, S) and rewards (H, B), with the target critic."""
+        cfg, gamma = self.settings, self.gamma
+        h, b = rewards.shape
+        with torch.no_grad():
+            values = self.target_critic(states.reshape(-1, states.shape[-1]), p.repeat(h + 1, 1)).reshape(
+                h + 1, b
+            )
+            values = torch.nan_to_num(values)
+            targets = torch.zeros(h, b)
+            ret = values[-1]
+            for t in reversed(range(h)):
+                ret = rewards[t] + gamma * ((1 - cfg.lam) * values[t + 1] + cfg.lam * ret)
+                targets[t] = ret
+        x = states[:-1].reshape(-1, states.shape[-1])
+        pp = p.repeat(h, 1)
+        y = targets.reshape(-1)
+        ok = torch.isfinite(x).all(dim=1) & torch.isfinite(y)
+        x, pp, y = x[ok], pp[ok], y[ok]
+        for _ in range(cfg.critic_steps):
+            pick = torch.randint(len(x), (max(1, len(x) // 2),))
+            err = self.critic(x[pick], pp[pick]) - y[pick]
+            opt.zero_grad()
+            (err**2).mean().backward()
+            nn.utils.clip_grad_norm_(self.critic.parameters(), 1.0)
+            opt.step()
+        with torch.no_grad():
+            for tp, cp in zip(self.target_critic.parameters(), self.critic.parameters(), strict=True):
+                tp.mul_(1 - cfg.target_tau).add_(cfg.target_tau * cp)
+
+    def lost(self, s: Tensor) -> Tensor:
+        """(B,) episodes whose state diverged or left the states the emulator knows."""
+        z = self.policy.features.plain_z(s)
+        return ~torch.isfinite(s).all(dim=1) | (z.abs() > FEATURE_LIMIT).any(dim=1)
+
+    # ------------------------------------------------------------------ refinement
+    def refine(self) -> None:
+        """Fine-tune the emulator on every MuJoCo run of the policy so far (windows of 8 super-steps)."""
+        states = np.concatenate([r.states for r in self.runs])
+        controls = np.concatenate([r.controls for r in self.runs])
+        finite = np.all(np.isfinite(states), axis=(1, 2))
+        seq = Sequences(states[finite], controls[finite], np.zeros((int(finite.sum()), controls.shape[1], 0)))
+        windows = seq.windows(min(8, seq.states.shape[1] - 1), None, int(self.rng.integers(1 << 30)))
+        cfg = replace(
+            self.manifest.train_config, rollout_seconds=self.settings.refine_seconds, progress=False
+        )
+        self.emu.requires_grad_(True)
+        self.emu.train()
+        train_over_rollouts(self.emu, windows, cfg)
+        self.emu.eval()
+        self.step = FastStep(self.emu)
+        self.refinements += 1
+
+    # ------------------------------------------------------------------ the loop
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.t0
+
+    def train(self) -> RewardResult:
+        cfg, task = self.settings, self.task
+        opt_actor = torch.optim.Adam(self.policy.parameters(), lr=cfg.actor_lr)
+        opt_critic = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
+        starts, params = self.restart(cfg.envs)
+        s = torch.as_tensor(starts, dtype=torch.float32)
+        p = torch.as_tensor(params, dtype=torch.float32)
+        age = np.zeros(cfg.envs, dtype=np.int64)
+        check_every = max(1.0, cfg.eval_every * cfg.seconds)
+        next_check = check_every
+        best = (-math.inf, copy.deepcopy(self.policy.state_dict()))
+        history: list[tuple[float, float]] = []
+        it, value = 0, None
+        last_return: float | None = None
+        while self.elapsed() < cfg.seconds and (cfg.max_iterations is None or it < cfg.max_iterations):
+            frac = min(1.0, self.elapsed() / cfg.seconds)
+            for group in opt_actor.param_groups:
+                group["lr"] = cfg.actor_lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * frac)))
+            s, value = self.iterate(s, p, opt_actor, opt_critic)
+            it += 1
+            age += cfg.horizon
+            again = (age >= task.policy_steps) | self.lost(s).numpy()
+            if again.any():
+                ns, npar = self.restart(int(again.sum()))
+                s = s.clone()
+                p = p.clone()
+                s[torch.as_tensor(again)] = torch.as_tensor(ns, dtype=torch.float32)
+                p[torch.as_tensor(again)] = torch.as_tensor(npar, dtype=torch.float32)
+                age[again] = 0
+            last = self.elapsed() >= cfg.seconds or (
+                cfg.max_iterations is not None and it >= cfg.max_iterations
+            )
+            if self.elapsed() >= next_check or last:
+                runs, emulated = self.evaluate(cfg.eval_episodes, int(self.rng.integers(1 << 30)))
+                last_return = runs.mean
+                history.append((round(self.elapsed(), 1), last_return))
+                log.info(
+                    "%s: iteration %d, loss %.4g, return on MuJoCo %.1f, on the emulator %.1f",
+                    task.name, it, value, last_return, emulated,
+                )  # fmt: skip
+                if last_return >= best[0]:
+                    best = (last_return, copy.deepcopy(self.policy.state_dict()))
+                self.runs.append(runs)
+                n, k1, width = runs.states.shape
+                self.visited.append(
+                    (runs.states.reshape(-1, width), np.repeat(runs.params, k1, axis=0).reshape(n * k1, -1))
+                )
+                if cfg.refine and self.elapsed() < 0.9 * cfg.seconds:
+                    self.refine()
+                next_check = self.elapsed() + check_every
+            if self.on_progress is not None:
+                self.on_progress(
+                    {
+                        "iteration": it,
+                        "loss": value,
+                        "return_physics": last_return,
+                        "mujoco_steps": self.mujoco_steps,
+                        "elapsed_s": round(self.elapsed(), 3),
+                    }
+                )
+        self.policy.load_state_dict(best[1])
+        final, _ = self.evaluate(cfg.final_episodes, cfg.seed + 1_000_003)
+        self.step = FastStep(artifacts.load_emulator(self.path))  # type: ignore[arg-type]
+        starts, params = draw_starts(
+            task, self.physical, np.random.default_rng(cfg.seed + 1_000_003), cfg.final_episodes
+        )
+        return RewardResult(
+            policy=self.policy,
+            task=task,
+            return_physics=final.mean,
+            return_emulator=self.emulated_return(starts, params),
+            returns_physics=[float(x) for x in final.returns],
+            mujoco_steps=self.mujoco_steps,
+            iterations=it,
+            wall_s=self.elapsed(),
+            refinements=self.refinements,
+            return_history=history,
+        )
+
+
+def train_reward_policy(
+    task: SuiteTask,
+    path: Path,
+    settings: RewardSettings | None = None,
+    on_progress: Callable[[RewardProgress], None] | None = None,
+) -> RewardResult:
+    """Train a policy for a reward task through the emulator artifact at ``path`` (module doc)."""
+    settings = settings or RewardSettings(seconds=task.train_seconds)
+    previous = torch.get_num_threads()
+    torch.set_num_threads(max(1, settings.threads))
+    try:
+        return RewardTrainer(task, path, settings, on_progress).train()
+    finally:
+        torch.set_num_threads(previous)

@@ -1,0 +1,272 @@
+"""dm_control's suite tasks as reward tasks: how an episode starts and what it earns, written in torch
+on the emulator's state so that a policy can be learned through the emulator with the suite's own
+reward, and run on MuJoCo with the same reward to be judged.
+
+Each task follows its domain's ``initialize_episode`` (``reset``) and ``get_reward`` (``reward``) in
+``dm_control/suite/*.py``: the same bodies, sites and geoms, the same ``tolerance`` bounds, margins
+and sigmoids (``tolerance`` below is the suite's ``rewards.tolerance``). A reward with a hard bound
+(the pendulum within 8° of upright, the fingertip on a 1.5 cm target, the ball in the cup) pays
+nothing until it is met, which leaves a gradient nothing to follow: with ``smooth`` it is given a
+margin (``smooth_margin``) over which it falls off as the suite's own smooth rewards do. The policy
+is judged with ``smooth`` off, the suite's reward exactly.
+
+An episode is ``episode_steps`` of the suite's control steps (``control_substeps`` physical steps
+each); the policy acts every ``substeps`` physical steps, its controls held in between (an action
+repeat), and earns the reward of every control step.
+
+Shapes: B batch, S state, U controls, P the task's parameters (the reacher's target).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from torch import Tensor
+
+from neuroanimator.control.kinematics import Kinematics
+from neuroanimator.core.state import LayoutGroup
+
+FloatArray = NDArray[np.float64]
+DEFAULT_VALUE_AT_MARGIN = 0.1  # the suite's ``rewards._DEFAULT_VALUE_AT_MARGIN``
+
+
+def tolerance(
+    x: Tensor,
+    lower: float,
+    upper: float,
+    margin: float = 0.0,
+    sigmoid: str = "gaussian",
+    value_at_margin: float = DEFAULT_VALUE_AT_MARGIN,
+) -> Tensor:
+    """1 where ``lower ≤ x ≤ upper``; outside, a sigmoid of the distance to the bounds in units of
+    ``margin`` worth ``value_at_margin`` one margin out (0 everywhere outside when ``margin`` is 0)."""
+    inside = (x >= lower) & (x <= upper)
+    if margin <= 0:
+        return inside.to(x.dtype)
+    d = torch.where(x < lower, lower - x, x - upper) / margin
+    if sigmoid == "gaussian":
+        scale = math.sqrt(-2 * math.log(value_at_margin))
+        out = torch.exp(-0.5 * (d * scale) ** 2)
+    elif sigmoid == "quadratic":
+        scaled = d * math.sqrt(1 - value_at_margin)
+        out = torch.where(scaled.abs() < 1, 1 - scaled**2, torch.zeros_like(scaled))
+    else:
+        raise ValueError(f"unknown sigmoid {sigmoid!r}")
+    return torch.where(inside, torch.ones_like(out), out)
+
+
+class Context:
+    """What a task's reward reads besides the state: the model's kinematics and named places."""
+
+    def __init__(self, m: mujoco.MjModel, layout: list[LayoutGroup]) -> None:
+        self.m = m
+        self.kin = Kinematics(m, layout)
+        self.layout = layout
+
+    def column(self, group: str) -> int:
+        """The state column of a named layout group's first value (``slider.pos``, ``hinge.rate``)."""
+        for g in self.layout:
+            if g.name == group:
+                return g.offset
+        raise KeyError(f"the state has no group {group!r}")
+
+    def geom_size(self, name: str) -> float:
+        return float(self.m.geom_size[mujoco.mj_name2id(self.m, mujoco.mjtObj.mjOBJ_GEOM, name), 0])
+
+    def site_size(self, name: str) -> FloatArray:
+        return np.asarray(self.m.site_size[mujoco.mj_name2id(self.m, mujoco.mjtObj.mjOBJ_SITE, name)])
+
+
+RewardFn = Callable[[Context, Tensor, Tensor, Tensor, bool], Tensor]
+ResetFn = Callable[[mujoco.MjModel, np.random.Generator], tuple[FloatArray, FloatArray, FloatArray]]
+
+
+@dataclass(frozen=True)
+class SuiteTask:
+    """One of the suite's tasks: its domain (the MJCF ``<domain>.xml`` the suite ships), the control
+    period the policy needs (``substeps`` physical steps), the suite's own control step
+    (``control_substeps``), episode length, starts, per-episode parameters and reward."""
+
+    name: str
+    domain: str
+    substeps: int
+    control_substeps: int
+    reset: ResetFn
+    reward: RewardFn
+    params: tuple[str, ...] = ()
+    episode_steps: int = 1000
+    target_return: float = 0.0  # what a learned policy must reach on MuJoCo (mean of 10 episodes)
+    train_seconds: float = 1500.0
+    discount_s: float = 2.0  # seconds over which the training's discount falls to 1/e
+
+    @property
+    def repeat(self) -> int:
+        """The suite's control steps per policy step."""
+        return max(1, self.substeps // self.control_substeps)
+
+    @property
+    def policy_steps(self) -> int:
+        """Policy steps in an episode (the last holds its controls to the episode's end)."""
+        return -(-self.episode_steps // self.repeat)
+
+
+# ---------------------------------------------------------------------------------------- starts
+def random_joints(m: mujoco.MjModel, rng: np.random.Generator, qpos: FloatArray) -> None:
+    """The suite's ``randomize_limited_and_rotational_joints`` for hinges and slides: a limited one
+    uniform over its range, an unlimited hinge uniform over [-π, π)."""
+    for j in range(m.njnt):
+        adr, kind = int(m.jnt_qposadr[j]), int(m.jnt_type[j])
+        if kind not in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+            continue
+        if m.jnt_limited[j]:
+            qpos[adr] = rng.uniform(*m.jnt_range[j])
+        elif kind == mujoco.mjtJoint.mjJNT_HINGE:
+            qpos[adr] = rng.uniform(-np.pi, np.pi)
+
+
+def _qpos0(m: mujoco.MjModel) -> FloatArray:
+    return np.array(m.qpos0, dtype=np.float64)
+
+
+def reset_cartpole(m: mujoco.MjModel, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, FloatArray]:
+    qpos = _qpos0(m)
+    qpos[0] = 0.01 * rng.standard_normal()
+    qpos[1] = np.pi + 0.01 * rng.standard_normal()
+    qpos[2:] = 0.1 * rng.standard_normal(m.nv - 2)
+    return qpos, 0.01 * rng.standard_normal(m.nv), np.zeros(0)
+
+
+def reset_random_joints(
+    m: mujoco.MjModel, rng: np.random.Generator
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    qpos = _qpos0(m)
+    random_joints(m, rng, qpos)
+    return qpos, np.zeros(m.nv), np.zeros(0)
+
+
+def reset_reacher(m: mujoco.MjModel, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, FloatArray]:
+    qpos, qvel, _ = reset_random_joints(m, rng)
+    angle, radius = rng.uniform(0, 2 * np.pi), rng.uniform(0.05, 0.20)
+    return qpos, qvel, np.array([radius * np.sin(angle), radius * np.cos(angle)])
+
+
+def reset_ball_in_cup(
+    m: mujoco.MjModel, rng: np.random.Generator
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    d = mujoco.MjData(m)
+    names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)]
+    bx, bz = (int(m.jnt_qposadr[names.index(n)]) for n in ("ball_x", "ball_z"))
+    while True:  # a ball drawn inside the cup is drawn again
+        d.qpos[:] = m.qpos0
+        d.qpos[bx], d.qpos[bz] = rng.uniform(-0.2, 0.2), rng.uniform(0.2, 0.5)
+        mujoco.mj_forward(m, d)
+        if d.ncon == 0:
+            return np.array(d.qpos), np.zeros(m.nv), np.zeros(0)
+
+
+def reset_acrobot(m: mujoco.MjModel, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, FloatArray]:
+    qpos = _qpos0(m)
+    qpos[:2] = rng.uniform(-np.pi, np.pi, 2)
+    return qpos, np.zeros(m.nv), np.zeros(0)
+
+
+# --------------------------------------------------------------------------------------- rewards
+def _small_control(controls: Tensor) -> Tensor:
+    """(B,) the suite's ``(4 + tolerance(u, margin=1, value_at_margin=0, quadratic)) / 5`` (first control)."""
+    return (4 + tolerance(controls[:, 0], 0.0, 0.0, 1.0, "quadratic", 0.0)) / 5
+
+
+def reward_cartpole(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
+    """``cartpole.Balance._get_reward`` (not sparse): upright · small control · small velocity · centred."""
+    places = ctx.kin.places(s)
+    upright = (ctx.kin.locator("body", "pole_1").rotation(places)[:, 2, 2] + 1) / 2
+    centered = (1 + tolerance(s[:, ctx.column("slider.pos")], 0.0, 0.0, 2.0)) / 2
+    rate = ctx.column("hinge_1.rate")
+    small_velocity = (1 + tolerance(s[:, rate], 0.0, 0.0, 5.0)) / 2
+    return upright * _small_control(u) * small_velocity * centered
+
+
+def reward_pendulum(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
+    """``pendulum.SwingUp.get_reward``: the pole within 8° of upright (its z axis' height)."""
+    vertical = ctx.kin.locator("body", "pole").rotation(ctx.kin.places(s))[:, 2, 2]
+    return tolerance(vertical, math.cos(math.radians(8)), 1.0, 1.0 if smooth else 0.0)
+
+
+def reward_reacher(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
+    """``reacher.Reacher.get_reward`` (hard: a 1.5 cm target): the fingertip on the target."""
+    finger = ctx.kin.locator("geom", "finger").position(ctx.kin.places(s))[:, :2]
+    dist = torch.linalg.norm(p - finger, dim=1)
+    radii = 0.015 + ctx.geom_size("finger")
+    return tolerance(dist, 0.0, radii, 0.2 if smooth else 0.0)
+
+
+def reward_point_mass(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
+    """``point_mass.PointMass.get_reward``: near the target · small control (mean over controls)."""
+    places = ctx.kin.places(s)
+    mass = ctx.kin.locator("geom", "pointmass").position(places)
+    target = ctx.kin.locator("geom", "target").position(places)
+    size = ctx.geom_size("target")
+    near = tolerance(torch.linalg.norm(target - mass, dim=1), 0.0, size, 0.3 if smooth else size)
+    control = tolerance(u, 0.0, 0.0, 1.0, "quadratic", 0.0).mean(dim=1)
+    return near * (control + 4) / 5
+
+
+def reward_ball_in_cup(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
+    """``ball_in_cup.BallInCup.get_reward``: 1 with the ball inside the cup's target box (x and z)."""
+    places = ctx.kin.places(s)
+    target = ctx.kin.locator("site", "target").position(places)[:, [0, 2]]
+    ball = ctx.kin.locator("body", "ball").position(places)[:, [0, 2]]
+    room = torch.tensor(ctx.site_size("target")[[0, 2]] - ctx.geom_size("ball"), dtype=s.dtype)
+    off = (target - ball).abs()
+    if not smooth:
+        return (off < room).all(dim=1).to(s.dtype)
+    return tolerance(off[:, 0], 0.0, float(room[0]), 0.15) * tolerance(off[:, 1], 0.0, float(room[1]), 0.15)
+
+
+def reward_acrobot(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
+    """``acrobot.Balance._get_reward`` (not sparse): the tip near the target, margin 1."""
+    places = ctx.kin.places(s)
+    tip = ctx.kin.locator("site", "tip").position(places)
+    target = ctx.kin.locator("site", "target").position(places)
+    radius = float(ctx.site_size("target")[0])
+    return tolerance(torch.linalg.norm(target - tip, dim=1), 0.0, radius, 1.0)
+
+
+SUITE_TASKS: dict[str, SuiteTask] = {
+    t.name: t
+    for t in (
+        SuiteTask("cartpole-swingup", "cartpole", 5, 1, reset_cartpole, reward_cartpole, target_return=800),
+        SuiteTask(
+            "pendulum-swingup", "pendulum", 2, 1, reset_random_joints, reward_pendulum, target_return=750
+        ),
+        SuiteTask(
+            "reacher-hard",
+            "reacher",
+            2,
+            1,
+            reset_reacher,
+            reward_reacher,
+            ("target.x", "target.y"),
+            target_return=900,
+        ),
+        SuiteTask(
+            "point_mass-easy", "point_mass", 2, 1, reset_random_joints, reward_point_mass, target_return=850
+        ),
+        SuiteTask(
+            "ball_in_cup-catch",
+            "ball_in_cup",
+            20,
+            10,
+            reset_ball_in_cup,
+            reward_ball_in_cup,
+            target_return=900,
+        ),
+        SuiteTask("acrobot-swingup", "acrobot", 5, 1, reset_acrobot, reward_acrobot, target_return=250),
+    )
+}

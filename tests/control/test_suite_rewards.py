@@ -1,0 +1,169 @@
+"""The suite tasks' rewards in torch equal dm_control's own reward code run on MuJoCo's data, their
+starts follow the suite's ``initialize_episode``, and the kinematics under them equal MuJoCo's."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+from dm_control import suite
+from dm_control.utils import rewards as suite_rewards
+
+from neuroanimator.control.kinematics import Kinematics
+from neuroanimator.control.suite_tasks import SUITE_TASKS, Context, SuiteTask, tolerance
+from neuroanimator.core.state import LayoutGroup
+from neuroanimator.sim.model import derive_layout
+
+SUITE = Path(suite.__file__).parent
+
+
+def _model(domain: str) -> tuple[mujoco.MjModel, list[LayoutGroup]]:
+    m = mujoco.MjModel.from_xml_path(str(SUITE / f"{domain}.xml"))
+    lay = derive_layout(m)
+    return m, [LayoutGroup(**g.model_dump(), offset=o) for g, o in zip(lay.groups, lay.offsets, strict=True)]
+
+
+def _state(d: mujoco.MjData, layout: list[LayoutGroup]) -> np.ndarray:
+    s = np.zeros(sum(g.size for g in layout))
+    for g in layout:
+        src = d.qpos if g.source == "qpos" else d.qvel
+        s[g.offset : g.offset + g.size] = src[g.address : g.address + g.size]
+    return s
+
+
+def _ids(m: mujoco.MjModel, kind: mujoco.mjtObj, name: str) -> int:
+    return mujoco.mj_name2id(m, kind, name)
+
+
+def reference(domain: str, m: mujoco.MjModel, d: mujoco.MjData, params: np.ndarray) -> float:
+    """The suite's ``get_reward`` for the task, its quantities read from MuJoCo's own data as the
+    suite's ``Physics`` helpers read them, through ``dm_control.utils.rewards.tolerance``."""
+    body, site, geom = mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtObj.mjOBJ_GEOM
+    tol = suite_rewards.tolerance
+    if domain == "cartpole":
+        upright = (d.xmat[_ids(m, body, "pole_1"), 8] + 1) / 2
+        centered = (1 + tol(d.qpos[0], margin=2)) / 2
+        control = (4 + tol(d.ctrl, margin=1, value_at_margin=0, sigmoid="quadratic")[0]) / 5
+        velocity = (1 + tol(d.qvel[1:], margin=5).min()) / 2
+        return float(upright * control * velocity * centered)
+    if domain == "pendulum":
+        return float(tol(d.xmat[_ids(m, body, "pole"), 8], (np.cos(np.deg2rad(8)), 1)))
+    if domain == "reacher":
+        finger = _ids(m, geom, "finger")
+        return float(
+            tol(np.linalg.norm(params - d.geom_xpos[finger, :2]), (0, 0.015 + m.geom_size[finger, 0]))
+        )
+    if domain == "point_mass":
+        target, mass = _ids(m, geom, "target"), _ids(m, geom, "pointmass")
+        size = m.geom_size[target, 0]
+        near = tol(np.linalg.norm(d.geom_xpos[target] - d.geom_xpos[mass]), bounds=(0, size), margin=size)
+        control = tol(d.ctrl, margin=1, value_at_margin=0, sigmoid="quadratic").mean()
+        return float(near * (control + 4) / 5)
+    if domain == "ball_in_cup":
+        target = _ids(m, site, "target")
+        off = np.abs(d.site_xpos[target][[0, 2]] - d.xpos[_ids(m, body, "ball")][[0, 2]])
+        return float(all(off < m.site_size[target][[0, 2]] - m.geom_size[_ids(m, geom, "ball"), 0]))
+    assert domain == "acrobot"
+    target, tip = _ids(m, site, "target"), _ids(m, site, "tip")
+    dist = np.linalg.norm(d.site_xpos[target] - d.site_xpos[tip])
+    return float(tol(dist, bounds=(0, m.site_size[target, 0]), margin=1))
+
+
+@pytest.mark.parametrize("name", list(SUITE_TASKS))
+def test_rewards_equal_the_suites_own(name: str) -> None:
+    task: SuiteTask = SUITE_TASKS[name]
+    m, layout = _model(task.domain)
+    d, ctx, rng = mujoco.MjData(m), Context(m, layout), np.random.default_rng(3)
+    ours, theirs = [], []
+    for i in range(120):
+        qpos, qvel, params = task.reset(m, rng)
+        if i % 2:  # away from the starts: anywhere, and near them
+            qpos = qpos + rng.normal(0, 0.3 if i % 4 == 1 else 0.02, m.nq)
+            qvel = rng.normal(0, 2, m.nv)
+        if task.domain == "reacher" and i % 3 == 0:  # the fingertip near its target, half the time on it
+            d.qpos[:] = qpos
+            mujoco.mj_forward(m, d)
+            params = d.geom_xpos[_ids(m, mujoco.mjtObj.mjOBJ_GEOM, "finger"), :2] + rng.normal(0, 0.02, 2)
+        d.qpos[:], d.qvel[:], d.ctrl[:] = qpos, qvel, rng.uniform(-1, 1, m.nu)
+        mujoco.mj_forward(m, d)
+        s = torch.tensor(_state(d, layout)[None])
+        r = task.reward(
+            ctx, s, torch.tensor(d.ctrl[None].copy()), torch.tensor(np.asarray(params)[None]), False
+        )
+        ours.append(float(r[0]))
+        theirs.append(reference(task.domain, m, d, np.asarray(params)))
+    np.testing.assert_allclose(ours, theirs, atol=1e-9)
+    assert max(theirs) > 0  # the sample met the reward somewhere: the comparison is not of zeros
+
+
+@pytest.mark.parametrize("name", list(SUITE_TASKS))
+def test_the_smooth_reward_pays_where_the_exact_one_does_and_has_a_gradient_outside(name: str) -> None:
+    task = SUITE_TASKS[name]
+    m, layout = _model(task.domain)
+    ctx, rng = Context(m, layout), np.random.default_rng(0)
+    states, params = [], []
+    d = mujoco.MjData(m)
+    for _ in range(64):
+        qpos, qvel, drawn = task.reset(m, rng)
+        d.qpos[:], d.qvel[:] = qpos, qvel
+        states.append(_state(d, layout))
+        params.append(drawn)
+    s = torch.tensor(np.array(states), requires_grad=True)
+    p = torch.tensor(np.array(params).reshape(64, -1))
+    u = torch.zeros(64, m.nu, dtype=torch.float64)
+    exact = task.reward(ctx, s, u, p, False)
+    smooth = task.reward(ctx, s, u, p, True)
+    assert torch.all(smooth >= exact - 1e-12)
+    smooth.sum().backward()
+    assert s.grad is not None and float(s.grad.abs().sum()) > 0
+
+
+def test_tolerance_is_the_suites() -> None:
+    x = np.linspace(-3, 3, 121)
+    for bounds, margin, sigmoid, at in (
+        ((0, 0), 2.0, "gaussian", 0.1),
+        ((-0.5, 1), 1.0, "quadratic", 0.0),
+        ((0, 1), 0.0, "gaussian", 0.1),
+    ):
+        ours = tolerance(torch.tensor(x), bounds[0], bounds[1], margin, sigmoid, at).numpy()
+        np.testing.assert_allclose(ours, suite_rewards.tolerance(x, bounds, margin, sigmoid, at), atol=1e-12)
+
+
+@pytest.mark.parametrize("domain", ["cartpole", "reacher", "ball_in_cup", "acrobot", "hopper", "humanoid"])
+def test_kinematics_equal_mujocos(domain: str) -> None:
+    """Bodies and sites placed from the state as ``mj_kinematics`` places them: hinges with anchors,
+    slides, a free root (the humanoid's) and reference positions."""
+    m, layout = _model(domain)
+    d, kin, rng = mujoco.MjData(m), Kinematics(m, layout), np.random.default_rng(1)
+    for _ in range(4):
+        d.qpos[:] = m.qpos0 + rng.normal(0, 0.5, m.nq)
+        mujoco.mj_normalizeQuat(m, d.qpos)
+        mujoco.mj_kinematics(m, d)
+        places = kin.places(torch.tensor(_state(d, layout)[None]))
+        np.testing.assert_allclose(places[0][0].numpy(), d.xpos, atol=1e-5)
+        np.testing.assert_allclose(places[1][0].numpy().reshape(-1, 9), d.xmat, atol=1e-5)
+        for i in range(m.nsite):
+            name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SITE, i)
+            np.testing.assert_allclose(
+                kin.locator("site", name).position(places)[0].numpy(), d.site_xpos[i], atol=1e-5
+            )
+
+
+def test_starts_follow_the_suites_episodes() -> None:
+    rng = np.random.default_rng(0)
+    m, _ = _model("cartpole")
+    qpos = np.array([SUITE_TASKS["cartpole-swingup"].reset(m, rng)[0] for _ in range(200)])
+    assert np.all(np.abs(qpos[:, 1] - np.pi) < 0.06) and np.all(np.abs(qpos[:, 0]) < 0.06)
+    m, _ = _model("reacher")
+    params = np.array([SUITE_TASKS["reacher-hard"].reset(m, rng)[2] for _ in range(200)])
+    radius = np.linalg.norm(params, axis=1)
+    assert radius.min() >= 0.05 and radius.max() <= 0.2
+    m, _ = _model("ball_in_cup")
+    d = mujoco.MjData(m)
+    for _ in range(50):
+        d.qpos[:], _, _ = SUITE_TASKS["ball_in_cup-catch"].reset(m, rng)
+        mujoco.mj_forward(m, d)
+        assert d.ncon == 0  # never inside the cup's walls
