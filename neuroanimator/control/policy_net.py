@@ -149,11 +149,65 @@ def describe_body_frame(
     return quat, spatial, velocity
 
 
+def _rotation_forms() -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Constant maps for turning world vectors into a body's frame with products and sums only.
+
+    ``pick_a``, ``pick_b`` (4, 10): q (B,4) ↦ the two factors of the ten products q_i·q_j (i ≤ j);
+    ``form`` (10, 12): the products ↦ Rᵀ(q)·|q|² row-major (9) beside the world's up in the body's
+    frame, Rᵀe_z·|q|² (3); ``norm`` (10, 1): the products ↦ |q|² (each entry of R is a quadratic form
+    in q = [w, x, y, z], exact for a quaternion of any norm once divided by |q|²)."""
+    pairs = [(i, j) for i in range(4) for j in range(i, 4)]
+    pick_a, pick_b = torch.zeros(4, 10), torch.zeros(4, 10)
+    for k, (i, j) in enumerate(pairs):
+        pick_a[i, k], pick_b[j, k] = 1.0, 1.0
+    w, x, y, z = range(4)
+    entries = {  # R[a][b] = Σ coefficient · q_i q_j
+        (0, 0): [(w, w, 1), (x, x, 1), (y, y, -1), (z, z, -1)],
+        (0, 1): [(x, y, 2), (w, z, -2)],
+        (0, 2): [(x, z, 2), (w, y, 2)],
+        (1, 0): [(x, y, 2), (w, z, 2)],
+        (1, 1): [(w, w, 1), (x, x, -1), (y, y, 1), (z, z, -1)],
+        (1, 2): [(y, z, 2), (w, x, -2)],
+        (2, 0): [(x, z, 2), (w, y, -2)],
+        (2, 1): [(y, z, 2), (w, x, 2)],
+        (2, 2): [(w, w, 1), (x, x, -1), (y, y, -1), (z, z, 1)],
+    }
+    form = torch.zeros(10, 12)
+    for (a, b), terms in entries.items():
+        for i, j, c in terms:
+            k = pairs.index((min(i, j), max(i, j)))
+            form[k, 3 * b + a] += c  # Rᵀ[b][a] = R[a][b]
+    form[:, 9:] = form[:, [2, 5, 8]]  # Rᵀ e_z: the last column of Rᵀ
+    norm = torch.zeros(10, 1)
+    for k, (i, j) in enumerate(pairs):
+        if i == j:
+            norm[k, 0] = 1.0
+    return pick_a, pick_b, form, norm
+
+
+PICK_A, PICK_B, ROTATION_FORM, NORM_FORM = _rotation_forms()
+REPEAT = torch.kron(torch.ones(1, 3), torch.eye(3))  # (3, 9): v ↦ [v, v, v], beside each row of Rᵀ
+ROW_SUMS = torch.kron(torch.eye(3), torch.ones(3, 1))  # (9, 3): sums of each row's three products
+
+
+def rotation_transposed(q: Tensor) -> tuple[Tensor, Tensor]:
+    """Quaternions q (B,4) [w, x, y, z], of any norm → R(q)ᵀ row-major (B,9) (world vectors into the
+    body's frame) and the world's up in the body's frame (B,3). Matrix products and same-shape
+    products only: ONNX Runtime runs these at large batches far faster than gathers, slices and
+    broadcasts, which would otherwise cost a small policy as much as the emulator it drives."""
+    products = (q @ PICK_A.to(q.dtype)) * (q @ PICK_B.to(q.dtype))
+    scaled = (products @ ROTATION_FORM.to(q.dtype)) / (products @ NORM_FORM.to(q.dtype) + 1e-12)
+    return scaled[:, :9], scaled[:, 9:]
+
+
+def turn(rt: Tensor, v: Tensor) -> Tensor:
+    """Rᵀ (B,9) row-major applied to vectors v (B,3)."""
+    return (rt * (v @ REPEAT.to(v.dtype))) @ ROW_SUMS.to(v.dtype)
+
+
 def rotate_into(q: Tensor, v: Tensor) -> Tensor:
-    """World vectors v (B,3) in the frame of unit quaternions q (B,4) [w, x, y, z]: R(q)ᵀ v."""
-    w, u = q[:, 0:1], -q[:, 1:4]  # the conjugate's vector part
-    t = 2 * torch.linalg.cross(u, v, dim=1)
-    return v + w * t + torch.linalg.cross(u, t, dim=1)
+    """World vectors v (B,3) in the frame of quaternions q (B,4) [w, x, y, z]: R(q)ᵀ v."""
+    return turn(rotation_transposed(q)[0], v)
 
 
 def wrap(x: Tensor) -> Tensor:
@@ -162,61 +216,85 @@ def wrap(x: Tensor) -> Tensor:
 
 
 class PolicyFeatures(nn.Module):
-    """``(state (B,S), goal (B,G), time_left (B,1)) → (B, D)``: the scale-free inputs (module doc)."""
+    """``(state (B,S), goal (B,G), time_left (B,1)) → (B, D)``: the scale-free inputs (module doc).
 
-    mean: Tensor
-    scale: Tensor
-    plain: Tensor
-    angles: Tensor
-    goal_cols: Tensor
-    goal_scale: Tensor
+    Every linear part (picking columns, centring and scaling, the goal's offset) is one constant
+    matrix applied to ``[state, goal]``, so that the exported graph is a few matrix products: its
+    cost at large batches stays well under the emulator's."""
+
+    plain_map: Tensor
+    plain_shift: Tensor
+    offset_map: Tensor
+    angle_map: Tensor
+    inv_goal_scale: Tensor
     goal_wrap: Tensor
+    quat_map: Tensor
+    spatial_map: Tensor
+    velocity_map: Tensor
+    heading_map: Tensor
 
     def __init__(self, shape: PolicyShape) -> None:
         super().__init__()
         self.shape = shape
+        size, goals = shape.state_size, shape.goal_size
+        width = size + goals
 
-        def buf(name: str, values: Sequence[float] | Sequence[int], dtype: torch.dtype) -> None:
-            self.register_buffer(name, torch.tensor(list(values), dtype=dtype), persistent=False)
+        def buf(name: str, value: Tensor) -> None:
+            self.register_buffer(name, value.to(torch.float32), persistent=False)
 
-        buf("mean", [shape.mean[c] for c in shape.plain_columns], torch.float32)
-        buf("scale", [shape.scale[c] for c in shape.plain_columns], torch.float32)
-        buf("plain", shape.plain_columns, torch.long)
-        buf("angles", shape.angle_columns, torch.long)
-        buf("goal_cols", shape.goal_columns, torch.long)
-        buf("goal_scale", shape.goal_scale, torch.float32)
-        buf("goal_wrap", [1.0 if a else 0.0 for a in shape.goal_angles], torch.float32)
+        def picks(columns: Sequence[int], scales: Sequence[float] | None = None) -> Tensor:
+            m = torch.zeros(width, len(columns))
+            for k, c in enumerate(columns):
+                m[c, k] = 1.0 / (scales[k] if scales is not None else 1.0)
+            return m
 
-    def plain_index(self, column: int) -> int:
-        """Where a plain state column's scale is kept."""
-        return self.shape.plain_columns.index(column)
+        plain_scale = [shape.scale[c] for c in shape.plain_columns]
+        buf("plain_map", picks(shape.plain_columns, plain_scale))
+        buf("plain_shift", torch.tensor([-shape.mean[c] / shape.scale[c] for c in shape.plain_columns]))
+        offset = torch.zeros(width, goals)
+        for j, c in enumerate(shape.goal_columns):
+            offset[size + j, j], offset[c, j] = 1.0, -1.0
+        buf("offset_map", offset)
+        buf("angle_map", picks(shape.angle_columns))
+        buf("inv_goal_scale", 1.0 / torch.tensor(shape.goal_scale, dtype=torch.float32))
+        buf("goal_wrap", torch.tensor([1.0 if a else 0.0 for a in shape.goal_angles]))
+        buf("heading_map", picks([shape.heading] if shape.heading >= 0 else []))
+        buf("quat_map", picks(range(shape.quat, shape.quat + 4) if shape.quat >= 0 else []))
+        spatial = offset[:, list(shape.spatial)] / (
+            shape.goal_scale[shape.spatial[0]] if shape.spatial else 1.0
+        )
+        buf("spatial_map", spatial)
+        v_cols = (
+            list(range(shape.world_velocity[0], shape.world_velocity[0] + 3)) if shape.world_velocity else []
+        )
+        v_scale = shape.scale[shape.world_velocity[0]] if shape.world_velocity else 1.0
+        buf("velocity_map", picks(v_cols, [v_scale] * len(v_cols)))
 
     def forward(self, state: Tensor, goal: Tensor, time_left: Tensor) -> Tensor:
         s = self.shape
+        z = torch.cat([state, goal], dim=1)
         parts: list[Tensor] = []
         if s.angle_columns:
-            a = state[:, self.angles]
+            a = z @ self.angle_map
             parts += [torch.sin(a), torch.cos(a)]
-        parts.append((state[:, self.plain] - self.mean) / self.scale)
-        offset = goal - state[:, self.goal_cols]
-        offset = offset + self.goal_wrap * (wrap(offset) - offset)  # wrapped where the variable is an angle
-        parts.append(offset / self.goal_scale)
+        parts.append(z @ self.plain_map + self.plain_shift)
+        offset = z @ self.offset_map
+        if any(s.goal_angles):  # wrapped where the variable is an angle
+            offset = offset + self.goal_wrap * (wrap(offset) - offset)
+        parts.append(offset * self.inv_goal_scale)
         if s.planar:
-            h = state[:, s.heading : s.heading + 1]
+            h = z @ self.heading_map
             dx, dy = offset[:, s.planar[0] : s.planar[0] + 1], offset[:, s.planar[1] : s.planar[1] + 1]
             c, si = torch.cos(h), torch.sin(h)
-            scale = self.goal_scale[s.planar[0]]
+            scale = s.goal_scale[s.planar[0]]
             parts += [(c * dx + si * dy) / scale, (-si * dx + c * dy) / scale]
-        if s.quat >= 0:
-            q = state[:, s.quat : s.quat + 4]
-            q = q / torch.sqrt((q * q).sum(dim=1, keepdim=True) + 1e-12)
-            parts.append(rotate_into(q, torch.tensor([[0.0, 0.0, 1.0]]).expand(q.shape[0], 3)))
+        if s.quat >= 0:  # the world's up, the goal's offset and the velocity in the body's frame
+            rt, up = rotation_transposed(z @ self.quat_map)
+            parts.append(up)
             if s.spatial:
-                d = torch.cat([offset[:, i : i + 1] for i in s.spatial], dim=1)
-                parts.append(rotate_into(q, d) / self.goal_scale[s.spatial[0]])
+                parts.append(turn(rt, z @ self.spatial_map))
             if s.world_velocity:
-                v = state[:, s.world_velocity[0] : s.world_velocity[0] + 3]
-                parts.append(rotate_into(q, v) / self.scale[self.plain_index(s.world_velocity[0])])
+                parts.append(turn(rt, z @ self.velocity_map))
         if s.timed:
             parts.append(time_left)
         return torch.cat(parts, dim=1)
