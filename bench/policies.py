@@ -1,8 +1,18 @@
 """Feedback policies learned through the emulator, side by side with open-loop synthesis and with
 model-free reinforcement learning on MuJoCo, on the same held-out starts and goals.
 
-    python bench/policies.py [--tasks a,b] [--seconds S] [--held-out 100] [--open-loop-runs 10]
-                             [--algorithm sac|ppo] [--seed 0] [--threads N] [--quick] [--json]
+    python bench/policies.py [--tasks a,b] [--seconds S] [--suite-seconds S] [--artifacts DIR]
+                             [--held-out 100] [--open-loop-runs 10] [--algorithm sac|ppo] [--seed 0]
+                             [--threads N] [--quick] [--json]
+
+With no ``--tasks``, every task: the catalog's policy tasks, then dm_control's suite tasks
+(``control.suite_tasks.SUITE_TASKS``: cartpole-swingup, pendulum-swingup, reacher-hard,
+point_mass-easy, ball_in_cup-catch, acrobot-swingup), each of those measured as ``_suite.py`` says:
+its emulator at the task's control period (found in ``--artifacts`` or trained), a reward policy
+learned through it (``control.reward_policy``) and SAC on MuJoCo for the same wall time, all in
+within ``--suite-seconds`` (default 30 minutes), both judged by the suite's reward over 10 episodes
+of 1,000 steps on MuJoCo; their rows carry ``return_physics``, ``return_emulator`` and
+``model_free.return_physics`` instead of success shares.
 
 For each catalog policy task (``catalog.tasks.POLICY_TASKS``; ``--tasks`` some of them), through the
 emulator of the task's super-step (``policy_job.emulator_for``, the data directory over the committed

@@ -13,7 +13,10 @@ longer than a gradient survives through a learned model. So, as SHAC does:
 2. the critic ``V(state, params)`` learns the discounted return by TD(λ) from the same steps;
 3. an episode that ends, leaves the states the emulator knows or diverges starts again: from the
    task's own starts, or (``mujoco_share``) from a state the policy reached on MuJoCo, so that the
-   emulator's short rollouts branch from where the policy really goes (MBPO's branching);
+   emulator's short rollouts branch from where the policy really goes (MBPO's branching), or
+   (``explore_share``) from anywhere in the emulator's envelope (the states of its training data),
+   so that the critic learns the worth of states the policy does not reach yet (a pendulum already
+   swinging fast: the way up is there before the policy has found it);
 4. every ``eval_every`` of the budget the policy runs its episodes on MuJoCo with the exact reward:
    the best policy so far is kept, the states join the start pool, and (``refine``) the emulator is
    fine-tuned on all the policy's MuJoCo runs so far, so the model is right where the policy goes.
@@ -71,6 +74,7 @@ class RewardSettings:
     eval_every: float = 0.1  # share of the budget between runs on MuJoCo
     eval_episodes: int = 8
     mujoco_share: float = 0.5  # share of restarts from states the policy reached on MuJoCo
+    explore_share: float = 0.25  # share of restarts anywhere in the emulator's envelope
     refine: bool = True
     refine_seconds: float = 15.0
     final_episodes: int = 10
@@ -299,11 +303,37 @@ class RewardTrainer:
         return Features(angles, plain, mean, scale, len(self.task.params))
 
     # ------------------------------------------------------------------ episodes
+    def envelope_box(self) -> tuple[FloatArray, FloatArray]:
+        """(S,) lows and highs of the emulator's envelope; an angle it is indifferent to spans a turn,
+        any other such value its typical spread (``Features``) about its centre."""
+        features = self.policy.features
+        low = np.full(self.manifest.state_size, -np.pi)
+        high = np.full(self.manifest.state_size, np.pi)
+        plain = features.plain.numpy()
+        low[plain] = features.mean.numpy() - 2 * features.scale.numpy()
+        high[plain] = features.mean.numpy() + 2 * features.scale.numpy()
+        offsets = {g.name: g.offset for g in self.manifest.layout}
+        for env in self.manifest.envelope or []:
+            at = offsets[env.group]
+            for i, (lo, hi) in enumerate(zip(env.low, env.high, strict=True)):
+                if lo is not None and hi is not None:
+                    low[at + i], high[at + i] = lo, hi
+        return low, high
+
     def restart(self, n: int) -> tuple[FloatArray, FloatArray]:
-        """n new starting states and parameters: the task's starts, or states reached on MuJoCo."""
-        from_mujoco = self.rng.random(n) < self.settings.mujoco_share if self.visited else np.zeros(n, bool)
+        """n new starting states and parameters: the task's starts, states reached on MuJoCo, or
+        states anywhere in the emulator's envelope."""
+        cfg = self.settings
+        draw = self.rng.random(n)
         idx = self.rng.integers(len(self.start_states), size=n)
         states, params = self.start_states[idx].copy(), self.start_params[idx].copy()
+        explore = draw < cfg.explore_share
+        if explore.any():
+            low, high = self.envelope_box()
+            states[explore] = self.rng.uniform(low, high, (int(explore.sum()), len(low)))
+        from_mujoco = (draw >= cfg.explore_share) & (draw < cfg.explore_share + cfg.mujoco_share)
+        if not self.visited:
+            from_mujoco[:] = False
         if from_mujoco.any():
             vs = np.concatenate([v[0] for v in self.visited])
             vp = np.concatenate([v[1] for v in self.visited])

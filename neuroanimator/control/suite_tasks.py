@@ -195,7 +195,7 @@ def reward_cartpole(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool)
 def reward_pendulum(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
     """``pendulum.SwingUp.get_reward``: the pole within 8° of upright (its z axis' height)."""
     vertical = ctx.kin.locator("body", "pole").rotation(ctx.kin.places(s))[:, 2, 2]
-    return tolerance(vertical, math.cos(math.radians(8)), 1.0, 1.0 if smooth else 0.0)
+    return tolerance(vertical, math.cos(math.radians(8)), 1.0, 2.0 if smooth else 0.0)
 
 
 def reward_reacher(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
