@@ -207,6 +207,9 @@ def bench_suite_task(name: str, root: Path, seconds: float | None, seed: int, qu
         "emulator_trained_here": trained_here,
         "iterations": result.iterations,
         "refinements": result.refinements,
+        "history": [
+            [t, round(r, 1)] for t, r in result.return_history
+        ],  # (s, return on MuJoCo) while training
         "substeps": task.substeps,
         "open_loop": {
             "applicable": False,

@@ -92,7 +92,9 @@ class RewardProgress(TypedDict):
 
 class Features(nn.Module):
     """States (B, S) and parameters (B, P) → features: angles as sine and cosine, every other
-    variable centred and scaled by its spread, clamped to ±``FEATURE_LIMIT``."""
+    variable centred and scaled by its spread, clamped to ±``FEATURE_LIMIT``, the parameters, and the
+    task's own observations (``SuiteTask.observe``, as the suite's ``get_observation`` gives them:
+    the reacher's fingertip-to-target vector), which spare the network learning the kinematics."""
 
     angles: Tensor
     plain: Tensor
@@ -100,14 +102,22 @@ class Features(nn.Module):
     scale: Tensor
 
     def __init__(
-        self, angles: list[int], plain: list[int], mean: FloatArray, scale: FloatArray, params: int
+        self,
+        angles: list[int],
+        plain: list[int],
+        mean: FloatArray,
+        scale: FloatArray,
+        params: int,
+        observe: Callable[[Tensor, Tensor], Tensor] | None = None,
+        observed: int = 0,
     ) -> None:
         super().__init__()
+        self.observe = observe
         self.register_buffer("angles", torch.tensor(angles, dtype=torch.long))
         self.register_buffer("plain", torch.tensor(plain, dtype=torch.long))
         self.register_buffer("mean", torch.tensor(mean[plain], dtype=torch.float32))
         self.register_buffer("scale", torch.tensor(scale[plain], dtype=torch.float32))
-        self.size = 2 * len(angles) + len(plain) + params
+        self.size = 2 * len(angles) + len(plain) + params + observed
 
     def plain_z(self, state: Tensor) -> Tensor:
         return (state[:, self.plain] - self.mean) / self.scale
@@ -115,7 +125,8 @@ class Features(nn.Module):
     def forward(self, state: Tensor, params: Tensor) -> Tensor:
         a = state[:, self.angles]
         z = self.plain_z(state).clamp(-FEATURE_LIMIT, FEATURE_LIMIT)
-        return torch.cat([torch.sin(a), torch.cos(a), z, params * 5.0], dim=1)
+        extra = [self.observe(state, params)] if self.observe is not None else []
+        return torch.cat([torch.sin(a), torch.cos(a), z, params * 5.0, *extra], dim=1)
 
 
 def mlp(inputs: int, hidden: tuple[int, ...], outputs: int) -> nn.Sequential:
@@ -300,7 +311,16 @@ class RewardTrainer:
         allv = torch.cat(seen).double().numpy()
         mean = allv.mean(axis=0)
         scale = np.maximum(allv.std(axis=0), 1e-2)
-        return Features(angles, plain, mean, scale, len(self.task.params))
+        observe = None
+        observed = 0
+        if self.task.observe is not None:
+            task_observe, ctx = self.task.observe, self.ctx
+
+            def observe(state: Tensor, params: Tensor) -> Tensor:
+                return task_observe(ctx, state, params)
+
+            observed = int(observe(s[:1].float(), torch.as_tensor(self.start_params[:1]).float()).shape[1])
+        return Features(angles, plain, mean, scale, len(self.task.params), observe, observed)
 
     # ------------------------------------------------------------------ episodes
     def envelope_box(self) -> tuple[FloatArray, FloatArray]:

@@ -84,6 +84,7 @@ class Context:
 
 
 RewardFn = Callable[[Context, Tensor, Tensor, Tensor, bool], Tensor]
+ObserveFn = Callable[[Context, Tensor, Tensor], Tensor]
 ResetFn = Callable[[mujoco.MjModel, np.random.Generator], tuple[FloatArray, FloatArray, FloatArray]]
 
 
@@ -104,6 +105,7 @@ class SuiteTask:
     target_return: float = 0.0  # what a learned policy must reach on MuJoCo (mean of 10 episodes)
     train_seconds: float = 1500.0
     discount_s: float = 2.0  # seconds over which the training's discount falls to 1/e
+    observe: ObserveFn | None = None  # the suite's own observations beyond the state (B, k), for the policy
 
     @property
     def repeat(self) -> int:
@@ -206,6 +208,12 @@ def reward_reacher(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) 
     return tolerance(dist, 0.0, radii, 0.2 if smooth else 0.0)
 
 
+def observe_reacher(ctx: Context, s: Tensor, p: Tensor) -> Tensor:
+    """``reacher``'s ``to_target`` observation: the target less the fingertip (x, y), in decimetres."""
+    finger = ctx.kin.locator("geom", "finger").position(ctx.kin.places(s))[:, :2]
+    return (p - finger) * 10.0
+
+
 def reward_point_mass(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
     """``point_mass.PointMass.get_reward``: near the target · small control (mean over controls)."""
     places = ctx.kin.places(s)
@@ -224,18 +232,22 @@ def reward_ball_in_cup(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bo
     ball = ctx.kin.locator("body", "ball").position(places)[:, [0, 2]]
     room = torch.tensor(ctx.site_size("target")[[0, 2]] - ctx.geom_size("ball"), dtype=s.dtype)
     off = (target - ball).abs()
+    inside = (off < room).all(dim=1).to(s.dtype)
     if not smooth:
-        return (off < room).all(dim=1).to(s.dtype)
-    return tolerance(off[:, 0], 0.0, float(room[0]), 0.15) * tolerance(off[:, 1], 0.0, float(room[1]), 0.15)
+        return inside
+    # nearing the cup pays, over the string's length (0.3 m): the ball hangs that far below it
+    near = tolerance(torch.linalg.norm(target - ball, dim=1), 0.0, float(room.min()), 0.3)
+    return torch.maximum(inside, near)
 
 
 def reward_acrobot(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
-    """``acrobot.Balance._get_reward`` (not sparse): the tip near the target, margin 1."""
+    """``acrobot.Balance._get_reward`` (not sparse): the tip near the target, margin 1 (4 when smooth)."""
     places = ctx.kin.places(s)
     tip = ctx.kin.locator("site", "tip").position(places)
     target = ctx.kin.locator("site", "target").position(places)
     radius = float(ctx.site_size("target")[0])
-    return tolerance(torch.linalg.norm(target - tip, dim=1), 0.0, radius, 1.0)
+    # the suite's margin (1 m) pays nothing to a tip hanging 4 m below: the gradient's reaches it
+    return tolerance(torch.linalg.norm(target - tip, dim=1), 0.0, radius, 4.0 if smooth else 1.0)
 
 
 SUITE_TASKS: dict[str, SuiteTask] = {
