@@ -61,7 +61,7 @@ class RewardSettings:
     seconds: float = 1500.0
     max_iterations: int | None = None
     envs: int = 64
-    horizon: int = 32
+    horizon: int | None = None  # super-steps per iteration (default: the task's ``horizon_s``, else 32)
     actor_lr: float = 2e-3  # cosine-annealed to a tenth
     critic_lr: float = 2e-3
     critic_steps: int = 8  # critic updates per iteration, each on a random half of the iteration's steps
@@ -277,6 +277,8 @@ class RewardTrainer:
         self.rng = np.random.default_rng(settings.seed)
         torch.manual_seed(settings.seed)
         self.gamma = math.exp(-self.manifest.super_timestep / task.discount_s)
+        by_task = round(task.horizon_s / self.manifest.super_timestep) if task.horizon_s else 32
+        self.horizon = settings.horizon or max(1, by_task)
         self.mujoco_steps = 0
         self.refinements = 0
         self.start_states, self.start_params = draw_starts(task, self.physical, self.rng, 2048)
@@ -395,7 +397,7 @@ class RewardTrainer:
     ) -> tuple[Tensor, float]:
         """Advance the episodes (B, S) one horizon, update actor and critic; the states reached and the loss."""
         cfg, task = self.settings, self.task
-        h_steps, gamma = cfg.horizon, self.gamma
+        h_steps, gamma = self.horizon, self.gamma
         half = self.policy.half_range
         states, rewards = [s], []
         loss = torch.zeros(())
@@ -502,7 +504,7 @@ class RewardTrainer:
                 group["lr"] = cfg.actor_lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * frac)))
             s, value = self.iterate(s, p, opt_actor, opt_critic)
             it += 1
-            age += cfg.horizon
+            age += self.horizon
             again = (age >= task.policy_steps) | self.lost(s).numpy()
             if again.any():
                 ns, npar = self.restart(int(again.sum()))
