@@ -61,7 +61,7 @@ class RewardSettings:
     seconds: float = 1500.0
     max_iterations: int | None = None
     envs: int = 64
-    horizon: int | None = None  # super-steps per iteration (default: the task's ``horizon_s``, else 32)
+    horizon: int = 32  # super-steps per iteration: the gradient's path through the emulator
     actor_lr: float = 2e-3  # cosine-annealed to a tenth
     critic_lr: float = 2e-3
     critic_steps: int = 8  # critic updates per iteration, each on a random half of the iteration's steps
@@ -277,8 +277,7 @@ class RewardTrainer:
         self.rng = np.random.default_rng(settings.seed)
         torch.manual_seed(settings.seed)
         self.gamma = math.exp(-self.manifest.super_timestep / task.discount_s)
-        by_task = round(task.horizon_s / self.manifest.super_timestep) if task.horizon_s else 32
-        self.horizon = settings.horizon or max(1, by_task)
+        self.horizon = settings.horizon
         self.mujoco_steps = 0
         self.refinements = 0
         self.start_states, self.start_params = draw_starts(task, self.physical, self.rng, 2048)

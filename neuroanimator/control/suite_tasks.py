@@ -105,7 +105,6 @@ class SuiteTask:
     target_return: float = 0.0  # what a learned policy must reach on MuJoCo (mean of 10 episodes)
     train_seconds: float = 1500.0
     discount_s: float = 2.0  # seconds over which the training's discount falls to 1/e
-    horizon_s: float | None = None  # seconds of a training rollout (the gradient's path; default 32 steps)
     observe: ObserveFn | None = None  # the suite's own observations beyond the state (B, k), for the policy
 
     @property
