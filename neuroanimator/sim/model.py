@@ -626,17 +626,28 @@ class PhysicalModel:
         if step is not None and (not steps.size or step < steps[0]):
             steps = np.array([step])
         when = f"{(int(steps[0]) + 1) * self.dt:.4g} s into" if steps.size else "during"
-        joint = (
-            mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.dof_jntid[dof]))
-            if 0 <= dof < m.nv
-            else None
-        )
+        if 0 <= dof < m.nv:
+            joint = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.dof_jntid[dof]))
+            where = f"degree of freedom {dof} (joint {joint!r})"
+        else:  # MuJoCo named no degree of freedom (a run caught by its values): the first that blew up
+            where = f"joint {self._blown_joint(huge, steps)!r}, the first whose state blew up"
         return SimulationDiverged(
             f"the simulation of model {self.name} diverged {when} a run from a typical state: MuJoCo found "
-            f"NaN, Inf or huge accelerations at degree of freedom {dof} (joint {joint!r}). Try a smaller "
+            f"NaN, Inf or huge accelerations at {where}. Try a smaller "
             f"timestep (now {self.dt:g} s), more damping or less stiffness at that joint, or narrower "
             "typical controls and initial states"
         )
+
+    def _blown_joint(self, huge: NDArray[np.bool_], steps: NDArray[np.intp]) -> str | None:
+        """The joint of the first state variable that is not finite or huge (B, T, S) at the first such
+        step, from its layout group's name (``stiff.angle`` → ``stiff``), or None."""
+        if not steps.size:
+            return None
+        cols = np.flatnonzero(huge[:, int(steps[0])].any(axis=0))
+        for g, at in zip(self.layout.groups, self.layout.offsets, strict=True):
+            if cols.size and at <= cols[0] < at + g.size and g.source in ("qpos", "qvel"):
+                return g.name.rsplit(".", 1)[0]
+        return None
 
     def _check_inputs(self, name: str, values: FloatArray, width: int, batch: int) -> None:
         if values.ndim != 3 or values.shape[2] != width:

@@ -161,3 +161,19 @@ def test_an_arm_starts_around_its_home_with_a_spread_per_joint() -> None:
     wrist = model.layout.slice_of("wrist_3_joint.angle")
     high = np.asarray(model.spec.initial.high)
     assert high[wrist] == [0.5] and np.allclose(np.delete(high[: model.state_size // 2], wrist), 0.1)
+
+
+def test_a_divergence_mujoco_did_not_place_names_the_joint_whose_state_blew_up(tmp_path: Path) -> None:
+    """A run caught by its values (MuJoCo named no degree of freedom) still names the joint to fix."""
+    path = tmp_path / "stiff.xml"
+    path.write_text(
+        """<mujoco model="stiff"><option timestep="0.01"/><worldbody><body>
+        <joint name="stiff" type="hinge" axis="0 0 1" stiffness="1e9"/>
+        <geom type="sphere" size="0.1" mass="1e-6"/></body></worldbody></mujoco>"""
+    )
+    model = load_mjcf(path, substeps=5, stabilise=False)
+    start = np.zeros((2, model.state_size))
+    traj = np.zeros((2, 3, model.state_size))
+    traj[1, 1, 1] = np.nan  # the hinge's rate, at the second step
+    err = model._diverged(start, traj, -1)
+    assert "joint 'stiff'" in str(err) and "0.02 s into" in str(err)
