@@ -641,12 +641,14 @@ class PhysicalModel:
     def _blown_joint(self, huge: NDArray[np.bool_], steps: NDArray[np.intp]) -> str | None:
         """The joint of the first state variable that is not finite or huge (B, T, S) at the first such
         step, from its layout group's name (``stiff.angle`` → ``stiff``), or None."""
-        if not steps.size:
-            return None
-        cols = np.flatnonzero(huge[:, int(steps[0])].any(axis=0))
+        cols = np.flatnonzero(huge[:, int(steps[0])].any(axis=0)) if steps.size else np.zeros(0, np.intp)
+        if not cols.size:  # reset by MuJoCo before its values grew: any that ever did
+            cols = np.flatnonzero(huge.any(axis=(0, 1)))
         for g, at in zip(self.layout.groups, self.layout.offsets, strict=True):
             if cols.size and at <= cols[0] < at + g.size and g.source in ("qpos", "qvel"):
                 return g.name.rsplit(".", 1)[0]
+        if self.mj_model.njnt == 1:  # the only joint there is
+            return mujoco.mj_id2name(self.mj_model, mujoco.mjtObj.mjOBJ_JOINT, 0)
         return None
 
     def _check_inputs(self, name: str, values: FloatArray, width: int, batch: int) -> None:

@@ -177,3 +177,6 @@ def test_a_divergence_mujoco_did_not_place_names_the_joint_whose_state_blew_up(t
     traj[1, 1, 1] = np.nan  # the hinge's rate, at the second step
     err = model._diverged(start, traj, -1)
     assert "joint 'stiff'" in str(err) and "0.02 s into" in str(err)
+    # reset by MuJoCo before any value grew: the step where it was seen, and still the joint
+    err = model._diverged(start, np.zeros((2, 3, model.state_size)), -1, step=1)
+    assert "joint 'stiff'" in str(err) and "0.02 s into" in str(err)
