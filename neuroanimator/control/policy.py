@@ -29,7 +29,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypedDict
 
@@ -56,8 +56,7 @@ from neuroanimator.emulator.structured import StructuredEmulator
 from neuroanimator.goals import criteria
 from neuroanimator.goals.policy_task import PolicyTask, goal_schedule
 from neuroanimator.sim.model import PhysicalModel
-from neuroanimator.sim.sampling import Sequences
-from neuroanimator.training.train import train_over_rollouts
+from neuroanimator.training.train import fine_tune_on_runs
 
 log = logging.getLogger(__name__)
 CHECK_MARGIN = 0.25  # a check met with room to spare: its measure within half its bound
@@ -348,21 +347,14 @@ class PolicyTrainer:
         loss), then rebuild the frozen step."""
         if not isinstance(self.emu, StructuredEmulator):
             return
-        finite = np.all(np.isfinite(runs.states), axis=(1, 2))
-        policy_seq = Sequences(
-            runs.states[finite],
-            runs.controls[finite],
-            np.zeros((int(finite.sum()), runs.controls.shape[1], 0)),
+        fine_tune_on_runs(
+            self.emu,
+            runs.states,
+            runs.controls,
+            self.manifest.train_config,
+            self.settings.refine_seconds,
+            int(self.rng.integers(1 << 30)),
         )
-        window = min(8, policy_seq.states.shape[1] - 1)
-        seqs = policy_seq.windows(window, None, int(self.rng.integers(1 << 30)))
-        cfg = replace(
-            self.manifest.train_config, rollout_seconds=self.settings.refine_seconds, progress=False
-        )
-        self.emu.requires_grad_(True)  # the frozen step froze it
-        self.emu.train()
-        train_over_rollouts(self.emu, seqs, cfg)
-        self.emu.eval()
         self.step = frozen_step(self.emu)
 
     # ---------------------------------------------------------------- the loop

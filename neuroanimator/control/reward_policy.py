@@ -31,7 +31,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypedDict
 
@@ -46,8 +46,7 @@ from neuroanimator.control.bptt import FastStep
 from neuroanimator.control.suite_tasks import Context, SuiteTask
 from neuroanimator.emulator.structured import StructuredEmulator
 from neuroanimator.sim.model import PhysicalModel
-from neuroanimator.sim.sampling import Sequences
-from neuroanimator.training.train import train_over_rollouts
+from neuroanimator.training.train import fine_tune_on_runs
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -464,18 +463,14 @@ class RewardTrainer:
     # ------------------------------------------------------------------ refinement
     def refine(self) -> None:
         """Fine-tune the emulator on every MuJoCo run of the policy so far (windows of 8 super-steps)."""
-        states = np.concatenate([r.states for r in self.runs])
-        controls = np.concatenate([r.controls for r in self.runs])
-        finite = np.all(np.isfinite(states), axis=(1, 2))
-        seq = Sequences(states[finite], controls[finite], np.zeros((int(finite.sum()), controls.shape[1], 0)))
-        windows = seq.windows(min(8, seq.states.shape[1] - 1), None, int(self.rng.integers(1 << 30)))
-        cfg = replace(
-            self.manifest.train_config, rollout_seconds=self.settings.refine_seconds, progress=False
+        fine_tune_on_runs(
+            self.emu,
+            np.concatenate([r.states for r in self.runs]),
+            np.concatenate([r.controls for r in self.runs]),
+            self.manifest.train_config,
+            self.settings.refine_seconds,
+            int(self.rng.integers(1 << 30)),
         )
-        self.emu.requires_grad_(True)
-        self.emu.train()
-        train_over_rollouts(self.emu, windows, cfg)
-        self.emu.eval()
         self.step = FastStep(self.emu)
         self.refinements += 1
 

@@ -7,8 +7,9 @@ Each task follows its domain's ``initialize_episode`` (``reset``) and ``get_rewa
 and sigmoids (``tolerance`` below is the suite's ``rewards.tolerance``). A reward with a hard bound
 (the pendulum within 8° of upright, the fingertip on a 1.5 cm target, the ball in the cup) pays
 nothing until it is met, which leaves a gradient nothing to follow: with ``smooth`` it is given a
-margin (``smooth_margin``) over which it falls off as the suite's own smooth rewards do. The policy
-is judged with ``smooth`` off, the suite's reward exactly.
+margin over which it falls off as the suite's own smooth rewards do (``shaped``: half of it over a
+broad margin, for the way there, half over a narrow one, so that being just outside the bound costs
+enough to be corrected). The policy is judged with ``smooth`` off, the suite's reward exactly.
 
 An episode is ``episode_steps`` of the suite's control steps (``control_substeps`` physical steps
 each); the policy acts every ``substeps`` physical steps, its controls held in between (an action
@@ -59,6 +60,13 @@ def tolerance(
     else:
         raise ValueError(f"unknown sigmoid {sigmoid!r}")
     return torch.where(inside, torch.ones_like(out), out)
+
+
+def shaped(x: Tensor, lower: float, upper: float, broad: float, narrow: float) -> Tensor:
+    """A hard bound made smooth for learning: the mean of ``tolerance`` over a ``broad`` margin (a
+    gradient from far away) and over a ``narrow`` one (a gradient just outside the bound, where the
+    broad one is nearly flat: a fingertip resting 1 cm off a 1.5 cm target earns nothing)."""
+    return (tolerance(x, lower, upper, broad) + tolerance(x, lower, upper, narrow)) / 2
 
 
 class Context:
@@ -197,7 +205,8 @@ def reward_cartpole(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool)
 def reward_pendulum(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
     """``pendulum.SwingUp.get_reward``: the pole within 8° of upright (its z axis' height)."""
     vertical = ctx.kin.locator("body", "pole").rotation(ctx.kin.places(s))[:, 2, 2]
-    return tolerance(vertical, math.cos(math.radians(8)), 1.0, 2.0 if smooth else 0.0)
+    bound = math.cos(math.radians(8))
+    return shaped(vertical, bound, 1.0, 2.0, 0.05) if smooth else tolerance(vertical, bound, 1.0)
 
 
 def reward_reacher(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
@@ -205,7 +214,7 @@ def reward_reacher(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) 
     finger = ctx.kin.locator("geom", "finger").position(ctx.kin.places(s))[:, :2]
     dist = torch.linalg.norm(p - finger, dim=1)
     radii = 0.015 + ctx.geom_size("finger")
-    return tolerance(dist, 0.0, radii, 0.2 if smooth else 0.0)
+    return shaped(dist, 0.0, radii, 0.2, 0.02) if smooth else tolerance(dist, 0.0, radii)
 
 
 def observe_reacher(ctx: Context, s: Tensor, p: Tensor) -> Tensor:
@@ -266,6 +275,7 @@ SUITE_TASKS: dict[str, SuiteTask] = {
             reward_reacher,
             ("target.x", "target.y"),
             target_return=900,
+            observe=observe_reacher,
         ),
         SuiteTask(
             "point_mass-easy", "point_mass", 2, 1, reset_random_joints, reward_point_mass, target_return=850

@@ -889,6 +889,34 @@ def train_over_rollouts(
     }
 
 
+def fine_tune_on_runs(
+    emu: StructuredEmulator,
+    states: np.ndarray,
+    controls: np.ndarray,
+    cfg: TrainConfig,
+    seconds: float,
+    seed: int,
+    window: int = 8,
+) -> RolloutMetrics:
+    """Fine-tune the emulator on runs a controller made on MuJoCo: states (N, K+1, S) and controls
+    (N, K, U) at the emulator's super-step, cut into windows of ``window`` super-steps and learned
+    with the rollout loss for ``seconds`` (runs that diverged are left out), so the model is right
+    where the controller goes; the emulator is left in evaluation mode."""
+    finite = np.all(np.isfinite(states), axis=(1, 2))
+    runs = sampling.Sequences(
+        states[finite], controls[finite], np.zeros((int(finite.sum()), controls.shape[1], 0))
+    )
+    windows = runs.windows(min(window, runs.states.shape[1] - 1), None, seed)
+    emu.requires_grad_(True)  # a frozen step may have frozen it
+    emu.train()
+    try:
+        return train_over_rollouts(
+            emu, windows, dataclasses.replace(cfg, rollout_seconds=seconds, progress=False)
+        )
+    finally:
+        emu.eval()
+
+
 def _rows(t: Tensor | None, sl: slice | Tensor) -> Tensor | None:
     return None if t is None else t[sl]
 

@@ -13,7 +13,7 @@ from dm_control import suite
 from dm_control.utils import rewards as suite_rewards
 
 from neuroanimator.control.kinematics import Kinematics
-from neuroanimator.control.suite_tasks import SUITE_TASKS, Context, SuiteTask, tolerance
+from neuroanimator.control.suite_tasks import SUITE_TASKS, Context, SuiteTask, shaped, tolerance
 from neuroanimator.core.state import LayoutGroup
 from neuroanimator.sim.model import derive_layout
 
@@ -119,6 +119,34 @@ def test_the_smooth_reward_pays_where_the_exact_one_does_and_has_a_gradient_outs
     assert torch.all(smooth >= exact - 1e-12)
     smooth.sum().backward()
     assert s.grad is not None and float(s.grad.abs().sum()) > 0
+
+
+def test_the_shaped_reward_still_pulls_just_outside_the_bound() -> None:
+    """1 cm outside a bound, the broad margin alone is nearly flat; the shaped one still pulls."""
+    at = torch.tensor([0.035], dtype=torch.float64, requires_grad=True)  # 1 cm off a 2.5 cm bound
+    broad = tolerance(at, 0.0, 0.025, 0.2)
+    (g_broad,) = torch.autograd.grad(broad.sum(), at)
+    (g_shaped,) = torch.autograd.grad(shaped(at, 0.0, 0.025, 0.2, 0.02).sum(), at)
+    assert float(broad) > 0.98 and float(g_shaped) < 10 * float(g_broad) < 0
+    inside = torch.tensor([0.0, 0.01, 0.025], dtype=torch.float64)
+    assert torch.all(shaped(inside, 0.0, 0.025, 0.2, 0.02) == 1)
+
+
+def test_the_reachers_observation_is_the_suites_to_target() -> None:
+    """``observe`` gives the policy the suite's ``to_target`` (target less fingertip), in decimetres."""
+    task = SUITE_TASKS["reacher-hard"]
+    assert task.observe is not None
+    m, layout = _model("reacher")
+    d, ctx, rng = mujoco.MjData(m), Context(m, layout), np.random.default_rng(5)
+    finger, target = _ids(m, mujoco.mjtObj.mjOBJ_GEOM, "finger"), _ids(m, mujoco.mjtObj.mjOBJ_GEOM, "target")
+    for _ in range(8):
+        qpos, _, params = task.reset(m, rng)
+        d.qpos[:] = qpos
+        m.geom_pos[target, :2] = params  # the suite places the target by moving its geom
+        mujoco.mj_forward(m, d)
+        to_target = d.geom_xpos[target, :2] - d.geom_xpos[finger, :2]
+        ours = task.observe(ctx, torch.tensor(_state(d, layout)[None]), torch.tensor(params[None]))
+        np.testing.assert_allclose(ours[0].numpy(), 10 * to_target, atol=1e-6)
 
 
 def test_tolerance_is_the_suites() -> None:
