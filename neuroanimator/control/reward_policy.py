@@ -18,8 +18,10 @@ longer than a gradient survives through a learned model. So, as SHAC does:
    so that the critic learns the worth of states the policy does not reach yet (a pendulum already
    swinging fast: the way up is there before the policy has found it);
 4. every ``eval_every`` of the budget the policy runs its episodes on MuJoCo with the exact reward:
-   the best policy so far is kept, the states join the start pool, and (``refine``) the emulator is
-   fine-tuned on all the policy's MuJoCo runs so far, so the model is right where the policy goes.
+   the best policy so far is kept, the states join the start pool, and (``refine``) when the
+   emulator's return from the same starts is off MuJoCo's by more than ``refine_gap``, the emulator
+   is fine-tuned on all the policy's MuJoCo runs so far, so the model is right where the policy goes
+   (a model already right there is left alone: its seconds go to the policy).
 
 Shapes: B episodes, H horizon, S state, U controls, P task parameters.
 """
@@ -59,7 +61,7 @@ class RewardSettings:
 
     seconds: float = 1500.0
     max_iterations: int | None = None
-    envs: int = 64
+    envs: int = 256  # the steps are small: more episodes per update cost little (64 → 256: 1.4× the time)
     horizon: int = 32  # super-steps per iteration: the gradient's path through the emulator
     actor_lr: float = 2e-3  # cosine-annealed to a tenth
     critic_lr: float = 2e-3
@@ -67,6 +69,8 @@ class RewardSettings:
     lam: float = 0.95
     target_tau: float = 0.2  # the target critic moves this share towards the critic each iteration
     noise: float = 0.2  # control noise (share of each control's half range) in the training rollouts
+    noise_time_s: float = 0.0  # its correlation time (0: white): slow noise swings a body further
+    learned_noise: bool = False  # the noise before the tanh, its spread learned from ``noise`` (Dreamer)
     hidden: tuple[int, ...] = (64, 64)
     critic_hidden: tuple[int, ...] = (128, 128)
     grad_clip: float = 1.0
@@ -75,6 +79,8 @@ class RewardSettings:
     mujoco_share: float = 0.5  # share of restarts from states the policy reached on MuJoCo
     explore_share: float = 0.25  # share of restarts anywhere in the emulator's envelope
     refine: bool = True
+    refine_gap: float = 0.02  # refine when the returns on the emulator and on MuJoCo differ by more
+    # than this share of the most an episode can earn (the suite's rewards are at most 1 a step)
     refine_seconds: float = 15.0
     final_episodes: int = 10
     seed: int = 0
@@ -138,22 +144,34 @@ def mlp(inputs: int, hidden: tuple[int, ...], outputs: int) -> nn.Sequential:
 
 
 class RewardPolicy(nn.Module):
-    """π(state (B,S), params (B,P)) → controls (B,U) inside the controls' ranges."""
+    """π(state (B,S), params (B,P)) → controls (B,U) inside the controls' ranges; with ``noise``
+    (B,U) unit draws, the exploring policy of training: the draws times the learned spread
+    ``log_std`` (U,) added before the tanh, so that the noise's gradient teaches its own size."""
 
     centre: Tensor
     half_range: Tensor
+    MIN_LOG_STD = math.log(0.05)
 
     def __init__(
-        self, features: Features, low: FloatArray, high: FloatArray, hidden: tuple[int, ...]
+        self,
+        features: Features,
+        low: FloatArray,
+        high: FloatArray,
+        hidden: tuple[int, ...],
+        noise: float = 1.0,
     ) -> None:
         super().__init__()
         self.features = features
         self.net = mlp(features.size, hidden, len(low))
+        self.log_std = nn.Parameter(torch.full((len(low),), math.log(max(noise, 0.05))))
         self.register_buffer("centre", torch.tensor((low + high) / 2, dtype=torch.float32))
         self.register_buffer("half_range", torch.tensor((high - low) / 2, dtype=torch.float32))
 
-    def forward(self, state: Tensor, params: Tensor) -> Tensor:
-        return self.centre + self.half_range * torch.tanh(self.net(self.features(state, params)))
+    def forward(self, state: Tensor, params: Tensor, noise: Tensor | None = None) -> Tensor:
+        raw = self.net(self.features(state, params))
+        if noise is not None:
+            raw = raw + self.log_std.clamp(min=self.MIN_LOG_STD).exp() * noise
+        return self.centre + self.half_range * torch.tanh(raw)
 
 
 class Critic(nn.Module):
@@ -277,6 +295,12 @@ class RewardTrainer:
         torch.manual_seed(settings.seed)
         self.gamma = math.exp(-self.manifest.super_timestep / task.discount_s)
         self.horizon = settings.horizon
+        self.noise: Tensor | None = None  # (B, U) each episode's control noise, in unit spreads
+        self.noise_keep = (
+            math.exp(-self.manifest.super_timestep / settings.noise_time_s)
+            if settings.noise_time_s > 0
+            else 0.0
+        )
         self.mujoco_steps = 0
         self.refinements = 0
         self.start_states, self.start_params = draw_starts(task, self.physical, self.rng, 2048)
@@ -285,7 +309,7 @@ class RewardTrainer:
         self.low = np.array([c.low for c in self.manifest.controls])
         self.high = np.array([c.high for c in self.manifest.controls])
         features = self._features()
-        self.policy = RewardPolicy(features, self.low, self.high, settings.hidden)
+        self.policy = RewardPolicy(features, self.low, self.high, settings.hidden, settings.noise)
         self.critic = Critic(copy.deepcopy(features), settings.critic_hidden)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
 
@@ -402,10 +426,13 @@ class RewardTrainer:
         disc = 1.0
         x = s
         for _ in range(h_steps):
-            u = self.policy(x, p)
-            if cfg.noise > 0:
-                u = u + cfg.noise * half * torch.randn_like(u)
-            u = torch.maximum(torch.minimum(u, self.policy.centre + half), self.policy.centre - half)
+            if cfg.learned_noise:
+                u = self.policy(x, p, self.next_noise(half.expand(len(x), -1)))
+            else:
+                u = self.policy(x, p)
+                if cfg.noise > 0:
+                    u = u + cfg.noise * half * self.next_noise(u)
+                u = torch.maximum(torch.minimum(u, self.policy.centre + half), self.policy.centre - half)
             x = self.step(x, u)
             r = task.reward(self.ctx, x, u, p, True)
             r = torch.nan_to_num(r)
@@ -424,6 +451,19 @@ class RewardTrainer:
         self.critic.zero_grad()  # the actor's loss reached the critic's weights; they learn below
         self.update_critic(torch.stack(states), torch.stack(rewards), p, opt_critic)
         return x.detach(), float(loss.detach())
+
+    def next_noise(self, u: Tensor) -> Tensor:
+        """(B, U) the control noise of the next super-step, unit spread: white, or with
+        ``noise_time_s`` an AR(1) process of that correlation time carried across iterations (an
+        episode that restarts keeps its noise: it is as likely as any)."""
+        fresh = torch.randn_like(u)
+        if self.noise_keep == 0.0:
+            return fresh
+        if self.noise is None or self.noise.shape != u.shape:
+            self.noise = fresh
+        else:
+            self.noise = self.noise_keep * self.noise + math.sqrt(1 - self.noise_keep**2) * fresh
+        return self.noise
 
     def update_critic(self, states: Tensor, rewards: Tensor, p: Tensor, opt: torch.optim.Optimizer) -> None:
         """TD(λ) targets from the horizon's states (H+1, B, S) and rewards (H, B), with the target critic."""
@@ -525,7 +565,8 @@ class RewardTrainer:
                 self.visited.append(
                     (runs.states.reshape(-1, width), np.repeat(runs.params, k1, axis=0).reshape(n * k1, -1))
                 )
-                if cfg.refine and self.elapsed() < 0.9 * cfg.seconds:
+                gap = abs(emulated - last_return) / task.episode_steps
+                if cfg.refine and gap > cfg.refine_gap and self.elapsed() < 0.9 * cfg.seconds:
                     self.refine()
                 next_check = self.elapsed() + check_every
             if self.on_progress is not None:

@@ -58,6 +58,7 @@ class OnnxEmulator:
         wrapped to [-π, π)."""
         src = str(model) if isinstance(model, Path) else model
         self.wrap = list(wrap)
+        self.threads = threads
         self.session = ort.InferenceSession(src, session_options(threads), providers=["CPUExecutionProvider"])
         ins = {i.name: i for i in self.session.get_inputs()}
         self.input_names = list(ins)

@@ -8,7 +8,9 @@ and scatters the finite rows of the (B, S) result back. A row with NaN or Inf ma
 
 Policy-driven sessions (``policy_rows.py``) get their controls in the same tick: before the emulator's
 call, each policy among the batch's sessions is evaluated ONCE over all its rows (their states and
-goals), and its controls replace those rows' controls. Whatever a client put there is ignored.
+goals), and its controls replace those rows' controls. Whatever a client put there is ignored. When
+one policy drives every row of the batch (the usual tick of a policy's sessions), the policy and the
+emulator run as ONE graph (``export.driven``, composed on first use): one ONNX Runtime call per tick.
 """
 
 from __future__ import annotations
@@ -16,14 +18,19 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import threading
 import time
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from neuroanimator.artifacts.policies import POLICY_ONNX
+from neuroanimator.artifacts.registry import ONNX_FILE
+from neuroanimator.export.driven import DrivenStep, compose_driven
 from services.emulator.errors import Diverged, StepFailed, UnknownSession
 from services.emulator.metrics import Metrics
+from services.emulator.policies import LoadedPolicy
 from services.emulator.policy_rows import PolicyTick
 from services.emulator.registry import LoadedEmulator
 from services.emulator.sessions import Session, StatePool
@@ -95,6 +102,8 @@ class Batcher:
         self._pending_rows = 0  # rows waiting in _pending, kept so that enqueueing is O(1)
         self._ready = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
+        self._driven: dict[str, DrivenStep | None] = {}  # per policy label: its composed step, if any
+        self._compose_lock = threading.Lock()  # (composed in a worker thread at a large batch)
 
     async def step(self, session: Session, inputs: NDArray[np.float32] | list[float]) -> NDArray[np.float32]:
         """One super-step of one session under (U+F,) inputs, controls then forces (checked and
@@ -263,12 +272,46 @@ class Batcher:
         """States (B, S) and inputs (B, U+F) -> (B, S): the policies' calls (one per policy), then the
         emulator's. No pool is touched here (it may run in a worker thread)."""
         nu = self.emu.num_controls
+        f = np.ascontiguousarray(inputs[:, nu:]) if self.emu.num_forces else None
         if tick is not None:
+            policy = tick.sole_policy()
+            driven = self.driven_step(policy) if policy is not None else None
+            if policy is not None and driven is not None:
+                g = tick.groups[0]
+                left = policy.time_left(g.since) if policy.manifest.timed else None
+                controls, out = driven.run(x, g.goals, left, f)
+                tick.took(controls)
+                return out
             bounds = self.emu.inputs
             tick.apply(x, inputs, bounds.low[:nu], bounds.high[:nu])
         u = inputs[:, :nu] if nu else None
-        f = inputs[:, nu:] if self.emu.num_forces else None
         return self.emu.emulator.step(x, u, f, validate=False)
+
+    def driven_step(self, policy: LoadedPolicy) -> DrivenStep | None:
+        """The policy composed with this emulator into one graph, built on first use; None when the
+        two would not compose (logged once: its ticks then make two calls)."""
+        key = policy.label
+        if key not in self._driven:
+            with self._compose_lock:
+                if key not in self._driven:
+                    self._driven[key] = self._compose(policy)
+        return self._driven[key]
+
+    def _compose(self, policy: LoadedPolicy) -> DrivenStep | None:
+        emu, nu = self.emu, self.emu.num_controls
+        try:
+            graph = compose_driven(
+                (policy.path / POLICY_ONNX).read_bytes(),
+                (emu.path / ONNX_FILE).read_bytes(),
+                emu.inputs.low[:nu],
+                emu.inputs.high[:nu],
+            )
+            return DrivenStep(graph, emu.emulator.threads, emu.emulator.wrap)
+        except Exception:  # (onnx and ONNX Runtime raise types of their own) two calls still work
+            log.warning(
+                "policy %s not composed with its emulator: two calls a tick", policy.label, exc_info=True
+            )
+            return None
 
     def _answer_single(
         self,

@@ -140,6 +140,22 @@ class PolicyTick:
             g.controls = np.clip(u, low, high, out=u)
             inputs[g.rows, :nu] = u
 
+    def sole_policy(self) -> LoadedPolicy | None:
+        """The policy when it drives every row of the batch (the usual tick), else None."""
+        if len(self.groups) == 1 and self.groups[0].rows is EVERY_ROW:
+            return self.groups[0].policy
+        return None
+
+    def took(self, controls: NDArray[np.float32]) -> None:
+        """The (B, U) controls the sole policy chose in a call composed with the emulator's (already
+        clipped there): kept for ``record`` as ``apply`` keeps them, non-finite rows marked ``bad``."""
+        g = self.groups[0]
+        g.policy.calls += 1
+        bad = np.logical_not(np.isfinite(controls).all(axis=1))
+        if bad.any():
+            self.bad = bad
+        g.controls = controls
+
     def record(self, cols: PolicyColumns) -> None:
         """The chosen controls into ``applied`` (on the event loop: the pool may have grown meanwhile)."""
         for g in self.groups:

@@ -415,3 +415,41 @@ def test_the_driven_step_benchmark_runs(policies: Policies) -> None:
         )
     assert r["max_ratio"] == max(row["ratio"] for row in r["rows"])
     assert any("target: at most 1.5" in line for line in lines)
+
+
+@pytest.mark.parametrize("name", ["lander-landing", "lander-timed"])
+def test_a_tick_of_one_policys_sessions_is_one_composed_call(
+    client: TestClient, policies: Policies, name: str
+) -> None:
+    """Every row driven by one policy: the policy and the emulator run as ONE graph (one ONNX
+    Runtime call), with the same controls and states as the two calls in turn."""
+    ref = Reference(policies.timed if name == "lander-timed" else policies.landing, policies.emulator)
+    goals = [[2.0 * i, -1.0 - i] for i in range(5)]
+    sessions = [_create(client, {"name": name, "goal": g}, seed=30 + i) for i, g in enumerate(goals)]
+    service = service_of(client)
+    loaded = next(p for p in service.policies.loaded.values() if p.name == name)
+    calls, ort_calls = loaded.calls, service.stepper.ort_calls
+    r = client.post(
+        "/step",
+        content=binary.encode_batch_request([str(s["id"]) for s in sessions], np.zeros((5, 4), np.float32)),
+        headers={"content-type": binary.MEDIA_TYPE},
+    )
+    status, states = binary.decode_batch_response(r.content)
+    assert status.tolist() == [binary.OK] * 5
+    assert service.stepper.ort_calls == ort_calls + 1 and loaded.calls == calls + 1
+    batcher = service.stepper._batchers[("lander", ref.manifest.emulator_version)]
+    driven = batcher.driven_step(loaded)
+    assert driven is not None and driven.calls >= 1  # the tick ran the composed graph
+    for s, g, new in zip(sessions, goals, states, strict=True):
+        want = np.clip(ref.controls(s["state"], g), *_control_range(ref))
+        np.testing.assert_allclose(new, ref.step(s["state"], want), rtol=1e-4, atol=1e-4)
+        got = client.get(f"/sessions/{s['id']}").json()
+        assert got["steps"] == 1
+
+
+def _control_range(ref: Reference) -> tuple[Floats, Floats]:
+    m = registry.read_manifest(ARTIFACTS / "lander" / ref.manifest.emulator_version)
+    return (
+        np.array([c.low for c in m.controls], np.float32),
+        np.array([c.high for c in m.controls], np.float32),
+    )
