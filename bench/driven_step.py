@@ -6,12 +6,12 @@ stepping core.
 For each batch size B: B lander sessions (the committed n = 25 emulator) stepped as ONE binary block
 (``Stepper.step_block``, what a binary ``POST /step`` runs after parsing), over and over for
 ``--seconds``: undriven (the client's controls), then driven by the ``lander-landing`` policy (the
-policy sets the controls in the batcher's tick: one policy call, then the emulator's). Rows: µs per
-batched step, µs per session-step and ``ratio`` = driven / undriven (the target: at most 1.5).
+policy sets the controls in the batcher's tick: the policy and the emulator composed into one graph,
+``export.driven``, one ONNX Runtime call). Rows: µs per batched step, µs per session-step and
+``ratio`` = driven / undriven (the target: at most 1.5).
 
 Then the ONNX Runtime calls alone at each B: the emulator, the policy, both one after the other, and
-the two composed into ONE graph (``onnx.compose.merge_models``: the policy's controls wired into the
-emulator's input), to see whether composing them would pay.
+the composed graph the service runs.
 
 The policy is read from ``--data-dir`` (``NEUROANIMATOR_DATA_DIR`` layout: ``policies/lander/...``);
 without one, a policy is trained here for 3 s into a temporary folder (its quality does not matter
@@ -32,14 +32,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import onnx
-import onnx.compose
 import onnxruntime as ort
 from numpy.typing import NDArray
 
 from neuroanimator.artifacts import registry
 from neuroanimator.artifacts.policies import POLICY_ONNX, PolicyError, resolve_policy
 from neuroanimator.contracts.emulator import PolicyDrive, SessionCreate
+from neuroanimator.export.driven import compose_driven
 from neuroanimator.export.runtime import session_options
 from services.emulator.service import EmulatorService
 from services.emulator.settings import Settings
@@ -123,35 +122,6 @@ async def stepping_core(
     return out
 
 
-def composed(policy_onnx: Path, emulator_onnx: Path) -> bytes:
-    """The policy and the emulator as ONE graph: ``(state, goal) -> (controls, next_state)``."""
-    p, e = onnx.load(str(policy_onnx)), onnx.load(str(emulator_onnx))
-    # the emulator reads the same state as the policy: pass it through the policy's graph
-    p.graph.node.append(onnx.helper.make_node("Identity", ["state"], ["state_through"]))
-    state_in = next(i for i in p.graph.input if i.name == "state")
-    through = onnx.ValueInfoProto()
-    through.CopyFrom(state_in)
-    through.name = "state_through"
-    p.graph.output.append(through)
-    if p.ir_version != e.ir_version:
-        p.ir_version = e.ir_version = max(p.ir_version, e.ir_version)
-    opsets = {o.domain: o.version for o in e.opset_import}
-    for o in p.opset_import:
-        opsets[o.domain] = max(o.version, opsets.get(o.domain, 0))
-    for m in (p, e):
-        del m.opset_import[:]
-        m.opset_import.extend(onnx.helper.make_opsetid(d, v) for d, v in opsets.items())
-    out = e.graph.output[0].name
-    merged = onnx.compose.merge_models(
-        p,
-        e,
-        io_map=[("controls", "controls"), ("state_through", "state")],
-        prefix2="e/",
-        outputs=["controls", f"e/{out}"],
-    )
-    return merged.SerializeToString()
-
-
 def ort_only(
     policy_dir: Path, emulator_onnx: Path, sizes: list[int], seconds: float
 ) -> dict[int, dict[str, float]]:
@@ -159,9 +129,14 @@ def ort_only(
     opts = session_options(1)
     pol = ort.InferenceSession(str(policy_dir / POLICY_ONNX), opts, providers=["CPUExecutionProvider"])
     emu = ort.InferenceSession(str(emulator_onnx), opts, providers=["CPUExecutionProvider"])
-    both = ort.InferenceSession(
-        composed(policy_dir / POLICY_ONNX, emulator_onnx), opts, providers=["CPUExecutionProvider"]
+    limits = registry.read_manifest(emulator_onnx.parent).controls
+    graph = compose_driven(
+        (policy_dir / POLICY_ONNX).read_bytes(),
+        emulator_onnx.read_bytes(),
+        [c.low for c in limits],
+        [c.high for c in limits],
     )
+    both = ort.InferenceSession(graph, opts, providers=["CPUExecutionProvider"])
     s = int(emu.get_inputs()[0].shape[1])
     u = int(pol.get_outputs()[0].shape[1])
     g = int(next(i for i in pol.get_inputs() if i.name == "goal").shape[1])
@@ -195,7 +170,8 @@ def ort_only(
 
         sep = pol.run(None, {"state": x, "goal": goal, **extra})[0]
         one = both.run(None, {"state": x, "goal": goal, **extra})
-        np.testing.assert_allclose(one[0], sep, rtol=1e-5, atol=1e-5)  # the same controls either way
+        low, high = [c.low for c in limits], [c.high for c in limits]
+        np.testing.assert_allclose(one[0], np.clip(sep, low, high), rtol=1e-5, atol=1e-5)  # the same controls
         out[b] = {
             f"ort_{name}_us": timed(fn, seconds / 4) * 1e6
             for name, fn in (

@@ -11,7 +11,9 @@ longer than a gradient survives through a learned model. So, as SHAC does:
    minus the discounted reward of those steps plus the critic's value of where they end, its gradient
    through the emulator's rollout (clipped in norm);
 2. the critic ``V(state, params)`` learns the discounted return by TD(λ) from the same steps;
-3. an episode that ends, leaves the states the emulator knows or diverges starts again: from the
+3. an episode that has run ``branch_s`` (a few seconds, as MBPO's and Dreamer's model rollouts are
+   short: continued for the task's whole episode, a pendulum that fell spins on and the policy learns
+   a constant torque from it), leaves the states the emulator knows or diverges starts again: from the
    task's own starts, or (``mujoco_share``) from a state the policy reached on MuJoCo, so that the
    emulator's short rollouts branch from where the policy really goes (MBPO's branching), or
    (``explore_share``) from anywhere in the emulator's envelope (the states of its training data),
@@ -67,6 +69,7 @@ class RewardSettings:
     critic_lr: float = 2e-3
     critic_steps: int = 8  # critic updates per iteration, each on a random half of the iteration's steps
     lam: float = 0.95
+    value_weight: float = 1.0  # the critic's value of where the horizon ends, in the actor's loss
     target_tau: float = 0.2  # the target critic moves this share towards the critic each iteration
     noise: float = 0.2  # control noise (share of each control's half range) in the training rollouts
     noise_time_s: float = 0.0  # its correlation time (0: white): slow noise swings a body further
@@ -76,6 +79,8 @@ class RewardSettings:
     grad_clip: float = 1.0
     eval_every: float = 0.1  # share of the budget between runs on MuJoCo
     eval_episodes: int = 8
+    branch_s: float = 4.0  # an emulated episode restarts after this long: long ones drift into
+    # states where the gradient vanishes (a pendulum spun up, the policy learning a constant torque)
     mujoco_share: float = 0.5  # share of restarts from states the policy reached on MuJoCo
     explore_share: float = 0.25  # share of restarts anywhere in the emulator's envelope
     refine: bool = True
@@ -441,7 +446,7 @@ class RewardTrainer:
             states.append(x.detach())
             rewards.append(r.detach())
         end_value = self.critic(x, p)
-        loss = (loss - disc * end_value.mean()) / h_steps
+        loss = (loss - cfg.value_weight * disc * end_value.mean()) / h_steps
         opt_actor.zero_grad()
         if torch.isfinite(loss):
             loss.backward()
@@ -525,7 +530,10 @@ class RewardTrainer:
         starts, params = self.restart(cfg.envs)
         s = torch.as_tensor(starts, dtype=torch.float32)
         p = torch.as_tensor(params, dtype=torch.float32)
-        age = np.zeros(cfg.envs, dtype=np.int64)
+        # an emulated episode is a branch of at most ``branch_s`` (MBPO's short model rollouts):
+        # ages staggered, so that restarts spread over the iterations
+        branch = max(self.horizon, min(task.policy_steps, round(cfg.branch_s / self.manifest.super_timestep)))
+        age = self.rng.integers(0, branch, cfg.envs) // self.horizon * self.horizon
         check_every = max(1.0, cfg.eval_every * cfg.seconds)
         next_check = check_every
         best = (-math.inf, copy.deepcopy(self.policy.state_dict()))
@@ -539,7 +547,7 @@ class RewardTrainer:
             s, value = self.iterate(s, p, opt_actor, opt_critic)
             it += 1
             age += self.horizon
-            again = (age >= task.policy_steps) | self.lost(s).numpy()
+            again = (age >= branch) | self.lost(s).numpy()
             if again.any():
                 ns, npar = self.restart(int(again.sum()))
                 s = s.clone()
