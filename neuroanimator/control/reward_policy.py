@@ -18,7 +18,9 @@ longer than a gradient survives through a learned model. So, as SHAC does:
    emulator's short rollouts branch from where the policy really goes (MBPO's branching), or
    (``explore_share``) from anywhere in the emulator's envelope (the states of its training data),
    so that the critic learns the worth of states the policy does not reach yet (a pendulum already
-   swinging fast: the way up is there before the policy has found it);
+   swinging fast: the way up is there before the policy has found it), some of those (a task's
+   ``Restarts.rewarded``) where the reward is paid: a reverse curriculum, the pole balanced upright
+   before it is swung up (the pendulum found its swing-up in 250 s this way, and never without);
 4. every ``eval_every`` of the budget the policy runs its episodes on MuJoCo with the exact reward:
    the best policy so far is kept, the states join the start pool, and (``refine``) when the
    emulator's return from the same starts is off MuJoCo's by more than ``refine_gap``, the emulator
@@ -47,7 +49,7 @@ from torch import Tensor, nn
 from neuroanimator.artifacts import registry
 from neuroanimator.artifacts import store as artifacts
 from neuroanimator.control.bptt import FastStep
-from neuroanimator.control.suite_tasks import Context, SuiteTask
+from neuroanimator.control.suite_tasks import Context, Restarts, SuiteTask
 from neuroanimator.emulator.structured import StructuredEmulator
 from neuroanimator.sim.model import PhysicalModel
 from neuroanimator.training.train import fine_tune_on_runs
@@ -81,8 +83,13 @@ class RewardSettings:
     eval_episodes: int = 8
     branch_s: float = 4.0  # an emulated episode restarts after this long: long ones drift into
     # states where the gradient vanishes (a pendulum spun up, the policy learning a constant torque)
-    mujoco_share: float = 0.5  # share of restarts from states the policy reached on MuJoCo
-    explore_share: float = 0.25  # share of restarts anywhere in the emulator's envelope
+    # where restarts begin (None: as the task says, ``Restarts``): states the policy reached on
+    # MuJoCo, anywhere in the emulator's envelope, and the share of those at the best-paid of
+    # ``tournament`` draws (the rest from the task's own starts)
+    mujoco_share: float | None = None
+    explore_share: float | None = None
+    rewarded_share: float | None = None
+    tournament: int = 8
     refine: bool = True
     refine_gap: float = 0.02  # refine when the returns on the emulator and on MuJoCo differ by more
     # than this share of the most an episode can earn (the suite's rewards are at most 1 a step)
@@ -300,6 +307,11 @@ class RewardTrainer:
         torch.manual_seed(settings.seed)
         self.gamma = math.exp(-self.manifest.super_timestep / task.discount_s)
         self.horizon = settings.horizon
+        self.restarts = Restarts(
+            task.restarts.mujoco if settings.mujoco_share is None else settings.mujoco_share,
+            task.restarts.explore if settings.explore_share is None else settings.explore_share,
+            task.restarts.rewarded if settings.rewarded_share is None else settings.rewarded_share,
+        )
         self.noise: Tensor | None = None  # (B, U) each episode's control noise, in unit spreads
         self.noise_keep = (
             math.exp(-self.manifest.super_timestep / settings.noise_time_s)
@@ -371,16 +383,15 @@ class RewardTrainer:
 
     def restart(self, n: int) -> tuple[FloatArray, FloatArray]:
         """n new starting states and parameters: the task's starts, states reached on MuJoCo, or
-        states anywhere in the emulator's envelope."""
-        cfg = self.settings
+        states anywhere in the emulator's envelope (``Restarts``)."""
         draw = self.rng.random(n)
         idx = self.rng.integers(len(self.start_states), size=n)
         states, params = self.start_states[idx].copy(), self.start_params[idx].copy()
-        explore = draw < cfg.explore_share
+        shares = self.restarts
+        explore = draw < shares.explore
         if explore.any():
-            low, high = self.envelope_box()
-            states[explore] = self.rng.uniform(low, high, (int(explore.sum()), len(low)))
-        from_mujoco = (draw >= cfg.explore_share) & (draw < cfg.explore_share + cfg.mujoco_share)
+            states[explore] = self.envelope_states(params[explore])
+        from_mujoco = (draw >= shares.explore) & (draw < shares.explore + shares.mujoco)
         if not self.visited:
             from_mujoco[:] = False
         if from_mujoco.any():
@@ -389,6 +400,27 @@ class RewardTrainer:
             pick = self.rng.integers(len(vs), size=int(from_mujoco.sum()))
             states[from_mujoco], params[from_mujoco] = vs[pick], vp[pick]
         return states, params
+
+    def envelope_states(self, params: FloatArray) -> FloatArray:
+        """(n, S) states anywhere in the emulator's envelope for episodes of parameters (n, P): each
+        uniform in its box, or (the ``rewarded`` share) the best paid (the smooth reward, controls at
+        rest) of ``tournament`` such draws: a reverse curriculum (Florensa et al. 2017) whose episodes
+        begin where the reward is, so that the policy learns to stay there, and the critic what being
+        there is worth, before it knows the way (a pole upright: balanced before it is swung up)."""
+        n, t = len(params), self.settings.tournament
+        low, high = self.envelope_box()
+        states = self.rng.uniform(low, high, (n, len(low)))
+        best = self.rng.random(n) < self.restarts.rewarded
+        k = int(best.sum())
+        if k and t > 1:
+            cand = self.rng.uniform(low, high, (k * t, len(low)))
+            p = np.repeat(params[best], t, axis=0)
+            u = torch.as_tensor(np.repeat((self.low + self.high)[None] / 2, k * t, axis=0))
+            with torch.no_grad():
+                r = self.task.reward(self.ctx, torch.as_tensor(cand), u, torch.as_tensor(p), True)
+            pick = torch.nan_to_num(r, nan=-1.0).reshape(k, t).argmax(dim=1).numpy()
+            states[best] = cand.reshape(k, t, -1)[np.arange(k), pick]
+        return states
 
     def act(self, states: FloatArray, params: FloatArray) -> FloatArray:
         with torch.no_grad():

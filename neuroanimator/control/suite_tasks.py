@@ -91,6 +91,23 @@ class Context:
         return np.asarray(self.m.site_size[mujoco.mj_name2id(self.m, mujoco.mjtObj.mjOBJ_SITE, name)])
 
 
+@dataclass(frozen=True)
+class Restarts:
+    """Where a reward policy's emulated episodes begin (``reward_policy``), as shares of restarts:
+    ``mujoco`` from states the policy reached on MuJoCo, ``explore`` anywhere in the emulator's
+    envelope, ``rewarded`` of those the best paid of a few draws; the rest from the task's starts."""
+
+    mujoco: float = 0.5
+    explore: float = 0.25
+    rewarded: float = 0.0
+
+
+# a task whose reward lies where its starts and early policies never go (a pole upright, a swing
+# needed to get there): half the restarts in the envelope, half of those where the reward is paid,
+# so the policy learns to stay there first and the critic learns what being there is worth
+REVERSE_CURRICULUM = Restarts(mujoco=0.25, explore=0.5, rewarded=0.5)
+
+
 RewardFn = Callable[[Context, Tensor, Tensor, Tensor, bool], Tensor]
 ObserveFn = Callable[[Context, Tensor, Tensor], Tensor]
 ResetFn = Callable[[mujoco.MjModel, np.random.Generator], tuple[FloatArray, FloatArray, FloatArray]]
@@ -114,6 +131,7 @@ class SuiteTask:
     train_seconds: float = 1500.0
     discount_s: float = 2.0  # seconds over which the training's discount falls to 1/e
     observe: ObserveFn | None = None  # the suite's own observations beyond the state (B, k), for the policy
+    restarts: Restarts = Restarts()
 
     @property
     def repeat(self) -> int:
@@ -269,7 +287,14 @@ SUITE_TASKS: dict[str, SuiteTask] = {
     for t in (
         SuiteTask("cartpole-swingup", "cartpole", 5, 1, reset_cartpole, reward_cartpole, target_return=800),
         SuiteTask(
-            "pendulum-swingup", "pendulum", 2, 1, reset_random_joints, reward_pendulum, target_return=750
+            "pendulum-swingup",
+            "pendulum",
+            2,
+            1,
+            reset_random_joints,
+            reward_pendulum,
+            target_return=750,
+            restarts=REVERSE_CURRICULUM,
         ),
         SuiteTask(
             "reacher-hard",

@@ -72,6 +72,23 @@ def test_episodes_on_mujoco_sum_the_suites_reward_at_every_control_step(artifact
     np.testing.assert_allclose(runs.returns, TASK.episode_steps * start_reward.numpy(), rtol=0.05, atol=1.0)
 
 
+def test_rewarded_restarts_begin_where_the_reward_is_paid(artifacts: Path) -> None:
+    """A reverse curriculum's restarts (the best paid of a few draws in the envelope) are paid more
+    than draws anywhere in it, and stay in the envelope's box."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    paid = {}
+    for share in (0.0, 1.0):
+        trainer = RewardTrainer(TASK, path, replace(QUICK, rewarded_share=share, seed=3))
+        params = np.zeros((512, 0))
+        states = trainer.envelope_states(params)
+        low, high = trainer.envelope_box()
+        assert np.all(states >= low) and np.all(states <= high)
+        u = torch.zeros(512, len(trainer.low), dtype=torch.float64)
+        r = TASK.reward(trainer.ctx, torch.as_tensor(states), u, torch.as_tensor(params), True)
+        paid[share] = float(r.mean())
+    assert paid[1.0] > 1.5 * paid[0.0] > 0
+
+
 def test_an_emulator_at_another_control_period_is_refused(artifacts: Path) -> None:
     path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
     with pytest.raises(ValueError, match="acts every 5 physical steps"):
