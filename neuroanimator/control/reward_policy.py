@@ -71,11 +71,8 @@ class RewardSettings:
     critic_lr: float = 2e-3
     critic_steps: int = 8  # critic updates per iteration, each on a random half of the iteration's steps
     lam: float = 0.95
-    value_weight: float = 1.0  # the critic's value of where the horizon ends, in the actor's loss
     target_tau: float = 0.2  # the target critic moves this share towards the critic each iteration
     noise: float = 0.2  # control noise (share of each control's half range) in the training rollouts
-    noise_time_s: float = 0.0  # its correlation time (0: white): slow noise swings a body further
-    learned_noise: bool = False  # the noise before the tanh, its spread learned from ``noise`` (Dreamer)
     hidden: tuple[int, ...] = (64, 64)
     critic_hidden: tuple[int, ...] = (128, 128)
     grad_clip: float = 1.0
@@ -156,34 +153,22 @@ def mlp(inputs: int, hidden: tuple[int, ...], outputs: int) -> nn.Sequential:
 
 
 class RewardPolicy(nn.Module):
-    """π(state (B,S), params (B,P)) → controls (B,U) inside the controls' ranges; with ``noise``
-    (B,U) unit draws, the exploring policy of training: the draws times the learned spread
-    ``log_std`` (U,) added before the tanh, so that the noise's gradient teaches its own size."""
+    """π(state (B,S), params (B,P)) → controls (B,U) inside the controls' ranges."""
 
     centre: Tensor
     half_range: Tensor
-    MIN_LOG_STD = math.log(0.05)
 
     def __init__(
-        self,
-        features: Features,
-        low: FloatArray,
-        high: FloatArray,
-        hidden: tuple[int, ...],
-        noise: float = 1.0,
+        self, features: Features, low: FloatArray, high: FloatArray, hidden: tuple[int, ...]
     ) -> None:
         super().__init__()
         self.features = features
         self.net = mlp(features.size, hidden, len(low))
-        self.log_std = nn.Parameter(torch.full((len(low),), math.log(max(noise, 0.05))))
         self.register_buffer("centre", torch.tensor((low + high) / 2, dtype=torch.float32))
         self.register_buffer("half_range", torch.tensor((high - low) / 2, dtype=torch.float32))
 
-    def forward(self, state: Tensor, params: Tensor, noise: Tensor | None = None) -> Tensor:
-        raw = self.net(self.features(state, params))
-        if noise is not None:
-            raw = raw + self.log_std.clamp(min=self.MIN_LOG_STD).exp() * noise
-        return self.centre + self.half_range * torch.tanh(raw)
+    def forward(self, state: Tensor, params: Tensor) -> Tensor:
+        return self.centre + self.half_range * torch.tanh(self.net(self.features(state, params)))
 
 
 class Critic(nn.Module):
@@ -312,12 +297,6 @@ class RewardTrainer:
             task.restarts.explore if settings.explore_share is None else settings.explore_share,
             task.restarts.rewarded if settings.rewarded_share is None else settings.rewarded_share,
         )
-        self.noise: Tensor | None = None  # (B, U) each episode's control noise, in unit spreads
-        self.noise_keep = (
-            math.exp(-self.manifest.super_timestep / settings.noise_time_s)
-            if settings.noise_time_s > 0
-            else 0.0
-        )
         self.mujoco_steps = 0
         self.refinements = 0
         self.start_states, self.start_params = draw_starts(task, self.physical, self.rng, 2048)
@@ -326,7 +305,7 @@ class RewardTrainer:
         self.low = np.array([c.low for c in self.manifest.controls])
         self.high = np.array([c.high for c in self.manifest.controls])
         features = self._features()
-        self.policy = RewardPolicy(features, self.low, self.high, settings.hidden, settings.noise)
+        self.policy = RewardPolicy(features, self.low, self.high, settings.hidden)
         self.critic = Critic(copy.deepcopy(features), settings.critic_hidden)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
 
@@ -463,13 +442,10 @@ class RewardTrainer:
         disc = 1.0
         x = s
         for _ in range(h_steps):
-            if cfg.learned_noise:
-                u = self.policy(x, p, self.next_noise(half.expand(len(x), -1)))
-            else:
-                u = self.policy(x, p)
-                if cfg.noise > 0:
-                    u = u + cfg.noise * half * self.next_noise(u)
-                u = torch.maximum(torch.minimum(u, self.policy.centre + half), self.policy.centre - half)
+            u = self.policy(x, p)
+            if cfg.noise > 0:
+                u = u + cfg.noise * half * torch.randn_like(u)
+            u = torch.maximum(torch.minimum(u, self.policy.centre + half), self.policy.centre - half)
             x = self.step(x, u)
             r = task.reward(self.ctx, x, u, p, True)
             r = torch.nan_to_num(r)
@@ -478,7 +454,7 @@ class RewardTrainer:
             states.append(x.detach())
             rewards.append(r.detach())
         end_value = self.critic(x, p)
-        loss = (loss - cfg.value_weight * disc * end_value.mean()) / h_steps
+        loss = (loss - disc * end_value.mean()) / h_steps
         opt_actor.zero_grad()
         if torch.isfinite(loss):
             loss.backward()
@@ -488,19 +464,6 @@ class RewardTrainer:
         self.critic.zero_grad()  # the actor's loss reached the critic's weights; they learn below
         self.update_critic(torch.stack(states), torch.stack(rewards), p, opt_critic)
         return x.detach(), float(loss.detach())
-
-    def next_noise(self, u: Tensor) -> Tensor:
-        """(B, U) the control noise of the next super-step, unit spread: white, or with
-        ``noise_time_s`` an AR(1) process of that correlation time carried across iterations (an
-        episode that restarts keeps its noise: it is as likely as any)."""
-        fresh = torch.randn_like(u)
-        if self.noise_keep == 0.0:
-            return fresh
-        if self.noise is None or self.noise.shape != u.shape:
-            self.noise = fresh
-        else:
-            self.noise = self.noise_keep * self.noise + math.sqrt(1 - self.noise_keep**2) * fresh
-        return self.noise
 
     def update_critic(self, states: Tensor, rewards: Tensor, p: Tensor, opt: torch.optim.Optimizer) -> None:
         """TD(λ) targets from the horizon's states (H+1, B, S) and rewards (H, B), with the target critic."""
