@@ -208,7 +208,7 @@ def bench_suite_task(name: str, root: Path, seconds: float | None, seed: int, qu
         "iterations": result.iterations,
         "refinements": result.refinements,
         "history": [
-            [t, round(r, 1)] for t, r in result.return_history
+            [t, round(r, 1)] for _, t, r in result.return_history
         ],  # (s, return on MuJoCo) while training
         "substeps": task.substeps,
         "open_loop": {

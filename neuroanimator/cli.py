@@ -517,26 +517,42 @@ def _bytes(n: int) -> str:
 def cmd_policy(args: argparse.Namespace) -> int:
     from neuroanimator.control.policy import PolicySettings
     from neuroanimator.control.policy_job import policy_task, run_policy_job
+    from neuroanimator.control.reward_policy import RewardResult, RewardSettings
+    from neuroanimator.control.suite_tasks import SuiteTask
 
     task = policy_task(args.task)
-    settings = PolicySettings(
-        seconds=args.seconds or task.train_seconds, refine=not args.no_refine, seed=args.seed
-    )
+    seconds = args.seconds or task.train_seconds
+    settings: PolicySettings | RewardSettings
+    if isinstance(task, SuiteTask):
+        settings = RewardSettings(seconds=seconds, refine=not args.no_refine, seed=args.seed)
+    else:
+        settings = PolicySettings(seconds=seconds, refine=not args.no_refine, seed=args.seed)
     done = run_policy_job(task, _registries(args.artifacts), settings)
     r = done.result
-    row = {
-        "task": task.name,
-        "success_physics": r.success_physics,
-        "success_emulator": r.success_emulator,
+    row: dict[str, object] = {"task": task.name}
+    if isinstance(r, RewardResult):
+        row |= {"return_physics": round(r.return_physics, 1), "return_emulator": round(r.return_emulator, 1)}
+        judged = [
+            ("return_physics", "return (MuJoCo)", ".1f"),
+            ("return_emulator", "return (emulator)", ".1f"),
+        ]
+    else:
+        row |= {"success_physics": r.success_physics, "success_emulator": r.success_emulator}
+        judged = [("success_physics", "success (MuJoCo)", ".2f"),
+                  ("success_emulator", "success (emulator)", ".2f")]  # fmt: skip
+    row |= {
         "evaluate_runs": r.evaluate_runs,
         "mujoco_steps": r.mujoco_steps,
         "iterations": r.iterations,
         "wall_s": round(r.wall_s, 1),
         "policy": str(done.folder),
     }
-    columns = [("task", "task", "s"), ("success_physics", "success (MuJoCo)", ".2f"),
-               ("success_emulator", "success (emulator)", ".2f"), ("mujoco_steps", "MuJoCo steps", "d"),
-               ("wall_s", "wall s", ".0f")]  # fmt: skip
+    columns = [
+        ("task", "task", "s"),
+        *judged,
+        ("mujoco_steps", "MuJoCo steps", "d"),
+        ("wall_s", "wall s", ".0f"),
+    ]
     _out(_table([row], columns))
     if args.json:
         _out(json.dumps(row))
@@ -614,10 +630,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_policy_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """``neuro policy``: train a feedback policy through an emulator."""
+    from neuroanimator.catalog.suite import SUITE_TASK_INFO
     from neuroanimator.catalog.tasks import POLICY_TASKS
 
     pp = sub.add_parser("policy", help="train a feedback policy through the emulator and store it")
-    pp.add_argument("task", help=f"policy task: {', '.join(POLICY_TASKS)}")
+    pp.add_argument(
+        "task",
+        help=f"policy task: {', '.join(POLICY_TASKS)}; or a dm_control suite task (its model trained "
+        f"from the suite's MJCF under the domain's name): {', '.join(SUITE_TASK_INFO)}",
+    )
     pp.add_argument("--seconds", type=_positive_float, help="training budget (default: the task's)")
     pp.add_argument("--no-refine", action="store_true", help="no fine-tuning on the policy's MuJoCo runs")
     pp.add_argument("--artifacts", help=_ARTIFACTS_HELP)

@@ -683,6 +683,9 @@ class PolicyOutcome(BaseModel):
     success_history: list[HistoryPoint] = Field(
         [], description="the share of each check's MuJoCo runs that met the task, at its iteration"
     )
+    return_history: list[HistoryPoint] = Field(
+        [], description="a suite task's: the mean return of each check's MuJoCo episodes, at its iteration"
+    )
 
 
 class PolicyJobResult(PolicyOutcome):
@@ -718,6 +721,7 @@ class PolicyProgressEvent(BaseModel):
     iteration: int
     loss: MaybeFloat = None
     success_physics: float | None = None
+    return_physics: float | None = Field(None, description="a suite task's: the last check's mean return")
     mujoco_steps: int = 0
     elapsed_s: float | None = None
     attempt: int | None = None

@@ -3,6 +3,10 @@
 What the CLI (``neuro policy``) and the controller's workers call: the task's emulator is the model's
 latest version at the task's super-step (``registry.resolve``), the policy is trained through it
 (``policy.train_policy``) and stored beside it (``policy_store.save_policy``) with how it did.
+
+A suite task (``suite_tasks.SUITE_TASKS``: ``cartpole-swingup``, ``reacher-hard``, ...) takes the same
+path with its reward: the emulator of the model named as its domain, the policy trained by
+``reward_policy.train_reward_policy`` and stored by ``policy_store.save_reward_policy``.
 """
 
 from __future__ import annotations
@@ -17,7 +21,14 @@ import numpy as np
 from neuroanimator.artifacts import registry
 from neuroanimator.catalog.tasks import POLICY_TASKS
 from neuroanimator.control.policy import PolicyProgress, PolicyResult, PolicySettings, train_policy
-from neuroanimator.control.policy_store import save_policy
+from neuroanimator.control.policy_store import save_policy, save_reward_policy
+from neuroanimator.control.reward_policy import (
+    RewardProgress,
+    RewardResult,
+    RewardSettings,
+    train_reward_policy,
+)
+from neuroanimator.control.suite_tasks import SUITE_TASKS, SuiteTask
 from neuroanimator.goals.policy_task import PolicyTask
 
 log = logging.getLogger(__name__)
@@ -27,15 +38,17 @@ class PolicyJobError(ValueError):
     """A policy job that cannot run: an unknown task, or no emulator at the super-step it needs."""
 
 
-def policy_task(name: str) -> PolicyTask:
-    """A built-in policy task by name; ``PolicyJobError`` listing the known ones."""
-    task = POLICY_TASKS.get(name)
+def policy_task(name: str) -> PolicyTask | SuiteTask:
+    """A built-in policy task (a goal-reaching one, or a suite task's reward) by name;
+    ``PolicyJobError`` listing the known ones."""
+    task = POLICY_TASKS.get(name) or SUITE_TASKS.get(name)
     if task is None:
-        raise PolicyJobError(f"unknown policy task {name!r}; built-in: {', '.join(POLICY_TASKS)}")
+        known = ", ".join([*POLICY_TASKS, *SUITE_TASKS])
+        raise PolicyJobError(f"unknown policy task {name!r}; built-in: {known}")
     return task
 
 
-def emulator_for(root: registry.Root, task: PolicyTask, version: str | None = None) -> Path:
+def emulator_for(root: registry.Root, task: PolicyTask | SuiteTask, version: str | None = None) -> Path:
     """The emulator a task's policy is trained through: ``version`` of its model (pinned when a job is
     submitted), else its model's latest at the task's super-step."""
     try:
@@ -50,33 +63,41 @@ def emulator_for(root: registry.Root, task: PolicyTask, version: str | None = No
 class PolicyJobOutcome:
     """The trained policy and where it was stored (None: not stored, ``stored_reason`` says why)."""
 
-    result: PolicyResult
+    result: PolicyResult | RewardResult
     folder: Path | None
     stored_reason: str = ""
 
 
-def worth_storing(result: PolicyResult) -> tuple[bool, str]:
+def worth_storing(result: PolicyResult | RewardResult) -> tuple[bool, str]:
     """Whether a policy is worth storing: one stopped before it was ever run on MuJoCo is untrained."""
-    if result.stop == "cancelled" and not result.success_history:
+    checked = result.success_history if isinstance(result, PolicyResult) else result.return_history
+    if result.stop == "cancelled" and not checked:
         return False, f"cancelled after {result.iterations} iterations, before its first check on MuJoCo"
     return True, "stored"
 
 
 def run_policy_job(
-    task: PolicyTask | str,
+    task: PolicyTask | SuiteTask | str,
     root: registry.Root,
-    settings: PolicySettings | None = None,
-    on_progress: Callable[[PolicyProgress], None] | None = None,
+    settings: PolicySettings | RewardSettings | None = None,
+    on_progress: Callable[[PolicyProgress], None] | Callable[[RewardProgress], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
     emulator_version: str | None = None,
-    should_store: Callable[[PolicyResult], tuple[bool, str]] = worth_storing,
+    should_store: Callable[[PolicyResult | RewardResult], tuple[bool, str]] = worth_storing,
 ) -> PolicyJobOutcome:
     """Train the task's policy through its emulator (``emulator_version``, else the latest at the task's
     super-step) and store it under ``root``'s data directory, unless ``should_store`` says not to (a
-    worker shutting down, a policy cancelled before it was ever checked)."""
+    worker shutting down, a policy cancelled before it was ever checked). A suite task's ``settings``
+    are ``RewardSettings`` (None: its defaults, its ``train_seconds``)."""
     task = policy_task(task) if isinstance(task, str) else task
     path = emulator_for(root, task, emulator_version)
-    result = train_policy(task, path, settings, on_progress, should_stop)
+    if isinstance(task, SuiteTask):
+        if settings is not None and not isinstance(settings, RewardSettings):
+            raise PolicyJobError(f"{task.name} is a reward task: its settings are RewardSettings")
+        return _run_reward_job(task, root, path, settings, on_progress, should_stop, should_store)  # type: ignore[arg-type]
+    if isinstance(settings, RewardSettings):
+        raise PolicyJobError(f"{task.name} is a goal-reaching task: its settings are PolicySettings")
+    result = train_policy(task, path, settings, on_progress, should_stop)  # type: ignore[arg-type]
     store, why = should_store(result)
     if not store:
         log.info("policy %s not stored: %s", task.name, why)
@@ -89,6 +110,39 @@ def run_policy_job(
         task.name,
         result.success_physics,
         result.success_emulator,
+        result.evaluate_runs,
+        result.mujoco_steps,
+        result.wall_s,
+        folder,
+    )
+    return PolicyJobOutcome(result, folder, "stored")
+
+
+def _run_reward_job(
+    task: SuiteTask,
+    root: registry.Root,
+    path: Path,
+    settings: RewardSettings | None,
+    on_progress: Callable[[RewardProgress], None] | None,
+    should_stop: Callable[[], bool] | None,
+    should_store: Callable[[PolicyResult | RewardResult], tuple[bool, str]],
+) -> PolicyJobOutcome:
+    """A suite task's policy trained for its reward through the emulator at ``path`` and stored."""
+    try:
+        result = train_reward_policy(task, path, settings, on_progress, should_stop)
+    except ValueError as e:  # an emulator that does not fit the task (its super-step, its kind)
+        raise PolicyJobError(str(e)) from e
+    store, why = should_store(result)
+    if not store:
+        log.info("policy %s not stored: %s", task.name, why)
+        return PolicyJobOutcome(result, None, why)
+    folder = save_reward_policy(root, result, registry.read_manifest(path))
+    log.info(
+        "policy %s: return on MuJoCo %.1f, on the emulator %.1f (%d episodes), %d MuJoCo steps, %.0f s; "
+        "stored in %s",
+        task.name,
+        result.return_physics,
+        result.return_emulator,
         result.evaluate_runs,
         result.mujoco_steps,
         result.wall_s,

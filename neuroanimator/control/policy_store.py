@@ -3,12 +3,19 @@
 ``<data>/policies/<model>/<name>/<version>/``: ``policy.onnx``, ``policy.pt`` (weights and the
 network's shape, for the torch path) and ``policy.json`` (``PolicyManifest``); the ``latest`` pointer
 moves to it. Versions are named ``p-<UTC time>``.
+
+A reward policy (``reward_policy``: a suite task's) is stored the same way and served the same way:
+its ``goal`` is its task's parameters (the reacher's target; none for most), the goal envelope the
+range they were drawn from, its metrics returns instead of success shares; its ``policy.pt`` holds
+its weights (its features are rebuilt from its task and emulator).
 """
 
 from __future__ import annotations
 
 import datetime as dt
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -17,8 +24,37 @@ from neuroanimator.artifacts.policies import POLICIES_DIR, POLICY_FILE, POLICY_O
 from neuroanimator.artifacts.registry import LATEST, Root, writable, write_pointer
 from neuroanimator.control.policy import PolicyResult, Schedule
 from neuroanimator.control.policy_net import PolicyNet, PolicyShape
+from neuroanimator.control.reward_policy import RewardResult
+from neuroanimator.core.manifest import Manifest
 from neuroanimator.core.policy_manifest import PolicyManifest, PolicyMetrics
 from neuroanimator.export.policy import policy_to_onnx
+
+
+def _about(version: str, m: Manifest) -> dict[str, Any]:
+    """A policy manifest's fields that say which version it is and which emulator it drives."""
+    return {
+        "version": version,
+        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "model": m.model,
+        "emulator_version": m.version,
+        "substeps": m.substeps,
+        "super_timestep": m.super_timestep,
+        "state_size": m.state_size,
+        "state_labels": list(m.state_labels),
+        "control_names": [c.name for c in m.controls],
+    }
+
+
+def _how_it_ran(result: PolicyResult | RewardResult) -> dict[str, Any]:
+    """A policy's metrics that either kind of training reports: its runs, steps, iterations, time."""
+    return {
+        "evaluate_runs": result.evaluate_runs,
+        "mujoco_steps": result.mujoco_steps,
+        "iterations": result.iterations,
+        "refinements": result.refinements,
+        "wall_s": round(result.wall_s, 2),
+        "stop": result.stop,
+    }
 
 
 def policy_manifest(result: PolicyResult, version: str, goals: np.ndarray) -> PolicyManifest:
@@ -28,15 +64,7 @@ def policy_manifest(result: PolicyResult, version: str, goals: np.ndarray) -> Po
     default = np.median(goals, axis=0)
     return PolicyManifest(
         name=task.name,
-        version=version,
-        created=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        model=m.model,
-        emulator_version=m.version,
-        substeps=m.substeps,
-        super_timestep=m.super_timestep,
-        state_size=m.state_size,
-        state_labels=list(m.state_labels),
-        control_names=[c.name for c in m.controls],
+        **_about(version, m),
         goal_variables=list(task.goal.variables),
         goal_low=[float(v) for v in goals.min(axis=0)],
         goal_high=[float(v) for v in goals.max(axis=0)],
@@ -49,20 +77,41 @@ def policy_manifest(result: PolicyResult, version: str, goals: np.ndarray) -> Po
         metrics=PolicyMetrics(
             success_physics=result.success_physics,
             success_emulator=result.success_emulator,
-            evaluate_runs=result.evaluate_runs,
-            mujoco_steps=result.mujoco_steps,
-            iterations=result.iterations,
-            refinements=result.refinements,
-            wall_s=round(result.wall_s, 2),
-            stop=result.stop,
+            **_how_it_ran(result),
         ),
     )
 
 
-def save_policy(root: Root, result: PolicyResult, goals: np.ndarray, when: dt.datetime | None = None) -> Path:
-    """Write the policy under the data directory of ``root`` and point ``latest`` at it."""
+def reward_policy_manifest(result: RewardResult, emulator: Manifest, version: str) -> PolicyManifest:
+    """The manifest of a trained reward policy through ``emulator``: its goal the task's parameters."""
+    task = result.task
+    steps = task.policy_steps
+    params = result.params if result.params is not None else np.zeros((1, len(task.params)))
+    low = list(task.param_low) or [float(v) for v in params.min(axis=0)]
+    high = list(task.param_high) or [float(v) for v in params.max(axis=0)]
+    return PolicyManifest(
+        name=task.name,
+        **_about(version, emulator),
+        goal_variables=list(task.params),
+        goal_low=low,
+        goal_high=high,
+        goal_default=[float(v) for v in np.median(params, axis=0)],
+        goal_period_steps=steps,
+        check_steps=steps,
+        description=task.summary,
+        task=task.to_dict(),
+        metrics=PolicyMetrics(
+            return_physics=round(result.return_physics, 2),
+            return_emulator=round(result.return_emulator, 2),
+            **_how_it_ran(result),
+        ),
+    )
+
+
+def _new_folder(root: Root, model: str, name: str, when: dt.datetime | None) -> tuple[Path, str]:
+    """A new, empty version folder of a model's policy and its version name."""
     when = when or dt.datetime.now(dt.UTC)
-    base = writable(root) / POLICIES_DIR / result.manifest.model / result.task.name
+    base = writable(root) / POLICIES_DIR / model / name
     version = "p-" + when.strftime("%Y%m%dT%H%M%S")
     n = 1
     while (base / version).exists():
@@ -70,15 +119,36 @@ def save_policy(root: Root, result: PolicyResult, goals: np.ndarray, when: dt.da
         version = "p-" + when.strftime("%Y%m%dT%H%M%S") + f"-{n}"
     folder = base / version
     folder.mkdir(parents=True)
-    shape = result.net.shape
-    manifest = policy_manifest(result, version, goals)
-    (folder / POLICY_ONNX).write_bytes(
-        policy_to_onnx(result.net, shape.state_size, shape.goal_size, shape.timed)
-    )
-    torch.save({"shape": shape.to_dict(), "state_dict": result.net.state_dict()}, folder / POLICY_WEIGHTS)
+    return folder, version
+
+
+def _write(folder: Path, graph: bytes, weights: Mapping[str, object], manifest: PolicyManifest) -> Path:
+    """The version's files, then the ``latest`` pointer (last: a reader never sees a half-written one)."""
+    (folder / POLICY_ONNX).write_bytes(graph)
+    torch.save(dict(weights), folder / POLICY_WEIGHTS)
     (folder / POLICY_FILE).write_text(manifest.model_dump_json(indent=2))
-    write_pointer(base, LATEST, version)
+    write_pointer(folder.parent, LATEST, folder.name)
     return folder
+
+
+def save_policy(root: Root, result: PolicyResult, goals: np.ndarray, when: dt.datetime | None = None) -> Path:
+    """Write the policy under the data directory of ``root`` and point ``latest`` at it."""
+    folder, version = _new_folder(root, result.manifest.model, result.task.name, when)
+    shape = result.net.shape
+    graph = policy_to_onnx(result.net, shape.state_size, shape.goal_size, shape.timed)
+    weights = {"shape": shape.to_dict(), "state_dict": result.net.state_dict()}
+    return _write(folder, graph, weights, policy_manifest(result, version, goals))
+
+
+def save_reward_policy(
+    root: Root, result: RewardResult, emulator: Manifest, when: dt.datetime | None = None
+) -> Path:
+    """Write a reward policy trained through ``emulator`` under the data directory of ``root``."""
+    folder, version = _new_folder(root, emulator.model, result.task.name, when)
+    manifest = reward_policy_manifest(result, emulator, version)
+    graph = policy_to_onnx(result.policy, manifest.state_size, manifest.goal_size, False, reads_time=False)
+    weights = {"kind": "reward", "task": result.task.name, "state_dict": result.policy.state_dict()}
+    return _write(folder, graph, weights, manifest)
 
 
 def load_policy_net(folder: Path) -> PolicyNet:

@@ -209,8 +209,14 @@ class RewardResult:
     iterations: int
     wall_s: float
     refinements: int = 0
-    return_history: list[tuple[float, float]] = field(default_factory=list)  # (elapsed s, return on MuJoCo)
+    # every check on MuJoCo: (iteration, elapsed s, the mean return of its episodes)
+    return_history: list[tuple[int, float, float]] = field(default_factory=list)
     stop: str = "budget"
+    params: FloatArray | None = None  # (N, P) the task's parameters it was trained for
+
+    @property
+    def evaluate_runs(self) -> int:
+        return len(self.returns_physics)
 
 
 def draw_starts(
@@ -271,10 +277,11 @@ class RewardTrainer:
         path: Path,
         settings: RewardSettings,
         on_progress: Callable[[RewardProgress], None] | None = None,
+        should_stop: Callable[[], bool] | None = None,
     ) -> None:
         self.t0 = time.perf_counter()
         self.task, self.settings, self.path = task, settings, path
-        self.on_progress = on_progress
+        self.on_progress, self.should_stop = on_progress, should_stop
         self.manifest = registry.read_manifest(path)
         if self.manifest.substeps != task.substeps:
             raise ValueError(
@@ -532,10 +539,13 @@ class RewardTrainer:
         check_every = max(1.0, cfg.eval_every * cfg.seconds)
         next_check = check_every
         best = (-math.inf, copy.deepcopy(self.policy.state_dict()))
-        history: list[tuple[float, float]] = []
-        it, value = 0, None
+        history: list[tuple[int, float, float]] = []
+        it, value, stop = 0, None, "budget"
         last_return: float | None = None
         while self.elapsed() < cfg.seconds and (cfg.max_iterations is None or it < cfg.max_iterations):
+            if self.should_stop is not None and self.should_stop():
+                stop = "cancelled"
+                break
             frac = min(1.0, self.elapsed() / cfg.seconds)
             for group in opt_actor.param_groups:
                 group["lr"] = cfg.actor_lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * frac)))
@@ -556,7 +566,7 @@ class RewardTrainer:
             if self.elapsed() >= next_check or last:
                 runs, emulated = self.evaluate(cfg.eval_episodes, int(self.rng.integers(1 << 30)))
                 last_return = runs.mean
-                history.append((round(self.elapsed(), 1), last_return))
+                history.append((it, round(self.elapsed(), 1), last_return))
                 log.info(
                     "%s: iteration %d, loss %.4g, return on MuJoCo %.1f, on the emulator %.1f",
                     task.name, it, value, last_return, emulated,
@@ -582,6 +592,8 @@ class RewardTrainer:
                         "elapsed_s": round(self.elapsed(), 3),
                     }
                 )
+        if not history:  # stopped before its first check: nothing better to keep than what it has
+            best = (-math.inf, copy.deepcopy(self.policy.state_dict()))
         self.policy.load_state_dict(best[1])
         final, _ = self.evaluate(cfg.final_episodes, cfg.seed + 1_000_003)
         self.step = FastStep(artifacts.load_emulator(self.path))  # type: ignore[arg-type]
@@ -599,6 +611,8 @@ class RewardTrainer:
             wall_s=self.elapsed(),
             refinements=self.refinements,
             return_history=history,
+            stop=stop,
+            params=self.start_params,
         )
 
 
@@ -607,12 +621,14 @@ def train_reward_policy(
     path: Path,
     settings: RewardSettings | None = None,
     on_progress: Callable[[RewardProgress], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
 ) -> RewardResult:
-    """Train a policy for a reward task through the emulator artifact at ``path`` (module doc)."""
+    """Train a policy for a reward task through the emulator artifact at ``path`` (module doc);
+    ``should_stop`` ends it early (``stop`` is then ``cancelled``), the best policy so far kept."""
     settings = settings or RewardSettings(seconds=task.train_seconds)
     previous = torch.get_num_threads()
     torch.set_num_threads(max(1, settings.threads))
     try:
-        return RewardTrainer(task, path, settings, on_progress).train()
+        return RewardTrainer(task, path, settings, on_progress, should_stop).train()
     finally:
         torch.set_num_threads(previous)

@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -30,6 +31,7 @@ import torch
 from numpy.typing import NDArray
 from torch import Tensor
 
+from neuroanimator.catalog.suite import SUITE_TASK_INFO, SuiteTaskInfo
 from neuroanimator.control.kinematics import Kinematics
 from neuroanimator.core.state import LayoutGroup
 
@@ -113,22 +115,15 @@ ObserveFn = Callable[[Context, Tensor, Tensor], Tensor]
 ResetFn = Callable[[mujoco.MjModel, np.random.Generator], tuple[FloatArray, FloatArray, FloatArray]]
 
 
-@dataclass(frozen=True)
-class SuiteTask:
-    """One of the suite's tasks: its domain (the MJCF ``<domain>.xml`` the suite ships), the control
-    period the policy needs (``substeps`` physical steps), the suite's own control step
-    (``control_substeps``), episode length, starts, per-episode parameters and reward."""
+@dataclass(frozen=True, kw_only=True)
+class SuiteTask(SuiteTaskInfo):
+    """One of the suite's tasks (``SuiteTaskInfo``: its domain, control period, episode and
+    parameters) with how its episodes start (``reset``), what they earn (``reward``) and how its
+    policy is learned: the discount's time scale, the suite's own observations beyond the state
+    (``observe``) and where emulated episodes restart (``restarts``)."""
 
-    name: str
-    domain: str
-    substeps: int
-    control_substeps: int
     reset: ResetFn
     reward: RewardFn
-    params: tuple[str, ...] = ()
-    episode_steps: int = 1000
-    target_return: float = 0.0  # what a learned policy must reach on MuJoCo (mean of 10 episodes)
-    train_seconds: float = 1500.0
     discount_s: float = 2.0  # seconds over which the training's discount falls to 1/e
     observe: ObserveFn | None = None  # the suite's own observations beyond the state (B, k), for the policy
     restarts: Restarts = Restarts()
@@ -282,43 +277,18 @@ def reward_acrobot(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) 
     return tolerance(torch.linalg.norm(target - tip, dim=1), 0.0, radius, 4.0 if smooth else 1.0)
 
 
+def _task(name: str, reset: ResetFn, reward: RewardFn, **how: Any) -> SuiteTask:
+    return SuiteTask(**asdict(SUITE_TASK_INFO[name]), reset=reset, reward=reward, **how)
+
+
 SUITE_TASKS: dict[str, SuiteTask] = {
     t.name: t
     for t in (
-        SuiteTask("cartpole-swingup", "cartpole", 5, 1, reset_cartpole, reward_cartpole, target_return=800),
-        SuiteTask(
-            "pendulum-swingup",
-            "pendulum",
-            2,
-            1,
-            reset_random_joints,
-            reward_pendulum,
-            target_return=750,
-            restarts=REVERSE_CURRICULUM,
-        ),
-        SuiteTask(
-            "reacher-hard",
-            "reacher",
-            2,
-            1,
-            reset_reacher,
-            reward_reacher,
-            ("target.x", "target.y"),
-            target_return=900,
-            observe=observe_reacher,
-        ),
-        SuiteTask(
-            "point_mass-easy", "point_mass", 2, 1, reset_random_joints, reward_point_mass, target_return=850
-        ),
-        SuiteTask(
-            "ball_in_cup-catch",
-            "ball_in_cup",
-            20,
-            10,
-            reset_ball_in_cup,
-            reward_ball_in_cup,
-            target_return=900,
-        ),
-        SuiteTask("acrobot-swingup", "acrobot", 5, 1, reset_acrobot, reward_acrobot, target_return=250),
+        _task("cartpole-swingup", reset_cartpole, reward_cartpole),
+        _task("pendulum-swingup", reset_random_joints, reward_pendulum, restarts=REVERSE_CURRICULUM),
+        _task("reacher-hard", reset_reacher, reward_reacher, observe=observe_reacher),
+        _task("point_mass-easy", reset_random_joints, reward_point_mass),
+        _task("ball_in_cup-catch", reset_ball_in_cup, reward_ball_in_cup),
+        _task("acrobot-swingup", reset_acrobot, reward_acrobot),
     )
 }

@@ -29,12 +29,15 @@ def policy_input_names(timed: bool) -> list[str]:
     return ["state", "goal", "time_left"] if timed else ["state", "goal"]
 
 
-def policy_to_onnx(net: nn.Module, state_size: int, goal_size: int, timed: bool) -> bytes:
-    """The policy's ONNX graph (bytes)."""
+def policy_to_onnx(
+    net: nn.Module, state_size: int, goal_size: int, timed: bool, reads_time: bool = True
+) -> bytes:
+    """The policy's ONNX graph (bytes); ``reads_time`` False: ``net`` is ``π(state, goal)`` already
+    (a reward policy: ``goal`` its task's parameters, possibly none)."""
     net = net.eval()
     b = 2
     args: tuple[Tensor, ...] = (torch.zeros(b, state_size), torch.zeros(b, goal_size))
-    module: nn.Module = net if timed else _Untimed(net)
+    module: nn.Module = net if timed or not reads_time else _Untimed(net)
     if timed:
         args = (*args, torch.zeros(b, 1))
     names = policy_input_names(timed)

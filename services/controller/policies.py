@@ -19,12 +19,15 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from neuroanimator.artifacts import registry
+from neuroanimator.catalog.suite import SUITE_TASK_INFO, SuiteTaskInfo
 from neuroanimator.catalog.tasks import POLICY_TASKS
 from neuroanimator.contracts.controller import HISTORY_POINTS, HistoryPoint, PolicyJobCreate, PolicyTaskSpec
+from neuroanimator.goals.policy_task import PolicyTask
 from services.common import tenancy
 from services.controller.custom_policy import TaskDefinitionError, checked_task
 
 POLICY: Literal["policy"] = "policy"
+REWARD_HIDDEN = (64, 64)  # a suite task's policy network (``reward_policy.RewardSettings.hidden``)
 JobKind = Literal["control", "policy"]
 
 
@@ -76,14 +79,18 @@ def policy_spec(req: PolicyJobCreate, root: registry.Root, max_seconds: float) -
     ``task.<its field>``)."""
     if isinstance(req.task, PolicyTaskSpec):
         return _custom_spec(req, req.task, root, max_seconds)
-    task = POLICY_TASKS.get(req.task)
+    task: PolicyTask | SuiteTaskInfo | None = POLICY_TASKS.get(req.task) or SUITE_TASK_INFO.get(req.task)
     if task is None:
-        known = sorted(POLICY_TASKS)
+        known = sorted([*POLICY_TASKS, *SUITE_TASK_INFO])
         raise PolicySpecError(
             "task", f"unknown policy task {req.task!r}; built-in: {', '.join(known)}", known, req.task
         )
     seconds = _budget(req, task.train_seconds, max_seconds)
     need = f"an emulator of {task.model!r} at n = {task.substeps}"
+    if isinstance(task, SuiteTaskInfo):
+        need += (
+            f" (neuro train --mjcf {task.to_dict()['mjcf']} --name {task.domain} --substeps {task.substeps})"
+        )
     seen = tenancy.can_see(root, task.model)  # another key's unpublished upload: as if there were none
     try:
         if not seen:
@@ -106,7 +113,7 @@ def policy_spec(req: PolicyJobCreate, root: registry.Root, max_seconds: float) -
         refine=req.refine,
         seed=req.seed,
         batch=req.batch,
-        hidden=list(req.hidden or task.hidden),
+        hidden=list(req.hidden or (REWARD_HIDDEN if isinstance(task, SuiteTaskInfo) else task.hidden)),
     )
 
 

@@ -26,6 +26,7 @@ from collections.abc import Mapping
 from typing import Any, Literal
 
 from neuroanimator.artifacts.policies import read_policy
+from neuroanimator.catalog.suite import SUITE_TASK_INFO
 from neuroanimator.contracts.controller import HistoryPoint, PolicyOutcome
 from neuroanimator.core.policy_manifest import PolicyManifest
 from neuroanimator.goals.policy_task import PolicyTask
@@ -56,8 +57,10 @@ class PolicyRecorder(ProgressRecorder):
 
 
 def training_settings(spec: PolicyJobSpec, threads: int) -> dict[str, Any]:
-    """``PolicySettings``'s arguments for a job: what the spec sets (None: the trainer's default)."""
-    given = {"seed": spec.seed, "batch": spec.batch}
+    """``PolicySettings``'s arguments for a job (a suite task's: ``RewardSettings``'s, its batch the
+    episodes run side by side): what the spec sets (None: the trainer's default)."""
+    batch = "envs" if spec.task in SUITE_TASK_INFO and spec.definition is None else "batch"
+    given = {"seed": spec.seed, batch: spec.batch}
     return {
         "seconds": spec.seconds,
         "refine": spec.refine,
@@ -92,6 +95,10 @@ def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, 
         from neuroanimator.control.policy import PolicySettings
         from neuroanimator.control.policy_data import GoalsUnreachable
         from neuroanimator.control.policy_job import PolicyJobError, run_policy_job, worth_storing
+        from neuroanimator.control.reward_policy import RewardSettings
+
+        reward = spec.task in SUITE_TASK_INFO and spec.definition is None
+        how = training_settings(spec, s.worker_threads)
 
         def should_store(result: Any) -> tuple[bool, str]:
             """Nothing is stored by a run that hands its job back (shutdown, taken over by another)."""
@@ -103,7 +110,7 @@ def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, 
             done = run_policy_job(
                 _task(spec),
                 s.roots(),
-                PolicySettings(**training_settings(spec, s.worker_threads)),
+                RewardSettings(**how) if reward else PolicySettings(**how),
                 on_progress=recorder,
                 should_stop=clock.should_stop,
                 emulator_version=spec.emulator_version,
@@ -154,7 +161,12 @@ def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, 
         policy=manifest,
         iterations=done.result.iterations,
         loss_history=thin(recorder.losses),
-        success_history=[HistoryPoint(iteration=i, value=v) for i, v in done.result.success_history],
+        success_history=[
+            HistoryPoint(iteration=i, value=v) for i, v in getattr(done.result, "success_history", [])
+        ],
+        return_history=[
+            HistoryPoint(iteration=i, value=v) for i, _, v in getattr(done.result, "return_history", [])
+        ],
     )
     store.finish(job_id, delivery, outcome)
     return status

@@ -17,7 +17,7 @@ from neuroanimator.artifacts import policies, registry
 from neuroanimator.catalog import lander, pendulum, quadrotor, truck
 from neuroanimator.catalog.tasks import POLICY_TASKS
 from neuroanimator.cli import main as neuro
-from neuroanimator.control.policy import PolicySettings, PolicyTrainer, Schedule, TargetDistance
+from neuroanimator.control.policy import PolicyResult, PolicySettings, PolicyTrainer, Schedule, TargetDistance
 from neuroanimator.control.policy_data import GoalsUnreachable, reached_goals, sample_starts
 from neuroanimator.control.policy_job import PolicyJobError, emulator_for, policy_task, run_policy_job
 from neuroanimator.control.policy_net import PolicyNet, PolicyShape, describe_columns
@@ -187,6 +187,7 @@ def test_a_trained_policy_is_stored_and_read_back() -> None:
     roots = registry.Roots.default()
     done = run_policy_job("lander-landing", roots, TINY)
     r = done.result
+    assert isinstance(r, PolicyResult)
     assert r.iterations == 6 and r.success_history == [(6, r.success_history[0][1])]
     assert 0.0 <= r.success_physics <= 1.0 and r.evaluate_runs == 8
     assert r.mujoco_steps > 0

@@ -12,10 +12,23 @@ import numpy as np
 import pytest
 import torch
 from dm_control import suite
+from fastapi.testclient import TestClient
 
 from neuroanimator.artifacts import registry
-from neuroanimator.control.reward_policy import RewardSettings, RewardTrainer, draw_starts, run_on_mujoco
+from neuroanimator.artifacts.policies import read_policy
+from neuroanimator.control.policy import PolicySettings
+from neuroanimator.control.policy_job import PolicyJobError, run_policy_job
+from neuroanimator.control.reward_policy import (
+    RewardResult,
+    RewardSettings,
+    RewardTrainer,
+    draw_starts,
+    run_on_mujoco,
+)
 from neuroanimator.control.suite_tasks import SUITE_TASKS
+from neuroanimator.export.runtime import OnnxEmulator
+from services.emulator.app import create_app
+from services.emulator.settings import Settings
 from tests.helpers import run_bench
 
 TASK = SUITE_TASKS["point_mass-easy"]
@@ -43,7 +56,7 @@ def test_training_runs_on_mujoco_keeps_the_best_and_counts_its_steps(artifacts: 
     trainer = RewardTrainer(TASK, path, QUICK)
     result = trainer.train()
     assert result.iterations > 0 and result.return_history
-    assert all(np.isfinite(r) and 0 <= r <= TASK.episode_steps for _, r in result.return_history)
+    assert all(np.isfinite(r) and 0 <= r <= TASK.episode_steps for _, _, r in result.return_history)
     assert len(result.returns_physics) == QUICK.final_episodes
     assert 0 <= result.return_physics <= TASK.episode_steps and np.isfinite(result.return_emulator)
     # every MuJoCo episode is counted: the checks during training and the final ones
@@ -107,3 +120,57 @@ def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
     assert not row["emulator_trained_here"] and 0 < row["emulator_wall_s"] < row["wall_s"]
     assert row["model_free"]["algorithm"] == "sac" and row["model_free"]["env_steps"] > 0
     assert any(line.startswith("| point_mass-easy |") for line in lines)
+
+
+def test_a_suite_task_is_a_policy_job_stored_and_served_as_a_driver(artifacts: Path, tmp_path: Path) -> None:
+    """``run_policy_job`` trains a suite task's policy as it does a goal-reaching one and stores it
+    beside its emulator; the emulator service drives a session of the model with it, every super-step
+    the stored graph's controls for the session's state (a task without parameters: an empty goal)."""
+    roots = registry.Roots(tmp_path / "data", artifacts)
+    path = registry.resolve(roots, "point_mass", substeps=TASK.substeps)
+    done = run_policy_job(TASK.name, roots, QUICK)
+    assert done.folder is not None and done.folder.parent.parent.name == "point_mass"
+    assert done.folder.is_relative_to(tmp_path / "data")  # the data directory, never the defaults
+    m = read_policy(done.folder)
+    result = done.result
+    assert isinstance(result, RewardResult)
+    assert (m.name, m.model, m.emulator_version, m.substeps) == (TASK.name, "point_mass", path.name, 2)
+    assert (m.goal_variables, m.goal_low, m.goal_high, m.timed) == ([], [], [], False)
+    assert m.task["kind"] == "reward" and m.metrics.success_physics is None
+    assert m.metrics.return_physics == round(result.return_physics, 2)
+    assert m.metrics.evaluate_runs == QUICK.final_episodes and m.metrics.mujoco_steps == result.mujoco_steps
+
+    settings = Settings(artifacts_dir=artifacts, data_dir=tmp_path / "data", max_wait_ms=1.0,
+                        registry_poll_s=0.0, redis_url="", api_keys="", api_key_secret="t")  # fmt: skip
+    emulator = OnnxEmulator(path / registry.ONNX_FILE)
+    with TestClient(create_app(settings)) as client:
+        r = client.post("/sessions", json={"model": "point_mass", "seed": 3, "policy": {"name": TASK.name}})
+        assert r.status_code == 201, r.text
+        info = r.json()
+        assert info["version"] == path.name and info["policy"]["goal_variables"] == []
+        state = np.asarray(info["state"], np.float32)
+        r = client.post(f"/sessions/{info['id']}/step", json={"steps": 3})
+        assert r.status_code == 200, r.text
+        body = r.json()
+        for k in range(3):  # the torch policy's controls for the state each super-step starts from
+            with torch.no_grad():
+                want = result.policy(torch.as_tensor(state[None]), torch.zeros(1, 0))[0].numpy()
+            np.testing.assert_allclose(body["controls"][k], want, rtol=1e-4, atol=1e-5)
+            state = emulator.step(state[None], np.asarray(body["controls"][k], np.float32)[None])[0]
+            np.testing.assert_allclose(body["states"][k], state, rtol=1e-4, atol=1e-4)
+        # a goal this policy does not take is refused, naming its size
+        r = client.post(f"/sessions/{info['id']}/step", json={"goal": [0.1]})
+        assert r.status_code == 422 and r.json()["field"] == "goal", r.text
+
+
+def test_a_suite_policy_job_stopped_before_its_first_check_stores_nothing(
+    artifacts: Path, tmp_path: Path
+) -> None:
+    done = run_policy_job(TASK.name, registry.Roots(tmp_path, artifacts), QUICK, should_stop=lambda: True)
+    assert (
+        done.folder is None
+        and done.result.stop == "cancelled"
+        and "before its first check" in done.stored_reason
+    )
+    with pytest.raises(PolicyJobError, match="RewardSettings"):
+        run_policy_job(TASK.name, registry.Roots(tmp_path, artifacts), PolicySettings(seconds=5))

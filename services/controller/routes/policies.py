@@ -16,6 +16,7 @@ from fastapi import APIRouter, Query, Request, Response
 
 from neuroanimator.artifacts.policies import PolicyError, list_policies, read_policy, resolve_policy
 from neuroanimator.artifacts.registry import is_name
+from neuroanimator.catalog.suite import SUITE_TASK_INFO
 from neuroanimator.catalog.tasks import POLICY_TASKS
 from neuroanimator.contracts.controller import (
     JobAccepted,
@@ -83,8 +84,12 @@ def create_policy_job(
 
 @router.get("/policy-tasks", response_model=PolicyTaskList)
 def list_policy_tasks() -> PolicyTaskList:
-    """The built-in policy tasks: model, super-step, goals, success criterion and state layout."""
-    return PolicyTaskList(tasks=[PolicyTaskInfo(**clean(t.to_dict())) for t in POLICY_TASKS.values()])
+    """The built-in policy tasks: model, super-step, goals, success criterion and state layout; then
+    dm_control's suite tasks (``kind`` ``reward``: judged by the suite's reward on MuJoCo, their model
+    the suite's MJCF trained under the domain's name)."""
+    tasks = [PolicyTaskInfo(**clean(t.to_dict())) for t in POLICY_TASKS.values()]
+    suite = [PolicyTaskInfo(**t.to_dict()) for t in SUITE_TASK_INFO.values()]
+    return PolicyTaskList(tasks=tasks + suite)
 
 
 @router.get("/policies", response_model=PolicyList)

@@ -10,10 +10,13 @@ import json
 import math
 import os
 import socket
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
+from dm_control import suite
 from fastapi.testclient import TestClient
 from rq.job import Job
 from rq.serializers import JSONSerializer
@@ -378,3 +381,46 @@ def test_a_custom_task_on_a_model_the_caller_does_not_see_is_422(ctl: Controller
     err = r.json()
     assert err["field"] == "task.model" and "unknown model 'truck'" in err["message"], err
     assert "truck" not in err["expected"]
+
+
+def test_a_suite_task_without_its_domains_model_is_422_saying_how_to_make_it(ctl: Controller) -> None:
+    api = ctl.client(redis_url=f"redis://127.0.0.1:{_closed_port()}/0")
+    tasks = {t["name"]: t for t in api.get("/policy-tasks").json()["tasks"]}
+    reacher = tasks["reacher-hard"]
+    assert (reacher["kind"], reacher["model"], reacher["substeps"]) == ("reward", "reacher", 2)
+    assert reacher["goal_variables"] == ["target.x", "target.y"] and reacher["target_return"] == 900
+    r = api.post("/policies", json={"task": "reacher-hard", "seconds": 10})
+    assert r.status_code == 422, r.text
+    err = r.json()
+    assert err["field"] == "task" and "neuro train --mjcf dm_control/suite/reacher.xml" in err["message"], err
+
+
+def test_a_suite_task_trains_through_a_worker_and_reports_its_returns(ctl: Controller) -> None:
+    """dm_control's point_mass, brought in as a user's MJCF under its domain's name, then its suite
+    task as a policy job: trained by a worker for its reward, stored, its returns in the result."""
+    data = Path(os.environ["NEUROANIMATOR_DATA_DIR"])
+    subprocess.run(
+        [sys.executable, "-m", "neuroanimator.cli", "train", "--mjcf", str(Path(suite.__file__).parent / "point_mass.xml"),
+         "--name", "point_mass", "--substeps", "2", "--examples", "2000", "--epochs", "20", "--hidden", "32",
+         "--rollout-steps", "0", "--force", "--quiet", "--out", str(data)],
+        check=True, capture_output=True, timeout=300,
+    )  # fmt: skip
+    api = ctl.client()
+    r = api.post("/policies", json={"task": "point_mass-easy", "seconds": 6, "batch": 16, "refine": False})
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    queued = policy_job(api, job_id)
+    assert (queued["model"], queued["emulator_version"][:3]) == ("point_mass", "n2-")
+    worker = ctl.worker("--burst", "--name", ctl.name("w-suite"))
+    done = policy_ended(api, job_id, timeout=180)
+    assert worker.wait(timeout=60) == 0, ctl.logs()
+    assert done["status"] == "succeeded", (done, ctl.logs())
+    progress = [d for e, d in sse(api.get(f"/policy-jobs/{job_id}/events").text) if e == "progress"]
+    assert [p["iteration"] for p in progress] == list(range(1, done["iteration"] + 1))
+    assert any(p["return_physics"] is not None for p in progress)
+    res = api.get(f"/policy-jobs/{job_id}/result").json()
+    metrics = res["policy"]["metrics"]
+    assert 0 <= metrics["return_physics"] <= 1000 and metrics["success_physics"] is None
+    assert res["return_history"] and res["success_history"] == []
+    assert all(0 <= p["value"] <= 1000 for p in res["return_history"])
+    assert api.get("/policies/point_mass/point_mass-easy").json() == res["policy"]

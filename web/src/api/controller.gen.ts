@@ -1084,6 +1084,10 @@ export interface PolicyJobResult {
    * the share of each check's MuJoCo runs that met the task, at its iteration
    */
   success_history?: HistoryPoint[];
+  /**
+   * a suite task's: the mean return of each check's MuJoCo episodes, at its iteration
+   */
+  return_history?: HistoryPoint[];
   id: string;
   task?: string | null;
   model?: string | null;
@@ -1259,6 +1263,10 @@ export interface PolicyOutcome {
    * the share of each check's MuJoCo runs that met the task, at its iteration
    */
   success_history?: HistoryPoint[];
+  /**
+   * a suite task's: the mean return of each check's MuJoCo episodes, at its iteration
+   */
+  return_history?: HistoryPoint[];
 }
 /**
  * ``event: progress`` of a policy job: one training iteration of the current attempt.
@@ -1270,6 +1278,10 @@ export interface PolicyProgressEvent {
   iteration: number;
   loss?: number | null;
   success_physics?: number | null;
+  /**
+   * a suite task's: the last check's mean return
+   */
+  return_physics?: number | null;
   mujoco_steps?: number;
   elapsed_s?: number | null;
   attempt?: number | null;

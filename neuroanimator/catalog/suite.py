@@ -1,0 +1,112 @@
+"""dm_control's suite tasks that policies are learned for, as the processes that never simulate read
+them (the controller API, ``GET /policy-tasks``): torch-free, MuJoCo-free.
+
+A suite task runs on its domain's MJCF (``dm_control/suite/<domain>.xml``), brought in as a user's
+model (``neuro train --mjcf <domain>.xml --name <domain> --substeps n``): the model is named as the
+domain and its emulator steps ``substeps`` physical steps, the control period the policy needs. How
+an episode starts and what it earns (the suite's ``initialize_episode`` and ``get_reward`` in torch)
+is ``neuroanimator.control.suite_tasks``, built on these.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class SuiteTaskInfo:
+    """One suite task: the domain (and model) it runs on, its control period (``substeps`` physical
+    steps), the suite's own control step (``control_substeps``), its episode, the parameters drawn for
+    each episode (``params``, each within ``param_low``..``param_high``: the reacher's target) and the
+    return a learned policy must reach on MuJoCo (mean of 10 episodes)."""
+
+    name: str
+    domain: str
+    substeps: int
+    control_substeps: int = 1
+    params: tuple[str, ...] = ()
+    param_low: tuple[float, ...] = ()
+    param_high: tuple[float, ...] = ()
+    episode_steps: int = 1000
+    target_return: float = 0.0
+    train_seconds: float = 1500.0
+    summary: str = ""
+
+    @property
+    def model(self) -> str:
+        """The model a task's policy is trained for: the one named as its domain."""
+        return self.domain
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able data, for ``GET /policy-tasks`` (``kind`` ``reward``: judged by its return)."""
+        return {
+            "name": self.name,
+            "model": self.model,
+            "kind": "reward",
+            "description": self.summary,
+            "substeps": self.substeps,
+            "episode_steps": self.episode_steps,
+            "goal_variables": list(self.params),
+            "goal_low": list(self.param_low),
+            "goal_high": list(self.param_high),
+            "target_return": self.target_return,
+            "success_criterion": f"a return of at least {self.target_return:g} of "
+            f"{self.episode_steps} on MuJoCo with the suite's reward (mean of 10 episodes)",
+            "mjcf": f"dm_control/suite/{self.domain}.xml",
+        }
+
+
+SUITE_TASK_INFO: dict[str, SuiteTaskInfo] = {
+    t.name: t
+    for t in (
+        SuiteTaskInfo(
+            "cartpole-swingup",
+            "cartpole",
+            5,
+            target_return=800,
+            summary="swing the pole up from hanging and balance it, the cart near the centre",
+        ),
+        SuiteTaskInfo(
+            "pendulum-swingup",
+            "pendulum",
+            2,
+            target_return=750,
+            summary="swing the pendulum up with too little torque to lift it directly; paid within 8° of upright",
+        ),
+        SuiteTaskInfo(
+            "reacher-hard",
+            "reacher",
+            2,
+            params=("target.x", "target.y"),
+            param_low=(-0.2, -0.2),
+            param_high=(0.2, 0.2),
+            target_return=900,
+            summary="put the two-link arm's fingertip on a small target (the goal: its x, y)",
+        ),
+        SuiteTaskInfo(
+            "point_mass-easy",
+            "point_mass",
+            2,
+            target_return=850,
+            summary="bring the point mass to the centre and keep it there",
+        ),
+        SuiteTaskInfo(
+            "ball_in_cup-catch",
+            "ball_in_cup",
+            20,
+            10,
+            target_return=900,
+            summary="swing the ball on its string into the cup",
+        ),
+        SuiteTaskInfo(
+            "acrobot-swingup",
+            "acrobot",
+            5,
+            target_return=250,
+            summary="swing the two-link acrobot's tip up with the elbow's torque alone",
+        ),
+    )
+}
+
+__all__ = ["SUITE_TASK_INFO", "SuiteTaskInfo"]
