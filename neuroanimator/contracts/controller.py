@@ -639,6 +639,9 @@ class PolicyJobStatus(BaseModel):
     success_physics: float | None = Field(
         None, description="the share of the last check's MuJoCo runs that met the task (null before one)"
     )
+    return_physics: float | None = Field(
+        None, description="a suite task's: the last check's mean return on MuJoCo (null before one)"
+    )
     mujoco_steps: int = Field(0, description="MuJoCo steps used so far (goals, checks, refinement)")
     elapsed_s: float | None = None
     loss_history: list[HistoryPoint] = Field(

@@ -277,6 +277,37 @@ describe('a policy job, from its events', () => {
     expect(policyStatusLine(stopped)).toBe('Job j5 was cancelled; no policy was stored.');
   });
 
+  it("follows a suite task's return on MuJoCo at each check, and states its policy by its return", () => {
+    let v = startPolicyView('j7', 'cartpole-swingup');
+    v = onPolicyEvent(v, 'progress', { iteration: 1, loss: -0.2, success_physics: null, return_physics: null, mujoco_steps: 0, attempt: 1 });
+    v = onPolicyEvent(v, 'progress', { iteration: 2, loss: -0.3, return_physics: 212.5, mujoco_steps: 40000, attempt: 1 });
+    v = onPolicyEvent(v, 'progress', { iteration: 3, loss: -0.3, return_physics: 212.5, mujoco_steps: 40000, attempt: 1 });
+    v = onPolicyEvent(v, 'progress', { iteration: 4, loss: -0.4, return_physics: 640, mujoco_steps: 80000, attempt: 1 });
+    expect(v.returns).toEqual([
+      [2, 212.5],
+      [4, 640],
+    ]);
+    expect([v.returnPhysics, v.successPhysics, v.successes]).toEqual([640, null, []]);
+    expect(Object.fromEntries(progressRows(v).map(([k, val]) => [k, val]))['return on MuJoCo (last check)']).toBe('640');
+    const status: PolicyJobStatus = { id: 'j7', status: 'running', task: 'cartpole-swingup', model: 'cartpole', emulator_version: 'n5', seconds: 60, refine: true, created_at: 0, attempt: 1, iteration: 6, return_physics: 701, mujoco_steps: 120000 };
+    const polled = fromPolicyStatus(v, status);
+    expect(polled.returns.at(-1)).toEqual([6, 701]);
+    const policy: PolicyManifest = {
+      ...POLICY,
+      name: 'cartpole-swingup',
+      goal_variables: [],
+      goal_low: [],
+      goal_high: [],
+      goal_default: [],
+      metrics: { ...POLICY.metrics, success_physics: null, success_emulator: null, return_physics: 873.4, return_emulator: 850.1, evaluate_runs: 10 } as PolicyManifest['metrics'],
+    };
+    const done = withResult(v, { id: 'j7', status: 'succeeded', policy, iterations: 9, return_history: [{ iteration: 5, value: 700 }, { iteration: 9, value: 873.4 }] });
+    expect([done.returns, done.returnPhysics]).toEqual([[[5, 700], [9, 873.4]], 873.4]);
+    const rows = Object.fromEntries(metricsRows(policy));
+    expect([rows['return on MuJoCo'], rows['return on the emulator'], rows['success on MuJoCo']]).toEqual(['873 (mean of 10 episodes)', '850 (mean of 10 episodes)', undefined]);
+    expect(rows.goals).toBe('none (the task has no parameters)');
+  });
+
   it('writes shares and durations for people', () => {
     expect([percent(0.426), percent(null), percent(1)]).toEqual(['43 %', '–', '100 %']);
     expect([seconds(8.44), seconds(125), seconds(null)]).toEqual(['8.4 s', '2 min 5 s', '–']);

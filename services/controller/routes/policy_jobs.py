@@ -61,6 +61,7 @@ def policy_job_status(rec: JobRecord) -> PolicyJobStatus:
         iteration=int(prog.get("iteration") or 0),
         loss=number(prog.get("loss")),
         success_physics=number(prog.get("success_physics")),
+        return_physics=number(prog.get("return_physics")),
         mujoco_steps=int(prog.get("mujoco_steps") or 0),
         elapsed_s=number(prog.get("elapsed_s")),
         loss_history=thin([number(v) for v in rec.history]),

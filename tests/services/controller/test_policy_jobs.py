@@ -418,6 +418,8 @@ def test_a_suite_task_trains_through_a_worker_and_reports_its_returns(ctl: Contr
     progress = [d for e, d in sse(api.get(f"/policy-jobs/{job_id}/events").text) if e == "progress"]
     assert [p["iteration"] for p in progress] == list(range(1, done["iteration"] + 1))
     assert any(p["return_physics"] is not None for p in progress)
+    # the status says the last check's return, as the progress did
+    assert done["return_physics"] == progress[-1]["return_physics"] and done["success_physics"] is None
     res = api.get(f"/policy-jobs/{job_id}/result").json()
     metrics = res["policy"]["metrics"]
     assert 0 <= metrics["return_physics"] <= 1000 and metrics["success_physics"] is None

@@ -1214,6 +1214,10 @@ export interface PolicyJobStatus {
    */
   success_physics?: number | null;
   /**
+   * a suite task's: the last check's mean return on MuJoCo (null before one)
+   */
+  return_physics?: number | null;
+  /**
    * MuJoCo steps used so far (goals, checks, refinement)
    */
   mujoco_steps?: number;

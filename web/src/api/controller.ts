@@ -66,6 +66,9 @@ export interface PolicyTaskInfo extends PolicyTaskWire {
   episode_s?: number;
   timed?: boolean;
   target_state?: number[];
+  /** `reward`: a dm_control suite task, judged by its return on MuJoCo (absent: a goal-reaching task). */
+  kind?: 'reward';
+  target_return?: number;
 }
 
 export class ControllerApi {

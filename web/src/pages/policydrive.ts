@@ -201,7 +201,11 @@ export class DrivePanel {
       return;
     }
     const m = p.metrics ?? {};
-    this.about.textContent = `${p.description ? `${p.description.replace(/\.?$/, '.')} ` : ''}Trained through ${p.model} ${p.emulator_version}; it met the task on MuJoCo in ${percent(m.success_physics)} of ${m.evaluate_runs ?? '?'} held-out runs.`;
+    const how =
+      typeof m.return_physics === 'number'
+        ? `its episodes on MuJoCo earned a return of ${fmt(m.return_physics)} (mean of ${m.evaluate_runs ?? '?'})`
+        : `it met the task on MuJoCo in ${percent(m.success_physics)} of ${m.evaluate_runs ?? '?'} held-out runs`;
+    this.about.textContent = `${p.description ? `${p.description.replace(/\.?$/, '.')} ` : ''}Trained through ${p.model} ${p.emulator_version}; ${how}.`;
     this.about.dataset.successPhysics = String(m.success_physics ?? '');
   }
 

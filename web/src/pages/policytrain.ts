@@ -27,6 +27,9 @@ export class TrainPanel {
   private readonly numbers = h('table', { class: 'facts', id: 'pt-progress' });
   private readonly loss = new LinePlot({ logY: true, xLabel: 'iteration', yLabel: 'loss', height: 180, legend: false });
   private readonly success = new LinePlot({ xLabel: 'iteration', yLabel: 'success (%)', height: 140, legend: false, yRange: [0, 100], points: true });
+  private readonly returns = new LinePlot({ xLabel: 'iteration', yLabel: 'return', height: 140, legend: false, yRange: [0, 1000], points: true });
+  private readonly successFigure: HTMLElement;
+  private readonly returnFigure: HTMLElement;
   private readonly result = h('div', { class: 'result', id: 'pt-result', hidden: true });
   private tasks: PolicyTaskInfo[] = [];
   private task: string | null = null;
@@ -40,6 +43,10 @@ export class TrainPanel {
   ) {
     this.loss.el.id = 'pt-loss';
     this.success.el.id = 'pt-success';
+    this.returns.el.id = 'pt-returns';
+    this.successFigure = h('figure', { class: 'objective' }, h('figcaption', {}, 'Success on MuJoCo at each check'), this.success.el);
+    // a suite task's policy is judged by the return of its episodes on MuJoCo (the suite's reward)
+    this.returnFigure = h('figure', { class: 'objective', hidden: true }, h('figcaption', {}, 'Return on MuJoCo at each check (of 1,000)'), this.returns.el);
     this.el = h(
       'section',
       { class: 'card policy-train', id: 'policy-train' },
@@ -71,7 +78,8 @@ export class TrainPanel {
           {},
           this.numbers,
           h('figure', { class: 'objective' }, h('figcaption', {}, 'Loss per iteration (live)'), this.loss.el),
-          h('figure', { class: 'objective' }, h('figcaption', {}, 'Success on MuJoCo at each check'), this.success.el),
+          this.successFigure,
+          this.returnFigure,
           this.result,
         ),
       ),
@@ -117,6 +125,9 @@ export class TrainPanel {
     this.tasksTable.querySelectorAll<HTMLInputElement>('input[name="pt-task"]').forEach((r) => (r.checked = r.value === name));
     this.tasksTable.querySelectorAll<HTMLElement>('tr[data-task]').forEach((r) => r.classList.toggle('chosen', r.dataset.task === name));
     this.criterion.textContent = t?.success_criterion ? `Success: ${t.success_criterion}.` : '';
+    const reward = t?.kind === 'reward';
+    this.successFigure.hidden = reward;
+    this.returnFigure.hidden = !reward;
     this.trainBtn.disabled = !t || (this.job !== null && !isPolicyEnded(this.job.view));
   }
 
@@ -274,6 +285,8 @@ export class TrainPanel {
     this.success.set(v.successes.length ? [{ name: 'success on MuJoCo', xs: v.successes.map((p) => p[0]), ys: v.successes.map((p) => 100 * p[1]), color: '#aed581' }] : []);
     this.loss.el.dataset.losses = String(v.losses.length);
     this.success.el.dataset.checks = String(v.successes.length);
+    this.returns.set(v.returns.length ? [{ name: 'return on MuJoCo', xs: v.returns.map((p) => p[0]), ys: v.returns.map((p) => p[1]), color: '#aed581' }] : []);
+    this.returns.el.dataset.checks = String(v.returns.length);
   }
 
   dispose(): void {
@@ -281,5 +294,6 @@ export class TrainPanel {
     this.stopFollowing();
     this.loss.dispose();
     this.success.dispose();
+    this.returns.dispose();
   }
 }

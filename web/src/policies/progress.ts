@@ -24,6 +24,9 @@ export interface PolicyTrainingView {
   losses: [number, number | null][];
   /** The success share on MuJoCo at each check: [iteration, share], by increasing iteration. */
   successes: [number, number][];
+  /** A suite task's (judged by its reward): the last check's mean return on MuJoCo, and at each check. */
+  returnPhysics: number | null;
+  returns: [number, number][];
   error: string | null;
   result: PolicyJobResult | null;
 }
@@ -31,7 +34,7 @@ export interface PolicyTrainingView {
 const num = (v: unknown): number | null => (typeof v === 'number' && Number.isFinite(v) ? v : null);
 
 export function startPolicyView(id: string, task: string, status: PolicyJobState = 'queued'): PolicyTrainingView {
-  return { id, task, status, attempt: 1, iteration: 0, loss: null, successPhysics: null, mujocoSteps: 0, elapsedS: null, losses: [], successes: [], error: null, result: null };
+  return { id, task, status, attempt: 1, iteration: 0, loss: null, successPhysics: null, mujocoSteps: 0, elapsedS: null, losses: [], successes: [], returnPhysics: null, returns: [], error: null, result: null };
 }
 
 export function isPolicyEnded(v: PolicyTrainingView): boolean {
@@ -68,6 +71,8 @@ export function onPolicyEvent(v: PolicyTrainingView, event: string, data: Record
     const success = num(data.success_physics);
     const steps = num(data.mujoco_steps) ?? 0;
     const checked = success !== null && (base.successPhysics === null || success !== base.successPhysics || steps > base.mujocoSteps);
+    const ret = num(data.return_physics);
+    const returned = ret !== null && (base.returnPhysics === null || ret !== base.returnPhysics || steps > base.mujocoSteps);
     return {
       ...base,
       status: 'running',
@@ -78,6 +83,8 @@ export function onPolicyEvent(v: PolicyTrainingView, event: string, data: Record
       elapsedS: num(data.elapsed_s) ?? base.elapsedS,
       losses: withPoint(base.losses, iteration, loss),
       successes: checked ? withPoint(base.successes, iteration, success) : base.successes,
+      returnPhysics: ret ?? base.returnPhysics,
+      returns: returned ? withPoint(base.returns, iteration, ret) : base.returns,
     };
   }
   if (event === 'end') {
@@ -96,6 +103,9 @@ export function fromPolicyStatus(v: PolicyTrainingView, s: PolicyJobStatus): Pol
   const success = num(s.success_physics);
   const successes = restarted ? [] : v.successes;
   const checked = success !== null && (restarted || success !== v.successPhysics) && (s.iteration ?? 0) > 0;
+  const ret = num(s.return_physics);
+  const returns = restarted ? [] : v.returns;
+  const returned = ret !== null && (restarted || ret !== v.returnPhysics) && (s.iteration ?? 0) > 0;
   return {
     ...v,
     status: s.status,
@@ -108,6 +118,8 @@ export function fromPolicyStatus(v: PolicyTrainingView, s: PolicyJobStatus): Pol
     // the history is thinned to 100 points: keep the events' full curve while it is longer
     losses: history.length >= v.losses.length || restarted ? history : v.losses,
     successes: checked ? withPoint(successes, s.iteration ?? 0, success) : successes,
+    returnPhysics: ret ?? (restarted ? null : v.returnPhysics),
+    returns: returned ? withPoint(returns, s.iteration ?? 0, ret) : returns,
     error: s.status === 'failed' || s.status === 'cancelled' ? (s.error ?? `the job ${s.status}`) : null,
   };
 }
@@ -117,6 +129,7 @@ export function fromPolicyStatus(v: PolicyTrainingView, s: PolicyJobStatus): Pol
 export function withResult(v: PolicyTrainingView, r: PolicyJobResult): PolicyTrainingView {
   const successes = (r.success_history ?? []).flatMap((p): [number, number][] => (num(p.value) === null ? [] : [[p.iteration, p.value as number]]));
   const losses: [number, number | null][] = (r.loss_history ?? []).map((p) => [p.iteration, num(p.value)]);
+  const returns = (r.return_history ?? []).flatMap((p): [number, number][] => (num(p.value) === null ? [] : [[p.iteration, p.value as number]]));
   return {
     ...v,
     status: r.status,
@@ -124,6 +137,8 @@ export function withResult(v: PolicyTrainingView, r: PolicyJobResult): PolicyTra
     successes: successes.length ? successes : v.successes,
     losses: losses.length >= v.losses.length ? losses : v.losses,
     successPhysics: successes.length ? successes[successes.length - 1]![1] : v.successPhysics,
+    returns: returns.length ? returns : v.returns,
+    returnPhysics: returns.length ? returns[returns.length - 1]![1] : v.returnPhysics,
     mujocoSteps: r.policy?.metrics?.mujoco_steps ?? v.mujocoSteps,
     error: r.status === 'succeeded' ? null : (r.reason ?? v.error ?? `the job ${r.status}`),
     result: r,
@@ -168,7 +183,7 @@ export function progressRows(v: PolicyTrainingView): [string, string, string][] 
   return [
     ['iteration', String(v.iteration), 'iteration'],
     ['loss (last batch)', fmt(v.loss), 'loss'],
-    ['success on MuJoCo (last check)', percent(v.successPhysics), 'success'],
+    v.returnPhysics !== null ? ['return on MuJoCo (last check)', fmt(v.returnPhysics), 'return'] : ['success on MuJoCo (last check)', percent(v.successPhysics), 'success'],
     ['MuJoCo steps', v.mujocoSteps.toLocaleString('en'), 'mujoco-steps'],
     ['elapsed', seconds(v.elapsedS), 'elapsed'],
   ];
@@ -178,17 +193,28 @@ export function progressRows(v: PolicyTrainingView): [string, string, string][] 
 export function metricsRows(p: PolicyManifest): [string, string][] {
   const m = p.metrics ?? {};
   const runs = m.evaluate_runs ? ` of ${m.evaluate_runs} held-out runs` : '';
+  const episodes = m.evaluate_runs ? ` (mean of ${m.evaluate_runs} episodes)` : '';
+  // a suite task's policy is judged by its reward's return, a goal-reaching one by its success share
+  const judged: [string, string][] =
+    typeof m.return_physics === 'number'
+      ? [
+          ['return on MuJoCo', `${fmt(m.return_physics)}${episodes}`],
+          ['return on the emulator', `${fmt(m.return_emulator)}${episodes}`],
+        ]
+      : [
+          ['success on MuJoCo', `${percent(m.success_physics)}${runs}`],
+          ['success on the emulator', `${percent(m.success_emulator)}${runs}`],
+        ];
   return [
     ['policy', `${p.name}, version ${p.version}`],
     ['emulator', `${p.model} ${p.emulator_version}`],
-    ['success on MuJoCo', `${percent(m.success_physics)}${runs}`],
-    ['success on the emulator', `${percent(m.success_emulator)}${runs}`],
+    ...judged,
     ['MuJoCo steps used', (m.mujoco_steps ?? 0).toLocaleString('en')],
     ['iterations', String(m.iterations ?? 0)],
     // (a service that counts them: how often the emulator was fine-tuned on the policy's MuJoCo runs)
     ...(typeof (m as { refinements?: unknown }).refinements === 'number' ? [['emulator refinements', String((m as { refinements: number }).refinements)] as [string, string]] : []),
     ['training time', seconds(m.wall_s)],
     ['stopped by', m.stop === 'cancelled' ? 'a cancel (the best policy so far)' : (m.stop ?? 'budget')],
-    ['goals', p.goal_variables.map((g, i) => `${g} ${fmt(p.goal_low[i])}…${fmt(p.goal_high[i])}`).join(', ')],
+    ['goals', p.goal_variables.map((g, i) => `${g} ${fmt(p.goal_low[i])}…${fmt(p.goal_high[i])}`).join(', ') || 'none (the task has no parameters)'],
   ];
 }
