@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from stable_baselines3 import SAC
 
 from neuroanimator.artifacts import registry
+from neuroanimator.control.policy_store import save_reward_policy
 from neuroanimator.control.reward_policy import (
     RewardSettings,
     RewardTrainer,
@@ -148,8 +149,11 @@ def _layout(physical: PhysicalModel) -> list[Any]:
     ]
 
 
-def bench_suite_task(name: str, root: Path, seconds: float | None, seed: int, quick: bool) -> dict[str, Any]:
-    """One suite task's row (module doc)."""
+def bench_suite_task(
+    name: str, root: Path, seconds: float | None, seed: int, quick: bool, save_to: Path | None = None
+) -> dict[str, Any]:
+    """One suite task's row (module doc); with ``save_to``, the policy measured is stored there as
+    ``neuro policy`` stores one (``policy_store.save_reward_policy``)."""
     task = SUITE_TASKS[name]
     budget = seconds if seconds is not None else task.train_seconds + 300.0
     t0 = time.perf_counter()
@@ -173,6 +177,8 @@ def bench_suite_task(name: str, root: Path, seconds: float | None, seed: int, qu
     result = trainer.train()
     wall = time.perf_counter() - t0
     log.info("%s: return on MuJoCo %.1f after %.0f s all in", name, result.return_physics, wall)
+    if save_to is not None:
+        log.info("%s: stored in %s", name, save_reward_policy(save_to, result, registry.read_manifest(path)))
 
     physical = trainer.physical
     episodes = 2 if quick else EPISODES

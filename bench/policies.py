@@ -341,7 +341,10 @@ def main(argv: list[str] | None = None) -> int:
     suite_root = Path(args.artifacts) if args.artifacts else registry.writable(root)
     for name in names:
         if name in SUITE_TASKS:
-            rows.append(bench_suite_task(name, suite_root, args.suite_seconds, args.seed, args.quick))
+            save_to = Path(args.save_to) if args.save_to else None
+            rows.append(
+                bench_suite_task(name, suite_root, args.suite_seconds, args.seed, args.quick, save_to)
+            )
         else:
             rows.append(bench_task(name, list(POLICY_TASKS).index(name), root, args))
         log.info("%s: done (%.0f s)", name, time.perf_counter() - t0)
