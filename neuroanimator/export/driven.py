@@ -12,7 +12,6 @@ Torch-free, like ``export.runtime``: the emulator service composes the graphs it
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Sequence
 
 import numpy as np
@@ -22,7 +21,7 @@ import onnxruntime as ort
 from numpy.typing import NDArray
 
 from neuroanimator.core.quaternion import wrap_angle
-from neuroanimator.export.runtime import session_options
+from neuroanimator.export.runtime import PerThreadRow, session_options
 
 CONTROLS = "driven/controls"  # the composed graph's outputs: the clipped controls and the next state
 EMULATOR_PREFIX = "emulator/"
@@ -93,29 +92,6 @@ def compose_driven(
     return merged.SerializeToString()
 
 
-class _SingleRow:
-    """One row's driven step through buffers ONNX Runtime already holds (as ``runtime._SingleRow``:
-    at batch 1, wrapping the inputs and allocating the outputs cost as much as the networks)."""
-
-    def __init__(
-        self, session: ort.InferenceSession, widths: dict[str, int], outputs: dict[str, int]
-    ) -> None:
-        self.inputs = {name: np.zeros((1, w), np.float32) for name, w in widths.items()}
-        self.outs = [np.zeros((1, w), np.float32) for w in outputs.values()]
-        self.binding = session.io_binding()
-        for name, buf in self.inputs.items():
-            self.binding.bind_cpu_input(name, buf)
-        for name, buf in zip(outputs, self.outs, strict=True):
-            self.binding.bind_output(name, "cpu", 0, np.float32, buf.shape, buf.ctypes.data)
-        self.session = session
-
-    def run(self, feed: dict[str, NDArray[np.float32]]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        for name, values in feed.items():
-            np.copyto(self.inputs[name], values)
-        self.session.run_with_iobinding(self.binding)
-        return self.outs[0].copy(), self.outs[1].copy()
-
-
 class DrivenStep:
     """The composed graph in an ONNX Runtime session: ``run(state (B,S), goal (B,G), time_left
     (B,1) | None, forces (B,F) | None) → (controls (B,U), next state (B,S))``, the ``wrap`` columns
@@ -130,7 +106,7 @@ class DrivenStep:
         self.outputs = {o.name: int(o.shape[1]) for o in self.session.get_outputs()}
         self.forces = EMULATOR_PREFIX + "forces"
         self.calls = 0  # ONNX Runtime calls made (tests compare them with ticks)
-        self._local = threading.local()  # one single-row binding per thread that runs it
+        self._row = PerThreadRow(self.session, self.widths, self.outputs)
 
     def run(
         self,
@@ -147,15 +123,9 @@ class DrivenStep:
                 feed[name] = values
         self.calls += 1
         if len(state) == 1:
-            controls, nxt = self._single_row().run(feed)
+            controls, nxt = self._row.run(feed)
         else:
             controls, nxt = self.session.run(list(self.outputs), feed)
         if self.wrap:
             nxt[:, self.wrap] = wrap_angle(nxt[:, self.wrap])
         return controls, nxt
-
-    def _single_row(self) -> _SingleRow:
-        row: _SingleRow | None = getattr(self._local, "row", None)
-        if row is None:
-            row = self._local.row = _SingleRow(self.session, self.widths, self.outputs)
-        return row

@@ -26,28 +26,48 @@ def session_options(threads: int = 1) -> ort.SessionOptions:
     return so
 
 
-class _SingleRow:
-    """A bound call for one row: ``state`` (1, S), ``controls`` (1, U), ``forces`` (1, F) copied into
-    buffers that ONNX Runtime already holds, and ``next_state`` written into one it holds too.
+class SingleRow:
+    """A bound call for one row: each input (1, width) copied into a buffer that ONNX Runtime already
+    holds, each output (1, width) written into one it holds too.
 
-    ``session.run`` wraps every input array in a new OrtValue and allocates the output on each call;
-    at batch 1 that costs as much as the network itself (10–15 µs of 35–50). The binding is made once.
-    """
+    ``session.run`` wraps every input array in a new OrtValue and allocates the outputs on each call;
+    at batch 1 that costs as much as a small network itself (10–15 µs of 35–50). The binding is made
+    once; its buffers belong to one thread (``PerThreadRow``)."""
 
-    def __init__(self, session: ort.InferenceSession, widths: dict[str, int], output: str) -> None:
-        self.inputs = {name: np.zeros((1, w), dtype=np.float32) for name, w in widths.items() if w}
-        self.out = np.zeros((1, widths["state"]), dtype=np.float32)
+    def __init__(
+        self, session: ort.InferenceSession, inputs: dict[str, int], outputs: dict[str, int]
+    ) -> None:
+        self.inputs = {name: np.zeros((1, w), dtype=np.float32) for name, w in inputs.items()}
+        self.outs = [np.zeros((1, w), dtype=np.float32) for w in outputs.values()]
         self.binding = session.io_binding()
         for name, buf in self.inputs.items():
             self.binding.bind_cpu_input(name, buf)
-        self.binding.bind_output(output, "cpu", 0, np.float32, self.out.shape, self.out.ctypes.data)
+        for name, buf in zip(outputs, self.outs, strict=True):
+            self.binding.bind_output(name, "cpu", 0, np.float32, buf.shape, buf.ctypes.data)
         self.session = session
 
-    def run(self, feed: dict[str, NDArray[np.float32]]) -> NDArray[np.float32]:
+    def run(self, feed: dict[str, NDArray[np.float32]]) -> list[NDArray[np.float32]]:
+        """The outputs (each (1, width), in the order given) for one row of every input."""
         for name, values in feed.items():
             np.copyto(self.inputs[name], values)
         self.session.run_with_iobinding(self.binding)
-        return self.out.copy()  # the buffer is overwritten by the next call
+        return [out.copy() for out in self.outs]  # the buffers are overwritten by the next call
+
+
+class PerThreadRow:
+    """``SingleRow`` calls of one session, a binding per calling thread (made on its first call)."""
+
+    def __init__(
+        self, session: ort.InferenceSession, inputs: dict[str, int], outputs: dict[str, int]
+    ) -> None:
+        self.session, self.inputs, self.outputs = session, inputs, outputs
+        self._local = threading.local()
+
+    def run(self, feed: dict[str, NDArray[np.float32]]) -> list[NDArray[np.float32]]:
+        row: SingleRow | None = getattr(self._local, "row", None)
+        if row is None:
+            row = self._local.row = SingleRow(self.session, self.inputs, self.outputs)
+        return row.run(feed)
 
 
 class OnnxEmulator:
@@ -65,8 +85,12 @@ class OnnxEmulator:
         self.state_size = int(ins["state"].shape[1])
         self.num_controls = int(ins["controls"].shape[1]) if "controls" in ins else 0
         self.num_forces = int(ins["forces"].shape[1]) if "forces" in ins else 0
-        self._output = self.session.get_outputs()[0].name
-        self._local = threading.local()  # one single-row binding per thread that steps this emulator
+        widths = {"state": self.state_size, "controls": self.num_controls, "forces": self.num_forces}
+        self._row = PerThreadRow(
+            self.session,
+            {name: w for name, w in widths.items() if w},
+            {self.session.get_outputs()[0].name: self.state_size},
+        )
 
     def step(
         self,
@@ -92,19 +116,10 @@ class OnnxEmulator:
         if validate:
             self._validate(feed)
         one_row = feed["state"].shape[0] == 1
-        out: NDArray[np.float32] = (
-            self._single_row().run(feed) if one_row else self.session.run(None, feed)[0]
-        )
+        out: NDArray[np.float32] = self._row.run(feed)[0] if one_row else self.session.run(None, feed)[0]
         if self.wrap:
             out[:, self.wrap] = wrap_angle(out[:, self.wrap])
         return out
-
-    def _single_row(self) -> _SingleRow:
-        row: _SingleRow | None = getattr(self._local, "row", None)
-        if row is None:
-            widths = {"state": self.state_size, "controls": self.num_controls, "forces": self.num_forces}
-            row = self._local.row = _SingleRow(self.session, widths, self._output)
-        return row
 
     def _validate(self, feed: dict[str, NDArray[np.float32]]) -> None:
         widths = {"state": self.state_size, "controls": self.num_controls, "forces": self.num_forces}

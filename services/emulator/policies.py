@@ -33,7 +33,7 @@ from neuroanimator.artifacts.policies import (
     resolve_policy,
 )
 from neuroanimator.core.policy_manifest import PolicyManifest
-from neuroanimator.export.runtime import session_options
+from neuroanimator.export.runtime import PerThreadRow, session_options
 from services.emulator.errors import BadInput, PolicyMismatch, UnknownPolicy
 from services.emulator.inputs import check_vector
 
@@ -58,26 +58,6 @@ def _outward(low: Sequence[float], high: Sequence[float]) -> tuple[NDArray[np.fl
     )
 
 
-class _SingleRow:
-    """One row's call through buffers ONNX Runtime already holds: at batch 1, wrapping the inputs and
-    allocating the output cost as much as the network (as for the emulator, ``export.runtime``)."""
-
-    def __init__(self, session: ort.InferenceSession, widths: dict[str, int], controls: int) -> None:
-        self.inputs = {name: np.zeros((1, w), np.float32) for name, w in widths.items()}
-        self.out = np.zeros((1, controls), np.float32)
-        self.binding = session.io_binding()
-        for name, buf in self.inputs.items():
-            self.binding.bind_cpu_input(name, buf)
-        self.binding.bind_output("controls", "cpu", 0, np.float32, self.out.shape, self.out.ctypes.data)
-        self.session = session
-
-    def run(self, feed: dict[str, NDArray[np.float32]]) -> NDArray[np.float32]:
-        for name, values in feed.items():
-            np.copyto(self.inputs[name], values)
-        self.session.run_with_iobinding(self.binding)
-        return self.out.copy()
-
-
 @dataclass
 class LoadedPolicy:
     """One stored policy version, loaded: its manifest and ONNX Runtime session."""
@@ -94,7 +74,6 @@ class LoadedPolicy:
         m = self.manifest
         self.goal_low, self.goal_high = _outward(m.goal_low, m.goal_high)
         self.default_goal = np.asarray(m.goal_default, np.float32)
-        self._local = threading.local()  # one single-row binding per thread that evaluates it
         names = {i.name: i for i in self.session.get_inputs()}
         want = ["state", "goal", "time_left"] if m.timed else ["state", "goal"]
         if sorted(names) != sorted(want) or self.session.get_outputs()[0].name != "controls":
@@ -103,6 +82,8 @@ class LoadedPolicy:
                 f"{self.session.get_outputs()[0].name!r}; a {'timed ' if m.timed else ''}policy takes "
                 f"{want} and gives 'controls'"
             )
+        widths = {"state": m.state_size, "goal": m.goal_size} | ({"time_left": 1} if m.timed else {})
+        self._row = PerThreadRow(self.session, widths, {"controls": len(m.control_names)})
 
     @property
     def name(self) -> str:
@@ -141,17 +122,9 @@ class LoadedPolicy:
         if self.manifest.timed:
             feed["time_left"] = self.time_left(since_goal)
         if len(states) == 1:
-            return self._single_row().run(feed)
+            return self._row.run(feed)[0]
         out: NDArray[np.float32] = self.session.run(None, feed)[0]
         return out
-
-    def _single_row(self) -> _SingleRow:
-        row: _SingleRow | None = getattr(self._local, "row", None)
-        if row is None:
-            m = self.manifest
-            widths = {"state": m.state_size, "goal": m.goal_size} | ({"time_left": 1} if m.timed else {})
-            row = self._local.row = _SingleRow(self.session, widths, self.num_controls)
-        return row
 
     def check_goal(self, values: Sequence[float], field: str) -> NDArray[np.float32]:
         """A client's goal as (G,) float32; ``BadInput`` naming ``field`` on a wrong length or a value
