@@ -28,6 +28,7 @@ from neuroanimator.control.policy import PolicySettings, train_policy
 from neuroanimator.control.policy_net import PolicyNet
 from neuroanimator.control.policy_store import save_policy
 from neuroanimator.export.runtime import OnnxEmulator
+from services.emulator import batcher as batcher_module
 from services.emulator import binary
 from services.emulator.app import create_app
 from services.emulator.settings import Settings
@@ -445,6 +446,36 @@ def test_a_tick_of_one_policys_sessions_is_one_composed_call(
         np.testing.assert_allclose(new, ref.step(s["state"], want), rtol=1e-4, atol=1e-4)
         got = client.get(f"/sessions/{s['id']}").json()
         assert got["steps"] == 1
+
+
+def test_a_tick_over_the_composed_graphs_rows_runs_the_two_graphs_in_turn(
+    client: TestClient, policies: Policies, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Above ``COMPOSED_MAX_ROWS`` rows (where two calls are the faster), a tick of one policy's
+    sessions runs the policy, then the emulator: the same states as the composed graph gives."""
+    monkeypatch.setattr(batcher_module, "COMPOSED_MAX_ROWS", 2)
+    ref = Reference(policies.landing, policies.emulator)
+    goals = [[1.0 * i, 2.0 - i] for i in range(5)]
+    sessions = [
+        _create(client, {"name": "lander-landing", "goal": g}, seed=60 + i) for i, g in enumerate(goals)
+    ]
+    service = service_of(client)
+    loaded = next(p for p in service.policies.loaded.values() if p.name == "lander-landing")
+    calls, ort_calls = loaded.calls, service.stepper.ort_calls
+    r = client.post(
+        "/step",
+        content=binary.encode_batch_request([str(s["id"]) for s in sessions], np.zeros((5, 4), np.float32)),
+        headers={"content-type": binary.MEDIA_TYPE},
+    )
+    status, states = binary.decode_batch_response(r.content)
+    assert status.tolist() == [binary.OK] * 5
+    assert (service.stepper.ort_calls, loaded.calls) == (ort_calls + 1, calls + 1)
+    batcher = service.stepper._batchers[("lander", ref.manifest.emulator_version)]
+    driven = batcher.driven_step(loaded)
+    assert driven is not None and driven.calls == 0  # the composed graph was not run
+    for s, g, new in zip(sessions, goals, states, strict=True):
+        want = np.clip(ref.controls(s["state"], g), *_control_range(ref))
+        np.testing.assert_allclose(new, ref.step(s["state"], want), rtol=1e-4, atol=1e-4)
 
 
 def _control_range(ref: Reference) -> tuple[Floats, Floats]:
