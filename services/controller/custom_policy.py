@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from neuroanimator.artifacts import registry
+from neuroanimator.catalog.suite import SUITE_TASK_INFO
 from neuroanimator.catalog.tasks import POLICY_TASKS
 from neuroanimator.contracts.controller import PolicyTaskSpec
 from neuroanimator.core.manifest import Manifest
@@ -59,7 +60,7 @@ def checked_task(spec: PolicyTaskSpec, root: registry.Root) -> CheckedTask:
     manifest, emulator = _emulator(spec, root)
     labels = list(manifest.state_labels)
     name = spec.name or f"{DEFAULT_PREFIX}{spec.model}"
-    if name in POLICY_TASKS:
+    if name in POLICY_TASKS or name in SUITE_TASK_INFO:
         raise TaskDefinitionError(
             "name", f"{name!r} is a built-in policy task's name; choose another", "a name of your own", name
         )

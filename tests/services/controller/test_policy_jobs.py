@@ -306,6 +306,7 @@ BAD_TASKS: list[tuple[dict[str, Any], str, str]] = [
     (with_task(model="nope"), "task.model", "unknown model 'nope'"),
     (with_task(substeps=7), "task.substeps", "substeps=7"),
     (with_task(name="truck-parking"), "task.name", "built-in"),
+    (with_task(name="cartpole-swingup"), "task.name", "built-in"),  # a suite task's name is one too
     (with_task(name="../x"), "task.name", "pattern"),
     (with_task(target_state=[0, 0, 0]), "task.target_state", "6 values"),
     (with_task(state_weights=[1] * 7), "task.state_weights", "6 values"),
