@@ -81,9 +81,9 @@ class _BlockEntry:
 # machine (0.5-1 ms measured); larger batches run in a worker thread so the loop keeps serving.
 INLINE_ROWS = 4096
 # A tick of one policy's sessions runs the policy composed with the emulator (one ONNX Runtime call)
-# up to this many rows; above it the two graphs one after the other are faster (lander, 1 thread:
-# 770 µs composed against 685 in turn at 1,024 rows, 3,560 against 2,820 at 4,096; 30 against 33
-# at one row and 86 against 84 at 64, where a call's fixed cost is what composing saves).
+# up to this many rows, where a call's fixed cost is what composing saves (lander, 1 thread: 29–30 µs
+# against 31–33 for two calls at one row, 67–73 against 78–79 at 64); above it the composed graph
+# gains nothing and was at times the slower (3,560–3,705 µs against 2,820–3,476 at 4,096 rows).
 COMPOSED_MAX_ROWS = 256
 
 BlockResult = tuple[NDArray[np.float32], NDArray[np.uint8], NDArray[np.bool_] | None]
