@@ -56,10 +56,15 @@ class PolicyRecorder(ProgressRecorder):
         self.store.policy_progress(self.job_id, self.attempt, p)
 
 
+def for_a_reward(spec: PolicyJobSpec) -> bool:
+    """Whether the job trains a suite task's policy for its reward (``RewardSettings``)."""
+    return spec.task in SUITE_TASK_INFO and spec.definition is None
+
+
 def training_settings(spec: PolicyJobSpec, threads: int) -> dict[str, Any]:
     """``PolicySettings``'s arguments for a job (a suite task's: ``RewardSettings``'s, its batch the
     episodes run side by side): what the spec sets (None: the trainer's default)."""
-    batch = "envs" if spec.task in SUITE_TASK_INFO and spec.definition is None else "batch"
+    batch = "envs" if for_a_reward(spec) else "batch"
     given = {"seed": spec.seed, batch: spec.batch}
     return {
         "seconds": spec.seconds,
@@ -97,7 +102,6 @@ def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, 
         from neuroanimator.control.policy_job import PolicyJobError, run_policy_job, worth_storing
         from neuroanimator.control.reward_policy import RewardSettings
 
-        reward = spec.task in SUITE_TASK_INFO and spec.definition is None
         how = training_settings(spec, s.worker_threads)
 
         def should_store(result: Any) -> tuple[bool, str]:
@@ -110,7 +114,7 @@ def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, 
             done = run_policy_job(
                 _task(spec),
                 s.roots(),
-                RewardSettings(**how) if reward else PolicySettings(**how),
+                RewardSettings(**how) if for_a_reward(spec) else PolicySettings(**how),
                 on_progress=recorder,
                 should_stop=clock.should_stop,
                 emulator_version=spec.emulator_version,
