@@ -105,8 +105,9 @@ class Restarts:
 
 
 # a task whose reward lies where its starts and early policies never go (a pole upright, a swing
-# needed to get there): half the restarts in the envelope, half of those where the reward is paid,
-# so the policy learns to stay there first and the critic learns what being there is worth
+# needed to get there; a ball in its cup, a throw needed to get it there): half the restarts in the
+# envelope, half of those where the reward is paid, so the policy learns to stay there first and the
+# critic learns what being there is worth
 REVERSE_CURRICULUM = Restarts(mujoco=0.25, explore=0.5, rewarded=0.5)
 
 
@@ -288,7 +289,7 @@ SUITE_TASKS: dict[str, SuiteTask] = {
         _task("pendulum-swingup", reset_random_joints, reward_pendulum, restarts=REVERSE_CURRICULUM),
         _task("reacher-hard", reset_reacher, reward_reacher, observe=observe_reacher),
         _task("point_mass-easy", reset_random_joints, reward_point_mass),
-        _task("ball_in_cup-catch", reset_ball_in_cup, reward_ball_in_cup),
+        _task("ball_in_cup-catch", reset_ball_in_cup, reward_ball_in_cup, restarts=REVERSE_CURRICULUM),
         _task("acrobot-swingup", reset_acrobot, reward_acrobot),
     )
 }
