@@ -430,13 +430,7 @@ def test_a_tick_of_one_policys_sessions_is_one_composed_call(
     service = service_of(client)
     loaded = next(p for p in service.policies.loaded.values() if p.name == name)
     calls, ort_calls = loaded.calls, service.stepper.ort_calls
-    r = client.post(
-        "/step",
-        content=binary.encode_batch_request([str(s["id"]) for s in sessions], np.zeros((5, 4), np.float32)),
-        headers={"content-type": binary.MEDIA_TYPE},
-    )
-    status, states = binary.decode_batch_response(r.content)
-    assert status.tolist() == [binary.OK] * 5
+    states = _step_all(client, sessions)
     assert service.stepper.ort_calls == ort_calls + 1 and loaded.calls == calls + 1
     batcher = service.stepper._batchers[("lander", ref.manifest.emulator_version)]
     driven = batcher.driven_step(loaded)
@@ -462,13 +456,7 @@ def test_a_tick_over_the_composed_graphs_rows_runs_the_two_graphs_in_turn(
     service = service_of(client)
     loaded = next(p for p in service.policies.loaded.values() if p.name == "lander-landing")
     calls, ort_calls = loaded.calls, service.stepper.ort_calls
-    r = client.post(
-        "/step",
-        content=binary.encode_batch_request([str(s["id"]) for s in sessions], np.zeros((5, 4), np.float32)),
-        headers={"content-type": binary.MEDIA_TYPE},
-    )
-    status, states = binary.decode_batch_response(r.content)
-    assert status.tolist() == [binary.OK] * 5
+    states = _step_all(client, sessions)
     assert (service.stepper.ort_calls, loaded.calls) == (ort_calls + 1, calls + 1)
     batcher = service.stepper._batchers[("lander", ref.manifest.emulator_version)]
     driven = batcher.driven_step(loaded)
@@ -476,6 +464,21 @@ def test_a_tick_over_the_composed_graphs_rows_runs_the_two_graphs_in_turn(
     for s, g, new in zip(sessions, goals, states, strict=True):
         want = np.clip(ref.controls(s["state"], g), *_control_range(ref))
         np.testing.assert_allclose(new, ref.step(s["state"], want), rtol=1e-4, atol=1e-4)
+
+
+def _step_all(client: TestClient, sessions: list[dict[str, Any]]) -> Floats:
+    """(N, S) the new states of one binary batched step of every session (their controls ignored:
+    their policies set them); every session answered OK."""
+    zeros = np.zeros((len(sessions), 4), np.float32)
+    r = client.post(
+        "/step",
+        content=binary.encode_batch_request([str(s["id"]) for s in sessions], zeros),
+        headers={"content-type": binary.MEDIA_TYPE},
+    )
+    status, states = binary.decode_batch_response(r.content)
+    assert status.tolist() == [binary.OK] * len(sessions)
+    out: Floats = states
+    return out
 
 
 def _control_range(ref: Reference) -> tuple[Floats, Floats]:
