@@ -106,6 +106,43 @@ SUITE_TASK_INFO: dict[str, SuiteTaskInfo] = {
             target_return=250,
             summary="swing the two-link acrobot's tip up with the elbow's torque alone",
         ),
+        # (touching the ground: the policy acts at the suite's own control period, 20-40 ms)
+        SuiteTaskInfo(
+            "hopper-stand",
+            "hopper",
+            4,
+            4,
+            target_return=700,
+            train_seconds=3300.0,
+            summary="the one-legged hopper stands up from lying and balances, its torso 0.6 m above its foot",
+        ),
+        SuiteTaskInfo(
+            "walker-stand",
+            "walker",
+            10,
+            10,
+            target_return=900,
+            train_seconds=3300.0,
+            summary="the planar biped stands up from lying and stays up, its torso above 1.2 m and upright",
+        ),
+        SuiteTaskInfo(
+            "walker-walk",
+            "walker",
+            10,
+            10,
+            target_return=700,
+            train_seconds=3300.0,
+            summary="the planar biped gets up and walks forward at 1 m/s or faster, upright",
+        ),
+        SuiteTaskInfo(
+            "cheetah-run",
+            "cheetah",
+            4,
+            1,
+            target_return=500,
+            train_seconds=3300.0,
+            summary="the planar cheetah runs forward, paid in proportion to its speed up to 10 m/s",
+        ),
     )
 }
 

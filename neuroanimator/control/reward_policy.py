@@ -317,11 +317,14 @@ class RewardTrainer:
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
 
     def _features(self) -> Features:
-        """Angles and plain columns from the layout; centres and spreads from emulated runs of random
-        held controls from the task's starts (no MuJoCo steps)."""
+        """Angles and plain columns from the layout (less the task's ``unobserved`` groups); centres
+        and spreads from emulated runs of random held controls from the task's starts (no MuJoCo
+        steps)."""
         angles: list[int] = []
         plain: list[int] = []
         for g in self.manifest.layout:
+            if g.name in self.task.unobserved:
+                continue
             cols = list(range(g.offset, g.offset + g.size))
             (angles if g.kind in ("angle", "heading") else plain).extend(cols)
         idx = self.rng.integers(len(self.start_states), size=256)

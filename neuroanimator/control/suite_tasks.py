@@ -52,13 +52,22 @@ def tolerance(
     inside = (x >= lower) & (x <= upper)
     if margin <= 0:
         return inside.to(x.dtype)
-    d = torch.where(x < lower, lower - x, x - upper) / margin
+    # the distance to the bounds, 0 inside (an infinite bound adds nothing: no inf in any gradient)
+    d = torch.zeros_like(x)
+    if math.isfinite(lower):
+        d = d + (lower - x).clamp_min(0)
+    if math.isfinite(upper):
+        d = d + (x - upper).clamp_min(0)
+    d = d / margin
     if sigmoid == "gaussian":
         scale = math.sqrt(-2 * math.log(value_at_margin))
         out = torch.exp(-0.5 * (d * scale) ** 2)
     elif sigmoid == "quadratic":
         scaled = d * math.sqrt(1 - value_at_margin)
         out = torch.where(scaled.abs() < 1, 1 - scaled**2, torch.zeros_like(scaled))
+    elif sigmoid == "linear":
+        scaled = d * (1 - value_at_margin)
+        out = torch.where(scaled.abs() < 1, 1 - scaled, torch.zeros_like(scaled))
     else:
         raise ValueError(f"unknown sigmoid {sigmoid!r}")
     return torch.where(inside, torch.ones_like(out), out)
@@ -128,6 +137,9 @@ class SuiteTask(SuiteTaskInfo):
     discount_s: float = 2.0  # seconds over which the training's discount falls to 1/e
     observe: ObserveFn | None = None  # the suite's own observations beyond the state (B, k), for the policy
     restarts: Restarts = Restarts()
+    # state groups the policy does not read, as the suite's observations omit them (how far a walker
+    # has walked: a policy that read it would meet values it never saw by walking on)
+    unobserved: tuple[str, ...] = ()
 
     @property
     def repeat(self) -> int:
@@ -198,6 +210,18 @@ def reset_acrobot(m: mujoco.MjModel, rng: np.random.Generator) -> tuple[FloatArr
     qpos = _qpos0(m)
     qpos[:2] = rng.uniform(-np.pi, np.pi, 2)
     return qpos, np.zeros(m.nv), np.zeros(0)
+
+
+def reset_cheetah(m: mujoco.MjModel, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``cheetah.Cheetah.initialize_episode``: the limited joints uniform in their ranges, then 200
+    physical steps at rest, so that the cheetah lies on the floor as it settled."""
+    d = mujoco.MjData(m)
+    d.qpos[:] = m.qpos0
+    limited = m.jnt_limited == 1
+    adr = m.jnt_qposadr[limited]
+    d.qpos[adr] = rng.uniform(m.jnt_range[limited, 0], m.jnt_range[limited, 1])
+    mujoco.mj_step(m, d, 200)
+    return np.array(d.qpos), np.array(d.qvel), np.zeros(0)
 
 
 # --------------------------------------------------------------------------------------- rewards
@@ -278,6 +302,46 @@ def reward_acrobot(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) 
     return tolerance(torch.linalg.norm(target - tip, dim=1), 0.0, radius, 4.0 if smooth else 1.0)
 
 
+def reward_hopper_stand(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
+    """``hopper.Hopper.get_reward`` (standing): the torso's centre of mass 0.6-2 m above the foot's ·
+    small control (mean over controls)."""
+    places = ctx.kin.places(s)
+    torso = ctx.kin.locator("inertial", "torso").position(places)[:, 2]
+    foot = ctx.kin.locator("inertial", "foot").position(places)[:, 2]
+    height = torso - foot
+    standing = shaped(height, 0.6, 2.0, 0.5, 0.1) if smooth else tolerance(height, 0.6, 2.0)
+    control = tolerance(u, 0.0, 0.0, 1.0, "quadratic", 0.0).mean(dim=1)
+    return standing * (control + 4) / 5
+
+
+def _walker(ctx: Context, s: Tensor, u: Tensor, speed: float) -> Tensor:
+    """``walker.PlanarWalker.get_reward``: the torso above 1.2 m (margin 0.6) and upright, and with a
+    ``speed``, the centre of mass moving forward at it or faster (linear, half worth at half speed)."""
+    places = ctx.kin.places(s)
+    height = ctx.kin.locator("body", "torso").position(places)[:, 2]
+    upright = (1 + ctx.kin.locator("body", "torso").rotation(places)[:, 2, 2]) / 2
+    stand = (3 * tolerance(height, 1.2, math.inf, 0.6) + upright) / 4
+    if speed == 0:
+        return stand
+    vx = ctx.kin.subtree_velocity(s, "torso")[:, 0]
+    move = tolerance(vx, speed, math.inf, speed / 2, "linear", 0.5)
+    return stand * (5 * move + 1) / 6
+
+
+def reward_walker_stand(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
+    return _walker(ctx, s, u, 0.0)
+
+
+def reward_walker_walk(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
+    return _walker(ctx, s, u, 1.0)
+
+
+def reward_cheetah_run(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
+    """``cheetah.Cheetah.get_reward``: the centre of mass's forward speed over 10 m/s (linear from 0)."""
+    vx = ctx.kin.subtree_velocity(s, "torso")[:, 0]
+    return tolerance(vx, 10.0, math.inf, 10.0, "linear", 0.0)
+
+
 def _task(name: str, reset: ResetFn, reward: RewardFn, **how: Any) -> SuiteTask:
     return SuiteTask(**asdict(SUITE_TASK_INFO[name]), reset=reset, reward=reward, **how)
 
@@ -291,5 +355,9 @@ SUITE_TASKS: dict[str, SuiteTask] = {
         _task("point_mass-easy", reset_random_joints, reward_point_mass),
         _task("ball_in_cup-catch", reset_ball_in_cup, reward_ball_in_cup, restarts=REVERSE_CURRICULUM),
         _task("acrobot-swingup", reset_acrobot, reward_acrobot),
+        _task("hopper-stand", reset_random_joints, reward_hopper_stand, unobserved=("rootx.pos",)),
+        _task("walker-stand", reset_random_joints, reward_walker_stand, unobserved=("rootx.pos",)),
+        _task("walker-walk", reset_random_joints, reward_walker_walk, unobserved=("rootx.pos",)),
+        _task("cheetah-run", reset_cheetah, reward_cheetah_run, unobserved=("rootx.pos",)),
     )
 }

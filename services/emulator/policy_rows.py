@@ -151,9 +151,8 @@ class PolicyTick:
         clipped there): kept for ``record`` as ``apply`` keeps them, non-finite rows marked ``bad``."""
         g = self.groups[0]
         g.policy.calls += 1
-        bad = np.logical_not(np.isfinite(controls).all(axis=1))
-        if bad.any():
-            self.bad = bad
+        if not np.isfinite(controls).all():  # (rare: one flat test first)
+            self.bad = np.logical_not(np.isfinite(controls).all(axis=1))
         g.controls = controls
 
     def record(self, cols: PolicyColumns) -> None:

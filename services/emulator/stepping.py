@@ -314,7 +314,9 @@ class Stepper:
         emu, pool = res.emu, res.pool
         assert emu is not None and pool is not None
         n = len(rows)
-        driven = np.flatnonzero(res.known & pool.driven[np.where(res.known, res.slots, 0)])
+        slots, known = res.slots, res.known
+        safe = np.where(known, slots, 0)
+        driven = np.flatnonzero(known & pool.driven[safe])
         if driven.size:  # a driven session's controls come from its driver, whatever the row says
             rows = rows.copy()
             for i in driven.tolist():
@@ -323,7 +325,7 @@ class Stepper:
                     rows[i, : emu.num_controls] = one.driver.act(one.state)
         # a policy's session: its policy sets its controls in the batcher; the row's are ignored
         if pool.driving.count:
-            policy = res.known & (pool.driving.index[np.where(res.known, res.slots, 0)] >= 0)
+            policy = known & (pool.driving.index[safe] >= 0)
             if policy.any():
                 rows = rows.copy() if not driven.size else rows
                 rows[policy, : emu.num_controls] = emu.inputs.neutral_controls
@@ -331,11 +333,9 @@ class Stepper:
         status = np.zeros(n, np.uint8)
         if mask is not None:  # (the rows of the clipped values, without a reduction along the short axis)
             status[np.flatnonzero(mask) // rows.shape[1]] = binary.CLIPPED
-        slots, known = res.slots, res.known
         states = np.full((n, emu.state_size), np.nan, np.float32)
         outside = np.zeros(n, bool)
         status[~known] = binary.UNKNOWN
-        safe = np.where(known, slots, 0)
         diverged = known & pool.diverged[safe]
         status[diverged] = binary.DIVERGED
         states[diverged] = pool.states[slots[diverged]]

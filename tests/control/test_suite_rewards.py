@@ -3,6 +3,7 @@ starts follow the suite's ``initialize_episode``, and the kinematics under them 
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import mujoco
@@ -38,11 +39,33 @@ def _ids(m: mujoco.MjModel, kind: mujoco.mjtObj, name: str) -> int:
     return mujoco.mj_name2id(m, kind, name)
 
 
-def reference(domain: str, m: mujoco.MjModel, d: mujoco.MjData, params: np.ndarray) -> float:
+def _sensor(m: mujoco.MjModel, d: mujoco.MjData, name: str) -> np.ndarray:
+    i = _ids(m, mujoco.mjtObj.mjOBJ_SENSOR, name)
+    return np.array(d.sensordata[m.sensor_adr[i] : m.sensor_adr[i] + m.sensor_dim[i]])
+
+
+def reference(task: str, m: mujoco.MjModel, d: mujoco.MjData, params: np.ndarray) -> float:
     """The suite's ``get_reward`` for the task, its quantities read from MuJoCo's own data as the
-    suite's ``Physics`` helpers read them, through ``dm_control.utils.rewards.tolerance``."""
+    suite's ``Physics`` helpers read them (sensors included), through ``dm_control.utils.rewards.tolerance``."""
     body, site, geom = mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtObj.mjOBJ_GEOM
     tol = suite_rewards.tolerance
+    domain = task.split("-")[0]
+    small_control = (tol(d.ctrl, margin=1, value_at_margin=0, sigmoid="quadratic").mean() + 4) / 5
+    if domain == "hopper":
+        height = d.xipos[_ids(m, body, "torso"), 2] - d.xipos[_ids(m, body, "foot"), 2]
+        return float(tol(height, (0.6, 2)) * small_control)
+    if domain == "walker":
+        torso = _ids(m, body, "torso")
+        standing = tol(d.xpos[torso, 2], bounds=(1.2, float("inf")), margin=0.6)
+        stand = (3 * standing + (1 + d.xmat[torso, 8]) / 2) / 4
+        if task == "walker-stand":
+            return float(stand)
+        vx = _sensor(m, d, "torso_subtreelinvel")[0]
+        move = tol(vx, bounds=(1, float("inf")), margin=0.5, value_at_margin=0.5, sigmoid="linear")
+        return float(stand * (5 * move + 1) / 6)
+    if domain == "cheetah":
+        vx = _sensor(m, d, "torso_subtreelinvel")[0]
+        return float(tol(vx, bounds=(10, float("inf")), margin=10, value_at_margin=0, sigmoid="linear"))
     if domain == "cartpole":
         upright = (d.xmat[_ids(m, body, "pole_1"), 8] + 1) / 2
         centered = (1 + tol(d.qpos[0], margin=2)) / 2
@@ -94,9 +117,10 @@ def test_rewards_equal_the_suites_own(name: str) -> None:
             ctx, s, torch.tensor(d.ctrl[None].copy()), torch.tensor(np.asarray(params)[None]), False
         )
         ours.append(float(r[0]))
-        theirs.append(reference(task.domain, m, d, np.asarray(params)))
-    np.testing.assert_allclose(ours, theirs, atol=1e-9)
+        theirs.append(reference(name, m, d, np.asarray(params)))
+    np.testing.assert_allclose(ours, theirs, atol=1e-6)  # (the model's constants are held in float32)
     assert max(theirs) > 0  # the sample met the reward somewhere: the comparison is not of zeros
+    assert len(set(np.round(theirs, 6))) > 1  # ... and differed: not one value every time
 
 
 @pytest.mark.parametrize("name", list(SUITE_TASKS))
@@ -195,3 +219,62 @@ def test_starts_follow_the_suites_episodes() -> None:
         d.qpos[:], _, _ = SUITE_TASKS["ball_in_cup-catch"].reset(m, rng)
         mujoco.mj_forward(m, d)
         assert d.ncon == 0  # never inside the cup's walls
+
+
+@pytest.mark.parametrize("domain", ["walker", "cheetah", "humanoid"])
+def test_subtree_velocity_and_centres_of_mass_equal_mujocos(domain: str) -> None:
+    """The torso's subtree's centre-of-mass velocity (the suite's ``subtreelinvel`` sensor) and each
+    body's centre of mass, from the state, as MuJoCo computes them: slides and hinges, a free root."""
+    m, layout = _model(domain)
+    d, kin, rng = mujoco.MjData(m), Kinematics(m, layout), np.random.default_rng(2)
+    torso = _ids(m, mujoco.mjtObj.mjOBJ_BODY, "torso")
+    for _ in range(4):
+        d.qpos[:] = m.qpos0 + rng.normal(0, 0.5, m.nq)
+        mujoco.mj_normalizeQuat(m, d.qpos)
+        d.qvel[:] = rng.normal(0, 2, m.nv)
+        mujoco.mj_forward(m, d)
+        mujoco.mj_subtreeVel(m, d)
+        s = torch.tensor(_state(d, layout)[None])
+        np.testing.assert_allclose(
+            kin.subtree_velocity(s, "torso")[0].numpy(), d.subtree_linvel[torso], atol=1e-6
+        )
+        places = kin.places(s)
+        for b in range(1, m.nbody):
+            name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b)
+            np.testing.assert_allclose(
+                kin.locator("inertial", name).position(places)[0].numpy(), d.xipos[b], atol=1e-5
+            )
+    with pytest.raises(KeyError, match="no body named"):
+        kin.subtree_velocity(s, "tail")
+
+
+def test_tolerance_with_an_open_bound_is_the_suites_and_finite_in_its_gradient() -> None:
+    x = torch.linspace(-4, 14, 181, dtype=torch.float64, requires_grad=True)
+    for lower, margin, sigmoid, at in (
+        (10.0, 10.0, "linear", 0.0),
+        (1.0, 0.5, "linear", 0.5),
+        (1.2, 0.6, "gaussian", 0.1),
+    ):
+        ours = tolerance(x, lower, math.inf, margin, sigmoid, at)
+        theirs = suite_rewards.tolerance(x.detach().numpy(), (lower, float("inf")), margin, sigmoid, at)
+        np.testing.assert_allclose(ours.detach().numpy(), theirs, atol=1e-12)
+        (grad,) = torch.autograd.grad(ours.sum(), x)
+        assert torch.isfinite(grad).all()
+
+
+@pytest.mark.parametrize("name", [n for n, t in SUITE_TASKS.items() if t.unobserved])
+def test_the_groups_a_policy_does_not_read_are_in_its_domains_state(name: str) -> None:
+    task = SUITE_TASKS[name]
+    _, layout = _model(task.domain)
+    assert set(task.unobserved) <= {g.name for g in layout}
+
+
+def test_the_cheetah_starts_settled_on_the_floor() -> None:
+    """``cheetah.Cheetah.initialize_episode``: limited joints drawn, then 200 steps at rest."""
+    task = SUITE_TASKS["cheetah-run"]
+    m, _ = _model("cheetah")
+    rng = np.random.default_rng(4)
+    starts = [task.reset(m, rng) for _ in range(6)]
+    qpos = np.array([q for q, _, _ in starts])
+    assert np.ptp(qpos[:, 3:], axis=0).min() > 0  # the joints were drawn, not left at rest
+    assert np.abs(np.array([v for _, v, _ in starts])).max() < 1.0  # and settled
