@@ -135,5 +135,8 @@ POLICY_LANDING = PolicyTask(
     settle_s=10.0,
     timed=True,  # touch down (moving down, slowly) as the run ends, not hover above the pad
     train_seconds=900.0,
+    # 32 wide lands as often as 64 (0.95 of 100 held-out runs each) at a third of the arithmetic:
+    # it runs beside the emulator every served super-step
+    hidden=(32, 32),
 )
 POLICY_TASKS = (POLICY_LANDING,)

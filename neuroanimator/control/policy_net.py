@@ -195,8 +195,12 @@ def rotation_transposed(q: Tensor) -> tuple[Tensor, Tensor]:
     body's frame) and the world's up in the body's frame (B,3). Matrix products and same-shape
     products only: ONNX Runtime runs these at large batches far faster than gathers, slices and
     broadcasts, which would otherwise cost a small policy as much as the emulator it drives."""
-    products = (q @ PICK_A.to(q.dtype)) * (q @ PICK_B.to(q.dtype))
-    scaled = (products @ ROTATION_FORM.to(q.dtype)) / (products @ NORM_FORM.to(q.dtype) + 1e-12)
+    return rotation_from_products((q @ PICK_A.to(q.dtype)) * (q @ PICK_B.to(q.dtype)))
+
+
+def rotation_from_products(products: Tensor) -> tuple[Tensor, Tensor]:
+    """The ten products q_i·q_j (i ≤ j) of quaternions (B,10) → ``rotation_transposed``'s pair."""
+    scaled = (products @ ROTATION_FORM.to(products.dtype)) / (products @ NORM_FORM.to(products.dtype) + 1e-12)
     return scaled[:, :9], scaled[:, 9:]
 
 
@@ -232,6 +236,12 @@ class PolicyFeatures(nn.Module):
     spatial_map: Tensor
     velocity_map: Tensor
     heading_map: Tensor
+    quat_a: Tensor
+    quat_b: Tensor
+    spatial_repeat: Tensor
+    velocity_repeat: Tensor
+    linear_map: Tensor
+    linear_shift: Tensor
 
     def __init__(self, shape: PolicyShape) -> None:
         super().__init__()
@@ -269,6 +279,16 @@ class PolicyFeatures(nn.Module):
         )
         v_scale = shape.scale[shape.world_velocity[0]] if shape.world_velocity else 1.0
         buf("velocity_map", picks(v_cols, [v_scale] * len(v_cols)))
+        # products of constant maps folded into one each, so that the graph makes fewer passes over
+        # the batch: the quaternion's two factors, each vector repeated beside Rᵀ's rows, and (no
+        # angle in the goal, no heading) the plain columns beside the goal's scaled offset
+        buf("quat_a", self.quat_map @ PICK_A if shape.quat >= 0 else torch.zeros(width, 0))
+        buf("quat_b", self.quat_map @ PICK_B if shape.quat >= 0 else torch.zeros(width, 0))
+        buf("spatial_repeat", self.spatial_map @ REPEAT if shape.spatial else torch.zeros(width, 0))
+        buf("velocity_repeat", self.velocity_map @ REPEAT if v_cols else torch.zeros(width, 0))
+        self.fused = not any(shape.goal_angles) and not shape.planar
+        buf("linear_map", torch.cat([self.plain_map, self.offset_map * self.inv_goal_scale], dim=1))
+        buf("linear_shift", torch.cat([self.plain_shift, torch.zeros(goals)]))
 
     def forward(self, state: Tensor, goal: Tensor, time_left: Tensor) -> Tensor:
         s = self.shape
@@ -277,11 +297,14 @@ class PolicyFeatures(nn.Module):
         if s.angle_columns:
             a = z @ self.angle_map
             parts += [torch.sin(a), torch.cos(a)]
-        parts.append(z @ self.plain_map + self.plain_shift)
-        offset = z @ self.offset_map
-        if any(s.goal_angles):  # wrapped where the variable is an angle
-            offset = offset + self.goal_wrap * (wrap(offset) - offset)
-        parts.append(offset * self.inv_goal_scale)
+        if self.fused:  # the plain columns and the goal's scaled offset: one product
+            parts.append(z @ self.linear_map + self.linear_shift)
+        else:
+            parts.append(z @ self.plain_map + self.plain_shift)
+            offset = z @ self.offset_map
+            if any(s.goal_angles):  # wrapped where the variable is an angle
+                offset = offset + self.goal_wrap * (wrap(offset) - offset)
+            parts.append(offset * self.inv_goal_scale)
         if s.planar:
             h = z @ self.heading_map
             dx, dy = offset[:, s.planar[0] : s.planar[0] + 1], offset[:, s.planar[1] : s.planar[1] + 1]
@@ -289,12 +312,12 @@ class PolicyFeatures(nn.Module):
             scale = s.goal_scale[s.planar[0]]
             parts += [(c * dx + si * dy) / scale, (-si * dx + c * dy) / scale]
         if s.quat >= 0:  # the world's up, the goal's offset and the velocity in the body's frame
-            rt, up = rotation_transposed(z @ self.quat_map)
+            rt, up = rotation_from_products((z @ self.quat_a) * (z @ self.quat_b))
             parts.append(up)
             if s.spatial:
-                parts.append(turn(rt, z @ self.spatial_map))
+                parts.append((rt * (z @ self.spatial_repeat)) @ ROW_SUMS.to(z.dtype))
             if s.world_velocity:
-                parts.append(turn(rt, z @ self.velocity_map))
+                parts.append((rt * (z @ self.velocity_repeat)) @ ROW_SUMS.to(z.dtype))
         if s.timed:
             parts.append(time_left)
         return torch.cat(parts, dim=1)
@@ -326,11 +349,26 @@ class PolicyNet(nn.Module):
         self.register_buffer("span", 0.5 * (high - low), persistent=False)
         self.register_buffer("limit_low", torch.tensor(shape.limit_low), persistent=False)
         self.register_buffer("limit_high", torch.tensor(shape.limit_high), persistent=False)
+        # the squashed output never leaves the useful range: where that lies within the hard limits
+        # (the usual case) the clip is left out of the graph (two fewer operations a call)
+        self.clips = any(lo < lim for lo, lim in zip(shape.low, shape.limit_low, strict=True)) or any(
+            hi > lim for hi, lim in zip(shape.high, shape.limit_high, strict=True)
+        )
 
     def forward(self, state: Tensor, goal: Tensor, time_left: Tensor) -> Tensor:
         a = self.mlp(self.features(state, goal, time_left))
         u = self.centre + self.span * torch.tanh(a)
+        if not self.clips:
+            return u
         return torch.minimum(torch.maximum(u, self.limit_low), self.limit_high)
+
+    def output_range(self) -> tuple[list[float], list[float]]:
+        """(U,) lows and highs the controls never leave: the useful range within the hard limits."""
+        s = self.shape
+        return (
+            [max(lo, lim) for lo, lim in zip(s.low, s.limit_low, strict=True)],
+            [min(hi, lim) for hi, lim in zip(s.high, s.limit_high, strict=True)],
+        )
 
     def normalised(self, controls: Tensor) -> Tensor:
         """Controls (B,U) in units of each one's half range, 0 at its centre (for the effort term)."""

@@ -170,6 +170,11 @@ class RewardPolicy(nn.Module):
     def forward(self, state: Tensor, params: Tensor) -> Tensor:
         return self.centre + self.half_range * torch.tanh(self.net(self.features(state, params)))
 
+    def output_range(self) -> tuple[list[float], list[float]]:
+        """(U,) lows and highs the controls never leave."""
+        c, h = self.centre.tolist(), self.half_range.tolist()
+        return [a - b for a, b in zip(c, h, strict=True)], [a + b for a, b in zip(c, h, strict=True)]
+
 
 class Critic(nn.Module):
     """V(state (B,S), params (B,P)) → (B,) the discounted return from there."""

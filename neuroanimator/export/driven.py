@@ -12,6 +12,7 @@ Torch-free, like ``export.runtime``: the emulator service composes the graphs it
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 
 import numpy as np
@@ -25,6 +26,9 @@ from neuroanimator.export.runtime import PerThreadRow, session_options
 
 CONTROLS = "driven/controls"  # the composed graph's outputs: the clipped controls and the next state
 EMULATOR_PREFIX = "emulator/"
+CONTROLS_RANGE = (
+    "controls_range"  # a policy graph's metadata: JSON [lows, highs] (U,) its controls never leave
+)
 
 
 def _opsets(*models: onnx.ModelProto) -> list[onnx.OperatorSetIdProto]:
@@ -34,6 +38,17 @@ def _opsets(*models: onnx.ModelProto) -> list[onnx.OperatorSetIdProto]:
         for o in m.opset_import:
             versions[o.domain] = max(o.version, versions.get(o.domain, 0))
     return [onnx.helper.make_opsetid(d, v) for d, v in versions.items()]
+
+
+def _within(policy: onnx.ModelProto, low: NDArray[np.float32], high: NDArray[np.float32]) -> bool:
+    """Whether the policy's graph says (``CONTROLS_RANGE``) that its controls never leave [low, high]
+    (a float32 rounding's slack allowed: the squashing's ends may land one unit in the last place out)."""
+    meta = {e.key: e.value for e in policy.metadata_props}
+    if CONTROLS_RANGE not in meta:
+        return False
+    lows, highs = (np.asarray(v, np.float64) for v in json.loads(meta[CONTROLS_RANGE]))
+    slack = 1e-6 * np.maximum(1.0, np.abs(high - low))
+    return bool(lows.shape == low.shape and np.all(lows >= low - slack) and np.all(highs <= high + slack))
 
 
 def compose_driven(
@@ -57,17 +72,20 @@ def compose_driven(
         raise ValueError(f"the policy's outputs are {[o.name for o in p.graph.output]}, not ['controls']")
     lo = np.asarray(low, np.float32)[None]
     hi = np.asarray(high, np.float32)[None]
+    if _within(p, lo[0], hi[0]):  # the policy's controls never leave the range: no clip
+        p.graph.node.append(onnx.helper.make_node("Identity", ["controls"], [CONTROLS]))
+    else:
+        p.graph.initializer.extend(
+            [onnx.numpy_helper.from_array(lo, "driven/low"), onnx.numpy_helper.from_array(hi, "driven/high")]
+        )
+        p.graph.node.extend(
+            [
+                onnx.helper.make_node("Max", ["controls", "driven/low"], ["driven/above_low"]),
+                onnx.helper.make_node("Min", ["driven/above_low", "driven/high"], [CONTROLS]),
+            ]
+        )
     # the emulator reads the state the policy read: pass it through the policy's graph
-    p.graph.initializer.extend(
-        [onnx.numpy_helper.from_array(lo, "driven/low"), onnx.numpy_helper.from_array(hi, "driven/high")]
-    )
-    p.graph.node.extend(
-        [
-            onnx.helper.make_node("Max", ["controls", "driven/low"], ["driven/above_low"]),
-            onnx.helper.make_node("Min", ["driven/above_low", "driven/high"], [CONTROLS]),
-            onnx.helper.make_node("Identity", ["state"], ["driven/state"]),
-        ]
-    )
+    p.graph.node.append(onnx.helper.make_node("Identity", ["state"], ["driven/state"]))
     state_out = onnx.ValueInfoProto()
     state_out.CopyFrom(p_in["state"])
     state_out.name = "driven/state"

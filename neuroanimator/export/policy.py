@@ -1,17 +1,23 @@
 """ONNX export of a policy: ``π(state (B,S), goal (B,G)[, time_left (B,1)]) → controls (B,U)``.
 
 The graph is whatever module is given with that signature (``control.policy_net.PolicyNet``); the
-batch axis is dynamic and ``time_left`` an input only for a timed policy.
+batch axis is dynamic and ``time_left`` an input only for a timed policy. A module that knows the
+range its controls never leave (``output_range()``) has it written in the graph's metadata
+(``CONTROLS_RANGE``): a driven step composed from it then needs no clip of its own
+(``export.driven``).
 """
 
 from __future__ import annotations
 
 import io
+import json
 import warnings
 
+import onnx
 import torch
 from torch import Tensor, nn
 
+from neuroanimator.export.driven import CONTROLS_RANGE
 from neuroanimator.export.onnx import OPSET
 
 
@@ -54,4 +60,10 @@ def policy_to_onnx(
             opset_version=OPSET,
             dynamo=False,
         )
-    return buf.getvalue()
+    output_range = getattr(net, "output_range", None)
+    if output_range is None:
+        return buf.getvalue()
+    graph = onnx.load_from_string(buf.getvalue())
+    entry = graph.metadata_props.add()
+    entry.key, entry.value = CONTROLS_RANGE, json.dumps(output_range())
+    return graph.SerializeToString()

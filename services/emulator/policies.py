@@ -17,6 +17,7 @@ import logging
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -101,16 +102,18 @@ class LoadedPolicy:
     def num_controls(self) -> int:
         return len(self.manifest.control_names)
 
-    @property
-    def label(self) -> str:
+    @cached_property
+    def label(self) -> str:  # (read every driven tick: made once)
         return f"{self.manifest.model}/{self.name}/{self.version}"
 
     def time_left(self, since_goal: NDArray[np.int64]) -> NDArray[np.float32]:
         """(B,) super-steps since each goal was set -> (B, 1) the share of the goal's period left
         until its check (0 once past it)."""
         m = self.manifest
-        left = np.maximum(0, m.check_steps - since_goal).astype(np.float32)
-        return (left / np.float32(m.goal_period_steps))[:, None]
+        left = (m.check_steps - since_goal[:, None]).astype(np.float32)
+        np.maximum(left, 0, out=left)
+        left /= np.float32(m.goal_period_steps)
+        return left
 
     def controls(
         self, states: NDArray[np.float32], goals: NDArray[np.float32], since_goal: NDArray[np.int64]

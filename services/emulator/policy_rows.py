@@ -104,7 +104,7 @@ class PolicyTick:
             return None
         which = cols.index[slots]
         first = int(which[0])
-        if first >= 0 and (which == first).all():  # the usual tick of a policy's sessions: one group
+        if first >= 0 and (len(which) == 1 or (which == first).all()):  # the usual tick: one group
             policy = cols.policies[first]
             goals = cols.goals[slots, : policy.goal_size]
             return cls(slots, [_Group(policy, EVERY_ROW, goals, steps[slots] - cols.goal_step[slots])])
