@@ -210,6 +210,7 @@ def bench_suite_task(
         "task": name,
         "return_physics": round(float(ours.returns.mean()), 1),
         "return_emulator": round(result.return_emulator, 1),
+        "outside_envelope": round(result.outside_share, 4),  # emulated states outside its envelope
         "returns_physics": [round(float(x), 1) for x in ours.returns],
         "target_return": task.target_return,
         "episodes": episodes,

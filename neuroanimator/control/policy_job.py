@@ -23,6 +23,7 @@ from neuroanimator.catalog.tasks import POLICY_TASKS
 from neuroanimator.control.policy import PolicyProgress, PolicyResult, PolicySettings, train_policy
 from neuroanimator.control.policy_store import save_policy, save_reward_policy
 from neuroanimator.control.reward_policy import (
+    OUTSIDE,
     RewardProgress,
     RewardResult,
     RewardSettings,
@@ -132,6 +133,13 @@ def _run_reward_job(
         result = train_reward_policy(task, path, settings, on_progress, should_stop)
     except ValueError as e:  # an emulator that does not fit the task (its super-step, its kind)
         raise PolicyJobError(str(e)) from e
+    if result.stop == OUTSIDE:
+        raise PolicyJobError(
+            f"{task.name}: the emulator's states under the policy were outside its training envelope "
+            f"{100 * result.outside_share:.0f} % of the time after {result.wall_s:.0f} s (at most "
+            f"{100 * (settings or RewardSettings()).max_outside:.0f} % is trusted): the emulator has not "
+            "seen where the policy goes; train it on more of the model's motion"
+        )
     store, why = should_store(result)
     if not store:
         log.info("policy %s not stored: %s", task.name, why)

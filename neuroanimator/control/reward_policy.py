@@ -57,6 +57,7 @@ from neuroanimator.training.train import fine_tune_on_runs
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 FEATURE_LIMIT = 8.0  # a state this many spreads from the typical motion has left what the emulator knows
+OUTSIDE = "outside_envelope"  # a training's stop: its emulated states left the emulator's envelope too often
 
 
 @dataclass(frozen=True)
@@ -92,6 +93,10 @@ class RewardSettings:
     # than this share of the most an episode can earn (the suite's rewards are at most 1 a step)
     refine_seconds: float = 15.0
     final_episodes: int = 10
+    # a training whose emulated states lie outside the emulator's training envelope more than this
+    # share of the time (measured from a quarter of the budget on) stops and fails: its policy would
+    # be learnt from what the emulator never saw
+    max_outside: float = 0.5
     seed: int = 0
     threads: int = 1
 
@@ -216,8 +221,9 @@ class RewardResult:
     refinements: int = 0
     # every check on MuJoCo: (iteration, elapsed s, the mean return of its episodes)
     return_history: list[tuple[int, float, float]] = field(default_factory=list)
-    stop: str = "budget"
+    stop: str = "budget"  # or "cancelled", or OUTSIDE (the emulator's envelope left too often)
     params: FloatArray | None = None  # (N, P) the task's parameters it was trained for
+    outside_share: float = 0.0  # the share of emulated states outside the emulator's training envelope
 
     @property
     def evaluate_runs(self) -> int:
@@ -311,6 +317,9 @@ class RewardTrainer:
         )
         self.mujoco_steps = 0
         self.refinements = 0
+        self.env_low, self.env_high = self._envelope()
+        self.outside_steps = 0
+        self.emulated_steps = 0
         self.start_states, self.start_params = draw_starts(task, self.physical, self.rng, 2048)
         self.visited: list[tuple[FloatArray, FloatArray]] = []
         self.runs: list[Episodes] = []
@@ -356,6 +365,24 @@ class RewardTrainer:
 
             observed = int(observe(s[:1].float(), torch.as_tensor(self.start_params[:1]).float()).shape[1])
         return Features(angles, plain, mean, scale, len(self.task.params), observe, observed)
+
+    def _envelope(self) -> tuple[Tensor, Tensor]:
+        """(S,) lows and highs of the emulator's training envelope (``Manifest.envelope``), infinite
+        where it is indifferent to a value or records none."""
+        low = np.full(self.manifest.state_size, -np.inf)
+        high = np.full(self.manifest.state_size, np.inf)
+        offsets = {g.name: g.offset for g in self.manifest.layout}
+        for env in self.manifest.envelope or []:
+            at = offsets[env.group]
+            for i, (lo, hi) in enumerate(zip(env.low, env.high, strict=True)):
+                low[at + i] = -np.inf if lo is None else lo
+                high[at + i] = np.inf if hi is None else hi
+        return torch.as_tensor(low, dtype=torch.float32), torch.as_tensor(high, dtype=torch.float32)
+
+    @property
+    def outside_share(self) -> float:
+        """The share of the emulated states so far outside the emulator's training envelope."""
+        return self.outside_steps / self.emulated_steps if self.emulated_steps else 0.0
 
     # ------------------------------------------------------------------ episodes
     def envelope_box(self) -> tuple[FloatArray, FloatArray]:
@@ -468,6 +495,10 @@ class RewardTrainer:
             disc *= gamma
             states.append(x.detach())
             rewards.append(r.detach())
+        reached = torch.stack(states[1:])  # (H, B, S)
+        outside = (reached < self.env_low) | (reached > self.env_high)
+        self.outside_steps += int(outside.any(dim=2).sum())
+        self.emulated_steps += reached.shape[0] * reached.shape[1]
         end_value = self.critic(x, p)
         loss = (loss - disc * end_value.mean()) / h_steps
         opt_actor.zero_grad()
@@ -576,8 +607,9 @@ class RewardTrainer:
                 last_return = runs.mean
                 history.append((it, round(self.elapsed(), 1), last_return))
                 log.info(
-                    "%s: iteration %d, loss %.4g, return on MuJoCo %.1f, on the emulator %.1f",
-                    task.name, it, value, last_return, emulated,
+                    "%s: iteration %d, loss %.4g, return on MuJoCo %.1f, on the emulator %.1f, "
+                    "emulated states outside the envelope %.1f %%",
+                    task.name, it, value, last_return, emulated, 100 * self.outside_share,
                 )  # fmt: skip
                 if last_return >= best[0]:
                     best = (last_return, copy.deepcopy(self.policy.state_dict()))
@@ -590,6 +622,9 @@ class RewardTrainer:
                 if cfg.refine and gap > cfg.refine_gap and self.elapsed() < 0.9 * cfg.seconds:
                     self.refine()
                 next_check = self.elapsed() + check_every
+                if self.elapsed() >= 0.25 * cfg.seconds and self.outside_share > cfg.max_outside:
+                    stop = OUTSIDE
+                    break
             if self.on_progress is not None:
                 self.on_progress(
                     {
@@ -621,6 +656,7 @@ class RewardTrainer:
             return_history=history,
             stop=stop,
             params=self.start_params,
+            outside_share=self.outside_share,
         )
 
 

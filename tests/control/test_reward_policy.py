@@ -63,6 +63,7 @@ def test_training_runs_on_mujoco_keeps_the_best_and_counts_its_steps(artifacts: 
     episodes = QUICK.eval_episodes * len(result.return_history) + QUICK.final_episodes
     assert result.mujoco_steps == episodes * TASK.episode_steps * TASK.control_substeps
     assert result.refinements >= 1  # the emulator learned from the policy's MuJoCo runs (any gap)
+    assert result.stop == "budget" and 0 <= result.outside_share < QUICK.max_outside
     # the policy's controls stay in the actuators' range, on states far outside what it saw
     s = torch.randn(64, trainer.manifest.state_size) * 10
     u = trainer.policy(s, torch.zeros(64, 0))
@@ -174,3 +175,25 @@ def test_a_suite_policy_job_stopped_before_its_first_check_stores_nothing(
     )
     with pytest.raises(PolicyJobError, match="RewardSettings"):
         run_policy_job(TASK.name, registry.Roots(tmp_path, artifacts), PolicySettings(seconds=5))
+
+
+def test_a_training_whose_states_leave_the_emulators_envelope_fails_saying_how_often(
+    artifacts: Path, tmp_path: Path
+) -> None:
+    """An emulator whose envelope the policy's emulated states leave more than ``max_outside`` of the
+    time is not trusted: the job stops and fails with the share, nothing is stored."""
+    import json
+    import shutil
+
+    root = tmp_path / "narrow"
+    shutil.copytree(artifacts, root, symlinks=True)
+    path = registry.resolve(root, "point_mass", substeps=TASK.substeps)
+    manifest = json.loads((path / "manifest.json").read_text())
+    for env in manifest["envelope"]:  # an envelope no state is inside
+        env["low"] = [None if v is None else 1e6 for v in env["low"]]
+        env["high"] = [None if v is None else 1e6 + 1 for v in env["high"]]
+    (path / "manifest.json").write_text(json.dumps(manifest))
+    settings = replace(QUICK, seconds=6.0, max_iterations=None, eval_every=0.1)
+    with pytest.raises(PolicyJobError, match=r"outside its training envelope 100 % of the time"):
+        run_policy_job(TASK.name, root, settings)
+    assert not (root / "policies").exists()
