@@ -186,6 +186,7 @@ def _rotation_forms() -> tuple[Tensor, Tensor, Tensor, Tensor]:
 
 
 PICK_A, PICK_B, ROTATION_FORM, NORM_FORM = _rotation_forms()
+NORM_EPS = torch.tensor([1e-12])
 REPEAT = torch.kron(torch.ones(1, 3), torch.eye(3))  # (3, 9): v ↦ [v, v, v], beside each row of Rᵀ
 ROW_SUMS = torch.kron(torch.eye(3), torch.ones(3, 1))  # (9, 3): sums of each row's three products
 
@@ -200,7 +201,9 @@ def rotation_transposed(q: Tensor) -> tuple[Tensor, Tensor]:
 
 def rotation_from_products(products: Tensor) -> tuple[Tensor, Tensor]:
     """The ten products q_i·q_j (i ≤ j) of quaternions (B,10) → ``rotation_transposed``'s pair."""
-    scaled = (products @ ROTATION_FORM.to(products.dtype)) / (products @ NORM_FORM.to(products.dtype) + 1e-12)
+    # (|q|² + ε as one product with a bias: a Gemm, where a sum after the product is a pass of its own)
+    norm = nn.functional.linear(products, NORM_FORM.T.to(products.dtype), NORM_EPS.to(products.dtype))
+    scaled = (products @ ROTATION_FORM.to(products.dtype)) / norm
     return scaled[:, :9], scaled[:, 9:]
 
 
@@ -328,6 +331,7 @@ class PolicyNet(nn.Module):
 
     centre: Tensor
     span: Tensor
+    spread: Tensor
     limit_low: Tensor
     limit_high: Tensor
 
@@ -347,6 +351,7 @@ class PolicyNet(nn.Module):
         low, high = torch.tensor(shape.low), torch.tensor(shape.high)
         self.register_buffer("centre", 0.5 * (low + high), persistent=False)
         self.register_buffer("span", 0.5 * (high - low), persistent=False)
+        self.register_buffer("spread", torch.diag(self.span), persistent=False)  # (U, U)
         self.register_buffer("limit_low", torch.tensor(shape.limit_low), persistent=False)
         self.register_buffer("limit_high", torch.tensor(shape.limit_high), persistent=False)
         # the squashed output never leaves the useful range: where that lies within the hard limits
@@ -357,7 +362,9 @@ class PolicyNet(nn.Module):
 
     def forward(self, state: Tensor, goal: Tensor, time_left: Tensor) -> Tensor:
         a = self.mlp(self.features(state, goal, time_left))
-        u = self.centre + self.span * torch.tanh(a)
+        # c + h·tanh(a) as one product with a bias (a Gemm): ONNX Runtime's broadcast sum and
+        # product over a large batch cost as much as a layer each
+        u = nn.functional.linear(torch.tanh(a), self.spread, self.centre)
         if not self.clips:
             return u
         return torch.minimum(torch.maximum(u, self.limit_low), self.limit_high)

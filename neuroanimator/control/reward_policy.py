@@ -162,6 +162,7 @@ class RewardPolicy(nn.Module):
 
     centre: Tensor
     half_range: Tensor
+    spread: Tensor
 
     def __init__(
         self, features: Features, low: FloatArray, high: FloatArray, hidden: tuple[int, ...]
@@ -171,9 +172,12 @@ class RewardPolicy(nn.Module):
         self.net = mlp(features.size, hidden, len(low))
         self.register_buffer("centre", torch.tensor((low + high) / 2, dtype=torch.float32))
         self.register_buffer("half_range", torch.tensor((high - low) / 2, dtype=torch.float32))
+        self.register_buffer("spread", torch.diag(self.half_range), persistent=False)  # (U, U)
 
     def forward(self, state: Tensor, params: Tensor) -> Tensor:
-        return self.centre + self.half_range * torch.tanh(self.net(self.features(state, params)))
+        # c + h·tanh(a) as one product with a bias: one Gemm in the served graph (``policy_net``)
+        a = torch.tanh(self.net(self.features(state, params)))
+        return nn.functional.linear(a, self.spread, self.centre)
 
     def output_range(self) -> tuple[list[float], list[float]]:
         """(U,) lows and highs the controls never leave."""

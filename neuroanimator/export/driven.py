@@ -40,13 +40,26 @@ def _opsets(*models: onnx.ModelProto) -> list[onnx.OperatorSetIdProto]:
     return [onnx.helper.make_opsetid(d, v) for d, v in versions.items()]
 
 
-def _within(policy: onnx.ModelProto, low: NDArray[np.float32], high: NDArray[np.float32]) -> bool:
-    """Whether the policy's graph says (``CONTROLS_RANGE``) that its controls never leave [low, high]
-    (a float32 rounding's slack allowed: the squashing's ends may land one unit in the last place out)."""
-    meta = {e.key: e.value for e in policy.metadata_props}
+def declared_range(meta: dict[str, str]) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """The (U,) lows and highs a policy graph's metadata (``CONTROLS_RANGE``) says its controls never
+    leave; None where it says nothing."""
     if CONTROLS_RANGE not in meta:
-        return False
+        return None
     lows, highs = (np.asarray(v, np.float64) for v in json.loads(meta[CONTROLS_RANGE]))
+    return lows, highs
+
+
+def keeps_within(
+    declared: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
+    low: NDArray[np.floating],
+    high: NDArray[np.floating],
+) -> bool:
+    """Whether controls within ``declared`` stay within [low, high] (U,), so that no clip is needed
+    (a float32 rounding's slack allowed: the squashing's ends may land one unit in the last place out)."""
+    if declared is None:
+        return False
+    lows, highs = declared
+    low, high = np.asarray(low, np.float64), np.asarray(high, np.float64)
     slack = 1e-6 * np.maximum(1.0, np.abs(high - low))
     return bool(lows.shape == low.shape and np.all(lows >= low - slack) and np.all(highs <= high + slack))
 
@@ -72,7 +85,8 @@ def compose_driven(
         raise ValueError(f"the policy's outputs are {[o.name for o in p.graph.output]}, not ['controls']")
     lo = np.asarray(low, np.float32)[None]
     hi = np.asarray(high, np.float32)[None]
-    if _within(p, lo[0], hi[0]):  # the policy's controls never leave the range: no clip
+    declared = declared_range({e.key: e.value for e in p.metadata_props})
+    if keeps_within(declared, lo[0], hi[0]):  # the policy's controls never leave the range: no clip
         p.graph.node.append(onnx.helper.make_node("Identity", ["controls"], [CONTROLS]))
     else:
         p.graph.initializer.extend(

@@ -34,6 +34,7 @@ from neuroanimator.artifacts.policies import (
     resolve_policy,
 )
 from neuroanimator.core.policy_manifest import PolicyManifest
+from neuroanimator.export.driven import declared_range, keeps_within
 from neuroanimator.export.runtime import PerThreadRow, session_options
 from services.emulator.errors import BadInput, PolicyMismatch, UnknownPolicy
 from services.emulator.inputs import check_vector
@@ -85,6 +86,17 @@ class LoadedPolicy:
             )
         widths = {"state": m.state_size, "goal": m.goal_size} | ({"time_left": 1} if m.timed else {})
         self._row = PerThreadRow(self.session, widths, {"controls": len(m.control_names)})
+        self._range = declared_range(self.session.get_modelmeta().custom_metadata_map)
+        self._within: dict[bytes, bool] = {}
+
+    def keeps_within(self, low: NDArray[np.float32], high: NDArray[np.float32]) -> bool:
+        """Whether this policy's controls never leave [low, high] (U,), as its graph declares: a tick
+        then needs no clip of its own (remembered per range)."""
+        key = low.tobytes() + high.tobytes()
+        known = self._within.get(key)
+        if known is None:
+            known = self._within[key] = keeps_within(self._range, low, high)
+        return known
 
     @property
     def name(self) -> str:

@@ -328,7 +328,10 @@ class Stepper:
             policy = known & (pool.driving.index[safe] >= 0)
             if policy.any():
                 rows = rows.copy() if not driven.size else rows
-                rows[policy, : emu.num_controls] = emu.inputs.neutral_controls
+                if policy.all():  # (the usual block: a slice, not a mask)
+                    rows[:, : emu.num_controls] = emu.inputs.neutral_controls
+                else:
+                    rows[policy, : emu.num_controls] = emu.inputs.neutral_controls
         inputs, mask = emu.inputs.clip(rows, label)
         status = np.zeros(n, np.uint8)
         if mask is not None:  # (the rows of the clipped values, without a reduction along the short axis)
