@@ -41,6 +41,7 @@ from neuroanimator.control.reward_policy import (
     RewardSettings,
     RewardTrainer,
     draw_starts,
+    falls,
     run_on_mujoco,
 )
 from neuroanimator.control.suite_tasks import SUITE_TASKS, Context, SuiteTask
@@ -211,6 +212,7 @@ def bench_suite_task(
         "return_physics": round(float(ours.returns.mean()), 1),
         "return_emulator": round(result.return_emulator, 1),
         "outside_envelope": round(result.outside_share, 4),  # emulated states outside its envelope
+        "falls_physics": falls(task, trainer.ctx, ours, trainer.manifest.super_timestep),
         "returns_physics": [round(float(x), 1) for x in ours.returns],
         "target_return": task.target_return,
         "episodes": episodes,

@@ -228,10 +228,31 @@ class RewardResult:
     stop: str = "budget"  # or "cancelled", or OUTSIDE (the emulator's envelope left too often)
     params: FloatArray | None = None  # (N, P) the task's parameters it was trained for
     outside_share: float = 0.0  # the share of emulated states outside the emulator's training envelope
+    falls: list[FallReport] = field(default_factory=list)  # the final episodes' falls on MuJoCo
 
     @property
     def evaluate_runs(self) -> int:
         return len(self.returns_physics)
+
+
+class FallReport(TypedDict):
+    """A fall in an episode on MuJoCo: which episode, when (seconds into it) and the state it lay in."""
+
+    episode: int
+    time_s: float
+    state: list[float]
+
+
+def falls(task: SuiteTask, ctx: Context, runs: Episodes, policy_step_s: float) -> list[FallReport]:
+    """The first fall of each episode (``SuiteTask.fall``), none for a task without one."""
+    if task.fall is None:
+        return []
+    first = task.fall.first(ctx, runs.states)
+    return [
+        {"episode": i, "time_s": round(float(k * policy_step_s), 3), "state": runs.states[i, k].tolist()}
+        for i, k in enumerate(first.tolist())
+        if k >= 0
+    ]
 
 
 def draw_starts(
@@ -643,6 +664,9 @@ class RewardTrainer:
             best = (-math.inf, copy.deepcopy(self.policy.state_dict()))
         self.policy.load_state_dict(best[1])
         final, _ = self.evaluate(cfg.final_episodes, cfg.seed + 1_000_003)
+        fell = falls(task, self.ctx, final, self.manifest.super_timestep)
+        for f in fell:
+            log.warning("%s: episode %d fell on MuJoCo after %.2f s", task.name, f["episode"], f["time_s"])
         self.step = FastStep(artifacts.load_emulator(self.path))  # type: ignore[arg-type]
         starts, params = draw_starts(
             task, self.physical, np.random.default_rng(cfg.seed + 1_000_003), cfg.final_episodes
@@ -661,6 +685,7 @@ class RewardTrainer:
             stop=stop,
             params=self.start_params,
             outside_share=self.outside_share,
+            falls=fell,
         )
 
 

@@ -120,6 +120,26 @@ class Restarts:
 REVERSE_CURRICULUM = Restarts(mujoco=0.25, explore=0.5, rewarded=0.5)
 
 
+@dataclass(frozen=True)
+class Fall:
+    """When a body has fallen: its ``level`` (a function of the states (B, S) → (B,): a torso's height
+    in metres, or how upright it is) drops below ``below`` after having reached ``above`` in the
+    episode (a walker that never got up has not fallen; one that stood and lies again has)."""
+
+    level: Callable[[Context, Tensor], Tensor]
+    above: float
+    below: float
+
+    def first(self, ctx: Context, states: NDArray[np.float64]) -> NDArray[np.int64]:
+        """(N, K, S) episodes' states → (N,) the index of each one's first fallen state, -1 for none."""
+        n, k, width = states.shape
+        with torch.no_grad():
+            level = self.level(ctx, torch.as_tensor(states.reshape(n * k, width))).reshape(n, k).numpy()
+        been_up = np.maximum.accumulate(level >= self.above, axis=1)
+        down = been_up & (level < self.below)
+        return np.where(down.any(axis=1), down.argmax(axis=1), -1)
+
+
 RewardFn = Callable[[Context, Tensor, Tensor, Tensor, bool], Tensor]
 ObserveFn = Callable[[Context, Tensor, Tensor], Tensor]
 ResetFn = Callable[[mujoco.MjModel, np.random.Generator], tuple[FloatArray, FloatArray, FloatArray]]
@@ -140,6 +160,7 @@ class SuiteTask(SuiteTaskInfo):
     # state groups the policy does not read, as the suite's observations omit them (how far a walker
     # has walked: a policy that read it would meet values it never saw by walking on)
     unobserved: tuple[str, ...] = ()
+    fall: Fall | None = None  # when its body has fallen (reported with the time and state of each fall)
 
     @property
     def repeat(self) -> int:
@@ -342,6 +363,32 @@ def reward_cheetah_run(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bo
     return tolerance(vx, 10.0, math.inf, 10.0, "linear", 0.0)
 
 
+def _torso_height(ctx: Context, s: Tensor) -> Tensor:
+    return ctx.kin.locator("body", "torso").position(ctx.kin.places(s))[:, 2]
+
+
+def _hopper_height(ctx: Context, s: Tensor) -> Tensor:
+    places = ctx.kin.places(s)
+    foot = ctx.kin.locator("inertial", "foot").position(places)[:, 2]
+    return ctx.kin.locator("inertial", "torso").position(places)[:, 2] - foot
+
+
+def _torso_upright(ctx: Context, s: Tensor) -> Tensor:
+    return ctx.kin.locator("body", "torso").rotation(ctx.kin.places(s))[:, 2, 2]
+
+
+# a walker down again after standing (its torso under 0.7 m, its stand is 1.2), a hopper's torso
+# back under 0.3 m above its foot after 0.5, a cheetah on its back
+WALKER_FALL = Fall(_torso_height, above=1.0, below=0.7)
+HOPPER_FALL = Fall(_hopper_height, above=0.5, below=0.3)
+CHEETAH_FALL = Fall(_torso_upright, above=0.0, below=-0.5)
+
+
+def _ground(fall: Fall) -> dict[str, Any]:
+    """A planar body on the ground: its fall, and how far it has gone unread (the suite omits it)."""
+    return {"fall": fall, "unobserved": ("rootx.pos",)}
+
+
 def _task(name: str, reset: ResetFn, reward: RewardFn, **how: Any) -> SuiteTask:
     return SuiteTask(**asdict(SUITE_TASK_INFO[name]), reset=reset, reward=reward, **how)
 
@@ -355,9 +402,9 @@ SUITE_TASKS: dict[str, SuiteTask] = {
         _task("point_mass-easy", reset_random_joints, reward_point_mass),
         _task("ball_in_cup-catch", reset_ball_in_cup, reward_ball_in_cup, restarts=REVERSE_CURRICULUM),
         _task("acrobot-swingup", reset_acrobot, reward_acrobot),
-        _task("hopper-stand", reset_random_joints, reward_hopper_stand, unobserved=("rootx.pos",)),
-        _task("walker-stand", reset_random_joints, reward_walker_stand, unobserved=("rootx.pos",)),
-        _task("walker-walk", reset_random_joints, reward_walker_walk, unobserved=("rootx.pos",)),
-        _task("cheetah-run", reset_cheetah, reward_cheetah_run, unobserved=("rootx.pos",)),
+        _task("hopper-stand", reset_random_joints, reward_hopper_stand, **_ground(HOPPER_FALL)),
+        _task("walker-stand", reset_random_joints, reward_walker_stand, **_ground(WALKER_FALL)),
+        _task("walker-walk", reset_random_joints, reward_walker_walk, **_ground(WALKER_FALL)),
+        _task("cheetah-run", reset_cheetah, reward_cheetah_run, **_ground(CHEETAH_FALL)),
     )
 }

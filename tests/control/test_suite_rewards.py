@@ -278,3 +278,24 @@ def test_the_cheetah_starts_settled_on_the_floor() -> None:
     qpos = np.array([q for q, _, _ in starts])
     assert np.ptp(qpos[:, 3:], axis=0).min() > 0  # the joints were drawn, not left at rest
     assert np.abs(np.array([v for _, v, _ in starts])).max() < 1.0  # and settled
+
+
+def test_a_fall_is_going_down_after_having_been_up() -> None:
+    """``Fall.first``: the first state below ``below`` after one at ``above`` or higher; a body that
+    never got up has not fallen. On the walker: its torso's height from the state."""
+    fall = SUITE_TASKS["walker-stand"].fall
+    assert fall is not None
+    m, layout = _model("walker")
+    ctx, d = Context(m, layout), mujoco.MjData(m)
+    rootz = _ids(m, mujoco.mjtObj.mjOBJ_JOINT, "rootz")
+
+    def state(height_change: float) -> np.ndarray:
+        d.qpos[:] = m.qpos0
+        d.qpos[m.jnt_qposadr[rootz]] = height_change  # the torso stands at 1.3 m at qpos0
+        return _state(d, layout)
+
+    up, half, down = state(0.0), state(-0.45), state(-1.0)
+    episodes = np.array(
+        [[down, up, half, down, up], [down, half, down, down, down], [up, half, up, half, up]]
+    )
+    np.testing.assert_array_equal(fall.first(ctx, episodes), [3, -1, -1])
