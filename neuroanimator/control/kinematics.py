@@ -7,9 +7,9 @@ tree as ``mj_kinematics`` does (each body placed in its parent's frame at ``body
 then moved by its joints: a hinge turns about its axis through its anchor, a slide moves along its
 axis, both by ``qpos − qpos0``; a ball joint turns by its quaternion; a free joint sets the body's
 world position and orientation), so that gradients reach the state through every place. A
-subtree's centre of mass and its velocity (MuJoCo's ``subtree_com`` and ``subtree_linvel``, what the
-suite's locomotion rewards pay for) follow: the velocity as the centre's derivative along the state's
-joint velocities (forward-mode differentiation of the same tree walk, exact, itself differentiable).
+subtree's centre-of-mass velocity (MuJoCo's ``subtree_linvel``, what the suite's locomotion rewards
+pay for) follows from each body's twist, propagated down the same walk from the state's joint
+velocities as ``mj_comVel`` does.
 
 Shapes: B batch, S state, nq MuJoCo's qpos. Rotations are (B, 3, 3), positions (B, 3).
 """
@@ -48,21 +48,6 @@ def axis_angle_matrix(axis: Tensor, angle: Tensor) -> Tensor:
     return eye + s * k + (1 - c) * (k @ k)
 
 
-def quat_product(a: Tensor, b: Tensor) -> Tensor:
-    """Hamilton products of quaternions (..., 4) [w, x, y, z]."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        dim=-1,
-    )
-
-
 def _apply(r: Tensor, v: Tensor) -> Tensor:
     """Rotations (B, 3, 3) applied to vectors (B, 3)."""
     return (r @ v[..., None])[..., 0]
@@ -98,6 +83,7 @@ class Kinematics:
             (int(m.jnt_type[j]), int(m.jnt_qposadr[j]), f32(m.jnt_axis[j]), f32(m.jnt_pos[j]))
             for j in range(m.njnt)
         ]
+        self.joint_dofs = [int(m.jnt_dofadr[j]) for j in range(m.njnt)]
         self.body_ipos = f32(m.body_ipos)
         self.body_mass = f32(m.body_mass)
 
@@ -106,28 +92,6 @@ class Kinematics:
         q = self.qpos0.to(state.dtype).expand(state.shape[0], -1).clone()
         q[:, self.qpos_addrs] = state[:, self.state_cols]
         return q
-
-    def qpos_rate(self, state: Tensor) -> Tensor:
-        """(B, S) states → (B, nq) the rate of change of qpos under the state's joint velocities (0 for
-        any it omits): a hinge's or slide's velocity as it is, a free joint's world linear velocity, a
-        quaternion's ``½ q ⊗ (0, ω)`` of its body-frame angular velocity (MuJoCo's ``mj_integratePos``)."""
-        m = self.m
-        q = self.qpos(state)
-        v = torch.zeros(state.shape[0], m.nv, dtype=state.dtype)
-        v[:, self.qvel_addrs] = state[:, self.vel_cols]
-        rate = torch.zeros_like(q)
-        zero = torch.zeros(state.shape[0], 1, dtype=state.dtype)
-        for j in range(m.njnt):
-            kind, adr, dof = int(m.jnt_type[j]), int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
-            if kind == mujoco.mjtJoint.mjJNT_FREE:
-                rate[:, adr : adr + 3] = v[:, dof : dof + 3]
-                adr, dof = adr + 3, dof + 3
-            if kind in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL):
-                omega = torch.cat([zero, v[:, dof : dof + 3]], dim=1)
-                rate[:, adr : adr + 4] = 0.5 * quat_product(q[:, adr : adr + 4], omega)
-            else:
-                rate[:, adr] = v[:, dof]
-        return rate
 
     def places(self, state: Tensor) -> tuple[Tensor, Tensor]:
         """(B, S) → body positions (B, nbody, 3) and rotations (B, nbody, 3, 3) in the world frame."""
@@ -145,55 +109,81 @@ class Kinematics:
                 inside.append(body)
         return inside
 
-    def subtree_com_at(self, q: Tensor, bodies: list[int]) -> Tensor:
-        """(B, nq) joint coordinates → (B, 3) the centre of mass of ``bodies`` (MuJoCo's ``subtree_com``)."""
-        pos, rot = self.places_at(q)
-        idx = torch.tensor(bodies, dtype=torch.long)
-        ipos = self.body_ipos[idx].to(q.dtype)
-        mass = self.body_mass[idx].to(q.dtype)
-        centres = pos[:, idx] + (rot[:, idx] @ ipos[..., None])[..., 0]  # (B, k, 3): MuJoCo's xipos
-        return (centres * mass[:, None]).sum(dim=1) / mass.sum().clamp_min(1e-12)
-
     def subtree_velocity(self, state: Tensor, name: str) -> Tensor:
         """(B, S) → (B, 3) the velocity of the named body's subtree's centre of mass (MuJoCo's
-        ``subtree_linvel``, the suite's ``subtreelinvel`` sensor): the derivative of the centre along
-        the state's joint velocities."""
-        bodies = self.subtree(name)
-        out = torch.func.jvp(
-            lambda q: self.subtree_com_at(q, bodies), (self.qpos(state),), (self.qpos_rate(state),)
-        )
-        velocity: Tensor = out[1]
-        return velocity
+        ``subtree_linvel``, the suite's ``subtreelinvel`` sensor): each body's centre of mass moving
+        with its body's twist, weighted by the bodies' masses."""
+        v = torch.zeros(state.shape[0], self.m.nv, dtype=state.dtype)
+        v[:, self.qvel_addrs] = state[:, self.vel_cols]
+        pos, rot, twists = self._walk(self.qpos(state), v)
+        assert twists is not None
+        idx = torch.tensor(self.subtree(name), dtype=torch.long)
+        centres = pos[:, idx] + (rot[:, idx] @ self.body_ipos[idx].to(state.dtype)[..., None])[..., 0]
+        vo, om = twists
+        moving = vo[:, idx] + torch.linalg.cross(om[:, idx], centres)  # (B, k, 3)
+        mass = self.body_mass[idx].to(state.dtype)
+        return (moving * mass[:, None]).sum(dim=1) / mass.sum().clamp_min(1e-12)
 
     def places_at(self, q: Tensor) -> tuple[Tensor, Tensor]:
         """(B, nq) joint coordinates → body positions (B, nbody, 3) and rotations (B, nbody, 3, 3)."""
+        pos, rot, _ = self._walk(q, None)
+        return pos, rot
+
+    def _walk(self, q: Tensor, qd: Tensor | None) -> tuple[Tensor, Tensor, tuple[Tensor, Tensor] | None]:
+        """The tree walked once: body positions (B, nbody, 3) and rotations (B, nbody, 3, 3), and with
+        joint velocities ``qd`` (B, nv) each body's twist (MuJoCo's ``cvel`` about the world's origin):
+        ``v_o`` (B, nbody, 3), the velocity of the body's point at the origin, and ``ω`` (B, nbody, 3),
+        so that a point x of the body moves at ``v_o + ω × x``. A hinge turning at rate q̇ about a
+        world axis a through a point c adds ω_j = q̇·a and c × ω_j; a slide adds q̇·a to ``v_o``; a
+        ball joint its local rate turned into the world; a free joint sets both."""
         m = self.m
         b = q.shape[0]
         dtype = q.dtype
-        pos: list[Tensor] = [torch.zeros(b, 3, dtype=dtype)]
+        zero = torch.zeros(b, 3, dtype=dtype)
+        pos: list[Tensor] = [zero]
         rot: list[Tensor] = [torch.eye(3, dtype=dtype).expand(b, 3, 3)]
+        vo: list[Tensor] = [zero]
+        om: list[Tensor] = [zero]
         for body in range(1, m.nbody):
             parent = int(m.body_parentid[body])
             p = pos[parent] + rot[parent] @ self.body_pos[body].to(dtype)
             r = rot[parent] @ self.body_rot[body].to(dtype)
+            v, w = vo[parent], om[parent]
             first, count = int(m.body_jntadr[body]), int(m.body_jntnum[body])
-            for kind, adr, axis, anchor in self.joints[first : first + max(count, 0)]:
+            for j, (kind, adr, axis, anchor) in enumerate(self.joints[first : first + max(count, 0)]):
                 axis, anchor = axis.to(dtype), anchor.to(dtype)
+                dof = self.joint_dofs[first + j]
+                pivot = p + _apply(r, anchor)  # (the joint's anchor in the world: the turn leaves it)
                 if kind == mujoco.mjtJoint.mjJNT_FREE:
                     p, r = q[:, adr : adr + 3], quat_to_matrix(q[:, adr + 3 : adr + 7])
+                    if qd is not None:
+                        w = _apply(r, qd[:, dof + 3 : dof + 6])
+                        v = qd[:, dof : dof + 3] - torch.linalg.cross(w, p)
                 elif kind == mujoco.mjtJoint.mjJNT_BALL:
                     turn = quat_to_matrix(q[:, adr : adr + 4])
                     p = p + _apply(r, anchor - turn @ anchor)
                     r = r @ turn
+                    if qd is not None:
+                        wj = _apply(r, qd[:, dof : dof + 3])
+                        w, v = w + wj, v + torch.linalg.cross(pivot, wj)
                 elif kind == mujoco.mjtJoint.mjJNT_HINGE:
+                    if qd is not None:
+                        wj = _apply(r, axis.expand(b, 3)) * qd[:, dof : dof + 1]
+                        w, v = w + wj, v + torch.linalg.cross(pivot, wj)
                     turn = axis_angle_matrix(axis, q[:, adr] - self.qpos0[adr])
                     p = p + _apply(r, anchor - turn @ anchor)
                     r = r @ turn
                 else:  # slide
-                    p = p + (r @ axis) * (q[:, adr] - self.qpos0[adr])[:, None]
+                    world_axis = r @ axis
+                    p = p + world_axis * (q[:, adr] - self.qpos0[adr])[:, None]
+                    if qd is not None:
+                        v = v + world_axis * qd[:, dof : dof + 1]
             pos.append(p)
             rot.append(r)
-        return torch.stack(pos, dim=1), torch.stack(rot, dim=1)
+            vo.append(v)
+            om.append(w)
+        twists = (torch.stack(vo, dim=1), torch.stack(om, dim=1)) if qd is not None else None
+        return torch.stack(pos, dim=1), torch.stack(rot, dim=1), twists
 
     def _frame_of(self, kind: mujoco.mjtObj, name: str) -> tuple[int, Tensor, Tensor]:
         """(body, local position (3,), local rotation (3, 3)) of a named body, site or geom."""
