@@ -875,12 +875,11 @@ def train_over_rollouts(
     keep.restore()
     after_rollout, after_step = check.losses()
     log.info(
-        "rollout phase: %d epochs, validation rollout loss %.3g -> %.3g, one-step mse %.3g -> %.3g",
+        "rollout phase: %d epochs, validation rollout loss %.3g -> %.3g%s",
         epochs,
         check.roll0,
         after_rollout,
-        check.step0 if one_step is not None else float("nan"),
-        after_step if one_step is not None else float("nan"),
+        f", one-step mse {check.step0:.3g} -> {after_step:.3g}" if one_step is not None else "",
     )
     return {
         "rollout_loss_before": check.roll0,
