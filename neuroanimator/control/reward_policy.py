@@ -419,12 +419,9 @@ class RewardTrainer:
         plain = features.plain.numpy()
         low[plain] = features.mean.numpy() - 2 * features.scale.numpy()
         high[plain] = features.mean.numpy() + 2 * features.scale.numpy()
-        offsets = {g.name: g.offset for g in self.manifest.layout}
-        for env in self.manifest.envelope or []:
-            at = offsets[env.group]
-            for i, (lo, hi) in enumerate(zip(env.low, env.high, strict=True)):
-                if lo is not None and hi is not None:
-                    low[at + i], high[at + i] = lo, hi
+        bounded = np.isfinite(self.env_low.numpy()) & np.isfinite(self.env_high.numpy())
+        low[bounded] = self.env_low.numpy()[bounded]
+        high[bounded] = self.env_high.numpy()[bounded]
         return low, high
 
     def restart(self, n: int) -> tuple[FloatArray, FloatArray]:

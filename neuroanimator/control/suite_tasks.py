@@ -323,13 +323,24 @@ def reward_acrobot(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) 
     return tolerance(torch.linalg.norm(target - tip, dim=1), 0.0, radius, 4.0 if smooth else 1.0)
 
 
+def _torso_height(ctx: Context, s: Tensor) -> Tensor:
+    return ctx.kin.locator("body", "torso").position(ctx.kin.places(s))[:, 2]
+
+
+def _hopper_height(ctx: Context, s: Tensor) -> Tensor:
+    places = ctx.kin.places(s)
+    foot = ctx.kin.locator("inertial", "foot").position(places)[:, 2]
+    return ctx.kin.locator("inertial", "torso").position(places)[:, 2] - foot
+
+
+def _torso_upright(ctx: Context, s: Tensor) -> Tensor:
+    return ctx.kin.locator("body", "torso").rotation(ctx.kin.places(s))[:, 2, 2]
+
+
 def reward_hopper_stand(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
     """``hopper.Hopper.get_reward`` (standing): the torso's centre of mass 0.6-2 m above the foot's ·
     small control (mean over controls)."""
-    places = ctx.kin.places(s)
-    torso = ctx.kin.locator("inertial", "torso").position(places)[:, 2]
-    foot = ctx.kin.locator("inertial", "foot").position(places)[:, 2]
-    height = torso - foot
+    height = _hopper_height(ctx, s)
     standing = shaped(height, 0.6, 2.0, 0.5, 0.1) if smooth else tolerance(height, 0.6, 2.0)
     control = tolerance(u, 0.0, 0.0, 1.0, "quadratic", 0.0).mean(dim=1)
     return standing * (control + 4) / 5
@@ -361,20 +372,6 @@ def reward_cheetah_run(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bo
     """``cheetah.Cheetah.get_reward``: the centre of mass's forward speed over 10 m/s (linear from 0)."""
     vx = ctx.kin.subtree_velocity(s, "torso")[:, 0]
     return tolerance(vx, 10.0, math.inf, 10.0, "linear", 0.0)
-
-
-def _torso_height(ctx: Context, s: Tensor) -> Tensor:
-    return ctx.kin.locator("body", "torso").position(ctx.kin.places(s))[:, 2]
-
-
-def _hopper_height(ctx: Context, s: Tensor) -> Tensor:
-    places = ctx.kin.places(s)
-    foot = ctx.kin.locator("inertial", "foot").position(places)[:, 2]
-    return ctx.kin.locator("inertial", "torso").position(places)[:, 2] - foot
-
-
-def _torso_upright(ctx: Context, s: Tensor) -> Tensor:
-    return ctx.kin.locator("body", "torso").rotation(ctx.kin.places(s))[:, 2, 2]
 
 
 # a walker down again after standing (its torso under 0.7 m, its stand is 1.2), a hopper's torso
