@@ -56,8 +56,10 @@ class TrainConfig:
     frame: str = "auto"  # "auto"/"body": full body frame for a quaternion root; "heading": yaw only
     skip: bool = True  # a linear path beside the MLP, started from the least-squares fit
     limits: bool = True  # limited joints also enter as ramps past their limits (structured.JointLimit)
-    # geoms that can touch the floor enter through their height above it (neuroanimator.emulator.clearance)
-    clearance: bool = False
+    # geoms that can touch the floor enter through their height above it (neuroanimator.emulator.clearance);
+    # None: decided by the training data, on where they touch the floor often (clearance.FloorContact);
+    # a trained emulator's manifest holds the decision
+    clearance: bool | None = None
     # pairs of geoms that touch each other in the data enter through their distance (neuroanimator.emulator.proximity;
     # off by default: measured on dm_control's finger, it did not lower the error)
     proximity: bool = False

@@ -84,24 +84,69 @@ def ground_geoms(m: mujoco.MjModel) -> list[str]:
 
 
 NEAR_M = 0.05  # a geom whose lowest point comes this close to the floor in the training data is probed
+TOUCH_M = 0.01  # a geom whose lowest point is this close to the floor touches it
+MOVES_M = 0.01  # a geom whose height spans less than this over the data slides on the floor (a planar arm)
+TOUCH_SHARE = 0.2  # with at least this share of sampled states touching, the emulator reads the clearance
 PROBE_CHUNK = 50_000  # states probed at a time
 
 
-def near_geoms(model: PhysicalModel, states: np.ndarray, horizon: float) -> list[str]:
-    """The geoms of ``ground_geoms`` whose lowest point comes within ``NEAR_M`` of the floor in some of
-    ``states`` (N, S) (a runner's feet and toes, not its hands): the others never touch it."""
+@dataclass(frozen=True)
+class FloorContact:
+    """How a model's sampled states meet its floor: the geoms that come within ``NEAR_M`` of it, and the
+    share of states (0..1, of ``states``) in which a geom that moves up and down (its height spans
+    ``MOVES_M`` or more) touches it (within ``TOUCH_M``); a geom that only slides along it (a planar
+    arm) never makes or breaks contact, and does not count."""
+
+    geoms: tuple[str, ...]
+    touching: float
+    states: int
+    floor: bool = True  # False: the model has no floor (``ground_geoms`` finds none)
+
+    @property
+    def touches(self) -> bool:
+        """Whether the floor is touched often enough that the emulator should read the clearance."""
+        return self.touching >= TOUCH_SHARE
+
+    def describe(self) -> str:
+        if not self.floor:
+            return "the model has no floor"
+        if not self.geoms:
+            return f"no geom comes within {NEAR_M * 100:.0f} cm of the floor in {self.states} sampled states"
+        return (
+            f"the floor touched in {self.touching:.0%} of {self.states} sampled states "
+            f"(near it: {', '.join(self.geoms)})"
+        )
+
+
+def floor_contact(model: PhysicalModel, states: np.ndarray, horizon: float) -> FloorContact:
+    """How ``states`` (N, S) of ``model`` meet its floor over super-steps of ``horizon`` seconds
+    (``FloorContact``); no geoms and no touching for a model without a floor."""
     geoms = ground_geoms(model.mj_model)
-    if not geoms:
-        return []
+    if not geoms or not len(states):
+        return FloorContact((), 0.0, len(states), floor=bool(geoms))
     clearance = Clearance(model, geoms, horizon)
     lowest = torch.full((len(geoms),), torch.inf)
+    highest = torch.full((len(geoms),), -torch.inf)
+    lows = []  # (N, G): each state's lowest point of each geom over the super-step
     # in chunks: the forward kinematics holds about 16 kB a state, 26 GB for the runner's 1.6 million
     with torch.no_grad():
         for start in range(0, len(states), PROBE_CHUNK):
             chunk = torch.as_tensor(states[start : start + PROBE_CHUNK], dtype=torch.float32)
             heights = clearance(chunk).reshape(len(chunk), len(geoms), len(FRACTIONS))
             lowest = torch.minimum(lowest, heights.amin(dim=(0, 2)))
-    return [g for g, h in zip(geoms, lowest.tolist(), strict=True) if h < NEAR_M]
+            highest = torch.maximum(highest, heights.amax(dim=(0, 2)))
+            lows.append(heights.amin(dim=2))
+    low = torch.cat(lows)
+    moving = (highest - lowest) >= MOVES_M
+    touching = (low[:, moving] < TOUCH_M).any(dim=1).float().mean().item() if moving.any() else 0.0
+    near = tuple(g for g, h in zip(geoms, lowest.tolist(), strict=True) if h < NEAR_M)
+    return FloorContact(near, touching, len(states))
+
+
+def near_geoms(model: PhysicalModel, states: np.ndarray, horizon: float) -> list[str]:
+    """The geoms of ``ground_geoms`` whose lowest point comes within ``NEAR_M`` of the floor in some of
+    ``states`` (N, S) (a runner's feet and toes, not its hands): the others never touch it."""
+    return list(floor_contact(model, states, horizon).geoms)
 
 
 def geom_name(m: mujoco.MjModel, g: int) -> str:

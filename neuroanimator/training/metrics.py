@@ -68,7 +68,8 @@ class _Measured(ChoiceNotes, RolloutMetrics, total=False):
 class TrainingExtras(TypedDict, total=False):
     """What a one-network training measures in some cases only: the loop check's (``LoopChoiceMetrics``,
     when the model has one), an articulated hierarchy's errors network by network
-    (``train.network_errors``), and why sampling was cut short."""
+    (``train.network_errors``), why sampling was cut short, and why the network reads the floor's
+    clearance or not where the data decided it."""
 
     loop_tolerance: float
     loop_kept_epoch: int | None
@@ -76,6 +77,7 @@ class TrainingExtras(TypedDict, total=False):
     loop_curve: list[list[float | None]]
     networks: dict[str, dict[str, float]]
     sampling_reason: str
+    clearance_reason: str  # where the data decided whether the network reads the floor's clearance
 
 
 class TrainingMetrics(_Measured, TrainingExtras, total=False):

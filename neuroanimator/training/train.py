@@ -26,6 +26,7 @@ from neuroanimator.emulator import proximity
 from neuroanimator.emulator.articulated import ArticulatedCore, articulated_core, make_articulated, ridge_fit
 from neuroanimator.emulator.clearance import (
     Clearance,
+    floor_contact,
     geom_name,
     ground_geoms,
     limited_site_tendons,
@@ -156,7 +157,7 @@ def build_emulator(
             model,
             model.dt * cfg.substeps,
             states,
-            floor=cfg.clearance,
+            floor=bool(cfg.clearance),  # None: none until the data decide (``with_contact_features``)
             pairs=cfg.proximity and not branches,
             tendons=cfg.limits and not branches,
         ),
@@ -347,7 +348,7 @@ def train(
     # 1. data: training (+ validation) and an independent held-out test set
     runs, data, test = training_data(model, cfg, plan, data_cache)
     t_data = time.perf_counter() - t_start
-    emu = with_contact_features(model, cfg, emu, data)
+    emu, cfg, clearance_reason = with_contact_features(model, cfg, emu, data)
 
     # 2. T^σ from the training data (transformed by T'_x and (T'_y T^Δ_y)^-1 first, thesis 4.5.2)
     x_tr, y_tr, x_val, y_val = normalized_examples(emu, data, cfg)
@@ -378,7 +379,7 @@ def train(
         "test_examples": len(test),
         **errors,
         **rollout_metrics,
-        **training_extras(choice, per_network, plan.reason),
+        **training_extras(choice, per_network, plan.reason, clearance_reason),
         "data_seconds": round(t_data, 2),
         "train_seconds": round(time.perf_counter() - t_start - t_data, 2),
         "total_seconds": round(time.perf_counter() - t_start, 2),
@@ -438,12 +439,25 @@ def training_data(
 
 def with_contact_features(
     model: PhysicalModel, cfg: TrainConfig, emu: StructuredEmulator, data: sampling.Examples
-) -> StructuredEmulator:
+) -> tuple[StructuredEmulator, TrainConfig, str | None]:
     """``emu``, or with ``cfg.clearance`` or ``cfg.proximity`` the emulator built anew to probe the geoms
     that come near the floor or touch each other in ``data`` (the pairs are known only from data:
-    ``contact_features`` searches them there)."""
+    ``contact_features`` searches them there); the config with ``clearance`` decided where it was left
+    to the data (None: on when ``data`` touch the floor, ``FloorContact.touches``), and why (None when
+    the user chose)."""
+    reason = None
+    if cfg.clearance is None:
+        contact = floor_contact(model, data.states, model.dt * cfg.substeps)
+        cfg = dataclasses.replace(cfg, clearance=contact.touches)
+        if contact.floor:  # a model without a floor has nothing to say
+            reason = (
+                f"contact-aware (the floor's clearance as input): {contact.describe()}"
+                if contact.touches
+                else f"no clearance input: {contact.describe()}"
+            )
+            log.info("%s: %s", model.name, reason)
     if not (cfg.clearance or (cfg.proximity and not model.spec.branches)):
-        return emu
+        return emu, cfg, reason
     emu = build_emulator(model, cfg, data.states)
     if emu.clearance is not None:
         clr = emu.clearance
@@ -454,7 +468,7 @@ def with_contact_features(
             ", ".join(f"{a} and {b}" for a, b in clr.pairs) or "no pair of geoms",
             ", ".join(clr.tendons) or "no tendon",
         )
-    return emu
+    return emu, cfg, reason
 
 
 def normalized_examples(
@@ -522,10 +536,14 @@ def held_out_errors(
 
 
 def training_extras(
-    choice: LoopChoice | None, per_network: dict[str, dict[str, float]] | None, sampling_reason: str | None
+    choice: LoopChoice | None,
+    per_network: dict[str, dict[str, float]] | None,
+    sampling_reason: str | None,
+    clearance_reason: str | None = None,
 ) -> TrainingExtras:
     """The metrics a training has only in some cases: the loop check's (with ``choice``), an articulated
-    hierarchy's errors network by network, and why sampling was cut short."""
+    hierarchy's errors network by network, why sampling was cut short, and whether the network reads
+    the floor's clearance where the data decided it."""
     extras: TrainingExtras = {}
     if choice is not None:
         extras.update(choice.metrics())
@@ -533,6 +551,8 @@ def training_extras(
         extras["networks"] = per_network
     if sampling_reason:
         extras["sampling_reason"] = sampling_reason
+    if clearance_reason:
+        extras["clearance_reason"] = clearance_reason
     return extras
 
 

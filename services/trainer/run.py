@@ -356,6 +356,7 @@ class Trained(BaseModel):
     examples: int | None = None
     substeps_reason: str | None = None
     network_reason: str | None = None
+    clearance_reason: str | None = None
     operating_reason: str | None = None
 
 
@@ -435,6 +436,7 @@ def run(spec: ChildSpec, channel: Channel, errors: LastError) -> TrainedEmulator
                 else []
             ),
             *([f"network {trained.network_reason}"] if trained.network_reason else []),
+            *([trained.clearance_reason] if trained.clearance_reason else []),
             *([trained.operating_reason] if trained.operating_reason else []),
         ],
     )
