@@ -199,8 +199,7 @@ def _talk(request: Request, blobs: list[bytes], limits: Limits) -> tuple[Reply, 
     out = _exchange(proc, mine, encode_frame(request, blobs), WALL_FACTOR * limits.compile_seconds + 5.0)
     mine.close()
     if out.reply is None:
-        timed_out = out.timed_out or proc.exitcode == -signal.SIGXCPU
-        _no_reply(proc.exitcode, limits, timed_out=timed_out)
+        _no_reply(proc.exitcode, limits, out.timed_out and proc.exitcode != -signal.SIGXCPU)
     header, data = _decode_reply(out.reply)
     if "error" in header:
         kind, message = header["error"]["kind"], header["error"]["message"]
@@ -246,9 +245,17 @@ def _exchange(proc: Any, conn: Any, frame: bytes, seconds: float) -> _Exchanged:
     return out
 
 
-def _no_reply(exitcode: int | None, limits: Limits, timed_out: bool) -> NoReturn:
-    """``SourceError`` for a child stopped by a cap (or crashed): which cap, and what to do."""
-    if timed_out:
+def _no_reply(exitcode: int | None, limits: Limits, waited_out: bool) -> NoReturn:
+    """``SourceError`` for a child stopped by a cap (or crashed): which cap, and what to do.
+    ``waited_out``: it was killed after ``WALL_FACTOR`` times its CPU cap in wall time without using
+    the cap up: the machine was too busy to give the (lowest-priority) child its CPU."""
+    if waited_out:
+        raise SourceError(
+            "too_costly",
+            f"the model was not compiled within {WALL_FACTOR * limits.compile_seconds + 5.0:g} s: the "
+            "machine is busy (a model compiles at the lowest priority); try again, or make it smaller",
+        )
+    if exitcode == -signal.SIGXCPU:
         raise SourceError(
             "too_costly",
             f"the model took more than {limits.compile_seconds:g} s of CPU to read and compile "

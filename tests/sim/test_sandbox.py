@@ -7,6 +7,7 @@ own /etc/hostname), not mocks."""
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 import time
@@ -148,6 +149,16 @@ def test_the_child_can_open_no_path(tmp_path: Path) -> None:
     root = Path(__file__).resolve().parents[2]
     assert subprocess.run([sys.executable, "-c", code], cwd=root, timeout=60).returncode == 0
     assert landlock.abi_version() >= 1
+
+
+def test_a_child_starved_of_cpu_is_not_called_costly() -> None:
+    """A child killed at the wall-clock deadline before it used its CPU cap (a busy machine: it runs at
+    the lowest priority) is told apart from one that used the cap up: try again, not "too big"."""
+    with pytest.raises(SourceError, match="machine is busy") as busy:
+        sandbox._no_reply(-signal.SIGKILL, Limits(compile_seconds=10.0), waited_out=True)
+    assert "35 s" in str(busy.value) and "COMPILE_SECONDS" not in str(busy.value)
+    with pytest.raises(SourceError, match="COMPILE_SECONDS"):
+        sandbox._no_reply(-signal.SIGXCPU, Limits(compile_seconds=10.0), waited_out=False)
 
 
 def test_costly_models_are_stopped_by_the_caps(tmp_path: Path) -> None:
