@@ -213,6 +213,8 @@ def bench_suite_task(
         "return_emulator": round(result.return_emulator, 1),
         "outside_envelope": round(result.outside_share, 4),  # emulated states outside its envelope
         "falls_physics": falls(task, trainer.ctx, ours, trainer.manifest.super_timestep),
+        # metres between the emulator's root and MuJoCo's 1 s into the final episodes, each under the policy
+        "root_drift_1s_m": None if result.root_drift_m is None else round(result.root_drift_m, 3),
         "returns_physics": [round(float(x), 1) for x in ours.returns],
         "target_return": task.target_return,
         "episodes": episodes,

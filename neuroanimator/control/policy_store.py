@@ -26,7 +26,7 @@ from neuroanimator.control.policy import PolicyResult, Schedule
 from neuroanimator.control.policy_net import PolicyNet, PolicyShape
 from neuroanimator.control.reward_policy import RewardResult
 from neuroanimator.core.manifest import Manifest
-from neuroanimator.core.policy_manifest import PolicyManifest, PolicyMetrics
+from neuroanimator.core.policy_manifest import PolicyFall, PolicyManifest, PolicyMetrics
 from neuroanimator.export.policy import policy_to_onnx
 
 
@@ -103,6 +103,9 @@ def reward_policy_manifest(result: RewardResult, emulator: Manifest, version: st
         metrics=PolicyMetrics(
             return_physics=round(result.return_physics, 2),
             return_emulator=round(result.return_emulator, 2),
+            outside_envelope=round(result.outside_share, 4),
+            root_drift_m=None if result.root_drift_m is None else round(result.root_drift_m, 4),
+            falls=[PolicyFall(**f) for f in result.falls],
             **_how_it_ran(result),
         ),
     )

@@ -51,12 +51,15 @@ from neuroanimator.artifacts import store as artifacts
 from neuroanimator.control.bptt import FastStep
 from neuroanimator.control.suite_tasks import Context, Restarts, SuiteTask
 from neuroanimator.emulator.structured import StructuredEmulator
+from neuroanimator.sim import sampling
 from neuroanimator.sim.model import PhysicalModel
 from neuroanimator.training.train import fine_tune_on_runs
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 FEATURE_LIMIT = 8.0  # a state this many spreads from the typical motion has left what the emulator knows
+DRIFT_S = 1.0  # seconds into an episode at which the emulator's root is compared with MuJoCo's
+REFINE_WINDOW = 8  # super-steps of each window the emulator is refined on
 OUTSIDE = "outside_envelope"  # a training's stop: its emulated states left the emulator's envelope too often
 
 
@@ -92,6 +95,10 @@ class RewardSettings:
     refine_gap: float = 0.02  # refine when the returns on the emulator and on MuJoCo differ by more
     # than this share of the most an episode can earn (the suite's rewards are at most 1 a step)
     refine_seconds: float = 15.0
+    # windows of the typical motion the emulator was trained on, learned beside the policy's runs
+    # when it is refined, so that it is not forgotten (0: the policy's runs alone; not yet measured
+    # against it, so off by default)
+    refine_keep: int = 0
     final_episodes: int = 10
     # a training whose emulated states lie outside the emulator's training envelope more than this
     # share of the time (measured from a quarter of the budget on) stops and fails: its policy would
@@ -229,6 +236,9 @@ class RewardResult:
     params: FloatArray | None = None  # (N, P) the task's parameters it was trained for
     outside_share: float = 0.0  # the share of emulated states outside the emulator's training envelope
     falls: list[FallReport] = field(default_factory=list)  # the final episodes' falls on MuJoCo
+    # metres between the root body on the emulator and on MuJoCo ``DRIFT_S`` into the final episodes
+    # (each in its own closed loop under the policy; None for episodes shorter, or a fixed root)
+    root_drift_m: float | None = None
 
     @property
     def evaluate_runs(self) -> int:
@@ -304,6 +314,34 @@ def run_on_mujoco(
     return Episodes(returns, states, controls, np.asarray(params))
 
 
+@torch.no_grad()
+def root_drift(
+    step: Callable[[Tensor, Tensor], Tensor],
+    policy: Callable[[Tensor, Tensor], Tensor],
+    ctx: Context,
+    episodes: Episodes,
+    super_timestep: float,
+    seconds: float = DRIFT_S,
+) -> float | None:
+    """The mean distance (m) between the root body (the first joint's) on the emulator ``step`` and in
+    ``episodes`` run on MuJoCo, ``seconds`` after the same starts, each in its own closed loop under
+    ``policy``: how far the model strays under the policy it taught (inf when every emulated episode
+    diverged). None when the episodes are shorter or the model has no joint."""
+    k = round(seconds / super_timestep)
+    m = ctx.m
+    if m.njnt == 0 or k > episodes.states.shape[1] - 1:
+        return None
+    root = int(m.jnt_bodyid[0])
+    s = torch.as_tensor(episodes.states[:, 0], dtype=torch.float32)
+    p = torch.as_tensor(episodes.params, dtype=torch.float32)
+    for _ in range(k):
+        s = step(s, policy(s, p))
+    emulated = ctx.kin.places(s.double())[0][:, root]
+    physical = ctx.kin.places(torch.as_tensor(episodes.states[:, k]))[0][:, root]
+    gap = torch.linalg.vector_norm(emulated - physical, dim=1)
+    return float(gap[torch.isfinite(gap)].mean()) if bool(torch.isfinite(gap).any()) else math.inf
+
+
 class RewardTrainer:
     """One reward policy being trained through an emulator artifact (module doc)."""
 
@@ -342,6 +380,7 @@ class RewardTrainer:
         )
         self.mujoco_steps = 0
         self.refinements = 0
+        self.kept: sampling.Sequences | None = None  # typical motion learned beside the policy's runs
         self.env_low, self.env_high = self._envelope()
         self.outside_steps = 0
         self.emulated_steps = 0
@@ -570,7 +609,14 @@ class RewardTrainer:
 
     # ------------------------------------------------------------------ refinement
     def refine(self) -> None:
-        """Fine-tune the emulator on every MuJoCo run of the policy so far (windows of 8 super-steps)."""
+        """Fine-tune the emulator on every MuJoCo run of the policy so far (windows of
+        ``REFINE_WINDOW`` super-steps) and on ``refine_keep`` windows of the typical motion it was
+        trained on (drawn once), so that it stays right where it was."""
+        if self.kept is None and self.settings.refine_keep > 0:
+            self.kept = sampling.generate_sequences(
+                self.physical, self.manifest.substeps, self.settings.refine_keep, REFINE_WINDOW,
+                self.settings.seed + 17, progress=False,
+            )  # fmt: skip
         fine_tune_on_runs(
             self.emu,
             np.concatenate([r.states for r in self.runs]),
@@ -578,6 +624,8 @@ class RewardTrainer:
             self.manifest.train_config,
             self.settings.refine_seconds,
             int(self.rng.integers(1 << 30)),
+            window=REFINE_WINDOW,
+            keep=self.kept,
         )
         self.step = FastStep(self.emu)
         self.refinements += 1
@@ -668,7 +716,9 @@ class RewardTrainer:
         starts, params = draw_starts(
             task, self.physical, np.random.default_rng(cfg.seed + 1_000_003), cfg.final_episodes
         )
+        drift = root_drift(self.step, self.policy, self.ctx, final, self.manifest.super_timestep)
         return RewardResult(
+            root_drift_m=drift,
             policy=self.policy,
             task=task,
             return_physics=final.mean,

@@ -19,6 +19,16 @@ from pydantic import BaseModel, ConfigDict, Field
 POLICY_FORMAT = 1
 
 
+class PolicyFall(BaseModel):
+    """A fall in one of the final episodes on MuJoCo: which episode, when, and the state it lay in."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    episode: int
+    time_s: float = Field(description="seconds into the episode")
+    state: list[float] = Field(description="the emulator state (S,) it fell into")
+
+
 class PolicyMetrics(BaseModel):
     """How the policy did on held-out starts and goals when it was trained."""
 
@@ -36,6 +46,17 @@ class PolicyMetrics(BaseModel):
     refinements: int = Field(0, description="fine-tunings of its emulator copy on the policy's MuJoCo runs")
     wall_s: float = 0.0
     stop: str = "budget"
+    outside_envelope: float | None = Field(
+        None, description="share of emulated states outside the emulator's training envelope (reward tasks)"
+    )
+    root_drift_m: float | None = Field(
+        None,
+        description="metres between the root body on the emulator and on MuJoCo 1 s into the final "
+        "episodes, each under the policy (reward tasks)",
+    )
+    falls: list[PolicyFall] = Field(
+        default_factory=list, description="the final episodes on MuJoCo that fell (a task with a fall)"
+    )
 
 
 class PolicyManifest(BaseModel):

@@ -916,16 +916,27 @@ def fine_tune_on_runs(
     seconds: float,
     seed: int,
     window: int = 8,
+    keep: sampling.Sequences | None = None,
 ) -> RolloutMetrics:
     """Fine-tune the emulator on runs a controller made on MuJoCo: states (N, K+1, S) and controls
     (N, K, U) at the emulator's super-step, cut into windows of ``window`` super-steps and learned
     with the rollout loss for ``seconds`` (runs that diverged are left out), so the model is right
-    where the controller goes; the emulator is left in evaluation mode."""
+    where the controller goes; with ``keep`` (sequences of ``window`` super-steps of the motion it
+    was trained on), those too, so that it stays right there (learned alone, the controller's runs
+    pull it away from every other state, the next controller's included). The emulator is left in
+    evaluation mode."""
     finite = np.all(np.isfinite(states), axis=(1, 2))
     runs = sampling.Sequences(
         states[finite], controls[finite], np.zeros((int(finite.sum()), controls.shape[1], 0))
     )
     windows = runs.windows(min(window, runs.states.shape[1] - 1), None, seed)
+    if keep is not None and keep.states.shape[1] == windows.states.shape[1]:
+        mixed = np.random.default_rng(seed).permutation(len(windows) + len(keep))
+        windows = sampling.Sequences(
+            np.concatenate([windows.states, keep.states])[mixed],
+            np.concatenate([windows.controls, keep.controls])[mixed],
+            np.concatenate([windows.forces, keep.forces[:, :, :0]])[mixed],
+        )
     emu.requires_grad_(True)  # a frozen step may have frozen it
     emu.train()
     try:

@@ -13,6 +13,7 @@ import pytest
 import torch
 from dm_control import suite
 from fastapi.testclient import TestClient
+from torch import Tensor
 
 from neuroanimator.artifacts import registry
 from neuroanimator.artifacts.policies import read_policy
@@ -23,6 +24,7 @@ from neuroanimator.control.reward_policy import (
     RewardSettings,
     RewardTrainer,
     draw_starts,
+    root_drift,
     run_on_mujoco,
 )
 from neuroanimator.control.suite_tasks import SUITE_TASKS
@@ -34,7 +36,7 @@ from tests.helpers import run_bench
 TASK = SUITE_TASKS["point_mass-easy"]
 # loading the model counts in the budget (seconds), and takes seconds of its own on a loaded machine
 QUICK = RewardSettings(seconds=120.0, max_iterations=12, envs=16, horizon=8, critic_steps=2, eval_episodes=2,
-                       final_episodes=2, refine_seconds=1.0, refine_gap=0.0)  # fmt: skip
+                       final_episodes=2, refine_seconds=1.0, refine_gap=0.0, refine_keep=64)  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +65,10 @@ def test_training_runs_on_mujoco_keeps_the_best_and_counts_its_steps(artifacts: 
     episodes = QUICK.eval_episodes * len(result.return_history) + QUICK.final_episodes
     assert result.mujoco_steps == episodes * TASK.episode_steps * TASK.control_substeps
     assert result.refinements >= 1  # the emulator learned from the policy's MuJoCo runs (any gap)
+    # ... beside windows of the typical motion it was trained on, drawn once
+    assert trainer.kept is not None and trainer.kept.states.shape[:2] == (QUICK.refine_keep, 9)
     assert result.stop == "budget" and 0 <= result.outside_share < QUICK.max_outside
+    assert result.root_drift_m is not None and 0 <= result.root_drift_m < 10
     # the policy's controls stay in the actuators' range, on states far outside what it saw
     s = torch.randn(64, trainer.manifest.state_size) * 10
     u = trainer.policy(s, torch.zeros(64, 0))
@@ -84,6 +89,33 @@ def test_episodes_on_mujoco_sum_the_suites_reward_at_every_control_step(artifact
         trainer.ctx, torch.as_tensor(starts), torch.as_tensor(at_rest), torch.zeros(3, 0), False
     )
     np.testing.assert_allclose(runs.returns, TASK.episode_steps * start_reward.numpy(), rtol=0.05, atol=1.0)
+
+
+def test_the_roots_drift_is_the_distance_between_the_two_closed_loops(artifacts: Path) -> None:
+    """``root_drift``: with MuJoCo itself as the step the two loops agree (0 m); with a step that
+    stands still it is how far the root moved on MuJoCo in that second."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    trainer = RewardTrainer(TASK, path, QUICK)
+    starts, params = draw_starts(TASK, trainer.physical, np.random.default_rng(4), 6)
+    push = np.tile(trainer.high, (6, 1))  # full force: the mass moves off its start
+
+    def act(s: Tensor, p: Tensor) -> Tensor:
+        return torch.as_tensor(push[: len(s)], dtype=s.dtype)
+
+    runs = run_on_mujoco(TASK, trainer.physical, trainer.ctx, lambda s, p: push, starts, params)
+
+    def mujoco(s: Tensor, u: Tensor) -> Tensor:
+        return torch.as_tensor(
+            trainer.physical.step_held(s.double().numpy(), u.double().numpy(), None, TASK.substeps)
+        )
+
+    dt = trainer.manifest.super_timestep
+    assert root_drift(mujoco, act, trainer.ctx, runs, dt) == pytest.approx(0.0, abs=1e-5)
+    k = round(1.0 / dt)
+    moved = np.linalg.norm(runs.states[:, k, :2] - runs.states[:, 0, :2], axis=1).mean()
+    assert moved > 0.05
+    assert root_drift(lambda s, u: s, act, trainer.ctx, runs, dt) == pytest.approx(moved, rel=1e-5)
+    assert root_drift(mujoco, act, trainer.ctx, runs, dt, seconds=1e6) is None  # longer than the episodes
 
 
 def test_rewarded_restarts_begin_where_the_reward_is_paid(artifacts: Path) -> None:
@@ -140,6 +172,9 @@ def test_a_suite_task_is_a_policy_job_stored_and_served_as_a_driver(artifacts: P
     assert m.task["kind"] == "reward" and m.metrics.success_physics is None
     assert m.metrics.return_physics == round(result.return_physics, 2)
     assert m.metrics.evaluate_runs == QUICK.final_episodes and m.metrics.mujoco_steps == result.mujoco_steps
+    # how far the emulator was to be trusted under it, kept with it: a point mass has no fall
+    assert m.metrics.outside_envelope == round(result.outside_share, 4) and m.metrics.falls == []
+    assert result.root_drift_m is not None and m.metrics.root_drift_m == round(result.root_drift_m, 4)
 
     settings = Settings(artifacts_dir=artifacts, data_dir=tmp_path / "data", max_wait_ms=1.0,
                         registry_poll_s=0.0, redis_url="", api_keys="", api_key_secret="t")  # fmt: skip

@@ -25,6 +25,7 @@ export interface ControllerWire {
   OptimizerSettings?: OptimizerSettings;
   OptimizerSpec?: OptimizerSpec;
   PathTargetTerm?: PathTargetTerm;
+  PolicyFall?: PolicyFall;
   PolicyGoalSpec?: PolicyGoalSpec;
   PolicyJobCreate?: PolicyJobCreate;
   PolicyJobList?: PolicyJobList;
@@ -853,6 +854,23 @@ export interface JobStatus {
   result?: string | null;
 }
 /**
+ * A fall in one of the final episodes on MuJoCo: which episode, when, and the state it lay in.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "PolicyFall".
+ */
+export interface PolicyFall {
+  episode: number;
+  /**
+   * seconds into the episode
+   */
+  time_s: number;
+  /**
+   * the emulator state (S,) it fell into
+   */
+  state: number[];
+}
+/**
  * A user's policy task's goals: values of ``variables`` (state labels) that MuJoCo's runs of the
  * model's typical motion from the starts reach, within [low, high] per variable (G values each).
  *
@@ -1168,6 +1186,18 @@ export interface PolicyMetrics {
   refinements?: number;
   wall_s?: number;
   stop?: string;
+  /**
+   * share of emulated states outside the emulator's training envelope (reward tasks)
+   */
+  outside_envelope?: number | null;
+  /**
+   * metres between the root body on the emulator and on MuJoCo 1 s into the final episodes, each under the policy (reward tasks)
+   */
+  root_drift_m?: number | null;
+  /**
+   * the final episodes on MuJoCo that fell (a task with a fall)
+   */
+  falls?: PolicyFall[];
 }
 /**
  * A policy job as it trains: the progress of its current attempt and, once it ended, how.
