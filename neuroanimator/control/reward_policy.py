@@ -611,7 +611,8 @@ class RewardTrainer:
     def refine(self) -> None:
         """Fine-tune the emulator on every MuJoCo run of the policy so far (windows of
         ``REFINE_WINDOW`` super-steps) and on ``refine_keep`` windows of the typical motion it was
-        trained on (drawn once), so that it stays right where it was."""
+        trained on (drawn once), so that it stays right where it was; the runs' states widen the
+        envelope the emulated states are measured against."""
         if self.kept is None and self.settings.refine_keep > 0:
             self.kept = sampling.generate_sequences(
                 self.physical, self.manifest.substeps, self.settings.refine_keep, REFINE_WINDOW,
@@ -629,6 +630,12 @@ class RewardTrainer:
         )
         self.step = FastStep(self.emu)
         self.refinements += 1
+        # the emulator has now learnt the policy's runs: their states join its envelope
+        seen = np.concatenate([r.states.reshape(-1, r.states.shape[2]) for r in self.runs])
+        seen = torch.as_tensor(seen[np.isfinite(seen).all(axis=1)], dtype=torch.float32)
+        if len(seen):
+            self.env_low = torch.minimum(self.env_low, seen.amin(dim=0))
+            self.env_high = torch.maximum(self.env_high, seen.amax(dim=0))
 
     # ------------------------------------------------------------------ the loop
     def elapsed(self) -> float:

@@ -67,6 +67,10 @@ def test_training_runs_on_mujoco_keeps_the_best_and_counts_its_steps(artifacts: 
     assert result.refinements >= 1  # the emulator learned from the policy's MuJoCo runs (any gap)
     # ... beside windows of the typical motion it was trained on, drawn once
     assert trainer.kept is not None and trainer.kept.states.shape[:2] == (QUICK.refine_keep, 9)
+    # ... and its envelope now holds the states of the runs it learnt (the first check's, at least)
+    seen = trainer.runs[0].states.reshape(-1, trainer.manifest.state_size)
+    assert np.all(trainer.env_low.numpy() <= seen.min(axis=0) + 1e-6)
+    assert np.all(trainer.env_high.numpy() >= seen.max(axis=0) - 1e-6)
     assert result.stop == "budget" and 0 <= result.outside_share < QUICK.max_outside
     assert result.root_drift_m is not None and 0 <= result.root_drift_m < 10
     # the policy's controls stay in the actuators' range, on states far outside what it saw
