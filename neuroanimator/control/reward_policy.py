@@ -631,8 +631,8 @@ class RewardTrainer:
         self.step = FastStep(self.emu)
         self.refinements += 1
         # the emulator has now learnt the policy's runs: their states join its envelope
-        seen = np.concatenate([r.states.reshape(-1, r.states.shape[2]) for r in self.runs])
-        seen = torch.as_tensor(seen[np.isfinite(seen).all(axis=1)], dtype=torch.float32)
+        states = np.concatenate([r.states.reshape(-1, r.states.shape[2]) for r in self.runs])
+        seen = torch.as_tensor(states[np.isfinite(states).all(axis=1)], dtype=torch.float32)
         if len(seen):
             self.env_low = torch.minimum(self.env_low, seen.amin(dim=0))
             self.env_high = torch.maximum(self.env_high, seen.amax(dim=0))
