@@ -70,7 +70,9 @@ class RewardSettings:
     seconds: float = 1500.0
     max_iterations: int | None = None
     envs: int = 256  # the steps are small: more episodes per update cost little (64 → 256: 1.4× the time)
-    horizon: int = 32  # super-steps per iteration: the gradient's path through the emulator
+    # super-steps per iteration: the gradient's path through the emulator (None: the task's,
+    # ``SuiteTask.horizon``: 32, 8 for a body on the ground)
+    horizon: int | None = None
     actor_lr: float = 2e-3  # cosine-annealed to a tenth
     critic_lr: float = 2e-3
     critic_steps: int = 8  # critic updates per iteration, each on a random half of the iteration's steps
@@ -96,9 +98,9 @@ class RewardSettings:
     # than this share of the most an episode can earn (the suite's rewards are at most 1 a step)
     refine_seconds: float = 15.0
     # windows of the typical motion the emulator was trained on, learned beside the policy's runs
-    # when it is refined, so that it is not forgotten (0: the policy's runs alone; not yet measured
-    # against it, so off by default)
-    refine_keep: int = 0
+    # when it is refined, so that it is not forgotten (0: the policy's runs alone; None: the task's,
+    # ``SuiteTask.refine_keep``: 1,024 for a body on the ground, 0 for the others, measured so)
+    refine_keep: int | None = None
     final_episodes: int = 10
     # a training whose emulated states lie outside the emulator's training envelope more than this
     # share of the time (measured from a quarter of the budget on) stops and fails: its policy would
@@ -372,7 +374,8 @@ class RewardTrainer:
         self.rng = np.random.default_rng(settings.seed)
         torch.manual_seed(settings.seed)
         self.gamma = math.exp(-self.manifest.super_timestep / task.discount_s)
-        self.horizon = settings.horizon
+        self.horizon = settings.horizon or task.horizon
+        self.refine_keep = task.refine_keep if settings.refine_keep is None else settings.refine_keep
         self.restarts = Restarts(
             task.restarts.mujoco if settings.mujoco_share is None else settings.mujoco_share,
             task.restarts.explore if settings.explore_share is None else settings.explore_share,
@@ -613,9 +616,9 @@ class RewardTrainer:
         ``REFINE_WINDOW`` super-steps) and on ``refine_keep`` windows of the typical motion it was
         trained on (drawn once), so that it stays right where it was; the runs' states widen the
         envelope the emulated states are measured against."""
-        if self.kept is None and self.settings.refine_keep > 0:
+        if self.kept is None and self.refine_keep > 0:
             self.kept = sampling.generate_sequences(
-                self.physical, self.manifest.substeps, self.settings.refine_keep, REFINE_WINDOW,
+                self.physical, self.manifest.substeps, self.refine_keep, REFINE_WINDOW,
                 self.settings.seed + 17, progress=False,
             )  # fmt: skip
         fine_tune_on_runs(

@@ -269,6 +269,13 @@ def test_the_groups_a_policy_does_not_read_are_in_its_domains_state(name: str) -
     assert set(task.unobserved) <= {g.name for g in layout}
 
 
+def test_a_body_on_the_ground_learns_through_short_paths_and_keeps_its_emulators_past() -> None:
+    """The ground tasks' training defaults (``suite_tasks._ground``), the others' unchanged."""
+    for task in SUITE_TASKS.values():
+        ground = task.fall is not None
+        assert (task.horizon, task.refine_keep > 0) == ((8, True) if ground else (32, False)), task.name
+
+
 def test_the_cheetah_starts_settled_on_the_floor() -> None:
     """``cheetah.Cheetah.initialize_episode``: limited joints drawn, then 200 steps at rest."""
     task = SUITE_TASKS["cheetah-run"]
