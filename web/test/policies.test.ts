@@ -306,6 +306,15 @@ describe('a policy job, from its events', () => {
     const rows = Object.fromEntries(metricsRows(policy));
     expect([rows['return on MuJoCo'], rows['return on the emulator'], rows['success on MuJoCo']]).toEqual(['873 (mean of 10 episodes)', '850 (mean of 10 episodes)', undefined]);
     expect(rows.goals).toBe('none (the task has no parameters)');
+    expect(rows['falls on MuJoCo']).toBeUndefined(); // none measured, none said
+    const walker: PolicyManifest = {
+      ...policy,
+      metrics: { ...policy.metrics, outside_envelope: 0.0412, root_drift_m: 0.3456, falls: [{ episode: 3, time_s: 2.5, state: [0.1] }, { episode: 7, time_s: 0.4, state: [0.2] }] } as PolicyManifest['metrics'],
+    };
+    const trust = Object.fromEntries(metricsRows(walker));
+    expect(trust["emulated states outside the emulator's envelope"]).toBe('4 %');
+    expect(trust["the emulator's root off MuJoCo's at 1 s"]).toBe('0.35 m');
+    expect(trust['falls on MuJoCo']).toBe('2 of 10 episodes (the first at 0.4 s, episode 7)');
   });
 
   it('writes shares and durations for people', () => {

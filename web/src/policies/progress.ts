@@ -189,6 +189,21 @@ export function progressRows(v: PolicyTrainingView): [string, string, string][] 
   ];
 }
 
+/** How far a reward policy's emulator was to be trusted under it, and its falls on MuJoCo (rows only
+ * for what the training measured). */
+function trustRows(m: PolicyManifest['metrics']): [string, string][] {
+  const rows: [string, string][] = [];
+  if (typeof m?.outside_envelope === 'number') rows.push(["emulated states outside the emulator's envelope", percent(m.outside_envelope)]);
+  if (typeof m?.root_drift_m === 'number') rows.push(["the emulator's root off MuJoCo's at 1 s", `${m.root_drift_m.toFixed(2)} m`]);
+  const falls = m?.falls ?? [];
+  if (falls.length) {
+    const first = falls.reduce((a, b) => (b.time_s < a.time_s ? b : a));
+    const of = m?.evaluate_runs ? ` of ${m.evaluate_runs}` : '';
+    rows.push(['falls on MuJoCo', `${falls.length}${of} episodes (the first at ${seconds(first.time_s)}, episode ${first.episode})`]);
+  }
+  return rows;
+}
+
 /** A stored policy's metrics in rows of words. */
 export function metricsRows(p: PolicyManifest): [string, string][] {
   const m = p.metrics ?? {};
@@ -213,6 +228,7 @@ export function metricsRows(p: PolicyManifest): [string, string][] {
     ['iterations', String(m.iterations ?? 0)],
     // (a service that counts them: how often the emulator was fine-tuned on the policy's MuJoCo runs)
     ...(typeof (m as { refinements?: unknown }).refinements === 'number' ? [['emulator refinements', String((m as { refinements: number }).refinements)] as [string, string]] : []),
+    ...trustRows(m),
     ['training time', seconds(m.wall_s)],
     ['stopped by', m.stop === 'cancelled' ? 'a cancel (the best policy so far)' : (m.stop ?? 'budget')],
     ['goals', p.goal_variables.map((g, i) => `${g} ${fmt(p.goal_low[i])}…${fmt(p.goal_high[i])}`).join(', ') || 'none (the task has no parameters)'],
