@@ -11,6 +11,7 @@ import importlib
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -134,14 +135,18 @@ def joint_limits(model: PhysicalModel) -> list[JointLimit]:
 
 
 def build_emulator(
-    model: PhysicalModel, cfg: TrainConfig, states: np.ndarray | None = None
+    model: PhysicalModel,
+    cfg: TrainConfig,
+    states: np.ndarray | None = None,
+    near: Sequence[str] | None = None,
 ) -> StructuredEmulator:
     """The emulator ``cfg`` describes for ``model``: one network, or, for a model with branches, an
     articulated hierarchy (``neuroanimator.emulator.articulated``): a trunk network ``cfg.hidden`` wide and limb
     networks ``cfg.branch_hidden`` wide.
     With ``cfg.clearance``, the geoms probed are those that come near the floor in ``states`` (N, S)
-    (every geom that can touch it when none are given); with ``cfg.proximity``, the pairs of geoms that
-    touch each other in ``states`` (a hierarchy's networks read none)."""
+    (every geom that can touch it when none are given; ``near``: those geoms, already found); with
+    ``cfg.proximity``, the pairs of geoms that touch each other in ``states`` (a hierarchy's networks
+    read none)."""
     branches = model.spec.branches
     emu = StructuredEmulator(
         model.layout,
@@ -160,6 +165,7 @@ def build_emulator(
             floor=bool(cfg.clearance),  # None: none until the data decide (``with_contact_features``)
             pairs=cfg.proximity and not branches,
             tendons=cfg.limits and not branches,
+            near=near,
         ),
     )
     if branches:
@@ -185,14 +191,17 @@ def contact_features(
     floor: bool,
     pairs: bool,
     tendons: bool = False,
+    near: Sequence[str] | None = None,
 ) -> Clearance | None:
     """With ``floor``, the clearance features of the geoms of ``model`` that come near its floor in
     ``states`` (every geom that can touch it when None); with ``pairs``, the distances between the pairs
     of geoms that touch each other in ``states`` (``neuroanimator.emulator.proximity``; none when None); with
-    ``tendons``, the slack of each limited tendon through sites (a string); over ``horizon`` seconds.
-    None when there are none."""
+    ``tendons``, the slack of each limited tendon through sites (a string); over ``horizon`` seconds;
+    ``near``: the geoms near the floor in ``states``, when already found. None when there are none."""
     geoms: list[str] = []
-    if floor:
+    if floor and near is not None:
+        geoms = list(near)
+    elif floor:
         geoms = ground_geoms(model.mj_model) if states is None else near_geoms(model, states, horizon)
     touching = touching_pairs(model, states) if pairs and states is not None else []
     strings = limited_site_tendons(model.mj_model) if tendons else []
@@ -445,9 +454,10 @@ def with_contact_features(
     ``contact_features`` searches them there); the config with ``clearance`` decided where it was left
     to the data (None: on when ``data`` touch the floor, ``FloorContact.touches``), and why (None when
     the user chose)."""
-    reason = None
+    reason, near = None, None
     if cfg.clearance is None:
         contact = floor_contact(model, data.states, model.dt * cfg.substeps)
+        near = contact.geoms  # found once: building the emulator needs them too
         cfg = dataclasses.replace(cfg, clearance=contact.touches)
         if contact.floor:  # a model without a floor has nothing to say
             reason = (
@@ -458,7 +468,7 @@ def with_contact_features(
             log.info("%s: %s", model.name, reason)
     if not (cfg.clearance or (cfg.proximity and not model.spec.branches)):
         return emu, cfg, reason
-    emu = build_emulator(model, cfg, data.states)
+    emu = build_emulator(model, cfg, data.states, near)
     if emu.clearance is not None:
         clr = emu.clearance
         log.info(
