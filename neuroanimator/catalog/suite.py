@@ -29,7 +29,7 @@ class SuiteTaskInfo:
     param_low: tuple[float, ...] = ()
     param_high: tuple[float, ...] = ()
     episode_steps: int = 1000
-    target_return: float = 0.0
+    target_return: float = 0.0  # 0: no target, its return is reported
     train_seconds: float = 1500.0
     summary: str = ""
 
@@ -37,6 +37,17 @@ class SuiteTaskInfo:
     def model(self) -> str:
         """The model a task's policy is trained for: the one named as its domain."""
         return self.domain
+
+    @property
+    def criterion(self) -> str:
+        """What the task's policy is judged by, in words."""
+        judged = (
+            f"the return of {self.episode_steps} steps on MuJoCo with the suite's reward "
+            "(mean of 10 episodes)"
+        )
+        if self.target_return > 0:
+            return f"{judged} at least {self.target_return:g}"
+        return f"none set: {judged} is reported"
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able data, for ``GET /policy-tasks`` (``kind`` ``reward``: judged by its return)."""
@@ -51,8 +62,7 @@ class SuiteTaskInfo:
             "goal_low": list(self.param_low),
             "goal_high": list(self.param_high),
             "target_return": self.target_return,
-            "success_criterion": f"a return of at least {self.target_return:g} of "
-            f"{self.episode_steps} on MuJoCo with the suite's reward (mean of 10 episodes)",
+            "success_criterion": self.criterion,
             "mjcf": f"dm_control/suite/{self.domain}.xml",
         }
 
@@ -142,6 +152,14 @@ SUITE_TASK_INFO: dict[str, SuiteTaskInfo] = {
             target_return=500,
             train_seconds=3300.0,
             summary="the planar cheetah runs forward, paid in proportion to its speed up to 10 m/s",
+        ),
+        SuiteTaskInfo(
+            "humanoid-stand",
+            "humanoid",
+            5,
+            5,
+            train_seconds=3300.0,
+            summary="the 21-joint humanoid gets up from wherever it fell and stands still, its head above 1.4 m",
         ),
     )
 }

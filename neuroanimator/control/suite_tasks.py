@@ -179,16 +179,25 @@ class SuiteTask(SuiteTaskInfo):
 
 # ---------------------------------------------------------------------------------------- starts
 def random_joints(m: mujoco.MjModel, rng: np.random.Generator, qpos: FloatArray) -> None:
-    """The suite's ``randomize_limited_and_rotational_joints`` for hinges and slides: a limited one
-    uniform over its range, an unlimited hinge uniform over [-π, π)."""
+    """The suite's ``randomize_limited_and_rotational_joints``: a limited hinge or slide uniform over
+    its range, an unlimited hinge uniform over [-π, π), an unlimited ball joint's quaternion uniform
+    on the sphere, a free joint's orientation drawn as the suite draws it (four uniform [0, 1)
+    components, normalised: not uniform over rotations, but the suite's benchmarks were run so) and
+    its position left where it was."""
+    hinge, slide = mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE
     for j in range(m.njnt):
         adr, kind = int(m.jnt_qposadr[j]), int(m.jnt_type[j])
-        if kind not in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
-            continue
-        if m.jnt_limited[j]:
-            qpos[adr] = rng.uniform(*m.jnt_range[j])
-        elif kind == mujoco.mjtJoint.mjJNT_HINGE:
-            qpos[adr] = rng.uniform(-np.pi, np.pi)
+        if kind in (hinge, slide):
+            if m.jnt_limited[j]:
+                qpos[adr] = rng.uniform(*m.jnt_range[j])
+            elif kind == hinge:
+                qpos[adr] = rng.uniform(-np.pi, np.pi)
+        elif kind == mujoco.mjtJoint.mjJNT_BALL and not m.jnt_limited[j]:
+            quat = rng.standard_normal(4)
+            qpos[adr : adr + 4] = quat / np.linalg.norm(quat)
+        elif kind == mujoco.mjtJoint.mjJNT_FREE:
+            quat = rng.uniform(0.0, 1.0, 4)
+            qpos[adr + 3 : adr + 7] = quat / np.linalg.norm(quat)
 
 
 def _qpos0(m: mujoco.MjModel) -> FloatArray:
@@ -209,6 +218,19 @@ def reset_random_joints(
     qpos = _qpos0(m)
     random_joints(m, rng, qpos)
     return qpos, np.zeros(m.nv), np.zeros(0)
+
+
+def reset_untouched(m: mujoco.MjModel, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``humanoid.Humanoid.initialize_episode``: random joints (``random_joints``) drawn again until
+    no geoms touch (a body drawn through the floor or through itself would be thrown out of it)."""
+    d = mujoco.MjData(m)
+    while True:
+        qpos = _qpos0(m)
+        random_joints(m, rng, qpos)
+        d.qpos[:] = qpos
+        mujoco.mj_forward(m, d)
+        if d.ncon == 0:
+            return qpos, np.zeros(m.nv), np.zeros(0)
 
 
 def reset_reacher(m: mujoco.MjModel, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -378,20 +400,40 @@ def reward_cheetah_run(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bo
     return tolerance(vx, 10.0, math.inf, 10.0, "linear", 0.0)
 
 
+def _head_height(ctx: Context, s: Tensor) -> Tensor:
+    return ctx.kin.locator("body", "head").position(ctx.kin.places(s))[:, 2]
+
+
+def reward_humanoid_stand(ctx: Context, s: Tensor, u: Tensor, p: Tensor, smooth: bool) -> Tensor:
+    """``humanoid.Humanoid.get_reward`` (standing, no speed): the head above 1.4 m (margin 0.35) ·
+    the torso upright (linear to 0 at its z axis pointing down) · small control · not moving (the
+    centre of mass's horizontal velocity, margin 2 m/s, mean over x and y)."""
+    places = ctx.kin.places(s)
+    head = ctx.kin.locator("body", "head").position(places)[:, 2]
+    standing = tolerance(head, 1.4, math.inf, 1.4 / 4)
+    up = ctx.kin.locator("body", "torso").rotation(places)[:, 2, 2]
+    upright = tolerance(up, 0.9, math.inf, 1.9, "linear", 0.0)
+    control = (tolerance(u, 0.0, 0.0, 1.0, "quadratic", 0.0).mean(dim=1) + 4) / 5
+    still = tolerance(ctx.kin.subtree_velocity(s, "torso")[:, :2], 0.0, 0.0, 2.0).mean(dim=1)
+    return control * standing * upright * still
+
+
 # a walker down again after standing (its torso under 0.7 m, its stand is 1.2), a hopper's torso
 # back under 0.3 m above its foot after 0.5, a cheetah on its back
 WALKER_FALL = Fall(_torso_height, above=1.0, below=0.7)
 HOPPER_FALL = Fall(_hopper_height, above=0.5, below=0.3)
 CHEETAH_FALL = Fall(_torso_upright, above=0.0, below=-0.5)
+HUMANOID_FALL = Fall(_head_height, above=1.2, below=0.6)  # (its head stands at 1.6 m)
 
 
-def _ground(fall: Fall) -> dict[str, Any]:
-    """A planar body on the ground: its fall, and how far it has gone unread (the suite omits it);
+def _ground(fall: Fall, unobserved: tuple[str, ...] = ("rootx.pos",)) -> dict[str, Any]:
+    """A body on the ground: its fall, and how far it has gone unread (the suite omits it; a free
+    root's position holds its height too, and is read);
     gradient paths of 8 super-steps, not 32 (through contact a longer path is ill-conditioned: the
     cheetah's run 58 → 209 in 900 s), and its emulator refined with the typical motion kept beside the
     policy's runs (the policy goes where the random data never went, and the model must stay right
     where it was)."""
-    return {"fall": fall, "unobserved": ("rootx.pos",), "horizon": 8, "refine_keep": 1024}
+    return {"fall": fall, "unobserved": unobserved, "horizon": 8, "refine_keep": 1024}
 
 
 def _task(name: str, reset: ResetFn, reward: RewardFn, **how: Any) -> SuiteTask:
@@ -411,5 +453,6 @@ SUITE_TASKS: dict[str, SuiteTask] = {
         _task("walker-stand", reset_random_joints, reward_walker_stand, **_ground(WALKER_FALL)),
         _task("walker-walk", reset_random_joints, reward_walker_walk, **_ground(WALKER_FALL)),
         _task("cheetah-run", reset_cheetah, reward_cheetah_run, **_ground(CHEETAH_FALL)),
+        _task("humanoid-stand", reset_untouched, reward_humanoid_stand, **_ground(HUMANOID_FALL, ())),
     )
 }

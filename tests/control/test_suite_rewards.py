@@ -63,6 +63,13 @@ def reference(task: str, m: mujoco.MjModel, d: mujoco.MjData, params: np.ndarray
         vx = _sensor(m, d, "torso_subtreelinvel")[0]
         move = tol(vx, bounds=(1, float("inf")), margin=0.5, value_at_margin=0.5, sigmoid="linear")
         return float(stand * (5 * move + 1) / 6)
+    if domain == "humanoid":
+        standing = tol(d.xpos[_ids(m, body, "head"), 2], bounds=(1.4, float("inf")), margin=1.4 / 4)
+        upright = tol(
+            d.xmat[_ids(m, body, "torso"), 8], (0.9, float("inf")), 1.9, "linear", value_at_margin=0
+        )
+        still = tol(_sensor(m, d, "torso_subtreelinvel")[[0, 1]], margin=2).mean()
+        return float(small_control * standing * upright * still)
     if domain == "cheetah":
         vx = _sensor(m, d, "torso_subtreelinvel")[0]
         return float(tol(vx, bounds=(10, float("inf")), margin=10, value_at_margin=0, sigmoid="linear"))
@@ -219,6 +226,26 @@ def test_starts_follow_the_suites_episodes() -> None:
         d.qpos[:], _, _ = SUITE_TASKS["ball_in_cup-catch"].reset(m, rng)
         mujoco.mj_forward(m, d)
         assert d.ncon == 0  # never inside the cup's walls
+
+
+def test_a_humanoid_starts_turned_anywhere_and_touching_nothing() -> None:
+    """``humanoid.Humanoid.initialize_episode``: joints and the free root's orientation drawn (its
+    position kept), again until no geoms touch."""
+    task = SUITE_TASKS["humanoid-stand"]
+    m, _ = _model("humanoid")
+    d, rng = mujoco.MjData(m), np.random.default_rng(5)
+    qpos = []
+    for _ in range(20):
+        d.qpos[:], qvel, _ = task.reset(m, rng)
+        mujoco.mj_forward(m, d)
+        assert d.ncon == 0 and not qvel.any()
+        qpos.append(np.array(d.qpos))
+    q = np.array(qpos)
+    np.testing.assert_array_equal(q[:, :3], np.tile(m.qpos0[:3], (20, 1)))
+    np.testing.assert_allclose(np.linalg.norm(q[:, 3:7], axis=1), 1.0)
+    assert (q[:, 3:7] >= 0).all() and np.ptp(q[:, 3:7], axis=0).min() > 0.3  # the suite's draw
+    limited = m.jnt_limited.astype(bool)[1:]
+    assert np.ptp(q[:, 7:], axis=0)[limited].min() > 0  # every limited joint drawn
 
 
 @pytest.mark.parametrize("domain", ["walker", "cheetah", "humanoid"])

@@ -390,6 +390,10 @@ def test_a_suite_task_without_its_domains_model_is_422_saying_how_to_make_it(ctl
     reacher = tasks["reacher-hard"]
     assert (reacher["kind"], reacher["model"], reacher["substeps"]) == ("reward", "reacher", 2)
     assert reacher["goal_variables"] == ["target.x", "target.y"] and reacher["target_return"] == 900
+    assert reacher["success_criterion"].endswith("(mean of 10 episodes) at least 900")
+    humanoid = tasks["humanoid-stand"]  # no target: its return is reported
+    assert (humanoid["model"], humanoid["substeps"], humanoid["target_return"]) == ("humanoid", 5, 0)
+    assert humanoid["success_criterion"].startswith("none set")
     r = api.post("/policies", json={"task": "reacher-hard", "seconds": 10})
     assert r.status_code == 422, r.text
     err = r.json()
