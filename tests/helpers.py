@@ -19,13 +19,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import mujoco
+import numpy as np
 import torch
 import uvicorn
 from fastapi import FastAPI
 
+from neuroanimator.core.state import LayoutGroup
 from neuroanimator.core.train_config import TrainConfig
 from neuroanimator.emulator.structured import StructuredEmulator
-from neuroanimator.sim.model import PhysicalModel
+from neuroanimator.sim.model import PhysicalModel, derive_layout
 from neuroanimator.training.metrics import TrainingMetrics
 from neuroanimator.training.train import TrainResult
 
@@ -164,3 +167,26 @@ def uvicorn_serving(app: Any) -> Iterator[int]:
     finally:
         srv.should_exit = True
         thread.join(timeout=20)
+
+
+def mjcf_model(xml: str) -> tuple[mujoco.MjModel, list[LayoutGroup]]:
+    """A model from dm_control's suite (``walker.xml``) or from MJCF text, and its state's layout groups."""
+    from dm_control import suite
+
+    path = Path(suite.__file__).parent / xml
+    m = (
+        mujoco.MjModel.from_xml_path(str(path))
+        if xml.endswith(".xml")
+        else mujoco.MjModel.from_xml_string(xml)
+    )
+    lay = derive_layout(m)
+    return m, [LayoutGroup(**g.model_dump(), offset=o) for g, o in zip(lay.groups, lay.offsets, strict=True)]
+
+
+def mj_state(d: mujoco.MjData, layout: list[LayoutGroup]) -> np.ndarray:
+    """MuJoCo's qpos and qvel as the emulator's state (S,) of ``layout``."""
+    s = np.zeros(sum(g.size for g in layout))
+    for g in layout:
+        src = d.qpos if g.source == "qpos" else d.qvel
+        s[g.offset : g.offset + g.size] = src[g.address : g.address + g.size]
+    return s

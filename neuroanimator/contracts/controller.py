@@ -508,11 +508,8 @@ class PolicyGoalSpec(_Wire):
     )
 
 
-class PolicyTaskSpec(_Wire):
-    """A user's own policy task (what ``GET /policy-tasks`` lists of a built-in one): a model, where its
-    runs start, which goals it is asked to reach and how success is judged. States are S values in the
-    model's state order (its emulator's ``state_labels``); the target state has the goal written into
-    its goal variables; ``success`` checks are those of a control job (``POST /jobs``)."""
+class _OwnTask(_Wire):
+    """What every task of a user's own names: its model and emulator, its name, its runs' length."""
 
     model: str = Field(min_length=1, max_length=MAX_LABEL, description="a model in the artifact registry")
     substeps: Integer | None = Field(
@@ -529,6 +526,14 @@ class PolicyTaskSpec(_Wire):
     )
     summary: str = Field("", max_length=1000, description="what the task asks, in words")
     episode_s: Seconds = Field(description="a run's length in seconds")
+
+
+class PolicyTaskSpec(_OwnTask):
+    """A user's own policy task (what ``GET /policy-tasks`` lists of a built-in one): a model, where its
+    runs start, which goals it is asked to reach and how success is judged. States are S values in the
+    model's state order (its emulator's ``state_labels``); the target state has the goal written into
+    its goal variables; ``success`` checks are those of a control job (``POST /jobs``)."""
+
     starts: PolicyStartsSpec
     goal: PolicyGoalSpec
     target_state: Annotated[list[Bounded], Field(min_length=1, max_length=MAX_VECTOR)] = Field(
@@ -558,12 +563,74 @@ class PolicyTaskSpec(_Wire):
     timed: Flag = Field(False, description="the policy is told how long is left until the check")
 
 
+MAX_REWARD_TERMS = 16
+RewardTermKind = Literal["height", "upright", "speed", "still", "small_control"]
+
+
+class RewardTermSpec(_Wire):
+    """One term of a user's reward task, worth 0 to 1 at every super-step (the suite's
+    ``rewards.tolerance``: 1 within the bound, falling off over ``margin`` outside it):
+
+    - ``height``: the body's origin at least ``at_least`` metres above the world's z = 0 (margin
+      default half of it, Gaussian);
+    - ``upright``: the body's z axis at least ``at_least`` (a cosine, default 0.9) along the world's
+      z (linear to 0 over the margin, default ``1 + at_least``: nothing when upside down);
+    - ``speed``: the centre of mass of the body's subtree moving along ``axis`` at ``at_least`` m/s or
+      faster (a negative speed: as fast backwards; linear from 0 at standstill, or over ``margin``);
+    - ``still``: that centre of mass's horizontal speed near 0 (Gaussian over ``margin``, default 2
+      m/s: the mean over x and y);
+    - ``small_control``: the controls small, each as a share of its half range (``(4 + q) / 5``, q the
+      mean of a quadratic falling to 0 at the range's ends: as the suite pays it).
+
+    ``body`` (default: the model's root body, the first below the world) names a body of the MJCF."""
+
+    kind: RewardTermKind
+    body: Label | None = Field(None, description="a body of the model (default: its root body)")
+    at_least: Bounded | None = Field(
+        None, description="height: metres (required); upright: a cosine (default 0.9); speed: m/s (required)"
+    )
+    axis: Literal["x", "y"] = Field("x", description="speed: the world axis it is measured along")
+    margin: Number | None = Field(
+        None, gt=0, le=MAX_VALUE, description="how far outside the bound it still pays"
+    )
+
+    @model_validator(mode="after")
+    def _needs_a_bound(self) -> RewardTermSpec:
+        if self.kind in ("height", "speed") and self.at_least is None:
+            raise ValueError(
+                f"a {self.kind} term needs at_least ({'metres' if self.kind == 'height' else 'm/s'})"
+            )
+        if self.kind == "speed" and self.at_least == 0:
+            raise ValueError("a speed term's at_least must not be 0 (a still body: use a still term)")
+        if self.kind == "upright" and self.at_least is not None and not -1 <= self.at_least < 1:
+            raise ValueError(f"an upright term's at_least is a cosine in [-1, 1), got {self.at_least:g}")
+        return self
+
+
+class RewardTaskSpec(_OwnTask):
+    """A user's own reward task (``kind: "reward"``): a model (any MJCF brought in, the ground touched
+    or not), runs of ``episode_s`` seconds from random joints (the suite's draw, again while the body
+    touches anything) or from rest (its first keyframe, else ``qpos0``, a little perturbed), and a
+    reward at every super-step: the product of its ``terms`` (``combine: "mean"``: their mean). The
+    policy is learned for the return through the emulator and judged by it on MuJoCo; nothing sets a
+    target: the return is reported."""
+
+    kind: Literal["reward"]
+    starts: Literal["random", "rest"] = Field("random", description="random joints, or the model at rest")
+    terms: Annotated[list[RewardTermSpec], Field(min_length=1, max_length=MAX_REWARD_TERMS)]
+    combine: Literal["product", "mean"] = Field("product", description="how the terms make the reward")
+
+
 _TASK_NAME: TypeAdapter[str] = TypeAdapter(PolicyTaskName)
 
 
-def _task_or_definition(value: Any, handler: ValidatorFunctionWrapHandler) -> str | PolicyTaskSpec:
-    """A built-in task's name or a user's task; a user's task's errors name its own fields
-    (``task.goal.low[1]``), not the branch of the union they came from."""
+def _task_or_definition(
+    value: Any, handler: ValidatorFunctionWrapHandler
+) -> str | PolicyTaskSpec | RewardTaskSpec:
+    """A built-in task's name or a user's task (a reward task has ``kind: "reward"``); a user's task's
+    errors name its own fields (``task.goal.low[1]``), not the branch of the union they came from."""
+    if isinstance(value, RewardTaskSpec) or (isinstance(value, dict) and "kind" in value):
+        return RewardTaskSpec.model_validate(value)
     if isinstance(value, (dict, PolicyTaskSpec)):
         return PolicyTaskSpec.model_validate(value)
     if not isinstance(value, str):
@@ -578,8 +645,11 @@ class PolicyJobCreate(_Wire):
     (a built-in one of ``GET /policy-tasks`` by name, or a user's own ``PolicyTaskSpec``) and store;
     every field left out takes the task's (or the trainer's) default."""
 
-    task: Annotated[PolicyTaskName | PolicyTaskSpec, WrapValidator(_task_or_definition)] = Field(
-        description="a built-in policy task of GET /policy-tasks, or a task of your own"
+    task: Annotated[PolicyTaskName | PolicyTaskSpec | RewardTaskSpec, WrapValidator(_task_or_definition)] = (
+        Field(
+            description="a built-in policy task of GET /policy-tasks, or a task of your own: goals to reach "
+            "(PolicyTaskSpec) or a reward to earn (RewardTaskSpec, kind: reward)"
+        )
     )
     seconds: Number | None = Field(
         None,

@@ -21,7 +21,7 @@ from typing import Any
 from neuroanimator.artifacts import registry
 from neuroanimator.catalog.suite import SUITE_TASK_INFO
 from neuroanimator.catalog.tasks import POLICY_TASKS
-from neuroanimator.contracts.controller import PolicyTaskSpec
+from neuroanimator.contracts.controller import PolicyTaskSpec, RewardTaskSpec
 from neuroanimator.core.manifest import Manifest
 from neuroanimator.goals import criteria
 from neuroanimator.goals.criteria import SuccessCheck
@@ -59,11 +59,7 @@ def checked_task(spec: PolicyTaskSpec, root: registry.Root) -> CheckedTask:
     fit the emulator's super-step or each other, a built-in task's name."""
     manifest, emulator = _emulator(spec, root)
     labels = list(manifest.state_labels)
-    name = spec.name or f"{DEFAULT_PREFIX}{spec.model}"
-    if name in POLICY_TASKS or name in SUITE_TASK_INFO:
-        raise TaskDefinitionError(
-            "name", f"{name!r} is a built-in policy task's name; choose another", "a name of your own", name
-        )
+    name = _own_name(spec)
     _check_states(spec, labels)
     _check_starts(spec, manifest)
     _check_goal(spec, labels)
@@ -117,7 +113,7 @@ def build_task(definition: PolicyTaskSpec, labels: Sequence[str]) -> PolicyTask:
     )
 
 
-def _emulator(spec: PolicyTaskSpec, root: registry.Root) -> tuple[Manifest, Path]:
+def _emulator(spec: PolicyTaskSpec | RewardTaskSpec, root: registry.Root) -> tuple[Manifest, Path]:
     """The manifest and folder of the emulator the task trains through: the model's latest at
     ``substeps``, else its latest. A model the caller does not see (another key's upload) is unknown."""
     model = spec.model
@@ -234,16 +230,7 @@ def _at(data: Any, path: str) -> Any:
 def _check_times(spec: PolicyTaskSpec, super_dt: float, substeps: int) -> None:
     """Every time at least one super-step of the emulator (``super_dt`` seconds), a run at most
     ``MAX_HORIZON`` of them, a goal's period within the run and the check and settling within it."""
-    step = f"one super-step of the n = {substeps} emulator"
-    longest = MAX_HORIZON * super_dt
-    if spec.episode_s < super_dt or spec.episode_s > longest + 1e-9:
-        raise TaskDefinitionError(
-            "episode_s",
-            f"must be between {super_dt:g} s ({step}) and {longest:g} s ({MAX_HORIZON} super-steps), "
-            f"got {spec.episode_s:g}",
-            f"[{super_dt:g}, {longest:g}]",
-            spec.episode_s,
-        )
+    step = _check_episode(spec.episode_s, super_dt, substeps)
     period = spec.episode_s
     if spec.goal_period_s is not None:
         period = spec.goal_period_s
@@ -269,3 +256,41 @@ def _check_times(spec: PolicyTaskSpec, super_dt: float, substeps: int) -> None:
             f"<= {period:g}",
             spec.settle_s,
         )
+
+
+def _check_episode(episode_s: float, super_dt: float, substeps: int) -> str:
+    """A run of at least one super-step (``super_dt`` seconds) and at most ``MAX_HORIZON``; returns how
+    a super-step is named in messages."""
+    step = f"one super-step of the n = {substeps} emulator"
+    longest = MAX_HORIZON * super_dt
+    if episode_s < super_dt or episode_s > longest + 1e-9:
+        raise TaskDefinitionError(
+            "episode_s",
+            f"must be between {super_dt:g} s ({step}) and {longest:g} s ({MAX_HORIZON} super-steps), "
+            f"got {episode_s:g}",
+            f"[{super_dt:g}, {longest:g}]",
+            episode_s,
+        )
+    return step
+
+
+def checked_reward_task(spec: RewardTaskSpec, root: registry.Root) -> tuple[RewardTaskSpec, Path]:
+    """A user's reward task as it is queued (``name`` and ``substeps`` filled in) and the emulator it
+    trains through, else ``TaskDefinitionError``: an unknown (or unseen) model, no emulator at
+    ``substeps``, a model without controls, a run shorter than a super-step or longer than
+    ``MAX_HORIZON`` of them, a built-in task's name. Its bodies are the MJCF's, which this process
+    does not load: a term naming a body the model lacks fails the job, saying which bodies it has."""
+    manifest, emulator = _emulator(spec, root)
+    name = _own_name(spec)
+    _check_episode(spec.episode_s, manifest.super_timestep, manifest.substeps)
+    return spec.model_copy(update={"name": name, "substeps": manifest.substeps}), emulator
+
+
+def _own_name(spec: PolicyTaskSpec | RewardTaskSpec) -> str:
+    """The task's name (default ``custom-<model>``), unless it is a built-in task's."""
+    name = spec.name or f"{DEFAULT_PREFIX}{spec.model}"
+    if name in POLICY_TASKS or name in SUITE_TASK_INFO:
+        raise TaskDefinitionError(
+            "name", f"{name!r} is a built-in policy task's name; choose another", "a name of your own", name
+        )
+    return name

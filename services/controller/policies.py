@@ -21,13 +21,20 @@ from pydantic import BaseModel, ConfigDict, Field
 from neuroanimator.artifacts import registry
 from neuroanimator.catalog.suite import SUITE_TASK_INFO, SuiteTaskInfo
 from neuroanimator.catalog.tasks import POLICY_TASKS
-from neuroanimator.contracts.controller import HISTORY_POINTS, HistoryPoint, PolicyJobCreate, PolicyTaskSpec
+from neuroanimator.contracts.controller import (
+    HISTORY_POINTS,
+    HistoryPoint,
+    PolicyJobCreate,
+    PolicyTaskSpec,
+    RewardTaskSpec,
+)
 from neuroanimator.goals.policy_task import PolicyTask
 from services.common import tenancy
-from services.controller.custom_policy import TaskDefinitionError, checked_task
+from services.controller.custom_policy import TaskDefinitionError, checked_reward_task, checked_task
 
 POLICY: Literal["policy"] = "policy"
 REWARD_HIDDEN = (64, 64)  # a suite task's policy network (``reward_policy.RewardSettings.hidden``)
+CUSTOM_REWARD_SECONDS = 1500.0  # a user's reward task's default budget (a suite task's default)
 JobKind = Literal["control", "policy"]
 
 
@@ -43,7 +50,7 @@ class PolicyJobSpec(BaseModel):
 
     kind: Literal["policy"] = POLICY
     task: str
-    definition: PolicyTaskSpec | None = None
+    definition: PolicyTaskSpec | RewardTaskSpec | None = None
     labels: list[str] | None = None
     model: str
     emulator_version: str
@@ -79,6 +86,8 @@ def policy_spec(req: PolicyJobCreate, root: registry.Root, max_seconds: float) -
     ``task.<its field>``)."""
     if isinstance(req.task, PolicyTaskSpec):
         return _custom_spec(req, req.task, root, max_seconds)
+    if isinstance(req.task, RewardTaskSpec):
+        return _reward_spec(req, req.task, root, max_seconds)
     task: PolicyTask | SuiteTaskInfo | None = POLICY_TASKS.get(req.task) or SUITE_TASK_INFO.get(req.task)
     if task is None:
         known = sorted([*POLICY_TASKS, *SUITE_TASK_INFO])
@@ -139,6 +148,30 @@ def _custom_spec(
         seed=req.seed,
         batch=req.batch,
         hidden=list(req.hidden or task.hidden),
+    )
+
+
+def _reward_spec(
+    req: PolicyJobCreate, given: RewardTaskSpec, root: registry.Root, max_seconds: float
+) -> PolicyJobSpec:
+    """The job of a request with a user's own reward task, checked against its model's emulator."""
+    try:
+        definition, emulator = checked_reward_task(given, root)
+    except TaskDefinitionError as exc:
+        field, message = (f"task.{exc.field}", f"task.{exc}") if exc.field else ("task", f"task: {exc}")
+        raise PolicySpecError(field, message, exc.expected, exc.got) from exc
+    assert definition.name is not None and definition.substeps is not None  # (filled in by the check)
+    return PolicyJobSpec(
+        task=definition.name,
+        definition=definition,
+        model=definition.model,
+        emulator_version=emulator.name,
+        substeps=definition.substeps,
+        seconds=_budget(req, CUSTOM_REWARD_SECONDS, max_seconds),
+        refine=req.refine,
+        seed=req.seed,
+        batch=req.batch,
+        hidden=list(req.hidden or REWARD_HIDDEN),
     )
 
 

@@ -23,11 +23,12 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
+from neuroanimator.artifacts import registry
 from neuroanimator.artifacts.policies import read_policy
 from neuroanimator.catalog.suite import SUITE_TASK_INFO
-from neuroanimator.contracts.controller import HistoryPoint, PolicyOutcome
+from neuroanimator.contracts.controller import HistoryPoint, PolicyOutcome, RewardTaskSpec
 from neuroanimator.core.policy_manifest import PolicyManifest
 from neuroanimator.goals.policy_task import PolicyTask
 from services.common.job_worker import Watch
@@ -37,6 +38,9 @@ from services.controller.execution import Deadline, ProgressRecorder
 from services.controller.policies import PolicyJobSpec, thin
 from services.controller.settings import Settings
 from services.controller.store import JobStore
+
+if TYPE_CHECKING:  # (PyTorch is loaded in the job process only)
+    from neuroanimator.control.suite_tasks import SuiteTask
 
 log = logging.getLogger(__name__)
 Ending = Literal["succeeded", "failed", "cancelled"]
@@ -57,8 +61,11 @@ class PolicyRecorder(ProgressRecorder):
 
 
 def for_a_reward(spec: PolicyJobSpec) -> bool:
-    """Whether the job trains a suite task's policy for its reward (``RewardSettings``)."""
-    return spec.task in SUITE_TASK_INFO and spec.definition is None
+    """Whether the job trains a policy for a reward (``RewardSettings``): a suite task's, or a user's
+    reward task's."""
+    if spec.definition is None:
+        return spec.task in SUITE_TASK_INFO
+    return isinstance(spec.definition, RewardTaskSpec)
 
 
 def training_settings(spec: PolicyJobSpec, threads: int) -> dict[str, Any]:
@@ -75,10 +82,21 @@ def training_settings(spec: PolicyJobSpec, threads: int) -> dict[str, Any]:
     }
 
 
-def _task(spec: PolicyJobSpec) -> PolicyTask | str:
-    """A user's task built from its queued definition, else the built-in task's name."""
+def _task(spec: PolicyJobSpec, root: registry.Root) -> PolicyTask | SuiteTask | str:
+    """A user's task built from its queued definition (a reward task on the model of the emulator it
+    was queued for), else the built-in task's name."""
     if spec.definition is None:
         return spec.task
+    if isinstance(spec.definition, RewardTaskSpec):
+        from neuroanimator.control.reward_terms import RewardTaskError, reward_task_at
+
+        try:
+            emulator = registry.resolve(root, spec.model, spec.emulator_version)
+            return reward_task_at(spec.definition, emulator)
+        except registry.ArtifactError as exc:
+            raise TaskDefinitionError("", f"policy task {spec.task!r}: {exc}") from exc
+        except RewardTaskError as exc:  # a body the model lacks: the API cannot read the MJCF
+            raise TaskDefinitionError("", f"policy task {spec.task!r}: task.{exc}") from exc
     try:
         return build_task(spec.definition, spec.labels or [])
     except ValueError as exc:  # checked when queued: only a change of the code since gets here
@@ -112,7 +130,7 @@ def perform_policy(store: JobStore, s: Settings, rec: JobRecord, delivery: int, 
 
         try:
             done = run_policy_job(
-                _task(spec),
+                _task(spec, s.roots()),
                 s.roots(),
                 RewardSettings(**how) if for_a_reward(spec) else PolicySettings(**how),
                 on_progress=recorder,

@@ -4,35 +4,17 @@ starts follow the suite's ``initialize_episode``, and the kinematics under them 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 import torch
-from dm_control import suite
 from dm_control.utils import rewards as suite_rewards
 
 from neuroanimator.control.kinematics import Kinematics
 from neuroanimator.control.suite_tasks import SUITE_TASKS, Context, SuiteTask, shaped, tolerance
 from neuroanimator.core.state import LayoutGroup
-from neuroanimator.sim.model import derive_layout
-
-SUITE = Path(suite.__file__).parent
-
-
-def _model(domain: str) -> tuple[mujoco.MjModel, list[LayoutGroup]]:
-    m = mujoco.MjModel.from_xml_path(str(SUITE / f"{domain}.xml"))
-    lay = derive_layout(m)
-    return m, [LayoutGroup(**g.model_dump(), offset=o) for g, o in zip(lay.groups, lay.offsets, strict=True)]
-
-
-def _state(d: mujoco.MjData, layout: list[LayoutGroup]) -> np.ndarray:
-    s = np.zeros(sum(g.size for g in layout))
-    for g in layout:
-        src = d.qpos if g.source == "qpos" else d.qvel
-        s[g.offset : g.offset + g.size] = src[g.address : g.address + g.size]
-    return s
+from tests.helpers import mj_state, mjcf_model
 
 
 def _ids(m: mujoco.MjModel, kind: mujoco.mjtObj, name: str) -> int:
@@ -102,6 +84,10 @@ def reference(task: str, m: mujoco.MjModel, d: mujoco.MjData, params: np.ndarray
     return float(tol(dist, bounds=(0, m.site_size[target, 0]), margin=1))
 
 
+def _model(domain: str) -> tuple[mujoco.MjModel, list[LayoutGroup]]:
+    return mjcf_model(f"{domain}.xml")
+
+
 @pytest.mark.parametrize("name", list(SUITE_TASKS))
 def test_rewards_equal_the_suites_own(name: str) -> None:
     task: SuiteTask = SUITE_TASKS[name]
@@ -119,7 +105,7 @@ def test_rewards_equal_the_suites_own(name: str) -> None:
             params = d.geom_xpos[_ids(m, mujoco.mjtObj.mjOBJ_GEOM, "finger"), :2] + rng.normal(0, 0.02, 2)
         d.qpos[:], d.qvel[:], d.ctrl[:] = qpos, qvel, rng.uniform(-1, 1, m.nu)
         mujoco.mj_forward(m, d)
-        s = torch.tensor(_state(d, layout)[None])
+        s = torch.tensor(mj_state(d, layout)[None])
         r = task.reward(
             ctx, s, torch.tensor(d.ctrl[None].copy()), torch.tensor(np.asarray(params)[None]), False
         )
@@ -140,7 +126,7 @@ def test_the_smooth_reward_pays_where_the_exact_one_does_and_has_a_gradient_outs
     for _ in range(64):
         qpos, qvel, drawn = task.reset(m, rng)
         d.qpos[:], d.qvel[:] = qpos, qvel
-        states.append(_state(d, layout))
+        states.append(mj_state(d, layout))
         params.append(drawn)
     s = torch.tensor(np.array(states), requires_grad=True)
     p = torch.tensor(np.array(params).reshape(64, -1))
@@ -176,7 +162,7 @@ def test_the_reachers_observation_is_the_suites_to_target() -> None:
         m.geom_pos[target, :2] = params  # the suite places the target by moving its geom
         mujoco.mj_forward(m, d)
         to_target = d.geom_xpos[target, :2] - d.geom_xpos[finger, :2]
-        ours = task.observe(ctx, torch.tensor(_state(d, layout)[None]), torch.tensor(params[None]))
+        ours = task.observe(ctx, torch.tensor(mj_state(d, layout)[None]), torch.tensor(params[None]))
         np.testing.assert_allclose(ours[0].numpy(), 10 * to_target, atol=1e-6)
 
 
@@ -201,7 +187,7 @@ def test_kinematics_equal_mujocos(domain: str) -> None:
         d.qpos[:] = m.qpos0 + rng.normal(0, 0.5, m.nq)
         mujoco.mj_normalizeQuat(m, d.qpos)
         mujoco.mj_kinematics(m, d)
-        places = kin.places(torch.tensor(_state(d, layout)[None]))
+        places = kin.places(torch.tensor(mj_state(d, layout)[None]))
         np.testing.assert_allclose(places[0][0].numpy(), d.xpos, atol=1e-5)
         np.testing.assert_allclose(places[1][0].numpy().reshape(-1, 9), d.xmat, atol=1e-5)
         for i in range(m.nsite):
@@ -261,7 +247,7 @@ def test_subtree_velocity_and_centres_of_mass_equal_mujocos(domain: str) -> None
         d.qvel[:] = rng.normal(0, 2, m.nv)
         mujoco.mj_forward(m, d)
         mujoco.mj_subtreeVel(m, d)
-        s = torch.tensor(_state(d, layout)[None])
+        s = torch.tensor(mj_state(d, layout)[None])
         np.testing.assert_allclose(
             kin.subtree_velocity(s, "torso")[0].numpy(), d.subtree_linvel[torso], atol=1e-6
         )
@@ -290,7 +276,7 @@ def test_tolerance_with_an_open_bound_is_the_suites_and_finite_in_its_gradient()
 
 
 @pytest.mark.parametrize("name", [n for n, t in SUITE_TASKS.items() if t.unobserved])
-def test_the_groups_a_policy_does_not_read_are_in_its_domains_state(name: str) -> None:
+def test_the_groups_a_policy_does_not_read_are_in_its_domainsmj_state(name: str) -> None:
     task = SUITE_TASKS[name]
     _, layout = _model(task.domain)
     assert set(task.unobserved) <= {g.name for g in layout}
@@ -326,7 +312,7 @@ def test_a_fall_is_going_down_after_having_been_up() -> None:
     def state(height_change: float) -> np.ndarray:
         d.qpos[:] = m.qpos0
         d.qpos[m.jnt_qposadr[rootz]] = height_change  # the torso stands at 1.3 m at qpos0
-        return _state(d, layout)
+        return mj_state(d, layout)
 
     up, half, down = state(0.0), state(-0.45), state(-1.0)
     episodes = np.array(

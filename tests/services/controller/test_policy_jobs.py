@@ -431,3 +431,34 @@ def test_a_suite_task_trains_through_a_worker_and_reports_its_returns(ctl: Contr
     assert res["return_history"] and res["success_history"] == []
     assert all(0 <= p["value"] <= 1000 for p in res["return_history"])
     assert api.get("/policies/point_mass/point_mass-easy").json() == res["policy"]
+
+    # a reward of the user's own on the same model: the point mass kept still with small controls,
+    # beside one whose term names a body the model lacks (the API cannot read the MJCF: the job fails)
+    still = {"kind": "reward", "model": "point_mass", "name": "hold-still", "episode_s": 2, "starts": "rest",
+             "terms": [{"kind": "still", "body": "pointmass", "margin": 0.1}, {"kind": "small_control"}]}  # fmt: skip
+    r = api.post("/policies", json={"task": still, "seconds": 6, "batch": 16, "refine": False})
+    assert r.status_code == 202, r.text
+    own = r.json()["id"]
+    lacking = {**still, "name": "no-such-body", "terms": [{"kind": "height", "body": "head", "at_least": 1}]}
+    bad = api.post("/policies", json={"task": lacking, "seconds": 6, "batch": 16, "refine": False}).json()[
+        "id"
+    ]
+    for wrong, field in (
+        ({**still, "episode_s": 0.001}, "task.episode_s"),
+        ({**still, "name": "walker-stand"}, "task.name"),
+        ({**still, "model": "nobody"}, "task.model"),
+    ):
+        r = api.post("/policies", json={"task": wrong, "seconds": 6})
+        assert r.status_code == 422 and r.json()["field"] == field, r.text
+    r = api.post("/policies", json={"task": {**still, "terms": [{"kind": "speed"}]}, "seconds": 6})
+    assert r.status_code == 422 and "a speed term needs at_least" in r.text, r.text
+    worker = ctl.worker("--burst", "--name", ctl.name("w-own"))
+    done = policy_ended(api, own, timeout=180)
+    failed = policy_ended(api, bad, timeout=60)
+    assert worker.wait(timeout=60) == 0, ctl.logs()
+    assert done["status"] == "succeeded" and done["task"] == "hold-still", (done, ctl.logs())
+    stored = api.get(f"/policy-jobs/{own}/result").json()["policy"]
+    assert stored["name"] == "hold-still" and 0 <= stored["metrics"]["return_physics"] <= 100  # 2 s at 20 ms
+    assert failed["status"] == "failed", failed
+    reason = api.get(f"/policy-jobs/{bad}/result").json()["reason"]
+    assert "no body 'head'" in reason and "'pointmass'" in reason, reason

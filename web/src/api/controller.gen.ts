@@ -44,6 +44,8 @@ export interface ControllerWire {
   ProgressEvent?: ProgressEvent;
   Refinement?: Refinement;
   RefinementRound?: RefinementRound;
+  RewardTaskSpec?: RewardTaskSpec;
+  RewardTermSpec?: RewardTermSpec;
   SearchInfo?: SearchInfo;
   StatusEvent?: StatusEvent;
   StayWithinBoundsTerm?: StayWithinBoundsTerm;
@@ -920,9 +922,9 @@ export interface PolicyGoalSpec {
  */
 export interface PolicyJobCreate {
   /**
-   * a built-in policy task of GET /policy-tasks, or a task of your own
+   * a built-in policy task of GET /policy-tasks, or a task of your own: goals to reach (PolicyTaskSpec) or a reward to earn (RewardTaskSpec, kind: reward)
    */
-  task: string | PolicyTaskSpec;
+  task: string | PolicyTaskSpec | RewardTaskSpec;
   /**
    * the training budget in seconds (default: the task's; at most POLICY_MAX_SECONDS)
    */
@@ -1054,6 +1056,233 @@ export interface PolicyStartsSpec {
    * radians from upright (a model with a quaternion only)
    */
   max_tilt?: number;
+}
+/**
+ * A user's own reward task (``kind: "reward"``): a model (any MJCF brought in, the ground touched
+ * or not), runs of ``episode_s`` seconds from random joints (the suite's draw, again while the body
+ * touches anything) or from rest (its first keyframe, else ``qpos0``, a little perturbed), and a
+ * reward at every super-step: the product of its ``terms`` (``combine: "mean"``: their mean). The
+ * policy is learned for the return through the emulator and judged by it on MuJoCo; nothing sets a
+ * target: the return is reported.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "RewardTaskSpec".
+ */
+export interface RewardTaskSpec {
+  /**
+   * a model in the artifact registry
+   */
+  model: string;
+  /**
+   * the emulator's super-step n, the policy's control period (default: the model's latest)
+   */
+  substeps?: number | null;
+  /**
+   * the stored policy's name, a plain name (default: custom-<model>)
+   */
+  name?: string | null;
+  /**
+   * what the task asks, in words
+   */
+  summary?: string;
+  /**
+   * a run's length in seconds
+   */
+  episode_s: number;
+  kind: 'reward';
+  /**
+   * random joints, or the model at rest
+   */
+  starts?: 'random' | 'rest';
+  /**
+   * @minItems 1
+   * @maxItems 16
+   */
+  terms:
+    | [RewardTermSpec]
+    | [RewardTermSpec, RewardTermSpec]
+    | [RewardTermSpec, RewardTermSpec, RewardTermSpec]
+    | [RewardTermSpec, RewardTermSpec, RewardTermSpec, RewardTermSpec]
+    | [RewardTermSpec, RewardTermSpec, RewardTermSpec, RewardTermSpec, RewardTermSpec]
+    | [RewardTermSpec, RewardTermSpec, RewardTermSpec, RewardTermSpec, RewardTermSpec, RewardTermSpec]
+    | [
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec
+      ]
+    | [
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec
+      ]
+    | [
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec
+      ]
+    | [
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec
+      ]
+    | [
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec
+      ]
+    | [
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec
+      ]
+    | [
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec
+      ]
+    | [
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec
+      ]
+    | [
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec
+      ]
+    | [
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec,
+        RewardTermSpec
+      ];
+  /**
+   * how the terms make the reward
+   */
+  combine?: 'product' | 'mean';
+}
+/**
+ * One term of a user's reward task, worth 0 to 1 at every super-step (the suite's
+ * ``rewards.tolerance``: 1 within the bound, falling off over ``margin`` outside it):
+ *
+ * - ``height``: the body's origin at least ``at_least`` metres above the world's z = 0 (margin
+ *   default half of it, Gaussian);
+ * - ``upright``: the body's z axis at least ``at_least`` (a cosine, default 0.9) along the world's
+ *   z (linear to 0 over the margin, default ``1 + at_least``: nothing when upside down);
+ * - ``speed``: the centre of mass of the body's subtree moving along ``axis`` at ``at_least`` m/s or
+ *   faster (a negative speed: as fast backwards; linear from 0 at standstill, or over ``margin``);
+ * - ``still``: that centre of mass's horizontal speed near 0 (Gaussian over ``margin``, default 2
+ *   m/s: the mean over x and y);
+ * - ``small_control``: the controls small, each as a share of its half range (``(4 + q) / 5``, q the
+ *   mean of a quadratic falling to 0 at the range's ends: as the suite pays it).
+ *
+ * ``body`` (default: the model's root body, the first below the world) names a body of the MJCF.
+ *
+ * This interface was referenced by `ControllerWire`'s JSON-Schema
+ * via the `definition` "RewardTermSpec".
+ */
+export interface RewardTermSpec {
+  kind: 'height' | 'upright' | 'speed' | 'still' | 'small_control';
+  /**
+   * a body of the model (default: its root body)
+   */
+  body?: string | null;
+  /**
+   * height: metres (required); upright: a cosine (default 0.9); speed: m/s (required)
+   */
+  at_least?: number | null;
+  /**
+   * speed: the world axis it is measured along
+   */
+  axis?: 'x' | 'y';
+  /**
+   * how far outside the bound it still pays
+   */
+  margin?: number | null;
 }
 /**
  * The caller's policy jobs, newest first.
