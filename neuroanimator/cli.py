@@ -519,8 +519,19 @@ def cmd_policy(args: argparse.Namespace) -> int:
     from neuroanimator.control.policy_job import policy_task, run_policy_job
     from neuroanimator.control.reward_policy import RewardResult, RewardSettings
     from neuroanimator.control.suite_tasks import SuiteTask
+    from neuroanimator.goals.policy_task import PolicyTask
 
-    task = policy_task(args.task)
+    task: PolicyTask | SuiteTask
+    if args.task.endswith(".json"):  # a reward task of the user's own (RewardTaskSpec)
+        from neuroanimator.control.reward_terms import reward_task_file
+
+        try:
+            task = reward_task_file(Path(args.task), _registries(args.artifacts))
+        except (OSError, ValueError) as exc:
+            log.error("%s", exc)
+            return 2
+    else:
+        task = policy_task(args.task)
     seconds = args.seconds or task.train_seconds
     settings: PolicySettings | RewardSettings
     if isinstance(task, SuiteTask):
@@ -637,7 +648,8 @@ def _add_policy_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     pp.add_argument(
         "task",
         help=f"policy task: {', '.join(POLICY_TASKS)}; or a dm_control suite task (its model trained "
-        f"from the suite's MJCF under the domain's name): {', '.join(SUITE_TASK_INFO)}",
+        f"from the suite's MJCF under the domain's name): {', '.join(SUITE_TASK_INFO)}; or a JSON file "
+        "holding a reward task of your own (as POST /policies takes it: docs/policies.md)",
     )
     pp.add_argument("--seconds", type=_positive_float, help="training budget (default: the task's)")
     pp.add_argument("--no-refine", action="store_true", help="no fine-tuning on the policy's MuJoCo runs")

@@ -23,6 +23,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import torch
+from pydantic import ValidationError
 from torch import Tensor
 
 from neuroanimator.artifacts import registry
@@ -231,3 +232,15 @@ def reward_task_at(spec: RewardTaskSpec, emulator: Path) -> SuiteTask:
         manifest.super_timestep,
         bool(manifest.train_config.clearance),
     )
+
+
+def reward_task_file(path: Path, root: registry.Root) -> SuiteTask:
+    """A reward task written as JSON (``RewardTaskSpec``, as ``POST /policies`` takes it) on its model's
+    emulator in ``root`` (at its ``substeps``, else the model's latest); ``ValueError`` saying what
+    does not fit."""
+    try:
+        spec = RewardTaskSpec.model_validate_json(path.read_bytes())
+    except ValidationError as exc:
+        raise ValueError(f"{path}: not a reward task: {exc}") from exc
+    substeps = spec.substeps or registry.read_manifest(registry.resolve(root, spec.model)).substeps
+    return reward_task_at(spec, registry.resolve(root, spec.model, None, substeps))

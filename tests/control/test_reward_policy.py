@@ -3,6 +3,7 @@ task, judged on MuJoCo with the suite's exact reward; and ``bench/policies.py`` 
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from dataclasses import replace
@@ -236,3 +237,32 @@ def test_a_training_whose_states_leave_the_emulators_envelope_fails_saying_how_o
     with pytest.raises(PolicyJobError, match=r"outside its training envelope 100 % of the time"):
         run_policy_job(TASK.name, root, settings)
     assert not (root / "policies").exists()
+
+
+def test_neuro_policy_trains_a_reward_task_written_as_json(
+    artifacts: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """``neuro policy task.json``: a user's reward task (as ``POST /policies`` takes it) on their model,
+    trained and stored under its name; a file that is not one, or names a model without an emulator,
+    is an error saying so."""
+    from neuroanimator.cli import main as neuro
+
+    task = {"kind": "reward", "model": "point_mass", "name": "keep-still", "episode_s": 1, "starts": "rest",
+            "terms": [{"kind": "still", "margin": 0.1}, {"kind": "small_control"}]}  # fmt: skip
+    path = tmp_path / "keep-still.json"
+    path.write_text(json.dumps(task))
+    assert (
+        neuro(["policy", str(path), "--seconds", "6", "--no-refine", "--artifacts", str(artifacts), "--json"])
+        == 0
+    )
+    row = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert row["task"] == "keep-still" and 0 <= row["return_physics"] <= 50  # 1 s at 20 ms
+    stored = read_policy(Path(row["policy"]))
+    assert (stored.model, stored.name) == ("point_mass", "keep-still")
+    path.write_text(json.dumps({**task, "terms": [{"kind": "height"}]}))
+    assert neuro(["policy", str(path), "--artifacts", str(artifacts)]) == 2
+    assert "a height term needs at_least" in caplog.text
+    path.write_text(json.dumps({**task, "model": "cartpole"}))
+    caplog.clear()
+    assert neuro(["policy", str(path), "--artifacts", str(artifacts)]) == 2
+    assert "cartpole" in caplog.text
