@@ -242,5 +242,4 @@ def reward_task_file(path: Path, root: registry.Root) -> SuiteTask:
         spec = RewardTaskSpec.model_validate_json(path.read_bytes())
     except ValidationError as exc:
         raise ValueError(f"{path}: not a reward task: {exc}") from exc
-    substeps = spec.substeps or registry.read_manifest(registry.resolve(root, spec.model)).substeps
-    return reward_task_at(spec, registry.resolve(root, spec.model, None, substeps))
+    return reward_task_at(spec, registry.resolve(root, spec.model, None, spec.substeps))
