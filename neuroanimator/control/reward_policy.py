@@ -259,7 +259,7 @@ def falls(task: SuiteTask, ctx: Context, runs: Episodes, policy_step_s: float) -
     """The first fall of each episode (``SuiteTask.fall``), none for a task without one."""
     if task.fall is None:
         return []
-    first = task.fall.first(ctx, runs.states)
+    first = task.fall.first(ctx, runs.states, settle=math.ceil(task.fall.settle_s / policy_step_s - 1e-9))
     return [
         {"episode": i, "time_s": round(float(k * policy_step_s), 3), "state": runs.states[i, k].tolist()}
         for i, k in enumerate(first.tolist())

@@ -124,18 +124,24 @@ REVERSE_CURRICULUM = Restarts(mujoco=0.25, explore=0.5, rewarded=0.5)
 class Fall:
     """When a body has fallen: its ``level`` (a function of the states (B, S) → (B,): a torso's height
     in metres, or how upright it is) drops below ``below`` after having reached ``above`` in the
-    episode (a walker that never got up has not fallen; one that stood and lies again has)."""
+    episode (a walker that never got up has not fallen; one that stood and lies again has). Being up
+    counts from ``settle_s`` into the episode: a start drawn with the torso high drops before any
+    policy could have held it, and that drop is the start's, not a fall."""
 
     level: Callable[[Context, Tensor], Tensor]
     above: float
     below: float
+    settle_s: float = 1.0
 
-    def first(self, ctx: Context, states: NDArray[np.float64]) -> NDArray[np.int64]:
-        """(N, K, S) episodes' states → (N,) the index of each one's first fallen state, -1 for none."""
+    def first(self, ctx: Context, states: NDArray[np.float64], settle: int = 0) -> NDArray[np.int64]:
+        """(N, K, S) episodes' states → (N,) the index of each one's first fallen state, -1 for none;
+        states before index ``settle`` do not count as having been up."""
         n, k, width = states.shape
         with torch.no_grad():
             level = self.level(ctx, torch.as_tensor(states.reshape(n * k, width))).reshape(n, k).numpy()
-        been_up = np.maximum.accumulate(level >= self.above, axis=1)
+        up = level >= self.above
+        up[:, :settle] = False
+        been_up = np.maximum.accumulate(up, axis=1)
         down = been_up & (level < self.below)
         return np.where(down.any(axis=1), down.argmax(axis=1), -1)
 

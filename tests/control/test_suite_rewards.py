@@ -319,3 +319,7 @@ def test_a_fall_is_going_down_after_having_been_up() -> None:
         [[down, up, half, down, up], [down, half, down, down, down], [up, half, up, half, up]]
     )
     np.testing.assert_array_equal(fall.first(ctx, episodes), [3, -1, -1])
+    # a start drawn standing drops before a policy could hold it: being up counts from ``settle`` on
+    dropped = np.array([[up, half, down, down, down], [up, down, up, up, down]])
+    np.testing.assert_array_equal(fall.first(ctx, dropped), [2, 1])
+    np.testing.assert_array_equal(fall.first(ctx, dropped, settle=2), [-1, 4])
