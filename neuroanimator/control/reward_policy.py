@@ -92,6 +92,7 @@ class RewardSettings:
     mujoco_share: float | None = None
     explore_share: float | None = None
     rewarded_share: float | None = None
+    explore_from: str | None = None  # "box" or "motion" (``Restarts.explore_from``; None: the task's)
     tournament: int = 8
     refine: bool = True
     refine_gap: float = 0.02  # refine when the returns on the emulator and on MuJoCo differ by more
@@ -380,7 +381,10 @@ class RewardTrainer:
             task.restarts.mujoco if settings.mujoco_share is None else settings.mujoco_share,
             task.restarts.explore if settings.explore_share is None else settings.explore_share,
             task.restarts.rewarded if settings.rewarded_share is None else settings.rewarded_share,
+            task.restarts.explore_from if settings.explore_from is None else settings.explore_from,
         )
+        if self.restarts.explore_from not in ("box", "motion"):
+            raise ValueError(f"explore_from is 'box' or 'motion', not {self.restarts.explore_from!r}")
         self.mujoco_steps = 0
         self.refinements = 0
         self.kept: sampling.Sequences | None = None  # typical motion learned beside the policy's runs
@@ -493,12 +497,12 @@ class RewardTrainer:
         begin where the reward is, so that the policy learns to stay there, and the critic what being
         there is worth, before it knows the way (a pole upright: balanced before it is swung up)."""
         n, t = len(params), self.settings.tournament
-        low, high = self.envelope_box()
-        states = self.rng.uniform(low, high, (n, len(low)))
+        draw = self._box_states if self.restarts.explore_from == "box" else self._motion_states
+        states = draw(n)
         best = self.rng.random(n) < self.restarts.rewarded
         k = int(best.sum())
         if k and t > 1:
-            cand = self.rng.uniform(low, high, (k * t, len(low)))
+            cand = draw(k * t)
             p = np.repeat(params[best], t, axis=0)
             u = torch.as_tensor(np.repeat((self.low + self.high)[None] / 2, k * t, axis=0))
             with torch.no_grad():
@@ -506,6 +510,30 @@ class RewardTrainer:
             pick = torch.nan_to_num(r, nan=-1.0).reshape(k, t).argmax(dim=1).numpy()
             states[best] = cand.reshape(k, t, -1)[np.arange(k), pick]
         return states
+
+    def _box_states(self, n: int) -> FloatArray:
+        """(n, S) states each variable uniform in the envelope's box."""
+        low, high = self.envelope_box()
+        return self.rng.uniform(low, high, (n, len(low)))
+
+    def _motion_states(self, n: int) -> FloatArray:
+        """(n, S) states of the typical motion on MuJoCo (``typical_motion``)."""
+        pool = self.typical_motion().states
+        flat = pool.reshape(-1, pool.shape[2])
+        return flat[self.rng.integers(len(flat), size=n)].copy()
+
+    def typical_motion(self) -> sampling.Sequences:
+        """Windows of the typical motion the emulator was trained on, sampled on MuJoCo once (its
+        steps counted): kept beside the policy's runs when refining, and drawn from when exploring."""
+        if self.kept is None:
+            count = self.refine_keep or 256
+            self.kept = sampling.generate_sequences(
+                self.physical, self.manifest.substeps, count, REFINE_WINDOW, self.settings.seed + 17,
+                progress=False,
+            )  # fmt: skip
+            lead = sampling.lead_steps(self.physical, self.manifest.substeps)
+            self.mujoco_steps += count * (lead + REFINE_WINDOW * self.manifest.substeps)
+        return self.kept
 
     def act(self, states: FloatArray, params: FloatArray) -> FloatArray:
         with torch.no_grad():
@@ -616,11 +644,6 @@ class RewardTrainer:
         ``REFINE_WINDOW`` super-steps) and on ``refine_keep`` windows of the typical motion it was
         trained on (drawn once), so that it stays right where it was; the runs' states widen the
         envelope the emulated states are measured against."""
-        if self.kept is None and self.refine_keep > 0:
-            self.kept = sampling.generate_sequences(
-                self.physical, self.manifest.substeps, self.refine_keep, REFINE_WINDOW,
-                self.settings.seed + 17, progress=False,
-            )  # fmt: skip
         fine_tune_on_runs(
             self.emu,
             np.concatenate([r.states for r in self.runs]),
@@ -629,7 +652,7 @@ class RewardTrainer:
             self.settings.refine_seconds,
             int(self.rng.integers(1 << 30)),
             window=REFINE_WINDOW,
-            keep=self.kept,
+            keep=self.typical_motion() if self.refine_keep > 0 else None,
         )
         self.step = FastStep(self.emu)
         self.refinements += 1

@@ -106,11 +106,16 @@ class Context:
 class Restarts:
     """Where a reward policy's emulated episodes begin (``reward_policy``), as shares of restarts:
     ``mujoco`` from states the policy reached on MuJoCo, ``explore`` anywhere in the emulator's
-    envelope, ``rewarded`` of those the best paid of a few draws; the rest from the task's starts."""
+    envelope, ``rewarded`` of those the best paid of a few draws; the rest from the task's starts.
+    ``explore_from`` says where the exploring ones are drawn: ``box``, each variable uniform in the
+    envelope's box (a pendulum's angle and speed are free of each other), or ``motion``, the states of
+    runs of the typical motion on MuJoCo (a body on the ground: its feet, height and pitch are bound
+    by the floor, and a box's draw puts a foot under it)."""
 
     mujoco: float = 0.5
     explore: float = 0.25
     rewarded: float = 0.0
+    explore_from: str = "box"
 
 
 # a task whose reward lies where its starts and early policies never go (a pole upright, a swing

@@ -30,6 +30,7 @@ from neuroanimator.control.reward_policy import (
 )
 from neuroanimator.control.suite_tasks import SUITE_TASKS
 from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.sim import sampling
 from services.emulator.app import create_app
 from services.emulator.settings import Settings
 from tests.helpers import run_bench
@@ -62,9 +63,10 @@ def test_training_runs_on_mujoco_keeps_the_best_and_counts_its_steps(artifacts: 
     assert all(np.isfinite(r) and 0 <= r <= TASK.episode_steps for _, _, r in result.return_history)
     assert len(result.returns_physics) == QUICK.final_episodes
     assert 0 <= result.return_physics <= TASK.episode_steps and np.isfinite(result.return_emulator)
-    # every MuJoCo episode is counted: the checks during training and the final ones
+    # every MuJoCo step is counted: the checks' episodes, the final ones and the typical motion's windows
     episodes = QUICK.eval_episodes * len(result.return_history) + QUICK.final_episodes
-    assert result.mujoco_steps == episodes * TASK.episode_steps * TASK.control_substeps
+    typical = QUICK.refine_keep * (sampling.lead_steps(trainer.physical, TASK.substeps) + 8 * TASK.substeps)
+    assert result.mujoco_steps == episodes * TASK.episode_steps * TASK.control_substeps + typical
     assert result.refinements >= 1  # the emulator learned from the policy's MuJoCo runs (any gap)
     # ... beside windows of the typical motion it was trained on, drawn once
     assert trainer.kept is not None and trainer.kept.states.shape[:2] == (QUICK.refine_keep, 9)
@@ -138,6 +140,22 @@ def test_rewarded_restarts_begin_where_the_reward_is_paid(artifacts: Path) -> No
         r = TASK.reward(trainer.ctx, torch.as_tensor(states), u, torch.as_tensor(params), True)
         paid[share] = float(r.mean())
     assert paid[1.0] > 1.5 * paid[0.0] > 0
+
+
+def test_exploring_restarts_drawn_from_the_typical_motion_are_its_states(artifacts: Path) -> None:
+    """``explore_from="motion"``: exploring restarts are states of runs of the typical motion on
+    MuJoCo (sampled once, its steps counted), not draws in the envelope's box; another value is refused."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    settings = replace(QUICK, explore_share=1.0, mujoco_share=0.0, rewarded_share=0.5, explore_from="motion")
+    trainer = RewardTrainer(TASK, path, settings)
+    assert trainer.mujoco_steps == 0
+    states, _ = trainer.restart(64)
+    pool = trainer.typical_motion().states.reshape(-1, states.shape[1])
+    assert trainer.mujoco_steps >= pool.size // states.shape[1] * TASK.substeps // 2
+    for row in states:
+        assert np.isclose(pool, row).all(axis=1).any()
+    with pytest.raises(ValueError, match="explore_from is 'box' or 'motion', not 'grid'"):
+        RewardTrainer(TASK, path, replace(QUICK, explore_from="grid"))
 
 
 def test_an_emulator_at_another_control_period_is_refused(artifacts: Path) -> None:
