@@ -65,6 +65,7 @@ def test_training_runs_on_mujoco_keeps_the_best_and_counts_its_steps(artifacts: 
     assert 0 <= result.return_physics <= TASK.episode_steps and np.isfinite(result.return_emulator)
     # every MuJoCo step is counted: the checks' episodes, the final ones and the typical motion's windows
     episodes = QUICK.eval_episodes * len(result.return_history) + QUICK.final_episodes
+    assert QUICK.refine_keep is not None
     typical = QUICK.refine_keep * (sampling.lead_steps(trainer.physical, TASK.substeps) + 8 * TASK.substeps)
     assert result.mujoco_steps == episodes * TASK.episode_steps * TASK.control_substeps + typical
     assert result.refinements >= 1  # the emulator learned from the policy's MuJoCo runs (any gap)
