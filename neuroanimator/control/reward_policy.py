@@ -383,11 +383,9 @@ class RewardTrainer:
             task.restarts.rewarded if settings.rewarded_share is None else settings.rewarded_share,
             task.restarts.explore_from if settings.explore_from is None else settings.explore_from,
         )
-        if self.restarts.explore_from not in ("box", "motion"):
-            raise ValueError(f"explore_from is 'box' or 'motion', not {self.restarts.explore_from!r}")
         self.mujoco_steps = 0
         self.refinements = 0
-        self.kept: sampling.Sequences | None = None  # typical motion learned beside the policy's runs
+        self.kept: sampling.Sequences | None = None  # the typical motion (``typical_motion``), once drawn
         self.env_low, self.env_high = self._envelope()
         self.outside_steps = 0
         self.emulated_steps = 0

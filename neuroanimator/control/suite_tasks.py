@@ -117,6 +117,10 @@ class Restarts:
     rewarded: float = 0.0
     explore_from: str = "box"
 
+    def __post_init__(self) -> None:
+        if self.explore_from not in ("box", "motion"):
+            raise ValueError(f"explore_from is 'box' or 'motion', not {self.explore_from!r}")
+
 
 # a task whose reward lies where its starts and early policies never go (a pole upright, a swing
 # needed to get there; a ball in its cup, a throw needed to get it there): half the restarts in the
