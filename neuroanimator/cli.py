@@ -786,7 +786,8 @@ def _add_train_optimisation_options(t: argparse.ArgumentParser) -> None:
         "--time-budget",
         type=float,
         help="the whole command's wall-clock budget in seconds, probes and sampling included (default 285; "
-        "0: none): the rollout phase gets what is left, the one-step phase is cut only after very slow sampling",
+        "0: none): the rollout phase gets what is left, the one-step phase is cut only after very slow sampling; "
+        "a larger budget buys more: the examples and both phases' caps grow by how many times 285 s it is",
     )
 
 

@@ -265,6 +265,25 @@ def test_the_time_budget_trims_the_rollout_phase_first() -> None:
     assert training.rollout_seconds(unbudgeted, 1e4) == 60.0
 
 
+def test_a_larger_time_budget_buys_more_data_and_longer_phases() -> None:
+    """A budget above the default is spent, not only allowed: 900 s (3.16× the default) multiplies the
+    examples per weight and both phases' caps by 3.16, and the phases still keep within it; a budget
+    under the default, or none, keeps the caps and the examples as they are."""
+    big = TrainConfig(time_budget=900.0)
+    scale = 900.0 / 285.0
+    assert big.budget_scale() == pytest.approx(scale)
+    assert training.one_step_seconds(big, 60.0) == pytest.approx(150.0 * scale)
+    assert training.rollout_seconds(big, 60.0 + 150.0 * scale) == pytest.approx(60.0 * scale)
+    # after slow sampling the one-step phase is cut so that the rollout phase keeps a third of its cap
+    assert training.one_step_seconds(big, 400.0) == pytest.approx(900 - 400 - 20 * scale - 10)
+    model = catalog.get("pendulum-passive")
+    plan = training.examples_plan(model, big, 1000, 0.0)
+    assert plan.examples == math.ceil(10.0 * scale * 1000)
+    assert training.examples_plan(model, TrainConfig(), 1000, 0.0).examples == 10_000
+    assert TrainConfig(time_budget=120.0).budget_scale() == 1.0
+    assert TrainConfig(time_budget=None).budget_scale() == 1.0
+
+
 def test_time_spent_before_the_training_comes_off_its_budget(caplog: pytest.LogCaptureFixture) -> None:
     """`neuro train` spends time before the training (loading, the contact check, super-step probes:
     dm_control's humanoid took 433 s against the 285 s budget when they were not counted); the

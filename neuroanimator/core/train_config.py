@@ -10,6 +10,10 @@ from typing import Any
 
 from pydantic import ConfigDict
 
+# The time budget ``neuro train`` keeps to unless told otherwise (a run under 5 minutes). A larger one
+# is used, not only allowed: the examples and both phases' caps grow with it (``TrainConfig.budget_scale``)
+DEFAULT_TIME_BUDGET = 285.0
+
 
 @dataclass
 class TrainConfig:
@@ -74,7 +78,9 @@ class TrainConfig:
     # The whole training's wall-clock budget, sampling included (None: the phases' own caps only): the
     # rollout phase gets what the data and the one-step phase left of it (at least a third of its cap),
     # and the one-step phase is cut only where sampling alone leaves it less than its cap
-    time_budget: float | None = 285.0
+    # A budget above the default scales the examples per weight and both phases' caps by how many
+    # times the default it is (``budget_scale``): more data is what lowers a contact model's error
+    time_budget: float | None = DEFAULT_TIME_BUDGET
     # thesis 6.1.3: Euler steps of a mass-spring model's springs after each emulated super-step (None:
     # the model's own number, ModelSpec.regularizer; 0: off); models without springs ignore it
     regularizer_steps: int | None = None
@@ -99,6 +105,14 @@ class TrainConfig:
         if self.preset != "default":
             raise ValueError(f"preset must be 'default' or 'thesis', got {self.preset!r}")
         return self
+
+    def budget_scale(self) -> float:
+        """How many times the default budget ``time_budget`` is, at least 1 (1 without a budget): the
+        examples per weight, ``max_seconds`` and ``rollout_seconds`` are multiplied by it, so that a
+        larger budget is spent on more data and longer training, not left unused."""
+        if self.time_budget is None:
+            return 1.0
+        return max(1.0, self.time_budget / DEFAULT_TIME_BUDGET)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)

@@ -413,9 +413,9 @@ def examples_plan(
     model: PhysicalModel, cfg: TrainConfig, weights: int, elapsed: float
 ) -> sampling.SamplingPlan:
     """The training and held-out examples to simulate for an emulator of ``weights`` weights after
-    ``elapsed`` seconds of the budget: ``cfg.examples``, or ``cfg.examples_per_weight`` per weight, as
-    ``sampling_plan`` cuts it."""
-    count = cfg.examples or math.ceil(cfg.examples_per_weight * weights)
+    ``elapsed`` seconds of the budget: ``cfg.examples``, or ``cfg.examples_per_weight`` per weight
+    (times ``cfg.budget_scale()``: a larger budget buys more data), as ``sampling_plan`` cuts it."""
+    count = cfg.examples or math.ceil(cfg.examples_per_weight * cfg.budget_scale() * weights)
     plan = sampling_plan(model, cfg, count, elapsed)
     if plan.reason:
         log.info("%s: %s", model.name, plan.reason)
@@ -593,30 +593,33 @@ AFTER_PHASES_S = 10.0
 
 
 def one_step_seconds(cfg: TrainConfig, elapsed: float) -> float:
-    """The one-step phase's cap after ``elapsed`` seconds (set-up and sampling): ``cfg.max_seconds``, cut where
-    the budget would otherwise leave the rollout phase less than a third of its cap (never below a
-    third of ``max_seconds``: a very slow model overruns its budget rather than going untrained)."""
+    """The one-step phase's cap after ``elapsed`` seconds (set-up and sampling): ``cfg.max_seconds`` (times
+    ``cfg.budget_scale()``), cut where the budget would otherwise leave the rollout phase less than a
+    third of its cap (never below a third of the cap: a very slow model overruns its budget rather
+    than going untrained)."""
     if cfg.time_budget is None:
         return cfg.max_seconds
-    rollout = cfg.rollout_seconds / 3 if cfg.rollout_steps > 0 else 0.0
+    cap = cfg.max_seconds * cfg.budget_scale()
+    rollout = cfg.rollout_seconds * cfg.budget_scale() / 3 if cfg.rollout_steps > 0 else 0.0
     left = cfg.time_budget - elapsed - rollout - AFTER_PHASES_S
-    if left < cfg.max_seconds:
+    if left < cap:
         log.info(
             "time budget %.0f s: the one-step phase gets %.0f s after %.0f s of set-up and sampling",
             cfg.time_budget,
-            max(left, cfg.max_seconds / 3),
+            max(left, cap / 3),
             elapsed,
         )
-    return max(min(cfg.max_seconds, left), cfg.max_seconds / 3)
+    return max(min(cap, left), cap / 3)
 
 
 def rollout_seconds(cfg: TrainConfig, elapsed: float) -> float:
     """The rollout phase's cap after ``elapsed`` seconds: what the budget leaves, between a third of
-    ``cfg.rollout_seconds`` and all of it."""
+    ``cfg.rollout_seconds`` (times ``cfg.budget_scale()``) and all of it."""
     if cfg.time_budget is None:
         return cfg.rollout_seconds
+    cap = cfg.rollout_seconds * cfg.budget_scale()
     left = cfg.time_budget - elapsed - AFTER_PHASES_S
-    return max(min(cfg.rollout_seconds, left), cfg.rollout_seconds / 3)
+    return max(min(cap, left), cap / 3)
 
 
 def network_errors(
