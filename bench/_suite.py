@@ -5,8 +5,9 @@ For each task (``control.suite_tasks.SUITE_TASKS``), all in, on the same torch t
 
 1. the emulator at the task's control period (``SuiteTask.substeps``): the one in ``--artifacts``
    (the data directory by default), else trained now (``neuro train --mjcf <domain>.xml --substeps
-   n``, the defaults otherwise), its time counted in the task's wall time and its simulated examples in
-   its MuJoCo steps;
+   n --time-budget s``, ``s`` the task's ``emulator_seconds``: 285, 900 for a body on the ground, the
+   defaults otherwise), its time counted in the task's wall time and its simulated examples in its
+   MuJoCo steps;
 2. the policy (``reward_policy.train_reward_policy``) for what is left of the task's budget
    (``--suite-seconds``, default the task's ``train_seconds`` = 25 minutes, plus the emulator's);
 3. SAC on MuJoCo (``SuiteEnv``: the same control period, the suite's starts and exact reward summed over
@@ -165,7 +166,9 @@ def bench_suite_task(
     task = SUITE_TASKS[name]
     budget = seconds if seconds is not None else task.train_seconds + 300.0
     t0 = time.perf_counter()
-    path, emu_wall, emu_steps, trained_here = emulator_for(task, root, 60.0 if quick else None)
+    path, emu_wall, emu_steps, trained_here = emulator_for(
+        task, root, 60.0 if quick else task.emulator_seconds
+    )
     if not trained_here:  # all in: an emulator trained before counts the seconds its training took
         t0 -= emu_wall
     settings = RewardSettings(seconds=max(5.0, budget - (time.perf_counter() - t0)), seed=seed)

@@ -97,9 +97,7 @@ def policy_spec(req: PolicyJobCreate, root: registry.Root, max_seconds: float) -
     seconds = _budget(req, task.train_seconds, max_seconds)
     need = f"an emulator of {task.model!r} at n = {task.substeps}"
     if isinstance(task, SuiteTaskInfo):
-        need += (
-            f" (neuro train --mjcf {task.to_dict()['mjcf']} --name {task.domain} --substeps {task.substeps})"
-        )
+        need += f" ({task.train_command})"
     seen = tenancy.can_see(root, task.model)  # another key's unpublished upload: as if there were none
     try:
         if not seen:

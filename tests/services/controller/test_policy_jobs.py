@@ -398,6 +398,11 @@ def test_a_suite_task_without_its_domains_model_is_422_saying_how_to_make_it(ctl
     assert r.status_code == 422, r.text
     err = r.json()
     assert err["field"] == "task" and "neuro train --mjcf dm_control/suite/reacher.xml" in err["message"], err
+    assert "--time-budget" not in err["message"], err  # the default budget: not written out
+    # a body on the ground: its emulator needs three times the default's data and training
+    r = api.post("/policies", json={"task": "walker-stand", "seconds": 10})
+    assert r.status_code == 422, r.text
+    assert "--substeps 10 --time-budget 900" in r.json()["message"], r.text
 
 
 def test_a_suite_task_trains_through_a_worker_and_reports_its_returns(ctl: Controller) -> None:
