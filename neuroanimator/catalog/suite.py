@@ -48,9 +48,14 @@ class SuiteTaskInfo:
         return self.domain
 
     @property
+    def mjcf(self) -> str:
+        """The domain's MJCF, as dm_control ships it."""
+        return f"dm_control/suite/{self.domain}.xml"
+
+    @property
     def train_command(self) -> str:
         """The command that trains the emulator this task's policy is learned through."""
-        cmd = f"neuro train --mjcf dm_control/suite/{self.domain}.xml --name {self.domain} --substeps {self.substeps}"
+        cmd = f"neuro train --mjcf {self.mjcf} --name {self.domain} --substeps {self.substeps}"
         if self.emulator_seconds != DEFAULT_TIME_BUDGET:
             cmd += f" --time-budget {self.emulator_seconds:g}"
         return cmd
@@ -80,7 +85,7 @@ class SuiteTaskInfo:
             "goal_high": list(self.param_high),
             "target_return": self.target_return,
             "success_criterion": self.criterion,
-            "mjcf": f"dm_control/suite/{self.domain}.xml",
+            "mjcf": self.mjcf,
         }
 
 
