@@ -8,11 +8,12 @@ For each task (``control.suite_tasks.SUITE_TASKS``), all in, on the same torch t
    n --time-budget s``, ``s`` the task's ``emulator_seconds``: 285, 900 for a body on the ground, the
    defaults otherwise), its time counted in the task's wall time and its simulated examples in its
    MuJoCo steps;
-2. the policy (``reward_policy.train_reward_policy``) for what is left of the task's budget
-   (``--suite-seconds``, default the task's ``train_seconds`` = 25 minutes, plus the emulator's);
+2. the policy (``seed_race.train_reward_policy``: the task's seeds side by side, one core each, the
+   best kept) for what is left of the task's budget (``--suite-seconds``, default the task's
+   ``train_seconds`` = 25 minutes, plus the emulator's);
 3. SAC on MuJoCo (``SuiteEnv``: the same control period, the suite's starts and exact reward summed over
    each action's control steps, the state with angles as sine and cosine and the task's parameters as
-   observation) for the same wall time;
+   observation) for the same wall time, with as many torch threads as the policy had cores (its seeds);
 
 then both run ``EPISODES`` episodes of 1,000 control steps on MuJoCo from the same held-out starts
 (``HELD_OUT_SEED``), the return their mean.
@@ -38,13 +39,8 @@ from stable_baselines3 import SAC
 
 from neuroanimator.artifacts import registry
 from neuroanimator.control.policy_store import save_reward_policy
-from neuroanimator.control.reward_policy import (
-    RewardSettings,
-    RewardTrainer,
-    draw_starts,
-    falls,
-    run_on_mujoco,
-)
+from neuroanimator.control.reward_policy import RewardSettings, draw_starts, falls, run_on_mujoco
+from neuroanimator.control.seed_race import seed_count, train_reward_policy
 from neuroanimator.control.suite_tasks import SUITE_TASKS, Context, SuiteTask
 from neuroanimator.sim.model import PhysicalModel
 
@@ -183,20 +179,24 @@ def bench_suite_task(
             seed=seed,
             refine=False,
         )
-    torch.set_num_threads(max(1, settings.threads))
-    trainer = RewardTrainer(task, path, settings)
-    result = trainer.train()
+    cores = seed_count(task, settings) * max(1, settings.threads)
+    result = train_reward_policy(task, path, settings)
     wall = time.perf_counter() - t0
     log.info("%s: return on MuJoCo %.1f after %.0f s all in", name, result.return_physics, wall)
     if save_to is not None:
         log.info("%s: stored in %s", name, save_reward_policy(save_to, result, registry.read_manifest(path)))
 
-    physical = trainer.physical
+    manifest = registry.read_manifest(path)
+    physical = registry.load_physical_model(path, manifest)
+    ctx = Context(physical.mj_model, list(manifest.layout))
+    low = np.array([c.low for c in manifest.controls])
+    high = np.array([c.high for c in manifest.controls])
     episodes = 2 if quick else EPISODES
     starts, params = draw_starts(task, physical, np.random.default_rng(HELD_OUT_SEED), episodes)
-    ours = run_on_mujoco(task, physical, trainer.ctx, trainer.act, starts, params)
+    ours = run_on_mujoco(task, physical, ctx, result.policy.act, starts, params)
 
-    env = SuiteEnv(task, physical, trainer.low, trainer.high, seed)
+    torch.set_num_threads(cores)  # SAC on the cores the policy's seeds had
+    env = SuiteEnv(task, physical, low, high, seed)
     agent = SAC(
         "MlpPolicy", env, seed=seed, device="cpu", buffer_size=300_000,
         learning_starts=50 if quick else 1000, batch_size=64 if quick else 256, verbose=0,
@@ -209,13 +209,13 @@ def bench_suite_task(
         actions, _ = agent.predict(observe(physical, states, p, task.unobserved), deterministic=True)
         return env.controls(actions)
 
-    theirs = run_on_mujoco(task, physical, trainer.ctx, free_act, starts, params)
+    theirs = run_on_mujoco(task, physical, ctx, free_act, starts, params)
     return {
         "task": name,
         "return_physics": round(float(ours.returns.mean()), 1),
         "return_emulator": round(result.return_emulator, 1),
         "outside_envelope": round(result.outside_share, 4),  # emulated states outside its envelope
-        "falls_physics": falls(task, trainer.ctx, ours, trainer.manifest.super_timestep),
+        "falls_physics": falls(task, ctx, ours, manifest.super_timestep),
         # metres between the emulator's root and MuJoCo's 1 s into the final episodes, each under the policy
         "root_drift_1s_m": None if result.root_drift_m is None else round(result.root_drift_m, 3),
         "returns_physics": [round(float(x), 1) for x in ours.returns],
@@ -227,6 +227,11 @@ def bench_suite_task(
         "emulator_wall_s": round(emu_wall, 1),
         "emulator_trained_here": trained_here,
         "iterations": result.iterations,
+        # every seed's return on the training's own final episodes (the kept one the highest)
+        "seeds": [
+            {"seed": seed + i, "return_physics": round(r, 1)} for i, r in enumerate(result.seed_returns)
+        ],
+        "cores": cores,
         "refinements": result.refinements,
         "history": [
             [t, round(r, 1)] for _, t, r in result.return_history
@@ -242,5 +247,6 @@ def bench_suite_task(
             "mujoco_steps": env.steps * task.substeps,
             "env_steps": env.steps,
             "wall_s": round(free_wall, 1),
+            "threads": cores,
         },
     }

@@ -535,7 +535,14 @@ def cmd_policy(args: argparse.Namespace) -> int:
     seconds = args.seconds or task.train_seconds
     settings: PolicySettings | RewardSettings
     if isinstance(task, SuiteTask):
-        settings = RewardSettings(seconds=seconds, refine=not args.no_refine, seed=args.seed)
+        settings = RewardSettings(
+            seconds=seconds, refine=not args.no_refine, seed=args.seed, seeds=args.seeds
+        )
+    elif args.seeds not in (None, 1):
+        log.error(
+            "--seeds: a goal-reaching task trains from one seed; several side by side are for a reward task"
+        )
+        return 2
     else:
         settings = PolicySettings(seconds=seconds, refine=not args.no_refine, seed=args.seed)
     done = run_policy_job(task, _registries(args.artifacts), settings)
@@ -543,6 +550,8 @@ def cmd_policy(args: argparse.Namespace) -> int:
     row: dict[str, object] = {"task": task.name}
     if isinstance(r, RewardResult):
         row |= {"return_physics": round(r.return_physics, 1), "return_emulator": round(r.return_emulator, 1)}
+        if len(r.seed_returns) > 1:
+            row |= {"seed": r.seed, "seed_returns": [round(x, 1) for x in r.seed_returns]}
         judged = [
             ("return_physics", "return (MuJoCo)", ".1f"),
             ("return_emulator", "return (emulator)", ".1f"),
@@ -655,6 +664,14 @@ def _add_policy_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     pp.add_argument("--no-refine", action="store_true", help="no fine-tuning on the policy's MuJoCo runs")
     pp.add_argument("--artifacts", help=_ARTIFACTS_HELP)
     pp.add_argument("--seed", type=int, default=0)
+    pp.add_argument(
+        "--seeds",
+        type=int,
+        choices=range(1, 9),
+        metavar="K",
+        help="a reward task: train from K seeds side by side (seed, seed+1, ...), a process and a core "
+        "each, and keep the best on MuJoCo (default: the task's, 2 for a body on the ground)",
+    )
     pp.add_argument("--json", action="store_true")
     pp.set_defaults(func=cmd_policy)
 

@@ -460,6 +460,7 @@ MIN_POLICY_SECONDS = 5.0
 """The shortest training budget a policy job may ask for (the longest is the service's
 ``POLICY_MAX_SECONDS``)."""
 MAX_POLICY_BATCH = 4096
+MAX_POLICY_SEEDS = 8  # a reward policy's seeds trained side by side (a process and a core each)
 MAX_POLICY_WIDTH = 1024
 MAX_POLICY_LAYERS = 8
 HISTORY_POINTS = 100
@@ -668,6 +669,14 @@ class PolicyJobCreate(_Wire):
         min_length=1,
         max_length=MAX_POLICY_LAYERS,
         description="the policy network's hidden layer widths (default: the task's)",
+    )
+    seeds: Integer | None = Field(
+        None,
+        ge=1,
+        le=MAX_POLICY_SEEDS,
+        description="a reward task: policies trained from this many seeds side by side, a process and a "
+        "core each, the best on MuJoCo kept (default: the task's, 2 for a body on the ground; at most the "
+        "worker's cores)",
     )
     idempotency_key: str | None = Field(
         None,

@@ -6,7 +6,7 @@ latest version at the task's super-step (``registry.resolve``), the policy is tr
 
 A suite task (``suite_tasks.SUITE_TASKS``: ``cartpole-swingup``, ``reacher-hard``, ...) takes the same
 path with its reward: the emulator of the model named as its domain, the policy trained by
-``reward_policy.train_reward_policy`` and stored by ``policy_store.save_reward_policy``.
+``seed_race.train_reward_policy`` (``reward_policy``, from the task's seeds side by side) and stored by ``policy_store.save_reward_policy``.
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from neuroanimator.control.reward_policy import (
     RewardProgress,
     RewardResult,
     RewardSettings,
-    train_reward_policy,
 )
+from neuroanimator.control.seed_race import train_reward_policy
 from neuroanimator.control.suite_tasks import SUITE_TASKS, SuiteTask
 from neuroanimator.goals.policy_task import PolicyTask
 

@@ -106,6 +106,7 @@ def reward_policy_manifest(result: RewardResult, emulator: Manifest, version: st
             outside_envelope=round(result.outside_share, 4),
             root_drift_m=None if result.root_drift_m is None else round(result.root_drift_m, 4),
             falls=[PolicyFall(**f) for f in result.falls],
+            seed_returns=[round(r, 2) for r in result.seed_returns],
             **_how_it_ran(result),
         ),
     )

@@ -60,6 +60,7 @@ FloatArray = NDArray[np.float64]
 FEATURE_LIMIT = 8.0  # a state this many spreads from the typical motion has left what the emulator knows
 DRIFT_S = 1.0  # seconds into an episode at which the emulator's root is compared with MuJoCo's
 REFINE_WINDOW = 8  # super-steps of each window the emulator is refined on
+FINAL_SEED_OFFSET = 1_000_003  # the final episodes' seed, apart from the training's draws
 OUTSIDE = "outside_envelope"  # a training's stop: its emulated states left the emulator's envelope too often
 
 
@@ -103,12 +104,23 @@ class RewardSettings:
     # ``SuiteTask.refine_keep``: 1,024 for a body on the ground, 0 for the others, measured so)
     refine_keep: int | None = None
     final_episodes: int = 10
+    # the MuJoCo episodes the final policy is judged on are drawn from this seed (None: ``seed`` +
+    # ``FINAL_SEED_OFFSET``): policies trained from several seeds are judged on the same episodes
+    final_seed: int | None = None
     # a training whose emulated states lie outside the emulator's training envelope more than this
     # share of the time (measured from a quarter of the budget on) stops and fails: its policy would
     # be learnt from what the emulator never saw
     max_outside: float = 0.5
     seed: int = 0
     threads: int = 1
+    # policies trained from this many seeds side by side, one process and core each, the best on
+    # MuJoCo kept (``seed_race``; None: the task's ``SuiteTask.seeds``, at most the machine's cores)
+    seeds: int | None = None
+
+    @property
+    def judged_on(self) -> int:
+        """The seed of the final MuJoCo episodes (``final_seed``)."""
+        return self.seed + FINAL_SEED_OFFSET if self.final_seed is None else self.final_seed
 
 
 class RewardProgress(TypedDict):
@@ -189,6 +201,14 @@ class RewardPolicy(nn.Module):
         a = torch.tanh(self.net(self.features(state, params)))
         return nn.functional.linear(a, self.spread, self.centre)
 
+    def act(self, states: FloatArray, params: FloatArray) -> FloatArray:
+        """(N, S) states and (N, P) parameters → (N, U) controls, in NumPy (``run_on_mujoco``'s act)."""
+        with torch.no_grad():
+            u = self(
+                torch.as_tensor(states, dtype=torch.float32), torch.as_tensor(params, dtype=torch.float32)
+            )
+        return u.double().numpy()
+
     def output_range(self) -> tuple[list[float], list[float]]:
         """(U,) lows and highs the controls never leave."""
         c, h = self.centre.tolist(), self.half_range.tolist()
@@ -242,6 +262,10 @@ class RewardResult:
     # metres between the root body on the emulator and on MuJoCo ``DRIFT_S`` into the final episodes
     # (each in its own closed loop under the policy; None for episodes shorter, or a fixed root)
     root_drift_m: float | None = None
+    seed: int = 0  # the seed it was trained from
+    # every seed's final return on the same MuJoCo episodes, when several were trained side by side
+    # (``seed_race``; this result is the best of them)
+    seed_returns: list[float] = field(default_factory=list)
 
     @property
     def evaluate_runs(self) -> int:
@@ -534,11 +558,7 @@ class RewardTrainer:
         return self.kept
 
     def act(self, states: FloatArray, params: FloatArray) -> FloatArray:
-        with torch.no_grad():
-            u = self.policy(
-                torch.as_tensor(states, dtype=torch.float32), torch.as_tensor(params, dtype=torch.float32)
-            )
-        return u.double().numpy()
+        return self.policy.act(states, params)
 
     def evaluate(self, n: int, seed: int) -> tuple[Episodes, float]:
         """The policy on MuJoCo over n episodes of new starts (their returns), and on the emulator
@@ -739,13 +759,13 @@ class RewardTrainer:
         if not history:  # stopped before its first check: nothing better to keep than what it has
             best = (-math.inf, copy.deepcopy(self.policy.state_dict()))
         self.policy.load_state_dict(best[1])
-        final, _ = self.evaluate(cfg.final_episodes, cfg.seed + 1_000_003)
+        final, _ = self.evaluate(cfg.final_episodes, cfg.judged_on)
         fell = falls(task, self.ctx, final, self.manifest.super_timestep)
         for f in fell:
             log.warning("%s: episode %d fell on MuJoCo after %.2f s", task.name, f["episode"], f["time_s"])
         self.step = FastStep(artifacts.load_emulator(self.path))  # type: ignore[arg-type]
         starts, params = draw_starts(
-            task, self.physical, np.random.default_rng(cfg.seed + 1_000_003), cfg.final_episodes
+            task, self.physical, np.random.default_rng(cfg.judged_on), cfg.final_episodes
         )
         drift = root_drift(self.step, self.policy, self.ctx, final, self.manifest.super_timestep)
         return RewardResult(
@@ -764,22 +784,5 @@ class RewardTrainer:
             params=self.start_params,
             outside_share=self.outside_share,
             falls=fell,
+            seed=cfg.seed,
         )
-
-
-def train_reward_policy(
-    task: SuiteTask,
-    path: Path,
-    settings: RewardSettings | None = None,
-    on_progress: Callable[[RewardProgress], None] | None = None,
-    should_stop: Callable[[], bool] | None = None,
-) -> RewardResult:
-    """Train a policy for a reward task through the emulator artifact at ``path`` (module doc);
-    ``should_stop`` ends it early (``stop`` is then ``cancelled``), the best policy so far kept."""
-    settings = settings or RewardSettings(seconds=task.train_seconds)
-    previous = torch.get_num_threads()
-    torch.set_num_threads(max(1, settings.threads))
-    try:
-        return RewardTrainer(task, path, settings, on_progress, should_stop).train()
-    finally:
-        torch.set_num_threads(previous)

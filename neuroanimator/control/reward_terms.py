@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import mujoco
@@ -29,6 +30,7 @@ from torch import Tensor
 from neuroanimator.artifacts import registry
 from neuroanimator.contracts.controller import RewardTaskSpec, RewardTermSpec
 from neuroanimator.control.suite_tasks import (
+    GROUND_SEEDS,
     Context,
     Fall,
     FloatArray,
@@ -209,7 +211,11 @@ def build_reward_task(
         fall=fall,
         unobserved=unread_travel(m, layout),
     )
-    return replace(task, horizon=GROUND_HORIZON, refine_keep=GROUND_KEEP) if contact else task
+    return (
+        replace(task, horizon=GROUND_HORIZON, refine_keep=GROUND_KEEP, seeds=GROUND_SEEDS)
+        if contact
+        else task
+    )
 
 
 def _height_of(body: str) -> Callable[[Context, Tensor], Tensor]:
@@ -224,7 +230,7 @@ def reward_task_at(spec: RewardTaskSpec, emulator: Path) -> SuiteTask:
     super-step; contact when it reads the floor's clearance)."""
     manifest = registry.read_manifest(emulator)
     physical = registry.load_physical_model(emulator, manifest)
-    return build_reward_task(
+    task = build_reward_task(
         spec,
         physical.mj_model,
         list(manifest.layout),
@@ -232,6 +238,8 @@ def reward_task_at(spec: RewardTaskSpec, emulator: Path) -> SuiteTask:
         manifest.super_timestep,
         bool(manifest.train_config.clearance),
     )
+    # its terms are closures: another process (a seed of ``seed_race``) builds it again from here
+    return replace(task, rebuild=partial(reward_task_at, spec, emulator))
 
 
 def reward_task_file(path: Path, root: registry.Root) -> SuiteTask:

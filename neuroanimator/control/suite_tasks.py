@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import mujoco
@@ -180,6 +180,11 @@ class SuiteTask(SuiteTaskInfo):
     # of typical motion kept beside the policy's runs when its emulator is refined (``refine_keep``)
     horizon: int = 32
     refine_keep: int = 0
+    # policies trained side by side from this many seeds, the best kept (``RewardSettings.seeds``)
+    seeds: int = 1
+    # how another process builds this task when it does not pickle (a user's task, made of closures):
+    # a picklable call that returns it (``seed_race``)
+    rebuild: Callable[[], SuiteTask] | None = field(default=None, repr=False, compare=False)
 
     @property
     def repeat(self) -> int:
@@ -441,14 +446,18 @@ CHEETAH_FALL = Fall(_torso_upright, above=0.0, below=-0.5)
 HUMANOID_FALL = Fall(_head_height, above=1.2, below=0.6)  # (its head stands at 1.6 m)
 
 
+GROUND_SEEDS = 2  # a body on the ground's policies: two seeds side by side (``seed_race``)
+
+
 def _ground(fall: Fall, unobserved: tuple[str, ...] = ("rootx.pos",)) -> dict[str, Any]:
     """A body on the ground: its fall, and how far it has gone unread (the suite omits it; a free
     root's position holds its height too, and is read);
     gradient paths of 8 super-steps, not 32 (through contact a longer path is ill-conditioned: the
     cheetah's run 58 → 209 in 900 s), and its emulator refined with the typical motion kept beside the
     policy's runs (the policy goes where the random data never went, and the model must stay right
-    where it was)."""
-    return {"fall": fall, "unobserved": unobserved, "horizon": 8, "refine_keep": 1024}
+    where it was); two seeds side by side, as the same settings stand the walker in one seed and leave
+    it on the floor in another (``seed_race``)."""
+    return {"fall": fall, "unobserved": unobserved, "horizon": 8, "refine_keep": 1024, "seeds": GROUND_SEEDS}
 
 
 def _task(name: str, reset: ResetFn, reward: RewardFn, **how: Any) -> SuiteTask:

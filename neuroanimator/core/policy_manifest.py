@@ -57,6 +57,11 @@ class PolicyMetrics(BaseModel):
     falls: list[PolicyFall] = Field(
         default_factory=list, description="the final episodes on MuJoCo that fell (a task with a fall)"
     )
+    seed_returns: list[float] = Field(
+        default_factory=list,
+        description="each seed's return on the same final MuJoCo episodes, when several were trained "
+        "side by side and the best kept (reward tasks)",
+    )
 
 
 class PolicyManifest(BaseModel):

@@ -60,6 +60,7 @@ class PolicyJobSpec(BaseModel):
     seed: int | None = None
     batch: int | None = None
     hidden: list[int]
+    seeds: int | None = None  # a reward task's seeds side by side (None: the task's)
 
 
 class PolicySpecError(ValueError):
@@ -121,6 +122,7 @@ def policy_spec(req: PolicyJobCreate, root: registry.Root, max_seconds: float) -
         seed=req.seed,
         batch=req.batch,
         hidden=list(req.hidden or (REWARD_HIDDEN if isinstance(task, SuiteTaskInfo) else task.hidden)),
+        seeds=_seeds(req, isinstance(task, SuiteTaskInfo)),
     )
 
 
@@ -146,6 +148,7 @@ def _custom_spec(
         seed=req.seed,
         batch=req.batch,
         hidden=list(req.hidden or task.hidden),
+        seeds=_seeds(req, False),
     )
 
 
@@ -170,7 +173,21 @@ def _reward_spec(
         seed=req.seed,
         batch=req.batch,
         hidden=list(req.hidden or REWARD_HIDDEN),
+        seeds=_seeds(req, True),
     )
+
+
+def _seeds(req: PolicyJobCreate, reward: bool) -> int | None:
+    """The request's seeds side by side: any number for a reward task; a goal-reaching task trains one."""
+    if req.seeds is not None and req.seeds > 1 and not reward:
+        raise PolicySpecError(
+            "seeds",
+            f"seeds: a goal-reaching task trains from one seed; several side by side are for a reward "
+            f"task; got {req.seeds}",
+            1,
+            req.seeds,
+        )
+    return req.seeds if reward else None
 
 
 def _budget(req: PolicyJobCreate, task_seconds: float, max_seconds: float) -> float:

@@ -71,8 +71,12 @@ def for_a_reward(spec: PolicyJobSpec) -> bool:
 def training_settings(spec: PolicyJobSpec, threads: int) -> dict[str, Any]:
     """``PolicySettings``'s arguments for a job (a suite task's: ``RewardSettings``'s, its batch the
     episodes run side by side): what the spec sets (None: the trainer's default)."""
-    batch = "envs" if for_a_reward(spec) else "batch"
-    given = {"seed": spec.seed, batch: spec.batch}
+    reward = for_a_reward(spec)
+    given = {
+        "seed": spec.seed,
+        "envs" if reward else "batch": spec.batch,
+        **({"seeds": spec.seeds} if reward else {}),
+    }
     return {
         "seconds": spec.seconds,
         "refine": spec.refine,

@@ -21,6 +21,7 @@ from neuroanimator.artifacts.policies import read_policy
 from neuroanimator.control.policy import PolicySettings
 from neuroanimator.control.policy_job import PolicyJobError, run_policy_job
 from neuroanimator.control.reward_policy import (
+    RewardProgress,
     RewardResult,
     RewardSettings,
     RewardTrainer,
@@ -28,6 +29,7 @@ from neuroanimator.control.reward_policy import (
     root_drift,
     run_on_mujoco,
 )
+from neuroanimator.control.seed_race import train_reward_policy
 from neuroanimator.control.suite_tasks import SUITE_TASKS
 from neuroanimator.export.runtime import OnnxEmulator
 from neuroanimator.sim import sampling
@@ -165,6 +167,39 @@ def test_an_emulator_at_another_control_period_is_refused(artifacts: Path) -> No
         RewardTrainer(replace(TASK, substeps=5), path, QUICK)
 
 
+def test_seeds_side_by_side_are_judged_on_the_same_episodes_and_the_best_is_kept(artifacts: Path) -> None:
+    """``seeds=2``: two processes train seeds 5 and 6, both judged on the episodes of ``judged_on``;
+    the kept policy is the best one's (its return is its own on those episodes, run again here),
+    every seed's MuJoCo steps count, and progress is one stream."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    race = replace(QUICK, seed=5, seeds=2)
+    progress: list[RewardProgress] = []
+    result = train_reward_policy(TASK, path, race, on_progress=progress.append)
+    assert len(result.seed_returns) == 2 and result.return_physics == max(result.seed_returns)
+    assert result.seed == 5 + result.seed_returns.index(result.return_physics)
+    trainer = RewardTrainer(TASK, path, QUICK)
+    starts, params = draw_starts(
+        TASK, trainer.physical, np.random.default_rng(race.judged_on), QUICK.final_episodes
+    )
+    again = run_on_mujoco(TASK, trainer.physical, trainer.ctx, result.policy.act, starts, params)
+    assert again.mean == pytest.approx(result.return_physics, rel=1e-9)
+    # each seed ran at least one check and the final episodes on MuJoCo
+    episode = TASK.episode_steps * TASK.control_substeps
+    assert result.mujoco_steps >= 2 * (QUICK.eval_episodes + QUICK.final_episodes) * episode
+    assert progress and {"iteration", "loss", "return_physics", "mujoco_steps", "elapsed_s"} <= set(
+        progress[-1]
+    )
+    assert progress[-1]["mujoco_steps"] > progress[0]["mujoco_steps"]  # both seeds' steps, growing
+
+
+def test_seeds_side_by_side_stop_together_and_raise_what_one_seed_raises(artifacts: Path) -> None:
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    result = train_reward_policy(TASK, path, replace(QUICK, seeds=2), should_stop=lambda: True)
+    assert result.stop == "cancelled" and len(result.seed_returns) == 2
+    with pytest.raises(ValueError, match="acts every 5 physical steps"):
+        train_reward_policy(replace(TASK, substeps=5), path, replace(QUICK, seeds=2))
+
+
 def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
     lines, result = run_bench(
         "bench/policies.py", "--quick", "--tasks", "point_mass-easy", "--artifacts", str(artifacts)
@@ -262,20 +297,30 @@ def test_neuro_policy_trains_a_reward_task_written_as_json(
     artifacts: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
 ) -> None:
     """``neuro policy task.json``: a user's reward task (as ``POST /policies`` takes it) on their model,
-    trained and stored under its name; a file that is not one, or names a model without an emulator,
-    is an error saying so."""
+    trained (two seeds side by side) and stored under its name; a file that is not one, or names a
+    model without an emulator, is an error saying so."""
     from neuroanimator.cli import main as neuro
 
     task = {"kind": "reward", "model": "point_mass", "name": "keep-still", "episode_s": 1, "starts": "rest",
             "terms": [{"kind": "still", "margin": 0.1}, {"kind": "small_control"}]}  # fmt: skip
     path = tmp_path / "keep-still.json"
     path.write_text(json.dumps(task))
-    assert (
-        neuro(["policy", str(path), "--seconds", "6", "--no-refine", "--artifacts", str(artifacts), "--json"])
-        == 0
-    )
+    args = [
+        "policy",
+        str(path),
+        "--seconds",
+        "8",
+        "--no-refine",
+        "--seeds",
+        "2",
+        "--artifacts",
+        str(artifacts),
+    ]
+    assert neuro([*args, "--json"]) == 0
     row = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert row["task"] == "keep-still" and 0 <= row["return_physics"] <= 50  # 1 s at 20 ms
+    # its terms are closures: each seed's process built the task again from the file's spec
+    assert len(row["seed_returns"]) == 2 and row["return_physics"] == max(row["seed_returns"])
     stored = read_policy(Path(row["policy"]))
     assert (stored.model, stored.name) == ("point_mass", "keep-still")
     path.write_text(json.dumps({**task, "terms": [{"kind": "height"}]}))

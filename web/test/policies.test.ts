@@ -309,12 +309,14 @@ describe('a policy job, from its events', () => {
     expect(rows['falls on MuJoCo']).toBeUndefined(); // none measured, none said
     const walker: PolicyManifest = {
       ...policy,
-      metrics: { ...policy.metrics, outside_envelope: 0.0412, root_drift_m: 0.3456, falls: [{ episode: 3, time_s: 2.5, state: [0.1] }, { episode: 7, time_s: 0.4, state: [0.2] }] } as PolicyManifest['metrics'],
+      metrics: { ...policy.metrics, outside_envelope: 0.0412, root_drift_m: 0.3456, seed_returns: [474.2, 911.4], falls: [{ episode: 3, time_s: 2.5, state: [0.1] }, { episode: 7, time_s: 0.4, state: [0.2] }] } as PolicyManifest['metrics'],
     };
     const trust = Object.fromEntries(metricsRows(walker));
     expect(trust["emulated states outside the emulator's envelope"]).toBe('4 %');
     expect(trust["the emulator's root off MuJoCo's at 1 s"]).toBe('0.35 m');
     expect(trust['falls on MuJoCo']).toBe('2 of 10 episodes (the first at 0.4 s, episode 7)');
+    expect(trust['seeds trained side by side']).toBe('2, returns 474, 911 (the best kept)');
+    expect(rows['seeds trained side by side']).toBeUndefined(); // one seed: nothing to say
   });
 
   it('writes shares and durations for people', () => {

@@ -23,6 +23,8 @@ from rq.serializers import JSONSerializer
 
 from neuroanimator.artifacts.policies import list_policies
 from services.common import tenancy
+from services.controller.policies import PolicyJobSpec
+from services.controller.policy_execution import training_settings
 from tests.services.controller.ctl import ARTIFACTS, QUICK, Controller, ctl_fixture, wait_for  # noqa: F401
 from tests.services.queues import sse
 
@@ -141,6 +143,8 @@ BAD: list[tuple[dict[str, Any], str, str]] = [
     ({"task": "lander-landing", "hidden": [64, 0]}, "hidden[1]", "greater than or equal to 1"),
     ({"task": "lander-landing", "hidden": []}, "hidden", "at least 1"),
     ({"task": "lander-landing", "refine": "yes"}, "refine", "boolean"),
+    ({"task": "lander-landing", "seeds": 2}, "seeds", "a goal-reaching task trains from one seed"),
+    ({"task": "lander-landing", "seeds": 9}, "seeds", "less than or equal to 8"),
     ({"task": "lander-landing", "wings": 2}, "wings", "xtra"),
     ({}, "task", "required"),
 ]
@@ -156,6 +160,13 @@ def test_bad_policy_requests_are_422_naming_the_field(
     assert r.status_code == 422, r.text
     err = r.json()
     assert err["field"] == field and text in err["message"], err
+
+
+def test_a_reward_jobs_seeds_reach_its_training_and_a_goal_jobs_never_do() -> None:
+    reward = PolicyJobSpec(task="walker-stand", model="walker", emulator_version="v", substeps=10,
+                           seconds=60, refine=True, hidden=[64, 64], seeds=3)  # fmt: skip
+    assert training_settings(reward, threads=1)["seeds"] == 3
+    assert "seeds" not in training_settings(reward.model_copy(update={"task": "lander-landing"}), threads=1)
 
 
 def test_unknown_task_lists_the_built_in_ones(ctl: Controller) -> None:
@@ -407,7 +418,8 @@ def test_a_suite_task_without_its_domains_model_is_422_saying_how_to_make_it(ctl
 
 def test_a_suite_task_trains_through_a_worker_and_reports_its_returns(ctl: Controller) -> None:
     """dm_control's point_mass, brought in as a user's MJCF under its domain's name, then its suite
-    task as a policy job: trained by a worker for its reward, stored, its returns in the result."""
+    task as a policy job: trained by a worker for its reward (two seeds side by side), stored, its
+    returns in the result."""
     data = Path(os.environ["NEUROANIMATOR_DATA_DIR"])
     subprocess.run(
         [sys.executable, "-m", "neuroanimator.cli", "train", "--mjcf", str(Path(suite.__file__).parent / "point_mass.xml"),
@@ -416,7 +428,9 @@ def test_a_suite_task_trains_through_a_worker_and_reports_its_returns(ctl: Contr
         check=True, capture_output=True, timeout=300,
     )  # fmt: skip
     api = ctl.client()
-    r = api.post("/policies", json={"task": "point_mass-easy", "seconds": 6, "batch": 16, "refine": False})
+    r = api.post(
+        "/policies", json={"task": "point_mass-easy", "seconds": 8, "batch": 16, "refine": False, "seeds": 2}
+    )
     assert r.status_code == 202, r.text
     job_id = r.json()["id"]
     queued = policy_job(api, job_id)
@@ -433,6 +447,8 @@ def test_a_suite_task_trains_through_a_worker_and_reports_its_returns(ctl: Contr
     res = api.get(f"/policy-jobs/{job_id}/result").json()
     metrics = res["policy"]["metrics"]
     assert 0 <= metrics["return_physics"] <= 1000 and metrics["success_physics"] is None
+    # two seeds trained side by side in the job, the better kept
+    assert len(metrics["seed_returns"]) == 2 and metrics["return_physics"] == max(metrics["seed_returns"])
     assert res["return_history"] and res["success_history"] == []
     assert all(0 <= p["value"] <= 1000 for p in res["return_history"])
     assert api.get("/policies/point_mass/point_mass-easy").json() == res["policy"]

@@ -955,6 +955,10 @@ export interface PolicyJobCreate {
     | [number, number, number, number, number, number, number, number]
     | null;
   /**
+   * a reward task: policies trained from this many seeds side by side, a process and a core each, the best on MuJoCo kept (default: the task's, 2 for a body on the ground; at most the worker's cores)
+   */
+  seeds?: number | null;
+  /**
    * the same key (and body) returns the same job instead of a new one
    */
   idempotency_key?: string | null;
@@ -1427,6 +1431,10 @@ export interface PolicyMetrics {
    * the final episodes on MuJoCo that fell (a task with a fall)
    */
   falls?: PolicyFall[];
+  /**
+   * each seed's return on the same final MuJoCo episodes, when several were trained side by side and the best kept (reward tasks)
+   */
+  seed_returns?: number[];
 }
 /**
  * A policy job as it trains: the progress of its current attempt and, once it ended, how.

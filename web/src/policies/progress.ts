@@ -195,6 +195,8 @@ function trustRows(m: PolicyManifest['metrics']): [string, string][] {
   const rows: [string, string][] = [];
   if (typeof m?.outside_envelope === 'number') rows.push(["emulated states outside the emulator's envelope", percent(m.outside_envelope)]);
   if (typeof m?.root_drift_m === 'number') rows.push(["the emulator's root off MuJoCo's at 1 s", `${m.root_drift_m.toFixed(2)} m`]);
+  const seeds = m?.seed_returns ?? [];
+  if (seeds.length > 1) rows.push(['seeds trained side by side', `${seeds.length}, returns ${seeds.map((r) => r.toFixed(0)).join(', ')} (the best kept)`]);
   const falls = m?.falls ?? [];
   if (falls.length) {
     const first = falls.reduce((a, b) => (b.time_s < a.time_s ? b : a));

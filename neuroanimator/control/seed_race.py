@@ -1,0 +1,230 @@
+"""Reward policies trained from several seeds side by side, one process each, and the best kept.
+
+Through a contact emulator the same settings give policies far apart by their seed alone: the walker
+stood in every episode from two seeds and stayed on the floor in six of ten from a third
+(docs/experiments/policies.md). The training is one-threaded (its matrices are small), so a second
+core buys more as a second seed than as a second thread. Each seed trains in its own process
+(``spawn``: a fresh interpreter, nothing shared with the caller's PyTorch), every one is judged at the
+end on the same MuJoCo episodes (``RewardSettings.final_seed``), and the highest return is the result,
+every seed's return kept beside it (``RewardResult.seed_returns``).
+
+Each seed's process imports the caller's main module, as every ``spawn`` does: a script that calls
+this keeps its own code under ``if __name__ == "__main__":`` (a notebook, a service need nothing).
+
+Progress reaches the caller's ``on_progress`` as one stream (the best return so far, the MuJoCo steps
+of all seeds together); ``should_stop`` stops them all, each keeping its best policy so far.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import os
+import pickle
+import queue
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, cast
+
+import torch
+
+from neuroanimator.control.reward_policy import RewardProgress, RewardResult, RewardSettings, RewardTrainer
+from neuroanimator.control.suite_tasks import SuiteTask
+
+log = logging.getLogger(__name__)
+
+POLL_S = 0.5  # how often the caller's ``should_stop`` is asked while the seeds train
+
+
+def seed_count(task: SuiteTask, settings: RewardSettings) -> int:
+    """How many seeds train side by side: ``settings.seeds``, else the task's, at most the cores."""
+    wanted = settings.seeds if settings.seeds is not None else task.seeds
+    return max(1, min(wanted, os.cpu_count() or 1))
+
+
+def train_reward_policy(
+    task: SuiteTask,
+    path: Path,
+    settings: RewardSettings | None = None,
+    on_progress: Callable[[RewardProgress], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> RewardResult:
+    """Train a policy for a reward task through the emulator artifact at ``path`` (``reward_policy``),
+    from ``seed_count`` seeds side by side, and return the best; ``should_stop`` ends it early (``stop``
+    is then ``cancelled``), the best policy so far kept."""
+    settings = settings or RewardSettings(seconds=task.train_seconds)
+    seeds = seed_count(task, settings)
+    portable = _portable(task) if seeds > 1 else None
+    if portable is None:
+        if seeds > 1:
+            log.info("%s: its task cannot be sent to another process; one seed trains", task.name)
+        return _one_seed_here(task, path, settings, on_progress, should_stop)
+    return _race(task, portable, path, settings, seeds, on_progress, should_stop)
+
+
+def _portable(task: SuiteTask) -> SuiteTask | Callable[[], SuiteTask] | None:
+    """What another process is sent to have the task: the task, else its ``rebuild`` call, else None."""
+    if _sendable(task):
+        return task
+    if task.rebuild is not None and _sendable(task.rebuild):
+        return task.rebuild
+    return None
+
+
+def _one_seed_here(
+    task: SuiteTask,
+    path: Path,
+    settings: RewardSettings,
+    on_progress: Callable[[RewardProgress], None] | None,
+    should_stop: Callable[[], bool] | None,
+) -> RewardResult:
+    previous = torch.get_num_threads()
+    torch.set_num_threads(max(1, settings.threads))
+    try:
+        return RewardTrainer(task, path, settings, on_progress, should_stop).train()
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _sendable(thing: object) -> bool:
+    """Whether ``thing`` pickles (a built-in task's functions do; a closure does not)."""
+    try:
+        pickle.dumps(thing)
+    except (pickle.PicklingError, AttributeError, TypeError):
+        return False
+    return True
+
+
+def _race(
+    task: SuiteTask,
+    portable: SuiteTask | Callable[[], SuiteTask],
+    path: Path,
+    settings: RewardSettings,
+    seeds: int,
+    on_progress: Callable[[RewardProgress], None] | None,
+    should_stop: Callable[[], bool] | None,
+) -> RewardResult:
+    t0 = time.perf_counter()
+    ctx = mp.get_context("spawn")
+    messages = ctx.Queue()
+    stop = ctx.Event()
+    level = logging.getLogger().getEffectiveLevel()
+    # every seed on one core, judged on the same final episodes
+    each = replace(settings, threads=1, seeds=1, final_seed=settings.judged_on)
+    workers = [
+        ctx.Process(
+            target=_seed_worker,
+            args=(i, portable, path, replace(each, seed=settings.seed + i), messages, stop, level),
+            name=f"{task.name}-seed-{settings.seed + i}",
+            daemon=False,  # a seed's training may start processes of its own (MuJoCo's sampling)
+        )
+        for i in range(seeds)
+    ]
+    for w in workers:
+        w.start()
+    log.info(
+        "%s: %d seeds side by side (%s)",
+        task.name,
+        seeds,
+        ", ".join(str(settings.seed + i) for i in range(seeds)),
+    )
+    results: dict[int, RewardResult] = {}
+    latest: dict[int, RewardProgress] = {}
+    try:
+        while len(results) < seeds:
+            if should_stop is not None and should_stop():
+                stop.set()
+            try:
+                kind, i, payload = messages.get(timeout=POLL_S)
+            except queue.Empty:
+                _check_alive(workers, results)
+                continue
+            if kind == "progress":
+                latest[i] = payload
+                if on_progress is not None and i == 0:  # one report per iteration of the first seed
+                    on_progress(_merged(latest))
+            elif kind == "result":
+                results[i] = pickle.loads(payload)
+            else:  # "error": the seed's exception, raised here as it would be with one seed
+                raise payload
+    finally:
+        stop.set()
+        for w in workers:
+            w.join(timeout=10)
+            if w.is_alive():
+                w.terminate()
+    returns = [results[i].return_physics for i in range(seeds)]
+    best = max(range(seeds), key=lambda i: returns[i])
+    log.info(
+        "%s: seeds %s returned %s on the same MuJoCo episodes; seed %d kept",
+        task.name,
+        [settings.seed + i for i in range(seeds)],
+        [round(r, 1) for r in returns],
+        settings.seed + best,
+    )
+    return replace(
+        results[best],
+        task=task,
+        seed_returns=returns,
+        mujoco_steps=sum(r.mujoco_steps for r in results.values()),
+        wall_s=time.perf_counter() - t0,
+    )
+
+
+def _check_alive(workers: list[Any], results: dict[int, RewardResult]) -> None:
+    """A seed's process that ended without a result (killed, out of memory) fails the training."""
+    for i, w in enumerate(workers):
+        if i not in results and not w.is_alive() and w.exitcode is not None:
+            raise RuntimeError(
+                f"seed {i}'s process ended with exit code {w.exitcode} before its result (its error is "
+                "on stderr; a script that trains from several seeds keeps its own code under "
+                "`if __name__ == '__main__':`, as each seed's process imports it)"
+            )
+
+
+def _merged(latest: dict[int, RewardProgress]) -> RewardProgress:
+    """The seeds' progress as one: the first seed's iteration and loss, the best return on MuJoCo so
+    far, every seed's MuJoCo steps, the longest elapsed time."""
+    first = latest[0]
+    returns = [p["return_physics"] for p in latest.values() if p["return_physics"] is not None]
+    return {
+        "iteration": first["iteration"],
+        "loss": first["loss"],
+        "return_physics": max(returns) if returns else None,
+        "mujoco_steps": sum(p["mujoco_steps"] for p in latest.values()),
+        "elapsed_s": max(p["elapsed_s"] for p in latest.values()),
+    }
+
+
+def _seed_worker(
+    index: int,
+    portable: SuiteTask | Callable[[], SuiteTask],
+    path: Path,
+    settings: RewardSettings,
+    messages: Any,
+    stop: Any,
+    level: int,
+) -> None:
+    """One seed's training in its own process: progress, then the result (or the error) on ``messages``;
+    it logs at the caller's ``level``, each line naming its seed."""
+    logging.basicConfig(
+        level=level, format=f"%(asctime)s seed {settings.seed} %(levelname)s %(name)s: %(message)s"
+    )
+    parent = os.getppid()
+
+    def should_stop() -> bool:  # told to, or the caller is gone (its seeds do not outlive it)
+        return bool(stop.is_set()) or os.getppid() != parent
+
+    try:
+        task = portable if isinstance(portable, SuiteTask) else portable()
+        result = _one_seed_here(
+            task, path, settings, lambda p: messages.put(("progress", index, p)), should_stop
+        )
+    except Exception as e:  # sent back whole, so the caller raises what one seed would have raised
+        messages.put(("error", index, e if _sendable(e) else RuntimeError(f"{type(e).__name__}: {e}")))
+        return
+    # as bytes: a queue would hand the tensors over as shared memory that ends with this process; the
+    # task stays here (the caller has it, and a user's task does not pickle)
+    messages.put(("result", index, pickle.dumps(replace(result, task=cast(SuiteTask, None)))))
