@@ -384,7 +384,10 @@ class PolicyTrainer:
         successes: list[tuple[int, float]] = []
         last_success: float | None = None
         it, stop = 0, "budget"
-        while self.elapsed() < budget and (cfg.max_iterations is None or it < cfg.max_iterations):
+        # at least one update, however much of the budget its setup took (goals drawn on a busy machine)
+        while (it == 0 or self.elapsed() < budget) and (
+            cfg.max_iterations is None or it < cfg.max_iterations
+        ):
             if self.should_stop is not None and self.should_stop():
                 stop = "cancelled"
                 break

@@ -702,7 +702,10 @@ class RewardTrainer:
         history: list[tuple[int, float, float]] = []
         it, value, stop = 0, None, "budget"
         last_return: float | None = None
-        while self.elapsed() < cfg.seconds and (cfg.max_iterations is None or it < cfg.max_iterations):
+        # at least one update, however much of the budget its setup took (on a busy machine)
+        while (it == 0 or self.elapsed() < cfg.seconds) and (
+            cfg.max_iterations is None or it < cfg.max_iterations
+        ):
             if self.should_stop is not None and self.should_stop():
                 stop = "cancelled"
                 break
