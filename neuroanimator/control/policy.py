@@ -378,7 +378,8 @@ class PolicyTrainer:
         opt = torch.optim.Adam(self.net.parameters(), lr=cfg.learning_rate)
         budget = cfg.seconds
         check_every = max(1.0, cfg.refine_every * budget)
-        next_check = check_every
+        # counted from the first update: setup (the sandboxed compile, the goals drawn) is not training
+        next_check = self.elapsed() + check_every
         best: tuple[float, dict[str, Tensor]] = (-1.0, copy.deepcopy(self.net.state_dict()))
         losses: list[float] = []
         successes: list[tuple[int, float]] = []

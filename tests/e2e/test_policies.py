@@ -2,7 +2,7 @@
 (``services.stack``: emulator, controller API and worker, the dashboard's server, a real Redis) over a
 registry of the lander's committed emulators alone, with a data directory of its own:
 
-- a lander-landing policy trained through the dashboard with 8 s of budget and no refinement: its
+- a lander-landing policy trained through the dashboard with 15 s of budget and no refinement: its
   iterations, loss curve, success on MuJoCo and MuJoCo steps live, then the stored policy's metrics;
 - "Drive it": a session driven by the policy beside its MuJoCo ghost; the pad dragged in the view goes
   over the websocket as the goal, the replies echo it and the lander moves; a goal typed outside the
