@@ -54,6 +54,7 @@ from neuroanimator.control.gauss_newton import levenberg_marquardt
 from neuroanimator.control.replay import Replay, final_error, simulate_held
 from neuroanimator.control.search import cross_entropy, descend_starts, starting_points
 from neuroanimator.control.synthesis import Outcome, Settings, clean, elapsed, optimize
+from neuroanimator.control.threads import torch_threads
 from neuroanimator.control.validation import validate_job
 from neuroanimator.core.manifest import Manifest
 from neuroanimator.core.quaternion import wrap_angle
@@ -136,12 +137,8 @@ def run_job(
     """
     t0 = time.perf_counter()
     spec = validate_job(job, artifacts_root)
-    previous_threads = torch.get_num_threads()
-    torch.set_num_threads(max(1, int(threads)))
-    try:
+    with torch_threads(threads):
         return _run(spec, artifacts_root, on_progress, should_stop, t0)
-    finally:
-        torch.set_num_threads(previous_threads)
 
 
 def _run(

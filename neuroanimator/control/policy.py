@@ -50,6 +50,7 @@ from neuroanimator.control.policy_net import (
     describe_columns,
     wrap,
 )
+from neuroanimator.control.threads import torch_threads
 from neuroanimator.core.manifest import Manifest
 from neuroanimator.emulator.hierarchy import HierarchicalEmulator
 from neuroanimator.emulator.structured import StructuredEmulator
@@ -485,9 +486,5 @@ def train_policy(
 ) -> PolicyResult:
     """Train a policy for ``task`` through the emulator artifact at ``path`` (module doc)."""
     settings = settings or PolicySettings(seconds=task.train_seconds)
-    previous = torch.get_num_threads()
-    torch.set_num_threads(max(1, settings.threads))
-    try:
+    with torch_threads(settings.threads):
         return PolicyTrainer(task, path, settings, on_progress, should_stop).train()
-    finally:
-        torch.set_num_threads(previous)

@@ -28,10 +28,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, cast
 
-import torch
-
 from neuroanimator.control.reward_policy import RewardProgress, RewardResult, RewardSettings, RewardTrainer
 from neuroanimator.control.suite_tasks import SuiteTask
+from neuroanimator.control.threads import torch_threads
 
 log = logging.getLogger(__name__)
 
@@ -80,12 +79,8 @@ def _one_seed_here(
     on_progress: Callable[[RewardProgress], None] | None,
     should_stop: Callable[[], bool] | None,
 ) -> RewardResult:
-    previous = torch.get_num_threads()
-    torch.set_num_threads(max(1, settings.threads))
-    try:
+    with torch_threads(settings.threads):
         return RewardTrainer(task, path, settings, on_progress, should_stop).train()
-    finally:
-        torch.set_num_threads(previous)
 
 
 def _sendable(thing: object) -> bool:
