@@ -155,10 +155,17 @@ def _layout(physical: PhysicalModel) -> list[Any]:
 
 
 def bench_suite_task(
-    name: str, root: Path, seconds: float | None, seed: int, quick: bool, save_to: Path | None = None
+    name: str,
+    root: Path,
+    seconds: float | None,
+    seed: int,
+    quick: bool,
+    save_to: Path | None = None,
+    seeds: int | None = None,
 ) -> dict[str, Any]:
     """One suite task's row (module doc); with ``save_to``, the policy measured is stored there as
-    ``neuro policy`` stores one (``policy_store.save_reward_policy``)."""
+    ``neuro policy`` stores one (``policy_store.save_reward_policy``); ``seeds`` side by side instead
+    of the task's (``SuiteTask.seeds``)."""
     task = SUITE_TASKS[name]
     budget = seconds if seconds is not None else task.train_seconds + 300.0
     t0 = time.perf_counter()
@@ -167,7 +174,7 @@ def bench_suite_task(
     )
     if not trained_here:  # all in: an emulator trained before counts the seconds its training took
         t0 -= emu_wall
-    settings = RewardSettings(seconds=max(5.0, budget - (time.perf_counter() - t0)), seed=seed)
+    settings = RewardSettings(seconds=max(5.0, budget - (time.perf_counter() - t0)), seed=seed, seeds=seeds)
     if quick:
         settings = RewardSettings(
             seconds=120.0,
@@ -177,6 +184,7 @@ def bench_suite_task(
             eval_episodes=2,
             final_episodes=2,
             seed=seed,
+            seeds=seeds,
             refine=False,
         )
     cores = seed_count(task, settings) * max(1, settings.threads)

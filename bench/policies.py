@@ -3,7 +3,7 @@ model-free reinforcement learning on MuJoCo, on the same held-out starts and goa
 
     python bench/policies.py [--tasks a,b] [--seconds S] [--suite-seconds S] [--artifacts DIR]
                              [--held-out 100] [--open-loop-runs 10] [--algorithm sac|ppo] [--seed 0]
-                             [--threads N] [--quick] [--json]
+                             [--seeds K] [--threads N] [--quick] [--json]
 
 With no ``--tasks``, every task: the catalog's policy tasks, then dm_control's suite tasks
 (``control.suite_tasks.SUITE_TASKS``: cartpole-swingup, pendulum-swingup, reacher-hard,
@@ -315,6 +315,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--algorithm", choices=ALGORITHMS, default="sac", help="the model-free baseline")
     p.add_argument("--seed", type=int, default=0, help="the training's seed (policy and model-free)")
     p.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        help="a suite task's policy seeds side by side, one core each (default: the task's)",
+    )
+    p.add_argument(
         "--threads",
         type=int,
         default=PolicySettings().threads,
@@ -330,6 +336,8 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [n for n in names if n not in POLICY_TASKS and n not in SUITE_TASKS]
     if unknown:
         p.error(f"--tasks: unknown policy tasks {unknown}; expected some of {[*POLICY_TASKS, *SUITE_TASKS]}")
+    if args.seeds is not None and args.seeds < 1:
+        p.error(f"--seeds must be >= 1, got {args.seeds}")
     if args.held_out < 1 or args.open_loop_runs < 0 or args.threads < 1:
         p.error(
             "--held-out and --threads must be >= 1 and --open-loop-runs >= 0, got "
@@ -343,7 +351,9 @@ def main(argv: list[str] | None = None) -> int:
         if name in SUITE_TASKS:
             save_to = Path(args.save_to) if args.save_to else None
             rows.append(
-                bench_suite_task(name, suite_root, args.suite_seconds, args.seed, args.quick, save_to)
+                bench_suite_task(
+                    name, suite_root, args.suite_seconds, args.seed, args.quick, save_to, args.seeds
+                )
             )
         else:
             rows.append(bench_task(name, list(POLICY_TASKS).index(name), root, args))
@@ -359,6 +369,7 @@ def main(argv: list[str] | None = None) -> int:
             "seconds": args.seconds,
             "algorithm": args.algorithm,
             "threads": args.threads,
+            "seeds": args.seeds,
             "quick": args.quick,
         }
         held = QUICK_HELD_OUT if args.quick else args.held_out

@@ -4,6 +4,7 @@ task, judged on MuJoCo with the suite's exact reward; and ``bench/policies.py`` 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from dataclasses import replace
@@ -202,10 +203,14 @@ def test_seeds_side_by_side_stop_together_and_raise_what_one_seed_raises(artifac
 
 def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
     lines, result = run_bench(
-        "bench/policies.py", "--quick", "--tasks", "point_mass-easy", "--artifacts", str(artifacts)
-    )
+        "bench/policies.py", "--quick", "--tasks", "point_mass-easy", "--artifacts", str(artifacts),
+        "--seeds", "2",
+    )  # fmt: skip
     (row,) = result["tasks"]
     assert row["task"] == "point_mass-easy" and row["substeps"] == TASK.substeps
+    # --seeds over the task's one: each seed's return in the row, SAC on as many cores
+    sides = min(2, os.cpu_count() or 1)
+    assert result["settings"]["seeds"] == 2 and len(row["seeds"]) == sides == row["cores"]
     for key in ("return_physics", "return_emulator", "mujoco_steps", "wall_s"):
         assert isinstance(row[key], (int, float))
     # found in --artifacts, not trained again: its training's seconds count in the wall time all the same
