@@ -116,6 +116,10 @@ class RewardSettings:
     # policies trained from this many seeds side by side, one process and core each, the best on
     # MuJoCo kept (``seed_race``; None: the task's ``SuiteTask.seeds``, at most the machine's cores)
     seeds: int | None = None
+    # seeds side by side meet once, at the first check past this share of the budget: those behind
+    # take the best one's policy and critic and train on from their own draws (population-based
+    # training's exploit step; ``seed_race``). None: they never meet
+    meet_at: float | None = None
 
     @property
     def judged_on(self) -> int:
@@ -266,6 +270,8 @@ class RewardResult:
     # every seed's final return on the same MuJoCo episodes, when several were trained side by side
     # (``seed_race``; this result is the best of them)
     seed_returns: list[float] = field(default_factory=list)
+    # the seed whose policy and critic this one took when the seeds met (``RewardSettings.meet_at``)
+    took_from: int | None = None
 
     @property
     def evaluate_runs(self) -> int:
@@ -369,6 +375,18 @@ def root_drift(
     return float(gap[torch.isfinite(gap)].mean()) if bool(torch.isfinite(gap).any()) else math.inf
 
 
+@dataclass
+class Meeting:
+    """What a seed brings to the meeting of seeds trained side by side (``RewardSettings.meet_at``):
+    its best return on MuJoCo's checks so far, the policy that earned it and its critics."""
+
+    seed: int
+    best_return: float
+    policy: dict[str, Tensor]
+    critic: dict[str, Tensor]
+    target_critic: dict[str, Tensor]
+
+
 class RewardTrainer:
     """One reward policy being trained through an emulator artifact (module doc)."""
 
@@ -379,10 +397,15 @@ class RewardTrainer:
         settings: RewardSettings,
         on_progress: Callable[[RewardProgress], None] | None = None,
         should_stop: Callable[[], bool] | None = None,
+        meet: Callable[[Meeting], Meeting | None] | None = None,
     ) -> None:
         self.t0 = time.perf_counter()
         self.task, self.settings, self.path = task, settings, path
         self.on_progress, self.should_stop = on_progress, should_stop
+        # the other seeds, met once (``RewardSettings.meet_at``): given this seed's best so far, the
+        # best seed's to take instead, or None to keep its own
+        self.meet = meet
+        self.took_from: int | None = None
         self.manifest = registry.read_manifest(path)
         if self.manifest.substeps != task.substeps:
             raise ValueError(
@@ -681,6 +704,32 @@ class RewardTrainer:
             self.env_low = torch.minimum(self.env_low, seen.amin(dim=0))
             self.env_high = torch.maximum(self.env_high, seen.amax(dim=0))
 
+    def meet_the_seeds(self, best: tuple[float, dict[str, Tensor]]) -> tuple[float, dict[str, Tensor]]:
+        """Meet the other seeds once (``RewardSettings.meet_at``): a seed behind takes the best one's
+        best policy (as its own best so far and as the policy it trains on) and its critics; its
+        optimisers then start afresh. Returns the best so far."""
+        meet, self.meet = self.meet, None  # once
+        assert meet is not None
+        mine = Meeting(
+            self.settings.seed,
+            best[0],
+            best[1],
+            copy.deepcopy(self.critic.state_dict()),
+            copy.deepcopy(self.target_critic.state_dict()),
+        )
+        other = meet(mine)
+        if other is None or other.seed == self.settings.seed:
+            return best
+        log.info(
+            "%s: seed %d (best %.1f) takes seed %d's policy (best %.1f)",
+            self.task.name, self.settings.seed, best[0], other.seed, other.best_return,
+        )  # fmt: skip
+        self.policy.load_state_dict(other.policy)
+        self.critic.load_state_dict(other.critic)
+        self.target_critic.load_state_dict(other.target_critic)
+        self.took_from = other.seed
+        return other.best_return, copy.deepcopy(other.policy)
+
     # ------------------------------------------------------------------ the loop
     def elapsed(self) -> float:
         return time.perf_counter() - self.t0
@@ -737,6 +786,15 @@ class RewardTrainer:
                 )  # fmt: skip
                 if last_return >= best[0]:
                     best = (last_return, copy.deepcopy(self.policy.state_dict()))
+                if (
+                    self.meet is not None
+                    and cfg.meet_at is not None
+                    and self.elapsed() >= cfg.meet_at * cfg.seconds
+                ):
+                    best = self.meet_the_seeds(best)
+                    if self.took_from is not None:  # the optimisers' moments were the old weights'
+                        opt_actor = torch.optim.Adam(self.policy.parameters(), lr=cfg.actor_lr)
+                        opt_critic = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
                 self.runs.append(runs)
                 n, k1, width = runs.states.shape
                 self.visited.append(
@@ -788,4 +846,5 @@ class RewardTrainer:
             outside_share=self.outside_share,
             falls=fell,
             seed=cfg.seed,
+            took_from=self.took_from,
         )

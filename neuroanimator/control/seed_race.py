@@ -11,6 +11,12 @@ every seed's return kept beside it (``RewardResult.seed_returns``).
 Each seed's process imports the caller's main module, as every ``spawn`` does: a script that calls
 this keeps its own code under ``if __name__ == "__main__":`` (a notebook, a service need nothing).
 
+With ``RewardSettings.meet_at`` the seeds meet once, at their first check on MuJoCo past that share
+of the budget (population-based training's exploit step): each sends its best return so far with the
+policy that earned it and its critics; once every seed still training has met, the best keeps its
+own and the others take its policy and critics, and train on from their own draws (a seed that ended
+before meeting is not waited for). Each result says whose policy it took (``RewardResult.took_from``).
+
 Progress reaches the caller's ``on_progress`` as one stream (the best return so far, the MuJoCo steps
 of all seeds together); ``should_stop`` stops them all, each keeping its best policy so far.
 """
@@ -28,7 +34,13 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, cast
 
-from neuroanimator.control.reward_policy import RewardProgress, RewardResult, RewardSettings, RewardTrainer
+from neuroanimator.control.reward_policy import (
+    Meeting,
+    RewardProgress,
+    RewardResult,
+    RewardSettings,
+    RewardTrainer,
+)
 from neuroanimator.control.suite_tasks import SuiteTask
 from neuroanimator.control.threads import torch_threads
 
@@ -78,9 +90,10 @@ def _one_seed_here(
     settings: RewardSettings,
     on_progress: Callable[[RewardProgress], None] | None,
     should_stop: Callable[[], bool] | None,
+    meet: Callable[[Meeting], Meeting | None] | None = None,
 ) -> RewardResult:
     with torch_threads(settings.threads):
-        return RewardTrainer(task, path, settings, on_progress, should_stop).train()
+        return RewardTrainer(task, path, settings, on_progress, should_stop, meet).train()
 
 
 def _sendable(thing: object) -> bool:
@@ -104,6 +117,7 @@ def _race(
     t0 = time.perf_counter()
     ctx = mp.get_context("spawn")
     messages = ctx.Queue()
+    replies = [ctx.Queue() for _ in range(seeds)]  # each seed's answer when the seeds meet
     stop = ctx.Event()
     level = logging.getLogger().getEffectiveLevel()
     # every seed on one core, judged on the same final episodes
@@ -111,7 +125,16 @@ def _race(
     workers = [
         ctx.Process(
             target=_seed_worker,
-            args=(i, portable, path, replace(each, seed=settings.seed + i), messages, stop, level),
+            args=(
+                i,
+                portable,
+                path,
+                replace(each, seed=settings.seed + i),
+                messages,
+                replies[i],
+                stop,
+                level,
+            ),
             name=f"{task.name}-seed-{settings.seed + i}",
             daemon=False,  # a seed's training may start processes of its own (MuJoCo's sampling)
         )
@@ -127,16 +150,23 @@ def _race(
     )
     results: dict[int, RewardResult] = {}
     latest: dict[int, RewardProgress] = {}
+    met: dict[int, Meeting] | None = {} if settings.meet_at is not None else None
     try:
         while len(results) < seeds:
             if should_stop is not None and should_stop():
                 stop.set()
+            if met and all(j in met or j in results for j in range(seeds)):
+                _answer(task, met, replies)
+                met = None
             try:
                 kind, i, payload = messages.get(timeout=POLL_S)
             except queue.Empty:
                 _check_alive(workers, results)
                 continue
-            if kind == "progress":
+            if kind == "meet":
+                if met is not None:
+                    met[i] = pickle.loads(payload)
+            elif kind == "progress":
                 latest[i] = payload
                 if on_progress is not None and i == 0:  # one report per iteration of the first seed
                     on_progress(_merged(latest))
@@ -151,12 +181,14 @@ def _race(
             if w.is_alive():
                 w.terminate()
     returns = [results[i].return_physics for i in range(seeds)]
+    took = {settings.seed + i: r.took_from for i, r in results.items() if r.took_from is not None}
     best = max(range(seeds), key=lambda i: returns[i])
     log.info(
-        "%s: seeds %s returned %s on the same MuJoCo episodes; seed %d kept",
+        "%s: seeds %s returned %s on the same MuJoCo episodes%s; seed %d kept",
         task.name,
         [settings.seed + i for i in range(seeds)],
         [round(r, 1) for r in returns],
+        "".join(f" (seed {a} had taken seed {b}'s policy)" for a, b in took.items()),
         settings.seed + best,
     )
     return replace(
@@ -166,6 +198,21 @@ def _race(
         mujoco_steps=sum(r.mujoco_steps for r in results.values()),
         wall_s=time.perf_counter() - t0,
     )
+
+
+def _answer(task: SuiteTask, met: dict[int, Meeting], replies: list[Any]) -> None:
+    """Every seed still training has met (``RewardSettings.meet_at``): the best one keeps its own,
+    the others are sent its policy and critics."""
+    top = max(met.values(), key=lambda m: m.best_return)
+    log.info(
+        "%s: the seeds met (best returns %s); seed %d's policy goes on in all",
+        task.name,
+        {m.seed: round(m.best_return, 1) for m in met.values()},
+        top.seed,
+    )
+    sent = pickle.dumps(top)
+    for i, m in met.items():
+        replies[i].put(None if m.seed == top.seed else sent)
 
 
 def _check_alive(workers: list[Any], results: dict[int, RewardResult]) -> None:
@@ -199,6 +246,7 @@ def _seed_worker(
     path: Path,
     settings: RewardSettings,
     messages: Any,
+    reply: Any,
     stop: Any,
     level: int,
 ) -> None:
@@ -212,10 +260,25 @@ def _seed_worker(
     def should_stop() -> bool:  # told to, or the caller is gone (its seeds do not outlive it)
         return bool(stop.is_set()) or os.getppid() != parent
 
+    def meet(mine: Meeting) -> Meeting | None:  # waits for the other seeds (``_answer``)
+        messages.put(("meet", index, pickle.dumps(mine)))
+        while not should_stop():
+            try:
+                answer = reply.get(timeout=POLL_S)
+            except queue.Empty:
+                continue
+            return None if answer is None else cast(Meeting, pickle.loads(answer))
+        return None
+
     try:
         task = portable if isinstance(portable, SuiteTask) else portable()
         result = _one_seed_here(
-            task, path, settings, lambda p: messages.put(("progress", index, p)), should_stop
+            task,
+            path,
+            settings,
+            lambda p: messages.put(("progress", index, p)),
+            should_stop,
+            meet if settings.meet_at is not None else None,
         )
     except Exception as e:  # sent back whole, so the caller raises what one seed would have raised
         messages.put(("error", index, e if _sendable(e) else RuntimeError(f"{type(e).__name__}: {e}")))

@@ -4,6 +4,8 @@ task, judged on MuJoCo with the suite's exact reward; and ``bench/policies.py`` 
 from __future__ import annotations
 
 import json
+import logging
+import math
 import os
 import subprocess
 import sys
@@ -22,6 +24,7 @@ from neuroanimator.artifacts.policies import read_policy
 from neuroanimator.control.policy import PolicySettings
 from neuroanimator.control.policy_job import PolicyJobError, run_policy_job
 from neuroanimator.control.reward_policy import (
+    Meeting,
     RewardProgress,
     RewardResult,
     RewardSettings,
@@ -191,6 +194,44 @@ def test_seeds_side_by_side_are_judged_on_the_same_episodes_and_the_best_is_kept
         progress[-1]
     )
     assert progress[-1]["mujoco_steps"] > progress[0]["mujoco_steps"]  # both seeds' steps, growing
+
+
+def test_a_seed_behind_when_the_seeds_meet_trains_on_from_the_best_ones_policy(artifacts: Path) -> None:
+    """``meet_at``: at its first check past that share of the budget a seed meets the others; told
+    of a better one, it takes that one's policy and critics, keeps it as its best, and says so."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    donor = RewardTrainer(TASK, path, replace(QUICK, seed=9))
+    theirs = Meeting(
+        99, 1e9, donor.policy.state_dict(), donor.critic.state_dict(), donor.target_critic.state_dict()
+    )
+    brought: list[Meeting] = []
+
+    def meet(mine: Meeting) -> Meeting:
+        brought.append(mine)
+        return theirs
+
+    result = RewardTrainer(TASK, path, replace(QUICK, seed=1, meet_at=0.0), meet=meet).train()
+    (mine,) = brought  # once
+    assert mine.seed == 1 and math.isfinite(mine.best_return) and result.took_from == 99
+    kept = result.policy.state_dict()
+    assert all(torch.equal(kept[k], v) for k, v in theirs.policy.items())  # no later check beat 1e9
+    # a seed told to keep its own (None) keeps it
+    alone = RewardTrainer(TASK, path, replace(QUICK, seed=1, meet_at=0.0), meet=lambda m: None).train()
+    assert alone.took_from is None
+    assert not all(torch.equal(alone.policy.state_dict()[k], v) for k, v in theirs.policy.items())
+
+
+def test_seeds_side_by_side_meet_and_go_on_from_the_best(
+    artifacts: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Two seeds meeting at their last check: the one behind takes the other's best policy, so both
+    are judged with the same policy on the same final episodes."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    caplog.set_level(logging.INFO, logger="neuroanimator.control.seed_race")
+    result = train_reward_policy(TASK, path, replace(QUICK, seed=5, seeds=2, meet_at=0.0))
+    assert "the seeds met" in caplog.text
+    assert len(result.seed_returns) == 2 and result.seed_returns[0] == result.seed_returns[1]
+    assert result.took_from in (None, 5, 6) and result.took_from != result.seed
 
 
 def test_seeds_side_by_side_stop_together_and_raise_what_one_seed_raises(artifacts: Path) -> None:
