@@ -21,7 +21,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import mujoco
 import numpy as np
@@ -681,6 +681,17 @@ class _Records:
         )
 
 
+class Controller(Protocol):
+    """What ``run`` asks for servo targets: ``act`` (B, nq), (B, nv), (B, nsensordata), seconds →
+    (B, U), kept within ``low``..``high`` (U,); ``ctrl_ids`` (U,) the actuators they go to."""
+
+    low: FloatArray
+    high: FloatArray
+    ctrl_ids: NDArray[np.int_]
+
+    def act(self, qpos: FloatArray, qvel: FloatArray, sensordata: FloatArray, dt: float) -> FloatArray: ...
+
+
 def run(
     m: mujoco.MjModel,
     start: FloatArray,
@@ -697,6 +708,7 @@ def run(
     control_noise: float | FloatArray = 0.0,
     state_noise: tuple[float | FloatArray, float | FloatArray] = (0.0, 0.0),
     seed: int = 0,
+    controller: Controller | None = None,
 ) -> RunResult:
     """Run the closed loop from ``start`` (B|1, nfull) for ``seconds``.
 
@@ -708,14 +720,18 @@ def run(
     of the gait, for training data), from ``seed``; ``state_noise`` (radians, and radians or metres
     per second) to every hinge angle and every velocity of the state the period starts from: states
     just off the gait, whose next states show how the body returns (an emulator's own rollouts leave
-    the gait that way).
+    the gait that way). ``controller``: another controller in this one's place (a learned policy).
     """
     start = np.atleast_2d(np.asarray(start, float))
     speeds = np.atleast_1d(np.asarray(target_speed, float))
     batch = _batch_size(start, speeds, gait)
     state = np.repeat(start, batch // start.shape[0], axis=0)
-    ctl = RunnerController(m, gait)
-    ctl.reset(batch, speeds)
+    ctl: Controller
+    if controller is None:
+        ctl = RunnerController(m, gait)
+        ctl.reset(batch, speeds)
+    else:
+        ctl = controller
     physics = _Physics(m, batch, control_every, threads, ctl.ctrl_ids, push_body)
     dt = m.opt.timestep * control_every
     periods = round(seconds / dt)

@@ -1,0 +1,364 @@
+"""The runner's learned running policy: ``π(state, speed) → servo targets``, a network that reads the
+emulated state every super-step and the commanded speed, learned through the runner's emulator from
+its hand-written running controller (thesis 7.2.3: a network controller in place of a hand-written
+one; the data gathered as DAgger gathers it, Ross, Gordon and Bagnell 2011).
+
+1. ``collect``: the controller drives the emulator from perturbed running starts at commands drawn
+   over the task's range, each run pushed once, and its targets are the first examples.
+2. The policy is fit to the examples; then it drives the emulator itself while the controller, its
+   state machine stepping on the same states, says what it would have done there. Those states are
+   where a copy's own errors take it, which the controller's runs never visit: they are added, and
+   the policy fit again (``DistillSettings.rounds`` times). The first rounds mix the two (the policy
+   acts in a growing share of the super-steps), so that early runs still resemble the gait.
+3. ``judge``: on MuJoCo, the share of pushed runs of 30 s that stay up (the pelvis above 0.55 m) and
+   run within 10 % of the command over their last 20 s.
+
+Nothing here reads MuJoCo while learning: the emulator is the only world the policy is trained in.
+The policy is a ``RewardPolicy`` whose parameter is the speed (``RUNNER_RUN``), exported and served
+as a reward policy is.
+
+Shapes: B runs, T super-steps, S the emulator's state, U = 29 servo targets.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from neuroanimator.artifacts import registry
+from neuroanimator.catalog.runner import gait as rc
+from neuroanimator.control.reward_policy import Features, RewardPolicy
+from neuroanimator.control.suite_tasks import Context, Fall, SuiteTask, tolerance
+from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.sim.model import PhysicalModel
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+Step = Callable[[FloatArray, FloatArray, FloatArray], FloatArray]
+
+FALL_HEIGHT = 0.55  # metres of the pelvis: below it a run has fallen (``gait.run``'s)
+PUSH_N = 250.0  # newtons on the torso for ``PUSH_S`` seconds, as the runner's benches push
+PUSH_S = 0.2
+SPEED_TOLERANCE = 0.1  # a run meets its command within this share of it
+
+
+# ------------------------------------------------------------------------------------ the task
+def _pelvis_height(ctx: Context, s: torch.Tensor) -> torch.Tensor:
+    return s[:, ctx.column("root.pos") + 2]
+
+
+def _reset(m: mujoco.MjModel, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """A running start at a command drawn over the task's range, its velocities perturbed."""
+    speed = float(rng.uniform(*SPEED_RANGE))
+    full = rc.perturbed_starts(m, speed, 1, rng)[0]
+    return full[1 : 1 + m.nq].copy(), full[1 + m.nq : 1 + m.nq + m.nv].copy(), np.array([speed])
+
+
+def _reward(ctx: Context, s: torch.Tensor, u: torch.Tensor, p: torch.Tensor, smooth: bool) -> torch.Tensor:
+    """Up (the pelvis above ``FALL_HEIGHT``) and the forward speed within ``SPEED_TOLERANCE`` of the
+    command, falling off linearly over half the command."""
+    vx = s[:, ctx.column("root.vel")]
+    speed = p[:, 0]
+    up = (_pelvis_height(ctx, s) > FALL_HEIGHT).to(s.dtype)
+    off = (vx - speed).abs() / speed.clamp_min(0.1)
+    return up * tolerance(off, 0.0, SPEED_TOLERANCE, 0.5, "linear", 0.0)
+
+
+SPEED_RANGE = (1.8, 2.2)
+RUNNER_RUN = SuiteTask(
+    name="runner-run",
+    domain="runner",
+    substeps=6,
+    control_substeps=6,
+    params=("speed",),
+    param_low=(SPEED_RANGE[0],),
+    param_high=(SPEED_RANGE[1],),
+    episode_steps=round(30.0 / (6 * 0.0027)),
+    reset=_reset,
+    reward=_reward,
+    fall=Fall(_pelvis_height, above=FALL_HEIGHT + 0.2, below=FALL_HEIGHT, settle_s=0.0),
+    summary="run at the commanded speed (m/s) and stay up, pushed now and then",
+)
+
+
+# ------------------------------------------------------------------------------ the emulator loop
+@dataclass
+class Runs:
+    """Emulated runs: the states the policy (or the controller) acted in, what the controller would
+    have done in each, and the runs' commands."""
+
+    states: FloatArray  # (N, S) every super-step's state of every run while it was up
+    labels: FloatArray  # (N, U) the controller's targets there
+    speeds: FloatArray  # (N,) the command of the run each state is from
+    fell: int  # runs that fell
+
+
+def emulator_step(onnx: OnnxEmulator) -> Step:
+    """The emulator as ``gait.Step``: (B, S) states, (B, U) targets, (B, F) forces → (B, S)."""
+
+    def step(s: FloatArray, u: FloatArray, f: FloatArray) -> FloatArray:
+        out = onnx.step(s.astype(np.float32), u.astype(np.float32), f.astype(np.float32), validate=False)
+        return np.asarray(out, dtype=np.float64)
+
+    return step
+
+
+def collect(
+    model: PhysicalModel,
+    step: Step,
+    substeps: int,
+    speeds: FloatArray,
+    seconds: float,
+    rng: np.random.Generator,
+    policy: RewardPolicy | None = None,
+    mix: float = 1.0,
+) -> Runs:
+    """Runs on the emulator at ``speeds`` (B,) from perturbed running starts, each pushed once (a
+    random direction in the plane, at a random time after the first second): the controller acts,
+    or ``policy`` in a share ``mix`` of the super-steps; the controller's targets are recorded in
+    every state either way. A run that falls (or leaves the finite numbers) stops being recorded."""
+    m = model.mj_model
+    b = len(speeds)
+    full = np.concatenate([rc.perturbed_starts(m, float(v), 1, rng) for v in speeds])
+    state = model.from_physics(full)
+    ctl = rc.RunnerController(m)
+    ctl.reset(b, speeds)
+    observer = rc.KinematicSensors(m)
+    dt = m.opt.timestep * substeps
+    periods = round(seconds / dt)
+    angle = rng.uniform(0, 2 * np.pi, b)
+    push = rc.Push(
+        force=np.stack([PUSH_N * np.cos(angle), PUSH_N * np.sin(angle), np.zeros(b)], axis=1),
+        start_s=rng.uniform(1.0, max(1.0, seconds - 1.0), b),
+        duration_s=PUSH_S,
+    )
+    qpos_cols = np.arange(1, 1 + m.nq)
+    qvel_cols = np.arange(1 + m.nq, 1 + m.nq + m.nv)
+    z_col = int(qpos_cols[2])
+    up = np.ones(b, bool)
+    states, labels, commands = [], [], []
+    params = torch.as_tensor(speeds[:, None], dtype=torch.float32)
+    for k in range(periods):
+        full = model.to_physics(state)
+        up &= full[:, z_col] >= FALL_HEIGHT
+        if not up.any():
+            break
+        qpos, qvel = full[:, qpos_cols], full[:, qvel_cols]
+        label = ctl.act(qpos, qvel, observer.read(qpos, qvel), dt)
+        states.append(state[up])
+        labels.append(label[up])
+        commands.append(speeds[up])
+        u = label
+        if policy is not None:
+            with torch.no_grad():
+                own = policy(torch.as_tensor(state, dtype=torch.float32), params).double().numpy()
+            u = np.where((rng.random(b) < mix)[:, None], own, label)
+        forces = np.zeros((b, model.num_forces))
+        pushed = push.active(k * dt, b)
+        forces[pushed, :2] = np.asarray(push.force)[pushed, :2]
+        nxt = step(state, u, forces)
+        broken = ~np.isfinite(nxt).all(axis=1)
+        up &= ~broken
+        nxt[broken] = state[broken]
+        state = nxt
+    return Runs(np.concatenate(states), np.concatenate(labels), np.concatenate(commands), int((~up).sum()))
+
+
+# ---------------------------------------------------------------------------------- the policy
+@dataclass(frozen=True)
+class DistillSettings:
+    """How the runner's policy is learned (module doc): ``runs`` emulated runs of ``seconds`` per
+    round, ``rounds`` rounds after the controller's own, the policy acting in a share ``mix`` of the
+    super-steps in the first, twice that in the second and so on up to all; each fit
+    ``epochs`` passes over all the examples in batches of ``batch``."""
+
+    runs: int = 64
+    seconds: float = 10.0
+    rounds: int = 6
+    mix: float = 0.25
+    epochs: int = 8
+    batch: int = 512
+    lr: float = 1e-3
+    hidden: tuple[int, ...] = (256, 256)
+    seed: int = 0
+    speeds: tuple[float, float] = (1.6, 2.4)  # commands the data is gathered at: beyond the task's range
+
+
+@dataclass
+class DistillResult:
+    policy: RewardPolicy
+    rounds: list[dict[str, float]] = field(default_factory=list)  # per round: examples, fell, loss
+    emulated_steps: int = 0
+    wall_s: float = 0.0
+
+
+FEET = ("left_foot", "left_toes", "right_foot", "right_toes")
+
+
+def feet(ctx: Context) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
+    """(B, S), (B, 1) → (B, 16): each foot's and toe's place from the pelvis (metres, world axes) and
+    its height: which foot bears the body and how far into its stride it is, what the controller's
+    state machine knows from its touch sensors and the network must otherwise work out."""
+    ids = [mujoco.mj_name2id(ctx.m, mujoco.mjtObj.mjOBJ_BODY, name) for name in FEET]
+    pelvis = mujoco.mj_name2id(ctx.m, mujoco.mjtObj.mjOBJ_BODY, "pelvis")
+
+    def observe(state: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        pos, _ = ctx.kin.places(state)
+        at = pos[:, ids]  # (B, 4, 3)
+        rel = (at - pos[:, pelvis : pelvis + 1]).reshape(len(state), -1)
+        return torch.cat([rel, at[:, :, 2] * 10.0], dim=1)
+
+    return observe
+
+
+def _features(model: PhysicalModel, ctx: Context, states: FloatArray) -> Features:
+    """The policy's input features, scaled by the controller's runs (angles as sine and cosine), and
+    the feet's places (``feet``)."""
+    angles = [g.offset + i for g in ctx.layout if g.kind == "angle" for i in range(g.size)]
+    plain = [c for c in range(states.shape[1]) if c not in set(angles)]
+    mean, scale = states.mean(axis=0), np.maximum(states.std(axis=0), 1e-2)
+    observe = feet(ctx)
+    return Features(angles, plain, mean, scale, 1, observe, 4 * len(FEET))
+
+
+def fit(policy: RewardPolicy, data: Runs, settings: DistillSettings, rng: np.random.Generator) -> float:
+    """``settings.epochs`` passes of Adam over the examples: the mean squared error of the targets in
+    units of each control's half range (the last pass's mean)."""
+    opt = torch.optim.Adam(policy.net.parameters(), lr=settings.lr)
+    x = torch.as_tensor(data.states, dtype=torch.float32)
+    p = torch.as_tensor(data.speeds[:, None], dtype=torch.float32)
+    y = torch.as_tensor(data.labels, dtype=torch.float32)
+    half = policy.half_range
+    loss_sum = 0.0
+    for _ in range(settings.epochs):
+        order = torch.as_tensor(rng.permutation(len(x)))
+        loss_sum, n = 0.0, 0
+        for at in range(0, len(x), settings.batch):
+            i = order[at : at + settings.batch]
+            loss = (((policy(x[i], p[i]) - y[i]) / half) ** 2).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            loss_sum, n = loss_sum + loss.item() * len(i), n + len(i)
+        loss_sum /= max(n, 1)
+    return loss_sum
+
+
+def _join(a: Runs, b: Runs) -> Runs:
+    return Runs(
+        np.concatenate([a.states, b.states]),
+        np.concatenate([a.labels, b.labels]),
+        np.concatenate([a.speeds, b.speeds]),
+        a.fell + b.fell,
+    )
+
+
+def distill(path: Path, settings: DistillSettings | None = None) -> DistillResult:
+    """The runner's policy learned through the emulator at ``path`` from its running controller."""
+    settings = settings or DistillSettings()
+    t0 = time.perf_counter()
+    torch.manual_seed(settings.seed)
+    rng = np.random.default_rng(settings.seed)
+    manifest = registry.read_manifest(path)
+    model = registry.load_physical_model(path, manifest)
+    step = emulator_step(OnnxEmulator(path / registry.ONNX_FILE, threads=1))
+    ctx = Context(model.mj_model, list(manifest.layout))
+
+    def speeds() -> FloatArray:
+        return rng.uniform(*settings.speeds, settings.runs)
+
+    data = collect(model, step, manifest.substeps, speeds(), settings.seconds, rng)
+    steps = len(data.states)
+    low = np.array([c.low for c in manifest.controls])
+    high = np.array([c.high for c in manifest.controls])
+    policy = RewardPolicy(_features(model, ctx, data.states), low, high, settings.hidden)
+    result = DistillResult(policy)
+    loss = fit(policy, data, settings, rng)
+    result.rounds.append({"examples": len(data.states), "fell": data.fell, "loss": loss})
+    log.info("runner-run: the controller's runs: %d examples, %d fell; fit %.4f", steps, data.fell, loss)
+    for r in range(settings.rounds):
+        mix = min(1.0, settings.mix * (r + 1))
+        own = collect(model, step, manifest.substeps, speeds(), settings.seconds, rng, policy, mix)
+        steps += len(own.states)
+        data = _join(data, own)
+        loss = fit(policy, data, settings, rng)
+        result.rounds.append({"examples": len(data.states), "fell": own.fell, "loss": loss, "mix": mix})
+        log.info(
+            "runner-run: round %d (the policy in %.0f%% of steps): %d of %d runs fell; %d examples; fit %.4f",
+            r + 1, 100 * mix, own.fell, settings.runs, len(data.states), loss,
+        )  # fmt: skip
+    result.emulated_steps = steps
+    result.wall_s = time.perf_counter() - t0
+    return result
+
+
+# ------------------------------------------------------------------------------- judged on MuJoCo
+class PolicyController:
+    """A runner policy in ``gait.run``'s controller's place: it reads the state, not the sensors."""
+
+    def __init__(self, model: PhysicalModel, policy: RewardPolicy, speeds: FloatArray) -> None:
+        self.model, self.policy = model, policy
+        m = model.mj_model
+        self.nq, self.nv = m.nq, m.nv
+        self.params = torch.as_tensor(np.asarray(speeds, float)[:, None], dtype=torch.float32)
+        self.low, self.high = np.full(m.nu, -np.inf), np.full(m.nu, np.inf)
+        self.ctrl_ids = rc.RunnerController(m).ctrl_ids
+
+    def act(self, qpos: FloatArray, qvel: FloatArray, sensordata: FloatArray, dt: float) -> FloatArray:
+        full = self.model.to_physics(self.model.rest_state()[None].repeat(len(qpos), axis=0))
+        full[:, 1 : 1 + self.nq] = qpos
+        full[:, 1 + self.nq : 1 + self.nq + self.nv] = qvel
+        with torch.no_grad():
+            s = torch.as_tensor(self.model.from_physics(full), dtype=torch.float32)
+            return self.policy(s, self.params).double().numpy()
+
+
+def judge(
+    model: PhysicalModel,
+    substeps: int,
+    policy: RewardPolicy | None,
+    speed: float,
+    runs: int = 16,
+    seconds: float = 30.0,
+    seed: int = 0,
+) -> dict[str, float]:
+    """``runs`` pushed runs on MuJoCo at the command ``speed`` (the policy every super-step; None: the
+    hand-written controller), pushed with ``PUSH_N`` for ``PUSH_S`` at 5 s, forward, backward, left
+    and right in turn: how many stayed up for ``seconds``, how many also ran within
+    ``SPEED_TOLERANCE`` of the command over the last two thirds, and their mean speed there."""
+    m = model.mj_model
+    rng = np.random.default_rng(seed)
+    starts = rc.perturbed_starts(m, speed, runs, rng)
+    directions = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]], float)[np.arange(runs) % 4]
+    push = rc.Push(
+        force=np.concatenate([PUSH_N * directions, np.zeros((runs, 1))], axis=1),
+        start_s=5.0,
+        duration_s=PUSH_S,
+    )
+    controller = None if policy is None else PolicyController(model, policy, np.full(runs, speed))
+    res = rc.run(
+        m, starts, speed, seconds, control_every=substeps, push=push, kinematic=True, threads=1,
+        controller=controller,
+    )  # fmt: skip
+    qvel_x = 1 + m.nq  # the root's forward speed in a full-physics state
+    later = res.states[:, res.states.shape[1] // 3 :, qvel_x]
+    mean_speed = later.mean(axis=1)
+    up = ~res.fell
+    within = up & (np.abs(mean_speed - speed) <= SPEED_TOLERANCE * speed)
+    return {
+        "speed": speed,
+        "runs": runs,
+        "up": int(up.sum()),
+        "met": int(within.sum()),
+        "mean_speed": round(float(mean_speed[up].mean()) if up.any() else math.nan, 3),
+        "wall_s": round(res.wall_s, 1),
+    }
