@@ -2,7 +2,8 @@
 from the running controller (``control.runner_policy``), judged on MuJoCo beside the controller.
 
     python bench/runner_policy.py [--speeds 1.8,2.0,2.2] [--runs 16] [--seconds 30]
-                                  [--rounds 6] [--data-runs 64] [--data-seconds 10] [--seed 0]
+                                  [--rounds 6] [--data-runs 64] [--data-seconds 10]
+                                  [--mujoco-every K] [--seed 0]
                                   [--quick] [--json]
 
 For each command: ``--runs`` runs of ``--seconds`` on MuJoCo from perturbed running starts, pushed
@@ -43,6 +44,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--data-seconds", type=float, default=DistillSettings().seconds, help="each emulated run's length"
     )
+    p.add_argument(
+        "--mujoco-every",
+        type=int,
+        default=DistillSettings().mujoco_every,
+        help="every how many rounds the policy's own runs are gathered on MuJoCo (0: never)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quick", action="store_true", help="seconds of everything: a smoke test")
     p.add_argument("--json", action="store_true")
@@ -52,7 +59,11 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger("neuroanimator.control.runner_policy").setLevel(logging.INFO)
     speeds = [float(v) for v in args.speeds.split(",")]
     settings = DistillSettings(
-        runs=args.data_runs, seconds=args.data_seconds, rounds=args.rounds, seed=args.seed
+        runs=args.data_runs,
+        seconds=args.data_seconds,
+        rounds=args.rounds,
+        seed=args.seed,
+        mujoco_every=args.mujoco_every,
     )
     runs, seconds = args.runs, args.seconds
     if args.quick:
@@ -92,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
         },
         "rounds": result.rounds,
         "emulated_steps": result.emulated_steps,
-        "mujoco_steps": 0,  # learned on the emulator alone; MuJoCo only judges it
+        "mujoco_steps": result.mujoco_steps,  # the policy's own MuJoCo runs (the judging's not counted)
         "wall_s": round(result.wall_s, 1),
         "judged_s": round(judged_s, 1),
         "settings": {

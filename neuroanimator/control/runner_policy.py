@@ -23,11 +23,11 @@ Shapes: B runs, T super-steps, S the emulator's state, U = 29 servo targets.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypedDict
 
 import mujoco
 import numpy as np
@@ -191,13 +191,18 @@ class DistillSettings:
     hidden: tuple[int, ...] = (256, 256)
     seed: int = 0
     speeds: tuple[float, float] = (1.6, 2.4)  # commands the data is gathered at: beyond the task's range
+    # every how many rounds one gathers the policy's own runs on MuJoCo instead (0: never; 2: every
+    # other round): the states it reaches in the world it is judged in, where the emulator's small
+    # errors under a policy that is not the controller would otherwise go unseen
+    mujoco_every: int = 0
 
 
 @dataclass
 class DistillResult:
     policy: RewardPolicy
-    rounds: list[dict[str, float]] = field(default_factory=list)  # per round: examples, fell, loss
+    rounds: list[dict[str, float]] = field(default_factory=list)  # per round: examples, fell, loss, ...
     emulated_steps: int = 0
+    mujoco_steps: int = 0  # physical steps of the policy's own MuJoCo runs (``mujoco_every``)
     wall_s: float = 0.0
 
 
@@ -232,19 +237,29 @@ def _features(model: PhysicalModel, ctx: Context, states: FloatArray) -> Feature
 
 def fit(policy: RewardPolicy, data: Runs, settings: DistillSettings, rng: np.random.Generator) -> float:
     """``settings.epochs`` passes of Adam over the examples: the mean squared error of the targets in
-    units of each control's half range (the last pass's mean)."""
+    units of each control's half range (the last pass's mean). The features hold no weights, so
+    they are computed once per fit and only the network behind them is trained on them."""
     opt = torch.optim.Adam(policy.net.parameters(), lr=settings.lr)
-    x = torch.as_tensor(data.states, dtype=torch.float32)
-    p = torch.as_tensor(data.speeds[:, None], dtype=torch.float32)
+    with torch.no_grad():
+        x = torch.cat(
+            [
+                policy.features(
+                    torch.as_tensor(data.states[at : at + 8192], dtype=torch.float32),
+                    torch.as_tensor(data.speeds[at : at + 8192, None], dtype=torch.float32),
+                )
+                for at in range(0, len(data.states), 8192)
+            ]
+        )
+    # the targets as the network's output before its squashing: c + h·tanh(a) = y
     y = torch.as_tensor(data.labels, dtype=torch.float32)
-    half = policy.half_range
+    y = ((y - policy.centre) / policy.half_range).clamp(-1.0, 1.0)
     loss_sum = 0.0
     for _ in range(settings.epochs):
         order = torch.as_tensor(rng.permutation(len(x)))
         loss_sum, n = 0.0, 0
         for at in range(0, len(x), settings.batch):
             i = order[at : at + settings.batch]
-            loss = (((policy(x[i], p[i]) - y[i]) / half) ** 2).mean()
+            loss = ((torch.tanh(policy.net(x[i])) - y[i]) ** 2).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -287,14 +302,28 @@ def distill(path: Path, settings: DistillSettings | None = None) -> DistillResul
     log.info("runner-run: the controller's runs: %d examples, %d fell; fit %.4f", steps, data.fell, loss)
     for r in range(settings.rounds):
         mix = min(1.0, settings.mix * (r + 1))
-        own = collect(model, step, manifest.substeps, speeds(), settings.seconds, rng, policy, mix)
-        steps += len(own.states)
+        on_mujoco = settings.mujoco_every > 0 and (r + 1) % settings.mujoco_every == 0
+        if on_mujoco:
+            own = collect_on_mujoco(model, manifest.substeps, speeds(), settings.seconds, rng, policy, mix)
+            result.mujoco_steps += len(own.states) * manifest.substeps
+        else:
+            own = collect(model, step, manifest.substeps, speeds(), settings.seconds, rng, policy, mix)
+            steps += len(own.states)
         data = _join(data, own)
         loss = fit(policy, data, settings, rng)
-        result.rounds.append({"examples": len(data.states), "fell": own.fell, "loss": loss, "mix": mix})
+        where = "mujoco" if on_mujoco else "emulator"
+        result.rounds.append(
+            {
+                "examples": len(data.states),
+                "fell": own.fell,
+                "loss": loss,
+                "mix": mix,
+                "on_mujoco": float(on_mujoco),
+            }
+        )
         log.info(
-            "runner-run: round %d (the policy in %.0f%% of steps): %d of %d runs fell; %d examples; fit %.4f",
-            r + 1, 100 * mix, own.fell, settings.runs, len(data.states), loss,
+            "runner-run: round %d on the %s (the policy in %.0f%% of steps): %d of %d runs fell; %d examples; fit %.4f",
+            r + 1, where, 100 * mix, own.fell, settings.runs, len(data.states), loss,
         )  # fmt: skip
     result.emulated_steps = steps
     result.wall_s = time.perf_counter() - t0
@@ -313,13 +342,95 @@ class PolicyController:
         self.low, self.high = np.full(m.nu, -np.inf), np.full(m.nu, np.inf)
         self.ctrl_ids = rc.RunnerController(m).ctrl_ids
 
-    def act(self, qpos: FloatArray, qvel: FloatArray, sensordata: FloatArray, dt: float) -> FloatArray:
+    def state(self, qpos: FloatArray, qvel: FloatArray) -> FloatArray:
+        """(B, nq), (B, nv) → (B, S) the emulator's state of those positions and velocities."""
         full = self.model.to_physics(self.model.rest_state()[None].repeat(len(qpos), axis=0))
         full[:, 1 : 1 + self.nq] = qpos
         full[:, 1 + self.nq : 1 + self.nq + self.nv] = qvel
+        return np.asarray(self.model.from_physics(full))
+
+    def act(self, qpos: FloatArray, qvel: FloatArray, sensordata: FloatArray, dt: float) -> FloatArray:
         with torch.no_grad():
-            s = torch.as_tensor(self.model.from_physics(full), dtype=torch.float32)
+            s = torch.as_tensor(self.state(qpos, qvel), dtype=torch.float32)
             return self.policy(s, self.params).double().numpy()
+
+
+class LabelledPolicy(PolicyController):
+    """The policy acting on MuJoCo (in a share ``mix`` of the control periods, the controller in the
+    rest) while the controller, its state machine stepping on the same states, records what it would
+    have done: the policy's own MuJoCo runs as examples (``collect_on_mujoco``)."""
+
+    def __init__(
+        self,
+        model: PhysicalModel,
+        policy: RewardPolicy,
+        speeds: FloatArray,
+        mix: float,
+        rng: np.random.Generator,
+    ) -> None:
+        super().__init__(model, policy, speeds)
+        self.expert = rc.RunnerController(model.mj_model)
+        self.expert.reset(len(speeds), speeds)
+        self.mix, self.rng = mix, rng
+        self.states: list[FloatArray] = []
+        self.labels: list[FloatArray] = []
+
+    def act(self, qpos: FloatArray, qvel: FloatArray, sensordata: FloatArray, dt: float) -> FloatArray:
+        label = self.expert.act(qpos, qvel, sensordata, dt)
+        s = self.state(qpos, qvel)
+        self.states.append(s)
+        self.labels.append(label)
+        with torch.no_grad():
+            own = self.policy(torch.as_tensor(s, dtype=torch.float32), self.params).double().numpy()
+        return np.where((self.rng.random(len(s)) < self.mix)[:, None], own, label)
+
+
+def collect_on_mujoco(
+    model: PhysicalModel,
+    substeps: int,
+    speeds: FloatArray,
+    seconds: float,
+    rng: np.random.Generator,
+    policy: RewardPolicy,
+    mix: float = 1.0,
+) -> Runs:
+    """``collect``'s runs on MuJoCo instead of the emulator (the controller on ``KinematicSensors``,
+    as on the emulator): the states the policy reaches in the world it is judged in."""
+    m = model.mj_model
+    b = len(speeds)
+    starts = np.concatenate([rc.perturbed_starts(m, float(v), 1, rng) for v in speeds])
+    angle = rng.uniform(0, 2 * np.pi, b)
+    push = rc.Push(
+        force=np.stack([PUSH_N * np.cos(angle), PUSH_N * np.sin(angle), np.zeros(b)], axis=1),
+        start_s=rng.uniform(1.0, max(1.0, seconds - 1.0), b),
+        duration_s=PUSH_S,
+    )
+    ctl = LabelledPolicy(model, policy, speeds, mix, rng)
+    res = rc.run(
+        m, starts, speeds, seconds, control_every=substeps, push=push, kinematic=True, threads=1,
+        record=False, controller=ctl,
+    )  # fmt: skip
+    states, labels = np.stack(ctl.states, axis=1), np.stack(ctl.labels, axis=1)  # (B, T, ·)
+    t = np.arange(states.shape[1]) * res.dt
+    keep = t[None, :] < res.fell_at[:, None]  # (B, T): while each run was up
+    return Runs(
+        states[keep],
+        labels[keep],
+        np.repeat(speeds[:, None], states.shape[1], axis=1)[keep],
+        int(res.fell.sum()),
+    )
+
+
+class Judged(TypedDict):
+    """``judge``'s row: a command's runs, how many stayed up, how many met the command, their mean
+    speed over the last two thirds (None when none stayed up) and the wall time."""
+
+    speed: float
+    runs: int
+    up: int
+    met: int
+    mean_speed: float | None
+    wall_s: float
 
 
 def judge(
@@ -330,7 +441,7 @@ def judge(
     runs: int = 16,
     seconds: float = 30.0,
     seed: int = 0,
-) -> dict[str, float]:
+) -> Judged:
     """``runs`` pushed runs on MuJoCo at the command ``speed`` (the policy every super-step; None: the
     hand-written controller), pushed with ``PUSH_N`` for ``PUSH_S`` at 5 s, forward, backward, left
     and right in turn: how many stayed up for ``seconds``, how many also ran within
@@ -359,6 +470,6 @@ def judge(
         "runs": runs,
         "up": int(up.sum()),
         "met": int(within.sum()),
-        "mean_speed": round(float(mean_speed[up].mean()) if up.any() else math.nan, 3),
+        "mean_speed": round(float(mean_speed[up].mean()), 3) if up.any() else None,
         "wall_s": round(res.wall_s, 1),
     }

@@ -18,6 +18,7 @@ from neuroanimator.control.runner_policy import (
     DistillSettings,
     PolicyController,
     collect,
+    collect_on_mujoco,
     distill,
     emulator_step,
     judge,
@@ -98,8 +99,25 @@ def test_the_judge_counts_the_controllers_pushed_runs_and_their_speed(
     _path, model = runner
     row = judge(model, 6, None, 1.8, runs=4, seconds=2.0)
     assert row["runs"] == 4 and row["up"] == 4
-    assert 1.3 < row["mean_speed"] < 2.2
+    assert row["mean_speed"] is not None and 1.3 < row["mean_speed"] < 2.2
     assert 0 <= row["met"] <= row["up"]
+
+
+def test_the_policys_own_mujoco_runs_are_labelled_by_the_controller_while_up(
+    runner: tuple[Path, PhysicalModel],
+) -> None:
+    """With the policy in none of the steps the runs are the controller's own: every state kept,
+    each label the targets the controller applied there."""
+    path, model = runner
+    policy = distill(path, DistillSettings(runs=2, seconds=0.5, rounds=0, epochs=1, hidden=(16,))).policy
+    speeds = np.array([1.8, 2.0])
+    runs = collect_on_mujoco(model, 6, speeds, 1.0, np.random.default_rng(1), policy, mix=0.0)
+    periods = round(1.0 / (6 * model.mj_model.opt.timestep))
+    assert runs.fell == 0 and runs.states.shape == (2 * periods, model.state_size)
+    x = runs.states[:, 0].reshape(2, periods)  # (runs, periods), each run's states in order
+    assert np.all(np.diff(x, axis=1) > 0)  # running forward
+    ctl = rc.RunnerController(model.mj_model)
+    assert np.all(runs.labels >= ctl.low - 1e-9) and np.all(runs.labels <= ctl.high + 1e-9)
 
 
 def test_the_task_pays_for_running_at_the_command_and_nothing_once_down(
@@ -123,7 +141,7 @@ def test_the_bench_learns_and_judges_the_policy_beside_the_controller() -> None:
     lines, result = run_bench("bench/runner_policy.py", "--quick", "--speeds", "1.8,2.2")
     assert lines[0].startswith("runner n6-")
     (row,) = result["tasks"]
-    assert row["task"] == "runner-run" and row["mujoco_steps"] == 0
+    assert row["task"] == "runner-run" and row["mujoco_steps"] == 0  # (no MuJoCo rounds by default)
     assert [c["speed"] for c in row["commands"]] == [1.8, 2.2]
     assert [c["runs"] for c in row["controller"]["commands"]] == [4, 4]
     assert 0.0 <= row["success_physics"] <= row["up_physics"] <= 1.0
