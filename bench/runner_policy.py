@@ -3,7 +3,7 @@ from the running controller (``control.runner_policy``), judged on MuJoCo beside
 
     python bench/runner_policy.py [--speeds 1.8,2.0,2.2] [--runs 16] [--seconds 30]
                                   [--rounds 6] [--data-runs 64] [--data-seconds 10]
-                                  [--mujoco-every K] [--seed 0]
+                                  [--mujoco-every K] [--seed 0] [--save-to DATA_DIR]
                                   [--quick] [--json]
 
 For each command: ``--runs`` runs of ``--seconds`` on MuJoCo from perturbed running starts, pushed
@@ -25,8 +25,10 @@ from pathlib import Path
 from typing import Any
 
 from neuroanimator.artifacts import registry
-from neuroanimator.control.runner_policy import DistillSettings, distill, judge
+from neuroanimator.control.policy_store import save_commanded_policy
+from neuroanimator.control.runner_policy import RUNNER_RUN, DistillSettings, distill, judge
 from neuroanimator.control.threads import torch_threads
+from neuroanimator.core.policy_manifest import PolicyMetrics
 
 REPO = Path(__file__).resolve().parents[1]
 log = logging.getLogger("bench")
@@ -51,6 +53,9 @@ def main(argv: list[str] | None = None) -> int:
         help="every how many rounds the policy's own runs are gathered on MuJoCo (0: never)",
     )
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--save-to", type=Path, help="also store the policy under this data directory (to serve it)"
+    )
     p.add_argument("--quick", action="store_true", help="seconds of everything: a smoke test")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
@@ -113,6 +118,17 @@ def main(argv: list[str] | None = None) -> int:
             "seed": settings.seed,
         },
     }
+    if args.save_to is not None:
+        metrics = PolicyMetrics(
+            success_physics=row["success_physics"],
+            evaluate_runs=sum(r["runs"] for r in ours),
+            mujoco_steps=result.mujoco_steps,
+            iterations=len(result.rounds),
+            wall_s=round(result.wall_s, 2),
+        )
+        roots = registry.Roots(args.save_to, REPO / "artifacts")
+        row["stored"] = str(save_commanded_policy(roots, RUNNER_RUN, result.policy, manifest, metrics))
+        log.info("runner-run: stored in %s", row["stored"])
     print(
         f"\nsuccess on MuJoCo: policy {row['success_physics']:.2f}, controller {row['controller']['success_physics']:.2f}"
     )

@@ -24,7 +24,8 @@ from neuroanimator.artifacts.policies import POLICIES_DIR, POLICY_FILE, POLICY_O
 from neuroanimator.artifacts.registry import LATEST, Root, writable, write_pointer
 from neuroanimator.control.policy import PolicyResult, Schedule
 from neuroanimator.control.policy_net import PolicyNet, PolicyShape
-from neuroanimator.control.reward_policy import RewardResult
+from neuroanimator.control.reward_policy import RewardPolicy, RewardResult
+from neuroanimator.control.suite_tasks import SuiteTask
 from neuroanimator.core.manifest import Manifest
 from neuroanimator.core.policy_manifest import PolicyFall, PolicyManifest, PolicyMetrics
 from neuroanimator.export.policy import policy_to_onnx
@@ -152,6 +153,36 @@ def save_reward_policy(
     manifest = reward_policy_manifest(result, emulator, version)
     graph = policy_to_onnx(result.policy, manifest.state_size, manifest.goal_size, False, reads_time=False)
     weights = {"kind": "reward", "task": result.task.name, "state_dict": result.policy.state_dict()}
+    return _write(folder, graph, weights, manifest)
+
+
+def save_commanded_policy(
+    root: Root,
+    task: SuiteTask,
+    policy: RewardPolicy,
+    emulator: Manifest,
+    metrics: PolicyMetrics,
+    when: dt.datetime | None = None,
+) -> Path:
+    """Write a policy of ``task`` whose goal is a command (its parameters: the runner's speed), learned
+    otherwise than by ``reward_policy`` (``runner_policy``), with the ``metrics`` it was judged by;
+    served as a reward policy is."""
+    folder, version = _new_folder(root, emulator.model, task.name, when)
+    manifest = PolicyManifest(
+        name=task.name,
+        **_about(version, emulator),
+        goal_variables=list(task.params),
+        goal_low=list(task.param_low),
+        goal_high=list(task.param_high),
+        goal_default=[(lo + hi) / 2 for lo, hi in zip(task.param_low, task.param_high, strict=True)],
+        goal_period_steps=task.policy_steps,
+        check_steps=task.policy_steps,
+        description=task.summary,
+        task=task.to_dict(),
+        metrics=metrics,
+    )
+    graph = policy_to_onnx(policy, manifest.state_size, manifest.goal_size, False, reads_time=False)
+    weights = {"kind": "commanded", "task": task.name, "state_dict": policy.state_dict()}
     return _write(folder, graph, weights, manifest)
 
 

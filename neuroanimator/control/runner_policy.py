@@ -219,7 +219,7 @@ def feet(ctx: Context) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
     def observe(state: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
         pos, _ = ctx.kin.places(state)
         at = pos[:, ids]  # (B, 4, 3)
-        rel = (at - pos[:, pelvis : pelvis + 1]).reshape(len(state), -1)
+        rel = (at - pos[:, pelvis : pelvis + 1]).flatten(1)  # (not reshape(len(state)): the batch varies)
         return torch.cat([rel, at[:, :, 2] * 10.0], dim=1)
 
     return observe
@@ -311,7 +311,7 @@ def distill(path: Path, settings: DistillSettings | None = None) -> DistillResul
             steps += len(own.states)
         data = _join(data, own)
         loss = fit(policy, data, settings, rng)
-        where = "mujoco" if on_mujoco else "emulator"
+        where = "MuJoCo" if on_mujoco else "the emulator"
         result.rounds.append(
             {
                 "examples": len(data.states),
@@ -322,7 +322,7 @@ def distill(path: Path, settings: DistillSettings | None = None) -> DistillResul
             }
         )
         log.info(
-            "runner-run: round %d on the %s (the policy in %.0f%% of steps): %d of %d runs fell; %d examples; fit %.4f",
+            "runner-run: round %d on %s (the policy in %.0f%% of steps): %d of %d runs fell; %d examples; fit %.4f",
             r + 1, where, 100 * mix, own.fell, settings.runs, len(data.states), loss,
         )  # fmt: skip
     result.emulated_steps = steps

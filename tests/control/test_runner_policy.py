@@ -135,10 +135,13 @@ def test_the_task_pays_for_running_at_the_command_and_nothing_once_down(
     assert qvel[0] == pytest.approx(params[0], abs=0.05)
 
 
-def test_the_bench_learns_and_judges_the_policy_beside_the_controller() -> None:
+def test_the_bench_learns_and_judges_the_policy_beside_the_controller(tmp_path: Path) -> None:
+    from neuroanimator.artifacts.policies import read_policy
     from tests.helpers import run_bench
 
-    lines, result = run_bench("bench/runner_policy.py", "--quick", "--speeds", "1.8,2.2")
+    lines, result = run_bench(
+        "bench/runner_policy.py", "--quick", "--speeds", "1.8,2.2", "--save-to", str(tmp_path)
+    )
     assert lines[0].startswith("runner n6-")
     (row,) = result["tasks"]
     assert row["task"] == "runner-run" and row["mujoco_steps"] == 0  # (no MuJoCo rounds by default)
@@ -147,3 +150,52 @@ def test_the_bench_learns_and_judges_the_policy_beside_the_controller() -> None:
     assert 0.0 <= row["success_physics"] <= row["up_physics"] <= 1.0
     assert row["controller"]["success_physics"] > 0  # the controller runs 1 s at 1.8 m/s
     assert row["emulated_steps"] == row["rounds"][-1]["examples"]
+    stored = read_policy(Path(row["stored"]))
+    assert Path(row["stored"]).is_relative_to(tmp_path)  # the user's data directory, not the tree
+    assert stored.name == "runner-run" and stored.metrics.success_physics == row["success_physics"]
+
+
+def test_a_stored_runner_policy_drives_a_session_at_the_speed_it_is_sent(
+    runner: tuple[Path, PhysicalModel], tmp_path: Path
+) -> None:
+    """Stored as a commanded policy, it is served as the others are: a session created with it and a
+    command, stepped over REST, gets the policy's targets every super-step; a command outside the
+    range it learned is flagged."""
+    from fastapi.testclient import TestClient
+
+    from neuroanimator.artifacts.policies import POLICY_ONNX
+    from neuroanimator.control.policy_store import save_commanded_policy
+    from neuroanimator.core.policy_manifest import PolicyMetrics
+    from services.emulator.app import create_app
+    from services.emulator.settings import Settings
+
+    path, _model = runner
+    emulator = registry.read_manifest(path)
+    policy = distill(path, DistillSettings(runs=2, seconds=0.5, rounds=0, epochs=1, hidden=(16,))).policy
+    roots = registry.Roots(tmp_path, ARTIFACTS)
+    folder = save_commanded_policy(roots, RUNNER_RUN, policy, emulator, PolicyMetrics(success_physics=0.0))
+    import onnxruntime as ort
+
+    graph = ort.InferenceSession(str(folder / POLICY_ONNX), providers=["CPUExecutionProvider"])
+    settings = Settings(
+        artifacts_dir=ARTIFACTS, data_dir=tmp_path, max_wait_ms=1.0, registry_poll_s=0.0,
+        redis_url="", api_keys="", api_key_secret="test-secret",
+    )  # fmt: skip
+    with TestClient(create_app(settings)) as client:
+        r = client.post(
+            "/sessions", json={"model": "runner", "policy": {"name": "runner-run", "goal": [2.1]}}
+        )
+        assert r.status_code == 201, r.text
+        info = r.json()
+        assert info["policy"]["goal_variables"] == ["speed"] and info["policy"]["goal"] == [
+            pytest.approx(2.1)
+        ]
+        state = np.asarray(info["state"], np.float32)
+        r = client.post(f"/sessions/{info['id']}/step", json={"forces": [0.0, 0.0]})
+        assert r.status_code == 200, r.text
+        want = graph.run(None, {"state": state[None], "goal": np.array([[2.1]], np.float32)})[0][0]
+        np.testing.assert_allclose(r.json()["controls"][0], want, rtol=1e-4, atol=1e-4)
+        r = client.post(
+            "/sessions", json={"model": "runner", "policy": {"name": "runner-run", "goal": [3.0]}}
+        )
+        assert r.status_code == 201 and r.json()["policy"]["goal_outside"] == ["speed"]
