@@ -112,6 +112,17 @@ def emulator_step(onnx: OnnxEmulator) -> Step:
     return step
 
 
+def random_pushes(runs: int, seconds: float, rng: np.random.Generator) -> rc.Push:
+    """One push of each of ``runs`` runs of ``seconds``: ``PUSH_N`` for ``PUSH_S`` in a random
+    direction in the plane, at a random time after the first second and before the last."""
+    angle = rng.uniform(0, 2 * np.pi, runs)
+    return rc.Push(
+        force=np.stack([PUSH_N * np.cos(angle), PUSH_N * np.sin(angle), np.zeros(runs)], axis=1),
+        start_s=rng.uniform(1.0, max(1.0, seconds - 1.0), runs),
+        duration_s=PUSH_S,
+    )
+
+
 def collect(
     model: PhysicalModel,
     step: Step,
@@ -135,12 +146,7 @@ def collect(
     observer = rc.KinematicSensors(m)
     dt = m.opt.timestep * substeps
     periods = round(seconds / dt)
-    angle = rng.uniform(0, 2 * np.pi, b)
-    push = rc.Push(
-        force=np.stack([PUSH_N * np.cos(angle), PUSH_N * np.sin(angle), np.zeros(b)], axis=1),
-        start_s=rng.uniform(1.0, max(1.0, seconds - 1.0), b),
-        duration_s=PUSH_S,
-    )
+    push = random_pushes(b, seconds, rng)
     qpos_cols = np.arange(1, 1 + m.nq)
     qvel_cols = np.arange(1 + m.nq, 1 + m.nq + m.nv)
     z_col = int(qpos_cols[2])
@@ -399,12 +405,7 @@ def collect_on_mujoco(
     m = model.mj_model
     b = len(speeds)
     starts = np.concatenate([rc.perturbed_starts(m, float(v), 1, rng) for v in speeds])
-    angle = rng.uniform(0, 2 * np.pi, b)
-    push = rc.Push(
-        force=np.stack([PUSH_N * np.cos(angle), PUSH_N * np.sin(angle), np.zeros(b)], axis=1),
-        start_s=rng.uniform(1.0, max(1.0, seconds - 1.0), b),
-        duration_s=PUSH_S,
-    )
+    push = random_pushes(b, seconds, rng)
     ctl = LabelledPolicy(model, policy, speeds, mix, rng)
     res = rc.run(
         m, starts, speeds, seconds, control_every=substeps, push=push, kinematic=True, threads=1,
