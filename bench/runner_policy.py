@@ -107,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
             "commands": theirs,
         },
         "rounds": result.rounds,
+        "kept_round": result.kept_round,  # the round whose runs the kept policy drove (0: the last fit)
         "emulated_steps": result.emulated_steps,
         "mujoco_steps": result.mujoco_steps,  # the policy's own MuJoCo runs (the judging's not counted)
         "wall_s": round(result.wall_s, 1),

@@ -64,6 +64,7 @@ def test_a_distilled_policy_acts_within_the_controls_and_reads_the_command(
     assert len(result.rounds) == 2 and result.rounds[1]["mix"] == settings.mix
     assert result.rounds[1]["examples"] > result.rounds[0]["examples"]
     assert result.emulated_steps == result.rounds[1]["examples"]
+    assert result.kept_round == 0  # no round had the policy drive alone: the last fit is kept
     start = model.from_physics(rc.running_start(model.mj_model, 2.0)[None])
     s = torch.as_tensor(np.repeat(start, 2, axis=0), dtype=torch.float32)
     with torch.no_grad():
@@ -71,6 +72,16 @@ def test_a_distilled_policy_acts_within_the_controls_and_reads_the_command(
     low, high = result.policy.output_range()
     assert np.all(u >= np.array(low) - 1e-6) and np.all(u <= np.array(high) + 1e-6)
     assert not np.allclose(u[0], u[1])  # the command is an input
+
+
+def test_of_the_rounds_the_policy_drove_alone_the_one_that_fell_least_is_kept(
+    runner: tuple[Path, PhysicalModel],
+) -> None:
+    path, _model = runner
+    settings = DistillSettings(runs=4, seconds=3.0, rounds=3, mix=1.0, epochs=1, hidden=(16,))
+    result = distill(path, settings)
+    fell = [r["fell"] for r in result.rounds[1:]]
+    assert result.kept_round == 1 + int(np.argmin(fell))
 
 
 def test_mujoco_runs_a_policy_in_the_controllers_place(runner: tuple[Path, PhysicalModel]) -> None:
