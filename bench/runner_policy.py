@@ -117,6 +117,7 @@ def main(argv: list[str] | None = None) -> int:
             "runs": settings.runs,
             "seconds": settings.seconds,
             "seed": settings.seed,
+            "mujoco_every": settings.mujoco_every,
         },
     }
     if args.save_to is not None:

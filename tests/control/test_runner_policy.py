@@ -156,6 +156,7 @@ def test_the_bench_learns_and_judges_the_policy_beside_the_controller(tmp_path: 
     assert lines[0].startswith("runner n6-")
     (row,) = result["tasks"]
     assert row["task"] == "runner-run" and row["mujoco_steps"] == 0  # (no MuJoCo rounds by default)
+    assert row["settings"]["mujoco_every"] == 0
     assert [c["speed"] for c in row["commands"]] == [1.8, 2.2]
     assert [c["runs"] for c in row["controller"]["commands"]] == [4, 4]
     assert 0.0 <= row["success_physics"] <= row["up_physics"] <= 1.0
