@@ -78,7 +78,7 @@ def test_of_the_rounds_the_policy_drove_alone_the_one_that_fell_least_is_kept(
     runner: tuple[Path, PhysicalModel],
 ) -> None:
     path, _model = runner
-    settings = DistillSettings(runs=4, seconds=3.0, rounds=3, mix=1.0, epochs=1, hidden=(16,))
+    settings = DistillSettings(runs=4, seconds=3.0, rounds=3, mix=1.0, epochs=1, hidden=(16,), mujoco_every=0)
     result = distill(path, settings)
     fell = [r["fell"] for r in result.rounds[1:]]
     assert result.kept_round == 1 + int(np.argmin(fell))
@@ -155,8 +155,8 @@ def test_the_bench_learns_and_judges_the_policy_beside_the_controller(tmp_path: 
     )
     assert lines[0].startswith("runner n6-")
     (row,) = result["tasks"]
-    assert row["task"] == "runner-run" and row["mujoco_steps"] == 0  # (no MuJoCo rounds by default)
-    assert row["settings"]["mujoco_every"] == 0
+    assert row["settings"]["mujoco_every"] == 2  # every other round on MuJoCo...
+    assert row["task"] == "runner-run" and row["mujoco_steps"] == 0  # ... and one round only, the emulator's
     assert [c["speed"] for c in row["commands"]] == [1.8, 2.2]
     assert [c["runs"] for c in row["controller"]["commands"]] == [4, 4]
     assert 0.0 <= row["success_physics"] <= row["up_physics"] <= 1.0
