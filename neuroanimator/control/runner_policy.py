@@ -9,11 +9,14 @@ one; the data gathered as DAgger gathers it, Ross, Gordon and Bagnell 2011).
    state machine stepping on the same states, says what it would have done there. Those states are
    where a copy's own errors take it, which the controller's runs never visit: they are added, and
    the policy fit again (``DistillSettings.rounds`` times). The first rounds mix the two (the policy
-   acts in a growing share of the super-steps), so that early runs still resemble the gait.
+   acts in a growing share of the super-steps), so that early runs still resemble the gait. Every
+   other round (``mujoco_every``) gathers the policy's own runs on MuJoCo instead
+   (``collect_on_mujoco``), labelled the same way: under a policy that is not quite the controller
+   the emulator errs where the controller's runs never took it, and those are the states the judged
+   runs reach. Of the rounds the policy drove alone, the one that fell least keeps its policy.
 3. ``judge``: on MuJoCo, the share of pushed runs of 30 s that stay up (the pelvis above 0.55 m) and
    run within 10 % of the command over their last 20 s.
 
-Nothing here reads MuJoCo while learning: the emulator is the only world the policy is trained in.
 The policy is a ``RewardPolicy`` whose parameter is the speed (``RUNNER_RUN``), exported and served
 as a reward policy is.
 
