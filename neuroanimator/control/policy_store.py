@@ -86,22 +86,17 @@ def policy_manifest(result: PolicyResult, version: str, goals: np.ndarray) -> Po
 def reward_policy_manifest(result: RewardResult, emulator: Manifest, version: str) -> PolicyManifest:
     """The manifest of a trained reward policy through ``emulator``: its goal the task's parameters."""
     task = result.task
-    steps = task.policy_steps
     params = result.params if result.params is not None else np.zeros((1, len(task.params)))
     low = list(task.param_low) or [float(v) for v in params.min(axis=0)]
     high = list(task.param_high) or [float(v) for v in params.max(axis=0)]
-    return PolicyManifest(
-        name=task.name,
-        **_about(version, emulator),
-        goal_variables=list(task.params),
-        goal_low=low,
-        goal_high=high,
-        goal_default=[float(v) for v in np.median(params, axis=0)],
-        goal_period_steps=steps,
-        check_steps=steps,
-        description=task.summary,
-        task=task.to_dict(),
-        metrics=PolicyMetrics(
+    return _task_manifest(
+        task,
+        emulator,
+        version,
+        low,
+        high,
+        [float(v) for v in np.median(params, axis=0)],
+        PolicyMetrics(
             return_physics=round(result.return_physics, 2),
             return_emulator=round(result.return_emulator, 2),
             outside_envelope=round(result.outside_share, 4),
@@ -110,6 +105,31 @@ def reward_policy_manifest(result: RewardResult, emulator: Manifest, version: st
             seed_returns=[round(r, 2) for r in result.seed_returns],
             **_how_it_ran(result),
         ),
+    )
+
+
+def _task_manifest(
+    task: SuiteTask,
+    emulator: Manifest,
+    version: str,
+    low: list[float],
+    high: list[float],
+    default: list[float],
+    metrics: PolicyMetrics,
+) -> PolicyManifest:
+    """The manifest of a policy of a reward task: its goal the task's parameters over [low, high]."""
+    return PolicyManifest(
+        name=task.name,
+        **_about(version, emulator),
+        goal_variables=list(task.params),
+        goal_low=low,
+        goal_high=high,
+        goal_default=default,
+        goal_period_steps=task.policy_steps,
+        check_steps=task.policy_steps,
+        description=task.summary,
+        task=task.to_dict(),
+        metrics=metrics,
     )
 
 
@@ -168,19 +188,9 @@ def save_commanded_policy(
     otherwise than by ``reward_policy`` (``runner_policy``), with the ``metrics`` it was judged by;
     served as a reward policy is."""
     folder, version = _new_folder(root, emulator.model, task.name, when)
-    manifest = PolicyManifest(
-        name=task.name,
-        **_about(version, emulator),
-        goal_variables=list(task.params),
-        goal_low=list(task.param_low),
-        goal_high=list(task.param_high),
-        goal_default=[(lo + hi) / 2 for lo, hi in zip(task.param_low, task.param_high, strict=True)],
-        goal_period_steps=task.policy_steps,
-        check_steps=task.policy_steps,
-        description=task.summary,
-        task=task.to_dict(),
-        metrics=metrics,
-    )
+    low, high = list(task.param_low), list(task.param_high)
+    default = [(lo + hi) / 2 for lo, hi in zip(low, high, strict=True)]
+    manifest = _task_manifest(task, emulator, version, low, high, default, metrics)
     graph = policy_to_onnx(policy, manifest.state_size, manifest.goal_size, False, reads_time=False)
     weights = {"kind": "commanded", "task": task.name, "state_dict": policy.state_dict()}
     return _write(folder, graph, weights, manifest)
