@@ -3,7 +3,7 @@ from the running controller (``control.runner_policy``), judged on MuJoCo beside
 
     python bench/runner_policy.py [--speeds 1.8,2.0,2.2] [--runs 16] [--seconds 30]
                                   [--rounds 6] [--data-runs 64] [--data-seconds 10]
-                                  [--mujoco-every K] [--seed 0] [--save-to DATA_DIR]
+                                  [--mujoco-every K] [--members M] [--seed 0] [--save-to DATA_DIR]
                                   [--quick] [--json]
 
 For each command: ``--runs`` runs of ``--seconds`` on MuJoCo from perturbed running starts, pushed
@@ -11,7 +11,9 @@ with 250 N for 0.2 s at 5 s (forward, backward, left, right in turn), the policy
 (16.2 ms) on the state, the controller the same on ``KinematicSensors``: how many stayed up, how many
 also ran within 10 % of the command over the last two thirds of the run, and their mean speed.
 ``success_physics``: the share of all the policy's runs that met their command (the target: 16 of 16
-at each of 1.8, 2.0 and 2.2 m/s). ``--quick``: seconds of everything (a smoke test).
+at each of 1.8, 2.0 and 2.2 m/s). ``root_drift_1s_m``: the pelvis's mean distance between the emulator
+and MuJoCo 1 s after 10 running starts at 2.0 m/s, each under the policy (the target: 0.2 m).
+``--quick``: seconds of everything (a smoke test).
 With ``--json`` the last line is one JSON object.
 """
 
@@ -26,9 +28,18 @@ from typing import Any
 
 from neuroanimator.artifacts import registry
 from neuroanimator.control.policy_store import save_commanded_policy
-from neuroanimator.control.runner_policy import RUNNER_RUN, DistillSettings, distill, judge
+from neuroanimator.control.runner_policy import (
+    RUNNER_RUN,
+    DistillSettings,
+    distill,
+    emulator_step,
+    judge,
+    root_drift,
+    session_starts,
+)
 from neuroanimator.control.threads import torch_threads
 from neuroanimator.core.policy_manifest import PolicyMetrics
+from neuroanimator.export.runtime import OnnxEmulator
 
 REPO = Path(__file__).resolve().parents[1]
 log = logging.getLogger("bench")
@@ -52,6 +63,9 @@ def main(argv: list[str] | None = None) -> int:
         default=DistillSettings().mujoco_every,
         help="every how many rounds the policy's own runs are gathered on MuJoCo (0: never)",
     )
+    p.add_argument(
+        "--members", type=int, default=DistillSettings().members, help="networks averaged in the policy"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--save-to", type=Path, help="also store the policy under this data directory (to serve it)"
@@ -69,10 +83,13 @@ def main(argv: list[str] | None = None) -> int:
         rounds=args.rounds,
         seed=args.seed,
         mujoco_every=args.mujoco_every,
+        members=args.members,
     )
     runs, seconds = args.runs, args.seconds
     if args.quick:
-        settings = DistillSettings(runs=4, seconds=1.0, rounds=1, epochs=1, hidden=(32,), seed=args.seed)
+        settings = DistillSettings(
+            runs=4, seconds=1.0, rounds=1, epochs=1, hidden=(32,), members=args.members, seed=args.seed
+        )
         runs, seconds = 4, 1.0
     path = registry.resolve(REPO / "artifacts", "runner")
     manifest = registry.read_manifest(path)
@@ -84,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
         )
         t0 = time.perf_counter()
         ours = [judge(model, manifest.substeps, result.policy, v, runs, seconds, args.seed) for v in speeds]
+        step = emulator_step(OnnxEmulator(path / registry.ONNX_FILE, threads=1))
+        drift = root_drift(model, step, manifest.substeps, result.policy, seed=args.seed)
     theirs = [judge(model, manifest.substeps, None, v, runs, seconds, args.seed) for v in speeds]
     judged_s = time.perf_counter() - t0
     print(
@@ -106,6 +125,8 @@ def main(argv: list[str] | None = None) -> int:
             "success_physics": round(sum(r["met"] for r in theirs) / sum(r["runs"] for r in theirs), 4),
             "commands": theirs,
         },
+        # the pelvis's distance between the emulator and MuJoCo 1 s after 10 starts under the policy
+        "root_drift_1s_m": round(drift, 3),
         "rounds": result.rounds,
         "kept_round": result.kept_round,  # the round whose runs the kept policy drove (0: the last fit)
         "emulated_steps": result.emulated_steps,
@@ -118,6 +139,7 @@ def main(argv: list[str] | None = None) -> int:
             "seconds": settings.seconds,
             "seed": settings.seed,
             "mujoco_every": settings.mujoco_every,
+            "members": settings.members,
         },
     }
     if args.save_to is not None:
@@ -129,7 +151,9 @@ def main(argv: list[str] | None = None) -> int:
             wall_s=round(result.wall_s, 2),
         )
         roots = registry.Roots(args.save_to, REPO / "artifacts")
-        row["stored"] = str(save_commanded_policy(roots, RUNNER_RUN, result.policy, manifest, metrics))
+        starts = session_starts(model)
+        stored = save_commanded_policy(roots, RUNNER_RUN, result.policy, manifest, metrics, starts=starts)
+        row["stored"] = str(stored)
         log.info("runner-run: stored in %s", row["stored"])
     print(
         f"\nsuccess on MuJoCo: policy {row['success_physics']:.2f}, controller {row['controller']['success_physics']:.2f}"

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from numpy.typing import NDArray
 
 from neuroanimator.artifacts.policies import POLICIES_DIR, POLICY_FILE, POLICY_ONNX, POLICY_WEIGHTS
 from neuroanimator.artifacts.registry import LATEST, Root, writable, write_pointer
@@ -183,14 +184,17 @@ def save_commanded_policy(
     emulator: Manifest,
     metrics: PolicyMetrics,
     when: dt.datetime | None = None,
+    starts: NDArray[np.floating] | None = None,
 ) -> Path:
     """Write a policy of ``task`` whose goal is a command (its parameters: the runner's speed), learned
-    otherwise than by ``reward_policy`` (``runner_policy``), with the ``metrics`` it was judged by;
-    served as a reward policy is."""
+    otherwise than by ``reward_policy`` (``runner_policy``), with the ``metrics`` it was judged by and
+    the (K, S) ``starts`` its sessions begin at; served as a reward policy is."""
     folder, version = _new_folder(root, emulator.model, task.name, when)
     low, high = list(task.param_low), list(task.param_high)
     default = [(lo + hi) / 2 for lo, hi in zip(low, high, strict=True)]
     manifest = _task_manifest(task, emulator, version, low, high, default, metrics)
+    if starts is not None:
+        manifest = manifest.model_copy(update={"starts": np.asarray(starts, float).round(6).tolist()})
     graph = policy_to_onnx(policy, manifest.state_size, manifest.goal_size, False, reads_time=False)
     weights = {"kind": "commanded", "task": task.name, "state_dict": policy.state_dict()}
     return _write(folder, graph, weights, manifest)

@@ -195,7 +195,7 @@ class RewardPolicy(nn.Module):
     ) -> None:
         super().__init__()
         self.features = features
-        self.net = mlp(features.size, hidden, len(low))
+        self.net: nn.Module = mlp(features.size, hidden, len(low))
         self.register_buffer("centre", torch.tensor((low + high) / 2, dtype=torch.float32))
         self.register_buffer("half_range", torch.tensor((high - low) / 2, dtype=torch.float32))
         self.register_buffer("spread", torch.diag(self.half_range), persistent=False)  # (U, U)

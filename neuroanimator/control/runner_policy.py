@@ -36,10 +36,11 @@ import mujoco
 import numpy as np
 import torch
 from numpy.typing import NDArray
+from torch import nn
 
 from neuroanimator.artifacts import registry
 from neuroanimator.catalog.runner import gait as rc
-from neuroanimator.control.reward_policy import Features, RewardPolicy
+from neuroanimator.control.reward_policy import Features, RewardPolicy, mlp
 from neuroanimator.control.suite_tasks import Context, Fall, SuiteTask, tolerance
 from neuroanimator.export.runtime import OnnxEmulator
 from neuroanimator.sim.model import PhysicalModel
@@ -115,6 +116,16 @@ def emulator_step(onnx: OnnxEmulator) -> Step:
     return step
 
 
+def session_starts(model: PhysicalModel, count: int = 8, seed: int = 0) -> FloatArray:
+    """(count, S) running strides at the task's default command (the middle of its range), their
+    velocities perturbed: where a served session driven by the policy starts (``PolicyManifest.starts``),
+    as its runs did, not from the standing pose the model's own starts are."""
+    speed = sum(SPEED_RANGE) / 2
+    return np.asarray(
+        model.from_physics(rc.perturbed_starts(model.mj_model, speed, count, np.random.default_rng(seed)))
+    )
+
+
 def random_pushes(runs: int, seconds: float, rng: np.random.Generator) -> rc.Push:
     """One push of each of ``runs`` runs of ``seconds``: ``PUSH_N`` for ``PUSH_S`` in a random
     direction in the plane, at a random time after the first second and before the last."""
@@ -183,6 +194,17 @@ def collect(
 
 
 # ---------------------------------------------------------------------------------- the policy
+class Ensemble(nn.Module):
+    """Networks side by side: (B, F) features → (B, U) the mean of their outputs (``members``)."""
+
+    def __init__(self, members: list[nn.Module]) -> None:
+        super().__init__()
+        self.members = nn.ModuleList(members)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.stack([m(x) for m in self.members]).mean(dim=0)
+
+
 @dataclass(frozen=True)
 class DistillSettings:
     """How the runner's policy is learned (module doc): ``runs`` emulated runs of ``seconds`` per
@@ -198,6 +220,9 @@ class DistillSettings:
     batch: int = 512
     lr: float = 1e-3
     hidden: tuple[int, ...] = (256, 256)
+    # networks fit side by side to the same examples from their own initial weights, their outputs
+    # averaged (before the squashing): where the examples are thin their errors differ and partly cancel
+    members: int = 1
     seed: int = 0
     speeds: tuple[float, float] = (1.6, 2.4)  # commands the data is gathered at: beyond the task's range
     # every how many rounds one gathers the policy's own runs on MuJoCo instead (0: never; 2: every
@@ -251,6 +276,7 @@ def fit(policy: RewardPolicy, data: Runs, settings: DistillSettings, rng: np.ran
     units of each control's half range (the last pass's mean). The features hold no weights, so
     they are computed once per fit and only the network behind them is trained on them."""
     opt = torch.optim.Adam(policy.net.parameters(), lr=settings.lr)
+    nets = list(policy.net.members) if isinstance(policy.net, Ensemble) else [policy.net]
     with torch.no_grad():
         x = torch.cat(
             [
@@ -270,7 +296,8 @@ def fit(policy: RewardPolicy, data: Runs, settings: DistillSettings, rng: np.ran
         loss_sum, n = 0.0, 0
         for at in range(0, len(x), settings.batch):
             i = order[at : at + settings.batch]
-            loss = ((torch.tanh(policy.net(x[i])) - y[i]) ** 2).mean()
+            # each member fit on its own (an ensemble's mean is not what any member is taught)
+            loss = torch.stack([((torch.tanh(net(x[i])) - y[i]) ** 2).mean() for net in nets]).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -306,7 +333,12 @@ def distill(path: Path, settings: DistillSettings | None = None) -> DistillResul
     steps = len(data.states)
     low = np.array([c.low for c in manifest.controls])
     high = np.array([c.high for c in manifest.controls])
-    policy = RewardPolicy(_features(model, ctx, data.states), low, high, settings.hidden)
+    features = _features(model, ctx, data.states)
+    policy = RewardPolicy(features, low, high, settings.hidden)
+    if settings.members > 1:
+        policy.net = Ensemble(
+            [mlp(features.size, settings.hidden, len(low)) for _ in range(settings.members)]
+        )
     result = DistillResult(policy)
     loss = fit(policy, data, settings, rng)
     result.rounds.append({"examples": len(data.states), "fell": data.fell, "loss": loss})
@@ -442,6 +474,38 @@ def collect_on_mujoco(
         np.repeat(speeds[:, None], states.shape[1], axis=1)[keep],
         int(res.fell.sum()),
     )
+
+
+def root_drift(
+    model: PhysicalModel,
+    step: Step,
+    substeps: int,
+    policy: RewardPolicy,
+    speed: float = 2.0,
+    runs: int = 10,
+    seconds: float = 1.0,
+    seed: int = 0,
+) -> float:
+    """The mean distance (m) between the pelvis on the emulator ``step`` and on MuJoCo ``seconds``
+    after the same ``runs`` perturbed running starts at ``speed``, each in its own closed loop under
+    ``policy`` (unpushed): how far the emulator strays from MuJoCo under the policy it taught (inf
+    when every emulated run left the finite numbers)."""
+    m = model.mj_model
+    starts = rc.perturbed_starts(m, speed, runs, np.random.default_rng(seed))
+    speeds = np.full(runs, speed)
+    res = rc.run(
+        m, starts, speeds, seconds, control_every=substeps, kinematic=True, threads=1, record=False,
+        controller=PolicyController(model, policy, speeds),
+    )  # fmt: skip
+    state = model.from_physics(starts)
+    params = torch.as_tensor(speeds[:, None], dtype=torch.float32)
+    for _ in range(round(seconds / (m.opt.timestep * substeps))):
+        with torch.no_grad():
+            u = policy(torch.as_tensor(state, dtype=torch.float32), params).double().numpy()
+        state = step(state, u, np.zeros((runs, model.num_forces)))
+    emulated = model.to_physics(state)[:, 1:4]  # the pelvis's x, y, z (the free joint's first)
+    gap = np.linalg.norm(emulated - res.final_qpos[:, :3], axis=1)
+    return float(gap[np.isfinite(gap)].mean()) if np.isfinite(gap).any() else float("inf")
 
 
 class Judged(TypedDict):

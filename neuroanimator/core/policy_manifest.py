@@ -90,6 +90,12 @@ class PolicyManifest(BaseModel):
     description: str = ""
     task: dict[str, Any] = Field(default_factory=dict)
     metrics: PolicyMetrics = Field(default_factory=PolicyMetrics)
+    starts: list[list[float]] = Field(
+        default_factory=list,
+        description="(K, S) states its task's runs start from (the runner's: a running stride); a "
+        "session driven by it without a state given starts at one of them, drawn by the seed (none: "
+        "the model's typical starts)",
+    )
 
     @property
     def goal_size(self) -> int:

@@ -69,7 +69,7 @@ class EmulatorService:
     # ------------------------------------------------------------------ sessions
     def create_session(self, req: SessionCreate) -> Session:
         """A session at the given state (checked; quaternion groups normalised) or at a typical start
-        drawn from the seed, owned by the caller's API key; driven by the model's driver or by a policy
+        drawn from the seed (one of its policy's own starts when it has them), owned by the caller's API key; driven by the model's driver or by a policy
         (of the emulator version it was trained through: the session's) when asked."""
         policy, goal = None, None
         if req.policy is not None:
@@ -106,7 +106,9 @@ class EmulatorService:
                 state[sl] /= norm
         else:
             seed = req.seed if req.seed is not None else secrets.randbits(63)
-            state = emu.initial_state(seed)
+            starts = policy.manifest.starts if policy is not None else []
+            # a policy starts where its task's runs start (a running stride, not a standing pose)
+            state = np.asarray(starts[seed % len(starts)], np.float32) if starts else emu.initial_state(seed)
         driver = None
         if req.driver is not None:
             params = self.driver_params(emu, req.driver)

@@ -16,12 +16,14 @@ from neuroanimator.catalog.runner import gait as rc
 from neuroanimator.control.runner_policy import (
     RUNNER_RUN,
     DistillSettings,
+    Ensemble,
     PolicyController,
     collect,
     collect_on_mujoco,
     distill,
     emulator_step,
     judge,
+    session_starts,
 )
 from neuroanimator.control.suite_tasks import Context
 from neuroanimator.export.runtime import OnnxEmulator
@@ -72,6 +74,35 @@ def test_a_distilled_policy_acts_within_the_controls_and_reads_the_command(
     low, high = result.policy.output_range()
     assert np.all(u >= np.array(low) - 1e-6) and np.all(u <= np.array(high) + 1e-6)
     assert not np.allclose(u[0], u[1])  # the command is an input
+
+
+def test_an_ensemble_policy_averages_its_members_and_is_served_as_one_graph(
+    runner: tuple[Path, PhysicalModel], tmp_path: Path
+) -> None:
+    import onnxruntime as ort
+
+    from neuroanimator.artifacts.policies import POLICY_ONNX
+    from neuroanimator.control.policy_store import save_commanded_policy
+    from neuroanimator.core.policy_manifest import PolicyMetrics
+
+    path, model = runner
+    policy = distill(
+        path, DistillSettings(runs=2, seconds=0.5, rounds=0, epochs=1, hidden=(16,), members=3)
+    ).policy
+    assert isinstance(policy.net, Ensemble) and len(policy.net.members) == 3
+    starts = session_starts(model, count=2)
+    x = policy.features(torch.as_tensor(starts, dtype=torch.float32), torch.tensor([[2.0], [2.0]]))
+    with torch.no_grad():
+        each = [net(x) for net in policy.net.members]
+        assert not torch.allclose(each[0], each[1])  # members start from their own weights
+        torch.testing.assert_close(policy.net(x), torch.stack(each).mean(dim=0))
+        want = policy(torch.as_tensor(starts, dtype=torch.float32), torch.tensor([[2.0], [2.0]])).numpy()
+    folder = save_commanded_policy(
+        registry.Roots(tmp_path, ARTIFACTS), RUNNER_RUN, policy, registry.read_manifest(path), PolicyMetrics()
+    )
+    graph = ort.InferenceSession(str(folder / POLICY_ONNX), providers=["CPUExecutionProvider"])
+    got = graph.run(None, {"state": starts.astype(np.float32), "goal": np.full((2, 1), 2.0, np.float32)})[0]
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
 
 
 def test_of_the_rounds_the_policy_drove_alone_the_one_that_fell_least_is_kept(
@@ -162,17 +193,20 @@ def test_the_bench_learns_and_judges_the_policy_beside_the_controller(tmp_path: 
     assert 0.0 <= row["success_physics"] <= row["up_physics"] <= 1.0
     assert row["controller"]["success_physics"] > 0  # the controller runs 1 s at 1.8 m/s
     assert row["emulated_steps"] == row["rounds"][-1]["examples"]
+    assert row["root_drift_1s_m"] >= 0.0  # the emulator beside MuJoCo under the policy
     stored = read_policy(Path(row["stored"]))
     assert Path(row["stored"]).is_relative_to(tmp_path)  # the user's data directory, not the tree
     assert stored.name == "runner-run" and stored.metrics.success_physics == row["success_physics"]
+    assert len(stored.starts) == 8 and len(stored.starts[0]) == stored.state_size  # where sessions start
 
 
 def test_a_stored_runner_policy_drives_a_session_at_the_speed_it_is_sent(
     runner: tuple[Path, PhysicalModel], tmp_path: Path
 ) -> None:
     """Stored as a commanded policy, it is served as the others are: a session created with it and a
-    command, stepped over REST, gets the policy's targets every super-step; a command outside the
-    range it learned is flagged."""
+    command, stepped over REST, gets the policy's targets every super-step; it starts at one of the
+    policy's own starts (running, drawn by the seed), not standing; a command outside the range it
+    learned is flagged."""
     from fastapi.testclient import TestClient
 
     from neuroanimator.artifacts.policies import POLICY_ONNX
@@ -181,11 +215,15 @@ def test_a_stored_runner_policy_drives_a_session_at_the_speed_it_is_sent(
     from services.emulator.app import create_app
     from services.emulator.settings import Settings
 
-    path, _model = runner
+    path, model = runner
     emulator = registry.read_manifest(path)
     policy = distill(path, DistillSettings(runs=2, seconds=0.5, rounds=0, epochs=1, hidden=(16,))).policy
     roots = registry.Roots(tmp_path, ARTIFACTS)
-    folder = save_commanded_policy(roots, RUNNER_RUN, policy, emulator, PolicyMetrics(success_physics=0.0))
+    starts = session_starts(model, count=3)
+    folder = save_commanded_policy(
+        roots, RUNNER_RUN, policy, emulator, PolicyMetrics(success_physics=0.0), starts=starts
+    )
+    drive = {"name": "runner-run", "version": folder.name}
     import onnxruntime as ort
 
     graph = ort.InferenceSession(str(folder / POLICY_ONNX), providers=["CPUExecutionProvider"])
@@ -194,11 +232,11 @@ def test_a_stored_runner_policy_drives_a_session_at_the_speed_it_is_sent(
         redis_url="", api_keys="", api_key_secret="test-secret",
     )  # fmt: skip
     with TestClient(create_app(settings)) as client:
-        r = client.post(
-            "/sessions", json={"model": "runner", "policy": {"name": "runner-run", "goal": [2.1]}}
-        )
+        r = client.post("/sessions", json={"model": "runner", "seed": 5, "policy": {**drive, "goal": [2.1]}})
         assert r.status_code == 201, r.text
         info = r.json()
+        np.testing.assert_allclose(info["state"], starts[5 % 3], atol=1e-5)  # the seed's start
+        assert info["state"][emulator.state_labels.index("root.vel.x")] == pytest.approx(2.0, abs=0.05)
         assert info["policy"]["goal_variables"] == ["speed"] and info["policy"]["goal"] == [
             pytest.approx(2.1)
         ]
@@ -207,7 +245,5 @@ def test_a_stored_runner_policy_drives_a_session_at_the_speed_it_is_sent(
         assert r.status_code == 200, r.text
         want = graph.run(None, {"state": state[None], "goal": np.array([[2.1]], np.float32)})[0][0]
         np.testing.assert_allclose(r.json()["controls"][0], want, rtol=1e-4, atol=1e-4)
-        r = client.post(
-            "/sessions", json={"model": "runner", "policy": {"name": "runner-run", "goal": [3.0]}}
-        )
+        r = client.post("/sessions", json={"model": "runner", "policy": {**drive, "goal": [3.0]}})
         assert r.status_code == 201 and r.json()["policy"]["goal_outside"] == ["speed"]

@@ -10,7 +10,13 @@
 // ghost; the goal (the pad) is dragged in the view, the websocket carries the new goal, the replies
 // echo it and the lander moves. A goal typed outside the trained range is flagged as the service flags
 // it, and a kick goes on from a kicked state in a new session of the same policy.
-import { check, log, main, noErrorNotice, onScreen, out, shot, url } from './browser.mjs';
+//
+//   node tests/e2e/policies.mjs runner
+//
+// The runner's stored running policy (runner-run) is driven from the page's address: its goal is a
+// command (a speed), set with a slider and drawn nowhere; the runner runs at it beside its ghost, the
+// camera with it, and a push slider pushes it.
+import { check, log, main, noErrorNotice, onScreen, out, screenOf, shot, url } from './browser.mjs';
 
 const num = (s) => JSON.parse(s || 'null');
 
@@ -138,4 +144,57 @@ async function policies(page) {
   out.goal_messages = goals.length;
 }
 
-await main({ policies });
+async function runner(page) {
+  const sent = [];
+  page.on('websocket', (ws) => {
+    ws.on('framesent', (f) => {
+      const text = typeof f.payload === 'string' ? f.payload : '';
+      if (text.includes('"goal"')) sent.push(JSON.parse(text));
+    });
+  });
+  await page.goto(url('policies', 'policy=runner/runner-run&drive=1&seed=1'));
+  await page.waitForFunction(() => (document.querySelector('#pd-status')?.dataset.state ?? '') !== '', null, { timeout: 30000 });
+  const hint = await page.$eval('#pd-goal-hint', (el) => el.textContent);
+  check(/command/.test(hint), `the goal is offered as a command (${hint})`);
+  const sliders = await page.$$eval('input[data-goal]', (els) => els.map((e) => e.dataset.goal));
+  check(JSON.stringify(sliders) === '["speed"]', `one slider, the speed (${sliders})`);
+  await onScreen(page, '#pd-view', 'model', 4, 10000);
+  check((await screenOf(page, '#pd-view', 'goal')) === null, 'a command has no goal marker in the view');
+  const forces = await page.$$eval('[data-force]', (els) => els.length);
+  check(forces >= 2, `the runner can be pushed (${forces} force sliders)`);
+
+  // a new command: sent over the websocket, echoed, and run at
+  const before = sent.length;
+  await page.fill('[data-goal-number="speed"]', '2.2');
+  await page.press('[data-goal-number="speed"]', 'Enter');
+  await page.waitForFunction(() => JSON.parse(document.querySelector('#pd-status')?.dataset.goal || 'null')?.[0]?.toFixed(2) === '2.20', null, { timeout: 5000 });
+  const last = sent.slice(before).pop();
+  check(last && JSON.stringify(last.goal) === '[2.2]' && !('controls' in last), `the websocket sent the command (${JSON.stringify(last)})`);
+  await page.waitForTimeout(1000);
+  const s0 = num(await page.$eval('#pd-status', (el) => el.dataset.state));
+  const t0 = Number(await page.$eval('#pd-status', (el) => el.dataset.t));
+  await page.waitForTimeout(2500);
+  const s1 = num(await page.$eval('#pd-status', (el) => el.dataset.state));
+  const t1 = Number(await page.$eval('#pd-status', (el) => el.dataset.t));
+  const controls = num(await page.$eval('#pd-status', (el) => el.dataset.controls));
+  const speed = Math.hypot(s1[0] - s0[0], s1[1] - s0[1]) / (t1 - t0);
+  log(`runner ${s0.slice(0, 3)} -> ${s1.slice(0, 3)} over t ${t0} -> ${t1} s: ${speed.toFixed(2)} m/s; ${controls?.length} controls`);
+  check(t1 > t0 && speed > 1.0 && s1[2] > 0.55, 'the runner runs, up, driven by the policy');
+  check(Array.isArray(controls) && controls.length === 29, 'the replies carry the 29 servo targets the policy chose');
+  await onScreen(page, '#pd-view', 'model', 4, 5000); // the camera went with it
+  out.speed = speed;
+
+  // a command outside the trained range is flagged
+  await page.fill('[data-goal-number="speed"]', '3');
+  await page.press('[data-goal-number="speed"]', 'Enter');
+  await page.waitForSelector('#pd-goal-outside:not([hidden])', { timeout: 5000 });
+  const flag = await page.$eval('#pd-goal-outside', (el) => el.dataset.outside);
+  check(flag === 'speed', `a speed outside the trained range is flagged (${flag})`);
+  await page.fill('[data-goal-number="speed"]', '2');
+  await page.press('[data-goal-number="speed"]', 'Enter');
+  await page.waitForSelector('#pd-goal-outside[hidden]', { state: 'attached', timeout: 5000 });
+  await noErrorNotice(page, 'driving the runner');
+  await shot(page, 'policies-runner');
+}
+
+await main({ policies, runner });

@@ -6,7 +6,10 @@ registry of the lander's committed emulators alone, with a data directory of its
   iterations, loss curve, success on MuJoCo and MuJoCo steps live, then the stored policy's metrics;
 - "Drive it": a session driven by the policy beside its MuJoCo ghost; the pad dragged in the view goes
   over the websocket as the goal, the replies echo it and the lander moves; a goal typed outside the
-  trained range is flagged; a kick goes on in a new session of the same policy and goal.
+  trained range is flagged; a kick goes on in a new session of the same policy and goal;
+- the runner's committed running policy driven from the page's address: its speed command set with a
+  slider (no marker: a command is no place), sent and echoed; the runner runs at it; a speed outside
+  the trained range is flagged.
 
 ``E2E_UPDATE_DOCS=1`` copies the drive view and the training panel into ``docs/``.
 """
@@ -26,6 +29,7 @@ from tests.e2e.harness import ROOT, missing, run_phase, running_stack, update_do
 
 SCRIPT = ROOT / "tests" / "e2e" / "policies.mjs"
 DOC_SHOTS = {"policies.png": "policies.png", "policies-train.png": "policies-train.png"}
+RUNNER_SHOTS = {"policies-runner.png": "policies-runner.png"}
 
 pytestmark = pytest.mark.skipif(missing() is not None, reason=missing() or "")
 
@@ -53,3 +57,25 @@ def test_train_a_lander_policy_and_drive_it(stack: Stack) -> None:
     print(f"policy trained in the browser in {r['training_s']} s; the phase took {r['wall_s']} s")
     if os.environ.get("E2E_UPDATE_DOCS") == "1":
         update_docs(DOC_SHOTS)
+
+
+@pytest.fixture(scope="module")
+def runner_stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
+    """The stack over the runner's committed emulator and its committed running policy."""
+    registry = tmp_path_factory.mktemp("runner-registry")
+    shutil.copytree(ROOT / "artifacts" / "runner", registry / "runner")
+    shutil.copytree(ROOT / "artifacts" / "policies" / "runner", registry / "policies" / "runner")
+    with running_stack(
+        tmp_path_factory.mktemp("runner-logs"),
+        artifacts_dir=registry,
+        data_dir=tmp_path_factory.mktemp("runner-data"),
+        trainer=False,
+    ) as s:
+        yield s
+
+
+def test_drive_the_runner_at_a_commanded_speed(runner_stack: Stack) -> None:
+    r = run_phase(runner_stack, SCRIPT, "runner", 90)
+    assert r["speed"] > 1.0
+    if os.environ.get("E2E_UPDATE_DOCS") == "1":
+        update_docs(RUNNER_SHOTS)

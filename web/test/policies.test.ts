@@ -73,6 +73,13 @@ describe('a goal in the scene', () => {
     expect(goalState([1, 2, 3], h, [9, 9])).toEqual([9, 2, 3]);
   });
 
+  it("takes a goal that is no state variable as a command (the runner's speed): nothing to draw", () => {
+    const h = goalHandles(['speed'], LANDER.labels, LANDER.layout);
+    expect([h.kind, h.x, h.y, h.z, h.heading, h.state]).toEqual(['command', null, null, null, null, [-1]]);
+    expect(goalState([1, 2, 3], h, [2.0])).toEqual([1, 2, 3]);
+    expect(goalPoint([1, 2, 3], h)).toBeNull();
+  });
+
   it('names the goal variables outside the trained range, a bound itself inside', () => {
     const names = ['position.x', 'position.y'];
     expect(goalOutside([15, -15], [-15, -15], [15, 15], names)).toEqual([]);

@@ -1389,6 +1389,10 @@ export interface PolicyManifest {
     [k: string]: unknown;
   };
   metrics?: PolicyMetrics;
+  /**
+   * (K, S) states its task's runs start from (the runner's: a running stride); a session driven by it without a state given starts at one of them, drawn by the seed (none: the model's typical starts)
+   */
+  starts?: number[][];
 }
 /**
  * How the policy did on held-out starts and goals when it was trained.

@@ -3,7 +3,8 @@
 // policy flying the physics). The goal is a translucent green copy of the model where the goal puts it
 // (the task's target state with the goal in place), dragged in the view on the ground (the lander's
 // pad, the truck's spot) or on a horizontal plane at its height (the quadrotor's target; a slider sets
-// the height), or set with sliders (the pendulum's three angles, the truck's heading); every change
+// the height), or set with sliders (the pendulum's three angles, the truck's heading, the runner's
+// speed: a command, which has no marker); every change
 // goes to the session as `goal` in a websocket `controls` message. The replies' `goal_outside` is
 // shown when the goal leaves the range the policy was trained for. "Kick" perturbs the velocities:
 // the emulator service cannot set a live session's state, so a new session of the same policy and goal
@@ -12,7 +13,7 @@ import * as THREE from 'three';
 import type { PolicyManifest } from '../api/controller';
 import type { ModelDetail, ModelGeometry, SessionInfo, WsState } from '../api/emulator.gen';
 import { errorText } from '../api/http';
-import { goalHandles, goalOutside, goalPoint, goalState, kicked, movedGoal, roundGoal, sameGoal, sliderRange, timeToCheck, type GoalHandles } from '../policies/goal';
+import { goalHandles, goalOutside, goalPoint, goalState, kicked, movedGoal, roundGoal, sameGoal, sliderRange, timeToCheck, type GoalHandles, type GoalKind } from '../policies/goal';
 import { percent } from '../policies/progress';
 import { gapLabel, poseGap, rootMoves } from '../scene/divergence';
 import { dragGoal } from '../scene/goaldrag';
@@ -27,6 +28,16 @@ import { fmt, h } from '../ui/dom';
 import { clearNotice, notify } from '../ui/notices';
 import type { Ctx } from './context';
 import { DivergencePanel, GHOST_COLOR, GHOST_LOOK, GOAL_COLOR, MODEL_TRAIL } from './divergence';
+
+/** Whether a goal of this kind is a place, drawn and dragged in the view. */
+const isPlace = (kind: GoalKind): boolean => kind === 'ground' || kind === 'space';
+
+/** What the view marks as the goal (for the tests): the place's handle, the pose's outline; a command
+ * has none. */
+function goalMark(s: Scene | null): THREE.Object3D | null {
+  if (!s || s.handles.kind === 'command') return null;
+  return s.handles.kind === 'pose' ? s.marker.group : s.pick;
+}
 
 const GOAL_SEND_MS = 100; // a goal dragged is sent at most this often (and once more where it is let go)
 const GOAL_LOOK = { ghost: true, color: GOAL_COLOR, opacity: 0.25 } as const;
@@ -147,7 +158,7 @@ export class DrivePanel {
     if (v) {
       this.stops.push(
         dragGoal(v, {
-          targets: () => (this.scene && this.scene.handles.kind !== 'pose' && this.conn ? [this.scene.pick, this.scene.marker.group] : null),
+          targets: () => (this.scene && isPlace(this.scene.handles.kind) && this.conn ? [this.scene.pick, this.scene.marker.group] : null),
           at: () => (this.scene ? this.point(this.scene) : null),
           began: () => {
             this.dragging = true;
@@ -163,7 +174,7 @@ export class DrivePanel {
         }),
         v.mark('model', () => this.scene?.model.root ?? null),
         v.mark('ghost', () => (this.scene?.ghost.visible ? this.scene.ghost.root : null)),
-        v.mark('goal', () => (this.scene ? (this.scene.handles.kind === 'pose' ? this.scene.marker.group : this.scene.pick) : null)),
+        v.mark('goal', () => goalMark(this.scene)),
         v.onBeforeRender((now) => this.frame(now)),
       );
     }
@@ -375,7 +386,7 @@ export class DrivePanel {
     s.goal[i] = v;
     this.showGoal(s, from);
     const h = s.handles;
-    if (i !== h.x && i !== h.y && i !== h.z) {
+    if (h.kind !== 'command' && i !== h.x && i !== h.y && i !== h.z) {
       window.clearTimeout(this.placeTimer);
       this.placeTimer = window.setTimeout(() => void this.place(), 120);
     }
@@ -419,6 +430,14 @@ export class DrivePanel {
     const s = this.scene;
     if (!s) return;
     const n = ++this.placing;
+    if (s.handles.kind === 'command') {
+      // no marker: the ground under the model as it starts, and the camera on it
+      if (first && this.viewer) {
+        this.viewer.setGroundHeight(groundHeight(s.model, [s.geometry.rest_poses]));
+        this.viewer.follow(this.framed(s));
+      }
+      return;
+    }
     const state = goalState(s.base, s.handles, s.goal);
     try {
       const r = await this.ctx.emulator.poses(s.detail.model, [state], s.detail.version);
@@ -446,7 +465,7 @@ export class DrivePanel {
     const handles = goalHandles(p.goal_variables, detail.state_labels, detail.layout);
     const pick = new THREE.Mesh(new THREE.SphereGeometry(1, 16, 12), new THREE.MeshBasicMaterial({ color: GOAL_COLOR, transparent: true, opacity: 0, depthWrite: false }));
     pick.name = 'goal-pick';
-    pick.visible = handles.kind !== 'pose';
+    pick.visible = isPlace(handles.kind);
     const s: Scene = {
       policy: p,
       detail,
@@ -469,7 +488,8 @@ export class DrivePanel {
     };
     s.ghost.visible = this.ghostBox.checked;
     s.drop.group.visible = s.rooted;
-    s.pad.group.visible = handles.kind !== 'pose';
+    s.pad.group.visible = isPlace(handles.kind);
+    s.marker.visible = handles.kind !== 'command';
     this.divergence.configure(gapLabel(detail.layout), this.ghostBox.checked);
     this.drawGoalEditor(s);
     this.drawDisturb(s);
@@ -484,7 +504,8 @@ export class DrivePanel {
 
   private framed(s: Scene): () => THREE.Box3 {
     const v = this.viewer!;
-    return () => v.boxOf(...(s.rooted ? s.model.moving : [s.model.group]), ...(s.ghost.visible ? s.ghost.moving : []), s.marker.group);
+    const marker = s.handles.kind === 'command' ? [] : [s.marker.group]; // a command is nowhere to frame
+    return () => v.boxOf(...(s.rooted ? s.model.moving : [s.model.group]), ...(s.ghost.visible ? s.ghost.moving : []), ...marker);
   }
 
   private drawGoalEditor(s: Scene): void {
@@ -495,7 +516,9 @@ export class DrivePanel {
         ? 'Drag the green goal on the ground in the view (or use the sliders): the policy heads for it.'
         : hkind === 'space'
           ? 'Drag the green goal in the view: it moves on a level plane at its height; the height slider raises or lowers it.'
-          : 'Set the goal with the sliders: the green outline shows the pose it asks for.';
+          : hkind === 'command'
+            ? 'Set the command with the slider: the policy follows it as it goes (push it below and watch it recover).'
+            : 'Set the goal with the sliders: the green outline shows the pose it asks for.';
     this.goalEditor.textContent = '';
     s.inputs = p.goal_variables.map((name, i) => {
       const [lo, hi] = sliderRange(p.goal_low[i] ?? -1, p.goal_high[i] ?? 1, i === s.handles.heading);

@@ -3,10 +3,12 @@
 // slider for the quadrotor's target) or its heading, the state the goal marker is drawn at (the task's
 // target state with the goal in place), and what the page checks of a goal itself (outside the trained
 // range). Also the "kick" of a session whose model has no force inputs: its state with the velocities
-// perturbed, which a new session of the same policy starts from. Pure functions: no DOM, no three.js.
+// perturbed, which a new session of the same policy starts from. A goal none of whose variables is a
+// state variable (the runner's speed) is a command: set with sliders, no marker drawn for it. Pure
+// functions: no DOM, no three.js.
 import type { EnvelopeGroup, LayoutGroup } from '../api/emulator.gen';
 
-export type GoalKind = 'ground' | 'space' | 'pose';
+export type GoalKind = 'ground' | 'space' | 'pose' | 'command';
 
 export interface GoalHandles {
   /** The state index of each goal variable (-1: the state has no such label). */
@@ -19,7 +21,9 @@ export interface GoalHandles {
   heading: number | null;
   /** The state offset of the root's position group and its size (2: a planar root, 3: a free one). */
   root: { offset: number; size: number } | null;
-  /** ground: x and y on the ground plane; space: x, y and z; pose: none of them (joint angles). */
+  /** ground: x and y on the ground plane; space: x, y and z; pose: none of them (joint angles);
+   * command: no goal variable is a state variable (a speed to run at): there is no place or pose to
+   * draw. */
   kind: GoalKind;
 }
 
@@ -35,7 +39,7 @@ export function goalHandles(goalVariables: string[], stateLabels: string[], layo
   const x = pos ? at(pos.offset) : null;
   const y = pos ? at(pos.offset + 1) : null;
   const z = pos && pos.size >= 3 ? at(pos.offset + 2) : null;
-  const kind: GoalKind = x !== null && y !== null ? (z !== null ? 'space' : 'ground') : 'pose';
+  const kind: GoalKind = x !== null && y !== null ? (z !== null ? 'space' : 'ground') : state.every((i) => i < 0) ? 'command' : 'pose';
   return { state, x, y, z, heading: heading ? at(heading.offset) : null, root: pos ? { offset: pos.offset, size: pos.size } : null, kind };
 }
 
@@ -52,7 +56,7 @@ export function goalState(base: number[], h: GoalHandles, goal: number[]): numbe
 /** Where the goal marker is in MuJoCo's frame, [x, y, z]: the root's position in the goal state (a
  * planar root on the ground, z 0); null for a goal that is no place (joint angles). */
 export function goalPoint(state: number[], h: GoalHandles): [number, number, number] | null {
-  if (h.kind === 'pose' || !h.root) return null;
+  if (h.kind === 'pose' || h.kind === 'command' || !h.root) return null;
   const o = h.root.offset;
   return [state[o] ?? 0, state[o + 1] ?? 0, h.root.size >= 3 ? (state[o + 2] ?? 0) : 0];
 }
