@@ -13,7 +13,9 @@ import pytest
 import torch
 
 from neuroanimator.artifacts import registry, store
+from neuroanimator.artifacts.policies import POLICY_ONNX, list_policies, read_policy, resolve_policy
 from neuroanimator.core.model_spec import MOVED_MODULES, current_module
+from neuroanimator.core.policy_manifest import PolicyManifest
 from neuroanimator.export.runtime import OnnxEmulator
 from neuroanimator.sim.driver import load_driver
 
@@ -46,3 +48,48 @@ def test_a_committed_artifact_loads_and_steps_as_written(path: Path) -> None:
         inputs = [None if a is None else torch.from_numpy(a) for a in (state, u, f)]
         stepped = store.load_emulator(path)(*inputs).numpy()
     np.testing.assert_allclose(stepped, served, atol=1e-3 * max(1.0, float(np.abs(state).max())))
+
+
+POLICIES = [
+    resolve_policy(registry.DEFAULTS_DIR, p.model, p.name, p.version)
+    for p in list_policies(registry.DEFAULTS_DIR)
+]
+
+
+def test_the_committed_policies_are_all_here() -> None:
+    names = {f"{p.parent.parent.name}/{p.parent.name}" for p in POLICIES}
+    assert names >= {"lander/lander-landing", "truck/truck-parking", "runner/runner-run"}
+
+
+@pytest.mark.parametrize("path", POLICIES, ids=lambda p: f"{p.parent.parent.name}/{p.parent.name}")
+def test_a_committed_policy_acts_within_its_controls_from_where_its_sessions_start(path: Path) -> None:
+    import onnxruntime as ort
+
+    policy = read_policy(path)
+    emulator = registry.resolve(registry.DEFAULTS_DIR, policy.model, policy.emulator_version)
+    assert registry.read_manifest(emulator).state_size == policy.state_size
+    starts = np.asarray(policy.starts, np.float32)
+    if not len(starts):
+        model = registry.load_physical_model(emulator, registry.read_manifest(emulator))
+        starts = model.initial_states(np.random.default_rng(0), 2).astype(np.float32)
+    graph = ort.InferenceSession(str(path / POLICY_ONNX), providers=["CPUExecutionProvider"])
+    goal = np.repeat(np.asarray([policy.goal_default], np.float32), len(starts), axis=0)
+    feeds = {"state": starts, "goal": goal}
+    names = {i.name for i in graph.get_inputs()}
+    feeds.update(
+        {n: np.zeros((len(starts), 1), np.float32) for n in names - set(feeds)}
+    )  # a timed one's clock
+    controls = graph.run(None, feeds)[0]
+    assert controls.shape == (len(starts), len(policy.control_names)) and np.isfinite(controls).all()
+    low = np.array([c.low for c in registry.read_manifest(emulator).controls])
+    high = np.array([c.high for c in registry.read_manifest(emulator).controls])
+    assert np.all(controls >= low - 1e-4) and np.all(controls <= high + 1e-4)
+    if policy.name == "runner-run":  # its sessions start running at the middle of its commands
+        vx = starts[:, policy.state_labels.index("root.vel.x")]
+        np.testing.assert_allclose(vx, 2.0, atol=0.05)
+
+
+def test_a_policy_whose_starts_are_not_states_is_refused() -> None:
+    policy = read_policy(resolve_policy(registry.DEFAULTS_DIR, "runner", "runner-run"))
+    with pytest.raises(ValueError, match="do not have the state's 71 values"):
+        PolicyManifest.model_validate({**policy.model_dump(), "starts": [[0.0, 1.0]]})

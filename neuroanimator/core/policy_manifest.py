@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 POLICY_FORMAT = 1
 
@@ -96,6 +96,13 @@ class PolicyManifest(BaseModel):
         "session driven by it without a state given starts at one of them, drawn by the seed (none: "
         "the model's typical starts)",
     )
+
+    @model_validator(mode="after")
+    def _starts_are_states(self) -> PolicyManifest:
+        bad = [i for i, s in enumerate(self.starts) if len(s) != self.state_size]
+        if bad:
+            raise ValueError(f"starts {bad} do not have the state's {self.state_size} values")
+        return self
 
     @property
     def goal_size(self) -> int:
