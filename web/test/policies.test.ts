@@ -80,6 +80,12 @@ describe('a goal in the scene', () => {
     expect(goalPoint([1, 2, 3], h)).toBeNull();
   });
 
+  it('takes a policy with no goal at all (standing up) as a command with nothing to set', () => {
+    const h = goalHandles([], LANDER.labels, LANDER.layout);
+    expect([h.kind, h.state]).toEqual(['command', []]);
+    expect(goalState([1, 2, 3], h, [])).toEqual([1, 2, 3]);
+  });
+
   it('names the goal variables outside the trained range, a bound itself inside', () => {
     const names = ['position.x', 'position.y'];
     expect(goalOutside([15, -15], [-15, -15], [15, 15], names)).toEqual([]);

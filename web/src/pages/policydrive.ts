@@ -516,8 +516,10 @@ export class DrivePanel {
         ? 'Drag the green goal on the ground in the view (or use the sliders): the policy heads for it.'
         : hkind === 'space'
           ? 'Drag the green goal in the view: it moves on a level plane at its height; the height slider raises or lowers it.'
-          : hkind === 'command'
-            ? 'Set the command with the slider: the policy follows it as it goes (push it below and watch it recover).'
+          : hkind === 'command' && !p.goal_variables.length
+            ? 'This policy takes no goal: it does its task from wherever it is (kick or push it below and watch it recover).'
+            : hkind === 'command'
+              ? 'Set the command with the slider: the policy follows it as it goes (push it below and watch it recover).'
             : 'Set the goal with the sliders: the green outline shows the pose it asks for.';
     this.goalEditor.textContent = '';
     s.inputs = p.goal_variables.map((name, i) => {
