@@ -69,8 +69,9 @@ class EmulatorService:
     # ------------------------------------------------------------------ sessions
     def create_session(self, req: SessionCreate) -> Session:
         """A session at the given state (checked; quaternion groups normalised) or at a typical start
-        drawn from the seed (one of its policy's own starts when it has them), owned by the caller's API key; driven by the model's driver or by a policy
-        (of the emulator version it was trained through: the session's) when asked."""
+        drawn from the seed (one of its policy's own starts when it has them), owned by the caller's
+        API key; driven by the model's driver or by a policy (of the emulator version it was trained
+        through: the session's) when asked."""
         policy, goal = None, None
         if req.policy is not None:
             if req.driver is not None:
