@@ -49,6 +49,7 @@ from torch import Tensor, nn
 from neuroanimator.artifacts import registry
 from neuroanimator.artifacts import store as artifacts
 from neuroanimator.control.bptt import FastStep
+from neuroanimator.control.planner_copy import PLANNER, TEACHERS, CopySettings, PlannerCopy
 from neuroanimator.control.suite_tasks import Context, Restarts, SuiteTask
 from neuroanimator.emulator.structured import StructuredEmulator
 from neuroanimator.sim import sampling
@@ -120,6 +121,17 @@ class RewardSettings:
     # take the best one's policy and critic and train on from their own draws (population-based
     # training's exploit step; ``seed_race``). None: they never meet
     meet_at: float | None = None
+    # "planner": the policy copies the sampling planner through the emulator (``planner_copy``)
+    # before (``CopySettings.rounds``) or instead of the actor-critic; None or "none": the actor-critic
+    # alone. Not a default: on the acrobot the planner earns 373 and its copies 10-45 (measured,
+    # docs/experiments/policies.md)
+    teacher: str | None = None
+    # how the planner is copied, when it is the teacher
+    copying: CopySettings = field(default_factory=CopySettings)
+
+    def __post_init__(self) -> None:
+        if self.teacher is not None and self.teacher not in TEACHERS:
+            raise ValueError(f"teacher is one of {', '.join(TEACHERS)}, not {self.teacher!r}")
 
     @property
     def judged_on(self) -> int:
@@ -583,12 +595,19 @@ class RewardTrainer:
     def act(self, states: FloatArray, params: FloatArray) -> FloatArray:
         return self.policy.act(states, params)
 
+    def episodes(
+        self, act: Callable[[FloatArray, FloatArray], FloatArray], n: int, rng: np.random.Generator
+    ) -> Episodes:
+        """n episodes on MuJoCo from the task's starts drawn from rng, ``act`` driving (counted)."""
+        starts, params = draw_starts(self.task, self.physical, rng, n)
+        self.mujoco_steps += n * self.task.episode_steps * self.task.control_substeps
+        return run_on_mujoco(self.task, self.physical, self.ctx, act, starts, params)
+
     def evaluate(self, n: int, seed: int) -> tuple[Episodes, float]:
         """The policy on MuJoCo over n episodes of new starts (their returns), and on the emulator
         from the same starts (the mean return)."""
+        phys = self.episodes(self.act, n, np.random.default_rng(seed))
         starts, params = draw_starts(self.task, self.physical, np.random.default_rng(seed), n)
-        phys = run_on_mujoco(self.task, self.physical, self.ctx, self.act, starts, params)
-        self.mujoco_steps += n * self.task.episode_steps * self.task.control_substeps
         return phys, self.emulated_return(starts, params)
 
     @torch.no_grad()
@@ -735,7 +754,30 @@ class RewardTrainer:
         return time.perf_counter() - self.t0
 
     def train(self) -> RewardResult:
+        best = (-math.inf, copy.deepcopy(self.policy.state_dict()))
+        history: list[tuple[int, float, float]] = []
+        it = 0
+        if self.settings.teacher == PLANNER:
+            copier = PlannerCopy(self)
+            best, history, it, stop = copier.train()
+            if (
+                stop != "budget"
+                or self.settings.copying.rounds is None
+                or self.elapsed() >= self.settings.seconds
+            ):
+                return self.finish(best, history, it, stop)
+            # the actor-critic goes on from the copy, and restarts where the planner's runs went
+            self.policy.load_state_dict(best[1])
+            self.visited.append(copier.examples.joined())
+        return self.finish(*self.learn(best, history, it))
+
+    def learn(
+        self, best: tuple[float, dict[str, Tensor]], history: list[tuple[int, float, float]], it: int
+    ) -> tuple[tuple[float, dict[str, Tensor]], list[tuple[int, float, float]], int, str]:
+        """The actor-critic until the budget is spent (module doc), from ``it`` iterations and the
+        checks' ``history`` so far: the best (return, weights), the history, the iterations and the stop."""
         cfg, task = self.settings, self.task
+        first = it
         opt_actor = torch.optim.Adam(self.policy.parameters(), lr=cfg.actor_lr)
         opt_critic = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
         starts, params = self.restart(cfg.envs)
@@ -746,13 +788,11 @@ class RewardTrainer:
         branch = max(self.horizon, min(task.policy_steps, round(cfg.branch_s / self.manifest.super_timestep)))
         age = self.rng.integers(0, branch, cfg.envs) // self.horizon * self.horizon
         check_every = max(1.0, cfg.eval_every * cfg.seconds)
-        next_check = check_every
-        best = (-math.inf, copy.deepcopy(self.policy.state_dict()))
-        history: list[tuple[int, float, float]] = []
-        it, value, stop = 0, None, "budget"
+        next_check = check_every if first == 0 else self.elapsed() + check_every
+        value, stop = None, "budget"
         last_return: float | None = None
         # at least one update, however much of the budget its setup took (on a busy machine)
-        while (it == 0 or self.elapsed() < cfg.seconds) and (
+        while (it == first or self.elapsed() < cfg.seconds) and (
             cfg.max_iterations is None or it < cfg.max_iterations
         ):
             if self.should_stop is not None and self.should_stop():
@@ -817,6 +857,17 @@ class RewardTrainer:
                         "elapsed_s": round(self.elapsed(), 3),
                     }
                 )
+        return best, history, it, stop
+
+    def finish(
+        self,
+        best: tuple[float, dict[str, Tensor]],
+        history: list[tuple[int, float, float]],
+        it: int,
+        stop: str,
+    ) -> RewardResult:
+        """The best policy kept, judged on the final MuJoCo episodes, its drift and falls reported."""
+        cfg, task = self.settings, self.task
         if not history:  # stopped before its first check: nothing better to keep than what it has
             best = (-math.inf, copy.deepcopy(self.policy.state_dict()))
         self.policy.load_state_dict(best[1])

@@ -3,6 +3,7 @@ task, judged on MuJoCo with the suite's exact reward; and ``bench/policies.py`` 
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
 import math
@@ -21,6 +22,8 @@ from torch import Tensor
 
 from neuroanimator.artifacts import registry
 from neuroanimator.artifacts.policies import read_policy
+from neuroanimator.control.planner import PlannerSettings, SamplingPlanner
+from neuroanimator.control.planner_copy import CopySettings, PlannerCopy
 from neuroanimator.control.policy import PolicySettings
 from neuroanimator.control.policy_job import PolicyJobError, run_policy_job
 from neuroanimator.control.reward_policy import (
@@ -376,3 +379,112 @@ def test_neuro_policy_trains_a_reward_task_written_as_json(
     caplog.clear()
     assert neuro(["policy", str(path), "--artifacts", str(artifacts)]) == 2
     assert "cartpole" in caplog.text
+
+
+QUICK_PLANNER = PlannerSettings(horizon_s=0.6, samples=32, iterations=2)
+SHORT = replace(TASK, episode_steps=120)  # 60 super-steps: the planner searches at every one
+
+
+def test_the_planner_drives_the_point_mass_to_its_target_on_mujoco(artifacts: Path) -> None:
+    """The sampling planner, searching the emulator's futures every super-step, carries the mass to its
+    target on MuJoCo, and acts inside the controls' ranges."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    trainer = RewardTrainer(SHORT, path, QUICK)
+    planner = SamplingPlanner(
+        trainer.step,
+        SHORT,
+        trainer.ctx,
+        trainer.low,
+        trainer.high,
+        trainer.manifest.super_timestep,
+        QUICK_PLANNER,
+    )
+    assert planner.horizon == round(0.6 / trainer.manifest.super_timestep)
+    starts, params = draw_starts(SHORT, trainer.physical, np.random.default_rng(7), 3)
+    at_rest = np.zeros((3, trainer.physical.num_controls))
+    still = run_on_mujoco(SHORT, trainer.physical, trainer.ctx, lambda s, p: at_rest, starts, params)
+    planned = run_on_mujoco(SHORT, trainer.physical, trainer.ctx, planner.act, starts, params)
+    # the mass (its position the state's first two columns) is carried to the target at the origin
+    start = np.linalg.norm(starts[:, :2], axis=1)
+    end = np.linalg.norm(planned.states[:, -1, :2], axis=1)
+    assert np.all(end < 0.5 * start), (start, end)
+    assert planned.returns.sum() > still.returns.sum()
+    assert np.all(planned.controls >= trainer.low - 1e-9) and np.all(planned.controls <= trainer.high + 1e-9)
+    # its noise is unit-variance along the horizon, slow (neighbours correlated), one stream a control
+    noise = planner.noise(512)
+    assert noise.shape == (512, planner.horizon, trainer.physical.num_controls)
+    assert float(noise.std()) == pytest.approx(1.0, rel=0.1)
+    lag1 = float((noise[:, 1:] * noise[:, :-1]).mean())
+    assert lag1 > 0.5
+
+
+def test_a_policy_copied_from_the_planner_learns_what_it_did_and_counts_its_mujoco_steps(
+    artifacts: Path,
+) -> None:
+    """``teacher="planner"``: rounds of episodes on MuJoCo, the planner driving the first and the copy
+    the others, every state labelled with what the planner would do; the copy fits those examples,
+    and every MuJoCo step (the rounds', the checks', the final episodes') is counted."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    settings = replace(
+        QUICK, teacher="planner", max_iterations=2,
+        copying=CopySettings(episodes=2, epochs=20, planner=QUICK_PLANNER),
+    )  # fmt: skip
+    trainer = RewardTrainer(SHORT, path, settings)
+    copier = PlannerCopy(trainer)
+    untrained = copy.deepcopy(trainer.policy)
+    _, history, rounds, stop = copier.train()
+    assert rounds == 2 and stop == "budget" and [r for r, _, _ in history] == [1, 2]
+    assert copier.examples.count == 2 * 2 * SHORT.policy_steps
+    episodes = 2 * 2 + settings.eval_episodes * 2
+    assert trainer.mujoco_steps == episodes * SHORT.episode_steps * SHORT.control_substeps
+    # the copy does what the planner did, far closer than the untrained network
+    s = torch.as_tensor(np.concatenate(copier.examples.states), dtype=torch.float32)
+    p = torch.zeros(len(s), 0)
+    planned = torch.as_tensor(np.concatenate(copier.examples.controls), dtype=torch.float32)
+    with torch.no_grad():
+        after = float(((trainer.policy(s, p) - planned) ** 2).mean())
+        before = float(((untrained(s, p) - planned) ** 2).mean())
+    assert after < 0.5 * before, (after, before)
+
+
+def test_after_its_rounds_of_copying_the_actor_critic_goes_on_from_the_copy(artifacts: Path) -> None:
+    """``CopySettings.rounds``: one round copied, then the actor-critic's iterations, restarting where
+    the planner's run went (its states in the restart pool), all within one history."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    settings = replace(
+        QUICK, teacher="planner", max_iterations=4,
+        copying=CopySettings(episodes=2, epochs=5, planner=QUICK_PLANNER, rounds=1),
+    )  # fmt: skip
+    trainer = RewardTrainer(SHORT, path, settings)
+    result = trainer.train()
+    assert result.iterations == 4 and len(result.returns_physics) == settings.final_episodes
+    checks = [r for r, _, _ in result.return_history]  # the round's check, then the actor-critic's last
+    assert checks[0] == 1 and checks[-1] == 4 and len(checks) >= 2
+    planned = trainer.visited[0][0]
+    assert planned.shape == (2 * SHORT.policy_steps, trainer.manifest.state_size)
+
+
+def test_a_copy_cancelled_mid_round_stops_and_a_teacher_unknown_is_refused(artifacts: Path) -> None:
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    calls = []
+
+    def should_stop() -> bool:
+        calls.append(1)
+        return len(calls) > 5  # within the first round's episodes
+
+    settings = replace(
+        QUICK, teacher="planner", copying=CopySettings(episodes=2, epochs=2, planner=QUICK_PLANNER)
+    )
+    result = RewardTrainer(SHORT, path, settings, should_stop=should_stop).train()
+    assert result.stop == "cancelled" and result.return_history == []
+    with pytest.raises(ValueError, match="teacher is one of none, planner, not 'oracle'"):
+        RewardSettings(teacher="oracle")
+
+
+def test_the_planner_bench_reports_the_planner_on_the_held_out_episodes(artifacts: Path) -> None:
+    lines, row = run_bench(
+        "bench/planner.py", "--quick", "--task", "point_mass-easy", "--artifacts", str(artifacts)
+    )
+    assert row["task"] == "point_mass-easy" and row["planner"]["settings"]["samples"] == 16
+    assert len(row["planner"]["returns"]) == 2 and row["planner"]["return_physics"] >= 0
+    assert row["copy"] is None and any(line.startswith("planner") for line in lines)
