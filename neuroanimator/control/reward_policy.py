@@ -600,8 +600,9 @@ class RewardTrainer:
     ) -> Episodes:
         """n episodes on MuJoCo from the task's starts drawn from rng, ``act`` driving (counted)."""
         starts, params = draw_starts(self.task, self.physical, rng, n)
+        runs = run_on_mujoco(self.task, self.physical, self.ctx, act, starts, params)
         self.mujoco_steps += n * self.task.episode_steps * self.task.control_substeps
-        return run_on_mujoco(self.task, self.physical, self.ctx, act, starts, params)
+        return runs
 
     def evaluate(self, n: int, seed: int) -> tuple[Episodes, float]:
         """The policy on MuJoCo over n episodes of new starts (their returns), and on the emulator

@@ -475,8 +475,11 @@ def test_a_copy_cancelled_mid_round_stops_and_a_teacher_unknown_is_refused(artif
     settings = replace(
         QUICK, teacher="planner", copying=CopySettings(episodes=2, epochs=2, planner=QUICK_PLANNER)
     )
-    result = RewardTrainer(SHORT, path, settings, should_stop=should_stop).train()
+    trainer = RewardTrainer(SHORT, path, settings, should_stop=should_stop)
+    result = trainer.train()
     assert result.stop == "cancelled" and result.return_history == []
+    # the dropped round's steps are not counted: only the final episodes ran to their end
+    assert result.mujoco_steps == settings.final_episodes * SHORT.episode_steps * SHORT.control_substeps
     with pytest.raises(ValueError, match="teacher is one of none, planner, not 'oracle'"):
         RewardSettings(teacher="oracle")
 
