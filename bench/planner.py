@@ -106,6 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     if args.copy_seconds > 0:
         t0 = time.perf_counter()
+        trainer.t0 = t0  # the copy's budget starts now, not when the planner above began
         result = trainer.train()
         copied = run_on_mujoco(task, trainer.physical, trainer.ctx, result.policy.act, starts, params)
         row["copy"] = {
