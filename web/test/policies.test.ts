@@ -3,7 +3,7 @@ import type { PolicyJobResult, PolicyJobStatus, PolicyManifest } from '../src/ap
 import type { EnvelopeGroup, LayoutGroup } from '../src/api/emulator.gen';
 import { policiesQuery } from '../src/pages/policies';
 import { goalHandles, goalOutside, goalPoint, goalState, kicked, movedGoal, roundGoal, sameGoal, seededRandom, sliderRange, timeToCheck } from '../src/policies/goal';
-import { fromPolicyStatus, isPolicyEnded, metricsRows, onPolicyEvent, percent, policyStatusLine, progressRows, seconds, startPolicyView, withResult, type PolicyTrainingView } from '../src/policies/progress';
+import { controlsLine, fromPolicyStatus, isPolicyEnded, metricsRows, onPolicyEvent, percent, policyStatusLine, progressRows, seconds, startPolicyView, withResult, type PolicyTrainingView } from '../src/policies/progress';
 
 const group = (name: string, kind: LayoutGroup['kind'], offset: number, size: number, source: LayoutGroup['source']): LayoutGroup => ({ name, kind, offset, size, source, address: offset });
 
@@ -342,5 +342,24 @@ describe("the page's address", () => {
   it('names the policy to drive, whether to start it, and the task to train', () => {
     expect(policiesQuery('policy=lander%2Flander-landing&drive=1&seed=3')).toEqual({ policy: 'lander/lander-landing', drive: true, task: null });
     expect(policiesQuery('task=truck-parking')).toEqual({ policy: null, drive: false, task: 'truck-parking' });
+  });
+});
+
+describe('controlsLine', () => {
+  it('names every control when there are few', () => {
+    expect(controlsLine(['main', 'yaw'], [0.5, -0.25])).toBe('main 0.5, yaw -0.25');
+  });
+  it('names a control without a name by its index', () => {
+    expect(controlsLine(['main'], [0.5, 1])).toBe('main 0.5, u1 1');
+  });
+  it('gives the count and the largest in magnitude past the limit (the runner: 29 controls on one line)', () => {
+    const names = Array.from({ length: 29 }, (_, i) => `j${i}`);
+    const values = names.map((_, i) => (i === 7 ? -0.9 : i === 20 ? 0.8 : 0.01 * i));
+    const line = controlsLine(names, values, 2);
+    expect(line).toBe('29, the largest j7 -0.9, j20 0.8');
+  });
+  it('shows exactly `shown` controls by name at the limit', () => {
+    expect(controlsLine(['a', 'b', 'c', 'd'], [1, 2, 3, 4])).not.toContain('the largest');
+    expect(controlsLine(['a', 'b', 'c', 'd', 'e'], [1, 2, 3, 4, 5])).toMatch(/^5, the largest e /);
   });
 });

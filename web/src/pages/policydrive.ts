@@ -14,7 +14,7 @@ import type { PolicyManifest } from '../api/controller';
 import type { ModelDetail, ModelGeometry, SessionInfo, WsState } from '../api/emulator.gen';
 import { errorText } from '../api/http';
 import { goalHandles, goalOutside, goalPoint, goalState, kicked, movedGoal, roundGoal, sameGoal, sliderRange, timeToCheck, type GoalHandles, type GoalKind } from '../policies/goal';
-import { percent } from '../policies/progress';
+import { controlsLine, percent } from '../policies/progress';
 import { gapLabel, poseGap, rootMoves } from '../scene/divergence';
 import { dragGoal } from '../scene/goaldrag';
 import type { Pose } from '../scene/interp';
@@ -637,7 +637,7 @@ export class DrivePanel {
     d.goal = JSON.stringify(last.goal ?? null);
     d.controls = JSON.stringify(last.controls ?? null);
     d.session = c.info.id;
-    const controls = (last.controls ?? []).map((u, i) => `${p.control_names[i] ?? `u${i}`} ${fmt(u)}`).join(', ');
+    const controls = controlsLine(p.control_names, last.controls ?? []);
     const check = p.timed ? ` · its check ${timeToCheck(last.steps, c.goalStep, p.check_steps, s.detail.super_timestep) > 0 ? `in ${timeToCheck(last.steps, c.goalStep, p.check_steps, s.detail.super_timestep).toFixed(1)} s` : 'is past: it holds the goal'}` : '';
     this.status.textContent = `session ${c.info.id} · t = ${last.t.toFixed(1)} s · driven by ${p.name} (${p.version})${check} · controls: ${controls}`;
   }

@@ -236,3 +236,14 @@ export function metricsRows(p: PolicyManifest): [string, string][] {
     ['goals', p.goal_variables.map((g, i) => `${g} ${fmt(p.goal_low[i])}…${fmt(p.goal_high[i])}`).join(', ') || 'none (the task has no parameters)'],
   ];
 }
+
+/** The controls a driven session last applied, for its status line: each by name when there are at
+ *  most `shown`; past that (the runner's 29) their count and the `shown` largest in magnitude, so that
+ *  the line stays one line and still says what the policy is pushing hardest. */
+export function controlsLine(names: readonly string[], values: readonly number[], shown = 4): string {
+  const named = values.map((u, i) => ({ name: names[i] ?? `u${i}`, u }));
+  const text = (cs: typeof named) => cs.map((c) => `${c.name} ${fmt(c.u)}`).join(', ');
+  if (named.length <= shown) return text(named);
+  const largest = [...named].sort((a, b) => Math.abs(b.u) - Math.abs(a.u)).slice(0, shown);
+  return `${named.length}, the largest ${text(largest)}`;
+}
