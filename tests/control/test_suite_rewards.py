@@ -197,6 +197,25 @@ def test_kinematics_equal_mujocos(domain: str) -> None:
             )
 
 
+def test_places_walked_once_for_a_batch_scored_twice_and_again_when_it_changes() -> None:
+    """Outside autograd a planner's two rewards of one batch share one walk of the tree; the same
+    batch changed in place, another batch, or a batch under autograd is walked afresh."""
+    m, layout = _model("acrobot")
+    kin = Kinematics(m, layout)
+    s = torch.tensor(np.random.default_rng(2).normal(0, 1, (5, 4)), dtype=torch.float32)
+    with torch.no_grad():
+        first = kin.places(s)
+        assert kin.places(s) is first
+        assert kin.places(s.clone()) is not first
+        again = kin.places(s)
+        s[0, 0] += 1.0  # the same tensor, moved: its places move with it
+        moved = kin.places(s)
+        assert moved is not again
+        assert not torch.allclose(moved[0][0], again[0][0])
+    x = s.clone().requires_grad_(True)
+    assert kin.places(x) is not kin.places(x)  # autograd's graphs are never shared
+
+
 def test_starts_follow_the_suites_episodes() -> None:
     rng = np.random.default_rng(0)
     m, _ = _model("cartpole")
