@@ -51,6 +51,7 @@ from neuroanimator.artifacts import store as artifacts
 from neuroanimator.control.bptt import FastStep
 from neuroanimator.control.planner_copy import PLANNER, TEACHERS, CopySettings, PlannerCopy
 from neuroanimator.control.suite_tasks import Context, Restarts, SuiteTask
+from neuroanimator.control.value_iteration import ValueFitter, ValueIteration
 from neuroanimator.emulator.structured import StructuredEmulator
 from neuroanimator.sim import sampling
 from neuroanimator.sim.model import PhysicalModel
@@ -128,10 +129,16 @@ class RewardSettings:
     teacher: str | None = None
     # how the planner is copied, when it is the teacher
     copying: CopySettings = field(default_factory=CopySettings)
+    # instead of the actor-critic: a value fitted by value iteration through the emulator over its
+    # envelope, and the policy that is greedy over it copied into the network (``value_iteration``);
+    # None: as the task says (``SuiteTask.value_iteration``), "off": the actor-critic whatever it says
+    value_iteration: ValueIteration | str | None = None
 
     def __post_init__(self) -> None:
         if self.teacher is not None and self.teacher not in TEACHERS:
             raise ValueError(f"teacher is one of {', '.join(TEACHERS)}, not {self.teacher!r}")
+        if isinstance(self.value_iteration, str) and self.value_iteration != "off":
+            raise ValueError(f"value_iteration is settings, None or 'off', not {self.value_iteration!r}")
 
     @property
     def judged_on(self) -> int:
@@ -453,9 +460,14 @@ class RewardTrainer:
         self.runs: list[Episodes] = []
         self.low = np.array([c.low for c in self.manifest.controls])
         self.high = np.array([c.high for c in self.manifest.controls])
+        vi = task.value_iteration if settings.value_iteration is None else settings.value_iteration
+        self.value_iteration = vi if isinstance(vi, ValueIteration) else None
+        self.value_fitter: ValueFitter | None = None  # its value and labels, once ``learn_from_value`` ran
         features = self._features()
-        self.policy = RewardPolicy(features, self.low, self.high, settings.hidden)
-        self.critic = Critic(copy.deepcopy(features), settings.critic_hidden)
+        vi = self.value_iteration
+        self.policy = RewardPolicy(features, self.low, self.high, vi.policy_hidden if vi else settings.hidden)
+        critic_hidden = vi.hidden if vi else settings.critic_hidden
+        self.critic = Critic(copy.deepcopy(features), critic_hidden)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
 
     def _features(self) -> Features:
@@ -770,7 +782,52 @@ class RewardTrainer:
             # the actor-critic goes on from the copy, and restarts where the planner's runs went
             self.policy.load_state_dict(best[1])
             self.visited.append(copier.examples.joined())
+        if self.value_iteration is not None:
+            return self.finish(*self.learn_from_value(self.value_iteration, best, history, it))
         return self.finish(*self.learn(best, history, it))
+
+    def learn_from_value(
+        self,
+        how: ValueIteration,
+        best: tuple[float, dict[str, Tensor]],
+        history: list[tuple[int, float, float]],
+        it: int,
+    ) -> tuple[tuple[float, dict[str, Tensor]], list[tuple[int, float, float]], int, str]:
+        """The critic by value iteration for ``how.share`` of the budget, then rounds of copying the
+        policy greedy over it until the budget is spent, each checked on MuJoCo and the best kept
+        (``value_iteration``); returns as ``learn`` does."""
+        cfg = self.settings
+        fitter = self.value_fitter = ValueFitter(self, how)
+        fitter.fit(how.share * cfg.seconds - self.elapsed())
+        opt = torch.optim.Adam(self.policy.parameters(), lr=how.lr)
+        stop, first = "budget", it
+        while (it == first or self.elapsed() < cfg.seconds) and (
+            cfg.max_iterations is None or it < cfg.max_iterations
+        ):
+            if self.should_stop is not None and self.should_stop():
+                stop = "cancelled"
+                break
+            loss = fitter.copy_round(it - first, opt)
+            it += 1
+            runs, emulated = self.evaluate(cfg.eval_episodes, int(self.rng.integers(1 << 30)))
+            history.append((it, round(self.elapsed(), 1), runs.mean))
+            log.info(
+                "%s: round %d of copying the greedy policy, fit %.4g, return on MuJoCo %.1f, on the emulator %.1f",
+                self.task.name, it - first, loss, runs.mean, emulated,
+            )  # fmt: skip
+            if runs.mean >= best[0]:
+                best = (runs.mean, copy.deepcopy(self.policy.state_dict()))
+            if self.on_progress is not None:
+                self.on_progress(
+                    {
+                        "iteration": it,
+                        "loss": loss,
+                        "return_physics": runs.mean,
+                        "mujoco_steps": self.mujoco_steps,
+                        "elapsed_s": round(self.elapsed(), 3),
+                    }
+                )
+        return best, history, it, stop
 
     def learn(
         self, best: tuple[float, dict[str, Tensor]], history: list[tuple[int, float, float]], it: int

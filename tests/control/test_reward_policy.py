@@ -38,6 +38,7 @@ from neuroanimator.control.reward_policy import (
 )
 from neuroanimator.control.seed_race import train_reward_policy
 from neuroanimator.control.suite_tasks import SUITE_TASKS
+from neuroanimator.control.value_iteration import ValueFitter, ValueIteration, candidate_controls
 from neuroanimator.export.runtime import OnnxEmulator
 from neuroanimator.sim import sampling
 from services.emulator.app import create_app
@@ -166,6 +167,81 @@ def test_exploring_restarts_drawn_from_the_typical_motion_are_its_states(artifac
         assert np.isclose(pool, row).all(axis=1).any()
     with pytest.raises(ValueError, match="explore_from is 'box' or 'motion', not 'grid'"):
         RewardTrainer(TASK, path, replace(QUICK, explore_from="grid"))
+
+
+def test_value_iterations_candidates_span_one_controls_range_and_sample_the_box_of_more() -> None:
+    rng = np.random.default_rng(0)
+    one = candidate_controls(np.array([-1.0]), np.array([1.0]), 5, rng)
+    assert one[:, 0].tolist() == [-1.0, -0.5, 0.0, 0.5, 1.0]
+    two = candidate_controls(np.array([-1.0, 0.0]), np.array([1.0, 2.0]), 6, rng)
+    assert two.shape == (6, 2) and two[0].tolist() == [0.0, 1.0]  # the centre, then draws
+    assert torch.all(two >= torch.tensor([-1.0, 0.0])) and torch.all(two <= torch.tensor([1.0, 2.0]))
+    assert len(torch.unique(two[1:, 0])) == 5
+    with pytest.raises(ValueError, match="share of the budget is in"):
+        ValueIteration(share=1.0)
+    with pytest.raises(ValueError, match="value_iteration is settings, None or 'off'"):
+        RewardSettings(value_iteration="on")
+
+
+def test_value_iteration_backs_up_the_best_control_and_learns_where_the_reward_is(artifacts: Path) -> None:
+    """The backup is, from each state, the best candidate's reward on arriving plus the discounted
+    value there (recomputed here by hand); fitted over the envelope, V is higher at the target at
+    rest than in the box's corners."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    how = ValueIteration(share=0.5, states=1024, candidates=5, batch=256, lr=3e-3, iterations=80)
+    trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how, seed=2))
+    fitter = ValueFitter(trainer, how)
+    s, p = fitter.box(16)
+    cands = candidate_controls(trainer.low, trainer.high, 3, np.random.default_rng(1))
+    y, pick, nxt = fitter.backup(s, p, trainer.critic, cands)
+    with torch.no_grad():
+        q = torch.stack(
+            [
+                fitter.score(trainer.step(s, c.expand(16, -1)), c.expand(16, -1), p)
+                + trainer.gamma * trainer.critic(trainer.step(s, c.expand(16, -1)), p)
+                for c in cands
+            ]
+        )
+    torch.testing.assert_close(y, q.max(dim=0).values, rtol=1e-4, atol=1e-5)
+    assert torch.equal(pick, q.argmax(dim=0)) and nxt.shape == (3, 16, s.shape[1])
+
+    assert fitter.fit(600.0) == 80  # its iterations bound it, not the seconds
+    low, high = trainer.envelope_box()
+    at_target = torch.zeros(1, len(low))
+    corners = torch.tensor([[lo, lo2, 0.0, 0.0] for lo, lo2 in ((low[0], low[1]), (high[0], high[1]))])
+    with torch.no_grad():
+        v_target = float(trainer.critic(at_target, torch.zeros(1, 0)))
+        v_corners = trainer.critic(corners.float(), torch.zeros(2, 0))
+    assert v_target > float(v_corners.max()) + 1.0
+    # the critic it fitted is the target critic the actor starts with
+    for a, b in zip(trainer.critic.parameters(), trainer.target_critic.parameters(), strict=True):
+        assert torch.equal(a, b)
+
+
+def test_value_iteration_copies_the_greedy_policy_into_the_network_round_by_round(artifacts: Path) -> None:
+    """With ``value_iteration`` the value is fitted first, then each round copies the policy greedy
+    over it (DAgger), is checked on MuJoCo and the best kept; the copy's controls come near the
+    greedy ones; "off" keeps the actor-critic whatever the task says."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    how = ValueIteration(share=0.5, states=256, candidates=3, batch=128, iterations=5, episodes=8, epochs=6)
+    settings = replace(QUICK, value_iteration=how, max_iterations=4)
+    trainer = RewardTrainer(TASK, path, settings)
+    assert trainer.critic.net[0].out_features == how.hidden[0]
+    assert next(trainer.policy.net.parameters()).shape[0] == how.policy_hidden[0]
+    before = copy.deepcopy(trainer.policy)
+    result = trainer.train()
+    assert result.iterations == 4 and [it for it, _, _ in result.return_history] == [1, 2, 3, 4]
+    assert 0 <= result.return_physics <= TASK.episode_steps and result.stop == "budget"
+    assert trainer.value_fitter is not None and trainer.value_fitter.iterations == how.iterations
+    ((states, params, greedy),) = trainer.value_fitter.labels  # every round's, joined
+    assert len(states) == 4 * how.episodes * TASK.policy_steps
+    with torch.no_grad():
+        err = float(((trainer.policy(states, params) - greedy) ** 2).mean())
+        untrained = float(((before(states, params) - greedy) ** 2).mean())
+    assert err < 0.7 * untrained  # the kept round's copy: the best on MuJoCo, not always the last
+    # "off" keeps the actor-critic whatever the task says
+    off = RewardTrainer(replace(TASK, value_iteration=how), path, replace(QUICK, value_iteration="off"))
+    assert off.value_iteration is None and off.critic.net[0].out_features == QUICK.critic_hidden[0]
 
 
 def test_an_emulator_at_another_control_period_is_refused(artifacts: Path) -> None:
