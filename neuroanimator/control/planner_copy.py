@@ -171,15 +171,6 @@ class PlannerCopy:
                 "MuJoCo %.1f, on the emulator %.1f",
                 tr.task.name, rounds, driver, driven, self.examples.count, loss, runs.mean, emulated,
             )  # fmt: skip
-            if tr.on_progress is not None:
-                tr.on_progress(
-                    {
-                        "iteration": rounds,
-                        "loss": loss,
-                        "return_physics": runs.mean,
-                        "mujoco_steps": tr.mujoco_steps,
-                        "elapsed_s": round(tr.elapsed(), 3),
-                    }
-                )
+            tr.report(rounds, loss, runs.mean)
             last_round_s = time.perf_counter() - t0
         return best, history, rounds, stop

@@ -460,14 +460,12 @@ class RewardTrainer:
         self.runs: list[Episodes] = []
         self.low = np.array([c.low for c in self.manifest.controls])
         self.high = np.array([c.high for c in self.manifest.controls])
-        vi = task.value_iteration if settings.value_iteration is None else settings.value_iteration
-        self.value_iteration = vi if isinstance(vi, ValueIteration) else None
+        how = task.value_iteration if settings.value_iteration is None else settings.value_iteration
+        vi = self.value_iteration = how if isinstance(how, ValueIteration) else None
         self.value_fitter: ValueFitter | None = None  # its value and labels, once ``learn_from_value`` ran
         features = self._features()
-        vi = self.value_iteration
         self.policy = RewardPolicy(features, self.low, self.high, vi.policy_hidden if vi else settings.hidden)
-        critic_hidden = vi.hidden if vi else settings.critic_hidden
-        self.critic = Critic(copy.deepcopy(features), critic_hidden)
+        self.critic = Critic(copy.deepcopy(features), vi.hidden if vi else settings.critic_hidden)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
 
     def _features(self) -> Features:
@@ -566,7 +564,7 @@ class RewardTrainer:
         begin where the reward is, so that the policy learns to stay there, and the critic what being
         there is worth, before it knows the way (a pole upright: balanced before it is swung up)."""
         n, t = len(params), self.settings.tournament
-        draw = self._box_states if self.restarts.explore_from == "box" else self._motion_states
+        draw = self.box_states if self.restarts.explore_from == "box" else self._motion_states
         states = draw(n)
         best = self.rng.random(n) < self.restarts.rewarded
         k = int(best.sum())
@@ -580,7 +578,7 @@ class RewardTrainer:
             states[best] = cand.reshape(k, t, -1)[np.arange(k), pick]
         return states
 
-    def _box_states(self, n: int) -> FloatArray:
+    def box_states(self, n: int) -> FloatArray:
         """(n, S) states each variable uniform in the envelope's box."""
         low, high = self.envelope_box()
         return self.rng.uniform(low, high, (n, len(low)))
@@ -766,6 +764,19 @@ class RewardTrainer:
     def elapsed(self) -> float:
         return time.perf_counter() - self.t0
 
+    def report(self, iteration: int, loss: float | None, return_physics: float | None) -> None:
+        """Tell ``on_progress`` (when given) where the training is."""
+        if self.on_progress is not None:
+            self.on_progress(
+                {
+                    "iteration": iteration,
+                    "loss": loss,
+                    "return_physics": return_physics,
+                    "mujoco_steps": self.mujoco_steps,
+                    "elapsed_s": round(self.elapsed(), 3),
+                }
+            )
+
     def train(self) -> RewardResult:
         best = (-math.inf, copy.deepcopy(self.policy.state_dict()))
         history: list[tuple[int, float, float]] = []
@@ -817,16 +828,7 @@ class RewardTrainer:
             )  # fmt: skip
             if runs.mean >= best[0]:
                 best = (runs.mean, copy.deepcopy(self.policy.state_dict()))
-            if self.on_progress is not None:
-                self.on_progress(
-                    {
-                        "iteration": it,
-                        "loss": loss,
-                        "return_physics": runs.mean,
-                        "mujoco_steps": self.mujoco_steps,
-                        "elapsed_s": round(self.elapsed(), 3),
-                    }
-                )
+            self.report(it, loss, runs.mean)
         return best, history, it, stop
 
     def learn(
@@ -905,16 +907,7 @@ class RewardTrainer:
                 if self.elapsed() >= 0.25 * cfg.seconds and self.outside_share > cfg.max_outside:
                     stop = OUTSIDE
                     break
-            if self.on_progress is not None:
-                self.on_progress(
-                    {
-                        "iteration": it,
-                        "loss": value,
-                        "return_physics": last_return,
-                        "mujoco_steps": self.mujoco_steps,
-                        "elapsed_s": round(self.elapsed(), 3),
-                    }
-                )
+            self.report(it, value, last_return)
         return best, history, it, stop
 
     def finish(

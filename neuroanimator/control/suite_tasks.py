@@ -183,8 +183,8 @@ class SuiteTask(SuiteTaskInfo):
     refine_keep: int = 0
     # policies trained side by side from this many seeds, the best kept (``RewardSettings.seeds``)
     seeds: int = 1
-    # the critic fitted first by value iteration over the envelope and held fixed while the policy
-    # learns (``RewardSettings.value_iteration``); None: the actor-critic's TD critic
+    # instead of the actor-critic: a value by value iteration over the envelope, its greedy policy
+    # copied into the network (``RewardSettings.value_iteration``); None: the actor-critic
     value_iteration: ValueIteration | None = None
     # how another process builds this task when it does not pickle (a user's task, made of closures):
     # a picklable call that returns it (``seed_race``)

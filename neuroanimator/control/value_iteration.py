@@ -46,7 +46,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class ValueIteration:
-    """How the critic is fitted by value iteration (module doc), and the actor's episodes after it."""
+    """How the value is fitted by value iteration and its greedy policy copied (module doc)."""
 
     share: float = 0.8  # of the training's budget spent fitting V; the policy learns in the rest
     states: int = 16_384  # states backed up per iteration
@@ -131,7 +131,7 @@ class ValueFitter:
         tr = self.trainer
         idx = self.rng.integers(len(tr.start_params), size=n)
         return (
-            torch.as_tensor(tr._box_states(n), dtype=torch.float32),
+            torch.as_tensor(tr.box_states(n), dtype=torch.float32),
             torch.as_tensor(tr.start_params[idx], dtype=torch.float32),
         )
 
@@ -192,16 +192,7 @@ class ValueFitter:
             if tr.should_stop is not None and tr.should_stop():
                 break
             loss = self.iterate(opt)
-            if tr.on_progress is not None:
-                tr.on_progress(
-                    {
-                        "iteration": self.iterations,
-                        "loss": loss,
-                        "return_physics": None,
-                        "mujoco_steps": tr.mujoco_steps,
-                        "elapsed_s": round(tr.elapsed(), 3),
-                    }
-                )
+            tr.report(self.iterations, loss, None)
             if self.iterations % 50 == 0:
                 log.info(
                     "%s: value iteration %d, loss %.4g, %.0f s",
