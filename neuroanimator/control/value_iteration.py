@@ -13,7 +13,10 @@ u over a few candidate controls, V̄ a copy of V taken at each iteration's start
 the upright pose spreads back over every swing that reaches it, whether or not a policy has found it
 (Bellman's backup, as in fitted Q and value iteration; the model in place of the simulator). Half
 the states each iteration are uniform in the envelope's box, half where ε-greedy walkers under the
-greedy policy have gone, so that V is fitted closely where the swing-up really passes.
+greedy policy have gone, so that V is fitted closely where the swing-up really passes. V̄ is held
+between the least and the most reward seen over 1 − γ: unbounded, the max over the candidates
+picks whatever V extrapolates highest and the fit diverged (the acrobot's loss 0.15 → 6 × 10⁷ in
+860 iterations, held out 32; bounded, it stays near 2, held out 77: measured, docs/experiments).
 
 Then the policy greedy over V (the best candidate's reward plus discounted V, one step ahead) is
 copied into the network by DAgger: emulated episodes, labelled by the greedy policy wherever the
@@ -30,6 +33,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import math
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -97,6 +101,10 @@ class ValueFitter:
         self.walk_s = torch.as_tensor(s, dtype=torch.float32)
         self.walk_p = torch.as_tensor(p, dtype=torch.float32)
         self.iterations = 0
+        # the least and most reward a step has paid in the backups so far: V lies within them over
+        # 1 − γ, and its targets are held there (a bootstrapped value unbounded diverged: the max over
+        # the candidates picks whatever V extrapolates highest, measured to a loss of 10⁷)
+        self.reward_low, self.reward_high = math.inf, -math.inf
         self.grid = candidate_controls(trainer.low, trainer.high, how.candidates, self.rng)
         self.labels: list[tuple[Tensor, Tensor, Tensor]] = []  # (states, parameters, greedy controls)
 
@@ -121,13 +129,23 @@ class ValueFitter:
         p_rep = p.repeat(c, 1)
         u = cands.repeat_interleave(b, dim=0)
         nxt = tr.step(s_rep, u)
-        q = self.score(nxt, u, p_rep) + tr.gamma * torch.nan_to_num(target(nxt, p_rep), nan=0.0)
+        r = self.score(nxt, u, p_rep)
+        self.reward_low = min(self.reward_low, float(r.min()))
+        self.reward_high = max(self.reward_high, float(r.max()))
+        low, high = self.value_bounds()
+        q = r + tr.gamma * torch.nan_to_num(target(nxt, p_rep), nan=0.0).clamp(low, high)
         # a step the emulator could not take is worth nothing (a state far out is clamped by the features)
         q = torch.where(torch.isfinite(nxt).all(dim=1), torch.nan_to_num(q), torch.zeros_like(q))
         best, pick = q.reshape(c, b).max(dim=0)
         return best, pick, nxt.reshape(c, b, -1)
 
+    def value_bounds(self) -> tuple[float, float]:
+        """The least and most any state's value can be: the least and most reward seen over 1 − γ."""
+        horizon = 1.0 / (1.0 - self.trainer.gamma)
+        return self.reward_low * horizon, self.reward_high * horizon
+
     def box(self, n: int) -> tuple[Tensor, Tensor]:
+        """(n, S) states uniform in the emulator's envelope's box and (n, P) the task's parameters."""
         tr = self.trainer
         idx = self.rng.integers(len(tr.start_params), size=n)
         return (

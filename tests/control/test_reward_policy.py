@@ -194,12 +194,15 @@ def test_value_iteration_backs_up_the_best_control_and_learns_where_the_reward_i
     s, p = fitter.box(16)
     cands = candidate_controls(trainer.low, trainer.high, 3, np.random.default_rng(1))
     y, pick, nxt = fitter.backup(s, p, trainer.critic, cands)
+    v_low, v_high = fitter.value_bounds()  # the least and most reward the backup saw, over 1 − γ
     with torch.no_grad():
+        paid = [fitter.score(trainer.step(s, c.expand(16, -1)), c.expand(16, -1), p) for c in cands]
+        assert v_low == pytest.approx(min(float(r.min()) for r in paid) / (1 - trainer.gamma))
+        assert v_high == pytest.approx(max(float(r.max()) for r in paid) / (1 - trainer.gamma))
         q = torch.stack(
             [
-                fitter.score(trainer.step(s, c.expand(16, -1)), c.expand(16, -1), p)
-                + trainer.gamma * trainer.critic(trainer.step(s, c.expand(16, -1)), p)
-                for c in cands
+                r + trainer.gamma * trainer.critic(trainer.step(s, c.expand(16, -1)), p).clamp(v_low, v_high)
+                for r, c in zip(paid, cands, strict=True)
             ]
         )
     torch.testing.assert_close(y, q.max(dim=0).values, rtol=1e-4, atol=1e-5)
@@ -226,7 +229,7 @@ def test_value_iteration_copies_the_greedy_policy_into_the_network_round_by_roun
     how = ValueIteration(share=0.5, states=256, candidates=3, batch=128, iterations=5, episodes=8, epochs=6)
     settings = replace(QUICK, value_iteration=how, max_iterations=4)
     trainer = RewardTrainer(TASK, path, settings)
-    assert trainer.critic.net[0].out_features == how.hidden[0]
+    assert next(trainer.critic.parameters()).shape[0] == how.hidden[0]
     assert next(trainer.policy.net.parameters()).shape[0] == how.policy_hidden[0]
     before = copy.deepcopy(trainer.policy)
     result = trainer.train()
@@ -241,7 +244,7 @@ def test_value_iteration_copies_the_greedy_policy_into_the_network_round_by_roun
     assert err < 0.7 * untrained  # the kept round's copy: the best on MuJoCo, not always the last
     # "off" keeps the actor-critic whatever the task says
     off = RewardTrainer(replace(TASK, value_iteration=how), path, replace(QUICK, value_iteration="off"))
-    assert off.value_iteration is None and off.critic.net[0].out_features == QUICK.critic_hidden[0]
+    assert off.value_iteration is None and next(off.critic.parameters()).shape[0] == QUICK.critic_hidden[0]
 
 
 def test_an_emulator_at_another_control_period_is_refused(artifacts: Path) -> None:
