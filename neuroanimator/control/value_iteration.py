@@ -130,12 +130,14 @@ class ValueFitter:
         u = cands.repeat_interleave(b, dim=0)
         nxt = tr.step(s_rep, u)
         r = self.score(nxt, u, p_rep)
-        self.reward_low = min(self.reward_low, float(r.min()))
-        self.reward_high = max(self.reward_high, float(r.max()))
+        took = torch.isfinite(nxt).all(dim=1)
+        if took.any():  # only steps the emulator took say what a reward can be
+            self.reward_low = min(self.reward_low, float(r[took].min()))
+            self.reward_high = max(self.reward_high, float(r[took].max()))
         low, high = self.value_bounds()
         q = r + tr.gamma * torch.nan_to_num(target(nxt, p_rep), nan=0.0).clamp(low, high)
         # a step the emulator could not take is worth nothing (a state far out is clamped by the features)
-        q = torch.where(torch.isfinite(nxt).all(dim=1), torch.nan_to_num(q), torch.zeros_like(q))
+        q = torch.where(took, torch.nan_to_num(q), torch.zeros_like(q))
         best, pick = q.reshape(c, b).max(dim=0)
         return best, pick, nxt.reshape(c, b, -1)
 
