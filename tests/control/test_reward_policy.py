@@ -221,6 +221,28 @@ def test_value_iteration_backs_up_the_best_control_and_learns_where_the_reward_i
         assert torch.equal(a, b)
 
 
+def test_value_iteration_backs_up_the_least_of_its_values_and_keeps_the_best_checked(artifacts: Path) -> None:
+    """With two values each starts from its own weights and the backup takes the least of them;
+    every ``check_every`` iterations the greedy policy is run on the emulator, and the value kept
+    is the one whose greedy policy earned most there."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    how = ValueIteration(share=0.5, states=256, candidates=3, batch=128, iterations=6, critics=2,
+                         check_every=2, check_episodes=4)  # fmt: skip
+    trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how, seed=3))
+    fitter = ValueFitter(trainer, how)
+    first, second = fitter.value.values
+    assert first is trainer.critic
+    s, p = fitter.box(16)
+    with torch.no_grad():
+        both = torch.stack([first(s, p), second(s, p)])
+        assert not torch.equal(both[0], both[1])
+        torch.testing.assert_close(fitter.value(s, p), both.min(dim=0).values)
+    assert fitter.fit(600.0) == 6
+    assert [at for at, _ in fitter.checks] == [2, 4, 6]
+    best = max(earned for _, earned in fitter.checks)
+    assert fitter.emulated_return() == pytest.approx(best, rel=1e-3, abs=1e-3)
+
+
 def test_value_iteration_copies_the_greedy_policy_into_the_network_round_by_round(artifacts: Path) -> None:
     """With ``value_iteration`` the value is fitted first, then each round copies the policy greedy
     over it (DAgger), is checked on MuJoCo and the best kept; the copy's controls come near the
