@@ -91,6 +91,10 @@ class ValueIteration:
             raise ValueError("value iteration needs at least 2 candidate controls and 2 states")
         if not 0.0 <= self.walkers <= 1.0 or not 0.0 <= self.epsilon <= 1.0:
             raise ValueError("value iteration's walkers and epsilon are shares in [0, 1]")
+        if self.fit_epochs < 1 or self.critics < 1:
+            raise ValueError("value iteration needs at least one value and one pass over its targets")
+        if self.check_every < 0 or (self.check_every and self.check_episodes < 1):
+            raise ValueError("value iteration's checks are every n ≥ 0 iterations over at least one start")
 
 
 def candidate_controls(low: np.ndarray, high: np.ndarray, count: int, rng: np.random.Generator) -> Tensor:
@@ -191,7 +195,8 @@ class ValueFitter:
         )
 
     def iterate(self, opt: torch.optim.Optimizer) -> float:
-        """One backup of ``states`` states and one pass of the critic over them; the mean squared error."""
+        """One backup of ``states`` states and ``fit_epochs`` passes of the values over them; the last
+        pass's mean squared error."""
         tr, how = self.trainer, self.how
         target = copy.deepcopy(self.value).requires_grad_(False)
         bs, bp = self.box(how.states - self.walker_count)

@@ -179,6 +179,10 @@ def test_value_iterations_candidates_span_one_controls_range_and_sample_the_box_
     assert len(torch.unique(two[1:, 0])) == 5
     with pytest.raises(ValueError, match="share of the budget is in"):
         ValueIteration(share=1.0)
+    with pytest.raises(ValueError, match="one pass over its targets"):
+        ValueIteration(fit_epochs=0)
+    with pytest.raises(ValueError, match="checks are every"):
+        ValueIteration(check_every=-1)
     with pytest.raises(ValueError, match="value_iteration is settings, None or 'off'"):
         RewardSettings(value_iteration="on")
 
