@@ -622,13 +622,20 @@ class RewardTrainer:
         return phys, self.emulated_return(starts, params)
 
     @torch.no_grad()
-    def emulated_return(self, starts: FloatArray, params: FloatArray) -> float:
-        """Mean return of episodes on the emulator (the reward at every super-step, times its control steps)."""
+    def emulated_return(
+        self,
+        starts: FloatArray | Tensor,
+        params: FloatArray | Tensor,
+        act: Callable[[Tensor, Tensor], Tensor] | None = None,
+    ) -> float:
+        """Mean return of episodes on the emulator (the reward at every super-step, times its control
+        steps), ``act`` (states (B, S), parameters (B, P)) → (B, U) driving, the policy if None."""
         s = torch.as_tensor(starts, dtype=torch.float32)
         p = torch.as_tensor(params, dtype=torch.float32)
+        drive = self.policy if act is None else act
         total = torch.zeros(len(s))
         for _ in range(self.task.policy_steps):
-            u = self.policy(s, p)
+            u = drive(s, p)
             s = self.step(s, u)
             r = self.task.reward(self.ctx, s, u, p, False)
             total += torch.nan_to_num(r) * self.task.repeat

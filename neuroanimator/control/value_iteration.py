@@ -274,18 +274,9 @@ class ValueFitter:
         )  # fmt: skip
         return self.iterations
 
-    @torch.no_grad()
     def emulated_return(self) -> float:
-        """The mean return of the greedy policy over V on the emulator from the check's starts (the
-        exact reward at every super-step, times its control steps)."""
-        tr = self.trainer
-        s, p = self.check_starts, self.check_params
-        total = torch.zeros(len(s))
-        for _ in range(tr.task.policy_steps):
-            u = self.greedy(s, p)
-            s = tr.step(s, u)
-            total += torch.nan_to_num(tr.task.reward(tr.ctx, s, u, p, False)) * tr.task.repeat
-        return float(total.mean())
+        """The mean return of the greedy policy over V on the emulator from the check's starts."""
+        return self.trainer.emulated_return(self.check_starts, self.check_params, self.greedy)
 
     @torch.no_grad()
     def greedy(self, s: Tensor, p: Tensor) -> Tensor:
