@@ -183,34 +183,58 @@ def test_value_iterations_candidates_span_one_controls_range_and_sample_the_box_
         ValueIteration(fit_epochs=0)
     with pytest.raises(ValueError, match="checks are every"):
         ValueIteration(check_every=-1)
+    with pytest.raises(ValueError, match="at least one super-step, not 0"):
+        ValueIteration(hold=0)
     with pytest.raises(ValueError, match="value_iteration is settings, None or 'off'"):
         RewardSettings(value_iteration="on")
 
 
-def test_value_iteration_backs_up_the_best_control_and_learns_where_the_reward_is(artifacts: Path) -> None:
-    """The backup is, from each state, the best candidate's reward on arriving plus the discounted
-    value there (recomputed here by hand); fitted over the envelope, V is higher at the target at
-    rest than in the box's corners."""
+def held_by_hand(fitter: ValueFitter, s: Tensor, p: Tensor, cands: Tensor) -> tuple[Tensor, list[Tensor]]:
+    """(C, B) each candidate held ``hold`` super-steps from states (B, S): its discounted rewards and
+    the discounted V where it ends; and every reward paid on the way ((B,) each)."""
+    trainer, hold = fitter.trainer, fitter.how.hold
+    v_low, v_high = fitter.value_bounds()
+    q, paid = [], []
+    with torch.no_grad():
+        for c in cands:
+            u, x, total = c.expand(len(s), -1), s, torch.zeros(len(s))
+            for k in range(hold):
+                x = trainer.step(x, u)
+                paid.append(fitter.score(x, u, p))
+                total = total + trainer.gamma**k * paid[-1]
+            q.append(total + trainer.gamma**hold * trainer.critic(x, p).clamp(v_low, v_high))
+    return torch.stack(q), paid
+
+
+@pytest.mark.parametrize("hold", [1, 3])
+def test_value_iteration_backs_up_the_best_held_control(artifacts: Path, hold: int) -> None:
+    """The backup is, from each state, the best candidate's discounted rewards while it is held
+    ``hold`` super-steps plus the discounted value where it ends (recomputed here by hand); the
+    next states it gives are one super-step on, and V's bounds are the rewards seen over 1 − γ."""
     path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
-    how = ValueIteration(share=0.5, states=1024, candidates=5, batch=256, lr=3e-3, iterations=80)
+    how = ValueIteration(share=0.5, states=1024, candidates=5, batch=256, hold=hold)
     trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how, seed=2))
     fitter = ValueFitter(trainer, how)
     s, p = fitter.box(16)
     cands = candidate_controls(trainer.low, trainer.high, 3, np.random.default_rng(1))
     y, pick, nxt = fitter.backup(s, p, trainer.critic, cands)
-    v_low, v_high = fitter.value_bounds()  # the least and most reward the backup saw, over 1 − γ
-    with torch.no_grad():
-        paid = [fitter.score(trainer.step(s, c.expand(16, -1)), c.expand(16, -1), p) for c in cands]
-        assert v_low == pytest.approx(min(float(r.min()) for r in paid) / (1 - trainer.gamma))
-        assert v_high == pytest.approx(max(float(r.max()) for r in paid) / (1 - trainer.gamma))
-        q = torch.stack(
-            [
-                r + trainer.gamma * trainer.critic(trainer.step(s, c.expand(16, -1)), p).clamp(v_low, v_high)
-                for r, c in zip(paid, cands, strict=True)
-            ]
-        )
+    q, paid = held_by_hand(fitter, s, p, cands)
+    v_low, v_high = fitter.value_bounds()
+    assert v_low == pytest.approx(min(float(r.min()) for r in paid) / (1 - trainer.gamma))
+    assert v_high == pytest.approx(max(float(r.max()) for r in paid) / (1 - trainer.gamma))
     torch.testing.assert_close(y, q.max(dim=0).values, rtol=1e-4, atol=1e-5)
     assert torch.equal(pick, q.argmax(dim=0)) and nxt.shape == (3, 16, s.shape[1])
+    with torch.no_grad():
+        torch.testing.assert_close(nxt[1], trainer.step(s, cands[1].expand(16, -1)))
+
+
+def test_value_iteration_learns_where_the_reward_is(artifacts: Path) -> None:
+    """Fitted over the envelope, V is higher at the target at rest than in the box's corners, and
+    the critic it fitted is the one the actor starts with."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    how = ValueIteration(share=0.5, states=1024, candidates=5, batch=256, lr=3e-3, iterations=80)
+    trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how, seed=2))
+    fitter = ValueFitter(trainer, how)
 
     assert fitter.fit(600.0) == 80  # its iterations bound it, not the seconds
     low, high = trainer.envelope_box()
