@@ -27,12 +27,12 @@ same targets and backs up the least of them (``LeastValue``).
 Each candidate is held for ``hold`` super-steps in the backup, its rewards summed on the way, before
 V is read: in one super-step (the acrobot's 50 ms) a control moves the state so little that the
 candidates' values differ by less than V's error, and the greedy choice between them is noise. Held
-three (150 ms, as an action repeat), the acrobot's greedy policy earned 191 and 177 held out against
-118 and 123 held one, its copy 145 and 122 against 125 and 98 (two seeds, measured,
+three (150 ms, as an action repeat), the acrobot's greedy policy earned 191 and 177 held out (two
+seeds) against 158 held one on the same emulator, its copy 145 and 122 against 114 (measured,
 docs/experiments). V is then the value of choosing a control every ``hold`` super-steps; the walkers
 and the greedy policy still choose every super-step, each time the best held control from there.
 
-Then the policy greedy over V (the best candidate's reward plus discounted V, one step ahead) is
+Then the policy greedy over V (the best candidate held, its rewards plus the discounted V after) is
 copied into the network by DAgger: emulated episodes, labelled by the greedy policy wherever the
 network drives. Copied, not trained through V by its gradient: on the acrobot a network trained
 against the same V, held fixed, earned 36-50, its copy 88-117 (measured, docs/experiments).
