@@ -183,10 +183,10 @@ class ValueFitter:
         paid = torch.zeros(c * b)
         took = torch.ones(c * b, dtype=torch.bool)
         discount = 1.0
-        nxt = x
+        nxt = x = tr.step(x, u)  # the next states the walkers move to; the held steps go on from them
         for step in range(self.how.hold):
-            x = tr.step(x, u)
-            nxt = x if step == 0 else nxt
+            if step:
+                x = tr.step(x, u)
             r = self.score(x, u, p_rep)
             ok = torch.isfinite(x).all(dim=1)
             if ok.any():  # only steps the emulator took say what a reward can be
