@@ -51,7 +51,7 @@ from neuroanimator.artifacts import store as artifacts
 from neuroanimator.control.bptt import FastStep
 from neuroanimator.control.planner_copy import PLANNER, TEACHERS, CopySettings, PlannerCopy
 from neuroanimator.control.suite_tasks import Context, Restarts, SuiteTask
-from neuroanimator.control.value_iteration import ValueFitter, ValueIteration
+from neuroanimator.control.value_iteration import ValueFitter, ValueIteration, candidate_controls
 from neuroanimator.emulator.structured import StructuredEmulator
 from neuroanimator.sim import sampling
 from neuroanimator.sim.model import PhysicalModel
@@ -236,6 +236,32 @@ class RewardPolicy(nn.Module):
         """(U,) lows and highs the controls never leave."""
         c, h = self.centre.tolist(), self.half_range.tolist()
         return [a - b for a, b in zip(c, h, strict=True)], [a + b for a, b in zip(c, h, strict=True)]
+
+
+class ChoicePolicy(RewardPolicy):
+    """π(state (B,S), params (B,P)) → the best-scored of C candidate controls (C, U): the network
+    scores every candidate (``scores``) and the best is taken. The copy of a policy greedy over a
+    few candidates (``value_iteration``): near where the greedy choice flips (the acrobot's full
+    torque one way or the other) a regression onto its controls averages the two sides into a
+    torque that does neither, a choice keeps one (module doc of ``value_iteration``, measured)."""
+
+    choices: Tensor
+
+    def __init__(self, features: Features, choices: Tensor, hidden: tuple[int, ...]) -> None:
+        low = choices.min(dim=0).values.double().numpy()
+        high = choices.max(dim=0).values.double().numpy()
+        super().__init__(features, low, high, hidden)
+        self.net = mlp(features.size, hidden, len(choices))
+        self.register_buffer("choices", choices.float().clone())
+
+    def scores(self, state: Tensor, params: Tensor) -> Tensor:
+        """(B, C) each candidate's score: the higher, the likelier the greedy policy's choice."""
+        out: Tensor = self.net(self.features(state, params))
+        return out
+
+    def forward(self, state: Tensor, params: Tensor) -> Tensor:
+        # ArgMax and Gather in the served graph
+        return self.choices[self.scores(state, params).argmax(dim=1)]
 
 
 class Critic(nn.Module):
@@ -464,7 +490,18 @@ class RewardTrainer:
         vi = self.value_iteration = how if isinstance(how, ValueIteration) else None
         self.value_fitter: ValueFitter | None = None  # its value and labels, once ``learn_from_value`` ran
         features = self._features()
-        self.policy = RewardPolicy(features, self.low, self.high, vi.policy_hidden if vi else settings.hidden)
+        self.policy: RewardPolicy
+        if vi is not None and vi.copy_as == "choice":
+            # the candidates the value is backed up over, the policy's choices too (drawn apart from
+            # the training's own draws, so that choosing leaves them as they were)
+            grid = candidate_controls(
+                self.low, self.high, vi.candidates, np.random.default_rng(settings.seed + 37)
+            )
+            self.policy = ChoicePolicy(features, grid, vi.policy_hidden)
+        else:
+            self.policy = RewardPolicy(
+                features, self.low, self.high, vi.policy_hidden if vi else settings.hidden
+            )
         self.critic = Critic(copy.deepcopy(features), vi.hidden if vi else settings.critic_hidden)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
 

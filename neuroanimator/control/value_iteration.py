@@ -33,9 +33,15 @@ docs/experiments). V is then the value of choosing a control every ``hold`` supe
 and the greedy policy still choose every super-step, each time the best held control from there.
 
 Then the policy greedy over V (the best candidate held, its rewards plus the discounted V after) is
-copied into the network by DAgger: emulated episodes, labelled by the greedy policy wherever the
-network drives. Copied, not trained through V by its gradient: on the acrobot a network trained
-against the same V, held fixed, earned 36-50, its copy 88-117 (measured, docs/experiments).
+copied into the network by DAgger: emulated episodes, every state the network drives to labelled
+with each candidate's backed-up value. Copied, not trained through V by its gradient: on the acrobot
+a network trained against the same V, held fixed, earned 36-50, its copy 88-117 (measured,
+docs/experiments). The network learns to choose (``copy_as="choice"``, a ``ChoicePolicy`` over the
+same candidates): cross-entropy with the values' softmax at ``temperature``, so that candidates
+within a near tie are taught as one and a wide gap as a sure choice. Where the greedy control flips
+from one end of the range to the other (the acrobot's pumping), a regression onto it averages the
+two into a torque that does neither: over the same two values the choice earned 130 and 160 held
+out, the regression 101 and 91 (the greedy policy itself 158 and 162; measured, docs/experiments).
 
 The candidates are a grid for one control, random draws for more: made for models of few controls
 (a grid over many is exponential, random draws thin).
@@ -60,6 +66,7 @@ if TYPE_CHECKING:
     from neuroanimator.control.reward_policy import RewardTrainer
 
 log = logging.getLogger(__name__)
+COPY_AS = ("choice", "control")  # what the network learns from the greedy policy (``ValueIteration``)
 
 
 @dataclass(frozen=True)
@@ -92,6 +99,11 @@ class ValueIteration:
     teacher_rounds: int = 3
     epochs: int = 3  # passes over the labels so far each round
     max_labels: int = 1_000_000  # the most recent labels kept
+    # what the network learns: "choice", which candidate to take (``ChoicePolicy``), by cross-entropy
+    # with the candidates' backed-up values softened by ``temperature`` (a near tie taught as one);
+    # "control", the greedy control itself, by least squares
+    copy_as: str = "choice"
+    temperature: float = 0.3
 
     def __post_init__(self) -> None:
         if not 0.0 < self.share < 1.0:
@@ -106,6 +118,10 @@ class ValueIteration:
             raise ValueError("value iteration needs at least one value and one pass over its targets")
         if self.check_every < 0 or (self.check_every and self.check_episodes < 1):
             raise ValueError("value iteration's checks are every n ≥ 0 iterations over at least one start")
+        if self.copy_as not in COPY_AS:
+            raise ValueError(f"value iteration copies as one of {', '.join(COPY_AS)}, not {self.copy_as!r}")
+        if not self.temperature > 0.0:
+            raise ValueError(f"value iteration's temperature is above 0, not {self.temperature}")
 
 
 def candidate_controls(low: np.ndarray, high: np.ndarray, count: int, rng: np.random.Generator) -> Tensor:
@@ -145,14 +161,21 @@ class ValueFitter:
         # 1 − γ, and its targets are held there (a bootstrapped value unbounded diverged: the max over
         # the candidates picks whatever V extrapolates highest, measured to a loss of 10⁷)
         self.reward_low, self.reward_high = math.inf, -math.inf
-        self.grid = candidate_controls(trainer.low, trainer.high, how.candidates, self.rng)
+        # the greedy policy's candidates: a choosing policy's own choices (``ChoicePolicy``)
+        choices = getattr(trainer.policy, "choices", None)
+        self.grid = (
+            choices
+            if isinstance(choices, Tensor)
+            else candidate_controls(trainer.low, trainer.high, how.candidates, self.rng)
+        )
         # the trainer's critic and its twins (``critics``), each of its own first weights
         twins = [
             type(trainer.critic)(copy.deepcopy(trainer.critic.features), how.hidden)
             for _ in range(how.critics - 1)
         ]
         self.value = LeastValue([trainer.critic, *twins])
-        self.labels: list[tuple[Tensor, Tensor, Tensor]] = []  # (states, parameters, greedy controls)
+        # (states (L, S), parameters (L, P), the grid's candidates' backed-up values (L, C))
+        self.labels: list[tuple[Tensor, Tensor, Tensor]] = []
         pick = self.rng.integers(len(trainer.start_states), size=how.check_episodes)
         self.check_starts = torch.as_tensor(trainer.start_states[pick], dtype=torch.float32)
         self.check_params = torch.as_tensor(trainer.start_params[pick], dtype=torch.float32)
@@ -168,13 +191,12 @@ class ValueFitter:
         return torch.nan_to_num(r)
 
     @torch.no_grad()
-    def backup(
+    def candidate_values(
         self, s: Tensor, p: Tensor, target: torch.nn.Module, cands: Tensor
-    ) -> tuple[Tensor, Tensor, Tensor]:
-        """For states (B, S), parameters (B, P) and candidate controls (C, U): the backed-up values
-        (B,), the best candidate's index (B,) and every candidate's next state (C, B, S), one
-        super-step on. Each candidate is held ``hold`` super-steps, its discounted rewards summed
-        and the discounted V where it ends added."""
+    ) -> tuple[Tensor, Tensor]:
+        """For states (B, S), parameters (B, P) and candidate controls (C, U): every candidate's
+        backed-up value (C, B) and next state (C, B, S), one super-step on. Each candidate is held
+        ``hold`` super-steps, its discounted rewards summed and the discounted V where it ends added."""
         tr = self.trainer
         c, b = len(cands), len(s)
         x = s.repeat(c, 1)
@@ -199,8 +221,16 @@ class ValueFitter:
         q = paid + discount * torch.nan_to_num(target(x, p_rep), nan=0.0).clamp(low, high)
         # a step the emulator could not take is worth nothing (a state far out is clamped by the features)
         q = torch.where(took, torch.nan_to_num(q), torch.zeros_like(q))
-        best, pick = q.reshape(c, b).max(dim=0)
-        return best, pick, nxt.reshape(c, b, -1)
+        return q.reshape(c, b), nxt.reshape(c, b, -1)
+
+    def backup(
+        self, s: Tensor, p: Tensor, target: torch.nn.Module, cands: Tensor
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """The backed-up values (B,), the best candidate's index (B,) and every candidate's next
+        state (C, B, S) (``candidate_values``)."""
+        q, nxt = self.candidate_values(s, p, target, cands)
+        best, pick = q.max(dim=0)
+        return best, pick, nxt
 
     def value_bounds(self) -> tuple[float, float]:
         """The least and most any state's value can be: the least and most reward seen over 1 − γ."""
@@ -310,7 +340,8 @@ class ValueFitter:
         """One round of copying the greedy policy into the trainer's policy (DAgger, Ross et al. 2011):
         ``episodes`` emulated episodes from the task's starts, the greedy policy driving a share
         ``1 − round/teacher_rounds`` of the steps and the network the rest, every state labelled with
-        the greedy control; then ``epochs`` passes over the labels so far. The last batch's error."""
+        its candidates' backed-up values; then ``epochs`` passes over the labels so far (``copy_as``).
+        The last batch's loss."""
         tr, how = self.trainer, self.how
         pick = self.rng.integers(len(tr.start_states), size=how.episodes)
         s = torch.as_tensor(tr.start_states[pick], dtype=torch.float32)
@@ -318,27 +349,39 @@ class ValueFitter:
         teacher = max(0.0, 1.0 - round_index / max(1, how.teacher_rounds))
         with torch.no_grad():
             for _ in range(tr.task.policy_steps):
-                g = self.greedy(s, p)
-                self.labels.append((s, p, g))
+                q, _ = self.candidate_values(s, p, self.value, self.grid)
+                self.labels.append((s, p, q.T))
                 own = torch.as_tensor(self.rng.random(len(s)) >= teacher)[:, None]
-                s = tr.step(s, torch.where(own, tr.policy(s, p), g))
+                s = tr.step(s, torch.where(own, tr.policy(s, p), self.grid[q.argmax(dim=0)]))
                 lost = tr.lost(s)
                 if lost.any():  # a state the emulator does not know: a new start in its place
                     ns, npar = tr.restart(int(lost.sum()))
                     s, p = s.clone(), p.clone()
                     s[lost] = torch.as_tensor(ns, dtype=torch.float32)
                     p[lost] = torch.as_tensor(npar, dtype=torch.float32)
-        x, xp, y = (torch.cat(part) for part in zip(*self.labels, strict=True))
+        x, xp, values = (torch.cat(part) for part in zip(*self.labels, strict=True))
         if len(x) > how.max_labels:  # the oldest go: they were labelled where early policies went
-            x, xp, y = x[-how.max_labels :], xp[-how.max_labels :], y[-how.max_labels :]
-        self.labels = [(x, xp, y)]
+            x, xp, values = x[-how.max_labels :], xp[-how.max_labels :], values[-how.max_labels :]
+        self.labels = [(x, xp, values)]
         loss = torch.zeros(())
         for _ in range(how.epochs):
             order = torch.randperm(len(x))
             for i in range(0, len(x), how.batch):
                 at = order[i : i + how.batch]
-                loss = ((tr.policy(x[at], xp[at]) - y[at]) ** 2).mean()
+                loss = self.copy_loss(x[at], xp[at], values[at])
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
         return float(loss.detach())
+
+    def copy_loss(self, s: Tensor, p: Tensor, values: Tensor) -> Tensor:
+        """The copy's loss on states (B, S), parameters (B, P) and their candidates' values (B, C):
+        cross-entropy of the policy's scores with the values' softmax at ``temperature`` (a choosing
+        policy), or the squared error of its controls from the best candidate's."""
+        policy, how = self.trainer.policy, self.how
+        scores = getattr(policy, "scores", None)
+        if how.copy_as == "choice" and scores is not None:
+            best = values.max(dim=1, keepdim=True).values
+            soft = torch.softmax((values - best) / how.temperature, dim=1)
+            return torch.nn.functional.cross_entropy(scores(s, p), soft)
+        return ((policy(s, p) - self.grid[values.argmax(dim=1)]) ** 2).mean()

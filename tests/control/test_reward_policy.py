@@ -27,7 +27,9 @@ from neuroanimator.control.planner_copy import CopySettings, PlannerCopy
 from neuroanimator.control.policy import PolicySettings
 from neuroanimator.control.policy_job import PolicyJobError, run_policy_job
 from neuroanimator.control.reward_policy import (
+    ChoicePolicy,
     Meeting,
+    RewardPolicy,
     RewardProgress,
     RewardResult,
     RewardSettings,
@@ -271,12 +273,17 @@ def test_value_iteration_backs_up_the_least_of_its_values_and_keeps_the_best_che
     assert fitter.emulated_return() == pytest.approx(best, rel=1e-3, abs=1e-3)
 
 
-def test_value_iteration_copies_the_greedy_policy_into_the_network_round_by_round(artifacts: Path) -> None:
+@pytest.mark.parametrize("copy_as", ["choice", "control"])
+def test_value_iteration_copies_the_greedy_policy_into_the_network_round_by_round(
+    artifacts: Path, copy_as: str
+) -> None:
     """With ``value_iteration`` the value is fitted first, then each round copies the policy greedy
-    over it (DAgger), is checked on MuJoCo and the best kept; the copy's controls come near the
-    greedy ones; "off" keeps the actor-critic whatever the task says."""
+    over it (DAgger), is checked on MuJoCo and the best kept; the copy learns the greedy policy's
+    choices ("choice": a ``ChoicePolicy`` over the value's own candidates) or its controls
+    ("control"); "off" keeps the actor-critic whatever the task says."""
     path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
-    how = ValueIteration(share=0.5, states=256, candidates=3, batch=128, iterations=5, episodes=8, epochs=6)
+    how = ValueIteration(share=0.5, states=256, candidates=3, batch=128, iterations=5, episodes=8, epochs=6,
+                         copy_as=copy_as)  # fmt: skip
     settings = replace(QUICK, value_iteration=how, max_iterations=4)
     trainer = RewardTrainer(TASK, path, settings)
     assert next(trainer.critic.parameters()).shape[0] == how.hidden[0]
@@ -285,16 +292,62 @@ def test_value_iteration_copies_the_greedy_policy_into_the_network_round_by_roun
     result = trainer.train()
     assert result.iterations == 4 and [it for it, _, _ in result.return_history] == [1, 2, 3, 4]
     assert 0 <= result.return_physics <= TASK.episode_steps and result.stop == "budget"
-    assert trainer.value_fitter is not None and trainer.value_fitter.iterations == how.iterations
-    ((states, params, greedy),) = trainer.value_fitter.labels  # every round's, joined
-    assert len(states) == 4 * how.episodes * TASK.policy_steps
+    fitter = trainer.value_fitter
+    assert fitter is not None and fitter.iterations == how.iterations
+    ((states, params, values),) = fitter.labels  # every round's, joined: each candidate's value
+    assert len(states) == 4 * how.episodes * TASK.policy_steps and values.shape == (len(states), 3)
+    greedy = fitter.grid[values.argmax(dim=1)]
     with torch.no_grad():
-        err = float(((trainer.policy(states, params) - greedy) ** 2).mean())
-        untrained = float(((before(states, params) - greedy) ** 2).mean())
-    assert err < 0.7 * untrained  # the kept round's copy: the best on MuJoCo, not always the last
+        copied, untrained = trainer.policy(states, params), before(states, params)
+    if copy_as == "choice":
+        assert isinstance(trainer.policy, ChoicePolicy) and torch.equal(trainer.policy.choices, fitter.grid)
+        # every control it gives is one of the candidates, and more of them the greedy policy's
+        chosen = (copied[:, None, :] == fitter.grid[None]).all(dim=2)
+        assert bool(chosen.any(dim=1).all())
+        agree = float((copied == greedy).all(dim=1).float().mean())
+        assert agree > float((untrained == greedy).all(dim=1).float().mean()) + 0.1
+    else:
+        assert type(trainer.policy) is RewardPolicy
+        err = float(((copied - greedy) ** 2).mean())
+        assert err < 0.7 * float(((untrained - greedy) ** 2).mean())  # the kept round: the best on MuJoCo
     # "off" keeps the actor-critic whatever the task says
     off = RewardTrainer(replace(TASK, value_iteration=how), path, replace(QUICK, value_iteration="off"))
     assert off.value_iteration is None and next(off.critic.parameters()).shape[0] == QUICK.critic_hidden[0]
+    assert type(off.policy) is RewardPolicy
+
+
+def test_a_choosing_policy_exports_its_choice_and_its_range(artifacts: Path) -> None:
+    """A ``ChoicePolicy``'s graph gives the candidate its scores rank first, as torch does, and
+    records the candidates' range as the range its controls never leave."""
+    import onnx
+    import onnxruntime as ort
+
+    from neuroanimator.export.driven import CONTROLS_RANGE
+    from neuroanimator.export.policy import policy_to_onnx
+
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    how = ValueIteration(candidates=4)
+    trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how))
+    policy = trainer.policy
+    assert isinstance(policy, ChoicePolicy) and policy.choices.shape == (4, 2)
+    graph = policy_to_onnx(policy, trainer.manifest.state_size, 0, False, reads_time=False)
+    s = torch.as_tensor(trainer.box_states(64), dtype=torch.float32)
+    with torch.no_grad():
+        want = policy(s, torch.zeros(64, 0))
+        ranks = policy.scores(s, torch.zeros(64, 0)).argmax(dim=1)
+    torch.testing.assert_close(want, policy.choices[ranks])
+    got = ort.InferenceSession(graph).run(None, {"state": s.numpy(), "goal": np.zeros((64, 0), np.float32)})[
+        0
+    ]
+    np.testing.assert_allclose(got, want.numpy(), rtol=0, atol=1e-6)
+    meta = {p.key: p.value for p in onnx.load_from_string(graph).metadata_props}
+    low, high = json.loads(meta[CONTROLS_RANGE])
+    assert low == pytest.approx(policy.choices.min(dim=0).values.tolist())
+    assert high == pytest.approx(policy.choices.max(dim=0).values.tolist())
+    with pytest.raises(ValueError, match="copies as one of choice, control, not 'both'"):
+        ValueIteration(copy_as="both")
+    with pytest.raises(ValueError, match="temperature is above 0"):
+        ValueIteration(temperature=0.0)
 
 
 def test_an_emulator_at_another_control_period_is_refused(artifacts: Path) -> None:
@@ -392,23 +445,37 @@ def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
     assert any(line.startswith("| point_mass-easy |") for line in lines)
 
 
-def test_a_suite_task_is_a_policy_job_stored_and_served_as_a_driver(artifacts: Path, tmp_path: Path) -> None:
+CHOOSING = replace(
+    QUICK,
+    max_iterations=2,
+    value_iteration=ValueIteration(share=0.5, states=256, candidates=3, batch=128, iterations=3, episodes=4),
+)
+
+
+@pytest.mark.parametrize("settings", [QUICK, CHOOSING], ids=["actor-critic", "choosing"])
+def test_a_suite_task_is_a_policy_job_stored_and_served_as_a_driver(
+    artifacts: Path, tmp_path: Path, settings: RewardSettings
+) -> None:
     """``run_policy_job`` trains a suite task's policy as it does a goal-reaching one and stores it
     beside its emulator; the emulator service drives a session of the model with it, every super-step
-    the stored graph's controls for the session's state (a task without parameters: an empty goal)."""
+    the stored graph's controls for the session's state (a task without parameters: an empty goal),
+    a policy that chooses among candidates (``ChoicePolicy``) as one that squashes its output."""
     roots = registry.Roots(tmp_path / "data", artifacts)
     path = registry.resolve(roots, "point_mass", substeps=TASK.substeps)
-    done = run_policy_job(TASK.name, roots, QUICK)
+    done = run_policy_job(TASK.name, roots, settings)
     assert done.folder is not None and done.folder.parent.parent.name == "point_mass"
     assert done.folder.is_relative_to(tmp_path / "data")  # the data directory, never the defaults
     m = read_policy(done.folder)
     result = done.result
     assert isinstance(result, RewardResult)
+    assert isinstance(result.policy, ChoicePolicy) == (settings is CHOOSING)
     assert (m.name, m.model, m.emulator_version, m.substeps) == (TASK.name, "point_mass", path.name, 2)
     assert (m.goal_variables, m.goal_low, m.goal_high, m.timed) == ([], [], [], False)
     assert m.task["kind"] == "reward" and m.metrics.success_physics is None
     assert m.metrics.return_physics == round(result.return_physics, 2)
-    assert m.metrics.evaluate_runs == QUICK.final_episodes and m.metrics.mujoco_steps == result.mujoco_steps
+    assert (
+        m.metrics.evaluate_runs == settings.final_episodes and m.metrics.mujoco_steps == result.mujoco_steps
+    )
     # how far the emulator was to be trusted under it, kept with it: a point mass has no fall
     assert m.metrics.outside_envelope == round(result.outside_share, 4) and m.metrics.falls == []
     assert result.root_drift_m is not None and m.metrics.root_drift_m == round(result.root_drift_m, 4)
