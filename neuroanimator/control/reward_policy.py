@@ -491,9 +491,10 @@ class RewardTrainer:
         self.value_fitter: ValueFitter | None = None  # its value and labels, once ``learn_from_value`` ran
         features = self._features()
         self.policy: RewardPolicy
-        if vi is not None and vi.copy_as == "choice":
+        if vi is not None and vi.copy_as == "choice" and settings.teacher != PLANNER:
             # the candidates the value is backed up over, the policy's choices too (drawn apart from
-            # the training's own draws, so that choosing leaves them as they were)
+            # the training's own draws, so that choosing leaves them as they were); a policy that
+            # copies the planner first regresses onto its controls, and then onto the greedy ones
             grid = candidate_controls(
                 self.low, self.high, vi.candidates, np.random.default_rng(settings.seed + 37)
             )

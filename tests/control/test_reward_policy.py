@@ -344,6 +344,9 @@ def test_a_choosing_policy_exports_its_choice_and_its_range(artifacts: Path) -> 
     low, high = json.loads(meta[CONTROLS_RANGE])
     assert low == pytest.approx(policy.choices.min(dim=0).values.tolist())
     assert high == pytest.approx(policy.choices.max(dim=0).values.tolist())
+    # a policy that copies the planner first regresses onto its controls: it chooses nothing
+    first_planner = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how, teacher="planner"))
+    assert type(first_planner.policy) is RewardPolicy
     with pytest.raises(ValueError, match="copies as one of choice, control, not 'both'"):
         ValueIteration(copy_as="both")
     with pytest.raises(ValueError, match="temperature is above 0"):
