@@ -455,9 +455,9 @@ CHOOSING = replace(
 )
 
 
-@pytest.mark.parametrize("settings", [QUICK, CHOOSING], ids=["actor-critic", "choosing"])
+@pytest.mark.parametrize("trained", [QUICK, CHOOSING], ids=["actor-critic", "choosing"])
 def test_a_suite_task_is_a_policy_job_stored_and_served_as_a_driver(
-    artifacts: Path, tmp_path: Path, settings: RewardSettings
+    artifacts: Path, tmp_path: Path, trained: RewardSettings
 ) -> None:
     """``run_policy_job`` trains a suite task's policy as it does a goal-reaching one and stores it
     beside its emulator; the emulator service drives a session of the model with it, every super-step
@@ -465,20 +465,18 @@ def test_a_suite_task_is_a_policy_job_stored_and_served_as_a_driver(
     a policy that chooses among candidates (``ChoicePolicy``) as one that squashes its output."""
     roots = registry.Roots(tmp_path / "data", artifacts)
     path = registry.resolve(roots, "point_mass", substeps=TASK.substeps)
-    done = run_policy_job(TASK.name, roots, settings)
+    done = run_policy_job(TASK.name, roots, trained)
     assert done.folder is not None and done.folder.parent.parent.name == "point_mass"
     assert done.folder.is_relative_to(tmp_path / "data")  # the data directory, never the defaults
     m = read_policy(done.folder)
     result = done.result
     assert isinstance(result, RewardResult)
-    assert isinstance(result.policy, ChoicePolicy) == (settings is CHOOSING)
+    assert isinstance(result.policy, ChoicePolicy) == (trained is CHOOSING)
     assert (m.name, m.model, m.emulator_version, m.substeps) == (TASK.name, "point_mass", path.name, 2)
     assert (m.goal_variables, m.goal_low, m.goal_high, m.timed) == ([], [], [], False)
     assert m.task["kind"] == "reward" and m.metrics.success_physics is None
     assert m.metrics.return_physics == round(result.return_physics, 2)
-    assert (
-        m.metrics.evaluate_runs == settings.final_episodes and m.metrics.mujoco_steps == result.mujoco_steps
-    )
+    assert m.metrics.evaluate_runs == trained.final_episodes and m.metrics.mujoco_steps == result.mujoco_steps
     # how far the emulator was to be trusted under it, kept with it: a point mass has no fall
     assert m.metrics.outside_envelope == round(result.outside_share, 4) and m.metrics.falls == []
     assert result.root_drift_m is not None and m.metrics.root_drift_m == round(result.root_drift_m, 4)
