@@ -235,6 +235,9 @@ def bench_suite_task(
         "emulator_wall_s": round(emu_wall, 1),
         "emulator_trained_here": trained_here,
         "iterations": result.iterations,
+        # value iteration's copy beside the greedy policy it copies (None for the actor-critic)
+        "greedy_agreement": None if result.greedy_agreement is None else round(result.greedy_agreement, 3),
+        "greedy_regret": None if result.greedy_regret is None else round(result.greedy_regret, 4),
         # every seed's return on the training's own final episodes (the kept one the highest)
         "seeds": [
             {"seed": seed + i, "return_physics": round(r, 1)} for i, r in enumerate(result.seed_returns)

@@ -317,6 +317,11 @@ class RewardResult:
     seed_returns: list[float] = field(default_factory=list)
     # the seed whose policy and critic this one took when the seeds met (``RewardSettings.meet_at``)
     took_from: int | None = None
+    # with value iteration (``ValueFitter.follows``): the share of the emulated states the kept policy
+    # drives to where its control is the greedy policy's over the value, and the backed-up value its
+    # control loses there a decision (the return's units); None for the actor-critic
+    greedy_agreement: float | None = None
+    greedy_regret: float | None = None
 
     @property
     def evaluate_runs(self) -> int:
@@ -489,6 +494,8 @@ class RewardTrainer:
         how = task.value_iteration if settings.value_iteration is None else settings.value_iteration
         vi = self.value_iteration = how if isinstance(how, ValueIteration) else None
         self.value_fitter: ValueFitter | None = None  # its value and labels, once ``learn_from_value`` ran
+        # the kept policy beside the greedy one over the value (``ValueFitter.follows``), once copied
+        self.greedy_follow: tuple[float, float] | None = None
         features = self._features()
         self.policy: RewardPolicy
         if vi is not None and vi.copy_as == "choice" and settings.teacher != PLANNER:
@@ -874,6 +881,14 @@ class RewardTrainer:
             if runs.mean >= best[0]:
                 best = (runs.mean, copy.deepcopy(self.policy.state_dict()))
             self.report(it, loss, runs.mean)
+        # how closely the kept policy follows the greedy one, where it goes itself
+        self.policy.load_state_dict(best[1])
+        self.greedy_follow = fitter.follows()
+        log.info(
+            "%s: the policy takes the greedy policy's control in %.1f %% of the states it drives to, "
+            "its choice worth %.3g less a decision",
+            self.task.name, 100 * self.greedy_follow[0], self.greedy_follow[1],
+        )  # fmt: skip
         return best, history, it, stop
 
     def learn(
@@ -994,4 +1009,6 @@ class RewardTrainer:
             falls=fell,
             seed=cfg.seed,
             took_from=self.took_from,
+            greedy_agreement=None if self.greedy_follow is None else self.greedy_follow[0],
+            greedy_regret=None if self.greedy_follow is None else self.greedy_follow[1],
         )

@@ -197,13 +197,19 @@ class ValueFitter:
         """For states (B, S), parameters (B, P) and candidate controls (C, U): every candidate's
         backed-up value (C, B) and next state (C, B, S), one super-step on. Each candidate is held
         ``hold`` super-steps, its discounted rewards summed and the discounted V where it ends added."""
-        tr = self.trainer
         c, b = len(cands), len(s)
-        x = s.repeat(c, 1)
-        p_rep = p.repeat(c, 1)
-        u = cands.repeat_interleave(b, dim=0)
-        paid = torch.zeros(c * b)
-        took = torch.ones(c * b, dtype=torch.bool)
+        q, nxt = self.held_values(s.repeat(c, 1), p.repeat(c, 1), cands.repeat_interleave(b, dim=0), target)
+        return q.reshape(c, b), nxt.reshape(c, b, -1)
+
+    @torch.no_grad()
+    def held_values(
+        self, x: Tensor, p_rep: Tensor, u: Tensor, target: torch.nn.Module
+    ) -> tuple[Tensor, Tensor]:
+        """States (N, S), parameters (N, P) and each state's control (N, U), held ``hold`` super-steps:
+        the backed-up values (N,) and the states one super-step on (N, S) (``candidate_values``)."""
+        tr = self.trainer
+        paid = torch.zeros(len(x))
+        took = torch.ones(len(x), dtype=torch.bool)
         discount = 1.0
         nxt = x = tr.step(x, u)  # the next states the walkers move to; the held steps go on from them
         for step in range(self.how.hold):
@@ -221,7 +227,7 @@ class ValueFitter:
         q = paid + discount * torch.nan_to_num(target(x, p_rep), nan=0.0).clamp(low, high)
         # a step the emulator could not take is worth nothing (a state far out is clamped by the features)
         q = torch.where(took, torch.nan_to_num(q), torch.zeros_like(q))
-        return q.reshape(c, b), nxt.reshape(c, b, -1)
+        return q, nxt
 
     def backup(
         self, s: Tensor, p: Tensor, target: torch.nn.Module, cands: Tensor
@@ -335,6 +341,26 @@ class ValueFitter:
         """(B, U) the control greedy over the fitted V from states (B, S): the best of the candidates."""
         _, pick, _ = self.backup(s, p, self.value, self.grid)
         return self.grid[pick]
+
+    @torch.no_grad()
+    def follows(self) -> tuple[float, float]:
+        """How closely the trainer's policy follows the greedy policy over V where the policy itself
+        goes: emulated episodes from the check's starts, the policy driving. The share of their states
+        where its control is the greedy one, and the mean backed-up value its control loses against the
+        greedy one's (≥ 0, the return's units: what the copy costs a decision, 0 where they agree)."""
+        tr = self.trainer
+        s, p = self.check_starts, self.check_params
+        same, lost, n = 0.0, 0.0, 0
+        for _ in range(tr.task.policy_steps):
+            q, _ = self.candidate_values(s, p, self.value, self.grid)
+            best, pick = q.max(dim=0)
+            u = tr.policy(s, p)
+            own, _ = self.held_values(s, p, u, self.value)
+            same += float(torch.isclose(u, self.grid[pick]).all(dim=1).sum())
+            lost += float((best - own).clamp(min=0.0).sum())
+            n += len(s)
+            s = torch.nan_to_num(tr.step(s, u))
+        return same / n, lost / n
 
     def copy_round(self, round_index: int, opt: torch.optim.Optimizer) -> float:
         """One round of copying the greedy policy into the trainer's policy (DAgger, Ross et al. 2011):

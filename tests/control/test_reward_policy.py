@@ -89,6 +89,7 @@ def test_training_runs_on_mujoco_keeps_the_best_and_counts_its_steps(artifacts: 
     assert np.all(trainer.env_high.numpy() >= seen.max(axis=0) - 1e-6)
     assert result.stop == "budget" and 0 <= result.outside_share < QUICK.max_outside
     assert result.root_drift_m is not None and 0 <= result.root_drift_m < 10
+    assert result.greedy_agreement is None and result.greedy_regret is None  # no value to follow
     # the policy's controls stay in the actuators' range, on states far outside what it saw
     s = torch.randn(64, trainer.manifest.state_size) * 10
     u = trainer.policy(s, torch.zeros(64, 0))
@@ -306,10 +307,19 @@ def test_value_iteration_copies_the_greedy_policy_into_the_network_round_by_roun
         assert bool(chosen.any(dim=1).all())
         agree = float((copied == greedy).all(dim=1).float().mean())
         assert agree > float((untrained == greedy).all(dim=1).float().mean()) + 0.1
+        # the result says how often it takes the greedy choice where it drives, and what it loses
+        assert result.greedy_agreement is not None and 0.0 < result.greedy_agreement <= 1.0
+        assert result.greedy_regret is not None and result.greedy_regret >= 0.0
+        trainer.policy.load_state_dict(before.state_dict())
+        untrained_agreement, untrained_regret = fitter.follows()
+        assert result.greedy_agreement > untrained_agreement
+        assert result.greedy_regret < untrained_regret
     else:
         assert type(trainer.policy) is RewardPolicy
         err = float(((copied - greedy) ** 2).mean())
         assert err < 0.7 * float(((untrained - greedy) ** 2).mean())  # the kept round: the best on MuJoCo
+        assert result.greedy_regret is not None and result.greedy_regret >= 0.0
+        assert result.greedy_agreement is not None and 0.0 <= result.greedy_agreement <= 1.0
     # "off" keeps the actor-critic whatever the task says
     off = RewardTrainer(replace(TASK, value_iteration=how), path, replace(QUICK, value_iteration="off"))
     assert off.value_iteration is None and next(off.critic.parameters()).shape[0] == QUICK.critic_hidden[0]
@@ -445,6 +455,7 @@ def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
     # found in --artifacts, not trained again: its training's seconds count in the wall time all the same
     assert not row["emulator_trained_here"] and 0 < row["emulator_wall_s"] < row["wall_s"]
     assert row["model_free"]["algorithm"] == "sac" and row["model_free"]["env_steps"] > 0
+    assert row["greedy_agreement"] is None and row["greedy_regret"] is None  # the actor-critic's
     assert any(line.startswith("| point_mass-easy |") for line in lines)
 
 
