@@ -326,6 +326,27 @@ def test_value_iteration_copies_the_greedy_policy_into_the_network_round_by_roun
     assert type(off.policy) is RewardPolicy
 
 
+def test_the_copys_cross_entropy_weighs_each_state_by_its_stakes(artifacts: Path) -> None:
+    """A state whose candidates are worth the same (nothing at stake) teaches the copy nothing, one
+    with a wide gap between its best and worst twice what a gap half as wide does; ``stakes=False``
+    weighs every state alike."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    how = ValueIteration(candidates=3)
+    trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how))
+    fitter = ValueFitter(trainer, how)
+    s, p = fitter.box(3)
+    values = torch.tensor([[1.0, 1.0, 1.0], [0.0, 0.5, 1.0], [0.0, 1.0, 2.0]])
+    soft = torch.softmax((values - values.max(dim=1, keepdim=True).values) / how.temperature, dim=1)
+    with torch.no_grad():
+        each = torch.nn.functional.cross_entropy(trainer.policy.scores(s, p), soft, reduction="none")
+        weighed = fitter.copy_loss(s, p, values)
+        alike = ValueFitter(trainer, replace(how, stakes=False)).copy_loss(s, p, values)
+    torch.testing.assert_close(weighed, (each[1] + 2 * each[2]) / 3)
+    torch.testing.assert_close(alike, each.mean())
+    # every state a tie: nothing to learn, and a loss that says so rather than a NaN
+    assert float(fitter.copy_loss(s, p, torch.ones(3, 3))) == 0.0
+
+
 def test_a_choosing_policy_exports_its_choice_and_its_range(artifacts: Path) -> None:
     """A ``ChoicePolicy``'s graph gives the candidate its scores rank first, as torch does, and
     records the candidates' range as the range its controls never leave."""
