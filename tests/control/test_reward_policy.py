@@ -334,6 +334,7 @@ def test_the_copys_cross_entropy_weighs_each_state_by_its_stakes(artifacts: Path
     how = ValueIteration(candidates=3)
     trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how))
     fitter = ValueFitter(trainer, how)
+    assert isinstance(trainer.policy, ChoicePolicy)
     s, p = fitter.box(3)
     values = torch.tensor([[1.0, 1.0, 1.0], [0.0, 0.5, 1.0], [0.0, 1.0, 2.0]])
     soft = torch.softmax((values - values.max(dim=1, keepdim=True).values) / how.temperature, dim=1)
