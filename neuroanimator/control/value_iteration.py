@@ -412,8 +412,9 @@ class ValueFitter:
     def copy_loss(self, s: Tensor, p: Tensor, values: Tensor) -> Tensor:
         """The copy's loss on states (B, S), parameters (B, P) and their candidates' values (B, C):
         cross-entropy of the policy's scores with the values' softmax at ``temperature``, each state's
-        weighed by its stakes (``stakes``; a choosing policy), or the squared error of its controls from the best candidate's (``copy_as``
-        "control", or a policy that copied the planner first and chooses nothing)."""
+        weighed by its stakes (``stakes``; a choosing policy), or the squared error of its controls
+        from the best candidate's (``copy_as`` "control", or a policy that copied the planner first
+        and chooses nothing)."""
         policy, how = self.trainer.policy, self.how
         scores = getattr(policy, "scores", None)
         if how.copy_as == "choice" and scores is not None:
