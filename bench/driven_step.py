@@ -1,21 +1,26 @@
 """Driven step: the batched step of policy-driven sessions against undriven ones, in the service's
 stepping core.
 
-    python bench/driven_step.py [--sessions 1,64,1024,4096] [--seconds 2] [--data-dir DIR] [--json]
+    python bench/driven_step.py [--sessions 1,64,1024,4096] [--seconds 2] [--data-dir DIR]
+                                [--policy NAME] [--json]
 
-For each batch size B: B lander sessions (the committed n = 25 emulator) stepped as ONE binary block
-(``Stepper.step_block``, what a binary ``POST /step`` runs after parsing), over and over for
-``--seconds`` each, the two kinds taking turns of a quarter second: undriven (the client's controls)
-and driven by the ``lander-landing`` policy (the policy sets the controls in the batcher's tick: the
-policy and the emulator composed into one graph, ``export.driven``, one ONNX Runtime call). Rows: µs per batched step, µs per session-step and
+For each batch size B: B sessions of the policy's model (the lander's committed n = 25 emulator by
+default) stepped as ONE binary block (``Stepper.step_block``, what a binary ``POST /step`` runs after
+parsing), over and over for ``--seconds`` each, the two kinds taking turns of a quarter second:
+undriven (the client's controls) and driven by the policy (``--policy``, ``lander-landing`` by
+default; it sets the controls in the batcher's tick: the policy and the emulator composed into one
+graph, ``export.driven``, one ONNX Runtime call). Rows: µs per batched step, µs per session-step and
 ``ratio`` = driven / undriven (the target: at most 1.5).
 
 Then the ONNX Runtime calls alone at each B: the emulator, the policy, both one after the other, and
 the composed graph the service runs.
 
 The policy is read from ``--data-dir`` (``NEUROANIMATOR_DATA_DIR`` layout: ``policies/lander/...``);
-without one, a policy is trained here for 3 s into a temporary folder (its quality does not matter
-for its cost). With ``--json`` the last line is one JSON object: ``rows`` (per B: undriven_us,
+without one, a lander-landing policy is trained here for 3 s into a temporary folder (its quality
+does not matter for its cost). A dm_control suite task's policy (``--policy acrobot-swingup``) is
+read from the data directory its emulator was trained into (``neuro train --mjcf acrobot.xml
+--substeps 5 --out DIR``; ``bench/policies.py --artifacts DIR --save-to DIR`` stores the policy
+there), or, when only the emulator is there, one of the task's size is trained for a few seconds. With ``--json`` the last line is one JSON object: ``rows`` (per B: undriven_us,
 driven_us, ratio, and the ORT-only timings) and ``max_ratio``.
 """
 
@@ -44,28 +49,74 @@ from services.emulator.service import EmulatorService
 from services.emulator.settings import Settings
 
 REPO = Path(__file__).resolve().parents[1]
-MODEL, POLICY, SUBSTEPS = "lander", "lander-landing", 25
+LANDER, SUBSTEPS = "lander-landing", 25
 log = logging.getLogger("driven_step")
 
 
-def ensure_policy(data: Path) -> Path:
-    """The folder of the lander-landing policy under ``data``, trained here (3 s) when there is none."""
+def model_of(policy: str) -> str:
+    """The model a policy task drives: a catalog task's model or a suite task's domain."""
+    from neuroanimator.catalog.tasks import POLICY_TASKS
+    from neuroanimator.control.suite_tasks import SUITE_TASKS
+
+    if policy in POLICY_TASKS:
+        return POLICY_TASKS[policy].model
+    if policy in SUITE_TASKS:
+        return SUITE_TASKS[policy].domain
+    raise SystemExit(f"no policy task {policy!r}: one of {', '.join([*POLICY_TASKS, *SUITE_TASKS])}")
+
+
+def ensure_policy(data: Path, policy: str) -> Path:
+    """The folder of ``policy``'s latest version under ``data``, trained here for a few seconds
+    when there is none (the lander's through its committed emulator, a suite task's through the
+    emulator in ``data``): its cost depends on its size, not on its training."""
     roots = registry.Roots(data, REPO / "artifacts")
+    model = model_of(policy)
     try:
-        return resolve_policy(roots, MODEL, POLICY)
+        return resolve_policy(roots, model, policy)
     except PolicyError:
         pass
+    if policy != LANDER:
+        return brief_reward_policy(roots, policy)
     from neuroanimator.catalog.tasks import POLICY_TASKS
     from neuroanimator.control.policy import PolicySettings, train_policy
     from neuroanimator.control.policy_store import save_policy
 
-    task = POLICY_TASKS[POLICY]
-    path = registry.resolve(roots, MODEL, None, SUBSTEPS)
-    log.info("training a %s policy for 3 s through %s", POLICY, path.name)
+    task = POLICY_TASKS[policy]
+    path = registry.resolve(roots, model, None, SUBSTEPS)
+    log.info("training a %s policy for 3 s through %s", policy, path.name)
     settings = PolicySettings(seconds=60, max_iterations=3, refine=False, evaluate_runs=4, refine_runs=4)
     result = train_policy(task, path, settings)
     assert result.goals is not None
     return save_policy(roots, result, result.goals)
+
+
+def brief_reward_policy(roots: registry.Roots, name: str) -> Path:
+    """A suite task's policy of the task's own size, trained for a few iterations through the task's
+    emulator in the data directory, stored there."""
+    from dataclasses import replace
+
+    from neuroanimator.control.policy_store import save_reward_policy
+    from neuroanimator.control.reward_policy import RewardSettings
+    from neuroanimator.control.seed_race import train_reward_policy
+    from neuroanimator.control.suite_tasks import SUITE_TASKS
+
+    task = SUITE_TASKS[name]
+    try:
+        path = registry.resolve(roots, task.domain, None, task.substeps)
+    except (FileNotFoundError, LookupError, ValueError) as exc:
+        raise SystemExit(
+            f"{name}: no {task.domain} emulator at n = {task.substeps} in {roots.data}: train one with "
+            f"neuro train --mjcf {task.domain}.xml --substeps {task.substeps} --out {roots.data}"
+        ) from exc
+    vi = task.value_iteration
+    if vi is not None:  # a value fitted in two iterations, copied in one short round
+        vi = replace(vi, iterations=2, states=256, check_every=0, episodes=4)
+    settings = RewardSettings(
+        seconds=5, max_iterations=1, eval_episodes=1, final_episodes=1, refine=False, value_iteration=vi
+    )
+    log.info("training a %s policy briefly through %s", name, path.name)
+    result = train_reward_policy(task, path, settings)
+    return save_reward_policy(roots, result, registry.read_manifest(path))
 
 
 def timed(fn: Callable[[], object], seconds: float) -> float:
@@ -84,7 +135,7 @@ SLICE_S = 0.25  # each kind's turn: short, so the machine's noise falls on both 
 
 
 async def stepping_core(
-    service: EmulatorService, sizes: list[int], seconds: float
+    service: EmulatorService, policy: str, sizes: list[int], seconds: float
 ) -> dict[int, dict[str, float]]:
     """µs per batched step of B undriven and B policy-driven sessions, for each B.
 
@@ -92,16 +143,18 @@ async def stepping_core(
     for ``seconds``: on a shared, noisy machine a slow spell then weighs on both, not on whichever kind
     happened to be measured during it, and the ratio is the cost of driving, not of the moment."""
     out: dict[int, dict[str, float]] = {}
-    version = service.policies.get(MODEL, POLICY).manifest.emulator_version
-    emu = service.registry.get(MODEL, version)
+    model = model_of(policy)
+    version = service.policies.get(model, policy).manifest.emulator_version
+    emu = service.registry.get(model, version)
+    goal = [1.0, -2.0] if policy == LANDER else None  # a landing spot; a suite task's own default
     rng = np.random.default_rng(0)
     for b in sizes:
         steps: dict[str, Callable[[], Any]] = {}
         ids: list[str] = []
         for kind in ("undriven", "driven"):
-            policy = PolicyDrive(name=POLICY, goal=[1.0, -2.0]) if kind == "driven" else None
+            drive = PolicyDrive(name=policy, goal=goal) if kind == "driven" else None
             kind_ids = [
-                service.create_session(SessionCreate(model=MODEL, version=version, seed=i, policy=policy)).id
+                service.create_session(SessionCreate(model=model, version=version, seed=i, policy=drive)).id
                 for i in range(b)
             ]
             ids += kind_ids
@@ -113,7 +166,7 @@ async def stepping_core(
                 return service.stepper.step_block(res, rows, lambda i: ("", ""))
 
             steps[kind] = step
-        pool = service.store.pools[(MODEL, version)]
+        pool = service.store.pools[(model, version)]
         starts = pool.states.copy()
         spent = dict.fromkeys(steps, 0.0)
         count = dict.fromkeys(steps, 0)
@@ -205,14 +258,15 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sessions", default="1,64,1024,4096", help="batch sizes B, comma-separated")
     ap.add_argument("--seconds", type=float, default=2.0, help="wall time per measurement")
-    ap.add_argument("--data-dir", type=Path, help="a data directory holding a lander-landing policy")
+    ap.add_argument("--data-dir", type=Path, help="a data directory holding the policy (module doc)")
+    ap.add_argument("--policy", default=LANDER, help="the driving policy's task (default: lander-landing)")
     ap.add_argument("--json", action="store_true", help="print one JSON object last")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     sizes = [int(v) for v in args.sessions.split(",")]
     with tempfile.TemporaryDirectory() as tmp:
         data = args.data_dir or Path(tmp)
-        folder = ensure_policy(data)
+        folder = ensure_policy(data, args.policy)
         settings = Settings(
             artifacts_dir=REPO / "artifacts",
             data_dir=data,
@@ -222,9 +276,10 @@ def main() -> int:
             max_batch=max(4096, max(sizes)),
         )
         service = EmulatorService(settings)
-        core = asyncio.run(stepping_core(service, sizes, args.seconds))
+        core = asyncio.run(stepping_core(service, args.policy, sizes, args.seconds))
+        model = model_of(args.policy)
         emulator_onnx = service.registry.get(
-            MODEL, service.policies.get(MODEL, POLICY).manifest.emulator_version
+            model, service.policies.get(model, args.policy).manifest.emulator_version
         )
         calls = ort_only(folder, emulator_onnx.path / registry.ONNX_FILE, sizes, args.seconds)
     rows = [{"sessions": b, **core[b], **calls[b]} for b in sizes]
@@ -244,7 +299,7 @@ def main() -> int:
             f"| {r['sessions']} | {r['ort_emulator_us']:,.0f} | {r['ort_policy_us']:,.0f} | "
             f"{r['ort_in_turn_us']:,.0f} | {r['ort_composed_us']:,.0f} |"
         )
-    result = {"model": MODEL, "policy": POLICY, "rows": rows, "max_ratio": max(r["ratio"] for r in rows)}
+    result = {"model": model, "policy": args.policy, "rows": rows, "max_ratio": max(r["ratio"] for r in rows)}
     print(f"\nlargest ratio driven / undriven: {result['max_ratio']:.2f} (target: at most 1.5)")
     if args.json:
         print(json.dumps(result))

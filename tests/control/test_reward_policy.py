@@ -21,7 +21,7 @@ from fastapi.testclient import TestClient
 from torch import Tensor
 
 from neuroanimator.artifacts import registry
-from neuroanimator.artifacts.policies import read_policy
+from neuroanimator.artifacts.policies import read_policy, resolve_policy
 from neuroanimator.control.planner import PlannerSettings, SamplingPlanner
 from neuroanimator.control.planner_copy import CopySettings, PlannerCopy
 from neuroanimator.control.policy import PolicySettings
@@ -479,6 +479,27 @@ def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
     assert row["model_free"]["algorithm"] == "sac" and row["model_free"]["env_steps"] > 0
     assert row["greedy_agreement"] is None and row["greedy_regret"] is None  # the actor-critic's
     assert any(line.startswith("| point_mass-easy |") for line in lines)
+
+
+def test_the_driven_step_benchmark_drives_a_suite_tasks_model(artifacts: Path, tmp_path: Path) -> None:
+    """bench/driven_step.py over a suite task's policy: trained briefly through the task's emulator in
+    the data directory when none is stored there, then its sessions stepped driven and undriven."""
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(artifacts, data, symlinks=True)
+    _, r = run_bench(
+        "bench/driven_step.py", "--policy", TASK.name, "--sessions", "1,4", "--seconds", "0.05",
+        "--data-dir", str(data),
+    )  # fmt: skip
+    assert (r["model"], r["policy"]) == ("point_mass", TASK.name)
+    assert [row["sessions"] for row in r["rows"]] == [1, 4]
+    assert all(row["driven_us"] > 0 and row["ort_composed_us"] > 0 for row in r["rows"])
+    stored = resolve_policy(registry.Roots(data), "point_mass", TASK.name)
+    assert stored.is_relative_to(data) and read_policy(stored).name == TASK.name
+    with pytest.raises(subprocess.CalledProcessError) as refused:  # a task of no emulator there
+        run_bench("bench/driven_step.py", "--policy", "acrobot-swingup", "--data-dir", str(data))
+    assert "no acrobot emulator" in refused.value.stderr
 
 
 CHOOSING = replace(
