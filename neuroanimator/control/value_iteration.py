@@ -46,7 +46,11 @@ Each state's cross-entropy is weighed by its stakes, the gap between its best an
 values (``stakes``): the copy follows the greedy policy in 75-87 % of the states it drives to
 whatever else was changed, so what matters is which states it gets wrong; weighed, the acrobot's
 copies earned 283 and 187 held out over two saved values where unweighed ones earned 206 and 158
-(measured, docs/experiments).
+(measured, docs/experiments). The copy is small, two layers of 64 ReLUs (``policy_hidden``,
+``ChoicePolicy``): it is served beside the emulator every super-step, where 256 ELUs wide (twice the
+acrobot's emulator's weights) it made a driven step 2.1 times an undriven one (the bar is 1.5); 64
+wide its rounds take half the time, and over the same two saved values it earned 228 and 277 held
+out where the 256-wide copies earned 224 and 177 (measured, docs/experiments).
 
 The candidates are a grid for one control, random draws for more: made for models of few controls
 (a grid over many is exponential, random draws thin).
@@ -90,7 +94,7 @@ class ValueIteration:
     critics: int = 1  # values fitted side by side to the same targets, the least of them backed up
     lr: float = 1e-3
     hidden: tuple[int, ...] = (256, 256)  # the critic's layers
-    policy_hidden: tuple[int, ...] = (256, 256)  # the policy's, in place of ``RewardSettings.hidden``
+    policy_hidden: tuple[int, ...] = (64, 64)  # the policy's, in place of ``RewardSettings.hidden``
     iterations: int | None = None  # the most iterations (None: as many as its share of the budget allows)
     # every ``check_every`` iterations the greedy policy over V is run on the emulator from
     # ``check_episodes`` of the task's starts (always the same ones) and the V that earned most is
