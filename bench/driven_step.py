@@ -20,8 +20,9 @@ without one, a lander-landing policy is trained here for 3 s into a temporary fo
 does not matter for its cost). A dm_control suite task's policy (``--policy acrobot-swingup``) is
 read from the data directory its emulator was trained into (``neuro train --mjcf acrobot.xml
 --substeps 5 --out DIR``; ``bench/policies.py --artifacts DIR --save-to DIR`` stores the policy
-there), or, when only the emulator is there, one of the task's size is trained for a few seconds. With ``--json`` the last line is one JSON object: ``rows`` (per B: undriven_us,
-driven_us, ratio, and the ORT-only timings) and ``max_ratio``.
+there), or, when only the emulator is there, one of the task's size is trained for a few seconds.
+With ``--json`` the last line is one JSON object: ``rows`` (per B: undriven_us, driven_us, ratio,
+and the ORT-only timings) and ``max_ratio``.
 """
 
 from __future__ import annotations
