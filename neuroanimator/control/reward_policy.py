@@ -49,6 +49,7 @@ from torch import Tensor, nn
 from neuroanimator.artifacts import registry
 from neuroanimator.artifacts import store as artifacts
 from neuroanimator.control.bptt import FastStep
+from neuroanimator.control.exploring_runs import ExploringRuns, random_runs
 from neuroanimator.control.planner_copy import PLANNER, TEACHERS, CopySettings, PlannerCopy
 from neuroanimator.control.suite_tasks import Context, Restarts, SuiteTask
 from neuroanimator.control.value_iteration import ValueFitter, ValueIteration, candidate_controls
@@ -133,6 +134,9 @@ class RewardSettings:
     # envelope, and the policy that is greedy over it copied into the network (``value_iteration``);
     # None: as the task says (``SuiteTask.value_iteration``), "off": the actor-critic whatever it says
     value_iteration: ValueIteration | str | None = None
+    # before learning, the emulator fine-tuned on random runs from the task's starts
+    # (``exploring_runs``); None: as the task says (``SuiteTask.exploring``)
+    exploring: ExploringRuns | None = None
 
     def __post_init__(self) -> None:
         if self.teacher is not None and self.teacher not in TEACHERS:
@@ -497,6 +501,7 @@ class RewardTrainer:
         self.runs: list[Episodes] = []
         self.low = np.array([c.low for c in self.manifest.controls])
         self.high = np.array([c.high for c in self.manifest.controls])
+        self.exploring = task.exploring if settings.exploring is None else settings.exploring
         how = task.value_iteration if settings.value_iteration is None else settings.value_iteration
         vi = self.value_iteration = how if isinstance(how, ValueIteration) else None
         self.value_fitter: ValueFitter | None = None  # its value and labels, once ``learn_from_value`` ran
@@ -786,11 +791,38 @@ class RewardTrainer:
         self.step = FastStep(self.emu)
         self.refinements += 1
         # the emulator has now learnt the policy's runs: their states join its envelope
-        states = np.concatenate([r.states.reshape(-1, r.states.shape[2]) for r in self.runs])
+        self.widen_envelope(np.concatenate([r.states.reshape(-1, r.states.shape[2]) for r in self.runs]))
+
+    def widen_envelope(self, states: FloatArray) -> None:
+        """The envelope the emulated states are measured against, widened to hold ``states`` (N, S)."""
         seen = torch.as_tensor(states[np.isfinite(states).all(axis=1)], dtype=torch.float32)
         if len(seen):
             self.env_low = torch.minimum(self.env_low, seen.amin(dim=0))
             self.env_high = torch.maximum(self.env_high, seen.amax(dim=0))
+
+    def explore(self) -> None:
+        """Before learning: the emulator fine-tuned on ``exploring.runs`` random runs from the task's
+        starts (``exploring_runs``; their MuJoCo steps counted), the typical motion kept beside them;
+        their states join its envelope."""
+        how = self.exploring
+        t0 = time.perf_counter()
+        pick = self.rng.integers(len(self.start_states), size=how.runs)
+        states, controls = random_runs(
+            self.physical, self.start_states[pick], self.manifest.substeps, self.low, self.high, how, self.rng
+        )
+        self.mujoco_steps += how.runs * how.steps * self.manifest.substeps
+        fitted = fine_tune_on_runs(
+            self.emu, states, controls, self.manifest.train_config, how.seconds,
+            int(self.rng.integers(1 << 30)), window=REFINE_WINDOW, keep=self.typical_motion(),
+        )  # fmt: skip
+        self.step = FastStep(self.emu)
+        self.refinements += 1
+        self.widen_envelope(states.reshape(-1, states.shape[2]))
+        log.info(
+            "%s: the emulator fine-tuned on %d random runs from the task's starts (rollout loss %.3g -> %.3g), %.0f s",
+            self.task.name, how.runs, fitted.get("rollout_loss_before", math.nan), fitted.get("rollout_loss_after", math.nan),
+            time.perf_counter() - t0,
+        )  # fmt: skip
 
     def meet_the_seeds(self, best: tuple[float, dict[str, Tensor]]) -> tuple[float, dict[str, Tensor]]:
         """Meet the other seeds once (``RewardSettings.meet_at``): a seed behind takes the best one's
@@ -839,6 +871,8 @@ class RewardTrainer:
         best = (-math.inf, copy.deepcopy(self.policy.state_dict()))
         history: list[tuple[int, float, float]] = []
         it = 0
+        if self.exploring.runs:
+            self.explore()
         if self.settings.teacher == PLANNER:
             copier = PlannerCopy(self)
             best, history, it, stop = copier.train()

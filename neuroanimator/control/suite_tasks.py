@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from torch import Tensor
 
 from neuroanimator.catalog.suite import SUITE_TASK_INFO, SuiteTaskInfo
+from neuroanimator.control.exploring_runs import ExploringRuns
 from neuroanimator.control.kinematics import Kinematics
 from neuroanimator.control.value_iteration import ValueIteration
 from neuroanimator.core.state import LayoutGroup
@@ -186,6 +187,9 @@ class SuiteTask(SuiteTaskInfo):
     # instead of the actor-critic: a value by value iteration over the envelope, its greedy policy
     # copied into the network (``RewardSettings.value_iteration``); None: the actor-critic
     value_iteration: ValueIteration | None = None
+    # before learning, the emulator fine-tuned on random runs from the task's starts
+    # (``RewardSettings.exploring``; ``exploring_runs``)
+    exploring: ExploringRuns = field(default_factory=ExploringRuns)
     # how another process builds this task when it does not pickle (a user's task, made of closures):
     # a picklable call that returns it (``seed_race``)
     rebuild: Callable[[], SuiteTask] | None = field(default=None, repr=False, compare=False)

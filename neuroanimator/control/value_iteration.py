@@ -52,8 +52,8 @@ acrobot's emulator's weights) it made a driven step up to 3.56 times an undriven
 1.33 (the bar is 1.5); its rounds take half the time, and over the same two saved values it earned
 228 and 277 held out where the 256-wide copies earned 224 and 177 (measured, docs/experiments).
 
-The candidates are a grid for one control, random draws for more: made for models of few controls
-(a grid over many is exponential, random draws thin).
+The candidates are a grid (k per control, kᵁ in all) or, for a count that is no such power, random
+draws: made for models of few controls (a grid over many is exponential, random draws thin).
 
 Shapes: B states, C candidate controls, S state, U controls, P task parameters.
 """
@@ -84,7 +84,9 @@ class ValueIteration:
 
     share: float = 0.8  # of the training's budget spent fitting V; the policy learns in the rest
     states: int = 16_384  # states backed up per iteration
-    candidates: int = 11  # controls tried from each state: a grid for one control, random draws for more
+    candidates: int = (
+        11  # controls tried from each state: a grid when kᵁ, else random draws (``candidate_controls``)
+    )
     hold: int = 3  # super-steps each candidate is held in the backup before V is read (module doc)
     walkers: float = 0.5  # share of the states where ε-greedy walkers are; the rest uniform in the box
     epsilon: float = 0.2  # share of the walkers' steps under a random candidate
@@ -139,9 +141,12 @@ class ValueIteration:
 
 def candidate_controls(low: np.ndarray, high: np.ndarray, count: int, rng: np.random.Generator) -> Tensor:
     """(C, U) controls to try from every state: ``count`` evenly over the range of a single control;
-    for more, the centre, then uniform draws in the box."""
-    if len(low) == 1:
-        return torch.linspace(float(low[0]), float(high[0]), count)[:, None]
+    for U controls and a ``count`` of kᵁ, the grid of k evenly over each control's range (the
+    corners are where bang-bang control lies); else the centre, then uniform draws in the box."""
+    per = round(count ** (1.0 / len(low)))
+    if per >= 2 and per ** len(low) == count:
+        axes = [torch.linspace(float(lo), float(hi), per) for lo, hi in zip(low, high, strict=True)]
+        return torch.cartesian_prod(*axes).reshape(count, len(low))
     draws = rng.uniform(low, high, (count - 1, len(low)))
     return torch.as_tensor(np.vstack([(low + high) / 2, draws]), dtype=torch.float32)
 

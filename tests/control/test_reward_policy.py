@@ -22,6 +22,7 @@ from torch import Tensor
 
 from neuroanimator.artifacts import registry
 from neuroanimator.artifacts.policies import read_policy, resolve_policy
+from neuroanimator.control.exploring_runs import ExploringRuns, random_runs
 from neuroanimator.control.planner import PlannerSettings, SamplingPlanner
 from neuroanimator.control.planner_copy import CopySettings, PlannerCopy
 from neuroanimator.control.policy import PolicySettings
@@ -180,6 +181,10 @@ def test_value_iterations_candidates_span_one_controls_range_and_sample_the_box_
     assert two.shape == (6, 2) and two[0].tolist() == [0.0, 1.0]  # the centre, then draws
     assert torch.all(two >= torch.tensor([-1.0, 0.0])) and torch.all(two <= torch.tensor([1.0, 2.0]))
     assert len(torch.unique(two[1:, 0])) == 5
+    # a count that is k to the number of controls: the grid of k over each, corners and centre included
+    grid = candidate_controls(np.array([-1.0, 0.0]), np.array([1.0, 2.0]), 9, rng)
+    corners = {(x, z) for x in (-1.0, 0.0, 1.0) for z in (0.0, 1.0, 2.0)}
+    assert {tuple(row) for row in grid.tolist()} == corners
     with pytest.raises(ValueError, match="share of the budget is in"):
         ValueIteration(share=1.0)
     with pytest.raises(ValueError, match="one pass over its targets"):
@@ -190,6 +195,39 @@ def test_value_iterations_candidates_span_one_controls_range_and_sample_the_box_
         ValueIteration(hold=0)
     with pytest.raises(ValueError, match="value_iteration is settings, None or 'off'"):
         RewardSettings(value_iteration="on")
+
+
+def test_exploring_runs_hold_random_controls_from_the_tasks_starts_and_the_emulator_learns_them(
+    artifacts: Path,
+) -> None:
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    trainer = RewardTrainer(TASK, path, QUICK)
+    how = ExploringRuns(runs=12, steps=10, hold=3, seconds=1.0)
+    starts = trainer.start_states[:12]
+    states, controls = random_runs(
+        trainer.physical, starts, TASK.substeps, trainer.low, trainer.high, how, np.random.default_rng(0)
+    )
+    assert states.shape == (12, 11, trainer.manifest.state_size) and controls.shape == (12, 10, 2)
+    assert np.array_equal(states[:, 0], starts) and np.isfinite(states).all()
+    assert np.all(controls >= trainer.low) and np.all(controls <= trainer.high)
+    # each control held three super-steps, then drawn anew
+    assert np.array_equal(controls[:, 0], controls[:, 2])
+    assert not np.array_equal(controls[:, 2], controls[:, 3])
+    # the runs are MuJoCo's: the first super-step is MuJoCo's step from the start under its control
+    again = trainer.physical.step_held(starts, controls[:, 0], None, TASK.substeps)
+    assert np.allclose(states[:, 1], again)
+    # before learning, the emulator is fine-tuned on such runs; their steps counted, their states in its envelope
+    weights = copy.deepcopy(trainer.emu.state_dict())
+    steps = trainer.mujoco_steps
+    trainer.exploring = how
+    trainer.explore()
+    assert trainer.refinements == 1
+    assert any(not torch.equal(weights[k], v) for k, v in trainer.emu.state_dict().items())
+    assert QUICK.refine_keep is not None
+    typical = QUICK.refine_keep * (sampling.lead_steps(trainer.physical, TASK.substeps) + 8 * TASK.substeps)
+    assert trainer.mujoco_steps - steps == 12 * 10 * TASK.substeps + typical
+    with pytest.raises(ValueError, match="exploring runs are a count"):
+        ExploringRuns(runs=-1)
 
 
 def held_by_hand(fitter: ValueFitter, s: Tensor, p: Tensor, cands: Tensor) -> tuple[Tensor, list[Tensor]]:
