@@ -479,7 +479,19 @@ SUITE_TASKS: dict[str, SuiteTask] = {
         _task("pendulum-swingup", reset_random_joints, reward_pendulum, restarts=REVERSE_CURRICULUM),
         _task("reacher-hard", reset_reacher, reward_reacher, observe=observe_reacher),
         _task("point_mass-easy", reset_random_joints, reward_point_mass),
-        _task("ball_in_cup-catch", reset_ball_in_cup, reward_ball_in_cup, restarts=REVERSE_CURRICULUM),
+        # the actor-critic's checks swung between 0 and 900 (617 held out, SAC 961): a value by value
+        # iteration over the nine corners, edges and centre of the two controls' box, its greedy policy
+        # copied; first the emulator fine-tuned on random runs from the task's starts, without which it
+        # let the ball fall out of the cup MuJoCo kept it in and the copy earned 99 (950 with them;
+        # docs/experiments)
+        _task(
+            "ball_in_cup-catch",
+            reset_ball_in_cup,
+            reward_ball_in_cup,
+            restarts=REVERSE_CURRICULUM,
+            value_iteration=ValueIteration(candidates=9),
+            exploring=ExploringRuns(runs=4096, seconds=360.0),
+        ),
         # its reward needs a pumped swing the actor-critic never finds (41 held out): a value by value
         # iteration over the envelope and its greedy policy copied as a choice, over 4 s; three
         # candidates (full torque either way, none), not eleven: its greedy policy pumps at the ends
