@@ -37,7 +37,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TypedDict
 
@@ -63,6 +63,7 @@ FloatArray = NDArray[np.float64]
 FEATURE_LIMIT = 8.0  # a state this many spreads from the typical motion has left what the emulator knows
 DRIFT_S = 1.0  # seconds into an episode at which the emulator's root is compared with MuJoCo's
 REFINE_WINDOW = 8  # super-steps of each window the emulator is refined on
+EXPLORE_SHARE = 0.25  # of the budget the exploring runs' fine-tuning may take at most (``explore``)
 FINAL_SEED_OFFSET = 1_000_003  # the final episodes' seed, apart from the training's draws
 OUTSIDE = "outside_envelope"  # a training's stop: its emulated states left the emulator's envelope too often
 
@@ -803,8 +804,12 @@ class RewardTrainer:
     def explore(self) -> None:
         """Before learning: the emulator fine-tuned on ``exploring.runs`` random runs from the task's
         starts (``exploring_runs``; their MuJoCo steps counted), the typical motion kept beside them;
-        their states join its envelope."""
+        their states join its envelope. A budget too small for the runs' fine-tuning to take at most
+        ``EXPLORE_SHARE`` of it makes fewer runs, fine-tuned on for less, in proportion."""
         how = self.exploring
+        scale = min(1.0, EXPLORE_SHARE * self.settings.seconds / max(how.seconds, 1e-9))
+        if scale < 1.0:
+            how = replace(how, runs=max(1, round(how.runs * scale)), seconds=how.seconds * scale)
         t0 = time.perf_counter()
         pick = self.rng.integers(len(self.start_states), size=how.runs)
         states, controls = random_runs(

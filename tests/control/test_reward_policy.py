@@ -226,6 +226,12 @@ def test_exploring_runs_hold_random_controls_from_the_tasks_starts_and_the_emula
     assert QUICK.refine_keep is not None
     typical = QUICK.refine_keep * (sampling.lead_steps(trainer.physical, TASK.substeps) + 8 * TASK.substeps)
     assert trainer.mujoco_steps - steps == 12 * 10 * TASK.substeps + typical
+    # a budget too small for them: fewer runs, fine-tuned on for less, in proportion
+    small = RewardTrainer(TASK, path, replace(QUICK, seconds=8.0))
+    small.exploring = replace(how, runs=100, seconds=4.0)
+    steps = small.mujoco_steps
+    small.explore()
+    assert small.mujoco_steps - steps == 50 * 10 * TASK.substeps + typical
     with pytest.raises(ValueError, match="exploring runs are a count"):
         ExploringRuns(runs=-1)
 
