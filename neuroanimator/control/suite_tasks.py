@@ -482,8 +482,8 @@ SUITE_TASKS: dict[str, SuiteTask] = {
         # the actor-critic's checks swung between 0 and 900 (617 held out, SAC 961): a value by value
         # iteration over the nine corners, edges and centre of the two controls' box, its greedy policy
         # copied; first the emulator fine-tuned on random runs from the task's starts, without which it
-        # let the ball fall out of the cup MuJoCo kept it in and the copy earned 99 (950 with them;
-        # docs/experiments)
+        # let the ball fall out of the cup MuJoCo kept it in and the copy earned 99 (938 on the bench
+        # with them, SAC 967; docs/experiments)
         _task(
             "ball_in_cup-catch",
             reset_ball_in_cup,
