@@ -84,9 +84,8 @@ class ValueIteration:
 
     share: float = 0.8  # of the training's budget spent fitting V; the policy learns in the rest
     states: int = 16_384  # states backed up per iteration
-    candidates: int = (
-        11  # controls tried from each state: a grid when kᵁ, else random draws (``candidate_controls``)
-    )
+    # controls tried from each state: a grid when kᵁ, else random draws (``candidate_controls``)
+    candidates: int = 11
     hold: int = 3  # super-steps each candidate is held in the backup before V is read (module doc)
     walkers: float = 0.5  # share of the states where ε-greedy walkers are; the rest uniform in the box
     epsilon: float = 0.2  # share of the walkers' steps under a random candidate
