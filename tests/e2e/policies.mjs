@@ -100,7 +100,11 @@ async function policies(page) {
   log(`goal on screen at ${goal.x},${goal.y} then ${at.x},${at.y}; goal ${JSON.stringify(before)} -> ${JSON.stringify(after)}`);
   check(before.length === 2 && Math.hypot(after[0] - before[0], after[1] - before[1]) > 0.5, 'dragging the pad moves the goal');
   // the websocket carried it, and the session's replies say it is the goal it drives to
-  await page.waitForFunction((g) => JSON.stringify(JSON.parse(document.querySelector('#pd-status')?.dataset.goal || 'null')?.map((v) => Number(v.toFixed(3)))) === JSON.stringify(g.map((v) => Number(v.toFixed(3)))), after, { timeout: 5000 });
+  // (the service echoes float32 values: -10.1505 comes back as -10.1505003, so compare within a tolerance, not as rounded text)
+  await page.waitForFunction((g) => {
+    const echoed = JSON.parse(document.querySelector('#pd-status')?.dataset.goal || 'null');
+    return Array.isArray(echoed) && echoed.length === g.length && echoed.every((v, i) => Math.abs(v - g[i]) < 1e-3);
+  }, after, { timeout: 5000 });
   const goals = sent.slice(sentBefore).map((s) => s.msg);
   const last = goals[goals.length - 1];
   log(`goal messages during the drag: ${goals.length}; last ${JSON.stringify(last)}`);
