@@ -192,7 +192,7 @@ def bench_suite_task(
     wall = time.perf_counter() - t0
     log.info("%s: return on MuJoCo %.1f after %.0f s all in", name, result.return_physics, wall)
     if save_to is not None:
-        log.info("%s: stored in %s", name, save_reward_policy(save_to, result, registry.read_manifest(path)))
+        log.info("%s: stored in %s", name, save_reward_policy(save_to, result, path))
 
     manifest = registry.read_manifest(path)
     physical = registry.load_physical_model(path, manifest)

@@ -117,7 +117,7 @@ def brief_reward_policy(roots: registry.Roots, name: str) -> Path:
     )
     log.info("training a %s policy briefly through %s", name, path.name)
     result = train_reward_policy(task, path, settings)
-    return save_reward_policy(roots, result, registry.read_manifest(path))
+    return save_reward_policy(roots, result, path)
 
 
 def timed(fn: Callable[[], object], seconds: float) -> float:

@@ -8,7 +8,8 @@ folder name versions: ``latest`` (the model's default super-step, or the first t
 ``latest-n<N>`` for each super-step N. Versions are named ``n<N>-<UTC time>`` (``version_name``).
 The files the MJCF names (meshes, textures, height fields, skins) are stored once per model by their
 content in ``<root>/<model>/assets/`` (``<sha256><extension>``, listed in each manifest's ``assets``),
-shared by the versions that use them: a version folder and that folder are all a model needs.
+shared by the versions that use them: a version folder and that folder are all a model needs. A
+version fine-tuned for a policy (``Manifest.tuned``) is named by no pointer: the policy names it.
 
 A service reads two kinds of registry at once (``Roots``): the committed defaults (the catalog's
 emulators, read-only, ``DEFAULTS_DIR``) and a data directory where uploads and a user's own trainings
@@ -224,6 +225,20 @@ def _check_model(root: Root, model: str) -> None:
         raise ArtifactError("model", f"unknown model {model!r}; trained models are {list_models(root)}")
 
 
+def version_folder(root: Root, model: str, version: str) -> Path | None:
+    """The folder of a named version (None: no such complete version): in the model's own registry,
+    else in another one. A model's pointers and the versions they name live in one registry; an
+    emulator fine-tuned for a policy (``Manifest.tuned``) is written to the data directory even when
+    the model it was tuned from is a read-only default, and is found there by its name."""
+    if not is_name(model) or not is_name(version):
+        return None
+    home = root / model / version
+    for path in (home, *(f / model / version for f in folders(root))):
+        if (path / MANIFEST_FILE).is_file():
+            return path
+    return None
+
+
 def resolve(root: Root, model: str, version: str | None = None, substeps: int | None = None) -> Path:
     """The folder of a model's version: the named one, else the latest for ``substeps``, else ``latest``.
 
@@ -235,8 +250,8 @@ def resolve(root: Root, model: str, version: str | None = None, substeps: int | 
     if version is None:
         version = latest_version(root, model, substeps)
         substeps = None  # the pointer names a version of that n
-    path = root / model / version
-    if not is_name(version) or not (path / MANIFEST_FILE).is_file():
+    path = version_folder(root, model, version)
+    if path is None:
         raise ArtifactError(
             "version", f"model {model!r} has no version {version!r}; it has {versions(root, model)}"
         )

@@ -1,6 +1,6 @@
 """The artifact registry, write side (and the torch emulator of an artifact): needs torch.
 
-``save`` writes a trained emulator as a new version folder (the files and pointers described in
+``save`` writes a trained emulator as a new version folder (``save_tuned`` one fine-tuned for a policy) (the files and pointers described in
 ``neuroanimator.artifacts.registry``, which finds and reads them). A version folder is renamed into place only
 when complete, and pointers are replaced atomically, so a crash never leaves a half-written version
 marked latest. ``load_torch`` rebuilds the torch emulator of a version (the same weights as its ONNX
@@ -26,6 +26,7 @@ from neuroanimator.artifacts import registry
 from neuroanimator.core.manifest import (
     ControlInput,
     EmulatorGraph,
+    EnvelopeGroup,
     GraphInput,
     GraphIO,
     Hashes,
@@ -40,6 +41,7 @@ from neuroanimator.core.manifest import (
     Normalization,
     Symmetries,
     TrainMetrics,
+    Tuning,
 )
 from neuroanimator.emulator.articulated import (
     TRUNK,
@@ -297,11 +299,15 @@ def describe_assets(model: PhysicalModel) -> list[ModelAsset]:
 def write_assets(model_dir: Path, model: PhysicalModel) -> None:
     """Store the model's assets in ``<model>/assets/`` by content: a file already there is the same
     file (its name is its hash), so versions share it; a new one appears whole or not at all."""
-    if not model.assets:
+    _write_asset_files(model_dir, model.assets)
+
+
+def _write_asset_files(model_dir: Path, assets: dict[str, bytes]) -> None:
+    if not assets:
         return
     folder = model_dir / registry.ASSETS_DIR
     folder.mkdir(exist_ok=True)
-    for name, data in model.assets.items():
+    for name, data in assets.items():
         target = folder / name
         if target.is_file() and target.stat().st_size == len(data):
             continue
@@ -407,6 +413,73 @@ def save(root: Path, model: PhysicalModel, result: TrainResult | HierarchyResult
     registry.write_pointer(model_dir, registry.pointer_name(substeps), version)
     if substeps == model.spec.substeps or not (model_dir / registry.pointer_name()).exists():
         registry.write_pointer(model_dir, registry.pointer_name(), version)
+    return model_dir / version
+
+
+def widened_envelope(manifest: Manifest, low: np.ndarray, high: np.ndarray) -> list[EnvelopeGroup] | None:
+    """``manifest``'s envelope with each bounded value widened to (S,) ``low`` and ``high`` (the states
+    an emulator was fine-tuned on); a value the emulator is indifferent to stays unbounded."""
+    if manifest.envelope is None:
+        return None
+    offsets = {g.name: g.offset for g in manifest.layout}
+    out = []
+    for env in manifest.envelope:
+        at = offsets[env.group]
+        out.append(
+            EnvelopeGroup(
+                group=env.group,
+                low=[None if lo is None else min(lo, float(low[at + i])) for i, lo in enumerate(env.low)],
+                high=[None if hi is None else max(hi, float(high[at + i])) for i, hi in enumerate(env.high)],
+            )
+        )
+    return out
+
+
+def save_tuned(
+    root: registry.Root,
+    base: Path,
+    emulator: StructuredEmulator,
+    tuning: Tuning,
+    envelope: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Path:
+    """Write ``emulator``, fine-tuned from the version at ``base`` for a policy, as a new version of its
+    model in ``root``'s data directory (``<base version>-tuned-<UTC time>``; the model's assets copied
+    there when the base is a read-only default). No pointer moves: the policy names the version.
+    ``envelope``: (S,) lows and highs of the states it was fine-tuned on, widening the base's.
+    Returns the version folder."""
+    manifest = registry.read_manifest(base)
+    model_dir = registry.writable(root) / manifest.model
+    model_dir.mkdir(parents=True, exist_ok=True)
+    now = dt.datetime.now(dt.UTC)
+    stamp = now.strftime("%Y%m%dT%H%M%S")
+    version, repeat = f"{manifest.version}-tuned-{stamp}", 1
+    while (model_dir / version).exists():
+        repeat += 1
+        version = f"{manifest.version}-tuned-{stamp}-{repeat}"
+    onnx_bytes = to_onnx(emulator)
+    tuned = manifest.model_copy(
+        update={
+            "version": version,
+            "created": now.isoformat(timespec="seconds"),
+            "hashes": manifest.hashes.model_copy(
+                update={"onnx_sha256": hashlib.sha256(onnx_bytes).hexdigest()}
+            ),
+            "envelope": manifest.envelope if envelope is None else widened_envelope(manifest, *envelope),
+            "tuned": tuning,
+        }
+    )
+    _write_asset_files(model_dir, registry.read_assets(base, manifest))
+    tmp = Path(tempfile.mkdtemp(dir=model_dir, prefix=f".tmp-{version}-"))
+    try:
+        (tmp / registry.ONNX_FILE).write_bytes(onnx_bytes)
+        torch.save(emulator.state_dict(), tmp / registry.WEIGHTS_FILE)
+        shutil.copyfile(base / registry.LINEAR_FILE, tmp / registry.LINEAR_FILE)
+        shutil.copyfile(base / registry.MJCF_FILE, tmp / registry.MJCF_FILE)
+        (tmp / registry.MANIFEST_FILE).write_text(tuned.model_dump_json(indent=2) + "\n")
+        os.rename(tmp, model_dir / version)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     return model_dir / version
 
 

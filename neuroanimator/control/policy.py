@@ -16,8 +16,9 @@ policy gradients, with a learned model as SuperTrack and ControlVAE use one).
 4. the policy kept is the one that did best on MuJoCo; it ends with its success on held-out starts and
    goals, on MuJoCo and on the emulator.
 
-The emulator a policy is trained through is the artifact's own; its refined copy stays with the
-policy's training (the served emulator is the artifact, which the policy records).
+The emulator a policy is trained through is the artifact's own; once refined, the refined copy is
+the one it is judged on at the end and stored with it (``store.save_tuned``: a version of its own that
+the policy names), so that its sessions run the emulator it learned through.
 
 Shapes: B batch, K super-steps, S state, G goal variables, U controls.
 """
@@ -129,6 +130,10 @@ class PolicyResult:
     stop: str = "budget"
     refinements: int = 0  # fine-tunings of the emulator on the policy's MuJoCo runs
     goals: FloatArray | None = None  # (N, G) the goals it was trained for
+    # the emulator refined on its runs (served with it) and (S,) lows and highs of the states it was
+    # refined on; None: the stored one unchanged
+    emulator: StructuredEmulator | None = None
+    envelope: tuple[FloatArray, FloatArray] | None = None
 
 
 def frozen_step(emu: StructuredEmulator | HierarchicalEmulator) -> nn.Module:
@@ -229,6 +234,7 @@ class PolicyTrainer:
         self.target = torch.tensor(task.target_state, dtype=torch.float32)
         self.goal_cols = task.goal_columns
         self.refinements = 0  # fine-tunings of the emulator on the policy's MuJoCo runs
+        self.refined_on: tuple[FloatArray, FloatArray] | None = None  # (S,) lows and highs of their states
 
     def _shape(self) -> PolicyShape:
         task, m, pool = self.task, self.manifest, self.pool
@@ -355,8 +361,16 @@ class PolicyTrainer:
             self.manifest.train_config,
             self.settings.refine_seconds,
             int(self.rng.integers(1 << 30)),
+            should_stop=self.should_stop,
         )
         self.step = frozen_step(self.emu)
+        seen = runs.states.reshape(-1, runs.states.shape[-1])
+        seen = seen[np.isfinite(seen).all(axis=1)]
+        if len(seen):
+            low, high = seen.min(axis=0), seen.max(axis=0)
+            if self.refined_on is not None:
+                low, high = np.minimum(low, self.refined_on[0]), np.maximum(high, self.refined_on[1])
+            self.refined_on = (low, high)
 
     # ---------------------------------------------------------------- the loop
     def elapsed(self) -> float:
@@ -455,9 +469,9 @@ class PolicyTrainer:
         starts, goals = self.draw(self.settings.evaluate_runs)
         self.rng = rng
         phys = self.run(starts, goals, physics=True)
-        self.step = frozen_step(
-            artifacts.load_emulator(self.path)
-        )  # the served emulator, not the refined one
+        # judged on the emulator it is served with: the refined one (stored beside it), else the stored one
+        tuned = self.refinements > 0 and isinstance(self.emu, StructuredEmulator)
+        self.step = frozen_step(self.emu if tuned else artifacts.load_emulator(self.path))
         emu = self.run(starts, goals, physics=False)
         return PolicyResult(
             net=self.net,
@@ -474,6 +488,8 @@ class PolicyTrainer:
             stop=stop,
             refinements=self.refinements,
             goals=self.pool.goals,
+            emulator=self.emu if tuned and isinstance(self.emu, StructuredEmulator) else None,
+            envelope=self.refined_on if tuned else None,
         )
 
 

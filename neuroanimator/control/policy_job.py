@@ -144,7 +144,7 @@ def _run_reward_job(
     if not store:
         log.info("policy %s not stored: %s", task.name, why)
         return PolicyJobOutcome(result, None, why)
-    folder = save_reward_policy(root, result, registry.read_manifest(path))
+    folder = save_reward_policy(root, result, path)
     log.info(
         "policy %s: return on MuJoCo %.1f, on the emulator %.1f (%d episodes), %d MuJoCo steps, %.0f s; "
         "stored in %s",

@@ -7,13 +7,16 @@ moves to it. Versions are named ``p-<UTC time>``.
 A reward policy (``reward_policy``: a suite task's) is stored the same way and served the same way:
 its ``goal`` is its task's parameters (the reacher's target; none for most), the goal envelope the
 range they were drawn from, its metrics returns instead of success shares; its ``policy.pt`` holds
-its weights (its features are rebuilt from its task and emulator).
+its weights (its features are rebuilt from its task and emulator). The emulator a reward policy
+fine-tuned while it learned is stored as a version of its own beside the model's (``Manifest.tuned``):
+the policy's ``emulator_version`` names it, so its sessions run the emulator it learned through.
 """
 
 from __future__ import annotations
 
 import datetime as dt
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -22,12 +25,13 @@ import torch
 from numpy.typing import NDArray
 
 from neuroanimator.artifacts.policies import POLICIES_DIR, POLICY_FILE, POLICY_ONNX, POLICY_WEIGHTS
-from neuroanimator.artifacts.registry import LATEST, Root, writable, write_pointer
+from neuroanimator.artifacts.registry import LATEST, Root, read_manifest, resolve, writable, write_pointer
+from neuroanimator.artifacts.store import save_tuned
 from neuroanimator.control.policy import PolicyResult, Schedule
 from neuroanimator.control.policy_net import PolicyNet, PolicyShape
 from neuroanimator.control.reward_policy import RewardPolicy, RewardResult
 from neuroanimator.control.suite_tasks import SuiteTask
-from neuroanimator.core.manifest import Manifest
+from neuroanimator.core.manifest import Manifest, Tuning
 from neuroanimator.core.policy_manifest import PolicyFall, PolicyManifest, PolicyMetrics
 from neuroanimator.export.policy import policy_to_onnx
 
@@ -158,7 +162,16 @@ def _write(folder: Path, graph: bytes, weights: Mapping[str, object], manifest: 
 
 
 def save_policy(root: Root, result: PolicyResult, goals: np.ndarray, when: dt.datetime | None = None) -> Path:
-    """Write the policy under the data directory of ``root`` and point ``latest`` at it."""
+    """Write the policy under the data directory of ``root`` and point ``latest`` at it; the emulator
+    it refined while it learned (``PolicyResult.emulator``) first, as a version of its own that it names
+    (``store.save_tuned``; the version it was refined from is found in ``root``)."""
+    if result.emulator is not None:
+        m = result.manifest
+        base = resolve(root, m.model, m.version)
+        tuning = Tuning(from_version=m.version, task=result.task.name, refinements=max(1, result.refinements))
+        result = replace(
+            result, manifest=read_manifest(save_tuned(root, base, result.emulator, tuning, result.envelope))
+        )
     folder, version = _new_folder(root, result.manifest.model, result.task.name, when)
     shape = result.net.shape
     graph = policy_to_onnx(result.net, shape.state_size, shape.goal_size, shape.timed)
@@ -166,10 +179,14 @@ def save_policy(root: Root, result: PolicyResult, goals: np.ndarray, when: dt.da
     return _write(folder, graph, weights, policy_manifest(result, version, goals))
 
 
-def save_reward_policy(
-    root: Root, result: RewardResult, emulator: Manifest, when: dt.datetime | None = None
-) -> Path:
-    """Write a reward policy trained through ``emulator`` under the data directory of ``root``."""
+def save_reward_policy(root: Root, result: RewardResult, base: Path, when: dt.datetime | None = None) -> Path:
+    """Write a reward policy trained through the emulator version at ``base`` under the data directory
+    of ``root``. An emulator it fine-tuned while it learned (``RewardResult.emulator``) is stored first,
+    as a version of its own (``store.save_tuned``): the one the policy names and its sessions run."""
+    if result.emulator is not None:
+        tuning = Tuning(from_version=base.name, task=result.task.name, refinements=max(1, result.refinements))
+        base = save_tuned(root, base, result.emulator, tuning, result.envelope)
+    emulator = read_manifest(base)
     folder, version = _new_folder(root, emulator.model, result.task.name, when)
     manifest = reward_policy_manifest(result, emulator, version)
     graph = policy_to_onnx(result.policy, manifest.state_size, manifest.goal_size, False, reads_time=False)

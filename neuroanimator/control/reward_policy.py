@@ -333,6 +333,10 @@ class RewardResult:
     # control loses there a decision (the return's units); None for the actor-critic
     greedy_agreement: float | None = None
     greedy_regret: float | None = None
+    # the emulator fine-tuned while it learned (exploring runs, refinements), the one it is served
+    # with, and (S,) lows and highs of the states it was fine-tuned on; None: the stored one unchanged
+    emulator: StructuredEmulator | None = None
+    envelope: tuple[FloatArray, FloatArray] | None = None
 
     @property
     def evaluate_runs(self) -> int:
@@ -788,6 +792,7 @@ class RewardTrainer:
             int(self.rng.integers(1 << 30)),
             window=REFINE_WINDOW,
             keep=self.typical_motion() if self.refine_keep > 0 else None,
+            should_stop=self.should_stop,
         )
         self.step = FastStep(self.emu)
         self.refinements += 1
@@ -819,6 +824,7 @@ class RewardTrainer:
         fitted = fine_tune_on_runs(
             self.emu, states, controls, self.manifest.train_config, how.seconds,
             int(self.rng.integers(1 << 30)), window=REFINE_WINDOW, keep=self.typical_motion(),
+            should_stop=self.should_stop,
         )  # fmt: skip
         self.step = FastStep(self.emu)
         self.refinements += 1
@@ -878,6 +884,8 @@ class RewardTrainer:
         it = 0
         if self.exploring.runs:
             self.explore()
+            if self.should_stop is not None and self.should_stop():  # cancelled while it explored
+                return self.finish(best, history, it, "cancelled")
         if self.settings.teacher == PLANNER:
             copier = PlannerCopy(self)
             best, history, it, stop = copier.train()
@@ -1031,7 +1039,9 @@ class RewardTrainer:
         fell = falls(task, self.ctx, final, self.manifest.super_timestep)
         for f in fell:
             log.warning("%s: episode %d fell on MuJoCo after %.2f s", task.name, f["episode"], f["time_s"])
-        self.step = FastStep(artifacts.load_emulator(self.path))  # type: ignore[arg-type]
+        # judged on the emulator it is served with: the fine-tuned one (stored beside it), else the stored one
+        tuned = self.refinements > 0
+        self.step = FastStep(self.emu if tuned else artifacts.load_emulator(self.path))  # type: ignore[arg-type]
         starts, params = draw_starts(
             task, self.physical, np.random.default_rng(cfg.judged_on), cfg.final_episodes
         )
@@ -1056,4 +1066,6 @@ class RewardTrainer:
             took_from=self.took_from,
             greedy_agreement=None if self.greedy_follow is None else self.greedy_follow[0],
             greedy_regret=None if self.greedy_follow is None else self.greedy_follow[1],
+            emulator=self.emu if tuned else None,
+            envelope=(self.env_low.numpy(), self.env_high.numpy()) if tuned else None,
         )

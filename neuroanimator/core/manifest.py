@@ -340,6 +340,15 @@ class Hashes(_Strict):
     onnx_sha256: str
 
 
+class Tuning(_Strict):
+    """How a version was made from another: fine-tuned on the MuJoCo runs of a policy's training (its
+    exploring runs, its refinements), so that the policy is served with the emulator it learned through."""
+
+    from_version: str = Field(description="the version it was fine-tuned from")
+    task: str = Field(description="the task whose policy's training fine-tuned it")
+    refinements: int = Field(ge=1, description="how many times it was fine-tuned")
+
+
 class Manifest(_Strict):
     """One artifact version (``<root>/<model>/<version>/manifest.json``); see the module docstring.
 
@@ -373,6 +382,11 @@ class Manifest(_Strict):
         None,
         description="per state group, the range of the training data (absent in older artifacts): a "
         "state outside it is beyond what the emulator was trained on",
+    )
+    tuned: Tuning | None = Field(
+        None,
+        description="present when the version was fine-tuned from another for a policy (no pointer "
+        "names it: the policy's sessions run it)",
     )
 
     @model_validator(mode="after")

@@ -11,7 +11,7 @@ import importlib
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -877,6 +877,7 @@ def train_over_rollouts(
     cfg: TrainConfig,
     lr: float | None = None,
     one_step: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
+    should_stop: Callable[[], bool] | None = None,
 ) -> RolloutMetrics:
     """Fine-tune N^σ on the error of emulated rollouts (``rollout_loss``), early stopping on held-back
     sequences, at ``lr`` (default: a tenth of the config's; the one-step phase's last rate is a good
@@ -887,7 +888,8 @@ def train_over_rollouts(
     starts, and so is the validation that picks the state kept: alone, the rollout loss trades the
     one-step accuracy away where the two pull apart (a ball on a floor: rollout loss 0.43 → 0.09 while
     the one-step error went from 0.009 on validation before the phase to 0.057 held out after it),
-    and the held-out one-step error is the emulator's bar."""
+    and the held-out one-step error is the emulator's bar. ``should_stop`` (a job cancelled) ends it
+    between two batches, as its time running out does; the best state so far is kept."""
     s, u, f = _sequence_tensors(seq)
     scale = (s[:, 1:] - s[:, :-1]).reshape(-1, s.shape[2]).std(dim=0)
     scale = torch.where(scale > 1e-8, scale, torch.ones_like(scale))
@@ -901,8 +903,12 @@ def train_over_rollouts(
     keep = KeepBest(net, check.relative())
     t0, epochs = time.perf_counter(), 0
     batch = max(32, cfg.batch_size // 4)
-    while time.perf_counter() - t0 < cfg.rollout_seconds and keep.stale < 10 and epochs < cfg.max_epochs:
-        _rollout_epoch(check, opt, train_seqs, batch, gen)
+
+    def done() -> bool:
+        return time.perf_counter() - t0 >= cfg.rollout_seconds or (should_stop is not None and should_stop())
+
+    while not done() and keep.stale < 10 and epochs < cfg.max_epochs:
+        _rollout_epoch(check, opt, train_seqs, batch, gen, done)
         epochs += 1
         keep.offer(check.relative())
     keep.restore()
@@ -930,14 +936,15 @@ def fine_tune_on_runs(
     seed: int,
     window: int = 8,
     keep: sampling.Sequences | None = None,
+    should_stop: Callable[[], bool] | None = None,
 ) -> RolloutMetrics:
     """Fine-tune the emulator on runs a controller made on MuJoCo: states (N, K+1, S) and controls
     (N, K, U) at the emulator's super-step, cut into windows of ``window`` super-steps and learned
     with the rollout loss for ``seconds`` (runs that diverged are left out), so the model is right
     where the controller goes; with ``keep`` (sequences of ``window`` super-steps of the motion it
     was trained on), those too, so that it stays right there (learned alone, the controller's runs
-    pull it away from every other state, the next controller's included). The emulator is left in
-    evaluation mode."""
+    pull it away from every other state, the next controller's included). ``should_stop`` (a job
+    cancelled) ends it early. The emulator is left in evaluation mode."""
     finite = np.all(np.isfinite(states), axis=(1, 2))
     runs = sampling.Sequences(
         states[finite], controls[finite], np.zeros((int(finite.sum()), controls.shape[1], 0))
@@ -954,7 +961,10 @@ def fine_tune_on_runs(
     emu.train()
     try:
         return train_over_rollouts(
-            emu, windows, dataclasses.replace(cfg, rollout_seconds=seconds, progress=False)
+            emu,
+            windows,
+            dataclasses.replace(cfg, rollout_seconds=seconds, progress=False),
+            should_stop=should_stop,
         )
     finally:
         emu.eval()
@@ -1010,15 +1020,18 @@ def _rollout_epoch(
     seqs: tuple[Tensor, Tensor | None, Tensor | None],
     batch: int,
     gen: torch.Generator,
+    done: Callable[[], bool] | None = None,
 ) -> None:
-    """One pass over the training sequences s (N, K+1, S), u, f in shuffled batches of ``batch``: the
-    rollout loss relative to its starting value, plus with ``check.one_step`` the one-step loss of
-    ``4 · batch`` random training rows relative to its own."""
+    """One pass over the training sequences s (N, K+1, S), u, f in shuffled batches of ``batch`` (cut
+    short once ``done``): the rollout loss relative to its starting value, plus with ``check.one_step``
+    the one-step loss of ``4 · batch`` random training rows relative to its own."""
     emu, one_step = check.emu, check.one_step
     s, u, f = seqs
     emu.train()
     perm = torch.randperm(s.shape[0], generator=gen)
     for i in range(0, perm.numel(), batch):
+        if i and done is not None and done():
+            break
         idx = perm[i : i + batch]
         loss = rollout_loss(emu, s[idx], _rows(u, idx), _rows(f, idx), check.scale) / check.roll0
         if one_step is not None:

@@ -115,7 +115,7 @@ class Registry:
     def _load(self, model: str, version: str) -> LoadedEmulator:
         key = (model, version)
         if key not in self.loaded:
-            path = self.root / model / version
+            path = registry.resolve(self.root, model, version)
             manifest = registry.read_manifest(path)
             # a heading is reported wrapped to [-π, π) (frames interpolate it along the shorter arc)
             emu = OnnxEmulator(path / registry.ONNX_FILE, self.threads, wrap=heading_columns(manifest.layout))
@@ -167,7 +167,8 @@ class Registry:
             return self.loaded[(model, self.latest[model])]
         if (model, version) in self.loaded:
             return self.loaded[(model, version)]
-        if registry.is_name(version) and version in registry.versions(self.root, model):
+        # (a version no pointer names, fine-tuned for a policy, may be in another registry)
+        if registry.version_folder(self.root, model, version) is not None:
             with self._lock:
                 try:
                     return self._load(model, version)

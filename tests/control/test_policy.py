@@ -22,6 +22,7 @@ from neuroanimator.control.policy_data import GoalsUnreachable, reached_goals, s
 from neuroanimator.control.policy_job import PolicyJobError, emulator_for, policy_task, run_policy_job
 from neuroanimator.control.policy_net import PolicyNet, PolicyShape, describe_columns
 from neuroanimator.control.policy_store import load_policy_net
+from neuroanimator.export.runtime import OnnxEmulator
 from neuroanimator.goals.policy_task import GoalSpec
 from neuroanimator.sim.operating import hold_controls
 
@@ -215,6 +216,41 @@ def test_a_trained_policy_is_stored_and_read_back() -> None:
         policies.resolve_policy(roots, "lander", "lander-hop")
     with pytest.raises(policies.PolicyError, match="not a plain name"):
         policies.resolve_policy(roots, "lander", "lander-landing", "../x")
+
+
+def test_a_policy_refined_on_its_runs_is_stored_with_the_emulator_it_refined() -> None:
+    """The emulator refined on the policy's MuJoCo runs is stored as a version of its own in the data
+    directory (the catalog's lander is a read-only default, left as it was), the version the policy
+    names; its graph is the refined emulator, and the model's latest version is still the one it was
+    refined from."""
+    roots = registry.Roots.default()
+    latest = registry.latest_version(roots, "lander", 25)
+    defaults = sorted(p.name for p in (registry.DEFAULTS_DIR / "lander").iterdir())
+    refined = dataclasses.replace(TINY, max_iterations=2, refine=True, refine_gap=-1.0, refine_seconds=1.0)
+    done = run_policy_job("lander-landing", roots, refined)
+    r = done.result
+    assert isinstance(r, PolicyResult) and r.refinements == 1 and r.emulator is not None
+    assert done.folder is not None
+    m = policies.read_policy(done.folder)
+    assert m.emulator_version.startswith(f"{latest}-tuned-")
+    served = registry.resolve(roots, "lander", m.emulator_version)
+    assert served.parent == roots.data / "lander"
+    stored = registry.read_manifest(served)
+    assert stored.tuned is not None and (stored.tuned.from_version, stored.tuned.task) == (
+        latest,
+        "lander-landing",
+    )
+    assert stored.envelope is not None and stored.model == "lander" and stored.version == m.emulator_version
+    assert registry.latest_version(roots, "lander", 25) == latest
+    assert sorted(p.name for p in (registry.DEFAULTS_DIR / "lander").iterdir()) == defaults
+    state = np.asarray([lander.POLICY_LANDING.starts.high], dtype=np.float32)
+    u = np.asarray([[0.5, 0.5, 0.2, 0.1]], dtype=np.float32)
+    with torch.no_grad():
+        want = r.emulator(torch.from_numpy(state), torch.from_numpy(u)).numpy()
+    np.testing.assert_allclose(
+        OnnxEmulator(served / registry.ONNX_FILE).step(state, u), want, rtol=1e-4, atol=1e-4
+    )
+    assert registry.load_physical_model(served).name == "lander"
 
 
 def test_a_cancelled_training_stops_and_says_so() -> None:

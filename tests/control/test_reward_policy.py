@@ -236,6 +236,28 @@ def test_exploring_runs_hold_random_controls_from_the_tasks_starts_and_the_emula
         ExploringRuns(runs=-1)
 
 
+def test_a_job_cancelled_while_its_emulator_is_fine_tuned_stops_there(artifacts: Path) -> None:
+    """Cancelling does not wait for the exploring runs' fine-tuning to use its time: it ends between
+    two batches, the emulator as it was before the first one, and nothing more is trained."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    explored: list[int] = []
+    trainer = RewardTrainer(
+        TASK, path, replace(QUICK, exploring=ExploringRuns(runs=16, steps=10, seconds=600.0)),
+        should_stop=lambda: bool(explored),
+    )  # fmt: skip
+    real = trainer.explore
+
+    def explore() -> None:
+        explored.append(1)  # the cancel comes as the fine-tuning starts
+        real()
+
+    trainer.explore = explore  # type: ignore[method-assign]
+    weights = copy.deepcopy(trainer.emu.state_dict())
+    result = trainer.train()
+    assert result.stop == "cancelled" and result.iterations == 0 and result.return_history == []
+    assert all(torch.equal(weights[k], v) for k, v in trainer.emu.state_dict().items())
+
+
 def held_by_hand(fitter: ValueFitter, s: Tensor, p: Tensor, cands: Tensor) -> tuple[Tensor, list[Tensor]]:
     """(C, B) each candidate held ``hold`` super-steps from states (B, S): its discounted rewards and
     the discounted V where it ends; and every reward paid on the way ((B,) each)."""
@@ -560,7 +582,10 @@ def test_a_suite_task_is_a_policy_job_stored_and_served_as_a_driver(
     """``run_policy_job`` trains a suite task's policy as it does a goal-reaching one and stores it
     beside its emulator; the emulator service drives a session of the model with it, every super-step
     the stored graph's controls for the session's state (a task without parameters: an empty goal),
-    a policy that chooses among candidates (``ChoicePolicy``) as one that squashes its output."""
+    a policy that chooses among candidates (``ChoicePolicy``) as one that squashes its output. An
+    emulator refined on the policy's runs while it learned (the actor-critic's here) is stored as a
+    version of its own in the data directory, the one the policy names and its sessions run; the
+    model's latest version stays the one it was tuned from."""
     roots = registry.Roots(tmp_path / "data", artifacts)
     path = registry.resolve(roots, "point_mass", substeps=TASK.substeps)
     done = run_policy_job(TASK.name, roots, trained)
@@ -570,7 +595,35 @@ def test_a_suite_task_is_a_policy_job_stored_and_served_as_a_driver(
     result = done.result
     assert isinstance(result, RewardResult)
     assert isinstance(result.policy, ChoicePolicy) == (trained is CHOOSING)
-    assert (m.name, m.model, m.emulator_version, m.substeps) == (TASK.name, "point_mass", path.name, 2)
+    tuned = trained is QUICK  # (refined whenever its returns differ at all: refine_gap=0)
+    assert (result.refinements > 0) == tuned and (result.emulator is not None) == tuned
+    served = registry.resolve(roots, "point_mass", m.emulator_version)
+    stored = registry.read_manifest(served)
+    if tuned:
+        assert served.parent == tmp_path / "data" / "point_mass" and m.emulator_version.startswith(
+            f"{path.name}-tuned-"
+        )
+        assert stored.tuned is not None and (stored.tuned.from_version, stored.tuned.task) == (
+            path.name,
+            TASK.name,
+        )
+        assert stored.tuned.refinements == result.refinements
+        assert registry.latest_version(roots, "point_mass", TASK.substeps) == path.name  # no pointer moved
+        # the stored graph is the fine-tuned emulator, which differs from the one it was tuned from
+        x = np.asarray(
+            draw_starts(TASK, registry.load_physical_model(path), np.random.default_rng(1), 4)[0], np.float32
+        )
+        u = np.zeros((4, 2), np.float32)
+        assert result.emulator is not None
+        with torch.no_grad():
+            want = result.emulator(torch.as_tensor(x), torch.as_tensor(u)).numpy()
+        np.testing.assert_allclose(
+            OnnxEmulator(served / registry.ONNX_FILE).step(x, u), want, rtol=1e-4, atol=1e-4
+        )
+        assert not np.allclose(OnnxEmulator(path / registry.ONNX_FILE).step(x, u), want, atol=1e-6)
+    else:
+        assert served == path and stored.tuned is None
+    assert (m.name, m.model, m.substeps) == (TASK.name, "point_mass", 2)
     assert (m.goal_variables, m.goal_low, m.goal_high, m.timed) == ([], [], [], False)
     assert m.task["kind"] == "reward" and m.metrics.success_physics is None
     assert m.metrics.return_physics == round(result.return_physics, 2)
@@ -581,12 +634,12 @@ def test_a_suite_task_is_a_policy_job_stored_and_served_as_a_driver(
 
     settings = Settings(artifacts_dir=artifacts, data_dir=tmp_path / "data", max_wait_ms=1.0,
                         registry_poll_s=0.0, redis_url="", api_keys="", api_key_secret="t")  # fmt: skip
-    emulator = OnnxEmulator(path / registry.ONNX_FILE)
+    emulator = OnnxEmulator(served / registry.ONNX_FILE)
     with TestClient(create_app(settings)) as client:
         r = client.post("/sessions", json={"model": "point_mass", "seed": 3, "policy": {"name": TASK.name}})
         assert r.status_code == 201, r.text
         info = r.json()
-        assert info["version"] == path.name and info["policy"]["goal_variables"] == []
+        assert info["version"] == m.emulator_version and info["policy"]["goal_variables"] == []
         state = np.asarray(info["state"], np.float32)
         r = client.post(f"/sessions/{info['id']}/step", json={"steps": 3})
         assert r.status_code == 200, r.text
@@ -600,6 +653,9 @@ def test_a_suite_task_is_a_policy_job_stored_and_served_as_a_driver(
         # a goal this policy does not take is refused, naming its size
         r = client.post(f"/sessions/{info['id']}/step", json={"goal": [0.1]})
         assert r.status_code == 422 and r.json()["field"] == "goal", r.text
+        # a session of the model without the policy runs its latest version, not the policy's own
+        r = client.post("/sessions", json={"model": "point_mass", "seed": 3})
+        assert r.status_code == 201 and r.json()["version"] == path.name, r.text
 
 
 def test_a_suite_policy_job_stopped_before_its_first_check_stores_nothing(
