@@ -185,6 +185,25 @@ def test_the_data_directory_is_read_over_the_committed_defaults(lander: Path, tm
     assert written.is_relative_to(data / "lander")
 
 
+def test_a_version_no_pointer_names_is_found_by_name_in_any_registry(lander: Path, tmp_path: Path) -> None:
+    """A committed model's emulator fine-tuned for a policy is written to the data directory without a
+    pointer: resolved by its name there, while the model's pointers and listing stay the defaults'."""
+    data = tmp_path / "data"
+    roots = registry.Roots(data, lander)
+    base = registry.resolve(roots, "lander", substeps=25)
+    tuned = f"{base.name}-tuned-20261205T120000"
+    shutil.copytree(base, data / "lander" / tuned)
+    assert registry.resolve(roots, "lander", tuned) == data / "lander" / tuned
+    assert registry.version_folder(roots, "lander", tuned) == data / "lander" / tuned
+    assert registry.resolve(roots, "lander").parent == lander / "lander"  # the pointers are the defaults'
+    assert tuned not in registry.versions(roots, "lander")
+    assert registry.version_folder(roots, "lander", "../lander/" + tuned) is None  # a name, never a path
+    assert registry.version_folder(roots, "lander", "n25-nope") is None
+    (data / "lander" / "n25-half").mkdir()  # no manifest: not a version
+    with pytest.raises(registry.ArtifactError, match="has no version 'n25-half'"):
+        registry.resolve(roots, "lander", "n25-half")
+
+
 def test_the_default_data_directory_is_outside_the_source_tree(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
