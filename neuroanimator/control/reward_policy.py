@@ -799,40 +799,6 @@ class RewardTrainer:
         # the emulator has now learnt the policy's runs: their states join its envelope
         self.widen_envelope(np.concatenate([r.states.reshape(-1, r.states.shape[2]) for r in self.runs]))
 
-    def refine_on_greedy(self, fitter: ValueFitter, episodes: int) -> None:
-        """The policy greedy over the value so far plays ``episodes`` episodes on MuJoCo from the task's
-        starts (their steps counted), and the emulator is fine-tuned on them with the typical motion
-        it was trained on beside (``fine_tune_on_runs``); their states join its envelope."""
-        if self.should_stop is not None and self.should_stop():
-            return
-        starts, params = draw_starts(self.task, self.physical, self.rng, episodes)
-
-        def greedy(s: FloatArray, p: FloatArray) -> FloatArray:
-            return (
-                fitter.greedy(
-                    torch.as_tensor(s, dtype=torch.float32), torch.as_tensor(p, dtype=torch.float32)
-                )
-                .double()
-                .numpy()
-            )
-
-        runs = run_on_mujoco(self.task, self.physical, self.ctx, greedy, starts, params)
-        self.mujoco_steps += episodes * self.task.episode_steps * self.task.control_substeps
-        fitted = fine_tune_on_runs(
-            self.emu, runs.states, runs.controls, self.manifest.train_config, self.settings.refine_seconds,
-            int(self.rng.integers(1 << 30)), window=REFINE_WINDOW, keep=self.typical_motion(),
-            should_stop=self.should_stop,
-        )  # fmt: skip
-        self.step = FastStep(self.emu)
-        self.refinements += 1
-        self.widen_envelope(runs.states.reshape(-1, runs.states.shape[2]))
-        log.info(
-            "%s: the greedy policy over the value so far earned %.1f on MuJoCo (%d episodes); the emulator "
-            "fine-tuned on them (rollout loss %.3g -> %.3g)",
-            self.task.name, runs.mean, episodes, fitted.get("rollout_loss_before", math.nan),
-            fitted.get("rollout_loss_after", math.nan),
-        )  # fmt: skip
-
     def widen_envelope(self, states: FloatArray) -> None:
         """The envelope the emulated states are measured against, widened to hold ``states`` (N, S)."""
         seen = torch.as_tensor(states[np.isfinite(states).all(axis=1)], dtype=torch.float32)
@@ -948,9 +914,6 @@ class RewardTrainer:
         (``value_iteration``); returns as ``learn`` does."""
         cfg = self.settings
         fitter = self.value_fitter = ValueFitter(self, how)
-        if how.refine_episodes:  # fitted in two parts, the emulator refined where the greedy policy goes
-            fitter.fit(how.refine_at * (how.share * cfg.seconds - self.elapsed()))
-            self.refine_on_greedy(fitter, how.refine_episodes)
         fitter.fit(how.share * cfg.seconds - self.elapsed())
         opt = torch.optim.Adam(self.policy.parameters(), lr=how.lr)
         stop, first = "budget", it

@@ -118,11 +118,6 @@ class ValueIteration:
     # worst candidates' values, over the batch's mean (a near tie taught lightly, a swing's decisive
     # push firmly); False: every state alike
     stakes: bool = True
-    # midway through the value's share (at ``refine_at`` of it), the greedy policy plays this many
-    # episodes on MuJoCo and the emulator is fine-tuned on them, the typical motion kept beside, before
-    # V goes on (0: none): the value is then fitted where the greedy policy really goes
-    refine_episodes: int = 0
-    refine_at: float = 0.5
 
     def __post_init__(self) -> None:
         if not 0.0 < self.share < 1.0:
@@ -141,8 +136,6 @@ class ValueIteration:
             raise ValueError(f"value iteration copies as one of {', '.join(COPY_AS)}, not {self.copy_as!r}")
         if not self.temperature > 0.0:
             raise ValueError(f"value iteration's temperature is above 0, not {self.temperature}")
-        if self.refine_episodes < 0 or not 0.0 < self.refine_at < 1.0:
-            raise ValueError("value iteration's refinement is a count of episodes ≥ 0 at a share in (0, 1)")
 
 
 def candidate_controls(low: np.ndarray, high: np.ndarray, count: int, rng: np.random.Generator) -> Tensor:

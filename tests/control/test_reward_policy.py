@@ -575,35 +575,6 @@ CHOOSING = replace(
 )
 
 
-def test_value_iteration_refines_the_emulator_midway_on_the_greedy_policys_mujoco_runs(
-    artifacts: Path,
-) -> None:
-    """With ``refine_episodes``, the value is fitted in two parts: between them the greedy policy plays
-    that many episodes on MuJoCo (their steps counted) and the emulator is fine-tuned on them, so the
-    policy's result carries the fine-tuned emulator to be stored with it."""
-    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
-    assert CHOOSING.value_iteration is not None and isinstance(CHOOSING.value_iteration, ValueIteration)
-    how = replace(CHOOSING.value_iteration, refine_episodes=2)
-    trainer = RewardTrainer(TASK, path, replace(CHOOSING, value_iteration=how))
-    before = copy.deepcopy(trainer.emu.state_dict())
-    played: list[int] = []
-    real = trainer.refine_on_greedy
-
-    def refine_on_greedy(fitter: ValueFitter, episodes: int) -> None:
-        played.append(trainer.mujoco_steps)
-        real(fitter, episodes)
-        played.append(trainer.mujoco_steps)
-
-    trainer.refine_on_greedy = refine_on_greedy  # type: ignore[method-assign]
-    result = trainer.train()
-    # the two episodes' steps, and the typical motion's the first time it is kept beside them
-    assert len(played) == 2 and played[1] - played[0] >= 2 * TASK.episode_steps * TASK.control_substeps
-    assert result.refinements == 1 and result.emulator is not None
-    assert any(not torch.equal(before[k], v) for k, v in trainer.emu.state_dict().items())
-    with pytest.raises(ValueError, match="refinement is a count of episodes"):
-        ValueIteration(refine_episodes=2, refine_at=1.0)
-
-
 @pytest.mark.parametrize("trained", [QUICK, CHOOSING], ids=["actor-critic", "choosing"])
 def test_a_suite_task_is_a_policy_job_stored_and_served_as_a_driver(
     artifacts: Path, tmp_path: Path, trained: RewardSettings
