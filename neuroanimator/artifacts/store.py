@@ -3,8 +3,9 @@
 ``save`` writes a trained emulator as a new version folder (the files and pointers described in
 ``neuroanimator.artifacts.registry``, which finds and reads them), ``save_tuned`` one fine-tuned for a
 policy (no pointer moves). A version folder is renamed into place only when complete, and pointers are
-replaced atomically, so a crash never leaves a half-written version marked latest. ``load_torch`` rebuilds the torch emulator of a version (the same weights as its ONNX
-graph) for the processes that differentiate through it.
+replaced atomically, so a crash never leaves a half-written version marked latest. ``load_torch``
+rebuilds the torch emulator of a version (the same weights as its ONNX graph) for the processes that
+differentiate through it.
 """
 
 from __future__ import annotations
