@@ -470,8 +470,8 @@ class PolicyTrainer:
         self.rng = rng
         phys = self.run(starts, goals, physics=True)
         # judged on the emulator it is served with: the refined one (stored beside it), else the stored one
-        tuned = self.refinements > 0 and isinstance(self.emu, StructuredEmulator)
-        self.step = frozen_step(self.emu if tuned else artifacts.load_emulator(self.path))
+        refined = self.emu if self.refinements > 0 and isinstance(self.emu, StructuredEmulator) else None
+        self.step = frozen_step(refined if refined is not None else artifacts.load_emulator(self.path))
         emu = self.run(starts, goals, physics=False)
         return PolicyResult(
             net=self.net,
@@ -488,8 +488,8 @@ class PolicyTrainer:
             stop=stop,
             refinements=self.refinements,
             goals=self.pool.goals,
-            emulator=self.emu if tuned and isinstance(self.emu, StructuredEmulator) else None,
-            envelope=self.refined_on if tuned else None,
+            emulator=refined,
+            envelope=self.refined_on if refined is not None else None,
         )
 
 

@@ -161,16 +161,25 @@ def _write(folder: Path, graph: bytes, weights: Mapping[str, object], manifest: 
     return folder
 
 
+def _emulator_it_names(root: Root, base: Path, result: PolicyResult | RewardResult) -> Path:
+    """The version folder a policy trained through the version at ``base`` names: the emulator it
+    fine-tuned while it learned, stored first as a version of its own (``store.save_tuned``), else
+    ``base``."""
+    if result.emulator is None:
+        return base
+    tuning = Tuning(from_version=base.name, task=result.task.name, refinements=max(1, result.refinements))
+    return save_tuned(root, base, result.emulator, tuning, result.envelope)
+
+
 def save_policy(root: Root, result: PolicyResult, goals: np.ndarray, when: dt.datetime | None = None) -> Path:
     """Write the policy under the data directory of ``root`` and point ``latest`` at it; the emulator
     it refined while it learned (``PolicyResult.emulator``) first, as a version of its own that it names
     (``store.save_tuned``; the version it was refined from is found in ``root``)."""
     if result.emulator is not None:
         m = result.manifest
-        base = resolve(root, m.model, m.version)
-        tuning = Tuning(from_version=m.version, task=result.task.name, refinements=max(1, result.refinements))
         result = replace(
-            result, manifest=read_manifest(save_tuned(root, base, result.emulator, tuning, result.envelope))
+            result,
+            manifest=read_manifest(_emulator_it_names(root, resolve(root, m.model, m.version), result)),
         )
     folder, version = _new_folder(root, result.manifest.model, result.task.name, when)
     shape = result.net.shape
@@ -183,10 +192,7 @@ def save_reward_policy(root: Root, result: RewardResult, base: Path, when: dt.da
     """Write a reward policy trained through the emulator version at ``base`` under the data directory
     of ``root``. An emulator it fine-tuned while it learned (``RewardResult.emulator``) is stored first,
     as a version of its own (``store.save_tuned``): the one the policy names and its sessions run."""
-    if result.emulator is not None:
-        tuning = Tuning(from_version=base.name, task=result.task.name, refinements=max(1, result.refinements))
-        base = save_tuned(root, base, result.emulator, tuning, result.envelope)
-    emulator = read_manifest(base)
+    emulator = read_manifest(_emulator_it_names(root, base, result))
     folder, version = _new_folder(root, emulator.model, result.task.name, when)
     manifest = reward_policy_manifest(result, emulator, version)
     graph = policy_to_onnx(result.policy, manifest.state_size, manifest.goal_size, False, reads_time=False)
