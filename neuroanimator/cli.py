@@ -492,7 +492,8 @@ def cmd_models(args: argparse.Namespace) -> int:
         row: dict[str, Any] = {"model": name, "trained": trained, "versions": None, "size": None}
         if trained is not None:
             versions = registry.versions(root, name)
-            sizes = {v: registry.version_size(root / name / v) for v in versions}
+            folders = {v: registry.version_folder(root, name, v) for v in versions}
+            sizes = {v: registry.version_size(f) for v, f in folders.items() if f is not None}
             latest = registry.latest_version(root, name)
             row |= {
                 "versions": len(versions),

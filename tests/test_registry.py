@@ -187,7 +187,8 @@ def test_the_data_directory_is_read_over_the_committed_defaults(lander: Path, tm
 
 def test_a_version_no_pointer_names_is_found_by_name_in_any_registry(lander: Path, tmp_path: Path) -> None:
     """A committed model's emulator fine-tuned for a policy is written to the data directory without a
-    pointer: resolved by its name there, while the model's pointers and listing stay the defaults'."""
+    pointer: resolved by its name there and listed among the model's versions, while the model's
+    pointers stay the defaults'."""
     data = tmp_path / "data"
     roots = registry.Roots(data, lander)
     base = registry.resolve(roots, "lander", substeps=25)
@@ -196,7 +197,9 @@ def test_a_version_no_pointer_names_is_found_by_name_in_any_registry(lander: Pat
     assert registry.resolve(roots, "lander", tuned) == data / "lander" / tuned
     assert registry.version_folder(roots, "lander", tuned) == data / "lander" / tuned
     assert registry.resolve(roots, "lander").parent == lander / "lander"  # the pointers are the defaults'
-    assert tuned not in registry.versions(roots, "lander")
+    listed = registry.versions(roots, "lander")
+    assert tuned in listed and set(registry.versions(lander, "lander")) < set(listed)
+    assert registry.model_size(roots, "lander") > registry.model_size(lander, "lander")
     assert registry.version_folder(roots, "lander", "../lander/" + tuned) is None  # a name, never a path
     assert registry.version_folder(roots, "lander", "n25-nope") is None
     (data / "lander" / "n25-half").mkdir()  # no manifest: not a version

@@ -197,12 +197,26 @@ def available_substeps(root: Root, model: str) -> list[int]:
     return sorted(int(m.group(1)) for m in found if m)
 
 
-def versions(root: Root, model: str) -> list[str]:
-    """Every complete version of a model (a folder with a manifest), sorted by name."""
-    model_dir = root / model
-    if not is_name(model) or not model_dir.is_dir():
+def _model_dirs(root: Root, model: str) -> list[Path]:
+    """The model's folders, its own registry's first: a model lives in one registry, but an emulator
+    fine-tuned for a policy from a read-only default is written to the data directory (``Roots``)."""
+    if not is_name(model):
         return []
-    return sorted(p.name for p in model_dir.iterdir() if is_name(p.name) and (p / MANIFEST_FILE).is_file())
+    dirs = [root / model, *(f / model for f in folders(root))]
+    return [d for i, d in enumerate(dirs) if d.is_dir() and d not in dirs[:i]]
+
+
+def versions(root: Root, model: str) -> list[str]:
+    """Every complete version of a model (a folder with a manifest) in any registry, sorted by name:
+    the versions ``resolve`` finds by name (``version_folder``)."""
+    return sorted(
+        {
+            p.name
+            for d in _model_dirs(root, model)
+            for p in d.iterdir()
+            if is_name(p.name) and (p / MANIFEST_FILE).is_file()
+        }
+    )
 
 
 def latest_version(root: Root, model: str, substeps: int | None = None) -> str:
@@ -334,11 +348,14 @@ def version_size(path: Path, manifest: Manifest | None = None) -> int:
 
 
 def model_size(root: Root, model: str) -> int:
-    """Bytes a model takes in the registry: every version, its shared assets (once) and its plots."""
-    model_dir = root / model
-    if not is_name(model) or not model_dir.is_dir():
-        return 0
-    return sum(f.stat().st_size for f in model_dir.rglob("*") if f.is_file() and not f.is_symlink())
+    """Bytes a model takes in the registries: every version, its shared assets (once in each
+    registry) and its plots."""
+    return sum(
+        f.stat().st_size
+        for d in _model_dirs(root, model)
+        for f in d.rglob("*")
+        if f.is_file() and not f.is_symlink()
+    )
 
 
 def _read_result(file: Path, kind: type[_R]) -> _R | None:
