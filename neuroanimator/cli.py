@@ -131,6 +131,9 @@ def _train_model(args: argparse.Namespace) -> tuple[PhysicalModel, bool, int | N
         if args.mjcf
         else catalog.get(args.model)
     )
+    problem = registry.name_problem(model.name)  # said before the training, not after it
+    if problem is not None:
+        raise ModelError(f"{problem} (--name)")
     return model, auto, fixed
 
 

@@ -374,6 +374,17 @@ def test_train_zero_substeps_is_refused(tmp_path: Path, capsys: pytest.CaptureFi
     assert not out.exists()
 
 
+def test_train_refuses_the_policy_registrys_name_before_training(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    (tmp_path / "arm.xml").write_text(ARM_XML)
+    out = tmp_path / "out"
+    args = ["train", "--mjcf", str(tmp_path / "arm.xml"), "--name", "policies", "--out", str(out), "--quiet"]
+    assert main(args) == 2
+    assert "policy registry" in caplog.text
+    assert not out.exists()  # nothing trained, nothing written
+
+
 def test_train_frame_skip_and_rollout_options_reach_the_manifest(tmp_path: Path) -> None:
     """--frame heading --no-skip --rollout-steps 0 trains the older form of the emulator (the default,
     the body frame with the linear path, is checked in tests/test_body_frame.py)."""

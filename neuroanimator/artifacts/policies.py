@@ -11,10 +11,9 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from neuroanimator.artifacts.registry import LATEST, ArtifactError, Root, folders, is_name
+from neuroanimator.artifacts.registry import LATEST, POLICIES_DIR, ArtifactError, Root, folders, is_name
 from neuroanimator.core.policy_manifest import PolicyManifest
 
-POLICIES_DIR = "policies"
 POLICY_FILE = "policy.json"
 POLICY_ONNX = "policy.onnx"
 POLICY_WEIGHTS = "policy.pt"
@@ -77,4 +76,4 @@ def list_policies(root: Root, model: str | None = None) -> list[PolicyManifest]:
     return [found[k] for k in sorted(found)]
 
 
-__all__ = ["ArtifactError", "PolicyError", "list_policies", "read_policy", "resolve_policy"]
+__all__ = ["POLICIES_DIR", "ArtifactError", "PolicyError", "list_policies", "read_policy", "resolve_policy"]

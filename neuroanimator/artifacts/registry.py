@@ -49,6 +49,9 @@ if TYPE_CHECKING:
 
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 """What a model or version name may be: a folder name, never a path."""
+POLICIES_DIR = "policies"
+"""The policy registry's folder, beside the models in a registry: no model may take its name (a model
+named so would hold every policy, and deleting it would delete them)."""
 LATEST = "latest"
 MANIFEST_FILE = "manifest.json"
 ONNX_FILE = "emulator.onnx"
@@ -155,6 +158,15 @@ def is_name(text: str) -> bool:
     return bool(NAME.match(text))
 
 
+def name_problem(model: str) -> str | None:
+    """Why ``model`` cannot name a model in a registry (None: it can)."""
+    if not is_name(model):
+        return f"model name {model!r} cannot name a folder: use letters, digits, '.', '_' or '-'"
+    if model == POLICIES_DIR:
+        return f"model name {model!r} is the policy registry's folder: choose another name"
+    return None
+
+
 def pointer_name(substeps: int | None = None) -> str:
     """The pointer file to a model's current version: ``latest``, or ``latest-n<N>`` for super-step N."""
     return LATEST if substeps is None else f"{LATEST}-n{substeps}"
@@ -183,7 +195,7 @@ def list_models(root: Root) -> list[str]:
         for folder in folders(root)
         if folder.is_dir()
         for p in folder.iterdir()
-        if is_name(p.name) and root / p.name == p and (p / LATEST).is_file()
+        if name_problem(p.name) is None and root / p.name == p and (p / LATEST).is_file()
     }
     return sorted(found)
 

@@ -385,10 +385,9 @@ def build_manifest(
 
 def save(root: Path, model: PhysicalModel, result: TrainResult | HierarchyResult) -> Path:
     """Write a trained emulator as a new version of ``model``; returns the version folder."""
-    if not registry.is_name(model.name):
-        raise ModelError(
-            f"model name {model.name!r} cannot name a folder: use letters, digits, '.', '_' or '-'"
-        )
+    problem = registry.name_problem(model.name)
+    if problem is not None:
+        raise ModelError(problem)
     substeps = result.config.substeps
     model_dir = root / model.name
     model_dir.mkdir(parents=True, exist_ok=True)

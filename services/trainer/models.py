@@ -11,7 +11,8 @@ models that were not uploaded (the committed catalog's, or trained with ``neuro 
 in the data directory (``registry.Roots.data``), never beside the committed defaults.
 
 Deleting renames the model's folder out of the registry (a dot name, which no listing shows) before
-removing it, so readers never see half a model; sessions already running on it keep their emulator.
+removing it, so readers never see half a model, and its policies' folder with it; sessions already
+running on it keep their emulator.
 """
 
 from __future__ import annotations
@@ -39,6 +40,9 @@ class ExportError(Exception):
 def claim(roots: registry.Roots, name: str, owner: str) -> bool:
     """Make ``name`` the owner's in the data directory: True when it is new, False when the owner's model
     gets a new version; ``NameTaken`` when it is not the owner's to use (a committed model's name too)."""
+    problem = registry.name_problem(name)
+    if problem is not None:
+        raise NameTaken(f"{problem} (the form field name)")
     root = roots.data
     root.mkdir(parents=True, exist_ok=True)
     folder = root / name
@@ -80,8 +84,12 @@ def _remove(root: Path, name: str) -> None:
 
 
 def delete(root: Path, name: str) -> None:
-    """Remove an uploaded model and every version of it (see the module's text)."""
+    """Remove an uploaded model, every version of it and every policy learned for it (see the
+    module's text): a policy names a version that is gone, and a later upload under the name, another
+    key's perhaps, must not find the policies of the model it replaced."""
     _remove(root, name)
+    if (root / registry.POLICIES_DIR / name).is_dir():
+        _remove(root / registry.POLICIES_DIR, name)
 
 
 def publish(root: Path, name: str) -> Ownership:

@@ -43,12 +43,12 @@ def folder_with(tmp: Path, robot: str = ROBOT, arm: str = ARM) -> Path:
 
 
 def refused(
-    api: TestClient, trn: Trainer, status: int, error: str, name: str, data: bytes, **fields: str
+    api: TestClient, trn: Trainer, status: int, error: str, filename: str, data: bytes, **fields: str
 ) -> Any:
     """Upload; check the answer's status and error code, and that nothing was kept; the error body."""
     before = trn.models()
     t0 = time.monotonic()
-    r = upload(api, name, data, **{**TINY, **fields})
+    r = upload(api, filename, data, **{**TINY, **fields})
     took = time.monotonic() - t0
     assert r.status_code == status, r.text
     body = r.json()
@@ -192,6 +192,13 @@ def test_names_of_models_that_were_not_uploaded_are_taken(api: TestClient, trn: 
         assert not (trn.data / "tinybot" / "owner.json").exists()  # nothing claimed beside the default
     finally:
         taken.rmdir()
+
+
+def test_the_policy_registrys_name_is_no_models(api: TestClient, trn: Trainer) -> None:
+    # a model named so would hold every policy beside it, and its owner's delete would remove them
+    body = refused(api, trn, 409, "name_taken", "tinybot.zip", zipped(TINYBOT), name="policies")
+    assert "policy registry" in body["message"] and body["field"] == "name", body
+    assert not (trn.data / "policies").exists()
 
 
 def test_what_is_not_a_model_upload(api: TestClient, trn: Trainer) -> None:

@@ -138,11 +138,15 @@ def test_upload_train_drive_control_publish_delete(trn: Trainer, tmp_path: Path)
     taken = upload(api, "tinybot.zip", zipped(TINYBOT), key="key-b", **TINY)
     assert taken.status_code == 409 and taken.json()["error"] == "name_taken", taken.text
 
-    # an operator deletes it: gone from the registry and from the emulator's list
+    # an operator deletes it: gone from the registry, its policies with it, and from the emulator's list
+    learned = trn.data / "policies" / "tinybot" / "hover"
+    learned.mkdir(parents=True)
+    (learned / "latest").write_text("p-1\n")
     assert api.delete("/models/tinybot", headers=B).status_code == 404
     assert api.delete("/models/tinybot", headers=A).status_code == 403  # published: operators only
     assert api.delete("/models/tinybot", headers=OP).status_code == 200
-    assert not (trn.data / "tinybot").exists()
+    assert not (trn.data / "tinybot").exists() and not learned.parent.exists()
+    assert (trn.data / "policies").is_dir()  # the other models' policies stay
     wait_for(
         "the emulator to drop it", lambda: emulator.get("/models", headers=OP).json()["models"] == [], 10
     )
