@@ -108,8 +108,8 @@ class Trainer(Deployment):
         return create_app(self.settings(**kw))
 
     def models(self) -> list[str]:
-        """The model folders in the registry (claimed names included)."""
-        return sorted(p.name for p in self.data.iterdir() if registry.is_name(p.name))
+        """The model folders in the registry (claimed names included; the policies' folder is none)."""
+        return sorted(p.name for p in self.data.iterdir() if registry.name_problem(p.name) is None)
 
 
 def upload(client: TestClient, filename: str, data: bytes, key: str | None = None, **fields: str) -> Any:
