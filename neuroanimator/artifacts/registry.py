@@ -256,12 +256,11 @@ def version_folder(root: Root, model: str, version: str) -> Path | None:
     else in another one. A model's pointers and the versions they name live in one registry; an
     emulator fine-tuned for a policy (``Manifest.tuned``) is written to the data directory even when
     the model it was tuned from is a read-only default, and is found there by its name."""
-    if not is_name(model) or not is_name(version):
+    if not is_name(version):
         return None
-    home = root / model / version
-    for path in (home, *(f / model / version for f in folders(root))):
-        if (path / MANIFEST_FILE).is_file():
-            return path
+    for d in _model_dirs(root, model):
+        if (d / version / MANIFEST_FILE).is_file():
+            return d / version
     return None
 
 
