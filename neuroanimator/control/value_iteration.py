@@ -114,6 +114,9 @@ class ValueIteration:
     # "control", the greedy control itself, by least squares
     copy_as: str = "choice"
     temperature: float = 0.3
+    # how the copy acts on what it learned: None, the best-scored candidate; a temperature, the
+    # candidates averaged by its scores' softmax over it (``ChoicePolicy.blend``)
+    blend: float | None = None
     # each state's cross-entropy weighed by what its choice is worth: the gap between its best and
     # worst candidates' values, over the batch's mean (a near tie taught lightly, a swing's decisive
     # push firmly); False: every state alike
@@ -136,6 +139,8 @@ class ValueIteration:
             raise ValueError(f"value iteration copies as one of {', '.join(COPY_AS)}, not {self.copy_as!r}")
         if not self.temperature > 0.0:
             raise ValueError(f"value iteration's temperature is above 0, not {self.temperature}")
+        if self.blend is not None and not self.blend > 0.0:
+            raise ValueError(f"value iteration's blend is a temperature above 0 or None, not {self.blend}")
 
 
 def candidate_controls(low: np.ndarray, high: np.ndarray, count: int, rng: np.random.Generator) -> Tensor:
@@ -373,7 +378,13 @@ class ValueFitter:
             best, pick = q.max(dim=0)
             u = tr.policy(s, p)
             own, _ = self.held_values(s, p, u, self.value)
-            same += float(torch.isclose(u, self.grid[pick]).all(dim=1).sum())
+            # a choosing policy follows where its best-scored candidate is the greedy one (its control
+            # may blend candidates: ``ChoicePolicy.blend``)
+            choice = getattr(tr.policy, "choice", None)
+            agree = (
+                choice(s, p) == pick if choice is not None else torch.isclose(u, self.grid[pick]).all(dim=1)
+            )
+            same += float(agree.sum())
             lost += float((best - own).clamp(min=0.0).sum())
             n += len(s)
             s = torch.nan_to_num(tr.step(s, u))

@@ -442,6 +442,24 @@ def test_a_choosing_policy_exports_its_choice_and_its_range(artifacts: Path) -> 
     low, high = json.loads(meta[CONTROLS_RANGE])
     assert low == pytest.approx(policy.choices.min(dim=0).values.tolist())
     assert high == pytest.approx(policy.choices.max(dim=0).values.tolist())
+    # blended (``ValueIteration.blend``): the candidates averaged by the scores' softmax, in torch and
+    # in the graph alike, controls between the choices and inside their range, none of them a choice
+    blending = RewardTrainer(TASK, path, replace(QUICK, value_iteration=replace(how, blend=0.5))).policy
+    assert isinstance(blending, ChoicePolicy) and blending.blend == 0.5
+    with torch.no_grad():
+        mixed = blending(s, torch.zeros(64, 0))
+        weights = torch.softmax(blending.scores(s, torch.zeros(64, 0)) / 0.5, dim=1)
+    torch.testing.assert_close(mixed, weights @ blending.choices)
+    assert not torch.isclose(mixed[:, None, :], blending.choices[None]).all(dim=2).any()
+    assert bool((mixed >= blending.choices.min(dim=0).values - 1e-6).all())
+    assert bool((mixed <= blending.choices.max(dim=0).values + 1e-6).all())
+    graph = policy_to_onnx(blending, trainer.manifest.state_size, 0, False, reads_time=False)
+    got = ort.InferenceSession(graph).run(None, {"state": s.numpy(), "goal": np.zeros((64, 0), np.float32)})[
+        0
+    ]
+    np.testing.assert_allclose(got, mixed.numpy(), rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match="blend is a temperature above 0"):
+        ValueIteration(blend=0.0)
     # a policy that copies the planner first regresses onto its controls: it chooses nothing
     first_planner = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how, teacher="planner"))
     assert type(first_planner.policy) is RewardPolicy
