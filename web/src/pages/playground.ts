@@ -377,6 +377,11 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
       onDead();
     },
   });
+  // the first inputs go as the socket opens, not with the first frame drawn: the server steps from the
+  // moment it connects, and a page slow to draw (a busy machine, a hidden tab) let the lander fall
+  // with its jet off until then, gaining a speed its hover thrust then kept
+  const first = drive.split();
+  socket.setControls(first.controls, first.forces, driver ? driverValues : undefined);
   s.sliders.textContent = '';
   if (driver) drawDriverSliders(s.sliders, driver, driverValues);
   const valueLabels = drawSliders(s.sliders, drive, detail.controls, !!driver, detail.forces);
