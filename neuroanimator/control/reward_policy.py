@@ -259,9 +259,10 @@ class ChoicePolicy(RewardPolicy):
     ``blend`` > 0 serves the candidates averaged by the softmax of the scores over ``blend`` instead
     of the best one (Softmax and MatMul in the served graph): where the network is sure, its choice;
     where candidates are near ties, a control between them. For the ball in the cup, whose nine
-    candidates are the corners, edges and centre of its two controls' box, a copy read so earned
-    966-970 held out where the same copy's best-scored candidate earned 947 (measured, docs/experiments);
-    for the acrobot's pumping the full torque one way or the other is the point, and it stays a choice."""
+    candidates are the corners, edges and centre of its two controls' box, copies read so earned
+    966-970 held out where the same copies' best-scored candidates earned 947 and 889 (measured,
+    docs/experiments); for the acrobot's pumping the full torque one way or the other is the point,
+    and it stays a choice."""
 
     choices: Tensor
 
