@@ -262,7 +262,7 @@ class ChoicePolicy(RewardPolicy):
     candidates are the corners, edges and centre of its two controls' box, copies read so earned
     966-970 held out where the same copies' best-scored candidates earned 947 and 889 (measured,
     docs/experiments); for the acrobot's pumping the full torque one way or the other is the point,
-    and it stays a choice."""
+    and it stays a choice (a copy of 241 held out, read blended, 196-216)."""
 
     choices: Tensor
 
