@@ -27,6 +27,8 @@ interface Live {
   drive: Drive;
   model: ModelView;
   ghost: ModelView;
+  /** Sends the inputs as they are now (only what changed goes out). */
+  send: () => void;
   dispose: () => void;
 }
 
@@ -150,9 +152,14 @@ export const playgroundPage: Page = (root, ctx) => {
   const onKey = (ev: KeyboardEvent): void => {
     if (!live || typing(ev.target)) return;
     const used = ev.type === 'keydown' ? live.drive.press(ev.code) : live.drive.release(ev.code);
-    if (used) ev.preventDefault();
+    if (!used) return;
+    ev.preventDefault();
+    live.send();
   };
-  const onBlur = (): void => live?.drive.releaseAll();
+  const onBlur = (): void => {
+    live?.drive.releaseAll();
+    live?.send();
+  };
   window.addEventListener('keydown', onKey);
   window.addEventListener('keyup', onKey);
   window.addEventListener('blur', onBlur);
@@ -379,10 +386,15 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
   });
   // the first inputs go as the socket opens, not with the first frame drawn: the server steps from the
   // moment it connects, and a page slow to draw (a busy machine, a hidden tab) let the lander fall
-  // with its jet off until then, gaining a speed its hover thrust then kept
-  const first = drive.split();
-  socket.setControls(first.controls, first.forces, driver ? driverValues : undefined);
+  // with its jet off until then, gaining a speed its hover thrust then kept; later ones as they change
+  // (a key, a slider), not with the frames drawn: a page without WebGL draws none
+  const send = (): void => {
+    const { controls, forces } = drive.split();
+    socket.setControls(controls, forces, driver ? driverValues : undefined);
+  };
+  send();
   s.sliders.textContent = '';
+  s.sliders.addEventListener('input', send);
   if (driver) drawDriverSliders(s.sliders, driver, driverValues);
   const valueLabels = drawSliders(s.sliders, drive, detail.controls, !!driver, detail.forces);
   if (hold) {
@@ -391,8 +403,15 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
       h('p', { class: 'meaning hold', id: 'pg-hold' }, `It falls with its controls at rest, so they start where they hold it still: ${held.map(({ c, v }) => `${c.name} ${fmt(v)}`).join(', ')}.`),
     );
   }
+  const parts = { info, socket, drive, model, ghost, send };
   if (!viewer) {
-    return { info, socket, drive, model, ghost, dispose: () => socket.close() };
+    return {
+      ...parts,
+      dispose: () => {
+        s.sliders.removeEventListener('input', send);
+        socket.close();
+      },
+    };
   }
   const trail = new Trail(MODEL_TRAIL);
   const ghostTrail = new Trail(GHOST_COLOR);
@@ -434,7 +453,6 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
   };
   const stopFrame = viewer.onBeforeRender((now) => {
     const { controls, forces } = drive.split();
-    socket.setControls(controls, forces, driver ? driverValues : undefined);
     arrows(forces);
     const poses = socket.sample(now);
     if (poses) {
@@ -468,14 +486,11 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
     }
   });
   return {
-    info,
-    socket,
-    drive,
-    model,
-    ghost,
+    ...parts,
     dispose: () => {
       over = true;
       stopFrame();
+      s.sliders.removeEventListener('input', send);
       socket.close();
       unmark.forEach((u) => u());
       viewer.follow(null);
