@@ -404,15 +404,11 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
     );
   }
   const parts = { info, socket, drive, model, ghost, send };
-  if (!viewer) {
-    return {
-      ...parts,
-      dispose: () => {
-        s.sliders.removeEventListener('input', send);
-        socket.close();
-      },
-    };
-  }
+  const close = (): void => {
+    s.sliders.removeEventListener('input', send);
+    socket.close();
+  };
+  if (!viewer) return { ...parts, dispose: close };
   const trail = new Trail(MODEL_TRAIL);
   const ghostTrail = new Trail(GHOST_COLOR);
   const drop = new DropLine(MODEL_TRAIL);
@@ -490,8 +486,7 @@ function begin(ctx: Ctx, viewer: Viewer | null, s: Setup, onDead: () => void): L
     dispose: () => {
       over = true;
       stopFrame();
-      s.sliders.removeEventListener('input', send);
-      socket.close();
+      close();
       unmark.forEach((u) => u());
       viewer.follow(null);
       viewer.animating = false;
