@@ -935,6 +935,7 @@ class RewardTrainer:
         fitter.fit(how.share * cfg.seconds - self.elapsed())
         opt = torch.optim.Adam(self.policy.parameters(), lr=how.lr)
         stop, first = "budget", it
+        fixed_seed = None if how.fixed_checks is None else int(self.rng.integers(1 << 30))
         while (it == first or self.elapsed() < cfg.seconds) and (
             cfg.max_iterations is None or it < cfg.max_iterations
         ):
@@ -943,7 +944,10 @@ class RewardTrainer:
                 break
             loss = fitter.copy_round(it - first, opt)
             it += 1
-            runs, emulated = self.evaluate(cfg.eval_episodes, int(self.rng.integers(1 << 30)))
+            if how.fixed_checks is not None and fixed_seed is not None:  # the same starts every round
+                runs, emulated = self.evaluate(how.fixed_checks, fixed_seed)
+            else:
+                runs, emulated = self.evaluate(cfg.eval_episodes, int(self.rng.integers(1 << 30)))
             history.append((it, round(self.elapsed(), 1), runs.mean))
             log.info(
                 "%s: round %d of copying the greedy policy, fit %.4g, return on MuJoCo %.1f, on the emulator %.1f",

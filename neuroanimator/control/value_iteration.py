@@ -121,6 +121,11 @@ class ValueIteration:
     # worst candidates' values, over the batch's mean (a near tie taught lightly, a swing's decisive
     # push firmly); False: every state alike
     stakes: bool = True
+    # each round of copying checked on MuJoCo from the same this many starts, drawn once: the rounds
+    # compared on one set of starts rather than each on new ones, whose returns swing more from the
+    # draw than from the round (the acrobot's 8 new starts a round: 36-350 over one training);
+    # None: ``RewardSettings.eval_episodes`` new starts a round
+    fixed_checks: int | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 < self.share < 1.0:
@@ -137,6 +142,10 @@ class ValueIteration:
             raise ValueError("value iteration's checks are every n ≥ 0 iterations over at least one start")
         if self.copy_as not in COPY_AS:
             raise ValueError(f"value iteration copies as one of {', '.join(COPY_AS)}, not {self.copy_as!r}")
+        if self.fixed_checks is not None and self.fixed_checks < 1:
+            raise ValueError(
+                f"value iteration's fixed checks are at least one start or None, not {self.fixed_checks}"
+            )
         if not self.temperature > 0.0:
             raise ValueError(f"value iteration's temperature is above 0, not {self.temperature}")
         if self.blend is not None and not self.blend > 0.0:

@@ -10,8 +10,10 @@ import math
 import os
 import subprocess
 import sys
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -390,6 +392,40 @@ def test_value_iteration_copies_the_greedy_policy_into_the_network_round_by_roun
     off = RewardTrainer(replace(TASK, value_iteration=how), path, replace(QUICK, value_iteration="off"))
     assert off.value_iteration is None and next(off.critic.parameters()).shape[0] == QUICK.critic_hidden[0]
     assert type(off.policy) is RewardPolicy
+
+
+def _recorded(evaluate: Callable[[int, int], Any], calls: list[tuple[int, int]]) -> Callable[[int, int], Any]:
+    """``evaluate`` (episodes, seed), each call's arguments kept in ``calls``."""
+
+    def recorded(n: int, seed: int) -> Any:
+        calls.append((n, seed))
+        return evaluate(n, seed)
+
+    return recorded
+
+
+def test_value_iterations_rounds_are_checked_on_the_same_starts_when_fixed(
+    artifacts: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``fixed_checks``: every round of copying is checked on MuJoCo from one set of starts, drawn
+    once, and the final episodes are still the judged ones; without it each round draws new starts.
+    Every check's MuJoCo steps are counted."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    how = ValueIteration(share=0.5, states=256, candidates=3, batch=128, iterations=2, episodes=4)
+    for fixed in (3, None):
+        settings = replace(QUICK, value_iteration=replace(how, fixed_checks=fixed), max_iterations=3)
+        trainer = RewardTrainer(TASK, path, settings)
+        calls: list[tuple[int, int]] = []
+        monkeypatch.setattr(trainer, "evaluate", _recorded(trainer.evaluate, calls))
+        result = trainer.train()
+        rounds, final = calls[:-1], calls[-1]
+        assert final == (settings.final_episodes, settings.judged_on)
+        assert [n for n, _ in rounds] == [fixed or settings.eval_episodes] * 3
+        assert len({seed for _, seed in rounds}) == (1 if fixed else 3)
+        episodes = sum(n for n, _ in calls)
+        assert result.mujoco_steps == episodes * TASK.episode_steps * TASK.control_substeps
+    with pytest.raises(ValueError, match="fixed checks"):
+        ValueIteration(fixed_checks=0)
 
 
 def test_the_copys_cross_entropy_weighs_each_state_by_its_stakes(artifacts: Path) -> None:
