@@ -123,7 +123,7 @@ class ValueIteration:
     stakes: bool = True
     # each round of copying checked on MuJoCo from the same this many starts, drawn once: the rounds
     # compared on one set of starts rather than each on new ones, whose returns swing more from the
-    # draw than from the round (the acrobot's 8 new starts a round: 36-350 over one training);
+    # draw than from the round (the acrobot's 8 new starts a round: 37-350 over one training);
     # None: ``RewardSettings.eval_episodes`` new starts a round
     fixed_checks: int | None = None
 
