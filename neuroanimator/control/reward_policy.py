@@ -935,7 +935,8 @@ class RewardTrainer:
         fitter.fit(how.share * cfg.seconds - self.elapsed())
         opt = torch.optim.Adam(self.policy.parameters(), lr=how.lr)
         stop, first = "budget", it
-        fixed_seed = None if how.fixed_checks is None else int(self.rng.integers(1 << 30))
+        # (episodes, seed) of the same starts every round (``fixed_checks``), drawn once
+        fixed = None if how.fixed_checks is None else (how.fixed_checks, int(self.rng.integers(1 << 30)))
         while (it == first or self.elapsed() < cfg.seconds) and (
             cfg.max_iterations is None or it < cfg.max_iterations
         ):
@@ -944,8 +945,8 @@ class RewardTrainer:
                 break
             loss = fitter.copy_round(it - first, opt)
             it += 1
-            if how.fixed_checks is not None and fixed_seed is not None:  # the same starts every round
-                runs, emulated = self.evaluate(how.fixed_checks, fixed_seed)
+            if fixed is not None:
+                runs, emulated = self.evaluate(*fixed)
             else:
                 runs, emulated = self.evaluate(cfg.eval_episodes, int(self.rng.integers(1 << 30)))
             history.append((it, round(self.elapsed(), 1), runs.mean))
