@@ -13,7 +13,8 @@ For each task (``control.suite_tasks.SUITE_TASKS``), all in, on the same torch t
    ``train_seconds`` = 25 minutes, plus the emulator's);
 3. SAC on MuJoCo (``SuiteEnv``: the same control period, the suite's starts and exact reward summed over
    each action's control steps, the state with angles as sine and cosine and the task's parameters as
-   observation) for the same wall time, with as many torch threads as the policy had cores (its seeds);
+   observation) for the same wall time, with as many torch threads as the policy had cores (its seeds,
+   or its threads: ``seed_race.cores_used``);
 
 then both run ``EPISODES`` episodes of 1,000 control steps on MuJoCo from the same held-out starts
 (``HELD_OUT_SEED``), the return their mean.
@@ -40,7 +41,7 @@ from stable_baselines3 import SAC
 from neuroanimator.artifacts import registry
 from neuroanimator.control.policy_store import save_reward_policy
 from neuroanimator.control.reward_policy import RewardSettings, draw_starts, falls, run_on_mujoco
-from neuroanimator.control.seed_race import seed_count, train_reward_policy
+from neuroanimator.control.seed_race import cores_used, train_reward_policy
 from neuroanimator.control.suite_tasks import SUITE_TASKS, Context, SuiteTask
 from neuroanimator.sim.model import PhysicalModel
 
@@ -187,7 +188,7 @@ def bench_suite_task(
             seeds=seeds,
             refine=False,
         )
-    cores = seed_count(task, settings) * max(1, settings.threads)
+    cores = cores_used(task, settings)
     result = train_reward_policy(task, path, settings)
     wall = time.perf_counter() - t0
     log.info("%s: return on MuJoCo %.1f after %.0f s all in", name, result.return_physics, wall)

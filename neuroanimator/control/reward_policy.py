@@ -116,7 +116,9 @@ class RewardSettings:
     # be learnt from what the emulator never saw
     max_outside: float = 0.5
     seed: int = 0
-    threads: int = 1
+    # torch threads of a seed trained alone (None: the task's ``SuiteTask.threads``, at most the
+    # machine's cores; ``seed_race.thread_count``); seeds side by side take one core each
+    threads: int | None = None
     # policies trained from this many seeds side by side, one process and core each, the best on
     # MuJoCo kept (``seed_race``; None: the task's ``SuiteTask.seeds``, at most the machine's cores)
     seeds: int | None = None

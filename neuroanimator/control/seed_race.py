@@ -55,6 +55,18 @@ def seed_count(task: SuiteTask, settings: RewardSettings) -> int:
     return max(1, min(wanted, os.cpu_count() or 1))
 
 
+def thread_count(task: SuiteTask, settings: RewardSettings) -> int:
+    """Torch threads of a seed trained alone: ``settings.threads``, else the task's, at most the cores."""
+    wanted = settings.threads if settings.threads is not None else task.threads
+    return max(1, min(wanted, os.cpu_count() or 1))
+
+
+def cores_used(task: SuiteTask, settings: RewardSettings) -> int:
+    """The cores a training takes: one a seed when several train side by side, else its threads."""
+    seeds = seed_count(task, settings)
+    return seeds if seeds > 1 else thread_count(task, settings)
+
+
 def train_reward_policy(
     task: SuiteTask,
     path: Path,
@@ -92,7 +104,7 @@ def _one_seed_here(
     should_stop: Callable[[], bool] | None,
     meet: Callable[[Meeting], Meeting | None] | None = None,
 ) -> RewardResult:
-    with torch_threads(settings.threads):
+    with torch_threads(thread_count(task, settings)):
         return RewardTrainer(task, path, settings, on_progress, should_stop, meet).train()
 
 

@@ -41,7 +41,7 @@ from neuroanimator.control.reward_policy import (
     root_drift,
     run_on_mujoco,
 )
-from neuroanimator.control.seed_race import train_reward_policy
+from neuroanimator.control.seed_race import cores_used, thread_count, train_reward_policy
 from neuroanimator.control.suite_tasks import SUITE_TASKS
 from neuroanimator.control.value_iteration import ValueFitter, ValueIteration, candidate_controls
 from neuroanimator.export.runtime import OnnxEmulator
@@ -580,6 +580,25 @@ def test_seeds_side_by_side_stop_together_and_raise_what_one_seed_raises(artifac
     assert result.stop == "cancelled" and len(result.seed_returns) == 2
     with pytest.raises(ValueError, match="acts every 5 physical steps"):
         train_reward_policy(replace(TASK, substeps=5), path, replace(QUICK, seeds=2))
+
+
+def test_a_seed_alone_trains_on_the_tasks_threads_unless_the_settings_say(artifacts: Path) -> None:
+    """One seed trains on its task's threads (the acrobot's two), or the settings' where they say, at
+    most the machine's cores, and gives the caller's count back; seeds side by side take a core each."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    cores, before = os.cpu_count() or 1, torch.get_num_threads()
+    seen: list[int] = []
+
+    def record() -> bool:
+        seen.append(torch.get_num_threads())
+        return False
+
+    train_reward_policy(replace(TASK, threads=2), path, QUICK, should_stop=record)
+    assert seen and set(seen) == {min(2, cores)} and torch.get_num_threads() == before
+    assert thread_count(replace(TASK, threads=2), replace(QUICK, threads=1)) == 1
+    assert thread_count(replace(TASK, threads=4 * cores), QUICK) == cores
+    assert cores_used(SUITE_TASKS["acrobot-swingup"], RewardSettings()) == min(2, cores)
+    assert cores_used(TASK, replace(QUICK, seeds=2)) == min(2, cores) and cores_used(TASK, QUICK) == 1
 
 
 def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
