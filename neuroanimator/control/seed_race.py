@@ -5,10 +5,10 @@ stood in every episode from two seeds and stayed on the floor in six of ten from
 (docs/experiments/policies.md). The actor-critic's matrices are small, so a second core buys it more
 as a second seed than as a second thread; value iteration's backups are wide matrices, and a task
 may ask for threads instead (``SuiteTask.threads``, the acrobot's two: 1.5 times the iterations in
-the same budget, measured), which a seed trained alone takes (``thread_count``). Each seed trains in its own process
-(``spawn``: a fresh interpreter, nothing shared with the caller's PyTorch), every one is judged at the
-end on the same MuJoCo episodes (``RewardSettings.final_seed``), and the highest return is the result,
-every seed's return kept beside it (``RewardResult.seed_returns``).
+the same budget, measured), which a seed trained alone takes (``thread_count``). Each seed trains in
+its own process (``spawn``: a fresh interpreter, nothing shared with the caller's PyTorch), every one
+is judged at the end on the same MuJoCo episodes (``RewardSettings.final_seed``), and the highest
+return is the result, every seed's return kept beside it (``RewardResult.seed_returns``).
 
 Each seed's process imports the caller's main module, as every ``spawn`` does: a script that calls
 this keeps its own code under ``if __name__ == "__main__":`` (a notebook, a service need nothing).
