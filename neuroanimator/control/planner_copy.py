@@ -147,7 +147,7 @@ class PlannerCopy:
         history: list[tuple[int, float, float]] = []
         rounds, stop, last_round_s = 0, "budget", 0.0
         # a round that would end past the budget is not begun (the first always is)
-        while rounds == 0 or tr.elapsed() + last_round_s < settings.seconds:
+        while rounds == 0 or tr.elapsed() + last_round_s < tr.deadline():
             if settings.max_iterations is not None and rounds >= settings.max_iterations:
                 break
             if cfg.rounds is not None and rounds >= cfg.rounds:

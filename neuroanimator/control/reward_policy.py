@@ -61,6 +61,7 @@ from neuroanimator.training.train import fine_tune_on_runs
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 FEATURE_LIMIT = 8.0  # a state this many spreads from the typical motion has left what the emulator knows
+FINISH_MARGIN = 1.25  # the final judging's cost over its episodes' on MuJoCo (``RewardTrainer.deadline``)
 DRIFT_S = 1.0  # seconds into an episode at which the emulator's root is compared with MuJoCo's
 REFINE_WINDOW = 8  # super-steps of each window the emulator is refined on
 EXPLORE_SHARE = 0.25  # of the budget the exploring runs' fine-tuning may take at most (``explore``)
@@ -70,7 +71,8 @@ OUTSIDE = "outside_envelope"  # a training's stop: its emulated states left the 
 
 @dataclass(frozen=True)
 class RewardSettings:
-    """How a reward policy is trained; ``seconds`` is the whole training's wall-clock budget."""
+    """How a reward policy is trained; ``seconds`` is the whole training's wall-clock budget, its final
+    judging on MuJoCo included (``RewardTrainer.deadline``)."""
 
     seconds: float = 1500.0
     max_iterations: int | None = None
@@ -516,6 +518,9 @@ class RewardTrainer:
             task.restarts.explore_from if settings.explore_from is None else settings.explore_from,
         )
         self.mujoco_steps = 0
+        # seconds one episode of the latest check on MuJoCo took: what the final judging will cost
+        # (``deadline``), 0 until a check has run
+        self.episode_check_s = 0.0
         self.refinements = 0
         self.kept: sampling.Sequences | None = None  # the typical motion (``typical_motion``), once drawn
         self.env_low, self.env_high = self._envelope()
@@ -698,9 +703,12 @@ class RewardTrainer:
     def evaluate(self, n: int, seed: int) -> tuple[Episodes, float]:
         """The policy on MuJoCo over n episodes of new starts (their returns), and on the emulator
         from the same starts (the mean return)."""
+        t = time.perf_counter()
         phys = self.episodes(self.act, n, np.random.default_rng(seed))
         starts, params = draw_starts(self.task, self.physical, np.random.default_rng(seed), n)
-        return phys, self.emulated_return(starts, params)
+        emulated = self.emulated_return(starts, params)
+        self.episode_check_s = (time.perf_counter() - t) / max(1, n)
+        return phys, emulated
 
     @torch.no_grad()
     def emulated_return(
@@ -885,6 +893,14 @@ class RewardTrainer:
     def elapsed(self) -> float:
         return time.perf_counter() - self.t0
 
+    def deadline(self, checks: int = 0) -> float:
+        """The elapsed seconds by which learning stops, so that the training ends within ``seconds``
+        judged: the budget less the final episodes (``final_episodes``) and ``checks`` more on MuJoCo
+        at the latest check's pace, a quarter on top for the rest of ``finish`` (the root's drift, the
+        emulated return). A budget is the whole training's, its final judging included."""
+        episodes = self.settings.final_episodes + checks
+        return self.settings.seconds - FINISH_MARGIN * episodes * self.episode_check_s
+
     def report(self, iteration: int, loss: float | None, return_physics: float | None) -> None:
         """Tell ``on_progress`` (when given) where the training is."""
         if self.on_progress is not None:
@@ -909,11 +925,7 @@ class RewardTrainer:
         if self.settings.teacher == PLANNER:
             copier = PlannerCopy(self)
             best, history, it, stop = copier.train()
-            if (
-                stop != "budget"
-                or self.settings.copying.rounds is None
-                or self.elapsed() >= self.settings.seconds
-            ):
+            if stop != "budget" or self.settings.copying.rounds is None or self.elapsed() >= self.deadline():
                 return self.finish(best, history, it, stop)
             # the actor-critic goes on from the copy, and restarts where the planner's runs went
             self.policy.load_state_dict(best[1])
@@ -936,15 +948,18 @@ class RewardTrainer:
         fitter = self.value_fitter = ValueFitter(self, how)
         fitter.fit(how.share * cfg.seconds - self.elapsed())
         opt = torch.optim.Adam(self.policy.parameters(), lr=how.lr)
-        stop, first = "budget", it
+        stop, first, round_s = "budget", it, 0.0
         # (episodes, seed) of the same starts every round (``fixed_checks``), drawn once
         fixed = None if how.fixed_checks is None else (how.fixed_checks, int(self.rng.integers(1 << 30)))
-        while (it == first or self.elapsed() < cfg.seconds) and (
-            cfg.max_iterations is None or it < cfg.max_iterations
-        ):
+        # a round (its copying and its check) that would end past the deadline, less the measure of
+        # how closely the kept policy follows the greedy one, is not begun
+        while (
+            it == first or self.elapsed() + round_s + FINISH_MARGIN * fitter.follows_s() < self.deadline()
+        ) and (cfg.max_iterations is None or it < cfg.max_iterations):
             if self.should_stop is not None and self.should_stop():
                 stop = "cancelled"
                 break
+            began = time.perf_counter()
             loss = fitter.copy_round(it - first, opt)
             it += 1
             if fixed is not None:
@@ -959,6 +974,7 @@ class RewardTrainer:
             if runs.mean >= best[0]:
                 best = (runs.mean, copy.deepcopy(self.policy.state_dict()))
             self.report(it, loss, runs.mean)
+            round_s = time.perf_counter() - began
         # how closely the kept policy follows the greedy one, where it goes itself
         self.policy.load_state_dict(best[1])
         self.greedy_follow = fitter.follows()
@@ -990,7 +1006,8 @@ class RewardTrainer:
         value, stop = None, "budget"
         last_return: float | None = None
         # at least one update, however much of the budget its setup took (on a busy machine)
-        while (it == first or self.elapsed() < cfg.seconds) and (
+        # its last check and the final judging within the budget
+        while (it == first or self.elapsed() < self.deadline(cfg.eval_episodes)) and (
             cfg.max_iterations is None or it < cfg.max_iterations
         ):
             if self.should_stop is not None and self.should_stop():
@@ -1010,7 +1027,7 @@ class RewardTrainer:
                 s[torch.as_tensor(again)] = torch.as_tensor(ns, dtype=torch.float32)
                 p[torch.as_tensor(again)] = torch.as_tensor(npar, dtype=torch.float32)
                 age[again] = 0
-            last = self.elapsed() >= cfg.seconds or (
+            last = self.elapsed() >= self.deadline(cfg.eval_episodes) or (
                 cfg.max_iterations is not None and it >= cfg.max_iterations
             )
             if self.elapsed() >= next_check or last:

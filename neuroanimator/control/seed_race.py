@@ -148,6 +148,7 @@ def _race(
                 replies[i],
                 stop,
                 level,
+                time.time(),
             ),
             name=f"{task.name}-seed-{settings.seed + i}",
             daemon=False,  # a seed's training may start processes of its own (MuJoCo's sampling)
@@ -263,9 +264,12 @@ def _seed_worker(
     reply: Any,
     stop: Any,
     level: int,
+    started: float,
 ) -> None:
     """One seed's training in its own process: progress, then the result (or the error) on ``messages``;
-    it logs at the caller's ``level``, each line naming its seed."""
+    it logs at the caller's ``level``, each line naming its seed. Its budget counts from ``started``
+    (the caller's wall clock when it started the seeds), the process's start and imports included."""
+    settings = replace(settings, seconds=max(1.0, settings.seconds - (time.time() - started)))
     logging.basicConfig(
         level=level, format=f"%(asctime)s seed {settings.seed} %(levelname)s %(name)s: %(message)s"
     )

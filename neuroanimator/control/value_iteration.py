@@ -211,6 +211,9 @@ class ValueFitter:
         self.check_starts = torch.as_tensor(trainer.start_states[pick], dtype=torch.float32)
         self.check_params = torch.as_tensor(trainer.start_params[pick], dtype=torch.float32)
         self.checks: list[tuple[int, float]] = []  # (iteration, the greedy policy's emulated return)
+        # seconds an emulated episode labelled by the greedy policy took in the latest round of
+        # copying: ``follows`` runs ``check_episodes`` such episodes (``follows_s``)
+        self.labelled_episode_s = 0.0
 
     def score(self, nxt: Tensor, u: Tensor, p: Tensor) -> Tensor:
         """(B,) the reward backed up for arriving at ``nxt`` (B, S) under ``u`` (B, U): the exact one
@@ -373,6 +376,10 @@ class ValueFitter:
         _, pick, _ = self.backup(s, p, self.value, self.grid)
         return self.grid[pick]
 
+    def follows_s(self) -> float:
+        """The seconds ``follows`` will take, at the pace of the latest round's labelling."""
+        return self.how.check_episodes * self.labelled_episode_s
+
     @torch.no_grad()
     def follows(self) -> tuple[float, float]:
         """How closely the trainer's policy follows the greedy policy over V where the policy itself
@@ -410,6 +417,7 @@ class ValueFitter:
         s = torch.as_tensor(tr.start_states[pick], dtype=torch.float32)
         p = torch.as_tensor(tr.start_params[pick], dtype=torch.float32)
         teacher = max(0.0, 1.0 - round_index / max(1, how.teacher_rounds))
+        began = time.perf_counter()
         with torch.no_grad():
             for _ in range(tr.task.policy_steps):
                 q, _ = self.candidate_values(s, p, self.value, self.grid)
@@ -422,6 +430,7 @@ class ValueFitter:
                     s, p = s.clone(), p.clone()
                     s[lost] = torch.as_tensor(ns, dtype=torch.float32)
                     p[lost] = torch.as_tensor(npar, dtype=torch.float32)
+        self.labelled_episode_s = (time.perf_counter() - began) / how.episodes
         x, xp, values = (torch.cat(part) for part in zip(*self.labels, strict=True))
         if len(x) > how.max_labels:  # the oldest go: they were labelled where early policies went
             x, xp, values = x[-how.max_labels :], xp[-how.max_labels :], values[-how.max_labels :]

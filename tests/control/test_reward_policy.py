@@ -10,6 +10,7 @@ import math
 import os
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -411,7 +412,9 @@ def test_value_iterations_rounds_are_checked_on_the_same_starts_when_fixed(
     once, and the final episodes are still the judged ones; without it each round draws new starts.
     Every check's MuJoCo steps are counted."""
     path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
-    how = ValueIteration(share=0.5, states=256, candidates=3, batch=128, iterations=2, episodes=4)
+    how = ValueIteration(
+        share=0.5, states=256, candidates=3, batch=128, iterations=2, episodes=4, check_episodes=4
+    )
     for fixed in (3, None):
         settings = replace(QUICK, value_iteration=replace(how, fixed_checks=fixed), max_iterations=3)
         trainer = RewardTrainer(TASK, path, settings)
@@ -599,6 +602,45 @@ def test_a_seed_alone_trains_on_the_tasks_threads_unless_the_settings_say(artifa
     assert thread_count(replace(TASK, threads=4 * cores), QUICK) == cores
     assert cores_used(SUITE_TASKS["acrobot-swingup"], RewardSettings()) == min(2, cores)
     assert cores_used(TASK, replace(QUICK, seeds=2)) == min(2, cores) and cores_used(TASK, QUICK) == 1
+
+
+@pytest.mark.parametrize("learner", ["value iteration", "actor-critic"])
+def test_a_training_ends_within_its_budget_its_final_judging_included(
+    artifacts: Path, monkeypatch: pytest.MonkeyPatch, learner: str
+) -> None:
+    """``seconds`` is the whole training's: learning stops early enough for its last check, the final
+    episodes on MuJoCo and (value iteration) the measure of how closely the copy follows, at the pace
+    they ran so far (here half a second an episode on MuJoCo on top of its own: a training that judged
+    after its budget would end seconds past it). Episodes of 200 steps, so that rounds are short."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    how = ValueIteration(
+        share=0.2,
+        states=256,
+        candidates=3,
+        batch=128,
+        iterations=2,
+        episodes=4,
+        fixed_checks=2,
+        check_episodes=8,
+    )
+    settings = replace(
+        QUICK,
+        seconds=20.0,
+        max_iterations=None,
+        value_iteration=how if learner == "value iteration" else "off",
+    )
+    trainer = RewardTrainer(replace(TASK, episode_steps=200), path, settings)
+    episodes = trainer.episodes
+
+    def slow_episodes(act: Any, n: int, rng: np.random.Generator) -> Any:
+        time.sleep(0.5 * n)
+        return episodes(act, n, rng)
+
+    monkeypatch.setattr(trainer, "episodes", slow_episodes)
+    result = trainer.train()
+    assert len(result.return_history) >= 2 and trainer.episode_check_s >= 0.5
+    assert 0.6 * settings.seconds <= result.wall_s <= settings.seconds + 0.5
+    assert trainer.deadline() < settings.seconds - settings.final_episodes * 0.5
 
 
 def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
