@@ -155,6 +155,46 @@ def _layout(physical: PhysicalModel) -> list[Any]:
     ]
 
 
+def sac_baseline(
+    task: SuiteTask,
+    physical: PhysicalModel,
+    ctx: Context,
+    low: FloatArray,
+    high: FloatArray,
+    seed: int,
+    quick: bool,
+    wall: float,
+    cores: int,
+    starts: FloatArray,
+    params: FloatArray,
+) -> dict[str, Any]:
+    """SAC trained on MuJoCo for ``wall`` seconds on ``cores`` torch threads, then run from the
+    held-out ``starts`` (module doc, step 3): a row's ``model_free``."""
+    torch.set_num_threads(cores)  # SAC on the cores the policy's seeds had
+    env = SuiteEnv(task, physical, low, high, seed)
+    agent = SAC(
+        "MlpPolicy", env, seed=seed, device="cpu", buffer_size=300_000,
+        learning_starts=50 if quick else 1000, batch_size=64 if quick else 256, verbose=0,
+    )  # fmt: skip
+    f0 = time.perf_counter()
+    agent.learn(total_timesteps=10**9, callback=Deadline(f0 + (6.0 if quick else wall)))
+    free_wall = time.perf_counter() - f0
+
+    def free_act(states: FloatArray, p: FloatArray) -> FloatArray:
+        actions, _ = agent.predict(observe(physical, states, p, task.unobserved), deterministic=True)
+        return env.controls(actions)
+
+    theirs = run_on_mujoco(task, physical, ctx, free_act, starts, params)
+    return {
+        "algorithm": "sac",
+        "return_physics": round(float(theirs.returns.mean()), 1),
+        "mujoco_steps": env.steps * task.substeps,
+        "env_steps": env.steps,
+        "wall_s": round(free_wall, 1),
+        "threads": cores,
+    }
+
+
 def bench_suite_task(
     name: str,
     root: Path,
@@ -163,10 +203,12 @@ def bench_suite_task(
     quick: bool,
     save_to: Path | None = None,
     seeds: int | None = None,
+    baseline: bool = True,
 ) -> dict[str, Any]:
     """One suite task's row (module doc); with ``save_to``, the policy measured is stored there as
     ``neuro policy`` stores one (``policy_store.save_reward_policy``); ``seeds`` side by side instead
-    of the task's (``SuiteTask.seeds``)."""
+    of the task's (``SuiteTask.seeds``); without ``baseline``, no SAC (``model_free`` is None): the
+    policy's side alone, in half the time."""
     task = SUITE_TASKS[name]
     budget = seconds if seconds is not None else task.train_seconds + 300.0
     t0 = time.perf_counter()
@@ -204,21 +246,11 @@ def bench_suite_task(
     starts, params = draw_starts(task, physical, np.random.default_rng(HELD_OUT_SEED), episodes)
     ours = run_on_mujoco(task, physical, ctx, result.policy.act, starts, params)
 
-    torch.set_num_threads(cores)  # SAC on the cores the policy's seeds had
-    env = SuiteEnv(task, physical, low, high, seed)
-    agent = SAC(
-        "MlpPolicy", env, seed=seed, device="cpu", buffer_size=300_000,
-        learning_starts=50 if quick else 1000, batch_size=64 if quick else 256, verbose=0,
-    )  # fmt: skip
-    f0 = time.perf_counter()
-    agent.learn(total_timesteps=10**9, callback=Deadline(f0 + (6.0 if quick else wall)))
-    free_wall = time.perf_counter() - f0
-
-    def free_act(states: FloatArray, p: FloatArray) -> FloatArray:
-        actions, _ = agent.predict(observe(physical, states, p, task.unobserved), deterministic=True)
-        return env.controls(actions)
-
-    theirs = run_on_mujoco(task, physical, ctx, free_act, starts, params)
+    model_free = (
+        sac_baseline(task, physical, ctx, low, high, seed, quick, wall, cores, starts, params)
+        if baseline
+        else None
+    )
     return {
         "task": name,
         "return_physics": round(float(ours.returns.mean()), 1),
@@ -253,12 +285,5 @@ def bench_suite_task(
             "applicable": False,
             "reason": "a reward over whole episodes has no single goal to synthesise for",
         },
-        "model_free": {
-            "algorithm": "sac",
-            "return_physics": round(float(theirs.returns.mean()), 1),
-            "mujoco_steps": env.steps * task.substeps,
-            "env_steps": env.steps,
-            "wall_s": round(free_wall, 1),
-            "threads": cores,
-        },
+        "model_free": model_free,
     }

@@ -3,7 +3,7 @@ model-free reinforcement learning on MuJoCo, on the same held-out starts and goa
 
     python bench/policies.py [--tasks a,b] [--seconds S] [--suite-seconds S] [--artifacts DIR]
                              [--held-out 100] [--open-loop-runs 10] [--algorithm sac|ppo] [--seed 0]
-                             [--seeds K] [--threads N] [--quick] [--json]
+                             [--seeds K] [--threads N] [--no-baseline] [--quick] [--json]
 
 With no ``--tasks``, every task: the catalog's policy tasks, then dm_control's suite tasks
 (``control.suite_tasks.SUITE_TASKS``: cartpole-swingup, pendulum-swingup, reacher-hard,
@@ -41,6 +41,8 @@ defaults):
    the emulator's policy took, on the same torch threads (``--threads``, as the policy's training
    and the jobs), then run deterministically on the held-out
    set on MuJoCo; its MuJoCo steps are its env steps × the task's substeps plus the goal pool's.
+   ``--no-baseline`` leaves it out (``model_free`` null, its columns "-"): the policy's side alone,
+   in half a suite task's time.
 
 Prints a table; with ``--json`` the last line is one JSON object ``{"seed", "held_out", "settings",
 "tasks": [{"task", "success_physics", "success_emulator", "mujoco_steps", "wall_s", "iterations",
@@ -85,6 +87,7 @@ HELD_OUT_SEED = 90_210  # the held-out starts and goals (training draws with Pol
 QUICK_SECONDS = 60.0  # a cap; --quick stops after QUICK_ITERATIONS updates
 QUICK_ITERATIONS = 4
 QUICK_HELD_OUT = 16
+NO_BASELINE = "- | - | -"  # a row measured with --no-baseline: no model-free columns
 QUICK_OPTIMIZER = {
     "max_iterations": 3,
     "starts": 1,
@@ -229,9 +232,20 @@ def bench_task(name: str, index: int, root: registry.Root, args: argparse.Namesp
 
     looped = open_loop(task, trainer, root, path.name, starts, goals, physics.success, args)
 
-    free = train_model_free(args.algorithm, trainer, result.net.shape, result.wall_s, args.seed, args.quick)
-    free_states = run_agent(free.agent, trainer, result.net.shape, starts, goals)
-    free_ok = trainer.successes(free_states, goals)
+    model_free = None
+    if args.baseline:
+        free = train_model_free(
+            args.algorithm, trainer, result.net.shape, result.wall_s, args.seed, args.quick
+        )
+        free_states = run_agent(free.agent, trainer, result.net.shape, starts, goals)
+        model_free = {
+            "algorithm": free.algorithm,
+            "success_physics": round(float(trainer.successes(free_states, goals).mean()), 4),
+            "mujoco_steps": free.env_steps * task.substeps + trainer.pool.mujoco_steps,
+            "wall_s": round(free.wall_s, 2),
+            "env_steps": free.env_steps,
+            "episodes": free.episodes,
+        }
     return {
         "task": name,
         "held_out": runs,
@@ -241,14 +255,7 @@ def bench_task(name: str, index: int, root: registry.Root, args: argparse.Namesp
         "wall_s": round(result.wall_s, 2),
         "iterations": result.iterations,
         "open_loop": looped,
-        "model_free": {
-            "algorithm": free.algorithm,
-            "success_physics": round(float(free_ok.mean()), 4),
-            "mujoco_steps": free.env_steps * task.substeps + trainer.pool.mujoco_steps,
-            "wall_s": round(free.wall_s, 2),
-            "env_steps": free.env_steps,
-            "episodes": free.episodes,
-        },
+        "model_free": model_free,
     }
 
 
@@ -265,10 +272,14 @@ def table(rows: list[dict[str, Any]]) -> str:
             ol_cells = f"{ol['success_physics']:.2f} ({ol['runs']}) | {ol['policy_success_physics']:.2f} | {ol['wall_s_per_job']}"
         else:
             ol_cells = "n/a | - | -"
+        mf_cells = (
+            f"{mf['success_physics']:.2f} ({mf['algorithm']}) | {mf['mujoco_steps']:,} | {mf['wall_s']}"
+            if mf
+            else NO_BASELINE
+        )
         lines.append(
             f"| {r['task']} | {r['held_out']} | {r['success_physics']:.2f} | {r['success_emulator']:.2f} | "
-            f"{r['mujoco_steps']:,} | {r['wall_s']} | {ol_cells} | {mf['success_physics']:.2f} "
-            f"({mf['algorithm']}) | {mf['mujoco_steps']:,} | {mf['wall_s']} |"
+            f"{r['mujoco_steps']:,} | {r['wall_s']} | {ol_cells} | {mf_cells} |"
         )
     notes = [
         f"{r['task']}: open loop not applicable: {r['open_loop']['reason']}"
@@ -286,10 +297,13 @@ def suite_table(rows: list[dict[str, Any]]) -> str:
     lines = [head, "|" + "---|" * 10]
     for r in rows:
         mf = r["model_free"]
+        mf_cells = (
+            f"{mf['return_physics']:.1f} | {mf['mujoco_steps']:,} | {mf['wall_s']}" if mf else NO_BASELINE
+        )
         lines.append(
             f"| {r['task']} | {r['substeps']} | {r['return_physics']:.1f} | {r['return_emulator']:.1f} | "
             f"{r['target_return']:g} | {r['mujoco_steps']:,} | {r['wall_s']} ({r['emulator_wall_s']}) | "
-            f"{mf['return_physics']:.1f} | {mf['mujoco_steps']:,} | {mf['wall_s']} |"
+            f"{mf_cells} |"
         )
     return "\n".join(lines)
 
@@ -313,6 +327,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--held-out", type=int, default=100, help="held-out starts and goals per task")
     p.add_argument("--open-loop-runs", type=int, default=10, help="held-out pairs given to open-loop jobs")
     p.add_argument("--algorithm", choices=ALGORITHMS, default="sac", help="the model-free baseline")
+    p.add_argument(
+        "--no-baseline",
+        dest="baseline",
+        action="store_false",
+        help="no model-free baseline: the policy's side alone (each row's model_free null)",
+    )
     p.add_argument("--seed", type=int, default=0, help="the training's seed (policy and model-free)")
     p.add_argument(
         "--seeds",
@@ -352,7 +372,14 @@ def main(argv: list[str] | None = None) -> int:
             save_to = Path(args.save_to) if args.save_to else None
             rows.append(
                 bench_suite_task(
-                    name, suite_root, args.suite_seconds, args.seed, args.quick, save_to, args.seeds
+                    name,
+                    suite_root,
+                    args.suite_seconds,
+                    args.seed,
+                    args.quick,
+                    save_to,
+                    args.seeds,
+                    args.baseline,
                 )
             )
         else:
@@ -370,6 +397,7 @@ def main(argv: list[str] | None = None) -> int:
             "algorithm": args.algorithm,
             "threads": args.threads,
             "seeds": args.seeds,
+            "baseline": args.baseline,
             "quick": args.quick,
         }
         held = QUICK_HELD_OUT if args.quick else args.held_out

@@ -653,6 +653,7 @@ def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
     # --seeds over the task's one: each seed's return in the row, SAC on as many cores
     sides = min(2, os.cpu_count() or 1)
     assert result["settings"]["seeds"] == 2 and len(row["seeds"]) == sides == row["cores"]
+    assert result["settings"]["baseline"] is True
     for key in ("return_physics", "return_emulator", "mujoco_steps", "wall_s"):
         assert isinstance(row[key], (int, float))
     # found in --artifacts, not trained again: its training's seconds count in the wall time all the same
@@ -660,6 +661,19 @@ def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
     assert row["model_free"]["algorithm"] == "sac" and row["model_free"]["env_steps"] > 0
     assert row["greedy_agreement"] is None and row["greedy_regret"] is None  # the actor-critic's
     assert any(line.startswith("| point_mass-easy |") for line in lines)
+
+
+def test_bench_policies_without_the_baseline_measures_the_policy_alone(artifacts: Path) -> None:
+    """--no-baseline: the policy's row as before, no SAC trained (its columns dashes, model_free null)."""
+    lines, result = run_bench(
+        "bench/policies.py", "--quick", "--tasks", "point_mass-easy", "--artifacts", str(artifacts),
+        "--no-baseline",
+    )  # fmt: skip
+    (row,) = result["tasks"]
+    assert result["settings"]["baseline"] is False and row["model_free"] is None
+    assert isinstance(row["return_physics"], float) and row["wall_s"] > row["emulator_wall_s"] > 0
+    (line,) = [line for line in lines if line.startswith("| point_mass-easy |")]
+    assert line.endswith("| - | - | - |")
 
 
 def test_the_driven_step_benchmark_drives_a_suite_tasks_model(artifacts: Path, tmp_path: Path) -> None:
