@@ -916,7 +916,11 @@ def _add_worker_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     )
     w.add_argument("--burst", action="store_true", help="run the queued jobs, then exit")
     w.add_argument("--name", help="the worker's name (default: host.pid.random)")
-    w.add_argument("--threads", type=_positive_int, help="torch threads per job (default: WORKER_THREADS, 1)")
+    w.add_argument(
+        "--threads",
+        type=_positive_int,
+        help="torch threads per job (default: WORKER_THREADS; unset, a policy job its task's, others one)",
+    )
     w.add_argument("--max-jobs", type=_positive_int, help="exit after this many jobs")
     w.set_defaults(func=cmd_worker)
 

@@ -57,8 +57,9 @@ def perform(job_id: str, delivery: int) -> str:
         log.info("job not run", extra={"job": job_id, "delivery": delivery, "reason": why})
         return why
     # Before torch loads: its OpenMP pool reads these once.
+    # (a policy job may then ask for more: its torch_threads sets the count it trains with)
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ[var] = str(s.worker_threads)
+        os.environ[var] = str(s.worker_threads or 1)
     if job_kind(rec.spec) == POLICY:
         from services.controller.policy_execution import perform_policy  # it imports this module
 
@@ -78,7 +79,7 @@ def perform(job_id: str, delivery: int) -> str:
                 s.roots(),
                 on_progress=ProgressRecorder(store, job_id, rec.attempt),
                 should_stop=clock.should_stop,
-                threads=s.worker_threads,
+                threads=s.worker_threads or 1,
             )
         except (
             JobSpecError

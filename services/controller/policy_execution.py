@@ -68,9 +68,11 @@ def for_a_reward(spec: PolicyJobSpec) -> bool:
     return isinstance(spec.definition, RewardTaskSpec)
 
 
-def training_settings(spec: PolicyJobSpec, threads: int) -> dict[str, Any]:
+def training_settings(spec: PolicyJobSpec, threads: int | None) -> dict[str, Any]:
     """``PolicySettings``'s arguments for a job (a suite task's: ``RewardSettings``'s, its batch the
-    episodes run side by side): what the spec sets (None: the trainer's default)."""
+    episodes run side by side): what the spec sets (None: the trainer's default). ``threads`` are the
+    operator's (``WORKER_THREADS``); None: the task's own (``SuiteTask.threads``) for a reward, one
+    otherwise."""
     reward = for_a_reward(spec)
     given = {
         "seed": spec.seed,
@@ -81,7 +83,7 @@ def training_settings(spec: PolicyJobSpec, threads: int) -> dict[str, Any]:
         "seconds": spec.seconds,
         "refine": spec.refine,
         "hidden": tuple(spec.hidden),
-        "threads": threads,
+        **({"threads": threads} if threads is not None else {}),
         **{k: v for k, v in given.items() if v is not None},
     }
 

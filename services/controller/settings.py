@@ -43,5 +43,11 @@ class Settings(QueueSettings):
         "evaluation, storing): past its budget plus this it stops, ends failed, best policy stored",
     )
     # workers
-    worker_threads: int = Field(1, ge=1, le=64, description="torch threads of one job")
+    worker_threads: int | None = Field(
+        None,
+        ge=1,
+        le=64,
+        description="torch threads of one job; unset, a policy job takes its task's own (the acrobot's "
+        "two, at most the machine's cores) and every other job one",
+    )
     port: Port = 8001

@@ -33,7 +33,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     job_worker.add_arguments(p)
-    p.add_argument("--threads", type=int, help="torch threads per job (default: WORKER_THREADS, 1)")
+    p.add_argument(
+        "--threads",
+        type=int,
+        help="torch threads per job (default: WORKER_THREADS; unset, a policy job its task's, others one)",
+    )
 
 
 def run(args: argparse.Namespace, settings: Settings | None = None) -> int:

@@ -25,6 +25,7 @@ from neuroanimator.artifacts.policies import list_policies
 from services.common import tenancy
 from services.controller.policies import PolicyJobSpec
 from services.controller.policy_execution import training_settings
+from services.controller.settings import Settings
 from tests.services.controller.ctl import ARTIFACTS, QUICK, Controller, ctl_fixture, wait_for  # noqa: F401
 from tests.services.queues import sse
 
@@ -167,6 +168,26 @@ def test_a_reward_jobs_seeds_reach_its_training_and_a_goal_jobs_never_do() -> No
                            seconds=60, refine=True, hidden=[64, 64], seeds=3)  # fmt: skip
     assert training_settings(reward, threads=1)["seeds"] == 3
     assert "seeds" not in training_settings(reward.model_copy(update={"task": "lander-landing"}), threads=1)
+
+
+def test_a_jobs_threads_are_the_operators_when_set_else_its_tasks_own() -> None:
+    """WORKER_THREADS unset: the acrobot's policy trains on its task's two threads (at most the cores),
+    as the CLI and the bench train it; a goal job on one. Set: every job that many."""
+    from neuroanimator.control.policy import PolicySettings
+    from neuroanimator.control.reward_policy import RewardSettings
+    from neuroanimator.control.seed_race import thread_count
+    from neuroanimator.control.suite_tasks import SUITE_TASKS
+
+    acrobot = SUITE_TASKS["acrobot-swingup"]
+    reward = PolicyJobSpec(task=acrobot.name, model="acrobot", emulator_version="v", substeps=5,
+                           seconds=60, refine=False, hidden=[64])  # fmt: skip
+    cores = min(acrobot.threads, os.cpu_count() or 1)
+    assert acrobot.threads == 2 and Settings.model_fields["worker_threads"].default is None
+    assert thread_count(acrobot, RewardSettings(**training_settings(reward, threads=None))) == cores
+    assert thread_count(acrobot, RewardSettings(**training_settings(reward, threads=1))) == 1
+    goal = reward.model_copy(update={"task": "lander-landing", "model": "lander"})
+    assert PolicySettings(**training_settings(goal, threads=None)).threads == 1
+    assert PolicySettings(**training_settings(goal, threads=3)).threads == 3
 
 
 def test_unknown_task_lists_the_built_in_ones(ctl: Controller) -> None:
