@@ -611,7 +611,9 @@ def test_a_training_ends_within_its_budget_its_final_judging_included(
     """``seconds`` is the whole training's: learning stops early enough for its last check, the final
     episodes on MuJoCo and (value iteration) the measure of how closely the copy follows, at the pace
     they ran so far (here half a second an episode on MuJoCo on top of its own: a training that judged
-    after its budget would end seconds past it). Episodes of 200 steps, so that rounds are short."""
+    after its budget would end seconds past it), and (value iteration) a round of copying foreseen to
+    take longer than the one before, as its labels grow (here 2 s more each round: a round foreseen as
+    long as the last would end past the budget). Episodes of 200 steps, so that rounds are short."""
     path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
     how = ValueIteration(
         share=0.2,
@@ -637,7 +639,17 @@ def test_a_training_ends_within_its_budget_its_final_judging_included(
         return episodes(act, n, rng)
 
     monkeypatch.setattr(trainer, "episodes", slow_episodes)
+    copy_round = ValueFitter.copy_round
+    rounds: list[int] = []
+
+    def growing_rounds(fitter: ValueFitter, round_index: int, opt: torch.optim.Optimizer) -> float:
+        rounds.append(round_index)
+        time.sleep(2.0 * round_index)
+        return copy_round(fitter, round_index, opt)
+
+    monkeypatch.setattr(ValueFitter, "copy_round", growing_rounds)
     result = trainer.train()
+    assert len(rounds) >= 2 or learner == "actor-critic"
     assert len(result.return_history) >= 2 and trainer.episode_check_s >= 0.5
     assert 0.6 * settings.seconds <= result.wall_s <= settings.seconds + 0.5
     assert trainer.deadline() < settings.seconds - settings.final_episodes * 0.5
