@@ -343,6 +343,54 @@ def test_value_iteration_backs_up_the_least_of_its_values_and_keeps_the_best_che
     assert fitter.emulated_return() == pytest.approx(best, rel=1e-3, abs=1e-3)
 
 
+def test_value_iterations_greedy_policy_runs_on_mujoco_and_its_runs_refine_the_emulator(
+    artifacts: Path,
+) -> None:
+    """Every ``refine_every`` iterations the greedy policy runs on MuJoCo (its steps counted, its runs
+    kept as restarts and learned by the emulator where its returns there and on MuJoCo differ); the
+    last V is run too when its iteration had no run."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    how = ValueIteration(share=0.5, states=256, candidates=3, batch=128, iterations=7, check_every=0,
+                         refine_every=3, refine_episodes=2)  # fmt: skip
+    trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how))
+    before = {k: v.clone() for k, v in trainer.emu.state_dict().items()}
+    fitter = ValueFitter(trainer, how)
+    fitter.fit(600.0)
+    assert [at for at, _ in fitter.mujoco_checks] == [3, 6, 7]
+    assert len(trainer.runs) == len(trainer.visited) == 3
+    assert all(r.states.shape[0] == 2 for r in trainer.runs)
+    per_run = 2 * TASK.episode_steps * TASK.control_substeps
+    assert trainer.mujoco_steps >= 3 * per_run
+    assert trainer.refinements == 3  # the gap that refines is 0 in QUICK: any gap refines
+    assert any(not torch.equal(v, trainer.emu.state_dict()[k]) for k, v in before.items())
+    with pytest.raises(ValueError, match="runs on MuJoCo"):
+        ValueIteration(refine_every=-1)
+
+
+def test_with_runs_on_mujoco_the_value_kept_is_the_one_whose_greedy_policy_earned_most_there(
+    artifacts: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Checked on MuJoCo, the V kept is the best there, whatever it earned on the emulator."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    how = ValueIteration(share=0.5, states=256, candidates=3, batch=128, iterations=6, check_every=2,
+                         check_episodes=2, refine_every=2)  # fmt: skip
+    trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how))
+    fitter = ValueFitter(trainer, how)
+    earned = iter([5.0, 9.0, 1.0])
+    seen: list[dict[str, Tensor]] = []
+
+    def scripted() -> float:
+        seen.append(copy.deepcopy(fitter.value.state_dict()))
+        fitter.mujoco_checks.append((fitter.iterations, next(earned)))
+        return fitter.mujoco_checks[-1][1]
+
+    monkeypatch.setattr(fitter, "on_mujoco", scripted)
+    fitter.fit(600.0)
+    assert len(seen) == 3
+    for k, v in fitter.value.state_dict().items():
+        assert torch.equal(v, seen[1][k])
+
+
 @pytest.mark.parametrize("copy_as", ["choice", "control"])
 def test_value_iteration_copies_the_greedy_policy_into_the_network_round_by_round(
     artifacts: Path, copy_as: str
