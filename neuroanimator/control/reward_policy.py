@@ -806,6 +806,22 @@ class RewardTrainer:
         return ~torch.isfinite(s).all(dim=1) | (z.abs() > FEATURE_LIMIT).any(dim=1)
 
     # ------------------------------------------------------------------ refinement
+    def keep_runs(self, runs: Episodes, emulated: float, may_refine: bool = True) -> bool:
+        """Keep a check's MuJoCo ``runs`` (restarts begin from their states; the emulator learns them)
+        and, where ``may_refine``, refine the emulator when their mean return is off the ``emulated``
+        one from the same starts by more than ``refine_gap`` of an episode. Whether it was refined."""
+        cfg = self.settings
+        self.runs.append(runs)
+        n, k1, width = runs.states.shape
+        self.visited.append(
+            (runs.states.reshape(-1, width), np.repeat(runs.params, k1, axis=0).reshape(n * k1, -1))
+        )
+        gap = abs(emulated - runs.mean) / self.task.episode_steps
+        refined = cfg.refine and may_refine and gap > cfg.refine_gap
+        if refined:
+            self.refine()
+        return refined
+
     def refine(self) -> None:
         """Fine-tune the emulator on every MuJoCo run of the policy so far (windows of
         ``REFINE_WINDOW`` super-steps) and on ``refine_keep`` windows of the typical motion it was
@@ -1055,14 +1071,7 @@ class RewardTrainer:
                     if self.took_from is not None:  # the optimisers' moments were the old weights'
                         opt_actor = torch.optim.Adam(self.policy.parameters(), lr=cfg.actor_lr)
                         opt_critic = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
-                self.runs.append(runs)
-                n, k1, width = runs.states.shape
-                self.visited.append(
-                    (runs.states.reshape(-1, width), np.repeat(runs.params, k1, axis=0).reshape(n * k1, -1))
-                )
-                gap = abs(emulated - last_return) / task.episode_steps
-                if cfg.refine and gap > cfg.refine_gap and self.elapsed() < 0.9 * cfg.seconds:
-                    self.refine()
+                self.keep_runs(runs, emulated, may_refine=self.elapsed() < 0.9 * cfg.seconds)
                 next_check = self.elapsed() + check_every
                 if self.elapsed() >= 0.25 * cfg.seconds and self.outside_share > cfg.max_outside:
                     stop = OUTSIDE

@@ -412,15 +412,7 @@ class ValueFitter:
         runs = tr.episodes(self.act, self.how.refine_episodes, self.rng)
         emulated = tr.emulated_return(runs.states[:, 0], runs.params, self.greedy)
         self.mujoco_checks.append((self.iterations, runs.mean))
-        tr.runs.append(runs)
-        n, k1, width = runs.states.shape
-        tr.visited.append(
-            (runs.states.reshape(-1, width), np.repeat(runs.params, k1, axis=0).reshape(n * k1, -1))
-        )
-        gap = abs(emulated - runs.mean) / tr.task.episode_steps
-        refined = tr.settings.refine and gap > tr.settings.refine_gap
-        if refined:
-            tr.refine()
+        refined = tr.keep_runs(runs, emulated)
         log.info(
             "%s: value iteration %d, its greedy policy's return on MuJoCo %.1f, on the emulator %.1f%s",
             tr.task.name, self.iterations, runs.mean, emulated, " (the emulator refined)" if refined else "",
