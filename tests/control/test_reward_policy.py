@@ -25,6 +25,7 @@ from torch import Tensor
 
 from neuroanimator.artifacts import registry
 from neuroanimator.artifacts.policies import read_policy, resolve_policy
+from neuroanimator.control import value_iteration
 from neuroanimator.control.exploring_runs import ExploringRuns, random_runs
 from neuroanimator.control.planner import PlannerSettings, SamplingPlanner
 from neuroanimator.control.planner_copy import CopySettings, PlannerCopy
@@ -278,11 +279,15 @@ def held_by_hand(fitter: ValueFitter, s: Tensor, p: Tensor, cands: Tensor) -> tu
     return torch.stack(q), paid
 
 
-@pytest.mark.parametrize("hold", [1, 3])
-def test_value_iteration_backs_up_the_best_held_control(artifacts: Path, hold: int) -> None:
+@pytest.mark.parametrize(("hold", "rows"), [(1, value_iteration.BACKUP_ROWS), (3, 5)])
+def test_value_iteration_backs_up_the_best_held_control(
+    artifacts: Path, hold: int, rows: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The backup is, from each state, the best candidate's discounted rewards while it is held
     ``hold`` super-steps plus the discounted value where it ends (recomputed here by hand); the
-    next states it gives are one super-step on, and V's bounds are the rewards seen over 1 − γ."""
+    next states it gives are one super-step on, and V's bounds are the rewards seen over 1 − γ.
+    Stepped in pieces of ``rows`` (5: pieces that cut across the candidates), the same."""
+    monkeypatch.setattr(value_iteration, "BACKUP_ROWS", rows)
     path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
     how = ValueIteration(share=0.5, states=1024, candidates=5, batch=256, hold=hold)
     trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how, seed=2))
