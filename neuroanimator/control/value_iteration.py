@@ -178,11 +178,6 @@ class ValueIteration:
             raise ValueError(f"value iteration's blend is a temperature above 0 or None, not {self.blend}")
 
 
-def _pieces(rows: int) -> range:
-    """Where each piece of ``BACKUP_ROWS`` rows begins (one, empty, for no rows)."""
-    return range(0, max(rows, 1), BACKUP_ROWS)
-
-
 def candidate_controls(low: np.ndarray, high: np.ndarray, count: int, rng: np.random.Generator) -> Tensor:
     """(C, U) controls to try from every state: ``count`` evenly over the range of a single control;
     for U controls and a ``count`` of kᵁ, the grid of k evenly over each control's range (the
@@ -267,8 +262,10 @@ class ValueFitter:
         x, p_rep, u = s.repeat(c, 1), p.repeat(c, 1), cands.repeat_interleave(b, dim=0)
         # stepped in pieces (``BACKUP_ROWS``), V read once every piece's rewards have set its bounds
         pieces = [
-            self.held_steps(x[i : i + BACKUP_ROWS], p_rep[i : i + BACKUP_ROWS], u[i : i + BACKUP_ROWS])
-            for i in _pieces(len(x))
+            self.held_steps(*piece)
+            for piece in zip(
+                x.split(BACKUP_ROWS), p_rep.split(BACKUP_ROWS), u.split(BACKUP_ROWS), strict=True
+            )
         ]
         paid, took, end, nxt = (torch.cat(part) for part in zip(*pieces, strict=True))
         return self.value_after(paid, took, end, p_rep, target).reshape(c, b), nxt.reshape(c, b, -1)
@@ -306,6 +303,7 @@ class ValueFitter:
             discount *= tr.gamma
         return paid, took, x, nxt
 
+    @torch.no_grad()
     def value_after(
         self, paid: Tensor, took: Tensor, end: Tensor, p_rep: Tensor, target: torch.nn.Module
     ) -> Tensor:
@@ -314,7 +312,7 @@ class ValueFitter:
         emulator did not take every step (``took`` (N,))."""
         low, high = self.value_bounds()
         v = torch.cat(
-            [target(end[i : i + BACKUP_ROWS], p_rep[i : i + BACKUP_ROWS]) for i in _pieces(len(end))]
+            [target(e, p) for e, p in zip(end.split(BACKUP_ROWS), p_rep.split(BACKUP_ROWS), strict=True)]
         )
         q = paid + self.trainer.gamma**self.how.hold * torch.nan_to_num(v, nan=0.0).clamp(low, high)
         # a step the emulator could not take is worth nothing (a state far out is clamped by the features)
