@@ -959,7 +959,8 @@ class RewardTrainer:
     ) -> tuple[tuple[float, dict[str, Tensor]], list[tuple[int, float, float]], int, str]:
         """The critic by value iteration for ``how.share`` of the budget, then rounds of copying the
         policy greedy over it until the budget is spent, each checked on MuJoCo and the best kept
-        (``value_iteration``); returns as ``learn`` does."""
+        (``value_iteration``), and with ``how.actor_critic`` the actor-critic from the best copy for
+        that share of the budget; returns as ``learn`` does."""
         cfg = self.settings
         fitter = self.value_fitter = ValueFitter(self, how)
         fitter.fit(how.share * cfg.seconds - self.elapsed())
@@ -971,9 +972,11 @@ class RewardTrainer:
         # how closely the kept policy follows the greedy one, is not begun; a round takes longer than
         # the one before it as its labels grow (the ball in the cup's 21 s to 30 s over 13 rounds,
         # 3.5 s more in its last: 4 s past its budget), so the next is foreseen as the last one and
-        # its growth, a quarter on top as for the judging
+        # its growth, a quarter on top as for the judging; the actor-critic's share (``actor_critic``)
+        # comes after them
+        copy_until = self.deadline() - how.actor_critic * cfg.seconds
         while (
-            it == first or self.elapsed() + FINISH_MARGIN * (next_s + fitter.follows_s()) < self.deadline()
+            it == first or self.elapsed() + FINISH_MARGIN * (next_s + fitter.follows_s()) < copy_until
         ) and (cfg.max_iterations is None or it < cfg.max_iterations):
             if self.should_stop is not None and self.should_stop():
                 stop = "cancelled"
@@ -996,8 +999,11 @@ class RewardTrainer:
             took = time.perf_counter() - began
             growth = max(0.0, took - round_s) if round_s else 0.0  # none known after the first round
             next_s, round_s = took + growth, took
-        # how closely the kept policy follows the greedy one, where it goes itself
         self.policy.load_state_dict(best[1])
+        if how.actor_critic and stop == "budget":  # from the best copy, its critic the fitted V
+            best, history, it, stop = self.learn(best, history, it)
+            self.policy.load_state_dict(best[1])
+        # how closely the kept policy follows the greedy one, where it goes itself
         self.greedy_follow = fitter.follows()
         log.info(
             "%s: the policy takes the greedy policy's control in %.1f %% of the states it drives to, "

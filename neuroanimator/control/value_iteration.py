@@ -148,6 +148,11 @@ class ValueIteration:
     # model must be right where that policy goes. 0: never (the V kept by its emulated return)
     refine_every: int = 0
     refine_episodes: int = 8
+    # the last this share of the budget: the actor-critic trains on from the copy (``RewardTrainer.learn``),
+    # the fitted V its critic's start, so that the policy's gradient through the emulator polishes
+    # what the few candidates could only approximate (a hopper standing on one foot is no series of
+    # full-torque kicks); the copy's rounds end where it begins. 0: the copy is the policy
+    actor_critic: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.share < 1.0:
@@ -171,6 +176,10 @@ class ValueIteration:
         if self.refine_every < 0 or (self.refine_every and self.refine_episodes < 1):
             raise ValueError(
                 "value iteration's runs on MuJoCo are every n ≥ 0 iterations over at least one start"
+            )
+        if not 0.0 <= self.actor_critic < 1.0 - self.share:
+            raise ValueError(
+                f"value iteration's actor-critic share is in [0, 1 − share), not {self.actor_critic}"
             )
         if not self.temperature > 0.0:
             raise ValueError(f"value iteration's temperature is above 0, not {self.temperature}")

@@ -197,6 +197,8 @@ def test_value_iterations_candidates_span_one_controls_range_and_sample_the_box_
         ValueIteration(check_every=-1)
     with pytest.raises(ValueError, match="at least one super-step, not 0"):
         ValueIteration(hold=0)
+    with pytest.raises(ValueError, match=r"actor-critic share is in \[0, 1 − share\), not 0.3"):
+        ValueIteration(share=0.8, actor_critic=0.3)
     with pytest.raises(ValueError, match="value_iteration is settings, None or 'off'"):
         RewardSettings(value_iteration="on")
 
@@ -446,6 +448,48 @@ def test_value_iteration_copies_the_greedy_policy_into_the_network_round_by_roun
     off = RewardTrainer(replace(TASK, value_iteration=how), path, replace(QUICK, value_iteration="off"))
     assert off.value_iteration is None and next(off.critic.parameters()).shape[0] == QUICK.critic_hidden[0]
     assert type(off.policy) is RewardPolicy
+
+
+def test_value_iteration_hands_its_best_copy_and_its_value_to_the_actor_critic(
+    artifacts: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``actor_critic``: the copy's rounds end that share of the budget early, and the actor-critic
+    trains on from the best copy with the fitted V as its critic (its target the same), its
+    iterations counted after the rounds and its checks beside theirs in the history."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    how = ValueIteration(share=0.01, states=256, candidates=3, batch=128, iterations=3, episodes=4, epochs=2,
+                         actor_critic=0.98)  # fmt: skip
+    trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how, max_iterations=5))
+    copies: list[dict[str, Tensor]] = []
+    copy_round = ValueFitter.copy_round
+
+    def recorded_round(fitter: ValueFitter, index: int, opt: torch.optim.Optimizer) -> float:
+        loss = copy_round(fitter, index, opt)
+        copies.append(copy.deepcopy(trainer.policy.state_dict()))
+        return loss
+
+    monkeypatch.setattr(ValueFitter, "copy_round", recorded_round)
+    began: list[tuple[dict[str, Tensor], bool, bool]] = []
+    iterate = trainer.iterate
+
+    def recorded_iterate(s: Tensor, p: Tensor, opt_actor: Any, opt_critic: Any) -> tuple[Tensor, float]:
+        critic, target = trainer.critic.state_dict(), trainer.target_critic.state_dict()
+        fitted = trainer.value_fitter is not None and trainer.critic is trainer.value_fitter.value.values[0]
+        synced = all(torch.equal(critic[k], target[k]) for k in critic)
+        began.append((copy.deepcopy(trainer.policy.state_dict()), fitted, synced))
+        return iterate(s, p, opt_actor, opt_critic)
+
+    monkeypatch.setattr(trainer, "iterate", recorded_iterate)
+    result = trainer.train()
+    rounds = len(copies)
+    assert rounds >= 1 and result.iterations == 5 and len(began) == 5 - rounds
+    # the first actor-critic update starts from the copy checked best (one round: that round's)
+    if rounds == 1:
+        assert all(torch.equal(began[0][0][k], v) for k, v in copies[0].items())
+    assert began[0][1] and began[0][2]  # the fitted value is its critic, the target synced with it
+    its = [it for it, _, _ in result.return_history]
+    assert its[:rounds] == list(range(1, rounds + 1)) and its[-1] == 5
+    assert 0 <= result.return_physics <= TASK.episode_steps and result.greedy_agreement is not None
 
 
 def _recorded(evaluate: Callable[[int, int], Any], calls: list[tuple[int, int]]) -> Callable[[int, int], Any]:
