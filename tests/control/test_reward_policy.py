@@ -487,6 +487,8 @@ def test_value_iteration_hands_its_best_copy_and_its_value_to_the_actor_critic(
     if rounds == 1:
         assert all(torch.equal(began[0][0][k], v) for k, v in copies[0].items())
     assert began[0][1] and began[0][2]  # the fitted value is its critic, the target synced with it
+    # its end leaves time for measuring how closely the policy follows the greedy one
+    assert trainer.value_fitter is not None and trainer.measure_after_s > 0.0
     its = [it for it, _, _ in result.return_history]
     assert its[:rounds] == list(range(1, rounds + 1)) and its[-1] == 5
     assert 0 <= result.return_physics <= TASK.episode_steps and result.greedy_agreement is not None
