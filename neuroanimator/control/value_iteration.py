@@ -189,6 +189,10 @@ class ValueIteration:
             raise ValueError(
                 f"value iteration's actor-critic share is in [0, 1 − share), not {self.actor_critic}"
             )
+        if self.actor_critic and self.copy_as == "choice" and self.blend is None:
+            raise ValueError(
+                "value iteration's actor-critic needs a copy its gradient reaches: a blend, or copy_as 'control'"
+            )
         if not self.temperature > 0.0:
             raise ValueError(f"value iteration's temperature is above 0, not {self.temperature}")
         if self.blend is not None and not self.blend > 0.0:

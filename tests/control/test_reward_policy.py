@@ -199,6 +199,8 @@ def test_value_iterations_candidates_span_one_controls_range_and_sample_the_box_
         ValueIteration(hold=0)
     with pytest.raises(ValueError, match=r"actor-critic share is in \[0, 1 − share\), not 0.3"):
         ValueIteration(share=0.8, actor_critic=0.3)
+    with pytest.raises(ValueError, match="needs a copy its gradient reaches"):
+        ValueIteration(actor_critic=0.1)  # a choice of the best-scored candidate has no gradient
     with pytest.raises(ValueError, match="value_iteration is settings, None or 'off'"):
         RewardSettings(value_iteration="on")
 
@@ -458,7 +460,7 @@ def test_value_iteration_hands_its_best_copy_and_its_value_to_the_actor_critic(
     iterations counted after the rounds and its checks beside theirs in the history."""
     path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
     how = ValueIteration(share=0.01, states=256, candidates=3, batch=128, iterations=3, episodes=4, epochs=2,
-                         actor_critic=0.98)  # fmt: skip
+                         blend=1.0, actor_critic=0.98)  # fmt: skip
     trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how, max_iterations=5))
     copies: list[dict[str, Tensor]] = []
     copy_round = ValueFitter.copy_round
