@@ -977,9 +977,10 @@ class RewardTrainer:
         # 3.5 s more in its last: 4 s past its budget), so the next is foreseen as the last one and
         # its growth, a quarter on top as for the judging; the actor-critic's share (``actor_critic``)
         # comes after them
-        copy_until = self.deadline() - how.actor_critic * cfg.seconds
+        reserved = how.actor_critic * cfg.seconds
         while (
-            it == first or self.elapsed() + FINISH_MARGIN * (next_s + fitter.follows_s()) < copy_until
+            it == first
+            or self.elapsed() + FINISH_MARGIN * (next_s + fitter.follows_s()) < self.deadline() - reserved
         ) and (cfg.max_iterations is None or it < cfg.max_iterations):
             if self.should_stop is not None and self.should_stop():
                 stop = "cancelled"
