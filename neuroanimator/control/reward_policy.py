@@ -348,7 +348,8 @@ class RewardResult:
     # every seed's final return on the same MuJoCo episodes, when several were trained side by side
     # (``seed_race``; this result is the best of them)
     seed_returns: list[float] = field(default_factory=list)
-    # the seed whose policy and critic this one took when the seeds met (``RewardSettings.meet_at``)
+    # the seed whose policy and critic this one took when the seeds met (``RewardSettings.meet_at``),
+    # or whose value (``ValueIteration.meet``)
     took_from: int | None = None
     # with value iteration (``ValueFitter.follows``): the share of the emulated states the kept policy
     # drives to where its control is the greedy policy's over the value, and the backed-up value its
@@ -462,10 +463,25 @@ def root_drift(
     return float(gap[torch.isfinite(gap)].mean()) if bool(torch.isfinite(gap).any()) else math.inf
 
 
+def value_iteration_of(task: SuiteTask, settings: RewardSettings) -> ValueIteration | None:
+    """How the value is fitted by value iteration: the settings', else the task's; None for the
+    actor-critic alone (``RewardSettings.value_iteration``)."""
+    how = task.value_iteration if settings.value_iteration is None else settings.value_iteration
+    return how if isinstance(how, ValueIteration) else None
+
+
+def seeds_meet(task: SuiteTask, settings: RewardSettings) -> bool:
+    """Whether seeds side by side meet (once): at a check past ``RewardSettings.meet_at``, or when
+    their values are fitted (``ValueIteration.meet``)."""
+    how = value_iteration_of(task, settings)
+    return settings.meet_at is not None or (how is not None and how.meet)
+
+
 @dataclass
 class Meeting:
     """What a seed brings to the meeting of seeds trained side by side (``RewardSettings.meet_at``):
-    its best return on MuJoCo's checks so far, the policy that earned it and its critics."""
+    its best return on MuJoCo's checks so far, the policy that earned it and its critics; or, met
+    when their values are fitted (``ValueIteration.meet``), its value's check and the value."""
 
     seed: int
     best_return: float
@@ -532,8 +548,7 @@ class RewardTrainer:
         self.low = np.array([c.low for c in self.manifest.controls])
         self.high = np.array([c.high for c in self.manifest.controls])
         self.exploring = task.exploring if settings.exploring is None else settings.exploring
-        how = task.value_iteration if settings.value_iteration is None else settings.value_iteration
-        vi = self.value_iteration = how if isinstance(how, ValueIteration) else None
+        vi = self.value_iteration = value_iteration_of(task, settings)
         self.value_fitter: ValueFitter | None = None  # its value and labels, once ``learn_from_value`` ran
         # the kept policy beside the greedy one over the value (``ValueFitter.follows``), once copied
         self.greedy_follow: tuple[float, float] | None = None
@@ -907,6 +922,31 @@ class RewardTrainer:
         self.took_from = other.seed
         return other.best_return, copy.deepcopy(other.policy)
 
+    def meet_over_values(self, fitter: ValueFitter) -> None:
+        """Meet the other seeds once their values are fitted (``ValueIteration.meet``): a seed whose
+        V's check (``ValueFitter.value_check``) is behind the best one's takes that V (all its
+        critics) and copies it from its own draws."""
+        meet, self.meet = self.meet, None  # once
+        assert meet is not None
+        mine = Meeting(
+            self.settings.seed,
+            fitter.value_check,
+            copy.deepcopy(self.policy.state_dict()),
+            copy.deepcopy(fitter.value.state_dict()),
+            copy.deepcopy(self.target_critic.state_dict()),
+        )
+        other = meet(mine)
+        if other is None or other.seed == self.settings.seed:
+            return
+        log.info(
+            "%s: seed %d (its value's check %.1f) takes seed %d's value (%.1f)",
+            self.task.name, self.settings.seed, fitter.value_check, other.seed, other.best_return,
+        )  # fmt: skip
+        fitter.value.load_state_dict(other.critic)
+        self.target_critic.load_state_dict(self.critic.state_dict())
+        fitter.value_check = other.best_return
+        self.took_from = other.seed
+
     # ------------------------------------------------------------------ the loop
     def elapsed(self) -> float:
         return time.perf_counter() - self.t0
@@ -967,6 +1007,8 @@ class RewardTrainer:
         cfg = self.settings
         fitter = self.value_fitter = ValueFitter(self, how)
         fitter.fit(how.share * cfg.seconds - self.elapsed())
+        if how.meet and self.meet is not None:
+            self.meet_over_values(fitter)
         opt = torch.optim.Adam(self.policy.parameters(), lr=how.lr)
         stop, first, round_s, next_s = "budget", it, 0.0, 0.0
         # (episodes, seed) of the same starts every round (``fixed_checks``), drawn once

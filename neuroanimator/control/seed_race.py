@@ -18,6 +18,8 @@ of the budget (population-based training's exploit step): each sends its best re
 policy that earned it and its critics; once every seed still training has met, the best keeps its
 own and the others take its policy and critics, and train on from their own draws (a seed that ended
 before meeting is not waited for). Each result says whose policy it took (``RewardResult.took_from``).
+With value iteration's ``meet`` they meet instead once their values are fitted, and those behind take
+the best one's value (``RewardTrainer.meet_over_values``).
 
 Progress reaches the caller's ``on_progress`` as one stream (the best return so far, the MuJoCo steps
 of all seeds together); ``should_stop`` stops them all, each keeping its best policy so far.
@@ -42,6 +44,7 @@ from neuroanimator.control.reward_policy import (
     RewardResult,
     RewardSettings,
     RewardTrainer,
+    seeds_meet,
 )
 from neuroanimator.control.suite_tasks import SuiteTask
 from neuroanimator.control.threads import torch_threads
@@ -165,7 +168,7 @@ def _race(
     )
     results: dict[int, RewardResult] = {}
     latest: dict[int, RewardProgress] = {}
-    met: dict[int, Meeting] | None = {} if settings.meet_at is not None else None
+    met: dict[int, Meeting] | None = {} if seeds_meet(task, settings) else None
     try:
         while len(results) < seeds:
             if should_stop is not None and should_stop():
@@ -216,11 +219,11 @@ def _race(
 
 
 def _answer(task: SuiteTask, met: dict[int, Meeting], replies: list[Any]) -> None:
-    """Every seed still training has met (``RewardSettings.meet_at``): the best one keeps its own,
-    the others are sent its policy and critics."""
+    """Every seed still training has met (``seeds_meet``): the best one keeps its own, the others
+    are sent its policy and critics."""
     top = max(met.values(), key=lambda m: m.best_return)
     log.info(
-        "%s: the seeds met (best returns %s); seed %d's policy goes on in all",
+        "%s: the seeds met (best returns %s); seed %d's goes on in all",
         task.name,
         {m.seed: round(m.best_return, 1) for m in met.values()},
         top.seed,
@@ -296,7 +299,7 @@ def _seed_worker(
             settings,
             lambda p: messages.put(("progress", index, p)),
             should_stop,
-            meet if settings.meet_at is not None else None,
+            meet if seeds_meet(task, settings) else None,
         )
     except Exception as e:  # sent back whole, so the caller raises what one seed would have raised
         messages.put(("error", index, e if _sendable(e) else RuntimeError(f"{type(e).__name__}: {e}")))

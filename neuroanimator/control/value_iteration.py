@@ -161,6 +161,11 @@ class ValueIteration:
     # what the few candidates could only approximate (a hopper standing on one foot is no series of
     # full-torque kicks); the copy's rounds end where it begins. 0: the copy is the policy
     actor_critic: float = 0.0
+    # seeds trained side by side (``seed_race``) meet once their values are fitted: each brings its
+    # V's best check (its greedy policy's return on MuJoCo with ``refine_every``, else on the
+    # emulator), and those behind take the best one's V and copy it from their own draws; the
+    # actor-critic cannot mend a poor V (the hopper's: greedy 66 on MuJoCo, the actor-critic 4)
+    meet: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 < self.share < 1.0:
@@ -192,6 +197,10 @@ class ValueIteration:
         if self.actor_critic and self.copy_as == "choice" and self.blend is None:
             raise ValueError(
                 "value iteration's actor-critic needs a copy its gradient reaches: a blend, or copy_as 'control'"
+            )
+        if self.meet and not (self.refine_every or self.check_every):
+            raise ValueError(
+                "value iteration's seeds meet on their values' checks: refine_every or check_every"
             )
         if not self.temperature > 0.0:
             raise ValueError(f"value iteration's temperature is above 0, not {self.temperature}")
@@ -259,6 +268,9 @@ class ValueFitter:
         self.check_params = torch.as_tensor(trainer.start_params[pick], dtype=torch.float32)
         self.checks: list[tuple[int, float]] = []  # (iteration, the greedy policy's emulated return)
         self.mujoco_checks: list[tuple[int, float]] = []  # (iteration, its return on MuJoCo)
+        # the kept V's check: its greedy policy's return on MuJoCo (``refine_every``), else on the
+        # emulator, once fitted (-inf without checks)
+        self.value_check = -math.inf
         # seconds an emulated episode labelled by the greedy policy took in the latest round of
         # copying: ``follows`` runs ``check_episodes`` such episodes (``follows_s``)
         self.labelled_episode_s = 0.0
@@ -437,13 +449,16 @@ class ValueFitter:
                     "%s: value iteration %d, loss %.4g, %.0f s",
                     tr.task.name, self.iterations, loss, time.perf_counter() - t0,
                 )  # fmt: skip
+        last = -math.inf
         if how.refine_every:
             # the last V's return on MuJoCo: its check's, when the last iteration had one
             checked = self.mujoco_checks and self.mujoco_checks[-1][0] == self.iterations
-            if (self.mujoco_checks[-1][1] if checked else self.on_mujoco()) < best[0]:
-                self.value.load_state_dict(best[1])
-        elif how.check_every and self.emulated_return() < best[0]:
+            last = self.mujoco_checks[-1][1] if checked else self.on_mujoco()
+        elif how.check_every:
+            last = self.emulated_return()
+        if last < best[0]:
             self.value.load_state_dict(best[1])
+        self.value_check = max(last, best[0])
         tr.target_critic.load_state_dict(tr.critic.state_dict())
         log.info(
             "%s: value fitted in %d iterations (loss %.4g); its greedy policy's emulated returns %s, "

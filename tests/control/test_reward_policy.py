@@ -461,7 +461,9 @@ def test_value_iteration_hands_its_best_copy_and_its_value_to_the_actor_critic(
     path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
     how = ValueIteration(share=0.01, states=256, candidates=3, batch=128, iterations=3, episodes=4, epochs=2,
                          blend=1.0, actor_critic=0.98)  # fmt: skip
-    trainer = RewardTrainer(TASK, path, replace(QUICK, value_iteration=how, max_iterations=5))
+    # a budget its iterations end well within, on a busy machine too (the measure after the
+    # actor-critic is kept from its end at the greedy episodes' pace)
+    trainer = RewardTrainer(TASK, path, replace(QUICK, seconds=600.0, value_iteration=how, max_iterations=5))
     copies: list[dict[str, Tensor]] = []
     copy_round = ValueFitter.copy_round
 
@@ -676,6 +678,62 @@ def test_seeds_side_by_side_meet_and_go_on_from_the_best(
     assert "the seeds met" in caplog.text
     assert len(result.seed_returns) == 2 and result.seed_returns[0] == result.seed_returns[1]
     assert result.took_from in (None, 5, 6) and result.took_from != result.seed
+
+
+MEETING_VALUES = ValueIteration(share=0.01, states=256, candidates=3, batch=128, iterations=3, episodes=4,
+                                epochs=2, meet=True)  # fmt: skip
+
+
+def test_a_seed_whose_value_is_behind_copies_the_best_ones_value(
+    artifacts: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``ValueIteration.meet``: once its value is fitted a seed brings the value and its check; told
+    of a better one, it copies that value instead of its own, and says whose it took. Told to keep
+    its own (None), it copies its own."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    settings = replace(QUICK, seed=1, value_iteration=MEETING_VALUES, max_iterations=2)
+    donor = RewardTrainer(TASK, path, replace(settings, seed=9))
+    donated = ValueFitter(donor, MEETING_VALUES).value.state_dict()
+    theirs = Meeting(99, 1e9, donor.policy.state_dict(), donated, donor.target_critic.state_dict())
+    brought: list[Meeting] = []
+    copied_from: list[dict[str, Tensor]] = []
+    copy_round = ValueFitter.copy_round
+
+    def recorded_round(fitter: ValueFitter, index: int, opt: torch.optim.Optimizer) -> float:
+        copied_from.append(copy.deepcopy(fitter.value.state_dict()))
+        return copy_round(fitter, index, opt)
+
+    monkeypatch.setattr(ValueFitter, "copy_round", recorded_round)
+
+    def meet(mine: Meeting) -> Meeting:
+        brought.append(mine)
+        return theirs
+
+    result = RewardTrainer(TASK, path, settings, meet=meet).train()
+    (mine,) = brought  # once, with the value's check on the emulator
+    assert mine.seed == 1 and math.isfinite(mine.best_return) and result.took_from == 99
+    assert all(torch.equal(copied_from[0][k], v) for k, v in donated.items())
+    copied_from.clear()
+    alone = RewardTrainer(TASK, path, settings, meet=lambda m: None).train()
+    assert alone.took_from is None
+    assert not all(torch.equal(copied_from[0][k], v) for k, v in donated.items())
+
+
+def test_seeds_side_by_side_meet_when_their_values_are_fitted(
+    artifacts: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Two seeds whose value iteration says ``meet``: they meet once, after their values (no
+    ``meet_at``), and the one behind says whose value it took."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    caplog.set_level(logging.INFO, logger="neuroanimator.control.seed_race")
+    settings = replace(QUICK, seed=5, seeds=2, value_iteration=MEETING_VALUES, max_iterations=2)
+    result = train_reward_policy(TASK, path, settings)
+    assert caplog.text.count("the seeds met") == 1
+    assert (
+        len(result.seed_returns) == 2 and result.took_from in (None, 5, 6) and result.took_from != result.seed
+    )
+    with pytest.raises(ValueError, match="meet on their values' checks"):
+        replace(MEETING_VALUES, check_every=0)
 
 
 def test_seeds_side_by_side_stop_together_and_raise_what_one_seed_raises(artifacts: Path) -> None:
