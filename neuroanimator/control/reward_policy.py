@@ -367,20 +367,29 @@ class RewardResult:
 
 
 class FallReport(TypedDict):
-    """A fall in an episode on MuJoCo: which episode, when (seconds into it) and the state it lay in."""
+    """A fall in an episode on MuJoCo: which episode, when (seconds into it), the state it lay in and
+    when it was up again (None: it stayed down)."""
 
     episode: int
     time_s: float
     state: list[float]
+    up_again_s: float | None
 
 
 def falls(task: SuiteTask, ctx: Context, runs: Episodes, policy_step_s: float) -> list[FallReport]:
-    """The first fall of each episode (``SuiteTask.fall``), none for a task without one."""
+    """The first fall of each episode (``SuiteTask.fall``) and whether it got up again after it, none
+    for a task without one."""
     if task.fall is None:
         return []
     first = task.fall.first(ctx, runs.states, settle=math.ceil(task.fall.settle_s / policy_step_s - 1e-9))
+    again = task.fall.up_again(ctx, runs.states, first)
     return [
-        {"episode": i, "time_s": round(float(k * policy_step_s), 3), "state": runs.states[i, k].tolist()}
+        {
+            "episode": i,
+            "time_s": round(float(k * policy_step_s), 3),
+            "state": runs.states[i, k].tolist(),
+            "up_again_s": round(float(again[i] * policy_step_s), 3) if again[i] >= 0 else None,
+        }
         for i, k in enumerate(first.tolist())
         if k >= 0
     ]

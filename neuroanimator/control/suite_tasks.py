@@ -144,17 +144,32 @@ class Fall:
     below: float
     settle_s: float = 1.0
 
+    def levels(self, ctx: Context, states: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(N, K, S) episodes' states → (N, K) their level."""
+        n, k, width = states.shape
+        with torch.no_grad():
+            return self.level(ctx, torch.as_tensor(states.reshape(n * k, width))).reshape(n, k).numpy()
+
     def first(self, ctx: Context, states: NDArray[np.float64], settle: int = 0) -> NDArray[np.int64]:
         """(N, K, S) episodes' states → (N,) the index of each one's first fallen state, -1 for none;
         states before index ``settle`` do not count as having been up."""
-        n, k, width = states.shape
-        with torch.no_grad():
-            level = self.level(ctx, torch.as_tensor(states.reshape(n * k, width))).reshape(n, k).numpy()
+        level = self.levels(ctx, states)
         up = level >= self.above
         up[:, :settle] = False
         been_up = np.maximum.accumulate(up, axis=1)
         down = been_up & (level < self.below)
         return np.where(down.any(axis=1), down.argmax(axis=1), -1)
+
+    def up_again(
+        self, ctx: Context, states: NDArray[np.float64], fallen: NDArray[np.int64]
+    ) -> NDArray[np.int64]:
+        """(N, K, S) episodes' states and (N,) their falls' indices (``first``, -1 for none) → (N,)
+        the index of the first state back at ``above`` or higher after each fall, -1 for none (a
+        hopper that crouches to the floor and stands again has fallen and recovered)."""
+        level = self.levels(ctx, states)
+        after = np.arange(level.shape[1])[None] > fallen[:, None]
+        up = (level >= self.above) & after & (fallen[:, None] >= 0)
+        return np.where(up.any(axis=1), up.argmax(axis=1), -1)
 
 
 RewardFn = Callable[[Context, Tensor, Tensor, Tensor, bool], Tensor]

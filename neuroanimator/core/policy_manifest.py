@@ -27,6 +27,10 @@ class PolicyFall(BaseModel):
     episode: int
     time_s: float = Field(description="seconds into the episode")
     state: list[float] = Field(description="the emulator state (S,) it fell into")
+    up_again_s: float | None = Field(
+        None,
+        description="seconds into the episode at which it was up again after the fall; null: it stayed down",
+    )
 
 
 class PolicyMetrics(BaseModel):

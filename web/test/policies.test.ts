@@ -328,6 +328,13 @@ describe('a policy job, from its events', () => {
     expect(trust["emulated states outside the emulator's envelope"]).toBe('4 %');
     expect(trust["the emulator's root off MuJoCo's at 1 s"]).toBe('0.35 m');
     expect(trust['falls on MuJoCo']).toBe('2 of 10 episodes (the first at 0.4 s, episode 7)');
+    // falls it got up from are said apart: some, or all
+    const fell = (again: (number | null)[]) => ({
+      ...walker,
+      metrics: { ...walker.metrics, falls: again.map((a, i) => ({ episode: i, time_s: 1.5 + i, state: [0.1], up_again_s: a })) } as PolicyManifest['metrics'],
+    });
+    expect(Object.fromEntries(metricsRows(fell([3.5, null])))['falls on MuJoCo']).toBe('2 of 10 episodes (the first at 1.5 s, episode 0; up again in 1)');
+    expect(Object.fromEntries(metricsRows(fell([3.5, 6.0])))['falls on MuJoCo']).toBe('2 of 10 episodes (the first at 1.5 s, episode 0; up again in all)');
     expect(trust['seeds trained side by side']).toBe('2, returns 474, 911 (the best kept)');
     expect(rows['seeds trained side by side']).toBeUndefined(); // one seed: nothing to say
   });

@@ -871,6 +871,10 @@ export interface PolicyFall {
    * the emulator state (S,) it fell into
    */
   state: number[];
+  /**
+   * seconds into the episode at which it was up again after the fall; null: it stayed down
+   */
+  up_again_s?: number | null;
 }
 /**
  * A user's policy task's goals: values of ``variables`` (state labels) that MuJoCo's runs of the
