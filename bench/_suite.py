@@ -195,6 +195,38 @@ def sac_baseline(
     }
 
 
+def bench_suite_baseline(
+    name: str, seconds: float | None, seed: int, quick: bool, threads: int
+) -> dict[str, Any]:
+    """SAC alone on one suite task (``--baseline-only``): the task's MuJoCo model and its controls'
+    range as ``neuro train --mjcf`` reads them (the emulator's, at its defaults), the task's budget
+    (or ``seconds``; a full row gives SAC the policy's measured wall time) on ``threads`` torch
+    threads (a full row gives it the policy's cores), judged on the same held-out starts as a row's
+    ``model_free``; no emulator and no policy (their columns None)."""
+    from neuroanimator.sim.mjcf import load_mjcf
+
+    task = SUITE_TASKS[name]
+    budget = seconds if seconds is not None else task.train_seconds + 300.0
+    physical = load_mjcf(suite_xml(task.domain), substeps=task.substeps)
+    ctx = Context(physical.mj_model, _layout(physical))
+    low, high = physical.control_range[:, 0], physical.control_range[:, 1]
+    episodes = 2 if quick else EPISODES
+    starts, params = draw_starts(task, physical, np.random.default_rng(HELD_OUT_SEED), episodes)
+    model_free = sac_baseline(task, physical, ctx, low, high, seed, quick, budget, threads, starts, params)
+    return {
+        "task": name,
+        "substeps": task.substeps,
+        "target_return": task.target_return,
+        "episodes": episodes,
+        "return_physics": None,
+        "return_emulator": None,
+        "mujoco_steps": None,
+        "wall_s": None,
+        "emulator_wall_s": None,
+        "model_free": model_free,
+    }
+
+
 def bench_suite_task(
     name: str,
     root: Path,

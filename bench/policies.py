@@ -3,7 +3,8 @@ model-free reinforcement learning on MuJoCo, on the same held-out starts and goa
 
     python bench/policies.py [--tasks a,b] [--seconds S] [--suite-seconds S] [--artifacts DIR]
                              [--held-out 100] [--open-loop-runs 10] [--algorithm sac|ppo] [--seed 0]
-                             [--seeds K] [--threads N] [--no-baseline] [--quick] [--json]
+                             [--seeds K] [--threads N] [--no-baseline | --baseline-only] [--quick]
+                             [--json]
 
 With no ``--tasks``, every task: the catalog's policy tasks, then dm_control's suite tasks
 (``control.suite_tasks.SUITE_TASKS``: cartpole-swingup, pendulum-swingup, reacher-hard,
@@ -42,7 +43,8 @@ defaults):
    and the jobs), then run deterministically on the held-out
    set on MuJoCo; its MuJoCo steps are its env steps × the task's substeps plus the goal pool's.
    ``--no-baseline`` leaves it out (``model_free`` null, its columns "-"): the policy's side alone,
-   in half a suite task's time.
+   in half a suite task's time; ``--baseline-only`` (suite tasks) is the other half, SAC alone for
+   the task's budget (``--suite-seconds``) on ``--threads`` threads, the policy's columns "-".
 
 Prints a table; with ``--json`` the last line is one JSON object ``{"seed", "held_out", "settings",
 "tasks": [{"task", "success_physics", "success_emulator", "mujoco_steps", "wall_s", "iterations",
@@ -67,7 +69,7 @@ from typing import Any
 import numpy as np
 import torch
 from _model_free import ALGORITHMS, run_agent, train_model_free
-from _suite import bench_suite_task
+from _suite import bench_suite_baseline, bench_suite_task
 from numpy.typing import NDArray
 
 from neuroanimator.artifacts import registry
@@ -300,10 +302,18 @@ def suite_table(rows: list[dict[str, Any]]) -> str:
         mf_cells = (
             f"{mf['return_physics']:.1f} | {mf['mujoco_steps']:,} | {mf['wall_s']}" if mf else NO_BASELINE
         )
+        ours = (  # a row of --baseline-only has no policy
+            f"{r['return_physics']:.1f} | {r['return_emulator']:.1f}"
+            if r["return_physics"] is not None
+            else "- | -"
+        )
+        spent = (
+            f"{r['mujoco_steps']:,} | {r['wall_s']} ({r['emulator_wall_s']})"
+            if r["wall_s"] is not None
+            else "- | -"
+        )
         lines.append(
-            f"| {r['task']} | {r['substeps']} | {r['return_physics']:.1f} | {r['return_emulator']:.1f} | "
-            f"{r['target_return']:g} | {r['mujoco_steps']:,} | {r['wall_s']} ({r['emulator_wall_s']}) | "
-            f"{mf_cells} |"
+            f"| {r['task']} | {r['substeps']} | {ours} | {r['target_return']:g} | {spent} | {mf_cells} |"
         )
     return "\n".join(lines)
 
@@ -333,6 +343,11 @@ def main(argv: list[str] | None = None) -> int:
         action="store_false",
         help="no model-free baseline: the policy's side alone (each row's model_free null)",
     )
+    p.add_argument(
+        "--baseline-only",
+        action="store_true",
+        help="suite tasks: the model-free baseline alone for the task's budget on --threads threads, no policy",
+    )
     p.add_argument("--seed", type=int, default=0, help="the training's seed (policy and model-free)")
     p.add_argument(
         "--seeds",
@@ -356,6 +371,8 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [n for n in names if n not in POLICY_TASKS and n not in SUITE_TASKS]
     if unknown:
         p.error(f"--tasks: unknown policy tasks {unknown}; expected some of {[*POLICY_TASKS, *SUITE_TASKS]}")
+    if args.baseline_only and (not args.baseline or [n for n in names if n not in SUITE_TASKS]):
+        p.error("--baseline-only measures suite tasks' baseline: no --no-baseline, and suite --tasks only")
     if args.seeds is not None and args.seeds < 1:
         p.error(f"--seeds must be >= 1, got {args.seeds}")
     if args.held_out < 1 or args.open_loop_runs < 0 or args.threads < 1:
@@ -368,7 +385,9 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     suite_root = Path(args.artifacts) if args.artifacts else registry.writable(root)
     for name in names:
-        if name in SUITE_TASKS:
+        if args.baseline_only:
+            rows.append(bench_suite_baseline(name, args.suite_seconds, args.seed, args.quick, args.threads))
+        elif name in SUITE_TASKS:
             save_to = Path(args.save_to) if args.save_to else None
             rows.append(
                 bench_suite_task(
@@ -398,6 +417,7 @@ def main(argv: list[str] | None = None) -> int:
             "threads": args.threads,
             "seeds": args.seeds,
             "baseline": args.baseline,
+            "baseline_only": args.baseline_only,
             "quick": args.quick,
         }
         held = QUICK_HELD_OUT if args.quick else args.held_out

@@ -368,7 +368,7 @@ class RewardResult:
 
 class FallReport(TypedDict):
     """A fall in an episode on MuJoCo: which episode, when (seconds into it), the state it lay in and
-    when it was up again (None: it stayed down)."""
+    from when it was up again for good (``Fall.up_again``; None: it lay at the end)."""
 
     episode: int
     time_s: float
@@ -377,8 +377,8 @@ class FallReport(TypedDict):
 
 
 def falls(task: SuiteTask, ctx: Context, runs: Episodes, policy_step_s: float) -> list[FallReport]:
-    """The first fall of each episode (``SuiteTask.fall``) and whether it got up again after it, none
-    for a task without one."""
+    """The first fall of each episode (``SuiteTask.fall``) and whether it got up again for good after
+    it, none for a task without one."""
     if task.fall is None:
         return []
     first = task.fall.first(ctx, runs.states, settle=math.ceil(task.fall.settle_s / policy_step_s - 1e-9))
@@ -514,8 +514,8 @@ class RewardTrainer:
         self.t0 = time.perf_counter()
         self.task, self.settings, self.path = task, settings, path
         self.on_progress, self.should_stop = on_progress, should_stop
-        # the other seeds, met once (``RewardSettings.meet_at``): given this seed's best so far, the
-        # best seed's to take instead, or None to keep its own
+        # the other seeds, met once (``RewardSettings.meet_at``, or ``ValueIteration.meet``): given
+        # this seed's best so far, the best seed's to take instead, or None to keep its own
         self.meet = meet
         self.took_from: int | None = None
         self.manifest = registry.read_manifest(path)
@@ -558,6 +558,11 @@ class RewardTrainer:
         self.high = np.array([c.high for c in self.manifest.controls])
         self.exploring = task.exploring if settings.exploring is None else settings.exploring
         vi = self.value_iteration = value_iteration_of(task, settings)
+        if vi is not None and vi.meet and settings.meet_at is not None:
+            raise ValueError(
+                f"{task.name}: the seeds meet once, when their values are fitted (value iteration's meet) "
+                "or at meet_at, not both"
+            )
         self.value_fitter: ValueFitter | None = None  # its value and labels, once ``learn_from_value`` ran
         # the kept policy beside the greedy one over the value (``ValueFitter.follows``), once copied
         self.greedy_follow: tuple[float, float] | None = None
@@ -951,9 +956,9 @@ class RewardTrainer:
             "%s: seed %d (its value's check %.1f) takes seed %d's value (%.1f)",
             self.task.name, self.settings.seed, fitter.value_check, other.seed, other.best_return,
         )  # fmt: skip
+        # the value alone: this seed's emulator, refined on its own runs, is the one it copies through
         fitter.value.load_state_dict(other.critic)
         self.target_critic.load_state_dict(self.critic.state_dict())
-        fitter.value_check = other.best_return
         self.took_from = other.seed
 
     # ------------------------------------------------------------------ the loop
@@ -1016,7 +1021,7 @@ class RewardTrainer:
         cfg = self.settings
         fitter = self.value_fitter = ValueFitter(self, how)
         fitter.fit(how.share * cfg.seconds - self.elapsed())
-        if how.meet and self.meet is not None:
+        if how.meet and self.meet is not None and not (self.should_stop is not None and self.should_stop()):
             self.meet_over_values(fitter)
         opt = torch.optim.Adam(self.policy.parameters(), lr=how.lr)
         stop, first, round_s, next_s = "budget", it, 0.0, 0.0

@@ -206,7 +206,7 @@ def _race(
         task.name,
         [settings.seed + i for i in range(seeds)],
         [round(r, 1) for r in returns],
-        "".join(f" (seed {a} had taken seed {b}'s policy)" for a, b in took.items()),
+        "".join(f" (seed {a} had taken seed {b}'s policy or value)" for a, b in took.items()),
         settings.seed + best,
     )
     return replace(
@@ -220,7 +220,7 @@ def _race(
 
 def _answer(task: SuiteTask, met: dict[int, Meeting], replies: list[Any]) -> None:
     """Every seed still training has met (``seeds_meet``): the best one keeps its own, the others
-    are sent its policy and critics."""
+    are sent what it brought (its policy and critics, or its value)."""
     top = max(met.values(), key=lambda m: m.best_return)
     log.info(
         "%s: the seeds met (best returns %s); seed %d's goes on in all",

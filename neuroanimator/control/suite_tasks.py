@@ -164,11 +164,15 @@ class Fall:
         self, ctx: Context, states: NDArray[np.float64], fallen: NDArray[np.int64]
     ) -> NDArray[np.int64]:
         """(N, K, S) episodes' states and (N,) their falls' indices (``first``, -1 for none) → (N,)
-        the index of the first state back at ``above`` or higher after each fall, -1 for none (a
-        hopper that crouches to the floor and stands again has fallen and recovered)."""
+        the index from which each was up again for good: back at ``above`` or higher after its last
+        state under ``below``; -1 for none (it lay at the end, or fell again and stayed down). A
+        hopper that crouches to the floor and stands for the rest of the episode has recovered."""
         level = self.levels(ctx, states)
-        after = np.arange(level.shape[1])[None] > fallen[:, None]
-        up = (level >= self.above) & after & (fallen[:, None] >= 0)
+        k = level.shape[1]
+        at = np.arange(k)[None]
+        down = (level < self.below) & (at >= fallen[:, None]) & (fallen[:, None] >= 0)
+        last_down = np.where(down.any(axis=1), k - 1 - down[:, ::-1].argmax(axis=1), k)
+        up = (level >= self.above) & (at > last_down[:, None])
         return np.where(up.any(axis=1), up.argmax(axis=1), -1)
 
 

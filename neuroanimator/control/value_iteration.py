@@ -162,9 +162,10 @@ class ValueIteration:
     # full-torque kicks); the copy's rounds end where it begins. 0: the copy is the policy
     actor_critic: float = 0.0
     # seeds trained side by side (``seed_race``) meet once their values are fitted: each brings its
-    # V's best check (its greedy policy's return on MuJoCo with ``refine_every``, else on the
-    # emulator), and those behind take the best one's V and copy it from their own draws; the
-    # actor-critic cannot mend a poor V (the hopper's: greedy 66 on MuJoCo, the actor-critic 4)
+    # V's best check on MuJoCo (its greedy policy's return, ``refine_every``, which it needs: an
+    # emulated return favours the seed whose emulator flatters most), and those behind take the best
+    # one's V and copy it through their own emulator, from their own draws; the actor-critic cannot
+    # mend a poor V (the hopper's: greedy 66 on MuJoCo, the actor-critic 4)
     meet: bool = False
 
     def __post_init__(self) -> None:
@@ -198,9 +199,9 @@ class ValueIteration:
             raise ValueError(
                 "value iteration's actor-critic needs a copy its gradient reaches: a blend, or copy_as 'control'"
             )
-        if self.meet and not (self.refine_every or self.check_every):
+        if self.meet and not self.refine_every:
             raise ValueError(
-                "value iteration's seeds meet on their values' checks: refine_every or check_every"
+                "value iteration's seeds meet on their values' checks on MuJoCo: refine_every > 0"
             )
         if not self.temperature > 0.0:
             raise ValueError(f"value iteration's temperature is above 0, not {self.temperature}")

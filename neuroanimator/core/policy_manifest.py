@@ -29,7 +29,8 @@ class PolicyFall(BaseModel):
     state: list[float] = Field(description="the emulator state (S,) it fell into")
     up_again_s: float | None = Field(
         None,
-        description="seconds into the episode at which it was up again after the fall; null: it stayed down",
+        description="seconds into the episode from which it was up again for good after the fall "
+        "(never down again); null: it lay at the end",
     )
 
 

@@ -25,6 +25,7 @@ from torch import Tensor
 
 from neuroanimator.artifacts import registry
 from neuroanimator.artifacts.policies import read_policy, resolve_policy
+from neuroanimator.catalog.tasks import POLICY_TASKS
 from neuroanimator.control import value_iteration
 from neuroanimator.control.exploring_runs import ExploringRuns, random_runs
 from neuroanimator.control.planner import PlannerSettings, SamplingPlanner
@@ -845,6 +846,23 @@ def test_bench_policies_without_the_baseline_measures_the_policy_alone(artifacts
     assert isinstance(row["return_physics"], float) and row["wall_s"] > row["emulator_wall_s"] > 0
     (line,) = [line for line in lines if line.startswith("| point_mass-easy |")]
     assert line.endswith("| - | - | - |")
+
+
+def test_bench_policies_measures_the_baseline_alone() -> None:
+    """--baseline-only: SAC alone on the task's MuJoCo model (no emulator, no policy: their columns
+    dashes), judged on the held-out starts; refused with --no-baseline or a catalog task."""
+    lines, result = run_bench("bench/policies.py", "--quick", "--tasks", "point_mass-easy", "--baseline-only")
+    (row,) = result["tasks"]
+    assert result["settings"]["baseline_only"] is True and row["return_physics"] is None
+    free = row["model_free"]
+    assert free["algorithm"] == "sac" and free["env_steps"] > 0 and free["threads"] == 1
+    assert 0.0 <= free["return_physics"] <= TASK.episode_steps
+    (line,) = [line for line in lines if line.startswith("| point_mass-easy |")]
+    assert line.startswith(f"| point_mass-easy | {TASK.substeps} | - | - |")
+    for wrong in (["point_mass-easy", "--no-baseline"], [next(iter(POLICY_TASKS))]):
+        with pytest.raises(subprocess.CalledProcessError) as refused:
+            run_bench("bench/policies.py", "--quick", "--baseline-only", "--tasks", *wrong)
+        assert "--baseline-only" in refused.value.stderr
 
 
 def test_the_driven_step_benchmark_drives_a_suite_tasks_model(artifacts: Path, tmp_path: Path) -> None:

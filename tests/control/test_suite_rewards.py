@@ -342,7 +342,9 @@ def test_a_fall_is_going_down_after_having_been_up() -> None:
     dropped = np.array([[up, half, down, down, down], [up, down, up, up, down]])
     np.testing.assert_array_equal(fall.first(ctx, dropped), [2, 1])
     np.testing.assert_array_equal(fall.first(ctx, dropped, settle=2), [-1, 4])
-    # up again after the fall: the first state back at ``above``, none for one that stayed down or
-    # never fell
+    # up again for good after the fall: the first state back at ``above`` after the last one under
+    # ``below``; none for one that stayed down, fell again and lay, or never fell
     np.testing.assert_array_equal(fall.up_again(ctx, episodes, fall.first(ctx, episodes)), [4, -1, -1])
-    np.testing.assert_array_equal(fall.up_again(ctx, dropped, fall.first(ctx, dropped)), [-1, 2])
+    np.testing.assert_array_equal(fall.up_again(ctx, dropped, fall.first(ctx, dropped)), [-1, -1])
+    twice = np.array([[up, down, up, down, half], [up, down, up, down, up], [up, half, up, up, up]])
+    np.testing.assert_array_equal(fall.up_again(ctx, twice, fall.first(ctx, twice)), [-1, 4, -1])

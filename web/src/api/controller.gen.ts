@@ -872,7 +872,7 @@ export interface PolicyFall {
    */
   state: number[];
   /**
-   * seconds into the episode at which it was up again after the fall; null: it stayed down
+   * seconds into the episode from which it was up again for good after the fall (never down again); null: it lay at the end
    */
   up_again_s?: number | null;
 }

@@ -201,7 +201,8 @@ function trustRows(m: PolicyManifest['metrics']): [string, string][] {
   if (falls.length) {
     const first = falls.reduce((a, b) => (b.time_s < a.time_s ? b : a));
     const of = m?.evaluate_runs ? ` of ${m.evaluate_runs}` : '';
-    // a body that crouched to the floor and stood again has fallen and recovered: said apart
+    // a body that crouched to the floor and stood again for the rest of the episode has fallen and
+    // recovered: said apart
     const again = falls.filter((f) => typeof f.up_again_s === 'number').length;
     const recovered = again ? `; up again in ${again === falls.length ? 'all' : again}` : '';
     rows.push(['falls on MuJoCo', `${falls.length}${of} episodes (the first at ${seconds(first.time_s)}, episode ${first.episode}${recovered})`]);
