@@ -682,7 +682,7 @@ def test_seeds_side_by_side_meet_and_go_on_from_the_best(
 
 
 MEETING_VALUES = ValueIteration(share=0.01, states=256, candidates=3, batch=128, iterations=3, episodes=4,
-                                epochs=2, meet=True)  # fmt: skip
+                                epochs=2, refine_every=3, refine_episodes=2, meet=True)  # fmt: skip
 
 
 def test_a_seed_whose_value_is_behind_copies_the_best_ones_value(
@@ -711,7 +711,7 @@ def test_a_seed_whose_value_is_behind_copies_the_best_ones_value(
         return theirs
 
     result = RewardTrainer(TASK, path, settings, meet=meet).train()
-    (mine,) = brought  # once, with the value's check on the emulator
+    (mine,) = brought  # once, with the value's check on MuJoCo
     assert mine.seed == 1 and math.isfinite(mine.best_return) and result.took_from == 99
     assert all(torch.equal(copied_from[0][k], v) for k, v in donated.items())
     copied_from.clear()
@@ -733,8 +733,10 @@ def test_seeds_side_by_side_meet_when_their_values_are_fitted(
     assert (
         len(result.seed_returns) == 2 and result.took_from in (None, 5, 6) and result.took_from != result.seed
     )
-    with pytest.raises(ValueError, match="meet on their values' checks"):
-        replace(MEETING_VALUES, check_every=0)
+    with pytest.raises(ValueError, match="meet on their values' checks on MuJoCo"):
+        replace(MEETING_VALUES, refine_every=0)
+    with pytest.raises(ValueError, match="meet once"):  # one meeting: the values', or meet_at's
+        RewardTrainer(TASK, path, replace(settings, meet_at=0.5))
 
 
 def test_seeds_side_by_side_stop_together_and_raise_what_one_seed_raises(artifacts: Path) -> None:
