@@ -910,21 +910,28 @@ class RewardTrainer:
             time.perf_counter() - t0,
         )  # fmt: skip
 
+    def _meet(self, score: float, policy: dict[str, Tensor], critic: dict[str, Tensor]) -> Meeting | None:
+        """Meet the other seeds, once: bring this seed's ``score`` with its policy, critic and target
+        critic (copies); the best seed's to take instead, or None to keep its own."""
+        meet, self.meet = self.meet, None  # once
+        assert meet is not None
+        other = meet(
+            Meeting(
+                self.settings.seed,
+                score,
+                copy.deepcopy(policy),
+                copy.deepcopy(critic),
+                copy.deepcopy(self.target_critic.state_dict()),
+            )
+        )
+        return None if other is None or other.seed == self.settings.seed else other
+
     def meet_the_seeds(self, best: tuple[float, dict[str, Tensor]]) -> tuple[float, dict[str, Tensor]]:
         """Meet the other seeds once (``RewardSettings.meet_at``): a seed behind takes the best one's
         best policy (as its own best so far and as the policy it trains on) and its critics; its
         optimisers then start afresh. Returns the best so far."""
-        meet, self.meet = self.meet, None  # once
-        assert meet is not None
-        mine = Meeting(
-            self.settings.seed,
-            best[0],
-            best[1],
-            copy.deepcopy(self.critic.state_dict()),
-            copy.deepcopy(self.target_critic.state_dict()),
-        )
-        other = meet(mine)
-        if other is None or other.seed == self.settings.seed:
+        other = self._meet(best[0], best[1], self.critic.state_dict())
+        if other is None:
             return best
         log.info(
             "%s: seed %d (best %.1f) takes seed %d's policy (best %.1f)",
@@ -940,17 +947,8 @@ class RewardTrainer:
         """Meet the other seeds once their values are fitted (``ValueIteration.meet``): a seed whose
         V's check (``ValueFitter.value_check``) is behind the best one's takes that V (all its
         critics) and copies it from its own draws."""
-        meet, self.meet = self.meet, None  # once
-        assert meet is not None
-        mine = Meeting(
-            self.settings.seed,
-            fitter.value_check,
-            copy.deepcopy(self.policy.state_dict()),
-            copy.deepcopy(fitter.value.state_dict()),
-            copy.deepcopy(self.target_critic.state_dict()),
-        )
-        other = meet(mine)
-        if other is None or other.seed == self.settings.seed:
+        other = self._meet(fitter.value_check, self.policy.state_dict(), fitter.value.state_dict())
+        if other is None:
             return
         log.info(
             "%s: seed %d (its value's check %.1f) takes seed %d's value (%.1f)",
