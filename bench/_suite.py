@@ -303,9 +303,17 @@ def bench_suite_task(
         # value iteration's copy beside the greedy policy it copies (None for the actor-critic)
         "greedy_agreement": None if result.greedy_agreement is None else round(result.greedy_agreement, 3),
         "greedy_regret": None if result.greedy_regret is None else round(result.greedy_regret, 4),
-        # every seed's return on the training's own final episodes (the kept one the highest)
+        # every seed's return on the training's own final episodes (the kept one the highest), and
+        # whose policy or value it took when they met (None: its own)
         "seeds": [
-            {"seed": seed + i, "return_physics": round(r, 1)} for i, r in enumerate(result.seed_returns)
+            {"seed": seed + i, "return_physics": round(r, 1), "took_from": took}
+            for i, (r, took) in enumerate(
+                zip(
+                    result.seed_returns,
+                    result.seed_took_from or [None] * len(result.seed_returns),
+                    strict=True,
+                )
+            )
         ],
         "cores": cores,
         "refinements": result.refinements,

@@ -36,6 +36,7 @@ import copy
 import logging
 import math
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -65,6 +66,9 @@ FINISH_MARGIN = 1.25  # the final judging's cost over its episodes' on MuJoCo (`
 DRIFT_S = 1.0  # seconds into an episode at which the emulator's root is compared with MuJoCo's
 REFINE_WINDOW = 8  # super-steps of each window the emulator is refined on
 EXPLORE_SHARE = 0.25  # of the budget the exploring runs' fine-tuning may take at most (``explore``)
+# checks whose failing episodes restarts are drawn from (``Restarts.failing``): the policy's latest
+# failures, not those of the policies it has left behind
+FAILING_CHECKS = 4
 FINAL_SEED_OFFSET = 1_000_003  # the final episodes' seed, apart from the training's draws
 OUTSIDE = "outside_envelope"  # a training's stop: its emulated states left the emulator's envelope too often
 
@@ -100,6 +104,7 @@ class RewardSettings:
     explore_share: float | None = None
     rewarded_share: float | None = None
     explore_from: str | None = None  # "box" or "motion" (``Restarts.explore_from``; None: the task's)
+    failing_share: float | None = None  # ``Restarts.failing`` (None: the task's)
     tournament: int = 8
     refine: bool = True
     refine_gap: float = 0.02  # refine when the returns on the emulator and on MuJoCo differ by more
@@ -348,6 +353,8 @@ class RewardResult:
     # every seed's final return on the same MuJoCo episodes, when several were trained side by side
     # (``seed_race``; this result is the best of them)
     seed_returns: list[float] = field(default_factory=list)
+    # beside them, the seed each of them took from when they met (None: its own kept)
+    seed_took_from: list[int | None] = field(default_factory=list)
     # the seed whose policy and critic this one took when the seeds met (``RewardSettings.meet_at``),
     # or whose value (``ValueIteration.meet``)
     took_from: int | None = None
@@ -541,6 +548,7 @@ class RewardTrainer:
             task.restarts.explore if settings.explore_share is None else settings.explore_share,
             task.restarts.rewarded if settings.rewarded_share is None else settings.rewarded_share,
             task.restarts.explore_from if settings.explore_from is None else settings.explore_from,
+            task.restarts.failing if settings.failing_share is None else settings.failing_share,
         )
         self.mujoco_steps = 0
         # seconds one episode of the latest check on MuJoCo took: what the final judging will cost
@@ -553,6 +561,8 @@ class RewardTrainer:
         self.emulated_steps = 0
         self.start_states, self.start_params = draw_starts(task, self.physical, self.rng, 2048)
         self.visited: list[tuple[FloatArray, FloatArray]] = []
+        # the states (N, S) and parameters (N, P) of the latest checks' failing episodes (``Restarts.failing``)
+        self.failed: deque[tuple[FloatArray, FloatArray]] = deque(maxlen=FAILING_CHECKS)
         self.runs: list[Episodes] = []
         self.low = np.array([c.low for c in self.manifest.controls])
         self.high = np.array([c.high for c in self.manifest.controls])
@@ -667,11 +677,13 @@ class RewardTrainer:
         from_mujoco = (draw >= shares.explore) & (draw < shares.explore + shares.mujoco)
         if not self.visited:
             from_mujoco[:] = False
-        if from_mujoco.any():
-            vs = np.concatenate([v[0] for v in self.visited])
-            vp = np.concatenate([v[1] for v in self.visited])
-            pick = self.rng.integers(len(vs), size=int(from_mujoco.sum()))
-            states[from_mujoco], params[from_mujoco] = vs[pick], vp[pick]
+        failing = from_mujoco & (self.rng.random(n) < shares.failing) if self.failed else np.zeros(n, bool)
+        for chosen, pool in ((from_mujoco & ~failing, self.visited), (failing, self.failed)):
+            if chosen.any():
+                vs = np.concatenate([v[0] for v in pool])
+                vp = np.concatenate([v[1] for v in pool])
+                pick = self.rng.integers(len(vs), size=int(chosen.sum()))
+                states[chosen], params[chosen] = vs[pick], vp[pick]
         return states, params
 
     def envelope_states(self, params: FloatArray) -> FloatArray:
@@ -847,6 +859,16 @@ class RewardTrainer:
         self.visited.append(
             (runs.states.reshape(-1, width), np.repeat(runs.params, k1, axis=0).reshape(n * k1, -1))
         )
+        top = float(runs.returns.max()) if n else 0.0
+        failing = runs.returns < 0.5 * top if top > 0 else np.zeros(n, bool)
+        if failing.any():
+            k = int(failing.sum())
+            self.failed.append(
+                (
+                    runs.states[failing].reshape(-1, width),
+                    np.repeat(runs.params[failing], k1, axis=0).reshape(k * k1, -1),
+                )
+            )
         gap = abs(emulated - runs.mean) / self.task.episode_steps
         refined = cfg.refine and may_refine and gap > cfg.refine_gap
         if refined:

@@ -213,6 +213,7 @@ def _race(
         results[best],
         task=task,
         seed_returns=returns,
+        seed_took_from=[results[i].took_from for i in range(seeds)],
         mujoco_steps=sum(r.mujoco_steps for r in results.values()),
         wall_s=time.perf_counter() - t0,
     )

@@ -112,16 +112,22 @@ class Restarts:
     ``explore_from`` says where the exploring ones are drawn: ``box``, each variable uniform in the
     envelope's box (a pendulum's angle and speed are free of each other), or ``motion``, the states of
     runs of the typical motion on MuJoCo (a body on the ground: its feet, height and pitch are bound
-    by the floor, and a box's draw puts a foot under it)."""
+    by the floor, and a box's draw puts a foot under it). ``failing``: of those from MuJoCo, the
+    share drawn from the episodes of the latest checks that earned under half their check's best
+    (where there are any): the starts the policy does not yet rise from are practised more often than
+    their share of the runs would have them (a prioritised replay of its failures)."""
 
     mujoco: float = 0.5
     explore: float = 0.25
     rewarded: float = 0.0
     explore_from: str = "box"
+    failing: float = 0.0
 
     def __post_init__(self) -> None:
         if self.explore_from not in ("box", "motion"):
             raise ValueError(f"explore_from is 'box' or 'motion', not {self.explore_from!r}")
+        if not 0.0 <= self.failing <= 1.0:
+            raise ValueError(f"the failing share of restarts from MuJoCo is in [0, 1], not {self.failing}")
 
 
 # a task whose reward lies where its starts and early policies never go (a pole upright, a swing
@@ -551,6 +557,7 @@ SUITE_TASKS: dict[str, SuiteTask] = {
             value_iteration=ValueIteration(
                 candidates=16, blend=1.0, refine_every=10, share=0.5, actor_critic=0.3, meet=True
             ),
+            restarts=Restarts(failing=0.5),
             **_ground(HOPPER_FALL),
         ),
         _task("walker-stand", reset_random_joints, reward_walker_stand, **_ground(WALKER_FALL)),

@@ -178,6 +178,34 @@ def test_exploring_restarts_drawn_from_the_typical_motion_are_its_states(artifac
         RewardTrainer(TASK, path, replace(QUICK, explore_from="grid"))
 
 
+def test_failing_restarts_practise_the_episodes_that_earned_least(artifacts: Path) -> None:
+    """``Restarts.failing``: restarts from MuJoCo drawn from the states of a check's episodes that
+    earned under half its best; none failing (or none paid), from every run's; a share outside [0, 1]
+    refused."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    settings = replace(QUICK, mujoco_share=1.0, explore_share=0.0, failing_share=1.0, refine=False)
+    trainer = RewardTrainer(TASK, path, settings)
+    runs = trainer.episodes(trainer.act, 4, np.random.default_rng(1))
+    width = runs.states.shape[2]
+
+    def drawn_from(states: np.ndarray) -> set[int]:
+        return {
+            int(np.flatnonzero([np.isclose(run, row).all(axis=1).any() for run in runs.states])[0])
+            for row in states
+        }
+
+    trainer.keep_runs(replace(runs, returns=np.array([100.0, 10.0, 90.0, 60.0])), 0.0, may_refine=False)
+    states, _ = trainer.restart(256)
+    assert states.shape == (256, width) and drawn_from(states) == {1}  # 10 < half of 100: it failed
+    trainer.restarts = replace(trainer.restarts, failing=0.0)
+    assert drawn_from(trainer.restart(256)[0]) == {0, 1, 2, 3}
+    fresh = RewardTrainer(TASK, path, settings)
+    fresh.keep_runs(replace(runs, returns=np.zeros(4)), 0.0, may_refine=False)  # none paid: none failing
+    assert not fresh.failed and drawn_from(fresh.restart(256)[0]) == {0, 1, 2, 3}
+    with pytest.raises(ValueError, match=r"failing share of restarts from MuJoCo is in \[0, 1\], not 1.5"):
+        RewardTrainer(TASK, path, replace(settings, failing_share=1.5))
+
+
 def test_value_iterations_candidates_span_one_controls_range_and_sample_the_box_of_more() -> None:
     rng = np.random.default_rng(0)
     one = candidate_controls(np.array([-1.0]), np.array([1.0]), 5, rng)
