@@ -855,6 +855,8 @@ def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
     # --seeds over the task's one: each seed's return in the row, SAC on as many cores
     sides = min(2, os.cpu_count() or 1)
     assert result["settings"]["seeds"] == 2 and len(row["seeds"]) == sides == row["cores"]
+    # and whose policy each took when they met (None: its own; point_mass's seeds do not meet)
+    assert all(seed["took_from"] is None for seed in row["seeds"])
     assert result["settings"]["baseline"] is True
     for key in ("return_physics", "return_emulator", "mujoco_steps", "wall_s"):
         assert isinstance(row[key], (int, float))
