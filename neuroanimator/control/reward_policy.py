@@ -677,7 +677,10 @@ class RewardTrainer:
         from_mujoco = (draw >= shares.explore) & (draw < shares.explore + shares.mujoco)
         if not self.visited:
             from_mujoco[:] = False
-        failing = from_mujoco & (self.rng.random(n) < shares.failing) if self.failed else np.zeros(n, bool)
+        # drawn only where asked for: a training without it draws the same restarts as before it
+        failing = np.zeros(n, bool)
+        if shares.failing > 0 and self.failed:
+            failing = from_mujoco & (self.rng.random(n) < shares.failing)
         for chosen, pool in ((from_mujoco & ~failing, self.visited), (failing, self.failed)):
             if chosen.any():
                 vs = np.concatenate([v[0] for v in pool])
@@ -860,7 +863,7 @@ class RewardTrainer:
             (runs.states.reshape(-1, width), np.repeat(runs.params, k1, axis=0).reshape(n * k1, -1))
         )
         top = float(runs.returns.max()) if n else 0.0
-        failing = runs.returns < 0.5 * top if top > 0 else np.zeros(n, bool)
+        failing = runs.returns < 0.5 * top if top > 0 and self.restarts.failing > 0 else np.zeros(n, bool)
         if failing.any():
             k = int(failing.sum())
             self.failed.append(
