@@ -307,13 +307,7 @@ def bench_suite_task(
         # whose policy or value it took when they met (None: its own)
         "seeds": [
             {"seed": seed + i, "return_physics": round(r, 1), "took_from": took}
-            for i, (r, took) in enumerate(
-                zip(
-                    result.seed_returns,
-                    result.seed_took_from or [None] * len(result.seed_returns),
-                    strict=True,
-                )
-            )
+            for i, (r, took) in enumerate(zip(result.seed_returns, result.seed_took_from, strict=True))
         ],
         "cores": cores,
         "refinements": result.refinements,

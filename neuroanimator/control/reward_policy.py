@@ -479,6 +479,13 @@ def root_drift(
     return float(gap[torch.isfinite(gap)].mean()) if bool(torch.isfinite(gap).any()) else math.inf
 
 
+def every_state(states: FloatArray, params: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Episodes' states (N, K+1, S) and parameters (N, P) → every state (N·(K+1), S) beside its
+    episode's parameters (N·(K+1), P): restarts' pools."""
+    n, k1, width = states.shape
+    return states.reshape(-1, width), np.repeat(params, k1, axis=0).reshape(n * k1, -1)
+
+
 def value_iteration_of(task: SuiteTask, settings: RewardSettings) -> ValueIteration | None:
     """How the value is fitted by value iteration: the settings', else the task's; None for the
     actor-critic alone (``RewardSettings.value_iteration``)."""
@@ -858,20 +865,12 @@ class RewardTrainer:
         one from the same starts by more than ``refine_gap`` of an episode. Whether it was refined."""
         cfg = self.settings
         self.runs.append(runs)
-        n, k1, width = runs.states.shape
-        self.visited.append(
-            (runs.states.reshape(-1, width), np.repeat(runs.params, k1, axis=0).reshape(n * k1, -1))
-        )
+        n = len(runs.returns)
+        self.visited.append(every_state(runs.states, runs.params))
         top = float(runs.returns.max()) if n else 0.0
         failing = runs.returns < 0.5 * top if top > 0 and self.restarts.failing > 0 else np.zeros(n, bool)
         if failing.any():
-            k = int(failing.sum())
-            self.failed.append(
-                (
-                    runs.states[failing].reshape(-1, width),
-                    np.repeat(runs.params[failing], k1, axis=0).reshape(k * k1, -1),
-                )
-            )
+            self.failed.append(every_state(runs.states[failing], runs.params[failing]))
         gap = abs(emulated - runs.mean) / self.task.episode_steps
         refined = cfg.refine and may_refine and gap > cfg.refine_gap
         if refined:

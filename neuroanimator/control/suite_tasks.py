@@ -551,8 +551,8 @@ SUITE_TASKS: dict[str, SuiteTask] = {
         # the other's value, as the actor-critic cannot mend a poor one (the bench 279.3 → 669.2,
         # nine of ten held-out starts risen: docs/experiments); half its restarts from MuJoCo drawn
         # from the episodes its latest checks failed (``Restarts.failing``) earned 781.9 and 531.7 on
-        # two benches of other seeds: not kept, the seeds' spread is wider than what it may add (the
-        # tenth start it never rises from jams the leg in the torso: docs/experiments)
+        # two benches (seeds 0 and 1, 2 and 3): not kept, the seeds' spread is wider than what it
+        # may add (the tenth start it never rises from jams the leg in the torso: docs/experiments)
         _task(
             "hopper-stand",
             reset_random_joints,
