@@ -39,8 +39,16 @@ from numpy.typing import NDArray
 from stable_baselines3 import SAC
 
 from neuroanimator.artifacts import registry
+from neuroanimator.artifacts import store as artifacts
+from neuroanimator.control.bptt import FastStep
 from neuroanimator.control.policy_store import save_reward_policy
-from neuroanimator.control.reward_policy import RewardSettings, draw_starts, falls, run_on_mujoco
+from neuroanimator.control.reward_policy import (
+    RewardSettings,
+    draw_starts,
+    falls,
+    root_drift,
+    run_on_mujoco,
+)
 from neuroanimator.control.seed_race import cores_used, train_reward_policy
 from neuroanimator.control.suite_tasks import SUITE_TASKS, Context, SuiteTask
 from neuroanimator.sim.model import PhysicalModel
@@ -277,6 +285,9 @@ def bench_suite_task(
     episodes = 2 if quick else EPISODES
     starts, params = draw_starts(task, physical, np.random.default_rng(HELD_OUT_SEED), episodes)
     ours = run_on_mujoco(task, physical, ctx, result.policy.act, starts, params)
+    # the root's drift on these episodes too, on the emulator the policy is served with
+    served = result.emulator if result.emulator is not None else artifacts.load_emulator(path)
+    drift = root_drift(FastStep(served), result.policy, ctx, ours, manifest.super_timestep)  # type: ignore[arg-type]
 
     model_free = (
         sac_baseline(task, physical, ctx, low, high, seed, quick, wall, cores, starts, params)
@@ -291,6 +302,8 @@ def bench_suite_task(
         "falls_physics": falls(task, ctx, ours, manifest.super_timestep),
         # metres between the emulator's root and MuJoCo's 1 s into the final episodes, each under the policy
         "root_drift_1s_m": None if result.root_drift_m is None else round(result.root_drift_m, 3),
+        # the same on the held-out episodes the return is measured on
+        "root_drift_1s_m_held_out": None if drift is None else round(drift, 3),
         "returns_physics": [round(float(x), 1) for x in ours.returns],
         "target_return": task.target_return,
         "episodes": episodes,

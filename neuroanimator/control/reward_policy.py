@@ -84,7 +84,7 @@ class RewardSettings:
     # super-steps per iteration: the gradient's path through the emulator (None: the task's,
     # ``SuiteTask.horizon``: 32, 8 for a body on the ground)
     horizon: int | None = None
-    actor_lr: float = 2e-3  # cosine-annealed to a tenth
+    actor_lr: float = 2e-3  # cosine-annealed to a tenth over the actor-critic's span (``actor_rate``)
     critic_lr: float = 2e-3
     critic_steps: int = 8  # critic updates per iteration, each on a random half of the iteration's steps
     lam: float = 0.95
@@ -477,6 +477,13 @@ def root_drift(
     physical = ctx.kin.places(torch.as_tensor(episodes.states[:, k]))[0][:, root]
     gap = torch.linalg.vector_norm(emulated - physical, dim=1)
     return float(gap[torch.isfinite(gap)].mean()) if bool(torch.isfinite(gap).any()) else math.inf
+
+
+def actor_rate(rate: float, elapsed: float, seconds: float, anneal_from: float = 0.0) -> float:
+    """The actor's learning rate ``elapsed`` seconds into a budget of ``seconds``: ``rate`` until
+    ``anneal_from``, then down a cosine to a tenth of it at the budget's end."""
+    frac = min(1.0, max(0.0, elapsed - anneal_from) / max(1.0, seconds - anneal_from))
+    return rate * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * frac)))
 
 
 def every_state(states: FloatArray, params: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -1086,7 +1093,9 @@ class RewardTrainer:
             # its end leaves time for measuring how closely the policy follows the greedy one
             # (the hopper's bench ran 47 s past its hour without it)
             self.measure_after_s = FINISH_MARGIN * fitter.follows_s()
-            best, history, it, stop = self.learn(best, history, it)
+            # its learning rate annealed over its own share, not over the whole budget: from 70 %
+            # in, the whole budget's schedule began it at 0.29 of the rate and ended it at 0.1
+            best, history, it, stop = self.learn(best, history, it, anneal_from=self.elapsed())
             self.policy.load_state_dict(best[1])
         # how closely the kept policy follows the greedy one, where it goes itself
         self.greedy_follow = fitter.follows()
@@ -1098,10 +1107,16 @@ class RewardTrainer:
         return best, history, it, stop
 
     def learn(
-        self, best: tuple[float, dict[str, Tensor]], history: list[tuple[int, float, float]], it: int
+        self,
+        best: tuple[float, dict[str, Tensor]],
+        history: list[tuple[int, float, float]],
+        it: int,
+        anneal_from: float = 0.0,
     ) -> tuple[tuple[float, dict[str, Tensor]], list[tuple[int, float, float]], int, str]:
         """The actor-critic until the budget is spent (module doc), from ``it`` iterations and the
-        checks' ``history`` so far: the best (return, weights), the history, the iterations and the stop."""
+        checks' ``history`` so far: the best (return, weights), the history, the iterations and the stop.
+        The actor's learning rate falls from ``actor_lr`` to a tenth of it on a cosine from
+        ``anneal_from`` seconds into the budget to its end."""
         cfg, task = self.settings, self.task
         first = it
         opt_actor = torch.optim.Adam(self.policy.parameters(), lr=cfg.actor_lr)
@@ -1125,9 +1140,8 @@ class RewardTrainer:
             if self.should_stop is not None and self.should_stop():
                 stop = "cancelled"
                 break
-            frac = min(1.0, self.elapsed() / cfg.seconds)
             for group in opt_actor.param_groups:
-                group["lr"] = cfg.actor_lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * frac)))
+                group["lr"] = actor_rate(cfg.actor_lr, self.elapsed(), cfg.seconds, anneal_from)
             s, value = self.iterate(s, p, opt_actor, opt_critic)
             it += 1
             age += self.horizon

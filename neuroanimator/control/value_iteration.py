@@ -159,7 +159,8 @@ class ValueIteration:
     # the last this share of the budget: the actor-critic trains on from the copy (``RewardTrainer.learn``),
     # the fitted V its critic's start, so that the policy's gradient through the emulator polishes
     # what the few candidates could only approximate (a hopper standing on one foot is no series of
-    # full-torque kicks); the copy's rounds end where it begins. 0: the copy is the policy
+    # full-torque kicks); the copy's rounds end where it begins, and its actor's learning rate is
+    # annealed over that share alone (``reward_policy.actor_rate``). 0: the copy is the policy
     actor_critic: float = 0.0
     # seeds trained side by side (``seed_race``) meet once their values are fitted: each brings its
     # V's best check on MuJoCo (its greedy policy's return, ``refine_every``, which it needs: an

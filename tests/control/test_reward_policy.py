@@ -4,6 +4,7 @@ task, judged on MuJoCo with the suite's exact reward; and ``bench/policies.py`` 
 from __future__ import annotations
 
 import copy
+import itertools
 import json
 import logging
 import math
@@ -40,6 +41,7 @@ from neuroanimator.control.reward_policy import (
     RewardResult,
     RewardSettings,
     RewardTrainer,
+    actor_rate,
     draw_starts,
     root_drift,
     run_on_mujoco,
@@ -513,9 +515,19 @@ def test_value_iteration_hands_its_best_copy_and_its_value_to_the_actor_critic(
         return iterate(s, p, opt_actor, opt_critic)
 
     monkeypatch.setattr(trainer, "iterate", recorded_iterate)
+    learn = trainer.learn
+    annealed: list[tuple[float, float]] = []  # (anneal_from, seconds into the budget it was given)
+
+    def recorded_learn(best: Any, history: Any, it: int, anneal_from: float = 0.0) -> Any:
+        annealed.append((anneal_from, trainer.elapsed()))
+        return learn(best, history, it, anneal_from=anneal_from)
+
+    monkeypatch.setattr(trainer, "learn", recorded_learn)
     result = trainer.train()
     rounds = len(copies)
     assert rounds >= 1 and result.iterations == 5 and len(began) == 5 - rounds
+    # its learning rate annealed from where it begins, not from the budget's start
+    assert len(annealed) == 1 and 0.0 < annealed[0][0] <= annealed[0][1]
     # the first actor-critic update starts from the copy checked best (one round: that round's)
     if rounds == 1:
         assert all(torch.equal(began[0][0][k], v) for k, v in copies[0].items())
@@ -525,6 +537,19 @@ def test_value_iteration_hands_its_best_copy_and_its_value_to_the_actor_critic(
     its = [it for it, _, _ in result.return_history]
     assert its[:rounds] == list(range(1, rounds + 1)) and its[-1] == 5
     assert 0 <= result.return_physics <= TASK.episode_steps and result.greedy_agreement is not None
+
+
+def test_the_actors_rate_falls_on_a_cosine_to_a_tenth_from_where_it_is_annealed() -> None:
+    """``actor_rate``: over the whole budget by default; from ``anneal_from`` (the actor-critic
+    after value iteration) the full rate there, a tenth at the end, falling in between."""
+    assert actor_rate(2e-3, 0.0, 100.0) == pytest.approx(2e-3)
+    assert actor_rate(2e-3, 70.0, 100.0) == pytest.approx(2e-3 * (0.1 + 0.45 * (1 + math.cos(0.7 * math.pi))))
+    assert actor_rate(2e-3, 70.0, 100.0, anneal_from=70.0) == pytest.approx(2e-3)
+    assert actor_rate(2e-3, 50.0, 100.0, anneal_from=70.0) == pytest.approx(2e-3)  # before: the full rate
+    rates = [actor_rate(2e-3, t, 100.0, anneal_from=70.0) for t in (70.0, 80.0, 90.0, 100.0, 130.0)]
+    assert all(a > b for a, b in itertools.pairwise(rates[:4]))
+    assert rates[3] == pytest.approx(2e-4) and rates[4] == pytest.approx(2e-4)  # past the end: a tenth
+    assert actor_rate(2e-3, 100.0, 100.0, anneal_from=100.0) == pytest.approx(2e-3)  # no span: no fall
 
 
 def _recorded(evaluate: Callable[[int, int], Any], calls: list[tuple[int, int]]) -> Callable[[int, int], Any]:
@@ -864,6 +889,8 @@ def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
     assert not row["emulator_trained_here"] and 0 < row["emulator_wall_s"] < row["wall_s"]
     assert row["model_free"]["algorithm"] == "sac" and row["model_free"]["env_steps"] > 0
     assert row["greedy_agreement"] is None and row["greedy_regret"] is None  # the actor-critic's
+    # the root's drift on the training's final episodes and on the held-out ones the return is
+    assert row["root_drift_1s_m"] >= 0.0 and row["root_drift_1s_m_held_out"] >= 0.0
     assert any(line.startswith("| point_mass-easy |") for line in lines)
 
 
