@@ -17,13 +17,16 @@ For each task (``control.suite_tasks.SUITE_TASKS``), all in, on the same torch t
    or its threads: ``seed_race.cores_used``);
 
 then both run ``EPISODES`` episodes of 1,000 control steps on MuJoCo from the same held-out starts
-(``HELD_OUT_SEED``), the return their mean.
+(``HELD_OUT_SEED``), the return their mean. ``--set KEY=VALUE`` changes one of the policy's
+``RewardSettings`` for the run (``setting_overrides``): a variant measured by the same command.
 
 The model-based returns the field publishes for these tasks are in BENCHMARKS.md beside the results.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import logging
 import subprocess
 import sys
@@ -235,6 +238,42 @@ def bench_suite_baseline(
     }
 
 
+# settings the bench's own flags set (--suite-seconds, --seed, --seeds), not --set
+BENCH_OWNED = ("seconds", "seed", "seeds")
+
+
+def setting_overrides(pairs: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` strings → ``RewardSettings`` fields for one run, each VALUE read as JSON (a number,
+    ``true``, ``null``, a list for a tuple of layers), else as a string. ValueError naming the pair
+    for a field that is not one, one the bench's own flags set, or a value the settings refuse."""
+    fields = {f.name: f for f in dataclasses.fields(RewardSettings)}
+    defaults = RewardSettings()
+    out: dict[str, Any] = {}
+    for pair in pairs:
+        key, eq, text = pair.partition("=")
+        key = key.strip()
+        if not eq or key not in fields:
+            raise ValueError(f"--set {pair!r}: expected KEY=VALUE with KEY one of {', '.join(fields)}")
+        if key in BENCH_OWNED:
+            raise ValueError(f"--set {pair!r}: {key} is set by the bench's own flag")
+        try:
+            value = json.loads(text)
+        except json.JSONDecodeError:
+            value = text
+        default = getattr(defaults, key)
+        if isinstance(value, list):
+            value = tuple(value)
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if isinstance(default, (int, float)) and not isinstance(default, bool) and not number:
+            raise ValueError(f"--set {pair!r}: {key} is a number")
+        out[key] = value
+    try:
+        dataclasses.replace(defaults, **out)
+    except ValueError as refused:
+        raise ValueError(f"--set: {refused}") from refused
+    return out
+
+
 def bench_suite_task(
     name: str,
     root: Path,
@@ -244,11 +283,13 @@ def bench_suite_task(
     save_to: Path | None = None,
     seeds: int | None = None,
     baseline: bool = True,
+    overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """One suite task's row (module doc); with ``save_to``, the policy measured is stored there as
     ``neuro policy`` stores one (``policy_store.save_reward_policy``); ``seeds`` side by side instead
     of the task's (``SuiteTask.seeds``); without ``baseline``, no SAC (``model_free`` is None): the
-    policy's side alone, in half the time."""
+    policy's side alone, in half the time; ``overrides``, ``RewardSettings`` fields changed for this
+    run (``setting_overrides``)."""
     task = SUITE_TASKS[name]
     budget = seconds if seconds is not None else task.train_seconds + 300.0
     t0 = time.perf_counter()
@@ -270,6 +311,7 @@ def bench_suite_task(
             seeds=seeds,
             refine=False,
         )
+    settings = dataclasses.replace(settings, **(overrides or {}))
     cores = cores_used(task, settings)
     result = train_reward_policy(task, path, settings)
     wall = time.perf_counter() - t0

@@ -4,7 +4,7 @@ model-free reinforcement learning on MuJoCo, on the same held-out starts and goa
     python bench/policies.py [--tasks a,b] [--seconds S] [--suite-seconds S] [--artifacts DIR]
                              [--held-out 100] [--open-loop-runs 10] [--algorithm sac|ppo] [--seed 0]
                              [--seeds K] [--threads N] [--no-baseline | --baseline-only] [--quick]
-                             [--json]
+                             [--set KEY=VALUE ...] [--json]
 
 With no ``--tasks``, every task: the catalog's policy tasks, then dm_control's suite tasks
 (``control.suite_tasks.SUITE_TASKS``: cartpole-swingup, pendulum-swingup, reacher-hard,
@@ -46,6 +46,10 @@ defaults):
    in half a suite task's time; ``--baseline-only`` (suite tasks) is the other half, SAC alone for
    the task's budget (``--suite-seconds``) on ``--threads`` threads, the policy's columns "-".
 
+``--set KEY=VALUE`` (suite tasks; repeatable) changes one of the policy's ``RewardSettings`` for the
+run (``noise=0.4``, ``hidden=[256,256]``; echoed as the JSON's ``settings.set``): a variant measured
+by the bench's own command, on the same held-out starts.
+
 Prints a table; with ``--json`` the last line is one JSON object ``{"seed", "held_out", "settings",
 "tasks": [{"task", "success_physics", "success_emulator", "mujoco_steps", "wall_s", "iterations",
 "held_out", "open_loop": {"applicable", "reason", "runs", "success_physics", "policy_success_physics",
@@ -69,7 +73,7 @@ from typing import Any
 import numpy as np
 import torch
 from _model_free import ALGORITHMS, run_agent, train_model_free
-from _suite import bench_suite_baseline, bench_suite_task
+from _suite import bench_suite_baseline, bench_suite_task, setting_overrides
 from numpy.typing import NDArray
 
 from neuroanimator.artifacts import registry
@@ -363,6 +367,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--quick", action="store_true", help="seconds of training, 16 held-out runs: a smoke test")
     p.add_argument("--save-to", help="also store each trained policy in this artifact folder")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="suite tasks: one of the policy's RewardSettings for this run (noise=0.4, hidden=[256,256]); repeatable",
+    )
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
@@ -380,6 +392,12 @@ def main(argv: list[str] | None = None) -> int:
             "--held-out and --threads must be >= 1 and --open-loop-runs >= 0, got "
             f"{args.held_out}, {args.threads} and {args.open_loop_runs}"
         )
+    try:
+        overrides = setting_overrides(args.overrides)
+    except ValueError as refused:
+        p.error(str(refused))
+    if overrides and (args.baseline_only or [n for n in names if n not in SUITE_TASKS]):
+        p.error("--set changes a suite task's policy settings: suite --tasks only, and not --baseline-only")
     root = registry.Roots.default()
     t0 = time.perf_counter()
     rows = []
@@ -399,6 +417,7 @@ def main(argv: list[str] | None = None) -> int:
                     save_to,
                     args.seeds,
                     args.baseline,
+                    overrides,
                 )
             )
         else:
@@ -419,6 +438,7 @@ def main(argv: list[str] | None = None) -> int:
             "baseline": args.baseline,
             "baseline_only": args.baseline_only,
             "quick": args.quick,
+            "set": {k: list(v) if isinstance(v, tuple) else v for k, v in overrides.items()},
         }
         held = QUICK_HELD_OUT if args.quick else args.held_out
         print(json.dumps({"seed": HELD_OUT_SEED, "held_out": held, "settings": settings, "tasks": rows}))

@@ -895,16 +895,33 @@ def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
 
 
 def test_bench_policies_without_the_baseline_measures_the_policy_alone(artifacts: Path) -> None:
-    """--no-baseline: the policy's row as before, no SAC trained (its columns dashes, model_free null)."""
+    """--no-baseline: the policy's row as before, no SAC trained (its columns dashes, model_free null);
+    --set changes the policy's settings for the run (here its iterations and its layers)."""
     lines, result = run_bench(
         "bench/policies.py", "--quick", "--tasks", "point_mass-easy", "--artifacts", str(artifacts),
-        "--no-baseline",
+        "--no-baseline", "--set", "max_iterations=2", "--set", "hidden=[32, 32]",
     )  # fmt: skip
     (row,) = result["tasks"]
     assert result["settings"]["baseline"] is False and row["model_free"] is None
+    assert result["settings"]["set"] == {"max_iterations": 2, "hidden": [32, 32]} and row["iterations"] == 2
     assert isinstance(row["return_physics"], float) and row["wall_s"] > row["emulator_wall_s"] > 0
     (line,) = [line for line in lines if line.startswith("| point_mass-easy |")]
     assert line.endswith("| - | - | - |")
+
+
+@pytest.mark.parametrize(
+    ("pair", "says"),
+    [
+        ("nois=0.3", "KEY one of"),  # no such setting
+        ("seed=3", "the bench's own flag"),  # --seed's
+        ("noise=loud", "is a number"),
+        ("teacher=oracle", "teacher is one of"),  # a value the settings refuse
+    ],
+)
+def test_bench_policies_refuses_a_setting_it_cannot_apply(pair: str, says: str) -> None:
+    with pytest.raises(subprocess.CalledProcessError) as refused:
+        run_bench("bench/policies.py", "--quick", "--tasks", "point_mass-easy", "--set", pair)
+    assert "--set" in refused.value.stderr and says in refused.value.stderr
 
 
 def test_bench_policies_measures_the_baseline_alone() -> None:
