@@ -246,7 +246,7 @@ def setting_overrides(pairs: list[str]) -> dict[str, Any]:
     """``KEY=VALUE`` strings → ``RewardSettings`` fields for one run, each VALUE read as JSON (a number,
     ``true``, ``null``, a list for a tuple of layers), else as a string. ValueError naming the pair
     for a field that is not one, one the bench's own flags set, or a value the settings refuse."""
-    fields = {f.name: f for f in dataclasses.fields(RewardSettings)}
+    fields = [f.name for f in dataclasses.fields(RewardSettings)]
     defaults = RewardSettings()
     out: dict[str, Any] = {}
     for pair in pairs:

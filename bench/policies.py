@@ -438,7 +438,7 @@ def main(argv: list[str] | None = None) -> int:
             "baseline": args.baseline,
             "baseline_only": args.baseline_only,
             "quick": args.quick,
-            "set": {k: list(v) if isinstance(v, tuple) else v for k, v in overrides.items()},
+            "set": overrides,  # (a tuple of layers is written as a JSON list)
         }
         held = QUICK_HELD_OUT if args.quick else args.held_out
         print(json.dumps({"seed": HELD_OUT_SEED, "held_out": held, "settings": settings, "tasks": rows}))
