@@ -31,6 +31,7 @@ import logging
 import subprocess
 import sys
 import time
+import typing
 from pathlib import Path
 from typing import Any
 
@@ -242,10 +243,30 @@ def bench_suite_baseline(
 BENCH_OWNED = ("seconds", "seed", "seeds")
 
 
+def _nested_settings(key: str) -> type | None:
+    """The settings class a ``RewardSettings`` field holds (``value_iteration`` → ``ValueIteration``,
+    ``exploring`` → ``ExploringRuns``, ``copying`` → ``CopySettings``), None for a plain field."""
+    hint = typing.get_type_hints(RewardSettings)[key]
+    kinds = typing.get_args(hint) or (hint,)
+    return next((k for k in kinds if isinstance(k, type) and dataclasses.is_dataclass(k)), None)
+
+
+def _as_settings(key: str, kind: type, given: dict[str, Any]) -> Any:
+    """A JSON object → ``kind`` built from its defaults and the object's fields (lists as tuples);
+    ValueError naming a field ``kind`` has not."""
+    known = {f.name for f in dataclasses.fields(kind)}
+    unknown = sorted(set(given) - known)
+    if unknown:
+        raise ValueError(f"{key} has no field {', '.join(unknown)}: one of {', '.join(sorted(known))}")
+    return kind(**{k: tuple(v) if isinstance(v, list) else v for k, v in given.items()})
+
+
 def setting_overrides(pairs: list[str]) -> dict[str, Any]:
     """``KEY=VALUE`` strings → ``RewardSettings`` fields for one run, each VALUE read as JSON (a number,
-    ``true``, ``null``, a list for a tuple of layers), else as a string. ValueError naming the pair
-    for a field that is not one, one the bench's own flags set, or a value the settings refuse."""
+    ``true``, ``null``, a list for a tuple of layers, an object for a field that holds settings of its
+    own: ``value_iteration={"candidates": 64}`` is ``ValueIteration(candidates=64)``, the rest its
+    defaults, not the task's), else as a string. ValueError naming the pair for a field that is not
+    one, one the bench's own flags set, or a value the settings refuse."""
     fields = [f.name for f in dataclasses.fields(RewardSettings)]
     defaults = RewardSettings()
     out: dict[str, Any] = {}
@@ -263,6 +284,14 @@ def setting_overrides(pairs: list[str]) -> dict[str, Any]:
         default = getattr(defaults, key)
         if isinstance(value, list):
             value = tuple(value)
+        nested = _nested_settings(key)
+        if isinstance(value, dict):
+            if nested is None:
+                raise ValueError(f"--set {pair!r}: {key} holds no settings of its own")
+            try:
+                value = _as_settings(key, nested, value)
+            except (TypeError, ValueError) as refused:
+                raise ValueError(f"--set {pair!r}: {refused}") from refused
         number = isinstance(value, (int, float)) and not isinstance(value, bool)
         if isinstance(default, (int, float)) and not isinstance(default, bool) and not number:
             raise ValueError(f"--set {pair!r}: {key} is a number")
@@ -272,6 +301,14 @@ def setting_overrides(pairs: list[str]) -> dict[str, Any]:
     except ValueError as refused:
         raise ValueError(f"--set: {refused}") from refused
     return out
+
+
+def overrides_echo(overrides: dict[str, Any]) -> dict[str, Any]:
+    """``setting_overrides``' result as JSON can write it: settings of their own as their fields."""
+    return {
+        k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) and not isinstance(v, type) else v
+        for k, v in overrides.items()
+    }
 
 
 def bench_suite_task(

@@ -47,8 +47,9 @@ defaults):
    the task's budget (``--suite-seconds``) on ``--threads`` threads, the policy's columns "-".
 
 ``--set KEY=VALUE`` (suite tasks; repeatable) changes one of the policy's ``RewardSettings`` for the
-run (``noise=0.4``, ``hidden=[256,256]``; echoed as the JSON's ``settings.set``): a variant measured
-by the bench's own command, on the same held-out starts.
+run (``noise=0.4``, ``hidden=[256,256]``, ``value_iteration={"candidates": 64}`` for settings of their
+own, built from their defaults; echoed as the JSON's ``settings.set``): a variant measured by the
+bench's own command, on the same held-out starts.
 
 Prints a table; with ``--json`` the last line is one JSON object ``{"seed", "held_out", "settings",
 "tasks": [{"task", "success_physics", "success_emulator", "mujoco_steps", "wall_s", "iterations",
@@ -73,7 +74,7 @@ from typing import Any
 import numpy as np
 import torch
 from _model_free import ALGORITHMS, run_agent, train_model_free
-from _suite import bench_suite_baseline, bench_suite_task, setting_overrides
+from _suite import bench_suite_baseline, bench_suite_task, overrides_echo, setting_overrides
 from numpy.typing import NDArray
 
 from neuroanimator.artifacts import registry
@@ -373,7 +374,10 @@ def main(argv: list[str] | None = None) -> int:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="suite tasks: one of the policy's RewardSettings for this run (noise=0.4, hidden=[256,256]); repeatable",
+        help=(
+            "suite tasks: one of the policy's RewardSettings for this run (noise=0.4, hidden=[256,256],"
+            ' value_iteration={"candidates": 64}); repeatable'
+        ),
     )
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
@@ -438,7 +442,7 @@ def main(argv: list[str] | None = None) -> int:
             "baseline": args.baseline,
             "baseline_only": args.baseline_only,
             "quick": args.quick,
-            "set": overrides,  # (a tuple of layers is written as a JSON list)
+            "set": overrides_echo(overrides),  # (a tuple of layers is written as a JSON list)
         }
         held = QUICK_HELD_OUT if args.quick else args.held_out
         print(json.dumps({"seed": HELD_OUT_SEED, "held_out": held, "settings": settings, "tasks": rows}))

@@ -4,6 +4,7 @@ task, judged on MuJoCo with the suite's exact reward; and ``bench/policies.py`` 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import itertools
 import json
 import logging
@@ -896,14 +897,19 @@ def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
 
 def test_bench_policies_without_the_baseline_measures_the_policy_alone(artifacts: Path) -> None:
     """--no-baseline: the policy's row as before, no SAC trained (its columns dashes, model_free null);
-    --set changes the policy's settings for the run (here its iterations and its layers)."""
+    --set changes the policy's settings for the run (here its iterations, its layers, and settings of
+    their own given as a JSON object, echoed with their defaults)."""
     lines, result = run_bench(
         "bench/policies.py", "--quick", "--tasks", "point_mass-easy", "--artifacts", str(artifacts),
         "--no-baseline", "--set", "max_iterations=2", "--set", "hidden=[32, 32]",
+        "--set", 'exploring={"runs": 0, "hold": 2}',
     )  # fmt: skip
     (row,) = result["tasks"]
     assert result["settings"]["baseline"] is False and row["model_free"] is None
-    assert result["settings"]["set"] == {"max_iterations": 2, "hidden": [32, 32]} and row["iterations"] == 2
+    given = result["settings"]["set"]
+    assert given["exploring"] == {**dataclasses.asdict(ExploringRuns()), "runs": 0, "hold": 2}
+    assert {k: given[k] for k in ("max_iterations", "hidden")} == {"max_iterations": 2, "hidden": [32, 32]}
+    assert row["iterations"] == 2
     assert isinstance(row["return_physics"], float) and row["wall_s"] > row["emulator_wall_s"] > 0
     (line,) = [line for line in lines if line.startswith("| point_mass-easy |")]
     assert line.endswith("| - | - | - |")
@@ -916,6 +922,9 @@ def test_bench_policies_without_the_baseline_measures_the_policy_alone(artifacts
         ("seed=3", "the bench's own flag"),  # --seed's
         ("noise=loud", "is a number"),
         ("teacher=oracle", "teacher is one of"),  # a value the settings refuse
+        ('value_iteration={"candidate": 3}', "has no field candidate"),  # settings of their own
+        ('value_iteration={"share": 1.5}', "share of the budget"),  # ... that they refuse
+        ('noise={"loud": true}', "holds no settings of its own"),
     ],
 )
 def test_bench_policies_refuses_a_setting_it_cannot_apply(pair: str, says: str) -> None:
