@@ -27,6 +27,12 @@ longer than a gradient survives through a learned model. So, as SHAC does:
    is fine-tuned on all the policy's MuJoCo runs so far, so the model is right where the policy goes
    (a model already right there is left alone: its seconds go to the policy).
 
+With ``rollouts="mujoco"`` the training rollouts run on MuJoCo and only their gradient through the
+emulator (decoupled backpropagation, as first-order model-based RL through a learned model does
+where the simulator has no derivatives): each super-step's value is MuJoCo's, its Jacobian the
+emulator's at the state MuJoCo reached, so that a model's errors bend the gradient but never carry
+the episode somewhere the physics does not go, and the critic learns MuJoCo's returns.
+
 Shapes: B episodes, H horizon, S state, U controls, P task parameters.
 """
 
@@ -70,6 +76,10 @@ EXPLORE_SHARE = 0.25  # of the budget the exploring runs' fine-tuning may take a
 # failures, not those of the policies it has left behind
 FAILING_CHECKS = 4
 FINAL_SEED_OFFSET = 1_000_003  # the final episodes' seed, apart from the training's draws
+ROLLOUTS = (
+    "emulator",
+    "mujoco",
+)  # where the actor-critic's training rollouts run (``RewardSettings.rollouts``)
 OUTSIDE = "outside_envelope"  # a training's stop: its emulated states left the emulator's envelope too often
 
 
@@ -147,10 +157,17 @@ class RewardSettings:
     # before learning, the emulator fine-tuned on random runs from the task's starts
     # (``exploring_runs``); None: as the task says (``SuiteTask.exploring``)
     exploring: ExploringRuns | None = None
+    # where the actor-critic's training rollouts run: "emulator", or "mujoco": each super-step's
+    # state MuJoCo's, its gradient the emulator's at that state (decoupled backpropagation: the
+    # model's errors do not compound along the path, the critic learns from MuJoCo's returns; its
+    # steps counted in ``mujoco_steps``)
+    rollouts: str = "emulator"
 
     def __post_init__(self) -> None:
         if self.teacher is not None and self.teacher not in TEACHERS:
             raise ValueError(f"teacher is one of {', '.join(TEACHERS)}, not {self.teacher!r}")
+        if self.rollouts not in ROLLOUTS:
+            raise ValueError(f"rollouts run on one of {', '.join(ROLLOUTS)}, not {self.rollouts!r}")
         if isinstance(self.value_iteration, str) and self.value_iteration != "off":
             raise ValueError(f"value_iteration is settings, None or 'off', not {self.value_iteration!r}")
 
@@ -807,7 +824,7 @@ class RewardTrainer:
             if cfg.noise > 0:
                 u = u + cfg.noise * half * torch.randn_like(u)
             u = torch.maximum(torch.minimum(u, self.policy.centre + half), self.policy.centre - half)
-            x = self.step(x, u)
+            x = self.step(x, u) if cfg.rollouts == "emulator" else self.step_on_mujoco(x, u)
             r = task.reward(self.ctx, x, u, p, True)
             r = torch.nan_to_num(r)
             loss = loss - disc * r.mean()
@@ -829,6 +846,23 @@ class RewardTrainer:
         self.critic.zero_grad()  # the actor's loss reached the critic's weights; they learn below
         self.update_critic(torch.stack(states), torch.stack(rewards), p, opt_critic)
         return x.detach(), float(loss.detach())
+
+    def step_on_mujoco(self, x: Tensor, u: Tensor) -> Tensor:
+        """One super-step from states (B, S) under controls (B, U) whose value is MuJoCo's and whose
+        gradient is the emulator's at ``x`` (``RewardSettings.rollouts``): MuJoCo's state plus the
+        emulator's prediction less itself detached, so that the path follows the physics and the
+        chain rule the model's Jacobians along it."""
+        predicted = self.step(x, u)
+        with torch.no_grad():
+            held = u.detach().double().numpy()[:, None, :]
+            real = self.physical.simulate(
+                x.detach().double().numpy(),
+                held,
+                nstep=self.manifest.substeps,
+                threads=torch.get_num_threads(),
+            )[:, -1]
+        self.mujoco_steps += len(real) * self.manifest.substeps
+        return torch.as_tensor(real, dtype=predicted.dtype) + predicted - predicted.detach()
 
     def update_critic(self, states: Tensor, rewards: Tensor, p: Tensor, opt: torch.optim.Optimizer) -> None:
         """TD(λ) targets from the horizon's states (H+1, B, S) and rewards (H, B), with the target critic."""

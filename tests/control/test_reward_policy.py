@@ -107,6 +107,40 @@ def test_training_runs_on_mujoco_keeps_the_best_and_counts_its_steps(artifacts: 
     )
 
 
+def test_training_rollouts_on_mujoco_follow_the_physics_with_the_emulators_gradient(artifacts: Path) -> None:
+    """rollouts="mujoco": each training super-step's value is MuJoCo's, its gradient the emulator's at
+    that state; a training so counts its rollouts' steps beside its checks' and learns."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    settings = replace(QUICK, rollouts="mujoco")
+    trainer = RewardTrainer(TASK, path, settings)
+    starts, _ = draw_starts(TASK, trainer.physical, np.random.default_rng(1), 4)
+    x = torch.as_tensor(starts, dtype=torch.float32).requires_grad_(True)
+    u = torch.as_tensor(np.random.default_rng(2).uniform(trainer.low, trainer.high, (4, len(trainer.low))))
+    u = u.float().requires_grad_(True)
+    stepped = trainer.step_on_mujoco(x, u)
+    real = trainer.physical.step_held(starts, u.detach().double().numpy(), None, TASK.substeps)
+    np.testing.assert_allclose(stepped.detach().numpy(), real, rtol=1e-5, atol=1e-5)
+    emulated = trainer.step(x, u)
+    assert not torch.allclose(emulated, stepped)  # the model is not the physics ...
+    weights = torch.randn_like(stepped)
+    for inputs in (x, u):  # ... but the gradient is the model's, to the state and to the controls
+        (through_mujoco,) = torch.autograd.grad((stepped * weights).sum(), inputs, retain_graph=True)
+        (through_model,) = torch.autograd.grad((emulated * weights).sum(), inputs, retain_graph=True)
+        torch.testing.assert_close(through_mujoco, through_model)
+    assert trainer.mujoco_steps == 4 * TASK.substeps
+    trainer = RewardTrainer(TASK, path, settings)
+    result = trainer.train()
+    assert result.iterations > 0 and np.isfinite(result.return_physics)
+    episodes = settings.eval_episodes * len(result.return_history) + settings.final_episodes
+    assert settings.refine_keep is not None and settings.horizon is not None
+    windows = settings.refine_keep if trainer.kept is not None else 0  # drawn when first refined
+    typical = windows * (sampling.lead_steps(trainer.physical, TASK.substeps) + 8 * TASK.substeps)
+    rollouts = result.iterations * settings.envs * settings.horizon * TASK.substeps
+    assert result.mujoco_steps == episodes * TASK.episode_steps * TASK.control_substeps + typical + rollouts
+    with pytest.raises(ValueError, match="rollouts run on one of emulator, mujoco"):
+        RewardSettings(rollouts="sky")
+
+
 def test_episodes_on_mujoco_sum_the_suites_reward_at_every_control_step(artifacts: Path) -> None:
     path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
     trainer = RewardTrainer(TASK, path, QUICK)
