@@ -76,10 +76,8 @@ EXPLORE_SHARE = 0.25  # of the budget the exploring runs' fine-tuning may take a
 # failures, not those of the policies it has left behind
 FAILING_CHECKS = 4
 FINAL_SEED_OFFSET = 1_000_003  # the final episodes' seed, apart from the training's draws
-ROLLOUTS = (
-    "emulator",
-    "mujoco",
-)  # where the actor-critic's training rollouts run (``RewardSettings.rollouts``)
+# where the actor-critic's training rollouts run (``RewardSettings.rollouts``)
+ROLLOUTS = ("emulator", "mujoco")
 OUTSIDE = "outside_envelope"  # a training's stop: its emulated states left the emulator's envelope too often
 
 
