@@ -284,8 +284,8 @@ def setting_overrides(pairs: list[str]) -> dict[str, Any]:
         default = getattr(defaults, key)
         if isinstance(value, list):
             value = tuple(value)
-        nested = _nested_settings(key)
         if isinstance(value, dict):
+            nested = _nested_settings(key)
             if nested is None:
                 raise ValueError(f"--set {pair!r}: {key} holds no settings of its own")
             try:

@@ -852,13 +852,13 @@ class RewardTrainer:
         chain rule the model's Jacobians along it."""
         predicted = self.step(x, u)
         with torch.no_grad():
-            held = u.detach().double().numpy()[:, None, :]
-            real = self.physical.simulate(
+            real = self.physical.step_held(
                 x.detach().double().numpy(),
-                held,
-                nstep=self.manifest.substeps,
+                u.detach().double().numpy(),
+                None,
+                self.manifest.substeps,
                 threads=torch.get_num_threads(),
-            )[:, -1]
+            )
         self.mujoco_steps += len(real) * self.manifest.substeps
         return torch.as_tensor(real, dtype=predicted.dtype) + predicted - predicted.detach()
 

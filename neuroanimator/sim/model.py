@@ -676,11 +676,13 @@ class PhysicalModel:
         substeps: int,
         *,
         check: bool = False,
+        threads: int | None = None,
     ) -> FloatArray:
-        """One super-step of the physics: hold controls (B, U) and forces (B, F) for ``substeps`` steps."""
+        """One super-step of the physics: hold controls (B, U) and forces (B, F) for ``substeps`` steps
+        (on at most ``threads`` of MuJoCo's threads; None: all of them)."""
         u = None if controls is None else np.asarray(controls, dtype=np.float64)[:, None, :]
         f = None if forces is None else np.asarray(forces, dtype=np.float64)[:, None, :]
-        return self.simulate(states, u, f, nstep=substeps, check=check)[:, -1]
+        return self.simulate(states, u, f, nstep=substeps, threads=threads, check=check)[:, -1]
 
     # ------------------------------------------------------------------ typical inputs
     def initial_states(self, rng: np.random.Generator, batch: int) -> FloatArray:
