@@ -78,6 +78,7 @@ def describe_network(emu: StructuredEmulator, model: PhysicalModel, mode: str) -
             force_pairs=[list(p) for p in fr.force_pairs],
             control_pairs=[list(p) for p in fr.control_pairs],
             body=emu.architecture()["frame"]["body"],  # type: ignore[index]
+            slides=list(fr.slides),
         ),
         reads=NetworkReads(
             state=[g.name for g in model.layout if g.name in read],
@@ -359,7 +360,9 @@ def build_manifest(
             )
         ],
         forces=list(model.spec.forces),
-        frame=Symmetries(translate=list(model.frame.translate), rotate=model.frame.rotate),
+        frame=Symmetries(
+            translate=list(model.frame.translate), rotate=model.frame.rotate, slides=list(model.frame.slides)
+        ),
         io=GraphIO(inputs=inputs),
         emulator=describe_hierarchy(result.emulator, model, cfg.normalization)
         if isinstance(result.emulator, HierarchicalEmulator)
@@ -502,6 +505,7 @@ def load_torch(path: Path) -> StructuredEmulator:
             force_pairs=tuple(tuple(p) for p in fr.force_pairs),
             body=fr.body,
             control_pairs=tuple(tuple(p) for p in fr.control_pairs),
+            slides=tuple(fr.slides),
         ),
         tuple(net.hidden),
         net.activation,

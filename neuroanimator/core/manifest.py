@@ -84,6 +84,8 @@ class Symmetries(_Strict):
 
     translate: list[bool]
     rotate: bool
+    # scalar groups of root slide joints it is translation-invariant along (``PhysicalModel.frame``)
+    slides: list[str] = []
 
 
 class GraphIO(_Strict):
@@ -140,6 +142,7 @@ class NetworkFrame(_Strict):
     force_pairs: list[list[int]] = []
     control_pairs: list[list[int]] = []  # controls along world axes (indices), turned with the frame
     body: bool = False
+    slides: list[str] = []  # scalar groups of root slides translated away: not read (``Symmetries.slides``)
 
 
 class NetworkLimit(_Strict):

@@ -104,6 +104,8 @@ class FrameConfig:
     force_pairs: tuple[tuple[int, ...], ...] = ()
     control_pairs: tuple[tuple[int, ...], ...] = ()  # controls along world axes, turned like force_pairs
     body: bool = False
+    # scalar groups of root slides translated away: the network does not read them (``Frame.slides``)
+    slides: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -501,6 +503,8 @@ class StructuredEmulator(nn.Module):
         body, rot, translate = self._body, self._rotate, self.frame.translate
         if body and sl.start in cols.vec_of:
             return cols.vec_cols(sl.start)
+        if g.name in self.frame.slides:
+            return []  # how far it has slid: translated away, as a free root's x and y
         if g.kind == "position":
             kept = [i for i in range(g.size) if not (translate and translate[i])]
             return [cols.col(sl.start + i) for i in kept]  # translated axes are 0: dropped (App. F.1)
@@ -867,6 +871,7 @@ class StructuredEmulator(nn.Module):
                 "force_pairs": [list(p) for p in self.frame.force_pairs],
                 "control_pairs": [list(p) for p in self.frame.control_pairs],
                 "body": self._body,
+                "slides": list(self.frame.slides),
             },
         }
 

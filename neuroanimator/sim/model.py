@@ -93,6 +93,16 @@ class Frame:
 
     translate: tuple[bool, ...]  # one flag per dimension of the root position group
     rotate: bool
+    # scalar groups of root slide joints the physics is translation-invariant along (a planar
+    # body's ``rootx``: the emulator does not read how far it has gone, as for a free root's x and y)
+    slides: tuple[str, ...] = ()
+
+
+def _descends(m: mujoco.MjModel, body: int, ancestor: int) -> bool:
+    """Whether ``body`` is ``ancestor`` or in its subtree."""
+    while body != ancestor and body != 0:
+        body = int(m.body_parentid[body])
+    return body == ancestor
 
 
 def _group(
@@ -313,7 +323,64 @@ class PhysicalModel:
             and has_orientation
             and self.world_control_vectors is not None
         )
-        return Frame(translate=translate, rotate=rotate)
+        slides = self.invariant_slides() if self.spec.translation_invariant else ()
+        return Frame(translate=translate, rotate=rotate, slides=slides)
+
+    def invariant_slides(self) -> tuple[str, ...]:
+        """The position groups of the slide joints the physics does not depend on the position of:
+        on a body whose parent is the world and that carries every body that moves (so that sliding
+        it moves the whole model, its place among the others unchanged), after no hinge or ball of
+        that body (so that it moves along a world axis), horizontal (vertical only in a world without colliding geoms: a floor),
+        unlimited, without a spring, in no tendon and no equality constraint, no actuator pulling
+        towards a position along it (the planar cheetah's, walker's and hopper's ``rootx``)."""
+        m = self.mj_model
+        names = {g.address: g.name for g in self.layout.groups if g.kind == "scalar" and g.source == "qpos"}
+        world_collides = any(
+            m.geom_bodyid[g] == 0 and (m.geom_contype[g] or m.geom_conaffinity[g]) for g in range(m.ngeom)
+        )
+        in_tendons = {
+            int(m.wrap_objid[w]) for w in range(m.nwrap) if m.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT
+        }
+        in_equality = {
+            int(m.eq_obj1id[e]) for e in range(m.neq) if m.eq_type[e] == mujoco.mjtEq.mjEQ_JOINT
+        } | {int(m.eq_obj2id[e]) for e in range(m.neq) if m.eq_type[e] == mujoco.mjtEq.mjEQ_JOINT}
+        held = {
+            int(m.actuator_trnid[a, 0])
+            for a in range(m.nu)
+            if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and m.actuator_biasprm[a, 1] != 0
+        }
+        g = np.asarray(m.opt.gravity)
+        down = g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 0.0, -1.0])
+        moving = [b for b in range(1, m.nbody) if m.body_jntnum[b] > 0]
+        out: list[str] = []
+        for j in range(m.njnt):
+            body = int(m.jnt_bodyid[j])
+            if m.jnt_type[j] != mujoco.mjtJoint.mjJNT_SLIDE or m.body_parentid[body] != 0:
+                continue
+            if not all(_descends(m, b, body) for b in moving):
+                continue  # it moves one body among others (a ball beside its cup): where matters
+            before = [k for k in range(m.body_jntadr[body], j)]
+            if any(m.jnt_type[k] != mujoco.mjtJoint.mjJNT_SLIDE for k in before):
+                continue
+            # the axis in the world: the body's frame at rest turns it (slides move it, not turn it)
+            axis = np.zeros(3)
+            mujoco.mju_rotVecQuat(axis, m.jnt_axis[j], m.body_quat[body])
+            along = abs(float(axis @ down))
+            horizontal, vertical = along < 1e-9, abs(along - 1.0) < 1e-9
+            if not (horizontal or (vertical and not world_collides)):
+                continue
+            if (
+                m.jnt_limited[j]
+                or m.jnt_stiffness[j] != 0
+                or j in in_tendons
+                or j in in_equality
+                or j in held
+            ):
+                continue
+            name = names.get(int(m.jnt_qposadr[j]))
+            if name is not None:
+                out.append(name)
+        return tuple(out)
 
     @cached_property
     def world_control_vectors(self) -> tuple[tuple[int, ...], ...] | None:

@@ -6,7 +6,8 @@ smallest and largest value seen, widened by ``MARGIN`` of that range on each sid
 it (``Manifest.envelope``) and the emulator service flags every step whose new state leaves it.
 
 A value the emulator is indifferent to has no bounds (``None``): a root-position axis the physics is
-translation-invariant along (the emulator never sees it), a heading its frame removes, a hinge angle
+translation-invariant along (the emulator never sees it; a root slide the same, ``Frame.slides``), a
+heading its frame removes, a hinge angle
 (it enters as sin and cos, so a joint that turned a full circle looks the same) and an orientation
 quaternion (any attitude is one; what the emulator knows of attitudes shows in the other groups).
 Imports neither torch nor MuJoCo.
@@ -31,12 +32,17 @@ MARGIN = 0.1
 """How far the envelope reaches beyond the data, as a fraction of each value's range."""
 
 
-def unbounded(layout: StateLayout, translate: Sequence[bool], rotate: bool) -> NDArray[np.bool_]:
+def unbounded(
+    layout: StateLayout, translate: Sequence[bool], rotate: bool, slides: Sequence[str] = ()
+) -> NDArray[np.bool_]:
     """(S,) True for the values the emulator is indifferent to (see the module docstring), for a layout
-    with these symmetries (``translate``: per root-position axis; ``rotate``: about the vertical)."""
+    with these symmetries (``translate``: per root-position axis; ``rotate``: about the vertical;
+    ``slides``: root slides' groups translated away)."""
     out = np.zeros(layout.size, bool)
     for g, sl in layout.group_slices():
-        if g.kind == "position":
+        if g.name in slides:
+            out[sl] = True
+        elif g.kind == "position":
             out[sl] = list(translate) + [False] * (g.size - len(translate))
         elif g.kind == "angle" or g.kind in QUATERNION_KINDS or (g.kind == "heading" and rotate):
             out[sl] = True
@@ -49,6 +55,7 @@ def training_envelope(
     translate: Sequence[bool],
     rotate: bool,
     margin: float = MARGIN,
+    slides: Sequence[str] = (),
 ) -> list[EnvelopeGroup]:
     """The envelope of training states (N, S): per group, each value's range widened by ``margin``."""
     x = np.asarray(states, np.float64).reshape(-1, layout.size)
@@ -58,7 +65,7 @@ def training_envelope(
     # the margin, and at least a float32 rounding error (a value constant in the data stays inside)
     pad = margin * (hi - lo) + 1e-6 * np.maximum(1.0, np.maximum(np.abs(lo), np.abs(hi)))
     lo, hi = lo - pad, hi + pad
-    free = unbounded(layout, translate, rotate)
+    free = unbounded(layout, translate, rotate, slides)
     groups = []
     for g, sl in layout.group_slices():
         groups.append(
@@ -74,4 +81,5 @@ def training_envelope(
 def examples_envelope(model: PhysicalModel, data: Examples) -> list[EnvelopeGroup]:
     """The envelope of a model's training examples: their states and next states."""
     states = np.concatenate([data.states, data.next_states])
-    return training_envelope(model.layout, states, model.frame.translate, model.frame.rotate)
+    fr = model.frame
+    return training_envelope(model.layout, states, fr.translate, fr.rotate, slides=fr.slides)

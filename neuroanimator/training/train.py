@@ -110,6 +110,7 @@ def frame_config(model: PhysicalModel, frame: str = "auto") -> FrameConfig:
         force_pairs=tuple(pairs) if rotate else (),
         body=body and rotate,
         control_pairs=tuple(controls) if rotate else (),
+        slides=fr.slides,
     )
 
 
