@@ -58,6 +58,7 @@ from neuroanimator.artifacts import store as artifacts
 from neuroanimator.control.bptt import FastStep
 from neuroanimator.control.exploring_runs import ExploringRuns, random_runs
 from neuroanimator.control.planner_copy import PLANNER, TEACHERS, CopySettings, PlannerCopy
+from neuroanimator.control.random_search import RandomSearch, SearchLearner
 from neuroanimator.control.suite_tasks import Context, Restarts, SuiteTask
 from neuroanimator.control.value_iteration import ValueFitter, ValueIteration, candidate_controls
 from neuroanimator.emulator.structured import StructuredEmulator
@@ -160,6 +161,10 @@ class RewardSettings:
     # model's errors do not compound along the path, the critic learns from MuJoCo's returns; its
     # steps counted in ``mujoco_steps``)
     rollouts: str = "emulator"
+    # instead of the actor-critic: augmented random search over the policy's weights, every tried
+    # policy's return measured on emulated episodes (``random_search``); None: as the task says
+    # (``SuiteTask.random_search``), "off": the actor-critic whatever it says
+    random_search: RandomSearch | str | None = None
 
     def __post_init__(self) -> None:
         if self.teacher is not None and self.teacher not in TEACHERS:
@@ -168,6 +173,8 @@ class RewardSettings:
             raise ValueError(f"rollouts run on one of {', '.join(ROLLOUTS)}, not {self.rollouts!r}")
         if isinstance(self.value_iteration, str) and self.value_iteration != "off":
             raise ValueError(f"value_iteration is settings, None or 'off', not {self.value_iteration!r}")
+        if isinstance(self.random_search, str) and self.random_search != "off":
+            raise ValueError(f"random_search is settings, None or 'off', not {self.random_search!r}")
 
     @property
     def judged_on(self) -> int:
@@ -515,6 +522,13 @@ def value_iteration_of(task: SuiteTask, settings: RewardSettings) -> ValueIterat
     return how if isinstance(how, ValueIteration) else None
 
 
+def random_search_of(task: SuiteTask, settings: RewardSettings) -> RandomSearch | None:
+    """How the policy is found by random search: the settings', else the task's; None for another
+    learner (``RewardSettings.random_search``)."""
+    how = task.random_search if settings.random_search is None else settings.random_search
+    return how if isinstance(how, RandomSearch) else None
+
+
 def seeds_meet(task: SuiteTask, settings: RewardSettings) -> bool:
     """Whether seeds side by side meet (once): at a check past ``RewardSettings.meet_at``, or when
     their values are fitted (``ValueIteration.meet``)."""
@@ -602,6 +616,11 @@ class RewardTrainer:
                 f"{task.name}: the seeds meet once, when their values are fitted (value iteration's meet) "
                 "or at meet_at, not both"
             )
+        rs = self.random_search = random_search_of(task, settings)
+        if rs is not None and (vi is not None or settings.teacher == PLANNER):
+            raise ValueError(
+                f"{task.name}: random search is a learner of its own, not beside value iteration or a teacher"
+            )
         self.value_fitter: ValueFitter | None = None  # its value and labels, once ``learn_from_value`` ran
         # the kept policy beside the greedy one over the value (``ValueFitter.follows``), once copied
         self.greedy_follow: tuple[float, float] | None = None
@@ -618,9 +637,8 @@ class RewardTrainer:
             )
             self.policy = ChoicePolicy(features, grid, vi.policy_hidden, vi.blend)
         else:
-            self.policy = RewardPolicy(
-                features, self.low, self.high, vi.policy_hidden if vi else settings.hidden
-            )
+            hidden = vi.policy_hidden if vi else rs.hidden if rs else settings.hidden
+            self.policy = RewardPolicy(features, self.low, self.high, hidden)
         self.critic = Critic(copy.deepcopy(features), vi.hidden if vi else settings.critic_hidden)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
 
@@ -1064,6 +1082,8 @@ class RewardTrainer:
             # the actor-critic goes on from the copy, and restarts where the planner's runs went
             self.policy.load_state_dict(best[1])
             self.visited.append(copier.examples.joined())
+        if self.random_search is not None:
+            return self.finish(*SearchLearner(self, self.random_search).learn(best, history, it))
         if self.value_iteration is not None:
             return self.finish(*self.learn_from_value(self.value_iteration, best, history, it))
         return self.finish(*self.learn(best, history, it))

@@ -34,6 +34,7 @@ from torch import Tensor
 from neuroanimator.catalog.suite import SUITE_TASK_INFO, SuiteTaskInfo
 from neuroanimator.control.exploring_runs import ExploringRuns
 from neuroanimator.control.kinematics import Kinematics
+from neuroanimator.control.random_search import RandomSearch
 from neuroanimator.control.value_iteration import ValueIteration
 from neuroanimator.core.state import LayoutGroup
 
@@ -214,6 +215,9 @@ class SuiteTask(SuiteTaskInfo):
     # instead of the actor-critic: a value by value iteration over the envelope, its greedy policy
     # copied into the network (``RewardSettings.value_iteration``); None: the actor-critic
     value_iteration: ValueIteration | None = None
+    # instead of the actor-critic: augmented random search through the emulator
+    # (``RewardSettings.random_search``); None: another learner
+    random_search: RandomSearch | None = None
     # before learning, the emulator fine-tuned on random runs from the task's starts
     # (``RewardSettings.exploring``; ``exploring_runs``)
     exploring: ExploringRuns = field(default_factory=ExploringRuns)

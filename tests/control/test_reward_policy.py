@@ -34,6 +34,7 @@ from neuroanimator.control.planner import PlannerSettings, SamplingPlanner
 from neuroanimator.control.planner_copy import CopySettings, PlannerCopy
 from neuroanimator.control.policy import PolicySettings
 from neuroanimator.control.policy_job import PolicyJobError, run_policy_job
+from neuroanimator.control.random_search import RandomSearch, SearchLearner, set_weights
 from neuroanimator.control.reward_policy import (
     ChoicePolicy,
     Meeting,
@@ -1279,3 +1280,73 @@ def test_the_planner_bench_reports_the_planner_on_the_held_out_episodes(artifact
     assert row["task"] == "point_mass-easy" and row["planner"]["settings"]["samples"] == 16
     assert len(row["planner"]["returns"]) == 2 and row["planner"]["return_physics"] >= 0
     assert row["copy"] is None and any(line.startswith("planner") for line in lines)
+
+
+def test_random_search_tries_its_policies_through_the_emulator_and_keeps_the_best_on_mujoco(
+    artifacts: Path,
+) -> None:
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    how = RandomSearch(directions=8, top=4, episodes=3, step=0.1, noise=0.1)
+    settings = replace(QUICK, max_iterations=40, eval_every=0.02, random_search=how)
+    trainer = RewardTrainer(TASK, path, settings)
+    # a linear map of the features, from the controls' centres
+    learner = SearchLearner(trainer, how)
+    assert [type(m) for m in learner.net] == [torch.nn.Linear]
+    assert learner.steps == TASK.policy_steps and not learner.theta.any()
+    # every tried policy's return is its own emulated episodes' from the same starts
+    theta = 0.5 * torch.randn(learner.theta.numel(), generator=torch.Generator().manual_seed(3))
+    starts, params = draw_starts(TASK, trainer.physical, np.random.default_rng(5), 3)
+    s, p = torch.as_tensor(starts, dtype=torch.float32), torch.as_tensor(params, dtype=torch.float32)
+    got = learner.returns(torch.stack([theta, torch.zeros_like(theta), theta]), s, p)
+    set_weights(trainer.policy.net, theta)
+    assert got[0] == got[2] and math.isclose(float(got[0]), trainer.emulated_return(s, p), rel_tol=1e-4)
+    set_weights(trainer.policy.net, torch.zeros_like(theta))
+    assert math.isclose(float(got[1]), trainer.emulated_return(s, p), rel_tol=1e-4, abs_tol=1e-3)
+    # ... and on MuJoCo (``on="mujoco"``), the same search on the physics, every step counted
+    on_mujoco = SearchLearner(trainer, replace(how, on="mujoco"))
+    before = trainer.mujoco_steps
+    got = on_mujoco.returns(torch.stack([theta, theta]), s, p)
+    assert trainer.mujoco_steps - before == 2 * 3 * TASK.policy_steps * TASK.substeps
+    set_weights(trainer.policy.net, theta)
+    trainer.step = on_mujoco.physics_step  # type: ignore[assignment]
+    assert got[0] == got[1] and math.isclose(float(got[0]), trainer.emulated_return(s, p), rel_tol=1e-4)
+    with pytest.raises(ValueError, match="runs its episodes on one of emulator, mujoco"):
+        RandomSearch(on="gpu")
+    # a training (of episodes 3 s long, paid more the nearer the mass is to the middle: the suite's
+    # reward pays only on the target, too rarely for forty steps): the policies it tries earn more on
+    # the emulator as it goes, and the one it keeps more on MuJoCo than the policy it began from
+    settings = replace(settings, random_search=replace(how, seconds=3.0, tried_runs=2))
+    seen: list[RewardProgress] = []
+    near = replace(TASK, reward=lambda ctx, s, u, p, smooth: torch.exp(-(s[:, :2] ** 2).sum(dim=1) / 0.02))
+    trainer = RewardTrainer(near, path, settings, on_progress=seen.append)
+    standing = trainer.evaluate(settings.final_episodes, settings.judged_on)[0].mean
+    trainer.mujoco_steps = 0
+    result = trainer.train()
+    assert result.iterations == 40 and result.return_history and result.stop == "budget"
+    # every check ran the policy and two of the latest tried ones on MuJoCo, all kept for refining
+    assert len(trainer.runs) == 3 * len(result.return_history)
+    assert sorted(len(r.returns) for r in trainer.runs) == [1] * 2 * len(result.return_history) + [
+        settings.eval_episodes
+    ] * len(result.return_history)
+    tried = [-float(x["loss"]) for x in seen if x["loss"] is not None]
+    assert len(tried) == 40 and np.mean(tried[-5:]) > np.mean(tried[:5]) + 1.0, tried
+    assert result.return_physics > standing, (result.return_physics, standing)
+    # the linear policy it found is served as any other: its graph acts as torch does
+    import onnxruntime as ort
+
+    from neuroanimator.export.policy import policy_to_onnx
+
+    graph = policy_to_onnx(result.policy, trainer.manifest.state_size, 0, False, reads_time=False)
+    x = torch.as_tensor(trainer.box_states(32), dtype=torch.float32)
+    with torch.no_grad():
+        want = result.policy(x, torch.zeros(32, 0)).numpy()
+    got = ort.InferenceSession(graph).run(None, {"state": x.numpy(), "goal": np.zeros((32, 0), np.float32)})[
+        0
+    ]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
+    assert 0 < result.outside_share < 1 or result.outside_share == 0
+    episodes = settings.eval_episodes * len(result.return_history) + settings.final_episodes
+    assert result.mujoco_steps >= episodes * TASK.episode_steps * TASK.control_substeps
+    # a learner of its own: not beside value iteration
+    with pytest.raises(ValueError, match="learner of its own"):
+        RewardTrainer(TASK, path, replace(settings, value_iteration=ValueIteration()))
