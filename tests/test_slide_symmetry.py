@@ -4,6 +4,8 @@ as it does not read a free root's x and y; a slide whose position matters is rea
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import mujoco
@@ -12,6 +14,8 @@ import pytest
 import torch
 from dm_control import suite
 
+from neuroanimator.artifacts import registry, store
+from neuroanimator.emulator.structured import StructuredEmulator
 from neuroanimator.sim.mjcf import load_mjcf
 from neuroanimator.training import train as training
 from neuroanimator.training.envelope import unbounded
@@ -55,9 +59,7 @@ def test_the_physics_and_the_emulator_ignore_how_far_the_cheetah_has_slid() -> N
     # the emulator reads no column of it, and predicts the same change from either place
     torch.manual_seed(0)
     emu = training.build_emulator(model, TrainConfig(hidden=(16,), progress=False)).eval()
-    assert "rootx.pos" not in dict(emu.input_groups) and emu.architecture()["frame"]["slides"] == [
-        "rootx.pos"
-    ]
+    assert "rootx.pos" not in dict(emu.input_groups) and emu.frame.slides == ("rootx.pos",)
     with torch.no_grad():
         a = emu(torch.as_tensor(s).float(), torch.as_tensor(u).float(), None)
         b = emu(torch.as_tensor(far).float(), torch.as_tensor(u).float(), None)
@@ -91,3 +93,21 @@ def test_a_spring_on_the_slide_makes_its_place_matter(tmp_path: Path) -> None:
     assert not unbounded(model.layout, (), False, model.frame.slides)[
         model.layout.slice_of("rootx.pos").start
     ]
+
+
+def test_a_trained_emulator_records_its_slides_and_loads_with_them(tmp_path: Path) -> None:
+    subprocess.run(
+        [sys.executable, "-m", "neuroanimator.cli", "train", "--mjcf", str(SUITE / "cheetah.xml"), "--name",
+         "cheetah", "--substeps", "4", "--examples", "600", "--epochs", "2", "--hidden", "16",
+         "--rollout-steps", "0", "--force", "--quiet", "--out", str(tmp_path)],
+        check=True, capture_output=True, timeout=600,
+    )  # fmt: skip
+    path = registry.resolve(tmp_path, "cheetah", substeps=4)
+    manifest = registry.read_manifest(path)
+    net = manifest.emulator.only()
+    assert manifest.frame.slides == net.frame.slides == ["rootx.pos"]
+    assert "rootx.pos" not in net.reads.state and "rootz.pos" in net.reads.state
+    envelope = {e.group: e for e in manifest.envelope or []}
+    assert envelope["rootx.pos"].low == [None] and envelope["rootz.pos"].low != [None]
+    emu = store.load_emulator(path)
+    assert isinstance(emu, StructuredEmulator) and emu.frame.slides == ("rootx.pos",)

@@ -12,6 +12,15 @@ a super-step for all of them one call of the network), and moves θ along the di
 reads the trainer's ``Features`` (the state centred and scaled by the emulator's typical motion, as
 ARS normalises its observations), so that a linear map is already a gait controller.
 
+A search this strong finds the emulator's errors as readily as the physics' gaits: on the cheetah
+the tried policies earned 455 on the emulator and 105 on MuJoCo within two minutes. So an episode
+can be paid only while it stays inside the emulator's envelope (``stay_inside``: MOReL's halting,
+Kidambi et al. 2020), the states of its data widened by every MuJoCo run it is refined on, so that
+the search runs only as far as the physics has been seen to go; and at every check a few of the
+latest tried policies run on MuJoCo too (``tried_runs``), so that the emulator learns where the
+search looks, not only where the policy is. ``on="mujoco"`` runs the same search on the physics,
+the experiment that says what the emulator buys.
+
 The checks on MuJoCo, the best policy kept, the emulator refined on the policy's runs where its
 returns leave MuJoCo's: as for the actor-critic (``reward_policy.RewardTrainer``).
 
@@ -51,7 +60,10 @@ class RandomSearch:
     step: float = 0.02  # α
     noise: float = 0.03  # ν: how far along each direction the policy is tried
     episodes: int = 4  # starts every tried policy runs from, the same for all (common random numbers)
-    seconds: float | None = None  # an emulated episode's length (None: the task's whole episode)
+    # an emulated episode's length (None: the task's whole episode, from the task's starts); shorter
+    # ones begin where the trainer's restarts do (``RewardTrainer.restart``: the task's starts,
+    # states the policy reached on MuJoCo, the envelope), as the actor-critic's branches do
+    seconds: float | None = None
     hidden: tuple[int, ...] = ()  # the policy's hidden layers: () a linear map of the features
     # at every check, this many of the latest step's tried policies (the best-earning on the
     # emulator) also run an episode each on MuJoCo, and the emulator learns those runs beside the
@@ -61,6 +73,10 @@ class RandomSearch:
     # where the tried policies' episodes run: "emulator", or "mujoco", the same search on the
     # physics itself (its steps counted): the experiment that says what the emulator buys
     on: str = "emulator"
+    # an episode that leaves the emulator's envelope (the states of its data, widened by the runs it
+    # was refined on) earns nothing from then on: the search is paid only where the emulator has
+    # seen the physics (MOReL's halting), not for a gait that its errors alone allow
+    stay_inside: bool = False
 
     def __post_init__(self) -> None:
         if self.directions < 1 or not 1 <= self.top <= self.directions:
@@ -184,8 +200,11 @@ class SearchLearner:
             nxt = tr.step(s, u) if self.how.on == "emulator" else self.physics_step(s, u)
             z = policy.features.plain_z(nxt)
             alive &= torch.isfinite(nxt).all(dim=1) & (z.abs() <= DIVERGED).all(dim=1)
+            out = ((nxt < tr.env_low) | (nxt > tr.env_high)).any(dim=1)
+            if self.how.stay_inside:
+                alive &= ~out
             s = torch.where(alive.unsqueeze(1), nxt, s)
-            outside += int(((s < tr.env_low) | (s > tr.env_high)).any(dim=1).sum())
+            outside += int(out.sum())
             r = torch.nan_to_num(tr.task.reward(tr.ctx, s, u, p, False))
             total += torch.where(alive, r, torch.zeros_like(r)) * tr.task.repeat
         tr.outside_steps += outside
@@ -202,9 +221,13 @@ class SearchLearner:
     def iterate(self) -> float:
         """One ARS step from the task's starts; the mean return of the policies tried."""
         tr, how = self.trainer, self.how
-        pick = tr.rng.integers(len(tr.start_states), size=how.episodes)
-        starts = torch.as_tensor(tr.start_states[pick], dtype=torch.float32)
-        params = torch.as_tensor(tr.start_params[pick], dtype=torch.float32)
+        if how.seconds is None:
+            pick = tr.rng.integers(len(tr.start_states), size=how.episodes)
+            drawn = tr.start_states[pick], tr.start_params[pick]
+        else:
+            drawn = tr.restart(how.episodes)
+        starts = torch.as_tensor(drawn[0], dtype=torch.float32)
+        params = torch.as_tensor(drawn[1], dtype=torch.float32)
         deltas, tried = perturbations(self.theta, how, self.gen)
         got = self.returns(tried, starts, params)
         self.tried = (tried, got)
@@ -258,9 +281,9 @@ class SearchLearner:
                 last_return = runs.mean
                 history.append((it, round(tr.elapsed(), 1), last_return))
                 log.info(
-                    "%s: random search step %d, the tried policies' return on the emulator %.1f; the "
-                    "policy's on MuJoCo %.1f, on the emulator %.1f, emulated states outside the envelope %.1f %%",
-                    task.name, it, tried, last_return, emulated, 100 * tr.outside_share,
+                    "%s: random search step %d, the tried policies' return on the %s %.1f; the "
+                    "policy's on MuJoCo %.1f, on the emulator %.1f, tried states outside the envelope %.1f %%",
+                    task.name, it, self.how.on, tried, last_return, emulated, 100 * tr.outside_share,
                 )  # fmt: skip
                 if last_return >= best[0]:
                     best = (last_return, copy.deepcopy(tr.policy.state_dict()))

@@ -29,6 +29,7 @@ from neuroanimator.artifacts import registry
 from neuroanimator.artifacts.policies import read_policy, resolve_policy
 from neuroanimator.catalog.tasks import POLICY_TASKS
 from neuroanimator.control import value_iteration
+from neuroanimator.control.bptt import FastStep
 from neuroanimator.control.exploring_runs import ExploringRuns, random_runs
 from neuroanimator.control.planner import PlannerSettings, SamplingPlanner
 from neuroanimator.control.planner_copy import CopySettings, PlannerCopy
@@ -1312,6 +1313,13 @@ def test_random_search_tries_its_policies_through_the_emulator_and_keeps_the_bes
     assert got[0] == got[1] and math.isclose(float(got[0]), trainer.emulated_return(s, p), rel_tol=1e-4)
     with pytest.raises(ValueError, match="runs its episodes on one of emulator, mujoco"):
         RandomSearch(on="gpu")
+    # staying inside the envelope (``stay_inside``): an episode that leaves it earns nothing from then on
+    trainer.step = FastStep(trainer.emu)
+    inside = SearchLearner(trainer, replace(how, stay_inside=True))
+    paid = inside.returns(theta[None], s, p)
+    assert math.isclose(float(paid[0]), trainer.emulated_return(s, p), rel_tol=1e-4)  # it never leaves
+    trainer.env_high = s.amin(dim=0) - 1.0  # every state outside from the first step
+    assert float(inside.returns(theta[None], s, p)[0]) == 0.0 < float(learner.returns(theta[None], s, p)[0])
     # a training (of episodes 3 s long, paid more the nearer the mass is to the middle: the suite's
     # reward pays only on the target, too rarely for forty steps): the policies it tries earn more on
     # the emulator as it goes, and the one it keeps more on MuJoCo than the policy it began from
