@@ -19,7 +19,8 @@ Kidambi et al. 2020), the states of its data widened by every MuJoCo run it is r
 the search runs only as far as the physics has been seen to go; and at every check a few of the
 latest tried policies run on MuJoCo too (``tried_runs``), so that the emulator learns where the
 search looks, not only where the policy is. ``on="mujoco"`` runs the same search on the physics,
-the experiment that says what the emulator buys.
+the experiment that says what the emulator buys: on the cheetah, in 20 minutes of one core, 121.7
+through the emulator with both, 331.8 on MuJoCo (docs/experiments/policies.md). Not a default.
 
 The checks on MuJoCo, the best policy kept, the emulator refined on the policy's runs where its
 returns leave MuJoCo's: as for the actor-critic (``reward_policy.RewardTrainer``).
