@@ -330,9 +330,10 @@ class PhysicalModel:
         """The position groups of the slide joints the physics does not depend on the position of:
         on a body whose parent is the world and that carries every body that moves (so that sliding
         it moves the whole model, its place among the others unchanged), after no hinge or ball of
-        that body (so that it moves along a world axis), horizontal (vertical only in a world without colliding geoms: a floor),
-        unlimited, without a spring, in no tendon and no equality constraint, no actuator pulling
-        towards a position along it (the planar cheetah's, walker's and hopper's ``rootx``)."""
+        that body (so that it moves along a world axis), horizontal (vertical only in a world
+        without colliding geoms: a floor), unlimited, without a spring, in no tendon and no equality
+        constraint, no actuator pulling towards a position along it (the planar cheetah's, walker's
+        and hopper's ``rootx``)."""
         m = self.mj_model
         names = {g.address: g.name for g in self.layout.groups if g.kind == "scalar" and g.source == "qpos"}
         world_collides = any(
@@ -349,8 +350,9 @@ class PhysicalModel:
             for a in range(m.nu)
             if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and m.actuator_biasprm[a, 1] != 0
         }
-        g = np.asarray(m.opt.gravity)
-        down = g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 0.0, -1.0])
+        gravity = np.asarray(m.opt.gravity)
+        strength = float(np.linalg.norm(gravity))
+        down = gravity / strength if strength > 0 else np.array([0.0, 0.0, -1.0])
         moving = [b for b in range(1, m.nbody) if m.body_jntnum[b] > 0]
         out: list[str] = []
         for j in range(m.njnt):
@@ -359,8 +361,7 @@ class PhysicalModel:
                 continue
             if not all(_descends(m, b, body) for b in moving):
                 continue  # it moves one body among others (a ball beside its cup): where matters
-            before = [k for k in range(m.body_jntadr[body], j)]
-            if any(m.jnt_type[k] != mujoco.mjtJoint.mjJNT_SLIDE for k in before):
+            if any(m.jnt_type[k] != mujoco.mjtJoint.mjJNT_SLIDE for k in range(m.body_jntadr[body], j)):
                 continue
             # the axis in the world: the body's frame at rest turns it (slides move it, not turn it)
             axis = np.zeros(3)
