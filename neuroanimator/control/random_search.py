@@ -278,22 +278,15 @@ class SearchLearner:
                 cfg.max_iterations is not None and it >= cfg.max_iterations
             )
             if tr.elapsed() >= next_check or last:
-                runs, emulated = tr.evaluate(cfg.eval_episodes, int(tr.rng.integers(1 << 30)))
+                took_from = tr.took_from
+                best, runs, emulated = tr.check(it, history, best)
                 last_return = runs.mean
-                history.append((it, round(tr.elapsed(), 1), last_return))
                 log.info(
                     "%s: random search step %d, the tried policies' return on the %s %.1f; the "
                     "policy's on MuJoCo %.1f, on the emulator %.1f, tried states outside the envelope %.1f %%",
                     task.name, it, self.how.on, tried, last_return, emulated, 100 * tr.outside_share,
                 )  # fmt: skip
-                if last_return >= best[0]:
-                    best = (last_return, copy.deepcopy(tr.policy.state_dict()))
-                if (
-                    tr.meet is not None
-                    and cfg.meet_at is not None
-                    and tr.elapsed() >= cfg.meet_at * cfg.seconds
-                ):
-                    best = tr.meet_the_seeds(best)
+                if tr.took_from != took_from:  # it goes on from the best seed's policy
                     self.theta = flat_weights(self.net)
                 self.run_tried()
                 tr.keep_runs(runs, emulated, may_refine=tr.elapsed() < 0.9 * cfg.seconds)

@@ -1209,25 +1209,17 @@ class RewardTrainer:
                 cfg.max_iterations is not None and it >= cfg.max_iterations
             )
             if self.elapsed() >= next_check or last:
-                runs, emulated = self.evaluate(cfg.eval_episodes, int(self.rng.integers(1 << 30)))
+                took_from = self.took_from
+                best, runs, emulated = self.check(it, history, best)
                 last_return = runs.mean
-                history.append((it, round(self.elapsed(), 1), last_return))
                 log.info(
                     "%s: iteration %d, loss %.4g, return on MuJoCo %.1f, on the emulator %.1f, "
                     "emulated states outside the envelope %.1f %%",
                     task.name, it, value, last_return, emulated, 100 * self.outside_share,
                 )  # fmt: skip
-                if last_return >= best[0]:
-                    best = (last_return, copy.deepcopy(self.policy.state_dict()))
-                if (
-                    self.meet is not None
-                    and cfg.meet_at is not None
-                    and self.elapsed() >= cfg.meet_at * cfg.seconds
-                ):
-                    best = self.meet_the_seeds(best)
-                    if self.took_from is not None:  # the optimisers' moments were the old weights'
-                        opt_actor = torch.optim.Adam(self.policy.parameters(), lr=cfg.actor_lr)
-                        opt_critic = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
+                if self.took_from != took_from:  # the optimisers' moments were the old weights'
+                    opt_actor = torch.optim.Adam(self.policy.parameters(), lr=cfg.actor_lr)
+                    opt_critic = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
                 self.keep_runs(runs, emulated, may_refine=self.elapsed() < 0.9 * cfg.seconds)
                 next_check = self.elapsed() + check_every
                 if self.elapsed() >= 0.25 * cfg.seconds and self.outside_share > cfg.max_outside:
@@ -1235,6 +1227,22 @@ class RewardTrainer:
                     break
             self.report(it, value, last_return)
         return best, history, it, stop
+
+    def check(
+        self, it: int, history: list[tuple[int, float, float]], best: tuple[float, dict[str, Tensor]]
+    ) -> tuple[tuple[float, dict[str, Tensor]], Episodes, float]:
+        """A check on MuJoCo after ``it`` iterations: the policy's ``eval_episodes`` there, their mean
+        return added to ``history`` and the policy kept when it is the best so far, and past
+        ``meet_at`` the seeds met once (``meet_the_seeds``). The best so far, the runs (for the
+        caller to keep, ``keep_runs``) and the return on the emulator from the same starts."""
+        cfg = self.settings
+        runs, emulated = self.evaluate(cfg.eval_episodes, int(self.rng.integers(1 << 30)))
+        history.append((it, round(self.elapsed(), 1), runs.mean))
+        if runs.mean >= best[0]:
+            best = (runs.mean, copy.deepcopy(self.policy.state_dict()))
+        if self.meet is not None and cfg.meet_at is not None and self.elapsed() >= cfg.meet_at * cfg.seconds:
+            best = self.meet_the_seeds(best)
+        return best, runs, emulated
 
     def finish(
         self,
