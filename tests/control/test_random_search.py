@@ -58,6 +58,7 @@ def test_random_search_climbs_a_return_and_stands_still_where_every_policy_earns
         (lambda: RandomSearch(directions=8, top=9), "top <= directions"),
         (lambda: RandomSearch(episodes=0), "at least one start"),
         (lambda: RandomSearch(noise=0.0), "positive"),
+        (lambda: RandomSearch(on="mujoco", stay_inside=True), "only on the emulator"),
         (lambda: RewardSettings(random_search="on"), "random_search is settings"),
     ],
 )

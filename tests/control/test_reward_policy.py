@@ -1305,9 +1305,10 @@ def test_random_search_tries_its_policies_through_the_emulator_and_keeps_the_bes
     assert math.isclose(float(got[1]), trainer.emulated_return(s, p), rel_tol=1e-4, abs_tol=1e-3)
     # ... and on MuJoCo (``on="mujoco"``), the same search on the physics, every step counted
     on_mujoco = SearchLearner(trainer, replace(how, on="mujoco"))
-    before = trainer.mujoco_steps
+    before, emulated = trainer.mujoco_steps, trainer.emulated_steps
     got = on_mujoco.returns(torch.stack([theta, theta]), s, p)
     assert trainer.mujoco_steps - before == 2 * 3 * TASK.policy_steps * TASK.substeps
+    assert trainer.emulated_steps == emulated  # the envelope's share is the emulator's alone
     set_weights(trainer.policy.net, theta)
     trainer.step = on_mujoco.physics_step  # type: ignore[assignment]
     assert got[0] == got[1] and math.isclose(float(got[0]), trainer.emulated_return(s, p), rel_tol=1e-4)
