@@ -17,7 +17,9 @@ For each task (``control.suite_tasks.SUITE_TASKS``), all in, on the same torch t
    or its threads: ``seed_race.cores_used``);
 
 then both run ``EPISODES`` episodes of 1,000 control steps on MuJoCo from the same held-out starts
-(``HELD_OUT_SEED``), the return their mean. ``--set KEY=VALUE`` changes one of the policy's
+(``HELD_OUT_SEED``), the return their mean. At the policy, the emulator's step agreement with MuJoCo
+(``control.step_agreement``: whether it tells neighbouring policies apart as the physics does) is
+reported beside its root's drift, its MuJoCo steps apart from the training's. ``--set KEY=VALUE`` changes one of the policy's
 ``RewardSettings`` for the run (``setting_overrides``): a variant measured by the same command.
 
 The model-based returns the field publishes for these tasks are in BENCHMARKS.md beside the results.
@@ -28,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import subprocess
 import sys
 import time
@@ -54,6 +57,7 @@ from neuroanimator.control.reward_policy import (
     run_on_mujoco,
 )
 from neuroanimator.control.seed_race import cores_used, train_reward_policy
+from neuroanimator.control.step_agreement import StepAgreement, step_agreement
 from neuroanimator.control.suite_tasks import SUITE_TASKS, Context, SuiteTask
 from neuroanimator.sim.model import PhysicalModel
 
@@ -311,6 +315,16 @@ def overrides_echo(overrides: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def agreement_row(agreement: StepAgreement | None) -> dict[str, Any] | None:
+    """The step agreement as the row's JSON: rounded, an undefined cosine (a flat return) null."""
+    if agreement is None:
+        return None
+    row = dataclasses.asdict(agreement)
+    return {
+        k: (None if math.isnan(v) else round(v, 3)) if isinstance(v, float) else v for k, v in row.items()
+    }
+
+
 def bench_suite_task(
     name: str,
     root: Path,
@@ -367,6 +381,10 @@ def bench_suite_task(
     # the root's drift on these episodes too, on the emulator the policy is served with
     served = result.emulator if result.emulator is not None else artifacts.load_emulator(path)
     drift = root_drift(FastStep(served), result.policy, ctx, ours, manifest.super_timestep)  # type: ignore[arg-type]
+    agreement = step_agreement(
+        task, physical, ctx, manifest.substeps, FastStep(served), result.policy, HELD_OUT_SEED,  # type: ignore[arg-type]
+        directions=4 if quick else 32, episodes=1 if quick else 4,
+    )  # fmt: skip
 
     model_free = (
         sac_baseline(task, physical, ctx, low, high, seed, quick, wall, cores, starts, params)
@@ -383,6 +401,9 @@ def bench_suite_task(
         "root_drift_1s_m": None if result.root_drift_m is None else round(result.root_drift_m, 3),
         # the same on the held-out episodes the return is measured on
         "root_drift_1s_m_held_out": None if drift is None else round(drift, 3),
+        # ARS's step at the policy from the emulator's returns against MuJoCo's (None: a policy
+        # choosing among candidates)
+        "step_agreement": agreement_row(agreement),
         "returns_physics": [round(float(x), 1) for x in ours.returns],
         "target_return": task.target_return,
         "episodes": episodes,

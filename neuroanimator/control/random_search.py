@@ -36,6 +36,7 @@ from __future__ import annotations
 import copy
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -44,7 +45,8 @@ import torch
 from torch import Tensor, nn
 
 if TYPE_CHECKING:
-    from neuroanimator.control.reward_policy import RewardTrainer
+    from neuroanimator.control.reward_policy import RewardPolicy, RewardTrainer
+    from neuroanimator.sim.model import PhysicalModel
 
 log = logging.getLogger(__name__)
 # an emulated episode this many spreads of the typical motion from it has diverged: it earns nothing
@@ -165,6 +167,60 @@ def as_generator(rng: np.random.Generator) -> torch.Generator:
     return torch.Generator().manual_seed(int(rng.integers(1 << 62)))
 
 
+def held_on_mujoco(physical: PhysicalModel, substeps: int) -> Callable[[Tensor, Tensor], Tensor]:
+    """A super-step on MuJoCo as the emulator's: (B, S) states, (B, U) controls held ``substeps``
+    physical steps → (B, S) states."""
+
+    def step(s: Tensor, u: Tensor) -> Tensor:
+        nxt = physical.step_held(s.double().numpy(), u.double().numpy(), None, substeps)
+        return torch.as_tensor(nxt, dtype=s.dtype)
+
+    return step
+
+
+@torch.no_grad()
+def policies_returns(
+    policy: RewardPolicy,
+    net: nn.Sequential,
+    weights: Tensor,
+    starts: Tensor,
+    params: Tensor,
+    steps: int,
+    step: Callable[[Tensor, Tensor], Tensor],
+    reward: Callable[[Tensor, Tensor, Tensor], Tensor],
+    repeat: int,
+    envelope: tuple[Tensor, Tensor],
+    halt_outside: bool = False,
+) -> tuple[Tensor, int]:
+    """(K,) mean return of ``policy`` with K sets of weights (K, D) in its network ``net``, all run
+    as one batch: episodes of ``steps`` super-steps of ``step`` (the emulator's, or MuJoCo's:
+    ``held_on_mujoco``) from the same starts (E, S) and parameters (E, P), ``reward`` (states,
+    controls, parameters → (B,)) at every super-step times its ``repeat`` control steps. An episode
+    that diverges (``DIVERGED``) earns nothing from then on, nor, with ``halt_outside``, one that
+    leaves the ``envelope`` (low (S,), high (S,)); and the number of states outside it."""
+    k, e = weights.shape[0], starts.shape[0]
+    s = starts.repeat(k, 1)  # (K·E, S): the k-th policy's episodes are rows k·E .. k·E+E-1
+    p = params.repeat(k, 1)
+    total = torch.zeros(k * e)
+    alive = torch.ones(k * e, dtype=torch.bool)
+    outside = 0
+    for _ in range(steps):
+        f = policy.features(s, p).reshape(k, e, -1)
+        a = torch.tanh(batched_forward(net, weights, f)).reshape(k * e, -1)
+        u = nn.functional.linear(a, policy.spread, policy.centre)
+        nxt = step(s, u)
+        z = policy.features.plain_z(nxt)
+        alive &= torch.isfinite(nxt).all(dim=1) & (z.abs() <= DIVERGED).all(dim=1)
+        out = ((nxt < envelope[0]) | (nxt > envelope[1])).any(dim=1)
+        if halt_outside:
+            alive &= ~out
+        s = torch.where(alive.unsqueeze(1), nxt, s)
+        outside += int(out.sum())
+        r = torch.nan_to_num(reward(s, u, p))
+        total += torch.where(alive, r, torch.zeros_like(r)) * repeat
+    return total.reshape(k, e).mean(dim=1), outside
+
+
 class SearchLearner:
     """Random search on ``trainer``'s emulator, reward and policy (module doc)."""
 
@@ -184,47 +240,32 @@ class SearchLearner:
         # the latest step's tried weights (K, D) and their returns on the emulator (K,)
         self.tried: tuple[Tensor, Tensor] | None = None
         self.steps = episode_steps(how, trainer.task.policy_steps, trainer.manifest.super_timestep)
+        self.on_mujoco = held_on_mujoco(trainer.physical, trainer.manifest.substeps)
 
-    @torch.no_grad()
     def returns(self, weights: Tensor, starts: Tensor, params: Tensor) -> Tensor:
-        """(K,) mean return of the policy under each of K sets of weights (K, D) over emulated
-        episodes from the same starts (E, S) and parameters (E, P), each ``steps`` super-steps, the
-        reward at every super-step times its control steps; an episode that diverges (``DIVERGED``)
-        earns nothing from then on. Its states outside the emulator's envelope are counted, as the
-        actor-critic's are (``RewardTrainer.outside_share``), when the episodes are emulated."""
+        """(K,) mean return of the policy under each of K sets of weights (K, D) over episodes of
+        ``steps`` super-steps from the same starts (E, S) and parameters (E, P), on the emulator or
+        on MuJoCo (``on``; ``policies_returns``). Its states outside the emulator's envelope are
+        counted, as the actor-critic's are (``RewardTrainer.outside_share``), when the episodes are
+        emulated."""
         tr = self.trainer
-        policy = tr.policy
-        k, e = weights.shape[0], starts.shape[0]
-        s = starts.repeat(k, 1)  # (K·E, S): the k-th policy's episodes are rows k·E .. k·E+E-1
-        p = params.repeat(k, 1)
-        total = torch.zeros(k * e)
-        alive = torch.ones(k * e, dtype=torch.bool)
-        outside = 0
-        for _ in range(self.steps):
-            f = policy.features(s, p).reshape(k, e, -1)
-            a = torch.tanh(batched_forward(self.net, weights, f)).reshape(k * e, -1)
-            u = nn.functional.linear(a, policy.spread, policy.centre)
-            nxt = tr.step(s, u) if self.how.on == "emulator" else self.physics_step(s, u)
-            z = policy.features.plain_z(nxt)
-            alive &= torch.isfinite(nxt).all(dim=1) & (z.abs() <= DIVERGED).all(dim=1)
-            out = ((nxt < tr.env_low) | (nxt > tr.env_high)).any(dim=1)
-            if self.how.stay_inside:
-                alive &= ~out
-            s = torch.where(alive.unsqueeze(1), nxt, s)
-            outside += int(out.sum())
-            r = torch.nan_to_num(tr.task.reward(tr.ctx, s, u, p, False))
-            total += torch.where(alive, r, torch.zeros_like(r)) * tr.task.repeat
-        if self.how.on == "emulator":  # the share outside is the emulator's, not the physics'
+        on_emulator = self.how.on == "emulator"
+        got, outside = policies_returns(
+            tr.policy, self.net, weights, starts, params, self.steps,
+            tr.step if on_emulator else self.physics_step,
+            lambda s, u, p: tr.task.reward(tr.ctx, s, u, p, False), tr.task.repeat,
+            (tr.env_low, tr.env_high), halt_outside=self.how.stay_inside,
+        )  # fmt: skip
+        if on_emulator:  # the share outside is the emulator's, not the physics'
             tr.outside_steps += outside
-            tr.emulated_steps += self.steps * k * e
-        return total.reshape(k, e).mean(dim=1)
+            tr.emulated_steps += self.steps * len(weights) * len(starts)
+        return got
 
     def physics_step(self, s: Tensor, u: Tensor) -> Tensor:
         """One super-step of (B, S) states under (B, U) controls on MuJoCo (``on="mujoco"``), counted."""
         tr = self.trainer
-        nxt = tr.physical.step_held(s.double().numpy(), u.double().numpy(), None, tr.manifest.substeps)
-        tr.mujoco_steps += len(nxt) * tr.manifest.substeps
-        return torch.as_tensor(nxt, dtype=s.dtype)
+        tr.mujoco_steps += len(s) * tr.manifest.substeps
+        return self.on_mujoco(s, u)
 
     def iterate(self) -> float:
         """One ARS step from the task's starts; the mean return of the policies tried."""

@@ -35,7 +35,13 @@ from neuroanimator.control.planner import PlannerSettings, SamplingPlanner
 from neuroanimator.control.planner_copy import CopySettings, PlannerCopy
 from neuroanimator.control.policy import PolicySettings
 from neuroanimator.control.policy_job import PolicyJobError, run_policy_job
-from neuroanimator.control.random_search import RandomSearch, SearchLearner, set_weights
+from neuroanimator.control.random_search import (
+    RandomSearch,
+    SearchLearner,
+    flat_weights,
+    held_on_mujoco,
+    set_weights,
+)
 from neuroanimator.control.reward_policy import (
     ChoicePolicy,
     Meeting,
@@ -50,6 +56,7 @@ from neuroanimator.control.reward_policy import (
     run_on_mujoco,
 )
 from neuroanimator.control.seed_race import cores_used, thread_count, train_reward_policy
+from neuroanimator.control.step_agreement import step_agreement
 from neuroanimator.control.suite_tasks import SUITE_TASKS
 from neuroanimator.control.value_iteration import ValueFitter, ValueIteration, candidate_controls
 from neuroanimator.export.runtime import OnnxEmulator
@@ -928,6 +935,11 @@ def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
     assert row["greedy_agreement"] is None and row["greedy_regret"] is None  # the actor-critic's
     # the root's drift on the training's final episodes and on the held-out ones the return is
     assert row["root_drift_1s_m"] >= 0.0 and row["root_drift_1s_m_held_out"] >= 0.0
+    # ... and whether its emulator tells the policy's neighbours apart as MuJoCo does (quick: 4 directions, 1 start)
+    agreement = row["step_agreement"]
+    assert (agreement["directions"], agreement["episodes"]) == (4, 1)
+    assert agreement["mujoco_steps"] == 2 * 8 * TASK.policy_steps * TASK.substeps
+    assert agreement["cosine"] is None or -1.0 <= agreement["cosine"] <= 1.0
     assert any(line.startswith("| point_mass-easy |") for line in lines)
 
 
@@ -1281,6 +1293,44 @@ def test_the_planner_bench_reports_the_planner_on_the_held_out_episodes(artifact
     assert row["task"] == "point_mass-easy" and row["planner"]["settings"]["samples"] == 16
     assert len(row["planner"]["returns"]) == 2 and row["planner"]["return_physics"] >= 0
     assert row["copy"] is None and any(line.startswith("planner") for line in lines)
+
+
+def test_step_agreement_compares_the_emulators_step_with_mujocos_at_a_policy(artifacts: Path) -> None:
+    """``step_agreement``: ARS's step at a policy from the emulator's returns against MuJoCo's, from the
+    same starts; MuJoCo in the emulator's place agrees with itself exactly, the emulator less."""
+    path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
+    trainer = RewardTrainer(TASK, path, QUICK)
+    set_weights(trainer.policy.net, 0.3 * torch.randn(flat_weights(trainer.policy.net).numel()))
+    near = replace(TASK, reward=lambda ctx, s, u, p, smooth: torch.exp(-(s[:, :2] ** 2).sum(dim=1) / 0.02))
+    args = (near, trainer.physical, trainer.ctx, TASK.substeps)
+    ours = step_agreement(
+        *args, FastStep(trainer.emu), trainer.policy, 3, directions=8, episodes=2, noise=0.1
+    )
+    itself = step_agreement(*args, held_on_mujoco(trainer.physical, TASK.substeps), trainer.policy, 3,
+                            directions=8, episodes=2, noise=0.1)  # fmt: skip
+    assert ours is not None and itself is not None
+    assert math.isclose(itself.cosine, 1.0, rel_tol=1e-6) and itself.same_sign == 1.0
+    assert itself.return_emulator == itself.return_mujoco == ours.return_mujoco > 0
+    assert -1.0 <= ours.cosine <= 1.0 and ours.cosine < 1.0 - 1e-6 and -1.0 <= ours.ceiling <= 1.0
+    assert ours.ceiling == itself.ceiling  # the ceiling is MuJoCo's alone
+    assert ours.mujoco_steps == 2 * 16 * 2 * TASK.policy_steps * TASK.substeps
+    # the tried policies' returns are the policy's own where they barely differ from it
+    tiny = step_agreement(
+        *args, FastStep(trainer.emu), trainer.policy, 3, directions=2, episodes=2, noise=1e-7
+    )
+    starts, params = draw_starts(near, trainer.physical, np.random.default_rng(3), 4)
+    trainer.task = near
+    assert tiny is not None and math.isclose(
+        tiny.return_emulator, trainer.emulated_return(starts[:2], params[:2]), rel_tol=1e-3
+    )
+    # where every tried policy earns the same, there is no step to agree with
+    flat = replace(TASK, reward=lambda ctx, s, u, p, smooth: torch.ones(len(s)))
+    none = step_agreement(flat, *args[1:], FastStep(trainer.emu), trainer.policy, 3, directions=2, episodes=1)
+    assert none is not None and math.isnan(none.cosine) and none.same_sign == 0.0
+    # a policy choosing among candidates has no weights to perturb into a neighbour
+    choice = ChoicePolicy(trainer.policy.features, candidate_controls(trainer.low, trainer.high, 3,
+                          np.random.default_rng(0)), (8,))  # fmt: skip
+    assert step_agreement(*args, FastStep(trainer.emu), choice, 3) is None
 
 
 def test_random_search_tries_its_policies_through_the_emulator_and_keeps_the_best_on_mujoco(
