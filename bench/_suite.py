@@ -19,8 +19,9 @@ For each task (``control.suite_tasks.SUITE_TASKS``), all in, on the same torch t
 then both run ``EPISODES`` episodes of 1,000 control steps on MuJoCo from the same held-out starts
 (``HELD_OUT_SEED``), the return their mean. At the policy, the emulator's step agreement with MuJoCo
 (``control.step_agreement``: whether it tells neighbouring policies apart as the physics does) is
-reported beside its root's drift, its MuJoCo steps apart from the training's. ``--set KEY=VALUE`` changes one of the policy's
-``RewardSettings`` for the run (``setting_overrides``): a variant measured by the same command.
+reported beside its root's drift, its MuJoCo steps apart from the training's. ``--set KEY=VALUE``
+changes one of the policy's ``RewardSettings`` for the run (``setting_overrides``): a variant
+measured by the same command.
 
 The model-based returns the field publishes for these tasks are in BENCHMARKS.md beside the results.
 """
@@ -49,10 +50,12 @@ from neuroanimator.artifacts import registry
 from neuroanimator.artifacts import store as artifacts
 from neuroanimator.control.bptt import FastStep
 from neuroanimator.control.policy_store import save_reward_policy
+from neuroanimator.control.random_search import RandomSearch
 from neuroanimator.control.reward_policy import (
     RewardSettings,
     draw_starts,
     falls,
+    random_search_of,
     root_drift,
     run_on_mujoco,
 )
@@ -316,7 +319,8 @@ def overrides_echo(overrides: dict[str, Any]) -> dict[str, Any]:
 
 
 def agreement_row(agreement: StepAgreement | None) -> dict[str, Any] | None:
-    """The step agreement as the row's JSON: rounded, an undefined cosine (a flat return) null."""
+    """The step agreement as the row's JSON: rounded, an undefined value (every policy tried earned
+    the same on MuJoCo) null."""
     if agreement is None:
         return None
     row = dataclasses.asdict(agreement)
@@ -384,6 +388,7 @@ def bench_suite_task(
     agreement = step_agreement(
         task, physical, ctx, manifest.substeps, FastStep(served), result.policy, HELD_OUT_SEED,  # type: ignore[arg-type]
         directions=4 if quick else 32, episodes=1 if quick else 4,
+        noise=(random_search_of(task, settings) or RandomSearch()).noise,  # the search's own where it searched
     )  # fmt: skip
 
     model_free = (

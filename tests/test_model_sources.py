@@ -6,6 +6,7 @@ source is deleted. Bad input writes nothing."""
 
 from __future__ import annotations
 
+import pickle
 import shutil
 import tarfile
 import zipfile
@@ -22,6 +23,8 @@ from neuroanimator.artifacts import store as artifacts
 from neuroanimator.cli import main
 from neuroanimator.control.replay import simulate_held
 from neuroanimator.export.runtime import OnnxEmulator
+from neuroanimator.sim.bundle import SourceError
+from neuroanimator.sim.mirror import MirrorError
 
 ROOT = Path(__file__).resolve().parents[1]
 TINYBOT = ROOT / "tests" / "data" / "tinybot"
@@ -192,3 +195,21 @@ def test_bad_input_writes_nothing(tmp_path: Path, content: bytes) -> None:
     root = tmp_path / "registry"
     assert main(["train", "--mjcf", str(source), *BUDGET, "--out", str(root), "--quiet"]) == 2
     assert not root.exists()
+
+
+@pytest.mark.parametrize(
+    ("error", "field"),
+    [
+        (SourceError("too_costly", "the model took more than 10 s of CPU"), "kind"),
+        (registry.ArtifactError("model", "no model named 'cheetah'"), "what"),
+        (MirrorError("no partner for 'left_hip'"), "why"),
+    ],
+)
+def test_a_model_error_raised_in_a_worker_process_reaches_the_parent_whole(
+    error: Exception, field: str
+) -> None:
+    """A seed's or a compile's process sends its error back pickled: the same kind, message and field,
+    not a TypeError from rebuilding it with the message alone."""
+    again = pickle.loads(pickle.dumps(error))
+    assert type(again) is type(error) and str(again) == str(error)
+    assert getattr(again, field) == getattr(error, field)

@@ -82,6 +82,10 @@ class ArtifactError(LookupError):
         super().__init__(message)
         self.what: Missing = what
 
+    def __reduce__(self) -> tuple[type[ArtifactError], tuple[Missing, str]]:
+        # raised in a worker process (a seed loading its emulator), it reaches the parent whole
+        return type(self), (self.what, str(self))
+
 
 def default_data_dir() -> Path:
     """Where uploads and a user's trainings go unless told otherwise: ``$NEUROANIMATOR_DATA_DIR``, else

@@ -240,7 +240,8 @@ class SearchLearner:
         # the latest step's tried weights (K, D) and their returns on the emulator (K,)
         self.tried: tuple[Tensor, Tensor] | None = None
         self.steps = episode_steps(how, trainer.task.policy_steps, trainer.manifest.super_timestep)
-        self.on_mujoco = held_on_mujoco(trainer.physical, trainer.manifest.substeps)
+        self.substeps = trainer.manifest.substeps
+        self.on_mujoco = held_on_mujoco(trainer.physical, self.substeps)
 
     def returns(self, weights: Tensor, starts: Tensor, params: Tensor) -> Tensor:
         """(K,) mean return of the policy under each of K sets of weights (K, D) over episodes of
@@ -263,8 +264,7 @@ class SearchLearner:
 
     def physics_step(self, s: Tensor, u: Tensor) -> Tensor:
         """One super-step of (B, S) states under (B, U) controls on MuJoCo (``on="mujoco"``), counted."""
-        tr = self.trainer
-        tr.mujoco_steps += len(s) * tr.manifest.substeps
+        self.trainer.mujoco_steps += len(s) * self.substeps
         return self.on_mujoco(s, u)
 
     def iterate(self) -> float:

@@ -7,8 +7,10 @@ wrong; the cheetah's (0.0345) credited the gaits MuJoCo found within a tenth, ye
 random search (ARS) took through it was unrelated to MuJoCo's or opposed (docs/experiments/policies.md).
 So, at a policy: ``directions`` random directions δ in the weights of its network, each tried both
 ways (θ ± νδ) on the same ``episodes`` starts, on the emulator and on MuJoCo, and ARS's step from each
-(Σ (R(θ+νδ) − R(θ−νδ)) δ, every direction) compared by their cosine. MuJoCo's step from other starts
-against its own is the ceiling: how much one batch of starts says about the step at all.
+(Σ (R(θ+νδ) − R(θ−νδ)) δ, every direction) compared by their cosine. A second batch of starts says
+how much the step depends on the starts: the emulator's step from it against MuJoCo's from the first,
+beside MuJoCo's own from it (a noisy step agrees with itself across starts less than a perfect
+emulator does from the same ones).
 
 Shapes: N directions, E starts, S state, P parameters, D the network's weights.
 """
@@ -36,23 +38,36 @@ from neuroanimator.sim.model import PhysicalModel
 
 @dataclass(frozen=True)
 class StepAgreement:
-    """ARS's step at a policy, from the emulator's returns and from MuJoCo's (module doc)."""
+    """ARS's step at a policy, from the emulator's returns and from MuJoCo's (module doc). Two pairs:
+    from the same starts, and across two batches of starts, the emulator's and MuJoCo's own; the
+    second pair alike in how the step depends on the starts, the first sharing them."""
 
-    cosine: float  # the emulator's step against MuJoCo's, the same starts (nan: MuJoCo's is zero)
-    ceiling: float  # MuJoCo's step from other starts against it: the most the cosine could say
-    same_sign: float  # share of the directions whose return difference has the same sign on both
-    return_mujoco: float  # mean return of the policies tried, on MuJoCo
-    return_emulator: float  # ... and on the emulator
+    cosine: float  # the emulator's step against MuJoCo's, from the same starts
+    # the emulator's step from the other starts against MuJoCo's from the first ...
+    cosine_across_starts: float
+    # ... and MuJoCo's own from the other starts: how much the step depends on the starts at all
+    mujoco_across_starts: float
+    # share of the directions whose return difference has the same sign on both, the same starts
+    same_sign: float
+    # mean return of the policies tried from the first starts, on MuJoCo and on the emulator: the
+    # reward at each super-step times its control steps (``policies_returns``), not the task's
+    # return over every control step (``run_on_mujoco``)
+    return_mujoco: float
+    return_emulator: float
     directions: int
     episodes: int
     noise: float  # ν
     mujoco_steps: int  # physical steps the measurement took
 
 
-def cosine(a: Tensor, b: Tensor) -> float:
-    """The cosine of two (D,) vectors; nan when either is zero (no direction to agree with)."""
+def cosine(step: Tensor, reference: Tensor) -> float:
+    """The cosine of a (D,) step with a reference one, in double precision: nan where the reference
+    is zero (every policy tried earned the same: no step to agree with), 0 where only the step is."""
+    a, b = step.double(), reference.double()
     na, nb = float(torch.linalg.vector_norm(a)), float(torch.linalg.vector_norm(b))
-    return float(a @ b) / (na * nb) if na > 0 and nb > 0 else math.nan
+    if nb == 0:
+        return math.nan
+    return max(-1.0, min(1.0, float(a @ b) / (na * nb))) if na > 0 else 0.0
 
 
 def step_agreement(
@@ -68,9 +83,13 @@ def step_agreement(
     noise: float = RandomSearch.noise,
 ) -> StepAgreement | None:
     """The agreement of the emulator's super-step ``emulator`` ((B, S), (B, U) → (B, S)) with MuJoCo's
-    at ``policy``, over whole episodes of ``task`` from 2·``episodes`` of its starts drawn with
-    ``seed`` (the first half for both, the second for the ceiling); None for a policy whose network
-    is not a stack of layers, or that chooses among candidates (value iteration's copy)."""
+    at ``policy``, over whole episodes of ``task`` from two batches of ``episodes`` of its starts
+    drawn with ``seed``, each run on both; None for a policy whose network is not a stack of layers,
+    or that chooses among candidates (value iteration's copy)."""
+    if directions < 1 or episodes < 1:
+        raise ValueError(
+            f"the step agreement takes at least a direction and a start, not {directions} and {episodes}"
+        )
     net = policy.net
     if isinstance(policy, ChoicePolicy) or not isinstance(net, nn.Sequential):
         return None
@@ -79,7 +98,14 @@ def step_agreement(
     tried = torch.cat([theta + noise * deltas, theta - noise * deltas])
     drawn = draw_starts(task, physical, np.random.default_rng(seed), 2 * episodes)
     starts, params = (torch.as_tensor(x, dtype=torch.float32) for x in drawn)
-    mujoco = held_on_mujoco(physical, substeps)
+    held = held_on_mujoco(physical, substeps)
+    counted = 0
+
+    def mujoco(s: Tensor, u: Tensor) -> Tensor:
+        nonlocal counted
+        counted += len(s) * substeps
+        return held(s, u)
+
     unbounded = (torch.full_like(starts[0], -math.inf), torch.full_like(starts[0], math.inf))
 
     def returns(step: Callable[[Tensor, Tensor], Tensor], rows: slice) -> Tensor:
@@ -88,26 +114,26 @@ def step_agreement(
             lambda s, u, p: task.reward(ctx, s, u, p, False), task.repeat, unbounded,
         )[0]  # fmt: skip
 
-    first, second = slice(0, episodes), slice(episodes, 2 * episodes)
-    on_mujoco, on_emulator, elsewhere = (
-        returns(mujoco, first),
-        returns(emulator, first),
-        returns(mujoco, second),
-    )
-
     def ars_step(got: Tensor) -> tuple[Tensor, Tensor]:
+        """(N,) return differences of each direction's two sides and the (D,) step they make."""
         diff = got[:directions] - got[directions:]
         return diff, (diff.unsqueeze(1) * deltas).sum(dim=0)
 
+    first, other = slice(0, episodes), slice(episodes, 2 * episodes)
+    on_mujoco, on_emulator = returns(mujoco, first), returns(emulator, first)
     (d_mujoco, mujoco_step), (d_emulator, emulator_step) = ars_step(on_mujoco), ars_step(on_emulator)
+    mujoco_other, emulator_other = ars_step(returns(mujoco, other))[1], ars_step(returns(emulator, other))[1]
     return StepAgreement(
         cosine=cosine(emulator_step, mujoco_step),
-        ceiling=cosine(ars_step(elsewhere)[1], mujoco_step),
-        same_sign=float((d_mujoco * d_emulator > 0).float().mean()),
+        cosine_across_starts=cosine(emulator_other, mujoco_step),
+        mujoco_across_starts=cosine(mujoco_other, mujoco_step),
+        same_sign=float((torch.sign(d_mujoco) == torch.sign(d_emulator)).double().mean())
+        if bool(d_mujoco.any())
+        else math.nan,
         return_mujoco=float(on_mujoco.mean()),
         return_emulator=float(on_emulator.mean()),
         directions=directions,
         episodes=episodes,
         noise=noise,
-        mujoco_steps=2 * len(tried) * episodes * task.policy_steps * substeps,
+        mujoco_steps=counted,
     )

@@ -70,6 +70,10 @@ class SourceError(ModelError):
         super().__init__(message)
         self.kind: SourceProblem = kind
 
+    def __reduce__(self) -> tuple[type[SourceError], tuple[SourceProblem, str]]:
+        # raised in a worker process (a seed, a compile), it reaches the parent whole
+        return type(self), (self.kind, str(self))
+
 
 @dataclass(frozen=True)
 class Limits:

@@ -48,6 +48,10 @@ class MirrorError(ModelError):
 
     def __init__(self, why: str) -> None:
         super().__init__(f"the model is not left-right symmetric, so it has no mirror images: {why}")
+        self.why = why
+
+    def __reduce__(self) -> tuple[type[MirrorError], tuple[str]]:
+        return type(self), (self.why,)
 
 
 def partner_name(name: str) -> str:

@@ -56,7 +56,7 @@ from neuroanimator.control.reward_policy import (
     run_on_mujoco,
 )
 from neuroanimator.control.seed_race import cores_used, thread_count, train_reward_policy
-from neuroanimator.control.step_agreement import step_agreement
+from neuroanimator.control.step_agreement import cosine, step_agreement
 from neuroanimator.control.suite_tasks import SUITE_TASKS
 from neuroanimator.control.value_iteration import ValueFitter, ValueIteration, candidate_controls
 from neuroanimator.export.runtime import OnnxEmulator
@@ -940,6 +940,7 @@ def test_bench_policies_runs_a_suite_task(artifacts: Path) -> None:
     assert (agreement["directions"], agreement["episodes"]) == (4, 1)
     assert agreement["mujoco_steps"] == 2 * 8 * TASK.policy_steps * TASK.substeps
     assert agreement["cosine"] is None or -1.0 <= agreement["cosine"] <= 1.0
+    assert agreement["mujoco_across_starts"] is None or -1.0 <= agreement["mujoco_across_starts"] <= 1.0
     assert any(line.startswith("| point_mass-easy |") for line in lines)
 
 
@@ -1297,10 +1298,12 @@ def test_the_planner_bench_reports_the_planner_on_the_held_out_episodes(artifact
 
 def test_step_agreement_compares_the_emulators_step_with_mujocos_at_a_policy(artifacts: Path) -> None:
     """``step_agreement``: ARS's step at a policy from the emulator's returns against MuJoCo's, from the
-    same starts; MuJoCo in the emulator's place agrees with itself exactly, the emulator less."""
+    same starts and across two batches; MuJoCo in the emulator's place agrees with itself exactly
+    from the same starts, less across them, and the emulator less than that from the same ones."""
     path = registry.resolve(artifacts, "point_mass", substeps=TASK.substeps)
     trainer = RewardTrainer(TASK, path, QUICK)
-    set_weights(trainer.policy.net, 0.3 * torch.randn(flat_weights(trainer.policy.net).numel()))
+    size = flat_weights(trainer.policy.net).numel()
+    set_weights(trainer.policy.net, 0.3 * torch.randn(size, generator=torch.Generator().manual_seed(2)))
     near = replace(TASK, reward=lambda ctx, s, u, p, smooth: torch.exp(-(s[:, :2] ** 2).sum(dim=1) / 0.02))
     args = (near, trainer.physical, trainer.ctx, TASK.substeps)
     ours = step_agreement(
@@ -1309,11 +1312,13 @@ def test_step_agreement_compares_the_emulators_step_with_mujocos_at_a_policy(art
     itself = step_agreement(*args, held_on_mujoco(trainer.physical, TASK.substeps), trainer.policy, 3,
                             directions=8, episodes=2, noise=0.1)  # fmt: skip
     assert ours is not None and itself is not None
-    assert math.isclose(itself.cosine, 1.0, rel_tol=1e-6) and itself.same_sign == 1.0
+    assert math.isclose(itself.cosine, 1.0, rel_tol=1e-9) and itself.same_sign == 1.0
+    assert itself.cosine_across_starts == itself.mujoco_across_starts < 1.0 - 1e-6  # other starts, other step
     assert itself.return_emulator == itself.return_mujoco == ours.return_mujoco > 0
-    assert -1.0 <= ours.cosine <= 1.0 and ours.cosine < 1.0 - 1e-6 and -1.0 <= ours.ceiling <= 1.0
-    assert ours.ceiling == itself.ceiling  # the ceiling is MuJoCo's alone
-    assert ours.mujoco_steps == 2 * 16 * 2 * TASK.policy_steps * TASK.substeps
+    assert -1.0 <= ours.cosine < 1.0 - 1e-6 and -1.0 <= ours.cosine_across_starts <= 1.0
+    assert ours.mujoco_across_starts == itself.mujoco_across_starts  # MuJoCo's alone
+    # MuJoCo's steps counted as they were taken: two batches of 16 policies from 2 starts each
+    assert ours.mujoco_steps == itself.mujoco_steps == 2 * 16 * 2 * TASK.policy_steps * TASK.substeps
     # the tried policies' returns are the policy's own where they barely differ from it
     tiny = step_agreement(
         *args, FastStep(trainer.emu), trainer.policy, 3, directions=2, episodes=2, noise=1e-7
@@ -1326,11 +1331,20 @@ def test_step_agreement_compares_the_emulators_step_with_mujocos_at_a_policy(art
     # where every tried policy earns the same, there is no step to agree with
     flat = replace(TASK, reward=lambda ctx, s, u, p, smooth: torch.ones(len(s)))
     none = step_agreement(flat, *args[1:], FastStep(trainer.emu), trainer.policy, 3, directions=2, episodes=1)
-    assert none is not None and math.isnan(none.cosine) and none.same_sign == 0.0
+    assert none is not None and math.isnan(none.cosine) and math.isnan(none.same_sign)
     # a policy choosing among candidates has no weights to perturb into a neighbour
     choice = ChoicePolicy(trainer.policy.features, candidate_controls(trainer.low, trainer.high, 3,
                           np.random.default_rng(0)), (8,))  # fmt: skip
     assert step_agreement(*args, FastStep(trainer.emu), choice, 3) is None
+    with pytest.raises(ValueError, match="at least a direction and a start"):
+        step_agreement(*args, FastStep(trainer.emu), trainer.policy, 3, episodes=0)
+
+
+def test_the_step_agreements_cosine_reads_a_step_that_is_missing_as_none_agreeing() -> None:
+    reference = torch.tensor([1.0, 0.0])
+    assert cosine(torch.tensor([2.0, 0.0]), reference) == 1.0 and cosine(-reference, reference) == -1.0
+    assert cosine(torch.zeros(2), reference) == 0.0  # the emulator's returns all the same: no agreement
+    assert math.isnan(cosine(reference, torch.zeros(2)))  # MuJoCo's all the same: nothing to agree with
 
 
 def test_random_search_tries_its_policies_through_the_emulator_and_keeps_the_best_on_mujoco(
